@@ -1,0 +1,129 @@
+//! The filtered, calibrated eye state that the rest of gazelight reads.
+
+use serde::{Deserialize, Serialize};
+
+/// Index of the right eye in per-eye arrays (Pupil Core's eye id 0).
+pub const EYE_RIGHT: usize = 0;
+/// Index of the left eye in per-eye arrays (Pupil Core's eye id 1).
+pub const EYE_LEFT: usize = 1;
+
+/// Where a pupil diameter in an [`EyeChannel`] came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PupilOrigin {
+    /// A valid, filtered, calibrated measurement.
+    Measured,
+    /// The tracker lost the pupil; the last good value is held.
+    Held,
+    /// The tracker lost the pupil for longer than the hold time; the value
+    /// eases towards a luminance-based pupil model.
+    Model,
+    /// Nothing has been measured yet; the value is the model's default.
+    #[default]
+    Default,
+}
+
+/// One eye's state.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EyeChannel {
+    /// Calibrated pupil diameter in millimetres; always finite and > 0.
+    pub pupil_mm: f32,
+    /// Where `pupil_mm` came from.
+    pub pupil_origin: PupilOrigin,
+    /// Confidence of the newest raw sample of this eye, 0..=1.
+    pub confidence: f32,
+    /// Host time (seconds, monotonic clock of the process) of the newest
+    /// valid sample of this eye; `None` if there has been none.
+    pub last_valid_t_secs: Option<f64>,
+}
+
+impl Default for EyeChannel {
+    fn default() -> Self {
+        Self {
+            // A typical photopic pupil; replaced as soon as anything is known.
+            pupil_mm: 4.0,
+            pupil_origin: PupilOrigin::Default,
+            confidence: 0.0,
+            last_valid_t_secs: None,
+        }
+    }
+}
+
+/// The latest filtered, calibrated state of both eyes.
+///
+/// Gaze is normalised to the display/scene image: `gaze_uv = [0, 0]` is the
+/// top-left corner, `[1, 1]` the bottom-right (note: Pupil's `norm_pos` has
+/// its origin at the bottom-left; sources convert).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EyeState {
+    /// Host time (seconds, monotonic clock of the process) this state
+    /// describes: the time of the newest sample that went into it.
+    pub t_secs: f64,
+    /// Fused gaze, normalised image coordinates (top-left origin).
+    pub gaze_uv: [f32; 2],
+    /// Whether `gaze_uv` comes from a valid recent gaze sample.
+    pub gaze_valid: bool,
+    /// Per eye, indexed by [`EYE_RIGHT`] / [`EYE_LEFT`].
+    pub eyes: [EyeChannel; 2],
+    /// Whether the eye is currently considered closed (blink).
+    pub blink: bool,
+}
+
+impl Default for EyeState {
+    fn default() -> Self {
+        Self {
+            t_secs: 0.0,
+            gaze_uv: [0.5, 0.5],
+            gaze_valid: false,
+            eyes: [EyeChannel::default(); 2],
+            blink: false,
+        }
+    }
+}
+
+impl EyeState {
+    /// Age of this state at host time `now_secs`, in seconds (never negative).
+    pub fn age_secs(&self, now_secs: f64) -> f64 {
+        (now_secs - self.t_secs).max(0.0)
+    }
+
+    /// The pupil diameter the vision pipeline should use: the mean of the
+    /// eyes with a measured (or held) pupil, else the mean of both.
+    pub fn pupil_mm(&self) -> f32 {
+        let (sum, count) = self
+            .eyes
+            .iter()
+            .filter(|e| matches!(e.pupil_origin, PupilOrigin::Measured | PupilOrigin::Held))
+            .fold((0.0f32, 0u32), |(s, n), e| (s + e.pupil_mm, n + 1));
+        if count == 0 {
+            (self.eyes[0].pupil_mm + self.eyes[1].pupil_mm) * 0.5
+        } else {
+            sum / count as f32
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn age_is_never_negative() {
+        let s = EyeState {
+            t_secs: 10.0,
+            ..Default::default()
+        };
+        assert_eq!(s.age_secs(9.0), 0.0);
+        assert!((s.age_secs(10.25) - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pupil_prefers_measured_eyes() {
+        let mut s = EyeState::default();
+        s.eyes[EYE_RIGHT].pupil_mm = 3.0;
+        s.eyes[EYE_RIGHT].pupil_origin = PupilOrigin::Measured;
+        s.eyes[EYE_LEFT].pupil_mm = 7.0;
+        s.eyes[EYE_LEFT].pupil_origin = PupilOrigin::Model;
+        assert_eq!(s.pupil_mm(), 3.0);
+    }
+}

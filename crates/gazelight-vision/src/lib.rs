@@ -1,0 +1,41 @@
+//! # gazelight-vision
+//!
+//! The perception model of gazelight on the CPU: the formulas of the seed
+//! papers as plain scalar functions (f64, tested against the seeds), the
+//! adaptation state carried between frames, the physics of the glare point
+//! spread function, HDR scene loading and a complete f32 reference frame
+//! pipeline that is both the no-GPU backend and the reference the GPU passes
+//! are compared against.
+//!
+//! Equation references such as `001 eq 14` name a seed file prefix in
+//! `shared/seeds/` and an equation number in it.
+//!
+//! | module | what | seeds |
+//! | --- | --- | --- |
+//! | [`image`] | linear RGB float images, luminance | 001 eq 1 |
+//! | [`tvi`] | threshold-vs-intensity functions | 000 eq 1–4, 8 |
+//! | [`pooling`] | adaptation luminance pooling around the gaze | 001 §4.1, 000 eq 5–6, 003 eq 1, 004 §3.1, 000 §3.2 |
+//! | [`temporal`] | temporal adaptation state updates | 001 eq 2–4, 000 eq 7–8, 003 eq 2–3 |
+//! | [`tone`] | tone reproduction operators | 000 eq 9–10, 003 eq 4–5, 004 §3.2–3.3 |
+//! | [`colour`] | scotopic colour shift, colour discrimination | 001 eq 14, 000 eq 11–12 |
+//! | [`acuity`] | acuity loss blur | 001 eq 11–13 |
+//! | [`psf`] | the glare point spread function | 001 §4.2, eq 5–10 |
+//! | [`glare`] | windowed FFT glare convolution at the gaze | 001 §4.2.3 |
+//! | [`scene`] | OpenEXR / Radiance loading, panorama views | 004 §3.3 |
+//! | [`pipeline`] | the full frame pipeline, stages 1–8 | all |
+
+pub mod acuity;
+pub mod colour;
+pub mod error;
+pub mod glare;
+pub mod image;
+pub mod pipeline;
+pub mod pooling;
+pub mod psf;
+pub mod scene;
+pub mod temporal;
+pub mod tone;
+pub mod tvi;
+
+pub use error::VisionError;
+pub use image::RgbImage;

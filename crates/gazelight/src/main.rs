@@ -1,0 +1,5 @@
+//! The gazelight CLI.
+
+fn main() -> anyhow::Result<()> {
+    Ok(())
+}

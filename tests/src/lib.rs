@@ -1,0 +1,1 @@
+//! End-to-end tests for gazelight live in `tests/tests/`; this library is empty.
