@@ -9,8 +9,12 @@
 //! calibrated state of both eyes, with its time and validity. Eye indices
 //! follow Pupil Core: index 0 is the right eye, index 1 the left eye.
 
+pub mod sample;
 pub mod state;
 pub mod trace;
 
+pub use sample::{
+    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
+};
 pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
 pub use trace::{GazeTrace, TraceError, TraceSample};
