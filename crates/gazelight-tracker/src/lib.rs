@@ -18,3 +18,4 @@ pub use sample::{
 };
 pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
 pub use trace::{GazeTrace, TraceError, TraceSample};
+pub mod import;
