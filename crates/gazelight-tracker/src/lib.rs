@@ -19,3 +19,6 @@ pub use sample::{
 pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
 pub use trace::{GazeTrace, TraceError, TraceSample};
 pub mod import;
+pub mod calibration;
+pub mod filter;
+pub mod pupil_model;

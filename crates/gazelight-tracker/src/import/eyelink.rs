@@ -181,7 +181,7 @@ impl<R: BufRead> AscImporter<R> {
             if !self.eyes[eye] {
                 continue;
             }
-            for c in 0..3 {
+            for slot in cols[eye].iter_mut() {
                 let Some(w) = f.next() else {
                     let msg = err(&format!(
                         "expected {} columns for {n_eyes} eye(s), found {}",
@@ -193,7 +193,7 @@ impl<R: BufRead> AscImporter<R> {
                     return;
                 };
                 seen += 1;
-                cols[eye][c] = if w == "." {
+                *slot = if w == "." {
                     f32::NAN
                 } else {
                     match w.parse::<f32>() {

@@ -303,9 +303,7 @@ impl BinStream {
                 self.offset = 0;
             }
             let (raw_path, time_path) = &self.parts[self.part];
-            let Some((raw, time)) = self.readers.as_mut() else {
-                return None;
-            };
+            let (raw, time) = self.readers.as_mut()?;
             let raw_n = read_full(raw, &mut self.buf);
             let mut tb = [0u8; 8];
             let time_n = read_full(time, &mut tb);

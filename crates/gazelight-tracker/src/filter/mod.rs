@@ -1,0 +1,583 @@
+//! The filter chain: raw samples in, [`EyeState`] out.
+//!
+//! Per pupil sample of eye `e`:
+//!
+//! 1. **blink** ([`blink`]): the sample is *closed* when it fails the
+//!    confidence gate or its raw diameter is ≤ 0 / NaN — units-agnostic, so
+//!    blinks are found before (and without) calibration;
+//! 2. **confidence** ([`confidence`]): gate at 0.6 (Pupil's threshold);
+//! 3. **calibration** ([`crate::calibration::PupilCalibration`]): raw units
+//!    → mm for this eye (identity for sources already in mm);
+//! 4. **physiology** ([`physio`]): reject ≤ 0, NaN, outside 1.5–9 mm, or
+//!    changing faster than 6 mm/s (+ noise tolerance);
+//! 5. **dropout** ([`dropout`]): hold the last good pupil for 0.5 s, then
+//!    ease towards the Watson–Yellott pupil ([`crate::pupil_model`]) at the
+//!    adaptation luminance fed back with
+//!    [`FilterChain::set_adaptation_luminance`];
+//! 6. **slew limit** ([`physio::SlewLimiter`]): the output never changes
+//!    faster than `physio.max_rate_mm_per_s`;
+//! 7. **binocular pairing** ([`binocular`]): a partner eye silent for longer
+//!    than the pair window is advanced as missing.
+//!
+//! Gaze samples go through outlier rejection and One Euro smoothing
+//! ([`gaze`]). Blink events from the source are counted, not trusted.
+//!
+//! The failure of 001 §7.1 (a tracker returning 0 made the glare flicker)
+//! cannot happen: every pupil the chain outputs comes out of the slew
+//! limiter, whose input is either a value that passed the range check or
+//! the model's pupil (finite, 1–9 mm), and which starts at the model's
+//! pupil. The property tests feed random garbage to prove it.
+//!
+//! No stage allocates on the heap per sample: all state is fixed-size.
+
+pub mod binocular;
+pub mod blink;
+pub mod confidence;
+pub mod dropout;
+pub mod gaze;
+pub mod physio;
+
+use serde::{Deserialize, Serialize};
+
+use crate::calibration::PupilCalibration;
+use crate::pupil_model::PupilModel;
+use crate::sample::{PupilSample, Sample};
+use crate::state::{EyeState, PupilOrigin};
+
+pub use binocular::{BinocularConfig, BinocularPairing};
+pub use blink::{BlinkConfig, BlinkDetector, Closure, ClosureKind};
+pub use confidence::ConfidenceGate;
+pub use dropout::{DropoutConfig, DropoutFill};
+pub use gaze::{GazeConfig, GazeFilter, OneEuro, OneEuroConfig};
+pub use physio::{PhysioConfig, PhysioGate, Reject, SlewLimiter};
+
+/// Default adaptation luminance before the service feeds one back, cd/m²
+/// (a dim interior; the model pupil there is ≈ 4.3 mm).
+pub const DEFAULT_ADAPTATION_LUMINANCE_CD_M2: f64 = 10.0;
+
+/// Configuration of the whole chain. Every field has a documented default;
+/// unknown keys are rejected (`deny_unknown_fields`), so a typo in a config
+/// file is an error, not a silently ignored setting.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FilterConfig {
+    pub confidence: ConfidenceGate,
+    pub physio: PhysioConfig,
+    pub blink: BlinkConfig,
+    pub dropout: DropoutConfig,
+    pub gaze: GazeConfig,
+    pub binocular: BinocularConfig,
+    /// Pupil model for the dropout fallback.
+    pub pupil_model: PupilModel,
+}
+
+impl FilterConfig {
+    /// Checks every stage; the error names the offending field.
+    pub fn validate(&self) -> Result<(), String> {
+        self.confidence.validate()?;
+        self.physio.validate()?;
+        self.blink.validate()?;
+        self.dropout.validate()?;
+        self.gaze.validate()?;
+        self.binocular.validate()?;
+        self.pupil_model
+            .validate()
+            .map_err(|e| format!("pupil_model.{e}"))?;
+        if self.dropout.ease_rate_mm_per_s > self.physio.max_rate_mm_per_s {
+            return Err(format!(
+                "dropout.ease_rate_mm_per_s ({}) must not exceed physio.max_rate_mm_per_s ({})",
+                self.dropout.ease_rate_mm_per_s, self.physio.max_rate_mm_per_s
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Counters of what the chain saw and did, per eye where it matters
+/// (index 0 = right, 1 = left).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ChainStats {
+    pub pupil_samples: [u64; 2],
+    /// Samples accepted as measurements.
+    pub measured: [u64; 2],
+    pub rejected_confidence: [u64; 2],
+    pub rejected_not_finite: [u64; 2],
+    pub rejected_non_positive: [u64; 2],
+    pub rejected_range: [u64; 2],
+    pub rejected_rate: [u64; 2],
+    /// Samples in raw units with no calibration for them.
+    pub uncalibrated: [u64; 2],
+    /// Samples with an eye id other than 0/1, or a non-finite time.
+    pub rejected_bad_sample: u64,
+    /// Blinks found by the chain's detector.
+    pub blinks: [u64; 2],
+    /// Closures too short or too long to be blinks.
+    pub dropouts: [u64; 2],
+    /// Blink events reported by the source: right, left, both eyes.
+    pub source_blinks: [u64; 3],
+    pub gaze_samples: u64,
+    pub gaze_rejected: u64,
+    /// Output pupils that were 0, negative or not finite (must stay 0).
+    pub invalid_output: u64,
+}
+
+/// What one [`FilterChain::push`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChainUpdate {
+    /// The state after the sample.
+    pub state: EyeState,
+    /// The eye whose pupil this sample updated, if it was a pupil sample.
+    pub pupil_eye: Option<u8>,
+    /// For a pupil sample: whether it was accepted as a measurement.
+    pub measured: bool,
+    /// A closure of this eye that has just been finalised.
+    pub closure: Option<Closure>,
+}
+
+/// The configured chain with its per-eye state.
+#[derive(Clone, Debug)]
+pub struct FilterChain {
+    cfg: FilterConfig,
+    calibration: PupilCalibration,
+    physio: [PhysioGate; 2],
+    blink: [BlinkDetector; 2],
+    dropout: [DropoutFill; 2],
+    slew: [SlewLimiter; 2],
+    /// Per eye: the dropout stage's latest value (the slew limiter's target)
+    /// and its origin.
+    target: [(f32, PupilOrigin); 2],
+    gaze: GazeFilter,
+    last_gaze_t: Option<f64>,
+    pairing: BinocularPairing,
+    luminance_cd_m2: f64,
+    state: EyeState,
+    stats: ChainStats,
+}
+
+impl FilterChain {
+    /// Builds a chain; the configuration is validated.
+    pub fn new(cfg: FilterConfig, calibration: PupilCalibration) -> Result<Self, String> {
+        cfg.validate()?;
+        let model_mm = cfg.pupil_model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
+        let mut state = EyeState::default();
+        for e in &mut state.eyes {
+            e.pupil_mm = model_mm;
+        }
+        Ok(Self {
+            cfg,
+            calibration,
+            physio: [PhysioGate::new(cfg.physio); 2],
+            blink: [
+                BlinkDetector::new(cfg.blink, 0),
+                BlinkDetector::new(cfg.blink, 1),
+            ],
+            dropout: [DropoutFill::new(cfg.dropout, model_mm); 2],
+            slew: [SlewLimiter::new(cfg.physio.max_rate_mm_per_s, model_mm); 2],
+            target: [(model_mm, PupilOrigin::Default); 2],
+            gaze: GazeFilter::new(cfg.gaze),
+            last_gaze_t: None,
+            pairing: BinocularPairing::new(cfg.binocular),
+            luminance_cd_m2: DEFAULT_ADAPTATION_LUMINANCE_CD_M2,
+            state,
+            stats: ChainStats::default(),
+        })
+    }
+
+    /// A chain with the default configuration and no calibration (sources
+    /// in mm only).
+    pub fn with_defaults() -> Self {
+        Self {
+            ..Self::new(FilterConfig::default(), PupilCalibration::identity())
+                .unwrap_or_else(|_| unreachable!("the default configuration is valid"))
+        }
+    }
+
+    /// The adaptation luminance (cd/m²) the vision pipeline currently uses;
+    /// the dropout fallback eases towards the model pupil at it.
+    pub fn set_adaptation_luminance(&mut self, luminance_cd_m2: f64) {
+        if luminance_cd_m2.is_finite() && luminance_cd_m2 >= 0.0 {
+            self.luminance_cd_m2 = luminance_cd_m2;
+        }
+    }
+
+    /// Replaces the calibration (e.g. after a calibration run).
+    pub fn set_calibration(&mut self, calibration: PupilCalibration) {
+        self.calibration = calibration;
+        for g in &mut self.physio {
+            g.reset();
+        }
+    }
+
+    pub fn config(&self) -> &FilterConfig {
+        &self.cfg
+    }
+    pub fn state(&self) -> &EyeState {
+        &self.state
+    }
+    pub fn stats(&self) -> &ChainStats {
+        &self.stats
+    }
+
+    /// Feeds one sample.
+    pub fn push(&mut self, sample: &Sample) -> ChainUpdate {
+        let mut up = ChainUpdate {
+            state: self.state,
+            pupil_eye: None,
+            measured: false,
+            closure: None,
+        };
+        match sample {
+            Sample::Pupil(p) => self.push_pupil(p, &mut up),
+            Sample::Gaze(g) => {
+                self.stats.gaze_samples += 1;
+                if g.t_secs.is_finite() {
+                    match self.gaze.update(g.t_secs, g.gaze_uv, g.confidence) {
+                        Some(uv) => {
+                            self.state.gaze_uv = uv;
+                            self.state.gaze_valid = true;
+                            self.last_gaze_t = Some(g.t_secs);
+                        }
+                        None => {
+                            self.stats.gaze_rejected += 1;
+                            if self
+                                .last_gaze_t
+                                .is_none_or(|t0| g.t_secs - t0 > self.cfg.gaze.reset_after_s)
+                            {
+                                self.state.gaze_valid = false;
+                            }
+                        }
+                    }
+                    self.state.t_secs = self.state.t_secs.max(g.t_secs);
+                } else {
+                    self.stats.gaze_rejected += 1;
+                }
+            }
+            Sample::Blink(b) => {
+                let idx = match b.eye {
+                    Some(0) => 0,
+                    Some(1) => 1,
+                    _ => 2,
+                };
+                self.stats.source_blinks[idx] += 1;
+            }
+        }
+        self.advance_outputs();
+        up.state = self.state;
+        up
+    }
+
+    /// Steps every eye that has reported towards its target at the chain
+    /// clock (`state.t_secs`, monotone), so each output pupil changes by at
+    /// most `max_rate · Δt` between any two consecutive states.
+    fn advance_outputs(&mut self) {
+        let now = self.state.t_secs;
+        let model_mm = self.cfg.pupil_model.pupil_mm(self.luminance_cd_m2);
+        for e in 0..2 {
+            if !self.pairing.has_reported(e) {
+                continue;
+            }
+            let (target, origin) = self.target[e];
+            let mut out = self.slew[e].step(now, target);
+            if !(out.is_finite() && out > 0.0) {
+                // Unreachable by construction; counted and replaced so that
+                // nothing downstream can ever see it.
+                self.stats.invalid_output += 1;
+                out = model_mm;
+            }
+            self.state.eyes[e].pupil_mm = out;
+            self.state.eyes[e].pupil_origin = origin;
+        }
+    }
+
+    /// Ends the stream: finalises pending closures at `t_secs`.
+    pub fn finish(&mut self, t_secs: f64) -> [Option<Closure>; 2] {
+        let mut out = [None; 2];
+        for (e, o) in out.iter_mut().enumerate() {
+            if let Some(c) = self.blink[e].flush(t_secs) {
+                self.count_closure(&c);
+                *o = Some(c);
+            }
+        }
+        out
+    }
+
+    fn count_closure(&mut self, c: &Closure) {
+        let e = c.eye as usize & 1;
+        match c.kind {
+            ClosureKind::Blink => self.stats.blinks[e] += 1,
+            ClosureKind::Dropout => self.stats.dropouts[e] += 1,
+        }
+    }
+
+    fn push_pupil(&mut self, p: &PupilSample, up: &mut ChainUpdate) {
+        if p.eye > 1 || !p.t_secs.is_finite() {
+            self.stats.rejected_bad_sample += 1;
+            return;
+        }
+        let e = p.eye as usize;
+        let t = p.t_secs;
+        self.stats.pupil_samples[e] += 1;
+        up.pupil_eye = Some(p.eye);
+
+        let raw_ok = p.diameter_raw.is_finite() && p.diameter_raw > 0.0;
+        let conf_ok = self.cfg.confidence.accept(p.confidence);
+        if let Some(c) = self.blink[e].update(t, !(raw_ok && conf_ok)) {
+            self.count_closure(&c);
+            up.closure = Some(c);
+        }
+
+        let measured = if !conf_ok {
+            self.stats.rejected_confidence[e] += 1;
+            None
+        } else {
+            match self.calibration.to_mm(p) {
+                None => {
+                    self.stats.uncalibrated[e] += 1;
+                    None
+                }
+                Some(mm) => match self.physio[e].check(t, mm) {
+                    Ok(mm) => Some(mm),
+                    Err(r) => {
+                        let c = match r {
+                            Reject::NotFinite => &mut self.stats.rejected_not_finite,
+                            Reject::NonPositive => &mut self.stats.rejected_non_positive,
+                            Reject::OutOfRange => &mut self.stats.rejected_range,
+                            Reject::TooFast => &mut self.stats.rejected_rate,
+                        };
+                        c[e] += 1;
+                        None
+                    }
+                },
+            }
+        };
+        if measured.is_some() {
+            self.stats.measured[e] += 1;
+            up.measured = true;
+        }
+        let model_mm = self.cfg.pupil_model.pupil_mm(self.luminance_cd_m2);
+        self.advance_eye(e, t, measured, model_mm, p.confidence);
+
+        if let Some(partner) = self.pairing.observe(e, t) {
+            let conf = self.state.eyes[partner].confidence;
+            self.advance_eye(partner, t, None, model_mm, conf);
+        }
+        let reporting = [self.pairing.has_reported(0), self.pairing.has_reported(1)];
+        self.state.blink = (0..2)
+            .filter(|&i| reporting[i])
+            .all(|i| self.blink[i].is_closed());
+        self.state.t_secs = self.state.t_secs.max(t);
+    }
+
+    /// Runs the dropout stage of eye `e` at time `t`; the output is stepped
+    /// by [`Self::advance_outputs`].
+    fn advance_eye(
+        &mut self,
+        e: usize,
+        t: f64,
+        measured: Option<f32>,
+        model_mm: f32,
+        confidence: f32,
+    ) {
+        self.target[e] = self.dropout[e].update(t, measured, model_mm);
+        let ch = &mut self.state.eyes[e];
+        ch.confidence = if confidence.is_finite() {
+            confidence.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        ch.last_valid_t_secs = self.dropout[e].last_good_t_secs();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sample::{DetectorMethod, GazeEyes, GazeSample, PupilUnit};
+
+    /// xorshift64* — deterministic garbage.
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        }
+        fn f32(&mut self) -> f32 {
+            (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        }
+        fn garbage_f32(&mut self) -> f32 {
+            match self.next() % 8 {
+                0 => f32::NAN,
+                1 => 0.0,
+                2 => -self.f32() * 10.0,
+                3 => f32::INFINITY,
+                4 => self.f32() * 1000.0,
+                5 => f32::from_bits(self.next() as u32),
+                _ => 2.0 + self.f32() * 6.0,
+            }
+        }
+    }
+
+    fn pupil(t: f64, eye: u8, d: f32, conf: f32) -> Sample {
+        Sample::Pupil(PupilSample {
+            t_secs: t,
+            eye,
+            diameter_raw: d,
+            unit: PupilUnit::Mm,
+            diameter_mm: None,
+            confidence: conf,
+            norm_pos: [0.5, 0.5],
+            method: DetectorMethod::Other,
+        })
+    }
+
+    #[test]
+    fn random_garbage_never_yields_a_zero_nan_or_fast_pupil() {
+        for seed in 1..=20u64 {
+            let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let mut chain = FilterChain::with_defaults();
+            let max_rate = chain.config().physio.max_rate_mm_per_s;
+            let mut prev: [Option<(f64, f32)>; 2] = [None; 2];
+            let mut t = 0.0f64;
+            for _ in 0..20_000 {
+                // Mostly forward time, sometimes jumps back or stalls.
+                t += match rng.next() % 10 {
+                    0 => -0.01,
+                    1 => 0.0,
+                    2 => 0.5,
+                    _ => 0.004,
+                };
+                let eye = (rng.next() % 3) as u8; // eye 2 is garbage too
+                let s = match rng.next() % 6 {
+                    0 => Sample::Gaze(GazeSample {
+                        t_secs: t,
+                        gaze_uv: [rng.garbage_f32(), rng.garbage_f32()],
+                        confidence: rng.garbage_f32(),
+                        eyes: GazeEyes::Binocular,
+                    }),
+                    1 => {
+                        if rng.next().is_multiple_of(4) {
+                            chain.set_adaptation_luminance(rng.garbage_f32() as f64 * 1e4);
+                        }
+                        pupil(f64::NAN, eye, rng.garbage_f32(), rng.f32())
+                    }
+                    _ => pupil(t, eye, rng.garbage_f32(), rng.garbage_f32()),
+                };
+                let up = chain.push(&s);
+                for (e, ch) in up.state.eyes.iter().enumerate() {
+                    assert!(ch.pupil_mm.is_finite() && ch.pupil_mm > 0.0, "{ch:?}");
+                    assert!(ch.pupil_mm >= 1.0 && ch.pupil_mm <= 9.0, "{ch:?}");
+                    if let Some((t0, p0)) = prev[e] {
+                        let dt = (up.state.t_secs - t0).max(0.0) as f32;
+                        assert!(
+                            (ch.pupil_mm - p0).abs() <= max_rate * dt + 1e-4,
+                            "seed {seed}: eye {e} moved {p0} → {} in {dt} s",
+                            ch.pupil_mm
+                        );
+                    }
+                    prev[e] = Some((up.state.t_secs, ch.pupil_mm));
+                }
+                assert!(up.state.gaze_uv.iter().all(|v| v.is_finite()));
+            }
+            assert_eq!(chain.stats().invalid_output, 0);
+        }
+    }
+
+    #[test]
+    fn a_blink_holds_the_pupil_and_is_counted_once() {
+        let mut chain = FilterChain::with_defaults();
+        let mut t = 0.0;
+        let mut step = |chain: &mut FilterChain, d: f32, c: f32| {
+            let up = chain.push(&pupil(t, 0, d, c));
+            t += 0.005;
+            up
+        };
+        for _ in 0..400 {
+            step(&mut chain, 5.0, 0.95);
+        }
+        let before = chain.state().eyes[0].pupil_mm;
+        assert!(
+            (before - 5.0).abs() < 1e-3,
+            "converged to the measurement: {before}"
+        );
+        // Pupil-style blink: zeros with stray confident frames.
+        for i in 0..40 {
+            let up = if i % 13 == 5 {
+                step(&mut chain, 5.0, 0.9)
+            } else {
+                step(&mut chain, 0.0, 0.0)
+            };
+            assert!((up.state.eyes[0].pupil_mm - 5.0).abs() < 1e-3);
+        }
+        for _ in 0..40 {
+            step(&mut chain, 5.0, 0.95);
+        }
+        assert_eq!(chain.stats().blinks[0], 1);
+        assert_eq!(chain.stats().dropouts[0], 0);
+    }
+
+    #[test]
+    fn a_long_dropout_eases_to_the_model_pupil() {
+        let mut chain = FilterChain::with_defaults();
+        chain.set_adaptation_luminance(1000.0);
+        let target = chain.config().pupil_model.pupil_mm(1000.0);
+        for i in 0..200 {
+            chain.push(&pupil(i as f64 * 0.005, 0, 7.0, 1.0));
+        }
+        let mut t = 1.0;
+        let mut origins = Vec::new();
+        while t < 20.0 {
+            let up = chain.push(&pupil(t, 0, 0.0, 0.0));
+            origins.push(up.state.eyes[0].pupil_origin);
+            t += 0.01;
+        }
+        assert_eq!(origins[0], PupilOrigin::Held);
+        assert_eq!(*origins.last().unwrap(), PupilOrigin::Model);
+        assert!((chain.state().eyes[0].pupil_mm - target).abs() < 1e-3);
+        assert_eq!(
+            chain.stats().dropouts[0] + chain.stats().blinks[0],
+            0,
+            "still open"
+        );
+    }
+
+    #[test]
+    fn silent_partner_eye_falls_back_while_the_other_reports() {
+        let mut chain = FilterChain::with_defaults();
+        for i in 0..100 {
+            let t = i as f64 * 0.005;
+            chain.push(&pupil(t, 0, 4.0, 1.0));
+            chain.push(&pupil(t + 0.001, 1, 4.4, 1.0));
+        }
+        for i in 100..400 {
+            chain.push(&pupil(i as f64 * 0.005, 0, 4.0, 1.0));
+        }
+        let s = chain.state();
+        assert_eq!(s.eyes[1].pupil_origin, PupilOrigin::Model);
+        assert_eq!(s.eyes[0].pupil_origin, PupilOrigin::Measured);
+        assert!(
+            (s.pupil_mm() - 4.0).abs() < 1e-3,
+            "fused = measured eye only"
+        );
+    }
+
+    #[test]
+    fn config_roundtrips_and_validation_names_fields() {
+        let cfg = FilterConfig::default();
+        let json = serde_json::to_string(&cfg).unwrap();
+        let back: FilterConfig = serde_json::from_str(&json).unwrap();
+        assert_eq!(cfg, back);
+        let partial: FilterConfig =
+            serde_json::from_str(r#"{"confidence": {"min_confidence": 0.8}}"#).unwrap();
+        assert_eq!(partial.confidence.min_confidence, 0.8);
+        assert_eq!(partial.physio, PhysioConfig::default());
+        assert!(serde_json::from_str::<FilterConfig>(r#"{"confidense": {}}"#).is_err());
+        let mut bad = cfg;
+        bad.physio.max_pupil_mm = 1.0;
+        assert!(bad.validate().unwrap_err().contains("physio.max_pupil_mm"));
+        let mut bad = cfg;
+        bad.dropout.ease_rate_mm_per_s = 10.0;
+        assert!(bad.validate().unwrap_err().contains("ease_rate"));
+    }
+}
