@@ -1,0 +1,203 @@
+#!/usr/bin/env python3
+"""A Pupil-Capture-like peer for gazelight's interop test (pyzmq + msgpack).
+
+It speaks the parts of the Pupil Core Network API that gazelight uses:
+
+* Pupil Remote (REP, --remote-port): `SUB_PORT`, `PUB_PORT`, `t` (Pupil
+  time as text), `v` (version); a two-frame request [topic, msgpack] is a
+  notification: it is recorded, published on the bus and answered
+  "Message forwarded.". `T` is refused (the test asserts the client never
+  sends it). Test-only commands: `peer.notifications` (JSON list of the
+  notifications received), `peer.counts` (JSON: commands seen, datums
+  published).
+* The bus (PUB, --sub-port): 2D and 3D pupil datums for both eyes,
+  binocular gaze (`gaze.3d.01.`) and, every fifth cycle, monocular gaze
+  (`gaze.3d.0.`, the right eye alone, as Pupil does when the left eye's
+  confidence is below 0.6), at --rate Hz; plus, every tenth cycle, one
+  datum with an unknown topic (`pupil.0.custom`) and one truncated msgpack
+  frame, which a client must count and survive.
+
+Pupil time is the host's wall clock plus --offset seconds
+(pupil_time = time.time() + offset), so a client can check its clock
+offset estimate against a known value.
+
+On start it prints one line, `READY remote=<port> sub=<port> pub=<port>`,
+and flushes. Ports given as 0 are chosen free. It exits by itself after
+--timeout seconds; all loops are bounded by that deadline.
+"""
+
+import argparse
+import json
+import sys
+import time
+
+import msgpack
+import zmq
+
+VERSION = "3.5.7-gazelight-peer"
+
+# The values the peer publishes; the interop test checks the same numbers.
+PUPIL_2D = {
+    0: {"diameter": 31.5, "confidence": 0.91, "norm_pos": [0.41, 0.52]},
+    1: {"diameter": 36.25, "confidence": 0.87, "norm_pos": [0.58, 0.49]},
+}
+PUPIL_3D = {
+    0: {"diameter_3d": 3.75, "model_confidence": 0.95, "theta": 1.62, "phi": -1.51},
+    1: {"diameter_3d": 4.25, "model_confidence": 0.93, "theta": 1.55, "phi": -1.63},
+}
+GAZE_BINOCULAR = {"norm_pos": [0.3, 0.8], "confidence": 0.89}
+GAZE_MONOCULAR = {"norm_pos": [0.6, 0.1], "confidence": 0.55}
+
+
+def pupil_time(offset):
+    return time.time() + offset
+
+
+def pupil_2d(eye, ts):
+    v = PUPIL_2D[eye]
+    return {
+        "topic": "pupil.%d.2d" % eye,
+        "id": eye,
+        "method": "2d c++",
+        "timestamp": ts,
+        "confidence": v["confidence"],
+        "diameter": v["diameter"],
+        "norm_pos": v["norm_pos"],
+        "ellipse": {"center": [96.0, 90.5], "axes": [v["diameter"] * 0.92, v["diameter"]], "angle": 21.0},
+    }
+
+
+def pupil_3d(eye, ts):
+    d = pupil_2d(eye, ts)
+    v = PUPIL_3D[eye]
+    d.update(
+        {
+            "topic": "pupil.%d.3d" % eye,
+            "method": "pye3d 0.3.0 real-time",
+            "diameter_3d": v["diameter_3d"],
+            "model_confidence": v["model_confidence"],
+            "theta": v["theta"],
+            "phi": v["phi"],
+            "circle_3d": {"center": [1.5, -0.5, 31.0], "normal": [0.05, -0.1, -0.99], "radius": v["diameter_3d"] / 2},
+            "sphere": {"center": [1.0, 0.7, 41.0], "radius": 10.39},
+            "projected_sphere": {"center": [99.0, 94.0], "axes": [121.0, 121.0], "angle": 0.0},
+            "location": [96.0, 90.5],
+            "model_id": 1,
+        }
+    )
+    return d
+
+
+def gaze(topic, values, base, ts):
+    return {
+        "topic": topic,
+        "norm_pos": values["norm_pos"],
+        "confidence": values["confidence"],
+        "timestamp": ts,
+        "base_data": base,
+        "gaze_point_3d": [12.0, -40.0, 500.0],
+        "eye_centers_3d": {0: [20.0, 15.0, -20.0], 1: [-40.0, 15.0, -20.0]},
+        "gaze_normals_3d": {0: [0.0, 0.0, 1.0], 1: [0.1, 0.0, 1.0]},
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--remote-port", type=int, default=0)
+    ap.add_argument("--sub-port", type=int, default=0, help="bus port clients subscribe to (SUB_PORT)")
+    ap.add_argument("--pub-port", type=int, default=0, help="bus port clients publish to (PUB_PORT)")
+    ap.add_argument("--rate", type=float, default=200.0, help="pupil datums per eye per second")
+    ap.add_argument("--offset", type=float, default=1234.5, help="pupil time - wall clock, seconds")
+    ap.add_argument("--timeout", type=float, default=25.0, help="exit after this many seconds")
+    args = ap.parse_args()
+
+    ctx = zmq.Context.instance()
+    rep = ctx.socket(zmq.REP)
+    pub = ctx.socket(zmq.PUB)
+    sub_in = ctx.socket(zmq.SUB)  # what clients' PUB sockets would connect to
+    for s in (rep, pub, sub_in):
+        s.setsockopt(zmq.LINGER, 0)
+
+    def bind(sock, port):
+        if port == 0:
+            return sock.bind_to_random_port("tcp://127.0.0.1")
+        sock.bind("tcp://127.0.0.1:%d" % port)
+        return port
+
+    remote_port = bind(rep, args.remote_port)
+    sub_port = bind(pub, args.sub_port)
+    pub_port = bind(sub_in, args.pub_port)
+    print("READY remote=%d sub=%d pub=%d" % (remote_port, sub_port, pub_port), flush=True)
+
+    notifications = []
+    commands = {}
+    published = 0
+    deadline = time.monotonic() + args.timeout
+    period = 1.0 / args.rate
+    next_pub = time.monotonic()
+    cycle = 0
+    poller = zmq.Poller()
+    poller.register(rep, zmq.POLLIN)
+
+    def send(topic, datum):
+        nonlocal published
+        pub.send_multipart([topic.encode(), msgpack.packb(datum, use_bin_type=True)])
+        published += 1
+
+    while time.monotonic() < deadline:
+        wait_ms = max(0.0, (next_pub - time.monotonic()) * 1000.0)
+        events = dict(poller.poll(timeout=min(wait_ms, 50.0)))
+        if rep in events:
+            frames = rep.recv_multipart()
+            if len(frames) == 1:
+                cmd = frames[0].decode("utf-8", "replace")
+                commands[cmd] = commands.get(cmd, 0) + 1
+                if cmd == "SUB_PORT":
+                    reply = str(sub_port)
+                elif cmd == "PUB_PORT":
+                    reply = str(pub_port)
+                elif cmd == "t":
+                    reply = repr(pupil_time(args.offset))
+                elif cmd == "v":
+                    reply = VERSION
+                elif cmd == "peer.notifications":
+                    reply = json.dumps(notifications)
+                elif cmd == "peer.counts":
+                    reply = json.dumps({"commands": commands, "published": published})
+                else:
+                    reply = "Unknown command."
+                rep.send_string(reply)
+            else:
+                topic = frames[0].decode("utf-8", "replace")
+                payload = msgpack.unpackb(frames[1], raw=False, strict_map_key=False)
+                notifications.append({"topic": topic, "payload": payload})
+                pub.send_multipart([frames[0], frames[1]])
+                rep.send_string("Message forwarded.")
+        now = time.monotonic()
+        if now >= next_pub:
+            ts = pupil_time(args.offset)
+            base = []
+            for eye in (0, 1):
+                send("pupil.%d.2d" % eye, pupil_2d(eye, ts))
+                d3 = pupil_3d(eye, ts)
+                send("pupil.%d.3d" % eye, d3)
+                base.append(d3)
+            send("gaze.3d.01.", gaze("gaze.3d.01.", GAZE_BINOCULAR, base, ts))
+            if cycle % 5 == 0:
+                send("gaze.3d.0.", gaze("gaze.3d.0.", GAZE_MONOCULAR, base[:1], ts))
+            if cycle % 10 == 0:
+                send("pupil.0.custom", {"timestamp": ts, "anything": 1})
+                full = msgpack.packb(pupil_2d(1, ts), use_bin_type=True)
+                pub.send_multipart([b"pupil.1.2d", full[: len(full) // 2]])
+            cycle += 1
+            next_pub += period
+            if next_pub < now - 1.0:
+                next_pub = now  # fell far behind: do not burst
+    for s in (rep, pub, sub_in):
+        s.close(0)
+    ctx.term()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
