@@ -641,7 +641,7 @@ pub fn parse_npy_f64(bytes: &[u8]) -> Result<Vec<f64>, String> {
         .get(start..start + header_len)
         .ok_or("header longer than the file")?;
     let header = std::str::from_utf8(header).map_err(|_| "header is not text")?;
-    if (start + header_len) % 16 != 0 {
+    if !(start + header_len).is_multiple_of(16) {
         return Err(format!(
             "data offset {} is not 16-aligned",
             start + header_len
@@ -782,7 +782,7 @@ mod tests {
         let mk = |dict: &str| {
             let mut h = b"\x93NUMPY\x01\x00".to_vec();
             let mut d = dict.to_owned();
-            while (10 + d.len() + 1) % 64 != 0 {
+            while !(10 + d.len() + 1).is_multiple_of(64) {
                 d.push(' ');
             }
             d.push('\n');

@@ -28,7 +28,6 @@
 pub mod clock;
 pub mod msg;
 
-use std::future::Future;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -717,15 +716,13 @@ impl PupilSource {
 }
 
 impl SampleSource for PupilSource {
-    fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send {
-        async {
-            match self.samples.recv().await {
-                Some(s) => Ok(Some(s)),
-                None => Err(SourceError::Fatal {
-                    source_name: self.describe(),
-                    reason: "client task stopped".to_owned(),
-                }),
-            }
+    async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+        match self.samples.recv().await {
+            Some(s) => Ok(Some(s)),
+            None => Err(SourceError::Fatal {
+                source_name: self.describe(),
+                reason: "client task stopped".to_owned(),
+            }),
         }
     }
 

@@ -1129,14 +1129,13 @@ mod tests {
         let mut g = gaze_value(&[0, 1], 5.0, [0.5, 0.5]);
         if let rmpv::Value::Map(entries) = &mut g {
             for (k, v) in entries.iter_mut() {
-                if k.as_str() == Some("base_data") {
-                    if let rmpv::Value::Array(a) = v {
-                        if let rmpv::Value::Map(inner) = &mut a[1] {
-                            for (ik, iv) in inner.iter_mut() {
-                                if ik.as_str() == Some("confidence") {
-                                    *iv = rmpv::Value::from("x");
-                                }
-                            }
+                if k.as_str() == Some("base_data")
+                    && let rmpv::Value::Array(a) = v
+                    && let rmpv::Value::Map(inner) = &mut a[1]
+                {
+                    for (ik, iv) in inner.iter_mut() {
+                        if ik.as_str() == Some("confidence") {
+                            *iv = rmpv::Value::from("x");
                         }
                     }
                 }
