@@ -26,7 +26,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::sample::{PupilSample, PupilUnit};
+use crate::filter::{BlinkConfig, BlinkDetector, ConfidenceGate};
+use crate::sample::{PupilSample, PupilUnit, Sample};
 
 /// The schema identifier profiles carry.
 pub const SCHEMA: &str = "gazelight.pupil-calibration/1";
@@ -242,16 +243,74 @@ impl PupilCalibration {
 
     /// Parses and validates profile text; `path` names it in errors.
     pub fn parse(text: &str, path: &Path) -> Result<Self, CalibrationError> {
-        let cal: Self = serde_json::from_str(text).map_err(|e| CalibrationError::Json {
+        let invalid = |field: String, reason: String| CalibrationError::Invalid {
+            path: path.to_owned(),
+            field,
+            reason,
+        };
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| CalibrationError::Json {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            })?;
+        // Field-by-field checks first, so that every error names its field
+        // (serde's own messages do not say which eye).
+        let Some(root) = value.as_object() else {
+            return Err(invalid("(root)".into(), "must be a JSON object".into()));
+        };
+        match root.get("schema").and_then(|v| v.as_str()) {
+            Some(SCHEMA) => {}
+            Some(other) => {
+                return Err(invalid(
+                    "schema".into(),
+                    format!("must be \"{SCHEMA}\", got \"{other}\""),
+                ));
+            }
+            None => {
+                return Err(invalid(
+                    "schema".into(),
+                    format!("missing; must be \"{SCHEMA}\""),
+                ));
+            }
+        }
+        let Some(eyes) = root.get("eyes").and_then(|v| v.as_object()) else {
+            return Err(invalid("eyes".into(), "missing or not an object".into()));
+        };
+        for (name, eye) in eyes {
+            if name != "right" && name != "left" {
+                return Err(invalid(
+                    format!("eyes.{name}"),
+                    "unknown eye (right|left)".into(),
+                ));
+            }
+            let Some(eye) = eye.as_object() else {
+                return Err(invalid(format!("eyes.{name}"), "must be an object".into()));
+            };
+            for key in ["raw_black", "raw_white", "mm_min", "mm_max"] {
+                if !eye.get(key).is_some_and(|v| v.is_number()) {
+                    return Err(invalid(
+                        format!("eyes.{name}.{key}"),
+                        "missing or not a number".into(),
+                    ));
+                }
+            }
+            let units = ["px", "mm", "arbitrary_area", "arbitrary"];
+            match eye.get("raw_unit").and_then(|v| v.as_str()) {
+                Some(u) if units.contains(&u) => {}
+                other => {
+                    return Err(invalid(
+                        format!("eyes.{name}.raw_unit"),
+                        format!("must be one of {units:?}, got {other:?}"),
+                    ));
+                }
+            }
+        }
+        let cal: Self = serde_json::from_value(value).map_err(|e| CalibrationError::Json {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
         cal.validate()
-            .map_err(|(field, reason)| CalibrationError::Invalid {
-                path: path.to_owned(),
-                field,
-                reason,
-            })?;
+            .map_err(|(field, reason)| invalid(field, reason))?;
         Ok(cal)
     }
 
@@ -284,4 +343,381 @@ impl PupilCalibration {
 pub enum Phase {
     Black,
     White,
+}
+
+/// What the stimulus display shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stimulus {
+    Black,
+    White,
+    /// Nothing: calibration over, the host application shows its content.
+    None,
+}
+
+impl From<Phase> for Stimulus {
+    fn from(p: Phase) -> Self {
+        match p {
+            Phase::Black => Stimulus::Black,
+            Phase::White => Stimulus::White,
+        }
+    }
+}
+
+/// A stimulus display failed.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct StimulusError(pub String);
+
+/// Where the calibration stimulus goes: a window of the service, a
+/// notification to the host application, or a log (tests). Object-safe.
+pub trait StimulusSink {
+    /// Shows `stimulus` from `at_t_secs` on (the session's clock: the
+    /// source's sample time).
+    fn show(&mut self, stimulus: Stimulus, at_t_secs: f64) -> Result<(), StimulusError>;
+}
+
+/// A sink that records what was shown and when.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LogSink {
+    pub shown: Vec<(f64, Stimulus)>,
+}
+
+impl StimulusSink for LogSink {
+    fn show(&mut self, stimulus: Stimulus, at_t_secs: f64) -> Result<(), StimulusError> {
+        self.shown.push((at_t_secs, stimulus));
+        Ok(())
+    }
+}
+
+/// Calibration routine settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CalibrationConfig {
+    /// Phase order. Default black then white (001 §5).
+    pub order: [Phase; 2],
+    /// Duration of each phase, s. Default 5 (001 §5).
+    pub phase_duration_s: f64,
+    /// Samples in the first `settle_s` of a phase are ignored while the
+    /// pupil adapts. Default 2 s: the light reflex constricts within ~1 s,
+    /// redilation in the dark is slower (time constants of ~1 s).
+    pub settle_s: f64,
+    /// Minimum fraction of valid samples per phase and eye. Default 0.5.
+    pub min_valid_fraction: f64,
+    /// The white-phase pupil must be at least this fraction smaller than the
+    /// black-phase one. Default 0.05 (real black/white constrictions are
+    /// 30–60 %; this only rejects "no response").
+    pub min_constriction_fraction: f64,
+    /// Diameter assigned to the white phase, mm. Default 2.
+    pub mm_min: f64,
+    /// Diameter assigned to the black phase, mm. Default 8.
+    pub mm_max: f64,
+    /// Confidence gate for valid samples. Default 0.6.
+    pub confidence: ConfidenceGate,
+    /// Blink detection: samples inside a closure are not valid.
+    pub blink: BlinkConfig,
+}
+
+impl Default for CalibrationConfig {
+    fn default() -> Self {
+        Self {
+            order: [Phase::Black, Phase::White],
+            phase_duration_s: 5.0,
+            settle_s: 2.0,
+            min_valid_fraction: 0.5,
+            min_constriction_fraction: 0.05,
+            mm_min: DEFAULT_MM_MIN,
+            mm_max: DEFAULT_MM_MAX,
+            confidence: ConfidenceGate::default(),
+            blink: BlinkConfig::default(),
+        }
+    }
+}
+
+impl CalibrationConfig {
+    /// Checks the settings; names the field.
+    pub fn validate(&self) -> Result<(), CalibrationError> {
+        let bad = |m: String| Err(CalibrationError::Config(m));
+        if self.order[0] == self.order[1] {
+            return bad("order must hold black and white once each".into());
+        }
+        if !(self.phase_duration_s.is_finite() && self.phase_duration_s > 0.0) {
+            return bad(format!(
+                "phase_duration_s must be > 0, got {}",
+                self.phase_duration_s
+            ));
+        }
+        if !(self.settle_s.is_finite()
+            && self.settle_s >= 0.0
+            && self.settle_s < self.phase_duration_s)
+        {
+            return bad(format!(
+                "settle_s must be within 0..phase_duration_s ({}), got {}",
+                self.phase_duration_s, self.settle_s
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.min_valid_fraction) {
+            return bad(format!(
+                "min_valid_fraction must be within 0..=1, got {}",
+                self.min_valid_fraction
+            ));
+        }
+        if !(0.0..1.0).contains(&self.min_constriction_fraction) {
+            return bad(format!(
+                "min_constriction_fraction must be within 0..1, got {}",
+                self.min_constriction_fraction
+            ));
+        }
+        if !(self.mm_min > 0.0 && self.mm_max > self.mm_min && self.mm_max.is_finite()) {
+            return bad(format!(
+                "need 0 < mm_min < mm_max, got mm_min {} mm_max {}",
+                self.mm_min, self.mm_max
+            ));
+        }
+        self.confidence
+            .validate()
+            .map_err(CalibrationError::Config)?;
+        self.blink.validate().map_err(CalibrationError::Config)
+    }
+}
+
+/// Where a session is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// Not started yet.
+    Idle,
+    /// Showing this phase.
+    Running(Phase),
+    /// Both phases done: call [`CalibrationSession::finish`].
+    Done,
+}
+
+/// The calibration routine as a state machine over timed raw pupil samples,
+/// so it runs on any source (live, replay, synthetic) and on a virtual
+/// clock: the session's time is the samples' time.
+pub struct CalibrationSession {
+    cfg: CalibrationConfig,
+    /// Index into `cfg.order` of the running phase; 2 = done.
+    phase_idx: usize,
+    phase_start_t: f64,
+    started: bool,
+    unit: [Option<PupilUnit>; 2],
+    /// Valid raw values per phase (order index) and eye.
+    values: [[Vec<f64>; 2]; 2],
+    /// Samples in the analysis window per phase and eye.
+    total: [[u64; 2]; 2],
+    blink: [BlinkDetector; 2],
+}
+
+impl CalibrationSession {
+    /// A new session; the settings are validated.
+    pub fn new(cfg: CalibrationConfig) -> Result<Self, CalibrationError> {
+        cfg.validate()?;
+        Ok(Self {
+            cfg,
+            phase_idx: 0,
+            phase_start_t: 0.0,
+            started: false,
+            unit: [None; 2],
+            values: Default::default(),
+            total: [[0; 2]; 2],
+            blink: [
+                BlinkDetector::new(cfg.blink, 0),
+                BlinkDetector::new(cfg.blink, 1),
+            ],
+        })
+    }
+
+    /// Where the session is.
+    pub fn progress(&self) -> Progress {
+        match (self.started, self.phase_idx) {
+            (false, _) => Progress::Idle,
+            (true, i) if i < 2 => Progress::Running(self.cfg.order[i]),
+            _ => Progress::Done,
+        }
+    }
+
+    /// Starts the first phase at `t_secs`.
+    pub fn start(
+        &mut self,
+        t_secs: f64,
+        sink: &mut dyn StimulusSink,
+    ) -> Result<(), CalibrationError> {
+        self.started = true;
+        self.phase_idx = 0;
+        self.phase_start_t = t_secs;
+        sink.show(self.cfg.order[0].into(), t_secs)
+            .map_err(|e| CalibrationError::Sink(e.0))
+    }
+
+    /// Advances the clock to `t_secs`, switching phases (and the stimulus)
+    /// when their time is up.
+    pub fn tick(
+        &mut self,
+        t_secs: f64,
+        sink: &mut dyn StimulusSink,
+    ) -> Result<Progress, CalibrationError> {
+        while self.started
+            && self.phase_idx < 2
+            && t_secs >= self.phase_start_t + self.cfg.phase_duration_s
+        {
+            self.phase_start_t += self.cfg.phase_duration_s;
+            self.phase_idx += 1;
+            let stim = if self.phase_idx < 2 {
+                self.cfg.order[self.phase_idx].into()
+            } else {
+                Stimulus::None
+            };
+            sink.show(stim, self.phase_start_t)
+                .map_err(|e| CalibrationError::Sink(e.0))?;
+        }
+        Ok(self.progress())
+    }
+
+    /// Feeds one raw pupil sample (any unit; the first unit seen per eye is
+    /// the calibrated one, samples in another unit are ignored).
+    pub fn feed(
+        &mut self,
+        p: &PupilSample,
+        sink: &mut dyn StimulusSink,
+    ) -> Result<Progress, CalibrationError> {
+        if !p.t_secs.is_finite() || p.eye > 1 {
+            return Ok(self.progress());
+        }
+        if !self.started {
+            self.start(p.t_secs, sink)?;
+        }
+        let progress = self.tick(p.t_secs, sink)?;
+        let e = p.eye as usize;
+        let raw = PupilCalibration::raw_value(p);
+        let raw_ok = raw.is_finite() && raw > 0.0;
+        let valid_now = raw_ok && self.cfg.confidence.accept(p.confidence);
+        self.blink[e].update(p.t_secs, !valid_now);
+        let Progress::Running(_) = progress else {
+            return Ok(progress);
+        };
+        let unit = *self.unit[e].get_or_insert(p.unit);
+        if unit != p.unit {
+            return Ok(progress);
+        }
+        if p.t_secs < self.phase_start_t + self.cfg.settle_s {
+            return Ok(progress);
+        }
+        let i = self.phase_idx;
+        self.total[i][e] += 1;
+        if valid_now && !self.blink[e].is_closed() {
+            self.values[i][e].push(raw);
+        }
+        Ok(progress)
+    }
+
+    /// Computes the calibration: the median of each phase's valid samples per
+    /// eye, checked for enough valid samples and for constriction in white.
+    /// Eyes that never reported are left out; a session without any samples
+    /// fails with `TooFewValidSamples` for eye 0.
+    #[allow(clippy::needless_range_loop)] // eye/phase index several arrays at once
+    pub fn finish(mut self) -> Result<PupilCalibration, CalibrationError> {
+        if self.progress() != Progress::Done {
+            return Err(CalibrationError::NotFinished(
+                self.cfg.order[self.phase_idx.min(1)],
+            ));
+        }
+        let mut maps: [Option<EyeCalibration>; 2] = [None; 2];
+        let any_eye = self.unit.iter().any(Option::is_some);
+        for e in 0..2 {
+            let Some(unit) = self.unit[e] else { continue };
+            let mut medians = [0.0f64; 2];
+            for i in 0..2 {
+                let total = self.total[i][e];
+                let vals = &mut self.values[i][e];
+                let frac = if total == 0 {
+                    0.0
+                } else {
+                    vals.len() as f64 / total as f64
+                };
+                if frac < self.cfg.min_valid_fraction || vals.is_empty() {
+                    return Err(CalibrationError::TooFewValidSamples {
+                        eye: e as u8,
+                        phase: self.cfg.order[i],
+                        valid_fraction: frac,
+                        required: self.cfg.min_valid_fraction,
+                    });
+                }
+                medians[i] = median(vals);
+            }
+            let black_i = if self.cfg.order[0] == Phase::Black {
+                0
+            } else {
+                1
+            };
+            let (black, white) = (medians[black_i], medians[1 - black_i]);
+            if white >= black * (1.0 - self.cfg.min_constriction_fraction) {
+                return Err(CalibrationError::WhiteNotSmaller {
+                    eye: e as u8,
+                    black,
+                    white,
+                });
+            }
+            maps[e] = Some(EyeCalibration {
+                raw_unit: unit,
+                raw_black: black,
+                raw_white: white,
+                mm_min: self.cfg.mm_min,
+                mm_max: self.cfg.mm_max,
+            });
+        }
+        if !any_eye {
+            return Err(CalibrationError::TooFewValidSamples {
+                eye: 0,
+                phase: self.cfg.order[0],
+                valid_fraction: 0.0,
+                required: self.cfg.min_valid_fraction,
+            });
+        }
+        Ok(PupilCalibration {
+            schema: SCHEMA.to_owned(),
+            description: None,
+            eyes: EyeCalibrations {
+                right: maps[0],
+                left: maps[1],
+            },
+        })
+    }
+}
+
+/// Median (sorts in place); `vals` must not be empty.
+fn median(vals: &mut [f64]) -> f64 {
+    vals.sort_by(f64::total_cmp);
+    let n = vals.len();
+    if n % 2 == 1 {
+        vals[n / 2]
+    } else {
+        0.5 * (vals[n / 2 - 1] + vals[n / 2])
+    }
+}
+
+/// Runs a whole calibration over a stream of samples (starting at the first
+/// pupil sample), shows `Stimulus::None` at the end, and — only on success —
+/// saves the profile to `save_to`. On any error nothing is written.
+pub fn run_calibration<I>(
+    cfg: CalibrationConfig,
+    samples: I,
+    sink: &mut dyn StimulusSink,
+    save_to: Option<&Path>,
+) -> Result<PupilCalibration, CalibrationError>
+where
+    I: IntoIterator<Item = Sample>,
+{
+    let mut session = CalibrationSession::new(cfg)?;
+    for s in samples {
+        let Sample::Pupil(p) = s else { continue };
+        if session.feed(&p, sink)? == Progress::Done {
+            break;
+        }
+    }
+    let cal = session.finish()?;
+    if let Some(path) = save_to {
+        cal.save(path)?;
+    }
+    Ok(cal)
 }

@@ -28,3 +28,4 @@ pub mod source;
 pub use pupil::{PupilClient, PupilConfig, PupilError, PupilSource, PupilStats};
 pub use recording::{PldataReader, PldataWriter, RecordingError};
 pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
+pub mod synthetic;
