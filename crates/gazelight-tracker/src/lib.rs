@@ -29,3 +29,4 @@ pub use pupil::{PupilClient, PupilConfig, PupilError, PupilSource, PupilStats};
 pub use recording::{PldataReader, PldataWriter, RecordingError};
 pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod synthetic;
+pub mod summary;

@@ -214,3 +214,26 @@ fn piprkit_flash_constrictions_are_preserved() {
         }
     }
 }
+
+#[test]
+fn inspect_summaries_of_the_three_recordings() {
+    use gazelight_tracker::summary::summarize_importer;
+    for (rel, rate_hz) in [
+        ("neon-demo", 200.0),
+        ("eyelink-psa/both_eyes.asc", 500.0),
+        ("piprkit-plr/pupil_trace.csv", 200.0),
+    ] {
+        let mut imp = import::open(&data(rel)).unwrap();
+        let s = summarize_importer(imp.as_mut(), FilterChain::with_defaults()).unwrap();
+        eprintln!("{rel}:\n{s}\n");
+        assert_eq!(s.invalid_after_filter, 0);
+        assert_eq!(s.skipped_records, 0);
+        for e in 0..2 {
+            assert!(
+                (s.rate_hz.pupil[e] - rate_hz).abs() < 0.05 * rate_hz,
+                "{rel} eye {e}: {} Hz",
+                s.rate_hz.pupil[e]
+            );
+        }
+    }
+}
