@@ -180,7 +180,7 @@ impl Summarizer {
                     *n += 1;
                     *sum += dt;
                 }
-                if !(dt < 0.0) {
+                if dt >= 0.0 || dt.is_nan() {
                     *last = t;
                 }
             }
@@ -303,6 +303,7 @@ fn unit_name(u: Option<PupilUnit>) -> &'static str {
 }
 
 impl fmt::Display for RecordingSummary {
+    #[allow(clippy::needless_range_loop)] // e indexes several per-eye arrays
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let eyes = ["right (0)", "left (1)"];
         writeln!(
