@@ -19,20 +19,15 @@
 //! samples keep the eye-image `norm_pos` as reported (see
 //! [`PupilSample::norm_pos`]).
 //!
-//! Decoding is a streaming serde visit over the msgpack bytes: no
-//! intermediate value tree and no heap allocation for a well-formed datum.
+//! Decoding walks the msgpack bytes with a zero-copy cursor (no
+//! intermediate value tree, no heap allocation for a well-formed datum;
+//! nesting of skipped values is bounded at 32 levels).
 //! Fields Pupil is known to send but gazelight does not use (`sphere`,
 //! `projected_sphere`, `location`, `model_id`, `gaze_point_3d`, …) are
 //! skipped silently; any other key is skipped and counted in
 //! [`PupilDatum::unknown_fields`] / [`GazeDatum::unknown_fields`]. A field
 //! with the wrong type is an error naming the field
 //! (e.g. `base_data[1].confidence`).
-
-use std::cell::RefCell;
-use std::fmt;
-
-use serde::Deserialize;
-use serde::de::{self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor};
 
 use crate::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 
@@ -142,7 +137,7 @@ pub fn parse_topic(topic: &str) -> TopicKind {
 }
 
 /// Pupil's 2D ellipse fit in eye-image pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ellipse {
     pub center: [f64; 2],
     pub axes: [f64; 2],
@@ -150,7 +145,7 @@ pub struct Ellipse {
 }
 
 /// The 3D model's pupil circle in eye-camera coordinates (mm).
-#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Circle3d {
     pub center: [f64; 3],
     pub normal: [f64; 3],
@@ -238,187 +233,540 @@ pub fn decode_message(topic: &[u8], payload: &[u8]) -> Result<Datum, DecodeError
 /// Decodes a datum with a UTF-8 topic.
 pub fn decode(topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
     let kind = parse_topic(topic);
-    let slot = FieldSlot::default();
+    let wrap = |f: Fail| f.into_error(topic);
     match kind {
         TopicKind::Unknown => Err(DecodeError::UnknownTopic(topic.to_owned())),
         TopicKind::Pupil { eye, method } => {
-            let raw = run(topic, payload, &slot, PupilSeed { slot: &slot })?;
+            let mut c = Cur { b: payload, p: 0 };
+            let raw = read_pupil(&mut c, 0).map_err(wrap)?;
+            c.end().map_err(wrap)?;
             raw.finish(topic, eye, method).map(Datum::Pupil)
         }
         TopicKind::Gaze { eyes } => {
-            let raw = run(topic, payload, &slot, GazeSeed { slot: &slot })?;
+            let mut c = Cur { b: payload, p: 0 };
+            let raw = read_gaze(&mut c).map_err(wrap)?;
+            c.end().map_err(wrap)?;
             raw.finish(topic, eyes).map(Datum::Gaze)
         }
     }
 }
 
-fn run<'de, S: DeserializeSeed<'de>>(
-    topic: &str,
-    payload: &'de [u8],
-    slot: &FieldSlot,
-    seed: S,
-) -> Result<S::Value, DecodeError> {
-    let mut de = rmp_serde::Deserializer::from_read_ref(payload);
-    let value = seed.deserialize(&mut de);
-    match value {
-        Ok(v) => Ok(v),
-        Err(e) => {
-            let reason = e.to_string();
-            match slot.0.borrow_mut().take() {
-                Some(field) => Err(DecodeError::Field {
-                    topic: topic.to_owned(),
-                    field,
-                    reason,
-                }),
-                None => Err(DecodeError::Malformed {
-                    topic: topic.to_owned(),
-                    reason,
-                }),
-            }
+/// Deepest nesting a skipped value may have.
+const MAX_DEPTH: usize = 32;
+
+/// Why the msgpack walk stopped.
+enum Fail {
+    Truncated {
+        at: usize,
+    },
+    Invalid {
+        at: usize,
+        marker: u8,
+    },
+    TooDeep {
+        at: usize,
+    },
+    Trailing {
+        at: usize,
+    },
+    /// A value of the wrong type (or shape) in a named field; `path` is the
+    /// enclosing field (e.g. `base_data[1]`), empty at the top level.
+    Type {
+        path: String,
+        field: &'static str,
+        expected: &'static str,
+        found: &'static str,
+    },
+}
+
+impl Fail {
+    fn in_path(self, prefix: &str) -> Fail {
+        match self {
+            Fail::Type {
+                path,
+                field,
+                expected,
+                found,
+            } => Fail::Type {
+                path: if path.is_empty() {
+                    prefix.to_owned()
+                } else {
+                    format!("{prefix}.{path}")
+                },
+                field,
+                expected,
+                found,
+            },
+            other => other,
         }
     }
-}
 
-/// Remembers the path of the field whose value failed to decode. Only
-/// written on error.
-#[derive(Default)]
-struct FieldSlot(RefCell<Option<String>>);
-
-impl FieldSlot {
-    fn set_innermost(&self, name: &str) {
-        let mut s = self.0.borrow_mut();
-        if s.is_none() {
-            *s = Some(name.to_owned());
-        }
-    }
-
-    fn prefix(&self, prefix: &str) {
-        let mut s = self.0.borrow_mut();
-        *s = Some(match s.take() {
-            Some(inner) => format!("{prefix}.{inner}"),
-            None => prefix.to_owned(),
-        });
-    }
-}
-
-fn value<'de, A: MapAccess<'de>, T: Deserialize<'de>>(
-    map: &mut A,
-    slot: &FieldSlot,
-    name: &'static str,
-) -> Result<T, A::Error> {
-    map.next_value::<T>()
-        .inspect_err(|_| slot.set_innermost(name))
-}
-
-/// The keys the decoders look at.
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-enum Key {
-    Id,
-    Timestamp,
-    Confidence,
-    Diameter,
-    Diameter3d,
-    NormPos,
-    Method,
-    Ellipse,
-    ModelConfidence,
-    Circle3d,
-    Theta,
-    Phi,
-    BaseData,
-    /// A field Pupil sends that gazelight does not use.
-    Unused,
-    Unknown,
-}
-
-impl<'de> Deserialize<'de> for Key {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct KeyVisitor;
-        impl<'de> Visitor<'de> for KeyVisitor {
-            type Value = Key;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a map key")
+    fn into_error(self, topic: &str) -> DecodeError {
+        let malformed = |reason: String| DecodeError::Malformed {
+            topic: topic.to_owned(),
+            reason,
+        };
+        match self {
+            Fail::Truncated { at } => malformed(format!("truncated at byte {at}")),
+            Fail::Invalid { at, marker } => {
+                malformed(format!("invalid marker 0x{marker:02x} at byte {at}"))
             }
-            fn visit_str<E: de::Error>(self, v: &str) -> Result<Key, E> {
-                Ok(match v {
-                    "id" => Key::Id,
-                    "timestamp" => Key::Timestamp,
-                    "confidence" => Key::Confidence,
-                    "diameter" => Key::Diameter,
-                    "diameter_3d" => Key::Diameter3d,
-                    "norm_pos" => Key::NormPos,
-                    "method" => Key::Method,
-                    "ellipse" => Key::Ellipse,
-                    "model_confidence" => Key::ModelConfidence,
-                    "circle_3d" => Key::Circle3d,
-                    "theta" => Key::Theta,
-                    "phi" => Key::Phi,
-                    "base_data" => Key::BaseData,
-                    "topic"
-                    | "sphere"
-                    | "projected_sphere"
-                    | "location"
-                    | "model_id"
-                    | "model_birth_timestamp"
-                    | "gaze_point_3d"
-                    | "gaze_normal_3d"
-                    | "gaze_normals_3d"
-                    | "eye_center_3d"
-                    | "eye_centers_3d"
-                    | "__raw_data__" => Key::Unused,
-                    _ => Key::Unknown,
-                })
+            Fail::TooDeep { at } => {
+                malformed(format!("nesting deeper than {MAX_DEPTH} at byte {at}"))
             }
-            fn visit_bytes<E: de::Error>(self, v: &[u8]) -> Result<Key, E> {
-                match std::str::from_utf8(v) {
-                    Ok(s) => self.visit_str(s),
-                    Err(_) => Ok(Key::Unknown),
+            Fail::Trailing { at } => {
+                malformed(format!("trailing bytes after the datum at byte {at}"))
+            }
+            Fail::Type {
+                path,
+                field,
+                expected,
+                found,
+            } if field.is_empty() => {
+                if path.is_empty() {
+                    malformed(format!("payload is {found}, expected {expected}"))
+                } else {
+                    DecodeError::Field {
+                        topic: topic.to_owned(),
+                        field: path,
+                        reason: format!("expected {expected}, found {found}"),
+                    }
                 }
             }
-            fn visit_u64<E: de::Error>(self, _: u64) -> Result<Key, E> {
-                Ok(Key::Unknown)
-            }
-            fn visit_i64<E: de::Error>(self, _: i64) -> Result<Key, E> {
-                Ok(Key::Unknown)
-            }
-            fn visit_f64<E: de::Error>(self, _: f64) -> Result<Key, E> {
-                Ok(Key::Unknown)
-            }
-            fn visit_bool<E: de::Error>(self, _: bool) -> Result<Key, E> {
-                Ok(Key::Unknown)
-            }
-            fn visit_unit<E: de::Error>(self) -> Result<Key, E> {
-                Ok(Key::Unknown)
+            Fail::Type {
+                path,
+                field,
+                expected,
+                found,
+            } => DecodeError::Field {
+                topic: topic.to_owned(),
+                field: if path.is_empty() {
+                    field.to_owned()
+                } else {
+                    format!("{path}.{field}")
+                },
+                reason: format!("expected {expected}, found {found}"),
+            },
+        }
+    }
+}
+
+fn type_fail(field: &'static str, expected: &'static str, marker: u8) -> Fail {
+    Fail::Type {
+        path: String::new(),
+        field,
+        expected,
+        found: marker_name(marker),
+    }
+}
+
+fn marker_name(m: u8) -> &'static str {
+    match m {
+        0x00..=0x7f | 0xe0..=0xff | 0xcc..=0xd3 => "an integer",
+        0x80..=0x8f | 0xde | 0xdf => "a map",
+        0x90..=0x9f | 0xdc | 0xdd => "an array",
+        0xa0..=0xbf | 0xd9..=0xdb => "a string",
+        0xc0 => "nil",
+        0xc2 | 0xc3 => "a boolean",
+        0xc4..=0xc6 => "binary data",
+        0xca | 0xcb => "a float",
+        0xc7..=0xc9 | 0xd4..=0xd8 => "an extension value",
+        _ => "an invalid marker",
+    }
+}
+
+/// A zero-copy msgpack cursor.
+struct Cur<'a> {
+    b: &'a [u8],
+    p: usize,
+}
+
+impl<'a> Cur<'a> {
+    #[inline]
+    fn byte(&mut self) -> Result<u8, Fail> {
+        let v = *self.b.get(self.p).ok_or(Fail::Truncated { at: self.p })?;
+        self.p += 1;
+        Ok(v)
+    }
+
+    #[inline]
+    fn take(&mut self, n: usize) -> Result<&'a [u8], Fail> {
+        let end = self.p.checked_add(n).filter(|e| *e <= self.b.len());
+        let end = end.ok_or(Fail::Truncated { at: self.b.len() })?;
+        let s = &self.b[self.p..end];
+        self.p = end;
+        Ok(s)
+    }
+
+    #[inline]
+    fn uint(&mut self, width: usize) -> Result<u64, Fail> {
+        Ok(self
+            .take(width)?
+            .iter()
+            .fold(0u64, |a, x| (a << 8) | u64::from(*x)))
+    }
+
+    fn end(&self) -> Result<(), Fail> {
+        if self.p == self.b.len() {
+            Ok(())
+        } else {
+            Err(Fail::Trailing { at: self.p })
+        }
+    }
+
+    /// Length of a map whose marker is `m`, or `None` if it is not a map.
+    #[inline]
+    fn map_len(&mut self, m: u8) -> Result<Option<usize>, Fail> {
+        Ok(match m {
+            0x80..=0x8f => Some((m & 0x0f) as usize),
+            0xde => Some(self.uint(2)? as usize),
+            0xdf => Some(self.uint(4)? as usize),
+            _ => None,
+        })
+    }
+
+    #[inline]
+    fn array_len(&mut self, m: u8) -> Result<Option<usize>, Fail> {
+        Ok(match m {
+            0x90..=0x9f => Some((m & 0x0f) as usize),
+            0xdc => Some(self.uint(2)? as usize),
+            0xdd => Some(self.uint(4)? as usize),
+            _ => None,
+        })
+    }
+
+    #[inline]
+    fn str_len(&mut self, m: u8) -> Result<Option<usize>, Fail> {
+        Ok(match m {
+            0xa0..=0xbf => Some((m & 0x1f) as usize),
+            0xd9 => Some(self.uint(1)? as usize),
+            0xda => Some(self.uint(2)? as usize),
+            0xdb => Some(self.uint(4)? as usize),
+            _ => None,
+        })
+    }
+
+    /// A map key: `Some(text)` for a UTF-8 string key, `None` (key
+    /// skipped) for any other key.
+    #[inline]
+    fn key(&mut self) -> Result<Option<&'a str>, Fail> {
+        let at = self.p;
+        let m = self.byte()?;
+        match self.str_len(m)? {
+            Some(n) => Ok(std::str::from_utf8(self.take(n)?).ok()),
+            None => {
+                self.p = at;
+                self.skip(0)?;
+                Ok(None)
             }
         }
-        d.deserialize_any(KeyVisitor)
     }
+
+    /// A number (any msgpack int or float) as f64.
+    #[inline]
+    fn f64(&mut self, field: &'static str) -> Result<f64, Fail> {
+        let m = self.byte()?;
+        Ok(match m {
+            0xcb => f64::from_bits(self.uint(8)?),
+            0xca => f64::from(f32::from_bits(self.uint(4)? as u32)),
+            0x00..=0x7f => f64::from(m),
+            0xe0..=0xff => f64::from(m as i8),
+            0xcc => self.uint(1)? as f64,
+            0xcd => self.uint(2)? as f64,
+            0xce => self.uint(4)? as f64,
+            0xcf => self.uint(8)? as f64,
+            0xd0 => f64::from(self.uint(1)? as u8 as i8),
+            0xd1 => f64::from(self.uint(2)? as u16 as i16),
+            0xd2 => f64::from(self.uint(4)? as u32 as i32),
+            0xd3 => self.uint(8)? as i64 as f64,
+            0xc1 => {
+                return Err(Fail::Invalid {
+                    at: self.p - 1,
+                    marker: m,
+                });
+            }
+            _ => return Err(type_fail(field, "a number", m)),
+        })
+    }
+
+    /// A fixed-length array of numbers.
+    #[inline]
+    fn f64s<const N: usize>(&mut self, field: &'static str) -> Result<[f64; N], Fail> {
+        let m = self.byte()?;
+        match self.array_len(m)? {
+            Some(n) if n == N => {
+                let mut out = [0.0; N];
+                for v in &mut out {
+                    *v = self.f64(field)?;
+                }
+                Ok(out)
+            }
+            Some(_) => Err(Fail::Type {
+                path: String::new(),
+                field,
+                expected: if N == 2 {
+                    "an array of 2 numbers"
+                } else {
+                    "an array of 3 numbers"
+                },
+                found: "an array of another length",
+            }),
+            None => Err(type_fail(field, "an array of numbers", m)),
+        }
+    }
+
+    /// A small unsigned integer (eye id).
+    fn u8_value(&mut self, field: &'static str) -> Result<u8, Fail> {
+        let v = self.f64(field)?;
+        if v.fract() == 0.0 && (0.0..=255.0).contains(&v) {
+            Ok(v as u8)
+        } else {
+            Err(Fail::Type {
+                path: String::new(),
+                field,
+                expected: "an integer 0..=255",
+                found: "another number",
+            })
+        }
+    }
+
+    fn str_value(&mut self, field: &'static str) -> Result<&'a str, Fail> {
+        let m = self.byte()?;
+        match self.str_len(m)? {
+            Some(n) => std::str::from_utf8(self.take(n)?).map_err(|_| Fail::Type {
+                path: String::new(),
+                field,
+                expected: "a UTF-8 string",
+                found: "invalid UTF-8",
+            }),
+            None => Err(type_fail(field, "a string", m)),
+        }
+    }
+
+    /// Skips one value of any type.
+    fn skip(&mut self, depth: usize) -> Result<(), Fail> {
+        if depth > MAX_DEPTH {
+            return Err(Fail::TooDeep { at: self.p });
+        }
+        let at = self.p;
+        let m = self.byte()?;
+        if let Some(n) = self.map_len(m)? {
+            for _ in 0..n {
+                self.skip(depth + 1)?;
+                self.skip(depth + 1)?;
+            }
+            return Ok(());
+        }
+        if let Some(n) = self.array_len(m)? {
+            for _ in 0..n {
+                self.skip(depth + 1)?;
+            }
+            return Ok(());
+        }
+        if let Some(n) = self.str_len(m)? {
+            self.take(n)?;
+            return Ok(());
+        }
+        let n = match m {
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => 0,
+            0xcc | 0xd0 => 1,
+            0xcd | 0xd1 => 2,
+            0xce | 0xd2 | 0xca => 4,
+            0xcf | 0xd3 | 0xcb => 8,
+            0xc4 => self.uint(1)? as usize,
+            0xc5 => self.uint(2)? as usize,
+            0xc6 => self.uint(4)? as usize,
+            0xd4 => 2,
+            0xd5 => 3,
+            0xd6 => 5,
+            0xd7 => 9,
+            0xd8 => 17,
+            0xc7 => self.uint(1)? as usize + 1,
+            0xc8 => self.uint(2)? as usize + 1,
+            0xc9 => self.uint(4)? as usize + 1,
+            _ => return Err(Fail::Invalid { at, marker: m }),
+        };
+        self.take(n)?;
+        Ok(())
+    }
+
+    /// Starts a map; a non-map is a type error of `field` ("" = payload).
+    #[inline]
+    fn map_start(&mut self, field: &'static str) -> Result<usize, Fail> {
+        let m = self.byte()?;
+        match self.map_len(m)? {
+            Some(n) => Ok(n),
+            None if m == 0xc1 => Err(Fail::Invalid {
+                at: self.p - 1,
+                marker: m,
+            }),
+            None => Err(type_fail(field, "a map", m)),
+        }
+    }
+
+    fn ellipse(&mut self) -> Result<Ellipse, Fail> {
+        const F: &str = "ellipse";
+        let n = self.map_start(F)?;
+        let (mut center, mut axes, mut angle) = (None, None, None);
+        for _ in 0..n {
+            match self.key()? {
+                Some("center") => center = Some(self.f64s::<2>(F)?),
+                Some("axes") => axes = Some(self.f64s::<2>(F)?),
+                Some("angle") => angle = Some(self.f64(F)?),
+                _ => self.skip(0)?,
+            }
+        }
+        match (center, axes, angle) {
+            (Some(center), Some(axes), Some(angle)) => Ok(Ellipse {
+                center,
+                axes,
+                angle,
+            }),
+            _ => Err(Fail::Type {
+                path: String::new(),
+                field: F,
+                expected: "a map with center, axes and angle",
+                found: "a map without them",
+            }),
+        }
+    }
+
+    fn circle_3d(&mut self) -> Result<Circle3d, Fail> {
+        const F: &str = "circle_3d";
+        let n = self.map_start(F)?;
+        let (mut center, mut normal, mut radius) = (None, None, None);
+        for _ in 0..n {
+            match self.key()? {
+                Some("center") => center = Some(self.f64s::<3>(F)?),
+                Some("normal") => normal = Some(self.f64s::<3>(F)?),
+                Some("radius") => radius = Some(self.f64(F)?),
+                _ => self.skip(0)?,
+            }
+        }
+        match (center, normal, radius) {
+            (Some(center), Some(normal), Some(radius)) => Ok(Circle3d {
+                center,
+                normal,
+                radius,
+            }),
+            _ => Err(Fail::Type {
+                path: String::new(),
+                field: F,
+                expected: "a map with center, normal and radius",
+                found: "a map without them",
+            }),
+        }
+    }
+}
+
+/// Pupil fields gazelight does not use (skipped without counting).
+fn is_unused_pupil_field(k: &str) -> bool {
+    matches!(
+        k,
+        "topic"
+            | "sphere"
+            | "projected_sphere"
+            | "location"
+            | "model_id"
+            | "model_birth_timestamp"
+            | "gaze_point_3d"
+            | "gaze_normal_3d"
+            | "gaze_normals_3d"
+            | "eye_center_3d"
+            | "eye_centers_3d"
+            | "__raw_data__"
+    )
 }
 
 /// The detector method from Pupil's `method` string (`"2d c++"`,
 /// `"3d c++"`, `"pye3d 0.3.0 real-time"`, …).
-struct MethodStr(Option<DetectorMethod>);
+fn method_of(s: &str) -> Option<DetectorMethod> {
+    if s.contains("3d") {
+        Some(DetectorMethod::Pupil3d)
+    } else if s.contains("2d") {
+        Some(DetectorMethod::Pupil2d)
+    } else {
+        None
+    }
+}
 
-impl<'de> Deserialize<'de> for MethodStr {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl<'de> Visitor<'de> for V {
-            type Value = MethodStr;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a method string")
-            }
-            fn visit_str<E: de::Error>(self, v: &str) -> Result<MethodStr, E> {
-                Ok(MethodStr(if v.contains("3d") {
-                    Some(DetectorMethod::Pupil3d)
-                } else if v.contains("2d") {
-                    Some(DetectorMethod::Pupil2d)
-                } else {
-                    None
-                }))
+fn read_pupil(c: &mut Cur<'_>, depth: usize) -> Result<RawPupil, Fail> {
+    if depth > MAX_DEPTH {
+        return Err(Fail::TooDeep { at: c.p });
+    }
+    let n = c.map_start("")?;
+    let mut r = RawPupil::default();
+    for _ in 0..n {
+        let Some(key) = c.key()? else {
+            r.unknown_fields += 1;
+            c.skip(depth + 1)?;
+            continue;
+        };
+        match key {
+            "id" => r.id = Some(c.u8_value("id")?),
+            "timestamp" => r.timestamp = Some(c.f64("timestamp")?),
+            "confidence" => r.confidence = Some(c.f64("confidence")?),
+            "diameter" => r.diameter = Some(c.f64("diameter")?),
+            "diameter_3d" => r.diameter_3d = Some(c.f64("diameter_3d")?),
+            "norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            "method" => r.method = method_of(c.str_value("method")?),
+            "ellipse" => r.ellipse = Some(c.ellipse()?),
+            "model_confidence" => r.model_confidence = Some(c.f64("model_confidence")?),
+            "circle_3d" => r.circle_3d = Some(c.circle_3d()?),
+            "theta" => r.theta = Some(c.f64("theta")?),
+            "phi" => r.phi = Some(c.f64("phi")?),
+            k if is_unused_pupil_field(k) => c.skip(depth + 1)?,
+            _ => {
+                r.unknown_fields += 1;
+                c.skip(depth + 1)?;
             }
         }
-        d.deserialize_str(V)
     }
+    Ok(r)
+}
+
+fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
+    let n = c.map_start("")?;
+    let mut r = RawGaze::default();
+    for _ in 0..n {
+        let Some(key) = c.key()? else {
+            r.unknown_fields += 1;
+            c.skip(1)?;
+            continue;
+        };
+        match key {
+            "timestamp" => r.timestamp = Some(c.f64("timestamp")?),
+            "confidence" => r.confidence = Some(c.f64("confidence")?),
+            "norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            "base_data" => {
+                let m = c.byte()?;
+                let len = c
+                    .array_len(m)?
+                    .ok_or_else(|| type_fail("base_data", "an array of pupil datums", m))?;
+                for i in 0..len {
+                    if i < 2 {
+                        let p = read_pupil(c, 2).map_err(|f| {
+                            f.in_path(if i == 0 {
+                                "base_data[0]"
+                            } else {
+                                "base_data[1]"
+                            })
+                        })?;
+                        r.base[i] = Some(p);
+                    } else {
+                        c.skip(2)?;
+                    }
+                }
+                r.n_base = len;
+            }
+            k if is_unused_pupil_field(k) => c.skip(1)?,
+            _ => {
+                r.unknown_fields += 1;
+                c.skip(1)?;
+            }
+        }
+    }
+    Ok(r)
 }
 
 #[derive(Default, Clone, Copy)]
@@ -436,54 +784,6 @@ struct RawPupil {
     theta: Option<f64>,
     phi: Option<f64>,
     unknown_fields: u32,
-}
-
-struct PupilSeed<'s> {
-    slot: &'s FieldSlot,
-}
-
-impl<'de> DeserializeSeed<'de> for PupilSeed<'_> {
-    type Value = RawPupil;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<RawPupil, D::Error> {
-        d.deserialize_map(self)
-    }
-}
-
-impl<'de> Visitor<'de> for PupilSeed<'_> {
-    type Value = RawPupil;
-    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a pupil datum (msgpack map)")
-    }
-    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<RawPupil, A::Error> {
-        let s = self.slot;
-        let mut r = RawPupil::default();
-        while let Some(key) = map.next_key::<Key>()? {
-            match key {
-                Key::Id => r.id = Some(value(&mut map, s, "id")?),
-                Key::Timestamp => r.timestamp = Some(value(&mut map, s, "timestamp")?),
-                Key::Confidence => r.confidence = Some(value(&mut map, s, "confidence")?),
-                Key::Diameter => r.diameter = Some(value(&mut map, s, "diameter")?),
-                Key::Diameter3d => r.diameter_3d = Some(value(&mut map, s, "diameter_3d")?),
-                Key::NormPos => r.norm_pos = Some(value(&mut map, s, "norm_pos")?),
-                Key::Method => r.method = value::<_, MethodStr>(&mut map, s, "method")?.0,
-                Key::Ellipse => r.ellipse = Some(value(&mut map, s, "ellipse")?),
-                Key::ModelConfidence => {
-                    r.model_confidence = Some(value(&mut map, s, "model_confidence")?)
-                }
-                Key::Circle3d => r.circle_3d = Some(value(&mut map, s, "circle_3d")?),
-                Key::Theta => r.theta = Some(value(&mut map, s, "theta")?),
-                Key::Phi => r.phi = Some(value(&mut map, s, "phi")?),
-                Key::BaseData | Key::Unknown => {
-                    r.unknown_fields += 1;
-                    map.next_value::<IgnoredAny>()?;
-                }
-                Key::Unused => {
-                    map.next_value::<IgnoredAny>()?;
-                }
-            }
-        }
-        Ok(r)
-    }
 }
 
 fn unit_interval(topic: &str, field: &str, v: f64) -> Result<f32, DecodeError> {
@@ -614,97 +914,6 @@ struct RawGaze {
     base: [Option<RawPupil>; 2],
     n_base: usize,
     unknown_fields: u32,
-}
-
-struct GazeSeed<'s> {
-    slot: &'s FieldSlot,
-}
-
-impl<'de> DeserializeSeed<'de> for GazeSeed<'_> {
-    type Value = RawGaze;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<RawGaze, D::Error> {
-        d.deserialize_map(self)
-    }
-}
-
-impl<'de> Visitor<'de> for GazeSeed<'_> {
-    type Value = RawGaze;
-    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a gaze datum (msgpack map)")
-    }
-    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<RawGaze, A::Error> {
-        let s = self.slot;
-        let mut r = RawGaze::default();
-        while let Some(key) = map.next_key::<Key>()? {
-            match key {
-                Key::Timestamp => r.timestamp = Some(value(&mut map, s, "timestamp")?),
-                Key::Confidence => r.confidence = Some(value(&mut map, s, "confidence")?),
-                Key::NormPos => r.norm_pos = Some(value(&mut map, s, "norm_pos")?),
-                Key::BaseData => {
-                    let (base, n) = map.next_value_seed(BaseDataSeed { slot: s })?;
-                    r.base = base;
-                    r.n_base = n;
-                }
-                Key::Unknown => {
-                    r.unknown_fields += 1;
-                    map.next_value::<IgnoredAny>()?;
-                }
-                _ => {
-                    map.next_value::<IgnoredAny>()?;
-                }
-            }
-        }
-        Ok(r)
-    }
-}
-
-/// `base_data`: a list of up to two pupil datums (more are skipped).
-struct BaseDataSeed<'s> {
-    slot: &'s FieldSlot,
-}
-
-impl<'de> DeserializeSeed<'de> for BaseDataSeed<'_> {
-    type Value = ([Option<RawPupil>; 2], usize);
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
-        let slot = self.slot;
-        d.deserialize_seq(self).inspect_err(|_| {
-            if slot.0.borrow().is_none() {
-                slot.prefix("base_data");
-            }
-        })
-    }
-}
-
-impl<'de> Visitor<'de> for BaseDataSeed<'_> {
-    type Value = ([Option<RawPupil>; 2], usize);
-    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a list of pupil datums")
-    }
-    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
-        let mut out = [None, None];
-        let mut n = 0;
-        for (i, entry) in out.iter_mut().enumerate() {
-            let had = self.slot.0.borrow().is_some();
-            match seq.next_element_seed(PupilSeed { slot: self.slot }) {
-                Ok(Some(p)) => {
-                    *entry = Some(p);
-                    n += 1;
-                }
-                Ok(None) => return Ok((out, n)),
-                Err(e) => {
-                    if had {
-                        return Err(e);
-                    }
-                    self.slot.prefix(&format!("base_data[{i}]"));
-                    return Err(e);
-                }
-            }
-        }
-        while seq.next_element::<IgnoredAny>()?.is_some() {
-            n += 1;
-        }
-        Ok((out, n))
-    }
 }
 
 impl RawGaze {
@@ -1109,6 +1318,27 @@ mod tests {
         // Garbage.
         let e = decode("pupil.0.2d", &[0xc1, 0xff, 0x00]).unwrap_err();
         assert!(matches!(e, DecodeError::Malformed { .. }), "{e:?}");
+    }
+
+    #[test]
+    fn hostile_payloads_are_bounded() {
+        // An unknown field nested 10 000 levels deep: refused, no stack
+        // overflow.
+        let mut b = vec![0x81, 0xa5];
+        b.extend_from_slice(b"extra");
+        b.extend(std::iter::repeat_n(0x91u8, 10_000));
+        b.push(0x01);
+        let e = decode("pupil.0.2d", &b).unwrap_err();
+        assert!(e.to_string().contains("nesting"), "{e}");
+        // A huge declared length with nothing behind it.
+        let e = decode("pupil.0.2d", &[0xdf, 0xff, 0xff, 0xff, 0xff]).unwrap_err();
+        assert!(e.to_string().contains("truncated"), "{e}");
+        // Trailing bytes after a complete datum.
+        let mut ok = rmp_serde::to_vec_named(&pupil2d(0, 1.0, 0.5, 20.0)).unwrap();
+        assert!(decode("pupil.0.2d", &ok).is_ok());
+        ok.push(0x00);
+        let e = decode("pupil.0.2d", &ok).unwrap_err();
+        assert!(e.to_string().contains("trailing"), "{e}");
     }
 
     #[test]
