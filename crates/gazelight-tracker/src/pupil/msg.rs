@@ -446,14 +446,15 @@ impl<'a> Cur<'a> {
         })
     }
 
-    /// A map key: `Some(text)` for a UTF-8 string key, `None` (key
-    /// skipped) for any other key.
+    /// A map key: `Some(bytes)` for a string key (compared as bytes, so
+    /// no UTF-8 validation on the hot path), `None` (key skipped) for any
+    /// other key.
     #[inline]
-    fn key(&mut self) -> Result<Option<&'a str>, Fail> {
+    fn key(&mut self) -> Result<Option<&'a [u8]>, Fail> {
         let at = self.p;
         let m = self.byte()?;
         match self.str_len(m)? {
-            Some(n) => Ok(std::str::from_utf8(self.take(n)?).ok()),
+            Some(n) => Ok(Some(self.take(n)?)),
             None => {
                 self.p = at;
                 self.skip(0)?;
@@ -610,9 +611,9 @@ impl<'a> Cur<'a> {
         let (mut center, mut axes, mut angle) = (None, None, None);
         for _ in 0..n {
             match self.key()? {
-                Some("center") => center = Some(self.f64s::<2>(F)?),
-                Some("axes") => axes = Some(self.f64s::<2>(F)?),
-                Some("angle") => angle = Some(self.f64(F)?),
+                Some(b"center") => center = Some(self.f64s::<2>(F)?),
+                Some(b"axes") => axes = Some(self.f64s::<2>(F)?),
+                Some(b"angle") => angle = Some(self.f64(F)?),
                 _ => self.skip(0)?,
             }
         }
@@ -637,9 +638,9 @@ impl<'a> Cur<'a> {
         let (mut center, mut normal, mut radius) = (None, None, None);
         for _ in 0..n {
             match self.key()? {
-                Some("center") => center = Some(self.f64s::<3>(F)?),
-                Some("normal") => normal = Some(self.f64s::<3>(F)?),
-                Some("radius") => radius = Some(self.f64(F)?),
+                Some(b"center") => center = Some(self.f64s::<3>(F)?),
+                Some(b"normal") => normal = Some(self.f64s::<3>(F)?),
+                Some(b"radius") => radius = Some(self.f64(F)?),
                 _ => self.skip(0)?,
             }
         }
@@ -660,21 +661,21 @@ impl<'a> Cur<'a> {
 }
 
 /// Pupil fields gazelight does not use (skipped without counting).
-fn is_unused_pupil_field(k: &str) -> bool {
+fn is_unused_pupil_field(k: &[u8]) -> bool {
     matches!(
         k,
-        "topic"
-            | "sphere"
-            | "projected_sphere"
-            | "location"
-            | "model_id"
-            | "model_birth_timestamp"
-            | "gaze_point_3d"
-            | "gaze_normal_3d"
-            | "gaze_normals_3d"
-            | "eye_center_3d"
-            | "eye_centers_3d"
-            | "__raw_data__"
+        b"topic"
+            | b"sphere"
+            | b"projected_sphere"
+            | b"location"
+            | b"model_id"
+            | b"model_birth_timestamp"
+            | b"gaze_point_3d"
+            | b"gaze_normal_3d"
+            | b"gaze_normals_3d"
+            | b"eye_center_3d"
+            | b"eye_centers_3d"
+            | b"__raw_data__"
     )
 }
 
@@ -703,18 +704,18 @@ fn read_pupil(c: &mut Cur<'_>, depth: usize) -> Result<RawPupil, Fail> {
             continue;
         };
         match key {
-            "id" => r.id = Some(c.u8_value("id")?),
-            "timestamp" => r.timestamp = Some(c.f64("timestamp")?),
-            "confidence" => r.confidence = Some(c.f64("confidence")?),
-            "diameter" => r.diameter = Some(c.f64("diameter")?),
-            "diameter_3d" => r.diameter_3d = Some(c.f64("diameter_3d")?),
-            "norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
-            "method" => r.method = method_of(c.str_value("method")?),
-            "ellipse" => r.ellipse = Some(c.ellipse()?),
-            "model_confidence" => r.model_confidence = Some(c.f64("model_confidence")?),
-            "circle_3d" => r.circle_3d = Some(c.circle_3d()?),
-            "theta" => r.theta = Some(c.f64("theta")?),
-            "phi" => r.phi = Some(c.f64("phi")?),
+            b"id" => r.id = Some(c.u8_value("id")?),
+            b"timestamp" => r.timestamp = Some(c.f64("timestamp")?),
+            b"confidence" => r.confidence = Some(c.f64("confidence")?),
+            b"diameter" => r.diameter = Some(c.f64("diameter")?),
+            b"diameter_3d" => r.diameter_3d = Some(c.f64("diameter_3d")?),
+            b"norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            b"method" => r.method = method_of(c.str_value("method")?),
+            b"ellipse" => r.ellipse = Some(c.ellipse()?),
+            b"model_confidence" => r.model_confidence = Some(c.f64("model_confidence")?),
+            b"circle_3d" => r.circle_3d = Some(c.circle_3d()?),
+            b"theta" => r.theta = Some(c.f64("theta")?),
+            b"phi" => r.phi = Some(c.f64("phi")?),
             k if is_unused_pupil_field(k) => c.skip(depth + 1)?,
             _ => {
                 r.unknown_fields += 1;
@@ -735,10 +736,10 @@ fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
             continue;
         };
         match key {
-            "timestamp" => r.timestamp = Some(c.f64("timestamp")?),
-            "confidence" => r.confidence = Some(c.f64("confidence")?),
-            "norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
-            "base_data" => {
+            b"timestamp" => r.timestamp = Some(c.f64("timestamp")?),
+            b"confidence" => r.confidence = Some(c.f64("confidence")?),
+            b"norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            b"base_data" => {
                 let m = c.byte()?;
                 let len = c
                     .array_len(m)?
@@ -786,13 +787,13 @@ struct RawPupil {
     unknown_fields: u32,
 }
 
-fn unit_interval(topic: &str, field: &str, v: f64) -> Result<f32, DecodeError> {
+fn unit_interval(topic: &str, field: impl FnOnce() -> String, v: f64) -> Result<f32, DecodeError> {
     if (0.0..=1.0).contains(&v) {
         Ok(v as f32)
     } else {
         Err(DecodeError::Field {
             topic: topic.to_owned(),
-            field: field.to_owned(),
+            field: field(),
             reason: format!("{v} is outside 0..=1"),
         })
     }
@@ -858,7 +859,7 @@ impl RawPupil {
         }
         let confidence = unit_interval(
             topic,
-            &name("confidence"),
+            || name("confidence"),
             self.confidence.ok_or_else(|| missing("confidence"))?,
         )?;
         let method = topic_method
@@ -932,20 +933,24 @@ impl RawGaze {
         }
         let confidence = unit_interval(
             topic,
-            "confidence",
+            || "confidence".to_owned(),
             self.confidence.ok_or_else(|| missing("confidence"))?,
         )?;
         let p = self.norm_pos.ok_or_else(|| missing("norm_pos"))?;
         let mut base: [Option<PupilSample>; 2] = [None, None];
         for (i, raw) in self.base.iter().enumerate() {
             if let Some(raw) = raw {
-                let prefix = format!("base_data[{i}]");
-                let d = raw.finish_with(topic, &prefix, None, None)?;
+                let prefix = if i == 0 {
+                    "base_data[0]"
+                } else {
+                    "base_data[1]"
+                };
+                let d = raw.finish_with(topic, prefix, None, None)?;
                 let slot = &mut base[d.sample.eye as usize];
                 if slot.is_some() {
                     return Err(DecodeError::Field {
                         topic: topic.to_owned(),
-                        field: prefix,
+                        field: prefix.to_owned(),
                         reason: format!("second datum for eye {}", d.sample.eye),
                     });
                 }
