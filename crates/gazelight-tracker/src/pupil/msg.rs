@@ -319,10 +319,10 @@ impl Fail {
             }
             Fail::Type {
                 path,
-                field,
+                field: "",
                 expected,
                 found,
-            } if field.is_empty() => {
+            } => {
                 if path.is_empty() {
                     malformed(format!("payload is {found}, expected {expected}"))
                 } else {
