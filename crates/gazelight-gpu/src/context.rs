@@ -293,3 +293,149 @@ impl GpuContext {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shaders::WgslShader;
+    use crate::testing::test_context;
+
+    #[test]
+    fn test_device_has_the_webgpu_default_limits() {
+        let Some(ctx) = test_context("test_device_has_the_webgpu_default_limits") else {
+            return;
+        };
+        let defaults = wgpu::Limits::default();
+        assert_eq!(
+            ctx.limits().max_compute_workgroup_storage_size,
+            defaults.max_compute_workgroup_storage_size
+        );
+        assert_eq!(
+            ctx.limits().max_storage_buffer_binding_size,
+            defaults.max_storage_buffer_binding_size
+        );
+        assert!(!ctx.adapter_info().name.is_empty());
+    }
+
+    #[test]
+    fn adapter_choice_filters_by_device_type() {
+        let Some(shared) = test_context("adapter_choice_filters_by_device_type") else {
+            return;
+        };
+        for choice in [AdapterChoice::Hardware, AdapterChoice::Software] {
+            let options = ContextOptions {
+                adapter: choice,
+                ..ContextOptions::default()
+            };
+            match GpuContext::new(&options) {
+                Ok(ctx) => {
+                    println!("{choice}: {}", ctx.describe());
+                    assert_eq!(
+                        ctx.adapter_info().device_type == wgpu::DeviceType::Cpu,
+                        choice == AdapterChoice::Software
+                    );
+                }
+                Err(e) => {
+                    println!("{choice}: {e}");
+                    assert!(matches!(&e, GpuError::NoAdapter { .. }), "{e}");
+                    assert!(e.to_string().contains(&choice.to_string()), "{e}");
+                }
+            }
+        }
+        // Auto picks the shared device's adapter type first (hardware if any).
+        let auto = GpuContext::new(&ContextOptions::default()).unwrap();
+        assert_eq!(
+            auto.adapter_info().device_type,
+            shared.adapter_info().device_type
+        );
+    }
+
+    #[test]
+    fn pipeline_creation_rejects_oversized_workgroup_storage_on_the_device() {
+        let Some(ctx) =
+            test_context("pipeline_creation_rejects_oversized_workgroup_storage_on_the_device")
+        else {
+            return;
+        };
+        // wgpu 30 itself accepts this 64 KiB shader; the check must not.
+        let oversized = WgslShader {
+            name: "oversized_device_test.wgsl",
+            source: "
+                var<workgroup> tile: array<vec4<f32>, 4096>;
+                @group(0) @binding(0) var<storage, read_write> out: array<vec4<f32>>;
+                @compute @workgroup_size(64)
+                fn main(@builtin(local_invocation_index) i: u32) {
+                    tile[i] = vec4<f32>(f32(i));
+                    workgroupBarrier();
+                    out[i] = tile[4095u - i];
+                }
+            ",
+        };
+        let layout = ctx
+            .device()
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: None,
+                entries: &[wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                }],
+            });
+        let err = ctx
+            .create_compute_pipeline(&oversized, "main", &[&layout])
+            .unwrap_err();
+        assert!(
+            matches!(
+                &err,
+                GpuError::WorkgroupStorage {
+                    shader: "oversized_device_test.wgsl",
+                    bytes: 65536,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let err = ctx
+            .create_compute_pipeline(&crate::shaders::FFT, "nope", &[&layout])
+            .unwrap_err();
+        assert!(matches!(&err, GpuError::MissingEntryPoint { .. }), "{err}");
+        // A layout that does not match the shader: wgpu's validation error is
+        // captured and returned, not a panic.
+        let err = ctx
+            .create_compute_pipeline(&crate::shaders::FFT, "fft_stage", &[&layout])
+            .unwrap_err();
+        assert!(matches!(&err, GpuError::Wgpu { .. }), "{err}");
+        println!("captured: {err}");
+    }
+
+    #[test]
+    fn wraps_a_callers_device() {
+        let Some(ctx) = test_context("wraps_a_callers_device") else {
+            return;
+        };
+        let host = GpuContext::from_device(ctx.device().clone(), ctx.queue().clone());
+        assert_eq!(host.adapter_info().name, ctx.adapter_info().name);
+        assert_eq!(
+            host.limits().max_compute_workgroup_storage_size,
+            ctx.limits().max_compute_workgroup_storage_size
+        );
+        // The host's device runs the passes.
+        let fft = crate::fft::GpuFft2d::new(&host, 4, 4, 1).unwrap();
+        let x: Vec<[f32; 2]> = (0..16).map(|i| [i as f32, 0.0]).collect();
+        fft.upload(&host, &x).unwrap();
+        fft.run(&host, crate::fft::FftDirection::Forward);
+        let mut out = vec![[0.0; 2]; 16];
+        fft.download(&host, &mut out).unwrap();
+        // DC term = Σ x = 120.
+        assert!(
+            (out[0][0] - 120.0).abs() < 1e-4 && out[0][1].abs() < 1e-4,
+            "{:?}",
+            out[0]
+        );
+    }
+}
