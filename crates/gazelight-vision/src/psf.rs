@@ -805,6 +805,10 @@ mod tests {
             let r = first_minimum_rad(&m);
             let expected = 1.22 * lambda_m / (d_mm * 1e-3);
             let err = (r - expected).abs() / expected;
+            eprintln!(
+                "D = {d_mm} mm: first minimum {r:.5e} rad, 1.22 λ/D = {expected:.5e} rad, error {:.2} %",
+                err * 100.0
+            );
             assert!(
                 err < 0.03,
                 "D = {d_mm} mm: first minimum {r:.4e} rad, expected {expected:.4e} (err {err:.4})"
@@ -887,6 +891,7 @@ mod tests {
         };
         let f_clean = core_fraction(&monochromatic_psf(&clean, 575.0).unwrap(), 6.0);
         let f_dusty = core_fraction(&monochromatic_psf(&dusty, 575.0).unwrap(), 6.0);
+        eprintln!("energy inside the Airy core: clean {f_clean:.4}, with particles {f_dusty:.4}");
         // An Airy pattern holds 83.8 % of its energy inside the first dark ring.
         assert!(
             (f_clean - 0.838).abs() < 0.02,
