@@ -26,7 +26,11 @@
 //! log units, at `log La = −1.44` the scotopic ones by 0.012, and eq 3's
 //! middle branch is 0.9993 at 3 cd/m² (jumping to 1). Just above 0.03 cd/m²
 //! the base of eq 3 is −0.00044 (a negative number to the power 1.5); it is
-//! clamped to 0 so k is continuous there.
+//! clamped to 0 so k is continuous there. As a result `t_m` is increasing
+//! except for three small downward jumps: −2.8 % at `La = 10^−1.44`
+//! (scotopic branches), −0.07 % at 3 cd/m² (k) and −0.7 % at `10^1.9`
+//! (photopic branches); `t*` jumps up by the same ratios when `L_wa`
+//! crosses them.
 //!
 //! Non-positive luminances fall into the lowest branch (log → −∞). NaN
 //! propagates.
