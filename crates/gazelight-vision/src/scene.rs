@@ -268,7 +268,7 @@ impl ViewParams {
                 "a finite angle",
             ));
         }
-        if !(self.pitch_deg.abs() <= 90.0) {
+        if self.pitch_deg.is_nan() || self.pitch_deg.abs() > 90.0 {
             return Err(VisionError::invalid(
                 "view.pitch_deg",
                 self.pitch_deg,
