@@ -161,6 +161,19 @@ impl GpuFft2d {
     /// values. Sizes must be powers of two in 1..=2048 and the planes must fit
     /// one storage binding of the device.
     pub fn new(ctx: &GpuContext, width: u32, height: u32, channels: u32) -> Result<Self, GpuError> {
+        Self::with_pass(ctx, &FftPass::new(ctx)?, width, height, channels)
+    }
+
+    /// As [`GpuFft2d::new`], sharing an already built [`FftPass`] (one
+    /// pipeline for all plans of a device).
+    pub fn with_pass(
+        ctx: &GpuContext,
+        pass: &FftPass,
+        width: u32,
+        height: u32,
+        channels: u32,
+    ) -> Result<Self, GpuError> {
+        let pass = pass.clone();
         let size_error = |reason: String| GpuError::FftSize {
             width,
             height,
@@ -184,7 +197,6 @@ impl GpuFft2d {
             )));
         }
 
-        let pass = FftPass::new(ctx)?;
         let n_max = width.max(height);
         let twiddle_table: Vec<[f32; 2]> = (0..n_max)
             .map(|m| {
@@ -614,7 +626,8 @@ mod tests {
         // 2048²×5 planes = 160 MiB: over the default 128 MiB storage binding.
         let err = GpuFft2d::new(ctx, 2048, 2048, 5).unwrap_err();
         assert!(err.to_string().contains("storage binding limit"), "{err}");
-        let fft = GpuFft2d::new(ctx, 4, 4, 1).unwrap();
+        let pass = FftPass::new(ctx).unwrap();
+        let fft = GpuFft2d::with_pass(ctx, &pass, 4, 4, 1).unwrap();
         assert!(matches!(
             fft.upload(ctx, &[[0.0; 2]; 15]),
             Err(GpuError::Length {
