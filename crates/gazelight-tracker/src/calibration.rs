@@ -28,6 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::filter::{BlinkConfig, BlinkDetector, ConfidenceGate};
 use crate::sample::{PupilSample, PupilUnit, Sample};
+use crate::source::{SampleSource, SourceError};
 
 /// The schema identifier profiles carry.
 pub const SCHEMA: &str = "gazelight.pupil-calibration/1";
@@ -160,6 +161,9 @@ pub enum CalibrationError {
     Sink(String),
     #[error("the calibration session is not finished (phase {0:?})")]
     NotFinished(Phase),
+    /// The sample source failed for good (or ended) during the session.
+    #[error("sample source: {0}")]
+    Source(String),
 }
 
 impl PupilCalibration {
@@ -713,6 +717,59 @@ where
         let Sample::Pupil(p) = s else { continue };
         if session.feed(&p, sink)? == Progress::Done {
             break;
+        }
+    }
+    let cal = session.finish()?;
+    if let Some(path) = save_to {
+        cal.save(path)?;
+    }
+    Ok(cal)
+}
+
+/// [`run_calibration`] over an asynchronous [`SampleSource`] (a live
+/// tracker, a paced replay): reads samples until both phases are done and
+/// shows `Stimulus::None`; only on success saves the profile to `save_to`.
+///
+/// Bad items of a replay ([`SourceError::Item`]) and transient
+/// disconnections are skipped (the phases run on the samples' clock, so a
+/// long gap simply ends a phase, and too few valid samples then fail it);
+/// a fatal source error or the end of the stream before the end of the
+/// session is an error, and nothing is written. The caller bounds the
+/// whole run in time (e.g. `tokio::time::timeout`) in case a live source
+/// goes silent. A [`crate::pupil::RemoteSink`] delivers the stimuli
+/// asynchronously: `flush` it afterwards to know they all arrived.
+pub async fn run_calibration_source<S: SampleSource>(
+    cfg: CalibrationConfig,
+    source: &mut S,
+    sink: &mut (dyn StimulusSink + Send),
+    save_to: Option<&Path>,
+) -> Result<PupilCalibration, CalibrationError> {
+    let mut session = CalibrationSession::new(cfg)?;
+    let mut skipped = 0u64;
+    loop {
+        match source.next().await {
+            Ok(Some(Sample::Pupil(p))) => {
+                if session.feed(&p, sink)? == Progress::Done {
+                    break;
+                }
+            }
+            Ok(Some(_)) => {}
+            Ok(None) => {
+                return Err(CalibrationError::Source(format!(
+                    "{} ended before the calibration finished ({:?})",
+                    source.describe(),
+                    session.progress()
+                )));
+            }
+            Err(e @ (SourceError::Item { .. } | SourceError::Disconnected { .. })) => {
+                skipped += 1;
+                if skipped <= 10 || skipped.is_multiple_of(1000) {
+                    tracing::warn!(error = %e, skipped, "calibration: source item skipped");
+                }
+            }
+            Err(e @ SourceError::Fatal { .. }) => {
+                return Err(CalibrationError::Source(e.to_string()));
+            }
         }
     }
     let cal = session.finish()?;

@@ -18,15 +18,17 @@ pub use sample::{
 };
 pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
 pub use trace::{GazeTrace, TraceError, TraceSample};
-pub mod import;
 pub mod calibration;
 pub mod filter;
-pub mod pupil_model;
+pub mod import;
 pub mod pupil;
+pub mod pupil_model;
 pub mod recording;
 pub mod source;
-pub use pupil::{PupilClient, PupilConfig, PupilError, PupilSource, PupilStats};
+pub use pupil::{
+    PupilClient, PupilConfig, PupilError, PupilNotifier, PupilSource, PupilStats, RemoteSink,
+};
 pub use recording::{PldataReader, PldataWriter, RecordingError};
 pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
-pub mod synthetic;
 pub mod summary;
+pub mod synthetic;

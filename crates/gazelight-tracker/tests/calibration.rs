@@ -6,9 +6,10 @@ use std::path::PathBuf;
 
 use gazelight_tracker::calibration::{
     CalibrationConfig, CalibrationError, LogSink, Phase, PupilCalibration, Stimulus, StimulusError,
-    StimulusSink, run_calibration,
+    StimulusSink, run_calibration, run_calibration_source,
 };
 use gazelight_tracker::import;
+use gazelight_tracker::source::{Pacing, ReplaySource};
 use gazelight_tracker::synthetic::black_white_session;
 use gazelight_tracker::{PupilUnit, Sample};
 
@@ -259,4 +260,56 @@ fn the_chain_uses_the_calibration() {
     }
     assert!((chain.state().eyes[0].pupil_mm - 5.0).abs() < 1e-4);
     assert_eq!(chain.stats().uncalibrated, [0, 0]);
+}
+
+#[tokio::test]
+async fn async_driver_matches_the_sync_one_and_fails_on_a_short_source() {
+    let samples = black_white_session(3, 5.0, 7.0, 3.0, PupilUnit::Px, 12.0, 0.1, 0.3);
+    let mut sync_sink = LogSink::default();
+    let want = run_calibration(
+        CalibrationConfig::default(),
+        samples.iter().copied(),
+        &mut sync_sink,
+        None,
+    )
+    .unwrap();
+    let items = samples.iter().copied().map(Ok::<Sample, std::io::Error>);
+    let mut source = ReplaySource::new("session", items, Pacing::AsFastAsPossible);
+    let mut sink = LogSink::default();
+    let path = tmp("async");
+    let got = run_calibration_source(
+        CalibrationConfig::default(),
+        &mut source,
+        &mut sink,
+        Some(&path),
+    )
+    .await
+    .unwrap();
+    assert_eq!(got, want);
+    assert_eq!(sink, sync_sink);
+    assert_eq!(PupilCalibration::load(&path).unwrap(), want);
+
+    // The stream ends in the white phase: an error naming the source, and
+    // no file.
+    let end = samples[0].t_secs() + 7.0;
+    let short: Vec<_> = samples
+        .iter()
+        .copied()
+        .filter(|s| s.t_secs() < end)
+        .map(Ok::<Sample, std::io::Error>)
+        .collect();
+    let mut source = ReplaySource::new("short", short.into_iter(), Pacing::AsFastAsPossible);
+    let path = tmp("async-short");
+    let _ = std::fs::remove_file(&path);
+    let err = run_calibration_source(
+        CalibrationConfig::default(),
+        &mut source,
+        &mut LogSink::default(),
+        Some(&path),
+    )
+    .await
+    .unwrap_err();
+    assert!(matches!(err, CalibrationError::Source(_)), "{err}");
+    assert!(err.to_string().contains("replay of short"), "{err}");
+    assert!(!path.exists());
 }

@@ -7,6 +7,12 @@
 //! Pupil's layout, and reconnection after the peer is killed and
 //! restarted on the same ports.
 //!
+//! `live_calibration_through_remote_sink` runs the black/white calibration
+//! hardware-in-loop against the peer: the stimulus goes out as
+//! `gazelight.stimulus` notifications through [`RemoteSink`], the peer's
+//! simulated pupils follow it, and the profile must match the peer's
+//! pupil sizes.
+//!
 //! Without python3 + pyzmq + msgpack the test is skipped with a message,
 //! unless the `CI` environment variable is set, where it fails.
 
@@ -16,8 +22,11 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
+use gazelight_tracker::calibration::{CalibrationConfig, PupilCalibration, run_calibration_source};
 use gazelight_tracker::pupil::clock::host_now_secs;
-use gazelight_tracker::pupil::{PupilClient, PupilConfig, PupilStats, PupilStreams};
+use gazelight_tracker::pupil::{
+    PupilClient, PupilConfig, PupilSource, PupilStats, PupilStreams, RemoteSink,
+};
 use gazelight_tracker::recording::{PldataReader, PldataWriter, read_npy_f64, stream_paths};
 use gazelight_tracker::{DetectorMethod, GazeEyes, PupilUnit, Sample};
 use tokio::time::timeout;
@@ -43,7 +52,7 @@ impl Drop for Peer {
     }
 }
 
-fn start_peer(ports: (u16, u16, u16)) -> Peer {
+fn start_peer(ports: (u16, u16, u16), extra: &[&str]) -> Peer {
     let mut child = Command::new("python3")
         .arg(peer_script())
         .args(["--remote-port", &ports.0.to_string()])
@@ -57,6 +66,7 @@ fn start_peer(ports: (u16, u16, u16)) -> Peer {
             "--timeout",
             "28",
         ])
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -257,7 +267,7 @@ async fn pupil_capture_interop() {
 }
 
 async fn run() {
-    let peer = start_peer((0, 0, 0));
+    let peer = start_peer((0, 0, 0), &[]);
     let ports = peer.ports;
     let config = PupilConfig {
         remote_port: ports.0,
@@ -374,7 +384,7 @@ async fn run() {
     let received_before = client.stats().received;
     tokio::time::sleep(Duration::from_millis(500)).await;
     // Restart on the same ports; the client reconnects and receives again.
-    let peer = start_peer(ports);
+    let peer = start_peer(ports, &[]);
     assert_eq!(peer.ports, ports);
     wait_for(&client, Duration::from_secs(8), "reconnect", |s| {
         s.connected && s.reconnects >= 1
@@ -390,5 +400,102 @@ async fn run() {
     assert!(err.abs() < 0.002, "offset error after reconnect {err} s");
     eprintln!("stats after reconnect: {after:?}");
     client.shutdown().await;
+    drop(peer);
+}
+
+/// Settings with short timeouts for a peer on 127.0.0.1.
+fn local_config(remote_port: u16) -> PupilConfig {
+    PupilConfig {
+        remote_port,
+        request_timeout: Duration::from_millis(300),
+        connect_timeout: Duration::from_millis(300),
+        idle_timeout: Duration::from_millis(300),
+        backoff_initial: Duration::from_millis(50),
+        backoff_max: Duration::from_millis(400),
+        ..PupilConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_calibration_through_remote_sink() {
+    if let Err(why) = python_ready() {
+        if std::env::var_os("CI").is_some() {
+            panic!("live calibration test needs python3 with pyzmq and msgpack in CI: {why}");
+        }
+        eprintln!("SKIPPED live_calibration_through_remote_sink: {why}");
+        return;
+    }
+    timeout(Duration::from_secs(20), live_calibration())
+        .await
+        .expect("live calibration test exceeded 20 s");
+}
+
+async fn live_calibration() {
+    // Pupil response time constant 0.08 s: after the 0.3 s settle time the
+    // pupil is within e^-3.75 ≈ 2 % of its target, and the median of the
+    // remaining 1.2 s is within a fraction of a per cent.
+    let peer = start_peer((0, 0, 0), &["--tau", "0.08"]);
+    let (mut source, _raw) = PupilSource::spawn(PupilConfig {
+        topics: vec!["pupil.".to_owned()],
+        ..local_config(peer.ports.0)
+    });
+    source
+        .client()
+        .wait_connected(Duration::from_secs(5))
+        .await
+        .expect("handshake with the peer");
+    let mut sink = RemoteSink::new(
+        source.client().notifier(),
+        &tokio::runtime::Handle::current(),
+    );
+    let cfg = CalibrationConfig {
+        phase_duration_s: 1.5,
+        settle_s: 0.3,
+        ..CalibrationConfig::default()
+    };
+    let dir = std::env::temp_dir().join(format!("gazelight-livecal-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("profile.json");
+    let cal = run_calibration_source(cfg, &mut source, &mut sink, Some(&path))
+        .await
+        .expect("calibration against the peer");
+    sink.flush().await.expect("every stimulus delivered");
+    assert_eq!(sink.queued(), 3);
+
+    let st: serde_json::Value =
+        serde_json::from_str(&ask_peer(peer.ports.0, "peer.stimulus").await).unwrap();
+    assert_eq!(
+        st["log"],
+        serde_json::json!(["black", "white", "none"]),
+        "{st}"
+    );
+    for eye in 0..2u8 {
+        let c = cal
+            .eye(eye)
+            .unwrap_or_else(|| panic!("no map for eye {eye}: {cal:?}"));
+        assert_eq!(c.raw_unit, PupilUnit::Px);
+        let black = st["targets"]["black"]["px"][eye as usize].as_f64().unwrap();
+        let white = st["targets"]["white"]["px"][eye as usize].as_f64().unwrap();
+        eprintln!(
+            "eye {eye}: raw_black {:.3} px (peer {black:.3}), raw_white {:.3} px (peer {white:.3})",
+            c.raw_black, c.raw_white
+        );
+        assert!(
+            (c.raw_black / black - 1.0).abs() < 0.01,
+            "eye {eye}: {c:?} vs {black}"
+        );
+        assert!(
+            (c.raw_white / white - 1.0).abs() < 0.01,
+            "eye {eye}: {c:?} vs {white}"
+        );
+        // The peer's pupil sizes map onto the configured 8 and 2 mm.
+        assert!((c.map(black) - 8.0).abs() < 0.1, "{}", c.map(black));
+        assert!((c.map(white) - 2.0).abs() < 0.1, "{}", c.map(white));
+    }
+    let saved = PupilCalibration::load(&path).expect("saved profile loads");
+    assert_eq!(saved, cal);
+    std::fs::remove_dir_all(&dir).unwrap();
+    drop(source);
     drop(peer);
 }

@@ -9,7 +9,15 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
   "Message forwarded.". `T` is refused (the test asserts the client never
   sends it). Test-only commands: `peer.notifications` (JSON list of the
   notifications received), `peer.counts` (JSON: commands seen, datums
-  published).
+  published), `peer.stimulus` (JSON: the `gazelight.stimulus` colours
+  received in order, the pupil targets of each colour, the time constant).
+* A simulated pupil light reflex: a `notify.gazelight.stimulus`
+  notification with `color` = "black" | "white" | "none" sets the target
+  of every published pupil diameter (2D px and 3D mm, both eyes) to its
+  resting value times --black-gain, --white-gain or 1, and the published
+  diameters follow the target with a first-order response (time constant
+  --tau seconds), so a hardware-in-loop calibration can run against the
+  peer. Before any stimulus the diameters are exactly the resting values.
 * The bus (PUB, --sub-port): 2D and 3D pupil datums for both eyes,
   binocular gaze (`gaze.3d.01.`) and, every fifth cycle, monocular gaze
   (`gaze.3d.0.`, the right eye alone, as Pupil does when the left eye's
@@ -28,6 +36,7 @@ and flushes. Ports given as 0 are chosen free. It exits by itself after
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -53,8 +62,47 @@ def pupil_time(offset):
     return time.time() + offset
 
 
+class Pupils:
+    """The published diameters: resting values moved by the stimulus with a
+    first-order response, d += (target - d) * (1 - exp(-dt / tau))."""
+
+    def __init__(self, black_gain, white_gain, tau):
+        self.gain = {"black": black_gain, "white": white_gain, "none": 1.0}
+        self.tau = tau
+        self.color = "none"
+        self.px = {e: PUPIL_2D[e]["diameter"] for e in (0, 1)}
+        self.mm = {e: PUPIL_3D[e]["diameter_3d"] for e in (0, 1)}
+        self.last = time.monotonic()
+
+    def targets(self, color):
+        g = self.gain[color]
+        return {
+            "px": [PUPIL_2D[e]["diameter"] * g for e in (0, 1)],
+            "mm": [PUPIL_3D[e]["diameter_3d"] * g for e in (0, 1)],
+        }
+
+    def show(self, color):
+        if color not in self.gain:
+            return False
+        self.advance()
+        self.color = color
+        return True
+
+    def advance(self):
+        now = time.monotonic()
+        k = 1.0 - math.exp(-max(0.0, now - self.last) / self.tau)
+        self.last = now
+        t = self.targets(self.color)
+        for e in (0, 1):
+            self.px[e] += (t["px"][e] - self.px[e]) * k
+            self.mm[e] += (t["mm"][e] - self.mm[e]) * k
+
+
+PUPILS = None
+
+
 def pupil_2d(eye, ts):
-    v = PUPIL_2D[eye]
+    v = dict(PUPIL_2D[eye], diameter=PUPILS.px[eye])
     return {
         "topic": "pupil.%d.2d" % eye,
         "id": eye,
@@ -69,7 +117,7 @@ def pupil_2d(eye, ts):
 
 def pupil_3d(eye, ts):
     d = pupil_2d(eye, ts)
-    v = PUPIL_3D[eye]
+    v = dict(PUPIL_3D[eye], diameter_3d=PUPILS.mm[eye])
     d.update(
         {
             "topic": "pupil.%d.3d" % eye,
@@ -109,7 +157,13 @@ def main():
     ap.add_argument("--rate", type=float, default=200.0, help="pupil datums per eye per second")
     ap.add_argument("--offset", type=float, default=1234.5, help="pupil time - wall clock, seconds")
     ap.add_argument("--timeout", type=float, default=25.0, help="exit after this many seconds")
+    ap.add_argument("--black-gain", type=float, default=1.5, help="pupil under black / resting pupil")
+    ap.add_argument("--white-gain", type=float, default=0.6, help="pupil under white / resting pupil")
+    ap.add_argument("--tau", type=float, default=0.1, help="time constant of the pupil response, s")
     args = ap.parse_args()
+    global PUPILS
+    PUPILS = Pupils(args.black_gain, args.white_gain, args.tau)
+    stimuli = []
 
     ctx = zmq.Context.instance()
     rep = ctx.socket(zmq.REP)
@@ -162,6 +216,14 @@ def main():
                     reply = VERSION
                 elif cmd == "peer.notifications":
                     reply = json.dumps(notifications)
+                elif cmd == "peer.stimulus":
+                    reply = json.dumps(
+                        {
+                            "log": stimuli,
+                            "targets": {c: PUPILS.targets(c) for c in ("black", "white", "none")},
+                            "tau_s": PUPILS.tau,
+                        }
+                    )
                 elif cmd == "peer.counts":
                     reply = json.dumps({"commands": commands, "published": published})
                 else:
@@ -171,11 +233,16 @@ def main():
                 topic = frames[0].decode("utf-8", "replace")
                 payload = msgpack.unpackb(frames[1], raw=False, strict_map_key=False)
                 notifications.append({"topic": topic, "payload": payload})
+                if topic == "notify.gazelight.stimulus" and isinstance(payload, dict):
+                    color = payload.get("color")
+                    if isinstance(color, str) and PUPILS.show(color):
+                        stimuli.append(color)
                 pub.send_multipart([frames[0], frames[1]])
                 rep.send_string("Message forwarded.")
         now = time.monotonic()
         if now >= next_pub:
             ts = pupil_time(args.offset)
+            PUPILS.advance()
             base = []
             for eye in (0, 1):
                 send("pupil.%d.2d" % eye, pupil_2d(eye, ts))

@@ -27,6 +27,9 @@
 
 pub mod clock;
 pub mod msg;
+pub mod stimulus;
+
+pub use stimulus::{RemoteSink, STIMULUS_SUBJECT};
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -247,6 +250,49 @@ pub struct PupilStreams {
     pub raw: Option<mpsc::Receiver<RawDatum>>,
 }
 
+/// Sends notifications through a running [`PupilClient`]; cheap to clone.
+#[derive(Clone, Debug)]
+pub struct PupilNotifier {
+    cmd: mpsc::Sender<Command>,
+    /// Bound on one notification: the worker answers within one request
+    /// timeout once it gets to the command; this allows for one clock round
+    /// in front of it.
+    limit: Duration,
+}
+
+impl PupilNotifier {
+    /// Sends a notification `notify.<subject>` with `fields` through Pupil
+    /// Remote and waits (bounded) for "Message forwarded.".
+    pub async fn send_notification(
+        &self,
+        subject: &str,
+        fields: &[(&str, rmpv::Value)],
+    ) -> Result<(), PupilError> {
+        let (topic, payload) =
+            msg::encode_notification(subject, fields).map_err(|e| PupilError::Encode {
+                subject: subject.to_owned(),
+                reason: e.to_string(),
+            })?;
+        let (reply, rx) = oneshot::channel();
+        self.cmd
+            .send(Command::Notify {
+                topic,
+                payload,
+                reply,
+            })
+            .await
+            .map_err(|_| PupilError::Stopped)?;
+        match timeout(self.limit, rx).await {
+            Ok(Ok(r)) => r,
+            Ok(Err(_)) => Err(PupilError::Stopped),
+            Err(_) => Err(PupilError::Timeout {
+                what: format!("notification `{subject}`"),
+                after_ms: self.limit.as_millis(),
+            }),
+        }
+    }
+}
+
 /// Handle to a running client task. Dropping it stops the task.
 pub struct PupilClient {
     cmd: mpsc::Sender<Command>,
@@ -323,30 +369,16 @@ impl PupilClient {
         subject: &str,
         fields: &[(&str, rmpv::Value)],
     ) -> Result<(), PupilError> {
-        let (topic, payload) =
-            msg::encode_notification(subject, fields).map_err(|e| PupilError::Encode {
-                subject: subject.to_owned(),
-                reason: e.to_string(),
-            })?;
-        let (reply, rx) = oneshot::channel();
-        self.cmd
-            .send(Command::Notify {
-                topic,
-                payload,
-                reply,
-            })
-            .await
-            .map_err(|_| PupilError::Stopped)?;
-        // The worker answers within one request timeout once it gets to
-        // the command; allow for one clock round in front of it.
-        let limit = self.config.request_timeout * (self.config.clock_probes as u32 + 2);
-        match timeout(limit, rx).await {
-            Ok(Ok(r)) => r,
-            Ok(Err(_)) => Err(PupilError::Stopped),
-            Err(_) => Err(PupilError::Timeout {
-                what: format!("notification `{subject}`"),
-                after_ms: limit.as_millis(),
-            }),
+        self.notifier().send_notification(subject, fields).await
+    }
+
+    /// A cloneable handle that sends notifications through this client
+    /// (for [`RemoteSink`] and other tasks); it stops working with
+    /// [`PupilError::Stopped`] once the client is dropped or shut down.
+    pub fn notifier(&self) -> PupilNotifier {
+        PupilNotifier {
+            cmd: self.cmd.clone(),
+            limit: self.config.request_timeout * (self.config.clock_probes as u32 + 2),
         }
     }
 
