@@ -18,13 +18,16 @@
 //!   `info.json`, `*.dtype`, `* ps1.raw`, `* ps1.time`);
 //! - [`eyelink`]: SR Research EyeLink ASC exports;
 //! - [`csv`]: pupil-diameter CSV traces (`time,left,right` in mm, as the
-//!   piprkit PLR recordings).
+//!   piprkit PLR recordings);
+//! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
+//!   `gaze.pldata`), as Pupil Capture and [`crate::recording`] write them.
 //!
 //! [`open`] picks the importer from the path.
 
 pub mod csv;
 pub mod eyelink;
 pub mod neon;
+pub mod pupil_core;
 
 use std::path::{Path, PathBuf};
 
@@ -108,16 +111,22 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
 }
 
 /// Opens a recording, picking the importer from the path: a directory with
-/// an `info.json` and `eye_state.dtype` is a Neon recording, `*.asc` an
+/// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
+/// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
 /// EyeLink ASC export, `*.csv` a pupil CSV trace.
 pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
     if path.is_dir() {
         if path.join("info.json").is_file() && path.join("eye_state.dtype").is_file() {
             return Ok(Box::new(neon::NeonImporter::open(path)?));
         }
+        if pupil_core::PupilCoreImporter::detect(path) {
+            return Ok(Box::new(pupil_core::PupilCoreImporter::open(path)?));
+        }
         return Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "a directory without info.json + eye_state.dtype (Neon)".into(),
+            reason: "a directory with neither info.json + eye_state.dtype (Neon) nor \
+                     pupil.pldata / gaze.pldata (Pupil Core)"
+                .into(),
         });
     }
     let ext = path
@@ -129,7 +138,7 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
         Some("csv") => Ok(Box::new(csv::CsvPupilImporter::open(path)?)),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "expected a Neon directory, an .asc or a .csv file".into(),
+            reason: "expected a Neon or Pupil Core directory, an .asc or a .csv file".into(),
         }),
     }
 }

@@ -1003,6 +1003,78 @@ pub fn encode_notification(
     Ok((format!("notify.{subject}"), buf))
 }
 
+/// Encodes a sample as the Pupil datum it would have come from, for
+/// recording synthetic or imported traces in Pupil's layout (see
+/// [`crate::recording::PldataWriter`]): `(topic, msgpack map)`, or `None`
+/// for a blink event (Pupil publishes blinks as a separate plugin's datum
+/// with other fields).
+///
+/// Pupil samples become `pupil.<eye>.2d`, or `pupil.<eye>.3d` for
+/// [`DetectorMethod::Pupil3d`], with `id`, `method`, `timestamp`,
+/// `confidence`, `norm_pos` (left out when NaN) and the diameter: a raw
+/// value in mm as `diameter_3d` alone, any other raw value as `diameter`
+/// (plus `diameter_3d` when `diameter_mm` is known). Decoding gives the
+/// sample back, except that [`DetectorMethod::Other`] comes back as 2D and
+/// a raw unit other than px or mm comes back as px. Gaze samples become
+/// `gaze.3d.01.` / `gaze.3d.0.` / `gaze.3d.1.` with `norm_pos` converted
+/// back to Pupil's bottom-left origin and no `base_data`.
+pub fn encode_sample(sample: &Sample) -> Result<Option<(String, Vec<u8>)>, rmpv::encode::Error> {
+    use rmpv::Value as V;
+    let pair = |a: f32, b: f32| V::Array(vec![V::from(a as f64), V::from(b as f64)]);
+    let (topic, entries) = match sample {
+        Sample::Pupil(p) => {
+            let three_d = p.method == DetectorMethod::Pupil3d;
+            let topic = format!("pupil.{}.{}", p.eye, if three_d { "3d" } else { "2d" });
+            let method = if three_d {
+                "pye3d 0.3.0 real-time"
+            } else {
+                "2d c++"
+            };
+            let mut e = vec![
+                ("topic", V::from(topic.as_str())),
+                ("id", V::from(p.eye)),
+                ("method", V::from(method)),
+                ("timestamp", V::from(p.t_secs)),
+                ("confidence", V::from(p.confidence as f64)),
+            ];
+            if !(p.norm_pos[0].is_nan() || p.norm_pos[1].is_nan()) {
+                e.push(("norm_pos", pair(p.norm_pos[0], p.norm_pos[1])));
+            }
+            if p.unit == PupilUnit::Mm {
+                e.push(("diameter_3d", V::from(p.diameter_raw as f64)));
+            } else {
+                e.push(("diameter", V::from(p.diameter_raw as f64)));
+                if let Some(mm) = p.diameter_mm {
+                    e.push(("diameter_3d", V::from(mm as f64)));
+                }
+            }
+            (topic, e)
+        }
+        Sample::Gaze(g) => {
+            let topic = match g.eyes {
+                GazeEyes::Binocular => "gaze.3d.01.",
+                GazeEyes::Right => "gaze.3d.0.",
+                GazeEyes::Left => "gaze.3d.1.",
+            };
+            // In f64, 1 − (1 − v) gives v back exactly for an f32 v.
+            let y = 1.0 - g.gaze_uv[1] as f64;
+            let norm_pos = V::Array(vec![V::from(g.gaze_uv[0] as f64), V::from(y)]);
+            let e = vec![
+                ("topic", V::from(topic)),
+                ("norm_pos", norm_pos),
+                ("confidence", V::from(g.confidence as f64)),
+                ("timestamp", V::from(g.t_secs)),
+            ];
+            (topic.to_owned(), e)
+        }
+        Sample::Blink(_) => return Ok(None),
+    };
+    let map = V::Map(entries.into_iter().map(|(k, v)| (V::from(k), v)).collect());
+    let mut buf = Vec::with_capacity(160);
+    rmpv::encode::write_value(&mut buf, &map)?;
+    Ok(Some((topic, buf)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
