@@ -100,6 +100,16 @@ pub enum GpuError {
         /// Elements given.
         got: usize,
     },
+    /// Parameters of a pass that the CPU model rejects (e.g. the glare PSF's
+    /// `psf.*` fields, or a pupil outside the supported range).
+    #[error("invalid parameters for {what}: {source}")]
+    InvalidParams {
+        /// Which pass.
+        what: &'static str,
+        /// The model's error, naming the field and the valid range.
+        #[source]
+        source: gazelight_vision::VisionError,
+    },
     /// Waiting for the device failed.
     #[error("waiting for the GPU failed: {0}")]
     Poll(#[from] wgpu::PollError),

@@ -14,10 +14,13 @@
 //! - [`fft`]: a batched 2D Stockham FFT (radix 4/2, complex f32, powers of two
 //!   up to 2048 per side), the transform behind the glare PSF (001 eq 8) and
 //!   the FFT convolution of the frame with it;
+//! - [`psf`]: the glare PSF (001 §4.2, eq 5–10) rebuilt on the GPU from the
+//!   live pupil — aperture, FFT, intensity, spectral sum into display pixels,
+//!   normalisation — matched against `gazelight_vision::psf`;
 //! - [`cpu`]: the f64 reference of the kernels, mirroring their index schemes;
 //! - [`testing`]: the shared test device and the `GAZELIGHT_REQUIRE_GPU` rule.
 //!
-//! The per-frame stages (pooling, adaptation, PSF, glare convolution, acuity,
+//! The other per-frame stages (pooling, adaptation, glare convolution, acuity,
 //! tone reproduction, scotopic colour, display encode) are not built yet:
 //! until they are, the frame pipeline runs on the CPU reference.
 
@@ -25,9 +28,11 @@ pub mod context;
 pub mod cpu;
 pub mod error;
 pub mod fft;
+pub mod psf;
 pub mod shaders;
 pub mod testing;
 
 pub use context::{AdapterChoice, ContextOptions, GpuContext};
 pub use error::GpuError;
 pub use fft::{FftDirection, FftParams, FftPass, GpuFft2d};
+pub use psf::GpuPsfBuilder;

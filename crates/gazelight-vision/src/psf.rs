@@ -755,6 +755,15 @@ fn sat_lerp(sat: &[f64], n: usize, y: f64, x: f64) -> f64 {
     (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
 }
 
+/// The transmission of the static particle field `P` (001 eq 7) that
+/// [`build_kernel`] and [`PsfBuilder`] use for `params`: `grid_size²` values
+/// in 0..=1, row-major, sample `(i, j)` at `((i − N/2) Δx, (j − N/2) Δx)`.
+/// For the GPU twin, which uploads it once so both see the same field.
+pub fn particle_transmission(params: &PsfParams) -> Result<Vec<f64>, VisionError> {
+    params.validate()?;
+    Ok(particle_field(params))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
