@@ -66,6 +66,8 @@ const TILE: u32 = 8;
 /// Threads per workgroup of the SAT scans and the reductions
 /// (`SCAN_THREADS`, `REDUCE_THREADS` in the WGSL).
 const LINE_THREADS: u32 = 256;
+/// Timestamps written by [`GpuPsfBuilder::encode_rebuild_timed`].
+pub const REBUILD_TIMESTAMPS: u32 = 6;
 /// The fixed-point unit puts the bound of the peak of `M` at 2³¹.
 const FIXED_POINT_PEAK: f64 = 2_147_483_648.0;
 
@@ -654,6 +656,27 @@ impl GpuPsfBuilder {
     /// whole rebuild into `encoder`. The uniforms are written through the
     /// queue, so record at most one rebuild per submission.
     pub fn encode_rebuild(&mut self, encoder: &mut wgpu::CommandEncoder, pupil_mm: f64) {
+        self.encode_rebuild_timed(encoder, pupil_mm, None);
+    }
+
+    /// As [`GpuPsfBuilder::encode_rebuild`], writing GPU timestamps into
+    /// `timestamps` (a timestamp query set of at least [`REBUILD_TIMESTAMPS`]
+    /// entries) at the beginning and end of its three compute passes:
+    /// 0–1 aperture, 2–3 FFT, 4–5 intensity + summed-area table + spectral
+    /// sum + normalisation.
+    pub fn encode_rebuild_timed(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        pupil_mm: f64,
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        let writes = |first: u32| {
+            timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
+                query_set,
+                beginning_of_pass_write_index: Some(first),
+                end_of_pass_write_index: Some(first + 1),
+            })
+        };
         let n = self.params.grid_size;
         let radius = pupil_mm / 2.0 / self.params.sample_mm();
         self.aperture_params.radius_samples = radius as f32;
@@ -683,17 +706,17 @@ impl GpuPsfBuilder {
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("psf aperture"),
-                timestamp_writes: None,
+                timestamp_writes: writes(0),
             });
             pass.set_pipeline(&self.aperture.pipeline);
             pass.set_bind_group(0, &self.aperture_group, &[]);
             pass.dispatch_workgroups(grid_groups, grid_groups, 1);
         }
-        self.fft.encode(encoder, FftDirection::Forward, None);
+        self.fft.encode(encoder, FftDirection::Forward, writes(2));
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("psf intensity, spectral sum, normalisation"),
-                timestamp_writes: None,
+                timestamp_writes: writes(4),
             });
             pass.set_pipeline(&self.intensity.pipeline);
             pass.set_bind_group(0, &self.intensity_group, &[]);
