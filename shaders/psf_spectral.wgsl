@@ -82,7 +82,7 @@ fn sub64(a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
     return vec2<u32>(a.x - b.x, a.y - b.y - select(0u, 1u, a.x < b.x));
 }
 
-// Two's complement 64-bit integer to the nearest-ish f32 (≤ 1 ulp).
+// Two's complement 64-bit integer to f32 (within 1 ulp).
 fn i64_to_f32(v: vec2<u32>) -> f32 {
     if (v.y & 0x80000000u) != 0u {
         let m = sub64(vec2<u32>(0u, 0u), v);

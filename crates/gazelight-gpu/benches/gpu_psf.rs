@@ -68,7 +68,7 @@ fn rebuild_once(
     let mut encoder = ctx.device().create_command_encoder(&Default::default());
     match timestamps {
         Some(ts) => {
-            psf.encode_rebuild_timed(&mut encoder, pupil_mm, Some(&ts.set));
+            let _ = psf.encode_rebuild_timed(&mut encoder, pupil_mm, Some(&ts.set));
             encoder.resolve_query_set(&ts.set, 0..REBUILD_TIMESTAMPS, &ts.resolve, 0);
             encoder.copy_buffer_to_buffer(&ts.resolve, 0, &ts.readback, 0, TIMESTAMP_BYTES);
             ctx.queue().submit([encoder.finish()]);
@@ -85,7 +85,7 @@ fn rebuild_once(
             )
         }
         None => {
-            psf.encode_rebuild(&mut encoder, pupil_mm);
+            let _ = psf.encode_rebuild(&mut encoder, pupil_mm);
             let start = Instant::now();
             ctx.queue().submit([encoder.finish()]);
             ctx.wait_idle().expect("device poll");

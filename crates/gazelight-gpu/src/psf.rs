@@ -652,11 +652,14 @@ impl GpuPsfBuilder {
         &self.intensity_buffer
     }
 
-    /// Writes the uniforms for `pupil_mm` (taken as valid) and records the
-    /// whole rebuild into `encoder`. The uniforms are written through the
-    /// queue, so record at most one rebuild per submission.
-    pub fn encode_rebuild(&mut self, encoder: &mut wgpu::CommandEncoder, pupil_mm: f64) {
-        self.encode_rebuild_timed(encoder, pupil_mm, None);
+    /// Writes the uniforms for `pupil_mm` and records the whole rebuild into
+    /// `encoder` (the caller submits). The pupil is clamped into
+    /// [`PsfParams::min_pupil_mm`]..=[`PsfParams::max_pupil_mm`]; a
+    /// non-finite one rebuilds the current pupil. Returns the diameter
+    /// recorded. The uniforms are written through the queue, so record at
+    /// most one rebuild per submission.
+    pub fn encode_rebuild(&mut self, encoder: &mut wgpu::CommandEncoder, pupil_mm: f64) -> f64 {
+        self.encode_rebuild_timed(encoder, pupil_mm, None)
     }
 
     /// As [`GpuPsfBuilder::encode_rebuild`], writing GPU timestamps into
@@ -669,7 +672,12 @@ impl GpuPsfBuilder {
         encoder: &mut wgpu::CommandEncoder,
         pupil_mm: f64,
         timestamps: Option<&wgpu::QuerySet>,
-    ) {
+    ) -> f64 {
+        let pupil_mm = if pupil_mm.is_finite() {
+            pupil_mm.clamp(self.params.min_pupil_mm(), self.params.max_pupil_mm())
+        } else {
+            self.pupil_mm
+        };
         let writes = |first: u32| {
             timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
                 query_set,
@@ -737,6 +745,7 @@ impl GpuPsfBuilder {
             pass.set_pipeline(&self.normalize.divide);
             pass.dispatch_workgroups(self.partial_count, 1, 1);
         }
+        pupil_mm
     }
 
     /// Rebuilds the kernel for a new pupil diameter: one command buffer,
@@ -746,8 +755,7 @@ impl GpuPsfBuilder {
     /// Returns the diameter the kernel now holds.
     pub fn rebuild(&mut self, pupil_mm: f64) -> f64 {
         if pupil_mm.is_finite() {
-            let p = pupil_mm.clamp(self.params.min_pupil_mm(), self.params.max_pupil_mm());
-            self.submit_rebuild(p);
+            self.submit_rebuild(pupil_mm);
         }
         self.pupil_mm
     }
@@ -775,7 +783,7 @@ impl GpuPsfBuilder {
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("psf rebuild"),
                 });
-        self.encode_rebuild(&mut encoder, pupil_mm);
+        let _ = self.encode_rebuild(&mut encoder, pupil_mm);
         self.ctx.queue().submit([encoder.finish()]);
     }
 
@@ -949,7 +957,9 @@ mod tests {
             pupil_mm: 5.0,
             ..PsfParams::default()
         };
-        let err = parity(ctx, &params, &[5.0, 3.0], "900 ppd");
+        // 0.5 mm is the smallest pupil (4 samples), where the fixed-point
+        // unit's bound of the peak is loosest; 8 mm the largest.
+        let err = parity(ctx, &params, &[5.0, 3.0, 0.5, 8.0], "900 ppd");
         assert!(err <= 1e-4, "max error {err:e}");
         // A power-of-two kernel (one more pixel on the negative side).
         let even = PsfParams {
