@@ -3,7 +3,8 @@
 //!
 //! [`Summarizer`] is fed samples one by one (from an importer, a replay or a
 //! live source) and runs them through a [`FilterChain`]; [`summarize`] and
-//! [`summarize_importer`] do it for a whole iterator. The result,
+//! [`summarize_importer`] do it for a whole iterator, [`summarize_live`]
+//! for a stretch of a live Pupil stream. The result,
 //! [`RecordingSummary`], serialises to JSON with the keys `samples`,
 //! `rate_hz`, `duration_s`, `blinks`, `dropouts`, `pupil`,
 //! `invalid_after_filter`, `clock_offset_s` (plus details), and displays as
@@ -13,11 +14,13 @@
 //! of every sample (8 bytes per sample — 2.3 MB for an hour at 2 × 200 Hz).
 
 use std::fmt;
+use std::time::Duration;
 
 use serde::Serialize;
 
 use crate::filter::{ChainStats, FilterChain};
 use crate::import::{ImportError, ImportWarnings, Importer};
+use crate::pupil::{PupilClient, PupilConfig};
 use crate::sample::{PupilUnit, Sample};
 
 /// Intervals longer than this (s) are recording pauses, not sampling.
@@ -121,11 +124,19 @@ pub struct RecordingSummary {
     pub chain: ChainStats,
 }
 
-/// A clock offset estimate.
+/// A clock offset estimate (live sources).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct ClockOffset {
+    /// Tracker time − host time, s (the newest estimate).
     pub offset_s: f64,
+    /// Range of the offsets of that estimate's probes, s.
     pub spread_s: f64,
+    /// Round trip of the best probe, s; the offset's error is at most half
+    /// of it.
+    pub rtt_s: f64,
+    /// Drift of the tracker's clock against the host's, s/s, when several
+    /// estimates were made.
+    pub drift_s_per_s: Option<f64>,
 }
 
 /// Incremental summariser.
@@ -292,6 +303,87 @@ pub fn summarize_importer(
     Ok(s.finish(Some(format), importer.warnings()))
 }
 
+/// Why a live summary failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveSummaryError {
+    /// No session with Pupil Remote could be established in time.
+    #[error("no connection to {endpoint} within {after_ms} ms: {reason}")]
+    NoConnection {
+        endpoint: String,
+        after_ms: u128,
+        reason: String,
+    },
+    /// The client stopped while collecting.
+    #[error("the Pupil client stopped while collecting from {endpoint}")]
+    Stopped { endpoint: String },
+}
+
+/// Connects to a Pupil Remote (Capture or Service), collects samples for
+/// `duration` (host time, from the moment the session is established),
+/// runs them through `chain` and summarises them, with the clock offset
+/// fields filled from the client's newest estimate. The client's counters
+/// become the warnings: malformed messages are the skipped records,
+/// unknown topics, samples dropped by a lagging consumer and reconnections
+/// are listed. Waiting for the connection is bounded by one connect
+/// timeout plus the requests of a handshake (`SUB_PORT`, `v`, the clock
+/// probes) with their timeouts.
+pub async fn summarize_live(
+    config: PupilConfig,
+    duration: Duration,
+    chain: FilterChain,
+) -> Result<RecordingSummary, LiveSummaryError> {
+    let endpoint = format!("pupil://{}:{}", config.host, config.remote_port);
+    let connect_limit =
+        config.connect_timeout * 2 + config.request_timeout * (config.clock_probes as u32 + 2);
+    let (client, streams) = PupilClient::spawn(config);
+    let mut samples = streams.samples;
+    if let Err(e) = client.wait_connected(connect_limit).await {
+        let reason = client.stats().last_error.unwrap_or_else(|| e.to_string());
+        client.shutdown().await;
+        return Err(LiveSummaryError::NoConnection {
+            endpoint,
+            after_ms: connect_limit.as_millis(),
+            reason,
+        });
+    }
+    let mut summarizer = Summarizer::new(chain);
+    let deadline = tokio::time::Instant::now() + duration;
+    loop {
+        match tokio::time::timeout_at(deadline, samples.recv()).await {
+            Ok(Some(s)) => summarizer.push(&s),
+            Ok(None) => {
+                client.shutdown().await;
+                return Err(LiveSummaryError::Stopped { endpoint });
+            }
+            Err(_) => break,
+        }
+    }
+    let stats = client.stats();
+    client.shutdown().await;
+    let mut warnings = ImportWarnings {
+        skipped_records: stats.malformed,
+        messages: Vec::new(),
+    };
+    for (n, what) in [
+        (stats.malformed, "malformed messages skipped"),
+        (stats.unknown_topic, "messages with unknown topics ignored"),
+        (stats.dropped, "samples dropped (consumer too slow)"),
+        (stats.reconnects, "reconnections"),
+    ] {
+        if n > 0 {
+            warnings.messages.push(format!("{endpoint}: {n} {what}"));
+        }
+    }
+    let mut summary = summarizer.finish(Some("pupil-live"), &warnings);
+    summary.clock_offset_s = stats.clock.map(|c| ClockOffset {
+        offset_s: c.offset_secs,
+        spread_s: c.spread_secs,
+        rtt_s: c.rtt_secs,
+        drift_s_per_s: stats.drift_secs_per_sec,
+    });
+    Ok(summary)
+}
+
 fn unit_name(u: Option<PupilUnit>) -> &'static str {
     match u {
         Some(PupilUnit::Px) => "px",
@@ -378,9 +470,12 @@ impl fmt::Display for RecordingSummary {
         if let Some(c) = self.clock_offset_s {
             writeln!(
                 f,
-                "  clock offset {:.6} s (spread {:.6} s)",
-                c.offset_s, c.spread_s
+                "  clock offset {:.6} s (spread {:.6} s, round trip {:.6} s)",
+                c.offset_s, c.spread_s, c.rtt_s
             )?;
+            if let Some(d) = c.drift_s_per_s {
+                writeln!(f, "  clock drift {:.3e} s/s", d)?;
+            }
         }
         write!(f, "  skipped records: {}", self.skipped_records)?;
         for w in &self.warnings {

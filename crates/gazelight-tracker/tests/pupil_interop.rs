@@ -23,11 +23,13 @@ use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use gazelight_tracker::calibration::{CalibrationConfig, PupilCalibration, run_calibration_source};
+use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil::{
     PupilClient, PupilConfig, PupilSource, PupilStats, PupilStreams, RemoteSink,
 };
 use gazelight_tracker::recording::{PldataReader, PldataWriter, read_npy_f64, stream_paths};
+use gazelight_tracker::summary::summarize_live;
 use gazelight_tracker::{DetectorMethod, GazeEyes, PupilUnit, Sample};
 use tokio::time::timeout;
 use zeromq::{ReqSocket, Socket, SocketRecv, SocketSend, ZmqMessage};
@@ -498,4 +500,94 @@ async fn live_calibration() {
     std::fs::remove_dir_all(&dir).unwrap();
     drop(source);
     drop(peer);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_summary_against_the_peer() {
+    if let Err(why) = python_ready() {
+        if std::env::var_os("CI").is_some() {
+            panic!("live summary test needs python3 with pyzmq and msgpack in CI: {why}");
+        }
+        eprintln!("SKIPPED live_summary_against_the_peer: {why}");
+        return;
+    }
+    timeout(Duration::from_secs(15), live_summary())
+        .await
+        .expect("live summary test exceeded 15 s");
+}
+
+async fn live_summary() {
+    let peer = start_peer((0, 0, 0), &[]);
+    let s = summarize_live(
+        local_config(peer.ports.0),
+        Duration::from_millis(1000),
+        FilterChain::with_defaults(),
+    )
+    .await
+    .expect("live summary");
+    eprintln!("{s}");
+    assert_eq!(s.format.as_deref(), Some("pupil-live"));
+    // 200 Hz per eye (a 2D and a 3D datum with the same timestamp each
+    // cycle), for about a second; the peer may run slow on a busy machine.
+    for e in 0..2 {
+        assert!(s.samples.pupil[e] >= 100, "{:?}", s.samples);
+        assert!(
+            (100.0..=210.0).contains(&s.rate_hz.pupil[e]),
+            "{:?}",
+            s.rate_hz
+        );
+        // Every raw value is the peer's resting pupil in px.
+        let raw = s.pupil[e].raw.expect("raw range");
+        let want = [31.5, 36.25][e];
+        assert_eq!((raw.min, raw.median, raw.max), (want, want, want));
+        assert_eq!(s.pupil[e].unit, Some(PupilUnit::Px));
+        let f = s.pupil[e].filtered_mm.expect("filtered range");
+        assert!(f.min > 0.0 && f.max < 9.0, "{f:?}");
+        // Uncalibrated px: the chain uses the 3D datums' own mm, which the
+        // slew limiter reaches quickly from the model's starting pupil.
+        assert!((f.median - [3.75, 4.25][e]).abs() < 0.01, "{f:?}");
+    }
+    assert!(s.samples.gaze >= 50, "{:?}", s.samples);
+    assert!(s.duration_s > 0.8 && s.duration_s < 1.1, "{}", s.duration_s);
+    assert_eq!(s.invalid_after_filter, 0);
+    // The peer sends a truncated frame every tenth cycle.
+    assert!(s.skipped_records >= 1, "{s:?}");
+    assert!(
+        s.warnings.iter().any(|w| w.contains("malformed")),
+        "{:?}",
+        s.warnings
+    );
+    let c = s.clock_offset_s.expect("clock offset");
+    let err = c.offset_s - (OFFSET_SECS + wall_minus_host_secs());
+    assert!(err.abs() < 0.002, "offset error {err} s: {c:?}");
+    assert!(
+        c.spread_s >= 0.0 && c.rtt_s > 0.0 && c.rtt_s < 0.004,
+        "{c:?}"
+    );
+    let json = serde_json::to_value(&s).unwrap();
+    assert!(json["clock_offset_s"]["offset_s"].is_f64());
+    drop(peer);
+
+    // Nothing listening: a clear error, bounded in time.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let cfg = PupilConfig {
+        clock_probes: 2,
+        ..local_config(port)
+    };
+    let e = summarize_live(
+        cfg,
+        Duration::from_millis(100),
+        FilterChain::with_defaults(),
+    )
+    .await
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.starts_with(&format!("no connection to pupil://127.0.0.1:{port}")),
+        "{e}"
+    );
 }
