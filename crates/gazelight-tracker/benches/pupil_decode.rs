@@ -14,11 +14,15 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput};
+use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil::msg::decode;
 use gazelight_tracker::pupil::{PupilClient, PupilConfig};
 use rmpv::Value as V;
-use zeromq::{PubSocket, RepSocket, Socket, SocketRecv, SocketSend, ZmqMessage};
+use std::io::{Read, Write};
+use std::net::TcpListener;
+
+use zeromq::{RepSocket, Socket, SocketRecv, SocketSend, ZmqMessage};
 
 fn arr(v: &[f64]) -> V {
     V::Array(v.iter().map(|x| V::from(*x)).collect())
@@ -138,18 +142,121 @@ fn decode_benches(c: &mut Criterion) {
     g.finish();
 }
 
-/// A minimal Pupil Remote (REP) + bus (PUB) publishing 2D datums at 1 kHz
-/// stamped with host time (offset 0); returns the send→delivery latencies.
-async fn latency_run(n: usize) -> Vec<f64> {
+/// A ZMTP 3.0 PUB peer written on blocking std TCP, run on its own OS
+/// thread like a separate Pupil Capture process would be: it accepts one
+/// subscriber, does the NULL-mechanism handshake, then sends `n` messages
+/// `[topic, datum]` at 1 kHz, stamping each datum's `timestamp` with
+/// the host clock immediately before the `write`. (The zeromq crate's own
+/// PUB socket hands every message to a fan-out task first, which would add
+/// the publisher's task wake-ups to the measured path.)
+fn raw_zmtp_publisher(listener: TcpListener, n: usize) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().expect("subscriber connects");
+        s.set_nodelay(true).expect("nodelay");
+        let mut greeting = [0u8; 64];
+        greeting[0] = 0xff;
+        greeting[9] = 0x7f;
+        greeting[10] = 3; // version 3.0
+        greeting[12..16].copy_from_slice(b"NULL");
+        s.write_all(&greeting).expect("greeting");
+        let mut peer = [0u8; 64];
+        s.read_exact(&mut peer).expect("peer greeting");
+        // READY with Socket-Type = PUB.
+        let mut body = vec![5u8];
+        body.extend_from_slice(b"READY");
+        body.push(11);
+        body.extend_from_slice(b"Socket-Type");
+        body.extend_from_slice(&3u32.to_be_bytes());
+        body.extend_from_slice(b"PUB");
+        let mut cmd = vec![0x04, body.len() as u8];
+        cmd.extend_from_slice(&body);
+        s.write_all(&cmd).expect("READY");
+        // The subscriber's READY command (short or long).
+        let mut hdr = [0u8; 2];
+        s.read_exact(&mut hdr).expect("peer READY");
+        let len = if hdr[0] & 0x02 != 0 {
+            let mut rest = [0u8; 7];
+            s.read_exact(&mut rest).expect("peer READY size");
+            let mut b = [0u8; 8];
+            b[0] = hdr[1];
+            b[1..].copy_from_slice(&rest);
+            u64::from_be_bytes(b) as usize
+        } else {
+            hdr[1] as usize
+        };
+        let mut skip = vec![0u8; len];
+        s.read_exact(&mut skip).expect("peer READY body");
+        // Subscriptions arrive next; they are not needed (only subscribed
+        // topics are sent) and stay in the socket buffer.
+        std::thread::sleep(Duration::from_millis(200));
+        let (datum, slot) = datum_with_time_slot();
+        let topic = b"pupil.0.2d";
+        let mut frame = vec![0x01, topic.len() as u8];
+        frame.extend_from_slice(topic);
+        assert!(datum.len() < 256);
+        frame.extend_from_slice(&[0x00, datum.len() as u8]);
+        let slot = frame.len() + slot;
+        frame.extend_from_slice(&datum);
+        let start = std::time::Instant::now();
+        for i in 0..n {
+            let due = start + Duration::from_micros(1000 * i as u64);
+            let now = std::time::Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+            frame[slot..slot + 8].copy_from_slice(&host_now_secs().to_be_bytes());
+            if s.write_all(&frame).is_err() {
+                return;
+            }
+        }
+        // Keep the connection until the consumer is done.
+        std::thread::sleep(Duration::from_millis(500));
+    })
+}
+
+/// Runtime flavours the latency is measured on.
+#[derive(Clone, Copy, Debug)]
+enum Flavor {
+    /// Multi-thread runtime, 2 workers: the client task and the consumer
+    /// task may run on different threads (cross-thread wake-ups).
+    MultiThread,
+    /// Current-thread runtime: every task on the bench thread.
+    CurrentThread,
+}
+
+/// Encodes a 2D datum once and returns it with the byte offset of its
+/// `timestamp` float64, so the send time can be patched in just before
+/// each send (no encoding between the time stamp and the send).
+fn datum_with_time_slot() -> (Vec<u8>, usize) {
+    let sentinel = 1234.5678125f64;
+    let bytes = enc(&pupil_2d(0, sentinel));
+    let mut pat = vec![0xcb];
+    pat.extend_from_slice(&sentinel.to_be_bytes());
+    let at = bytes
+        .windows(9)
+        .position(|w| w == pat.as_slice())
+        .expect("timestamp float64 in the datum")
+        + 1;
+    (bytes, at)
+}
+
+/// A minimal Pupil Remote (REP, the zeromq crate) + bus (a raw ZMTP PUB
+/// thread, [`raw_zmtp_publisher`]) in this process publishing 2D datums at
+/// 1 kHz, each stamped with the host clock just before the send (offset
+/// ≈ 0); a consumer task feeds every sample out of the client's
+/// channel into a [`FilterChain`] and takes the time after the chain has
+/// updated the [`gazelight_tracker::EyeState`]. Returns the latencies
+/// (s), the number sent and the clock offset the client used.
+async fn latency_run(n: usize, inline: bool) -> (Vec<f64>, Vec<f64>, usize) {
     let mut rep = RepSocket::new();
     let rep_ep = rep.bind("tcp://127.0.0.1:0").await.expect("bind REP");
-    let mut publ = PubSocket::new();
-    let pub_ep = publ.bind("tcp://127.0.0.1:0").await.expect("bind PUB");
-    let port = |ep: &zeromq::Endpoint| match ep {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind bus");
+    let pub_port = listener.local_addr().expect("bus address").port();
+    let rep_port = match &rep_ep {
         zeromq::Endpoint::Tcp(_, p) => *p,
         other => panic!("{other:?}"),
     };
-    let (rep_port, pub_port) = (port(&rep_ep), port(&pub_ep));
+    let publisher = raw_zmtp_publisher(listener, n);
     let remote = tokio::spawn(async move {
         loop {
             let Ok(m) = rep.recv().await else { return };
@@ -168,71 +275,178 @@ async fn latency_run(n: usize) -> Vec<f64> {
     let config = PupilConfig {
         remote_port: rep_port,
         channel_capacity: 2 * n,
+        // One clock estimate for the whole run (at connection).
+        clock_interval: Duration::from_secs(3600),
+        idle_timeout: Duration::from_secs(3600),
         ..PupilConfig::default()
     };
-    let (client, streams) = PupilClient::spawn(config);
-    client
-        .wait_connected(Duration::from_secs(5))
-        .await
-        .expect("client connects");
-    // Let the subscription reach the publisher.
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let mut template = match pupil_2d(0, 0.0) {
-        V::Map(m) => m,
-        _ => unreachable!(),
-    };
-    let mut samples = streams.samples;
-    let receiver = tokio::spawn(async move {
-        let mut latencies = Vec::with_capacity(n);
-        let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
-        while latencies.len() < n {
-            match tokio::time::timeout_at(deadline, samples.recv()).await {
-                Ok(Some(s)) => latencies.push(host_now_secs() - s.t_secs()),
-                _ => break,
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5 + n as u64 / 1000);
+    let (client, receiver) = if inline {
+        // The client task filters; an observer task waits on the watch.
+        let (client, streams, mut rx) =
+            PupilClient::spawn_filtered(config, FilterChain::with_defaults());
+        drop(streams.samples);
+        client
+            .wait_connected(Duration::from_secs(5))
+            .await
+            .expect("client connects");
+        let offset = client.stats().clock.expect("clock estimate").offset_secs;
+        let receiver = tokio::spawn(async move {
+            let (mut updated, mut observed) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            while let Ok(Ok(())) = tokio::time::timeout_at(deadline, rx.changed()).await {
+                let now = host_now_secs();
+                let live = *rx.borrow_and_update();
+                // The datum's own stamp: t_secs = timestamp − offset.
+                let sent = live.state.t_secs + offset;
+                updated.push(live.updated_host_secs - sent);
+                observed.push(now - sent);
+                if live.updates >= n as u64 {
+                    break;
+                }
             }
-        }
-        latencies
-    });
-    let mut tick = tokio::time::interval(Duration::from_millis(1));
-    for _ in 0..n {
-        tick.tick().await;
-        template[3].1 = V::from(host_now_secs());
-        let mut m = ZmqMessage::from("pupil.0.2d");
-        m.push_back(enc(&V::Map(template.clone())).into());
-        publ.send(m).await.expect("publish");
-    }
-    let latencies = receiver.await.expect("receiver task");
+            (updated, observed)
+        });
+        (client, receiver)
+    } else {
+        // The client task decodes; a consumer task filters.
+        let (client, streams) = PupilClient::spawn(config);
+        client
+            .wait_connected(Duration::from_secs(5))
+            .await
+            .expect("client connects");
+        let offset = client.stats().clock.expect("clock estimate").offset_secs;
+        let mut samples = streams.samples;
+        let receiver = tokio::spawn(async move {
+            let mut chain = FilterChain::with_defaults();
+            let mut latencies = Vec::with_capacity(n);
+            while latencies.len() < n {
+                match tokio::time::timeout_at(deadline, samples.recv()).await {
+                    Ok(Some(s)) => {
+                        let state = chain.push(&s).state;
+                        latencies.push(host_now_secs() - (state.t_secs + offset));
+                    }
+                    _ => break,
+                }
+            }
+            (latencies, Vec::new())
+        });
+        (client, receiver)
+    };
+    let (updated, observed) = receiver.await.expect("receiver task");
+    let _ = tokio::task::spawn_blocking(move || publisher.join()).await;
     client.shutdown().await;
     remote.abort();
-    latencies
+    (updated, observed, n)
 }
 
-fn latency_bench() {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime");
-    let n = 3000;
-    let mut l = rt.block_on(latency_run(n));
-    if l.is_empty() {
-        eprintln!("latency: no samples delivered");
-        return;
+/// The floor of the machine: the same publisher thread and loopback TCP,
+/// read by a plain blocking thread (no ZeroMQ library, no async runtime,
+/// no decoding): what the kernel and the (virtual) CPU's wake-up cost
+/// alone.
+fn latency_floor(n: usize) -> Vec<f64> {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+    let addr = listener.local_addr().expect("address");
+    let publisher = raw_zmtp_publisher(listener, n);
+    let mut s = std::net::TcpStream::connect(addr).expect("connect");
+    s.set_nodelay(true).expect("nodelay");
+    let mut greeting = [0u8; 64];
+    greeting[0] = 0xff;
+    greeting[9] = 0x7f;
+    greeting[10] = 3;
+    greeting[12..16].copy_from_slice(b"NULL");
+    s.write_all(&greeting).expect("greeting");
+    let mut peer = [0u8; 64];
+    s.read_exact(&mut peer).expect("peer greeting");
+    let mut body = vec![5u8];
+    body.extend_from_slice(b"READY");
+    body.push(11);
+    body.extend_from_slice(b"Socket-Type");
+    body.extend_from_slice(&3u32.to_be_bytes());
+    body.extend_from_slice(b"SUB");
+    let mut cmd = vec![0x04, body.len() as u8];
+    cmd.extend_from_slice(&body);
+    s.write_all(&cmd).expect("READY");
+    let mut hdr = [0u8; 2];
+    s.read_exact(&mut hdr).expect("peer READY");
+    let mut skip = vec![0u8; hdr[1] as usize];
+    s.read_exact(&mut skip).expect("peer READY body");
+    let (datum, slot) = datum_with_time_slot();
+    let frame_len = 2 + 10 + 2 + datum.len();
+    let slot = 2 + 10 + 2 + slot;
+    let mut frame = vec![0u8; frame_len];
+    let mut l = Vec::with_capacity(n);
+    for _ in 0..n {
+        if s.read_exact(&mut frame).is_err() {
+            break;
+        }
+        let now = host_now_secs();
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&frame[slot..slot + 8]);
+        l.push(now - f64::from_be_bytes(b));
     }
+    let _ = publisher.join();
+    l
+}
+
+fn percentiles(l: &mut [f64]) -> String {
     l.sort_by(f64::total_cmp);
     let q = |p: f64| l[((l.len() - 1) as f64 * p).round() as usize] * 1e6;
-    println!(
-        "latency (PUB send -> sample out of the client channel, 1 kHz, {} of {n} delivered): p50 {:.1} us, p99 {:.1} us, max {:.1} us",
-        l.len(),
+    format!(
+        "p50 {:.1} us, p99 {:.1} us, max {:.1} us",
         q(0.5),
         q(0.99),
         l[l.len() - 1] * 1e6
+    )
+}
+
+fn latency_bench(flavor: Flavor, inline: bool) {
+    let rt = match flavor {
+        Flavor::MultiThread => tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build(),
+        Flavor::CurrentThread => tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build(),
+    }
+    .expect("runtime");
+    let n = 3000;
+    let (mut updated, mut observed, sent) = rt.block_on(latency_run(n, inline));
+    if updated.is_empty() {
+        println!("latency ({flavor:?}, inline {inline}): no samples delivered");
+        return;
+    }
+    let mode = if inline {
+        "inline filter in the client task"
+    } else {
+        "client task -> channel -> consumer task with the filter"
+    };
+    println!(
+        "latency {flavor:?}, {mode}: socket send -> EyeState updated, 1 kHz, {} of {sent} measured: {}",
+        updated.len(),
+        percentiles(&mut updated)
     );
+    if !observed.is_empty() {
+        println!(
+            "    ... -> observed by a task waiting on the watch ({} of {sent}): {}",
+            observed.len(),
+            percentiles(&mut observed)
+        );
+    }
 }
 
 fn main() {
     let mut c = Criterion::default().configure_from_args();
     decode_benches(&mut c);
     c.final_summary();
-    latency_bench();
+    let mut floor = latency_floor(3000);
+    println!(
+        "latency floor (same publisher, blocking std thread read, no zmq/tokio/decode), {} of 3000: {}",
+        floor.len(),
+        percentiles(&mut floor)
+    );
+    for inline in [false, true] {
+        latency_bench(Flavor::MultiThread, inline);
+        latency_bench(Flavor::CurrentThread, inline);
+    }
 }

@@ -566,6 +566,35 @@ async fn live_summary() {
     );
     let json = serde_json::to_value(&s).unwrap();
     assert!(json["clock_offset_s"]["offset_s"].is_f64());
+
+    // The same stream filtered inside the client task (spawn_filtered):
+    // the published EyeState follows the peer's 3D pupils.
+    let (client, streams, mut rx) =
+        PupilClient::spawn_filtered(local_config(peer.ports.0), FilterChain::with_defaults());
+    drop(streams.samples);
+    client.set_adaptation_luminance(50.0).unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    while rx.borrow().updates < 600 {
+        timeout(
+            deadline.saturating_duration_since(tokio::time::Instant::now()),
+            rx.changed(),
+        )
+        .await
+        .expect("600 inline filter updates within 5 s")
+        .expect("client alive");
+    }
+    let live = *rx.borrow();
+    let age = live.updated_host_secs - live.state.t_secs;
+    assert!((0.0..0.25).contains(&age), "{live:?}");
+    for (e, want) in [(0, 3.75), (1, 4.25)] {
+        let ch = live.state.eyes[e];
+        assert!((ch.pupil_mm - want).abs() < 0.01, "eye {e}: {live:?}");
+        assert_eq!(ch.pupil_origin, gazelight_tracker::PupilOrigin::Measured);
+    }
+    assert!(live.state.gaze_valid, "{live:?}");
+    // Nobody reads the sample channel: that is not counted as a loss.
+    assert_eq!(client.stats().dropped, 0);
+    client.shutdown().await;
     drop(peer);
 
     // Nothing listening: a clear error, bounded in time.

@@ -23,7 +23,11 @@
 //!
 //! Samples leave through a bounded channel with their times converted to
 //! host time; when the consumer lags, new samples are dropped and counted,
-//! the channel never grows.
+//! the channel never grows. With [`PupilClient::spawn_filtered`] the task
+//! also runs each sample through a [`FilterChain`] right after decoding it
+//! and publishes the [`EyeState`] on a `watch` channel, so the state is
+//! current without a second task's wake-up (the socket-to-state latency is
+//! one wake-up of this task plus decoding and filtering).
 
 pub mod clock;
 pub mod msg;
@@ -36,12 +40,15 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use bytes::Bytes;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, watch};
 use tokio::time::{Instant, timeout};
 use zeromq::{ReqSocket, Socket, SocketOptions, SocketRecv, SocketSend, SubSocket, ZmqMessage};
 
+use crate::calibration::PupilCalibration;
+use crate::filter::FilterChain;
 use crate::sample::Sample;
 use crate::source::{SampleSource, SourceError};
+use crate::state::EyeState;
 use clock::{ClockEstimate, ClockProbe, ClockTracker, host_now_secs, parse_time_reply};
 
 /// Default Pupil Remote port.
@@ -239,6 +246,8 @@ enum Command {
         payload: Vec<u8>,
         reply: oneshot::Sender<Result<(), PupilError>>,
     },
+    SetCalibration(Box<PupilCalibration>),
+    SetLuminance(f64),
     Shutdown,
 }
 
@@ -305,6 +314,58 @@ impl PupilClient {
     /// Starts the client task (it connects, and keeps reconnecting, in the
     /// background). Must be called within a tokio runtime.
     pub fn spawn(config: PupilConfig) -> (Self, PupilStreams) {
+        Self::spawn_inner(config, None)
+    }
+
+    /// Like [`PupilClient::spawn`], but the client task also runs every
+    /// decoded sample through `chain` as soon as it has decoded it and
+    /// publishes the resulting [`EyeState`] on a `watch` channel: the state
+    /// is updated without any task hop after the socket read (the render
+    /// loop reads it with `borrow()`, no wake-up needed). The sample
+    /// channel is still filled (for recorders); dropping its receiver is
+    /// fine. Change the chain's calibration and adaptation luminance with
+    /// [`PupilClient::set_calibration`] and
+    /// [`PupilClient::set_adaptation_luminance`].
+    pub fn spawn_filtered(
+        config: PupilConfig,
+        chain: FilterChain,
+    ) -> (Self, PupilStreams, watch::Receiver<LiveEyeState>) {
+        let initial = LiveEyeState {
+            state: *chain.state(),
+            updated_host_secs: host_now_secs(),
+            updates: 0,
+        };
+        let (tx, rx) = watch::channel(initial);
+        let (client, streams) = Self::spawn_inner(
+            config,
+            Some(InlineFilter {
+                chain,
+                tx,
+                updates: 0,
+            }),
+        );
+        (client, streams, rx)
+    }
+
+    /// Replaces the calibration of the inline chain (see
+    /// [`PupilClient::spawn_filtered`]); never waits. Errors when the
+    /// command queue is full or the client has stopped.
+    pub fn set_calibration(&self, calibration: PupilCalibration) -> Result<(), PupilError> {
+        self.cmd
+            .try_send(Command::SetCalibration(Box::new(calibration)))
+            .map_err(|_| PupilError::Stopped)
+    }
+
+    /// Sets the adaptation luminance (cd/m²) of the inline chain; never
+    /// waits. Errors when the command queue is full or the client has
+    /// stopped.
+    pub fn set_adaptation_luminance(&self, luminance_cd_m2: f64) -> Result<(), PupilError> {
+        self.cmd
+            .try_send(Command::SetLuminance(luminance_cd_m2))
+            .map_err(|_| PupilError::Stopped)
+    }
+
+    fn spawn_inner(config: PupilConfig, filter: Option<InlineFilter>) -> (Self, PupilStreams) {
         let (sample_tx, samples) = mpsc::channel(config.channel_capacity.max(1));
         let (raw_tx, raw) = if config.raw_capacity > 0 {
             let (t, r) = mpsc::channel(config.raw_capacity);
@@ -323,6 +384,7 @@ impl PupilClient {
             tracker: ClockTracker::new(32),
             offset_secs: 0.0,
             probes: Vec::with_capacity(config.clock_probes.max(1)),
+            filter,
         };
         let task = tokio::spawn(worker.run());
         (
@@ -420,6 +482,25 @@ enum End {
     Shutdown,
 }
 
+/// The filter chain run inside the client task ([`PupilClient::spawn_filtered`]).
+struct InlineFilter {
+    chain: FilterChain,
+    tx: watch::Sender<LiveEyeState>,
+    updates: u64,
+}
+
+/// The newest filtered state published by a client that filters inline.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LiveEyeState {
+    /// The chain's state after the newest sample (host time).
+    pub state: EyeState,
+    /// Host time (s, [`clock::host_now_secs`]) when the client task wrote
+    /// this state.
+    pub updated_host_secs: f64,
+    /// Samples the chain has consumed so far.
+    pub updates: u64,
+}
+
 struct Worker {
     config: PupilConfig,
     counters: Arc<Counters>,
@@ -429,6 +510,7 @@ struct Worker {
     tracker: ClockTracker,
     offset_secs: f64,
     probes: Vec<ClockProbe>,
+    filter: Option<InlineFilter>,
 }
 
 impl Worker {
@@ -459,6 +541,7 @@ impl Worker {
                         Some(Command::Notify { reply, .. }) => {
                             let _ = reply.send(Err(PupilError::NotConnected));
                         }
+                        Some(c) => self.configure(c),
                     },
                 }
             }
@@ -642,6 +725,7 @@ impl Worker {
                             return Err(e);
                         }
                     }
+                    Some(c) => self.configure(c),
                 },
                 r = timeout(self.config.idle_timeout, sub.recv()) => match r {
                     Ok(Ok(m)) => self.handle(m),
@@ -658,6 +742,16 @@ impl Worker {
                     next_clock = Instant::now() + self.config.clock_interval;
                 }
             }
+        }
+    }
+
+    /// Applies a settings command to the inline chain.
+    fn configure(&mut self, c: Command) {
+        let Some(f) = &mut self.filter else { return };
+        match c {
+            Command::SetCalibration(cal) => f.chain.set_calibration(*cal),
+            Command::SetLuminance(l) => f.chain.set_adaptation_luminance(l),
+            Command::Notify { .. } | Command::Shutdown => {}
         }
     }
 
@@ -683,12 +777,24 @@ impl Worker {
                     c.unknown_fields
                         .fetch_add(u64::from(unknown), Ordering::Relaxed);
                 }
-                if self
-                    .sample_tx
-                    .try_send(datum.to_sample(self.offset_secs))
-                    .is_err()
-                {
-                    c.dropped.fetch_add(1, Ordering::Relaxed);
+                let sample = datum.to_sample(self.offset_secs);
+                if let Some(f) = &mut self.filter {
+                    let state = f.chain.push(&sample).state;
+                    f.updates += 1;
+                    f.tx.send_replace(LiveEyeState {
+                        state,
+                        updated_host_secs: host_now_secs(),
+                        updates: f.updates,
+                    });
+                }
+                match self.sample_tx.try_send(sample) {
+                    Ok(()) => {}
+                    // Nobody reads samples (an inline-filtering client
+                    // whose caller dropped the receiver): not a loss.
+                    Err(mpsc::error::TrySendError::Closed(_)) if self.filter.is_some() => {}
+                    Err(_) => {
+                        c.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
                 }
                 if let Some(raw) = &self.raw_tx {
                     let r = RawDatum {
