@@ -1,5 +1,65 @@
-//! The gazelight CLI.
+//! `gazelight`: the gaze-contingent perception service and its CLI.
+//!
+//! ```text
+//! gazelight render                       # the embedded demo: night panorama + synthetic gaze
+//! gazelight render --scene city.exr --trace gaze.csv --out out/
+//! gazelight psf --pupil-mm 4 --out psf/  # one glare kernel as EXR + PNG + JSON
+//! ```
 
-fn main() -> anyhow::Result<()> {
-    Ok(())
+mod config;
+mod demo;
+mod inspect;
+mod output;
+mod psf_cmd;
+mod render;
+
+use clap::{Parser, Subcommand};
+
+/// Gaze-tracked HDR perception: adaptation, glare from the live pupil,
+/// night vision.
+#[derive(Parser, Debug)]
+#[command(name = "gazelight", version, about, long_about = None)]
+struct Cli {
+    /// Log filter (e.g. `info`, `gazelight=debug`); also `RUST_LOG`.
+    #[arg(long, global = true, default_value = "info")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Render a scene as the eye sees it along a gaze/pupil trace: PNG
+    /// frames, a contact sheet, timeline.csv and a plot. With no options,
+    /// renders the embedded demo.
+    Render(render::RenderArgs),
+    /// Build one glare point spread function for a pupil diameter and write
+    /// it as kernel.exr, kernel.png and psf.json.
+    Psf(psf_cmd::PsfArgs),
+    /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
+    /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
+    Inspect(inspect::InspectArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .or_else(|_| tracing_subscriber::EnvFilter::try_new(&cli.log))
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Render(args) => render::run(args),
+        Command::Psf(args) => psf_cmd::run(args),
+        Command::Inspect(args) => inspect::run(args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
 }

@@ -1,0 +1,262 @@
+//! Files written by `render`: PNG frames, the contact sheet, the timeline
+//! CSV and the plot.
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::Context;
+use gazelight_vision::pipeline::{DisplayFrame, FrameStats};
+use plotters::prelude::*;
+
+/// Tiles on the contact sheet (4 columns × 3 rows).
+pub const SHEET_TILES: usize = 12;
+const SHEET_COLUMNS: usize = 4;
+/// Largest tile width on the contact sheet, pixels.
+const SHEET_TILE_MAX_W: usize = 320;
+
+/// The font for plots and labels (DejaVu Sans, licence in `assets/`).
+const FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
+
+/// One row of `timeline.csv`.
+#[derive(Clone, Copy, Debug)]
+pub struct TimelineRow {
+    pub t_secs: f64,
+    pub gaze_u: f32,
+    pub gaze_v: f32,
+    pub pupil_mm: f32,
+    pub pupil_held: bool,
+    pub stats: FrameStats,
+}
+
+/// Writes an RGBA display frame as an RGB PNG.
+pub fn write_png(path: &Path, frame: &DisplayFrame) -> anyhow::Result<()> {
+    let rgb: Vec<u8> = frame
+        .rgba8
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    image::save_buffer(
+        path,
+        &rgb,
+        frame.width as u32,
+        frame.height as u32,
+        image::ColorType::Rgb8,
+    )
+    .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// A grid of downscaled frames.
+pub struct ContactSheet {
+    factor: usize,
+    tile_w: usize,
+    tile_h: usize,
+    tiles: Vec<(f64, Vec<u8>)>,
+}
+
+impl ContactSheet {
+    /// A sheet for frames of `width × height`.
+    pub fn new(width: usize, height: usize) -> Self {
+        let factor = width.div_ceil(SHEET_TILE_MAX_W).max(1);
+        Self {
+            factor,
+            tile_w: width / factor,
+            tile_h: height / factor,
+            tiles: Vec::with_capacity(SHEET_TILES),
+        }
+    }
+
+    /// Adds a frame (box-filtered down) if there is room.
+    pub fn add(&mut self, frame: &DisplayFrame, t_secs: f64) {
+        if self.tiles.len() >= SHEET_TILES {
+            return;
+        }
+        let f = self.factor;
+        let mut tile = vec![0u8; self.tile_w * self.tile_h * 3];
+        for ty in 0..self.tile_h {
+            for tx in 0..self.tile_w {
+                let mut acc = [0u32; 3];
+                for y in ty * f..(ty + 1) * f {
+                    for x in tx * f..(tx + 1) * f {
+                        let i = (y * frame.width + x) * 4;
+                        for c in 0..3 {
+                            acc[c] += u32::from(frame.rgba8[i + c]);
+                        }
+                    }
+                }
+                let o = (ty * self.tile_w + tx) * 3;
+                for c in 0..3 {
+                    tile[o + c] = (acc[c] / (f * f) as u32) as u8;
+                }
+            }
+        }
+        self.tiles.push((t_secs, tile));
+    }
+
+    /// Writes the sheet with a time label on every tile.
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        let rows = self.tiles.len().div_ceil(SHEET_COLUMNS).max(1);
+        let (w, h) = (self.tile_w * SHEET_COLUMNS, self.tile_h * rows);
+        let mut buf = vec![0u8; w * h * 3];
+        for (i, (_, tile)) in self.tiles.iter().enumerate() {
+            let (cx, cy) = (
+                (i % SHEET_COLUMNS) * self.tile_w,
+                (i / SHEET_COLUMNS) * self.tile_h,
+            );
+            for y in 0..self.tile_h {
+                let src = &tile[y * self.tile_w * 3..(y + 1) * self.tile_w * 3];
+                let o = ((cy + y) * w + cx) * 3;
+                buf[o..o + src.len()].copy_from_slice(src);
+            }
+        }
+        register_font()?;
+        {
+            let root =
+                BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
+            let style = ("sans-serif", 16).into_font().color(&WHITE);
+            for (i, (t, _)) in self.tiles.iter().enumerate() {
+                let (cx, cy) = (
+                    (i % SHEET_COLUMNS) * self.tile_w,
+                    (i / SHEET_COLUMNS) * self.tile_h,
+                );
+                root.draw_text(
+                    &format!("t = {t:.2} s"),
+                    &style,
+                    (cx as i32 + 6, cy as i32 + 6),
+                )
+                .map_err(|e| anyhow::anyhow!("drawing the contact sheet: {e}"))?;
+            }
+            root.present()
+                .map_err(|e| anyhow::anyhow!("drawing the contact sheet: {e}"))?;
+        }
+        image::save_buffer(path, &buf, w as u32, h as u32, image::ColorType::Rgb8)
+            .with_context(|| format!("cannot write {}", path.display()))
+    }
+}
+
+/// Writes `timeline.csv`.
+pub fn write_timeline(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    writeln!(
+        w,
+        "t_secs,gaze_u,gaze_v,pupil_mm,pupil_held,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,acuity_sigma_px,\
+         pooling_ms,temporal_ms,psf_ms,glare_ms,acuity_ms,tone_colour_encode_ms,total_ms"
+    )?;
+    for r in rows {
+        let s = &r.stats;
+        let t = &s.timings;
+        writeln!(
+            w,
+            "{:.4},{:.5},{:.5},{:.4},{},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            r.t_secs,
+            r.gaze_u,
+            r.gaze_v,
+            r.pupil_mm,
+            u8::from(r.pupil_held),
+            s.target_cd_m2,
+            s.adaptation_cd_m2,
+            s.psf_pupil_mm,
+            u8::from(s.psf_rebuilt),
+            s.acuity_sigma_px,
+            t.pooling_ms,
+            t.temporal_ms,
+            t.psf_ms,
+            t.glare_ms,
+            t.acuity_ms,
+            t.tone_colour_encode_ms,
+            t.total_ms
+        )?;
+    }
+    w.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn register_font() -> anyhow::Result<()> {
+    plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
+        .map_err(|_| anyhow::anyhow!("the embedded font is invalid"))
+}
+
+/// Writes the plot of adaptation luminance (log) and pupil over time.
+pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
+    register_font()?;
+    let draw = || -> Result<(), Box<dyn std::error::Error>> {
+        let root = BitMapBackend::new(path, (1000, 640)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let (top, bottom) = root.split_vertically(340);
+        let t_max = rows.last().map_or(1.0, |r| r.t_secs).max(1e-3);
+        let log = |v: f64| v.max(1e-6).log10();
+        let lums = rows
+            .iter()
+            .flat_map(|r| [log(r.stats.target_cd_m2), log(r.stats.adaptation_cd_m2)]);
+        let (lo, hi) = lums.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+        let (lo, hi) = if lo.is_finite() {
+            (lo.floor() - 0.25, hi.ceil() + 0.25)
+        } else {
+            (-3.0, 3.0)
+        };
+        let mut chart = ChartBuilder::on(&top)
+            .caption("adaptation luminance", ("sans-serif", 20))
+            .margin(10)
+            .x_label_area_size(30)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..t_max, lo..hi)?;
+        chart
+            .configure_mesh()
+            .x_desc("t (s)")
+            .y_desc("log10 cd/m²")
+            .draw()?;
+        chart
+            .draw_series(LineSeries::new(
+                rows.iter().map(|r| (r.t_secs, log(r.stats.target_cd_m2))),
+                &RED,
+            ))?
+            .label("pooled target")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        chart
+            .draw_series(LineSeries::new(
+                rows.iter()
+                    .map(|r| (r.t_secs, log(r.stats.adaptation_cd_m2))),
+                BLUE.stroke_width(2),
+            ))?
+            .label("adaptation")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        let p_hi = rows.iter().map(|r| r.pupil_mm).fold(8.0f32, f32::max) as f64;
+        let mut chart = ChartBuilder::on(&bottom)
+            .caption("pupil", ("sans-serif", 20))
+            .margin(10)
+            .x_label_area_size(30)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..t_max, 0.0..p_hi + 0.5)?;
+        chart.configure_mesh().x_desc("t (s)").y_desc("mm").draw()?;
+        chart
+            .draw_series(LineSeries::new(
+                rows.iter().map(|r| (r.t_secs, f64::from(r.pupil_mm))),
+                &BLACK,
+            ))?
+            .label("pupil (trace, dropouts held)")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+        chart
+            .draw_series(LineSeries::new(
+                rows.iter().map(|r| (r.t_secs, r.stats.psf_pupil_mm)),
+                GREEN.stroke_width(2),
+            ))?
+            .label("PSF built for")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        Ok(())
+    };
+    draw().map_err(|e| anyhow::anyhow!("cannot draw {}: {e}", path.display()))
+}

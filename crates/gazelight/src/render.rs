@@ -1,0 +1,317 @@
+//! `gazelight render`: a scene + a gaze/pupil trace → PNG frames, a contact
+//! sheet, `timeline.csv` and a plot.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use clap::Args;
+use gazelight_tracker::filter::FilterChain;
+use gazelight_tracker::{
+    DetectorMethod, EYE_LEFT, EYE_RIGHT, GazeEyes, GazeSample, GazeTrace, PupilOrigin, PupilSample,
+    PupilUnit, Sample, TraceSample,
+};
+use gazelight_vision::RgbImage;
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline};
+use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+
+use crate::config::RenderConfig;
+use crate::demo;
+use crate::output::{self, TimelineRow};
+
+/// Arguments of `gazelight render`.
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// HDR scene: an equirectangular panorama (OpenEXR or Radiance .hdr).
+    /// Default: the embedded night panorama.
+    #[arg(long, value_name = "FILE")]
+    pub scene: Option<PathBuf>,
+    /// Gaze/pupil trace CSV (t_secs,gaze_u,gaze_v,pupil_mm[,confidence]).
+    /// Default: the built-in demo trace (ground → street lamp → ground).
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+    /// Output directory (created).
+    #[arg(long, value_name = "DIR", default_value = "out")]
+    pub out: PathBuf,
+    /// Number of frames (default: the trace's duration × fps).
+    #[arg(long, value_name = "N")]
+    pub frames: Option<usize>,
+    /// Frame rate of the rendered sequence.
+    #[arg(long, value_name = "HZ", default_value_t = 30.0)]
+    pub fps: f64,
+    /// Display size per eye, WIDTHxHEIGHT (default 720x800, half the Vive
+    /// Pro's 1440x1600).
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    pub size: Option<(usize, usize)>,
+    /// Head yaw, degrees (positive right).
+    #[arg(long, allow_hyphen_values = true)]
+    pub yaw_deg: Option<f64>,
+    /// Head pitch, degrees (positive up).
+    #[arg(long, allow_hyphen_values = true)]
+    pub pitch_deg: Option<f64>,
+    /// Horizontal field of view, degrees.
+    #[arg(long)]
+    pub hfov_deg: Option<f64>,
+    /// cd/m² per scene-file unit (the shared panoramas are relative).
+    #[arg(long, conflicts_with = "scene_key_cd_m2")]
+    pub luminance_scale: Option<f64>,
+    /// Scale the scene so its median luminance is this many cd/m².
+    #[arg(long)]
+    pub scene_key_cd_m2: Option<f64>,
+    /// TOML configuration (models and parameters); flags override it.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Write only the contact sheet, timeline and plot, not every frame.
+    #[arg(long)]
+    pub no_frames: bool,
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
+    let w: usize = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: width is not a number"))?;
+    let h: usize = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: height is not a number"))?;
+    if !(8..=8192).contains(&w) || !(8..=8192).contains(&h) {
+        return Err(format!("`{s}`: each side must be 8..=8192 pixels"));
+    }
+    Ok((w, h))
+}
+
+/// Runs `gazelight render`.
+pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let config = match &args.config {
+        Some(p) => RenderConfig::load(p)?,
+        None => RenderConfig::default(),
+    };
+    if !(args.fps.is_finite() && args.fps > 0.0 && args.fps <= 1000.0) {
+        bail!("--fps {}: expected 0 < fps ≤ 1000", args.fps);
+    }
+
+    // Scene.
+    let scale = match (args.luminance_scale, args.scene_key_cd_m2) {
+        (Some(factor), _) => LuminanceScale::CdM2PerUnit { factor },
+        (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
+        (None, None) => config.scene.luminance_scale.unwrap_or_default(),
+    };
+    let scene = match &args.scene {
+        Some(path) => Scene::load(path, scale)?,
+        None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
+    };
+    if scene.repaired_components > 0 {
+        tracing::info!(
+            scene = %scene.name,
+            "clamped {} negative/NaN values to 0 (lossy compression leaves some)",
+            scene.repaired_components
+        );
+    }
+    let (width, height) = args
+        .size
+        .or(config.scene.view.map(|v| (v.width, v.height)))
+        .unwrap_or((720, 800));
+    let base_view = config
+        .scene
+        .view
+        .unwrap_or_else(|| demo::default_view(width, height));
+    let view = ViewParams {
+        yaw_deg: args.yaw_deg.unwrap_or(base_view.yaw_deg),
+        pitch_deg: args.pitch_deg.unwrap_or(base_view.pitch_deg),
+        hfov_deg: args.hfov_deg.unwrap_or(base_view.hfov_deg),
+        width,
+        height,
+    };
+    let projection = PanoramaView::new(view).context("view")?;
+
+    let mut view_img = RgbImage::new(width, height);
+    projection.render(&scene.image, &mut view_img);
+
+    // Trace.
+    let trace = match &args.trace {
+        Some(path) => GazeTrace::load(path)?,
+        None if args.scene.is_none() => demo::demo_trace(&view, &view_img)?,
+        None => sweep_trace(),
+    };
+    let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
+    let duration = trace.duration_secs();
+    let frames = args
+        .frames
+        .unwrap_or_else(|| ((duration * args.fps).floor() as usize + 1).max(1));
+    if frames == 0 {
+        bail!("--frames 0: nothing to render");
+    }
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let frames_dir = args.out.join("frames");
+    if !args.no_frames {
+        std::fs::create_dir_all(&frames_dir)
+            .with_context(|| format!("cannot create {}", frames_dir.display()))?;
+    }
+
+    tracing::info!(
+        scene = %scene.name,
+        size = %format!("{width}x{height}"),
+        ppd = format!("{:.2}", view.ppd()),
+        frames,
+        "rendering"
+    );
+    let mut pipeline =
+        FramePipeline::new(config.pipeline.clone(), width, height, view.deg_per_px())?;
+    let mut out = DisplayFrame::new(width, height);
+    let mut eye = TraceFeeder::new();
+    let mut last_adaptation = None;
+    let mut timeline = Vec::with_capacity(frames);
+    let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
+    let mut sheet = output::ContactSheet::new(width, height);
+    let progress = indicatif::ProgressBar::new(frames as u64);
+    progress.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} {bar:40} {pos}/{len} frames {per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let dt_secs = 1.0 / args.fps;
+    for i in 0..frames {
+        let t_secs = t0 + i as f64 * dt_secs;
+        let input = eye.input(
+            &trace,
+            t_secs,
+            if i == 0 { 0.0 } else { dt_secs as f32 },
+            last_adaptation,
+        );
+        let stats = pipeline.process(&view_img, &input, &mut out)?;
+        last_adaptation = Some(stats.adaptation_cd_m2);
+        if !args.no_frames {
+            let path = frames_dir.join(format!("frame_{i:05}.png"));
+            output::write_png(&path, &out)?;
+        }
+        if i % sheet_every == 0 {
+            sheet.add(&out, t_secs - t0);
+        }
+        timeline.push(TimelineRow {
+            t_secs: t_secs - t0,
+            gaze_u: input.gaze_uv[0],
+            gaze_v: input.gaze_uv[1],
+            pupil_mm: input.pupil_mm,
+            pupil_held: eye.held,
+            stats,
+        });
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+    output::write_timeline(&args.out.join("timeline.csv"), &timeline)?;
+    sheet.write(&args.out.join("contact_sheet.png"))?;
+    output::write_plot(&args.out.join("plot.png"), &timeline)?;
+    let mean_ms = timeline
+        .iter()
+        .map(|r| r.stats.timings.total_ms)
+        .sum::<f64>()
+        / timeline.len() as f64;
+    let rebuilds = timeline.iter().filter(|r| r.stats.psf_rebuilt).count();
+    println!(
+        "rendered {frames} frames ({width}x{height}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline, {rebuilds} PSF rebuilds",
+        view.ppd(),
+        scene.name,
+        started.elapsed().as_secs_f64(),
+        mean_ms
+    );
+    println!(
+        "wrote {}/{{{}contact_sheet.png, timeline.csv, plot.png}}",
+        args.out.display(),
+        if args.no_frames { "" } else { "frames/, " }
+    );
+    Ok(())
+}
+
+/// A slow horizontal gaze sweep at a 4 mm pupil: the default trace for a
+/// user-supplied scene.
+fn sweep_trace() -> GazeTrace {
+    let n = 1200;
+    GazeTrace {
+        samples: (0..n)
+            .map(|i| {
+                let t = i as f64 / 100.0;
+                TraceSample {
+                    t_secs: t,
+                    gaze_uv: [0.1 + 0.8 * (i as f32 / (n - 1) as f32), 0.5],
+                    pupil_mm: Some(4.0),
+                    confidence: 1.0,
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Feeds trace samples through the tracker's filter chain (confidence gate,
+/// physiological bounds, blink detection, dropout hold → pupil model) and
+/// maps the resulting `EyeState` onto the pipeline's per-frame input, so the
+/// PSF never sees a pupil of 0 (the failure of 001 §7.1).
+struct TraceFeeder {
+    chain: FilterChain,
+    next: usize,
+    held: bool,
+}
+
+impl TraceFeeder {
+    fn new() -> Self {
+        Self {
+            chain: FilterChain::with_defaults(),
+            next: 0,
+            held: false,
+        }
+    }
+
+    /// Pushes every sample up to `t_secs` and returns the frame input.
+    fn input(
+        &mut self,
+        trace: &GazeTrace,
+        t_secs: f64,
+        dt_secs: f32,
+        adaptation_cd_m2: Option<f64>,
+    ) -> FrameInput {
+        if let Some(l) = adaptation_cd_m2 {
+            self.chain.set_adaptation_luminance(l);
+        }
+        while let Some(s) = trace.samples.get(self.next) {
+            if s.t_secs > t_secs {
+                break;
+            }
+            for eye in [EYE_RIGHT as u8, EYE_LEFT as u8] {
+                self.chain.push(&Sample::Pupil(PupilSample {
+                    t_secs: s.t_secs,
+                    eye,
+                    diameter_raw: s.pupil_mm.unwrap_or(0.0),
+                    unit: PupilUnit::Mm,
+                    diameter_mm: s.pupil_mm,
+                    confidence: s.confidence,
+                    norm_pos: [f32::NAN; 2],
+                    method: DetectorMethod::Other,
+                }));
+            }
+            self.chain.push(&Sample::Gaze(GazeSample {
+                t_secs: s.t_secs,
+                gaze_uv: s.gaze_uv,
+                confidence: s.confidence,
+                eyes: GazeEyes::Binocular,
+            }));
+            self.next += 1;
+        }
+        let state = self.chain.state();
+        self.held = state
+            .eyes
+            .iter()
+            .any(|e| e.pupil_origin != PupilOrigin::Measured);
+        FrameInput {
+            gaze_uv: state.gaze_uv,
+            pupil_mm: state.pupil_mm(),
+            dt_secs,
+        }
+    }
+}
