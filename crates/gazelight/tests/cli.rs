@@ -1,0 +1,236 @@
+//! The CLI end to end: the default render, `psf`, `inspect`, and bad input
+//! (clear error naming the file and the problem, non-zero exit, no panic).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::Instant;
+
+fn gazelight(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run gazelight")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gazelight-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn shared(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(rel)
+}
+
+fn assert_clean_failure(out: &Output, needles: &[&str]) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "expected failure, stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "stderr lacks `{n}`: {stderr}");
+    }
+}
+
+#[test]
+fn default_render_writes_everything_in_time() {
+    let out_dir = tmp("render");
+    let started = Instant::now();
+    let out = gazelight(&["render", "--out", out_dir.to_str().expect("utf-8")]);
+    let secs = started.elapsed().as_secs_f64();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    eprintln!("default render took {secs:.1} s");
+    assert!(
+        secs < 60.0,
+        "the default render must finish in under 60 s, took {secs:.1}"
+    );
+    for f in [
+        "contact_sheet.png",
+        "timeline.csv",
+        "plot.png",
+        "frames/frame_00000.png",
+    ] {
+        let p = out_dir.join(f);
+        assert!(
+            p.is_file() && std::fs::metadata(&p).expect("meta").len() > 100,
+            "{f}"
+        );
+    }
+    let timeline = std::fs::read_to_string(out_dir.join("timeline.csv")).expect("timeline");
+    let rows: Vec<Vec<f64>> = timeline
+        .lines()
+        .skip(1)
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.parse::<f64>().expect("number"))
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), 360, "12 s of 200 Hz samples at 30 fps");
+    assert_eq!(
+        std::fs::read_dir(out_dir.join("frames"))
+            .expect("frames")
+            .count(),
+        360
+    );
+    // Columns: 3 pupil_mm, 6 adaptation. The pupil is never 0; adaptation
+    // rises when the gaze lands on the lamp (3 s) and falls after 7.5 s.
+    let at = |t: f64| rows.iter().find(|r| r[0] >= t).expect("row");
+    assert!(rows.iter().all(|r| r[3] > 1.0 && r[3] < 9.0));
+    assert!(
+        at(6.0)[6] > 100.0 * at(2.0)[6],
+        "lamp {} vs ground {}",
+        at(6.0)[6],
+        at(2.0)[6]
+    );
+    assert!(at(11.5)[6] < at(6.0)[6] / 100.0);
+    assert!(
+        at(6.0)[3] < at(2.0)[3] - 1.0,
+        "the pupil constricts at the lamp"
+    );
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
+
+#[test]
+fn psf_writes_kernel_files() {
+    let out_dir = tmp("psf");
+    let out = gazelight(&[
+        "psf",
+        "--pupil-mm",
+        "4",
+        "--grid",
+        "256",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(out_dir.join("psf.json")).expect("json");
+    let json: serde_json::Value = serde_json::from_str(&text).expect("valid json");
+    assert_eq!(json["pupil_mm"], 4.0);
+    assert!(json["deg_per_px"].as_f64().expect("deg") > 0.0);
+    assert!(json["wavelengths_nm"].as_array().expect("wl").len() >= 2);
+    for e in json["energy"].as_array().expect("energy") {
+        assert!((e.as_f64().expect("e") - 1.0).abs() < 1e-4);
+    }
+    let img = image::open(out_dir.join("kernel.png")).expect("png");
+    assert_eq!(u64::from(img.width()), json["size"].as_u64().expect("size"));
+    assert!(out_dir.join("kernel.exr").is_file());
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
+
+#[test]
+fn inspect_summarises_the_real_recordings() {
+    for rec in [
+        "eye/neon-demo",
+        "eye/eyelink-psa/both_eyes.asc",
+        "eye/piprkit-plr/pupil_trace.csv",
+    ] {
+        let out = gazelight(&["inspect", shared(rec).to_str().expect("utf-8"), "--json"]);
+        assert!(
+            out.status.success(),
+            "{rec}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json summary");
+        assert!(
+            json["duration_s"].as_f64().expect("duration") > 5.0,
+            "{rec}: {json}"
+        );
+        let text = gazelight(&["inspect", shared(rec).to_str().expect("utf-8")]);
+        assert!(text.status.success() && !text.stdout.is_empty());
+    }
+}
+
+#[test]
+fn bad_input_gives_clear_errors() {
+    let dir = tmp("bad");
+    let d = |f: &str| dir.join(f).to_str().expect("utf-8").to_owned();
+    let out_dir = d("out");
+
+    // Missing scene.
+    let out = gazelight(&[
+        "render",
+        "--scene",
+        "/nonexistent/scene.exr",
+        "--out",
+        &out_dir,
+    ]);
+    assert_clean_failure(&out, &["/nonexistent/scene.exr"]);
+
+    // Corrupt scene: a truncated EXR.
+    let bytes = std::fs::read(shared("hdr/blender-world/night.exr")).expect("night");
+    std::fs::write(d("cut.exr"), &bytes[..bytes.len() / 4]).expect("write");
+    let out = gazelight(&["render", "--scene", &d("cut.exr"), "--out", &out_dir]);
+    assert_clean_failure(&out, &["cut.exr", "OpenEXR"]);
+
+    // A text file posing as a scene.
+    std::fs::write(d("text.hdr"), "hello").expect("write");
+    let out = gazelight(&["render", "--scene", &d("text.hdr"), "--out", &out_dir]);
+    assert_clean_failure(&out, &["text.hdr"]);
+
+    // A trace with time going backwards names the file and line.
+    std::fs::write(
+        d("back.csv"),
+        "t_secs,gaze_u,gaze_v,pupil_mm\n0,0.5,0.5,4\n1,0.5,0.5,4\n0.5,0.5,0.5,4\n",
+    )
+    .expect("write");
+    let out = gazelight(&[
+        "render",
+        "--trace",
+        &d("back.csv"),
+        "--out",
+        &out_dir,
+        "--frames",
+        "2",
+    ]);
+    assert_clean_failure(&out, &["back.csv:4", "backwards"]);
+
+    // Unknown option.
+    let out = gazelight(&["render", "--frobnicate"]);
+    assert_clean_failure(&out, &["--frobnicate"]);
+
+    // Malformed config: a bad value and an unknown field are named.
+    std::fs::write(d("bad.toml"), "[pipeline]\nglare = { window_px = 100 }\n").expect("write");
+    let out = gazelight(&["render", "--config", &d("bad.toml"), "--out", &out_dir]);
+    assert_clean_failure(&out, &["bad.toml", "window_px"]);
+    std::fs::write(d("typo.toml"), "[pipeline]\npoolng = 3\n").expect("write");
+    let out = gazelight(&["render", "--config", &d("typo.toml"), "--out", &out_dir]);
+    assert_clean_failure(&out, &["typo.toml", "poolng"]);
+
+    // Bad PSF parameters.
+    let out = gazelight(&["psf", "--pupil-mm=-3", "--out", &out_dir]);
+    assert_clean_failure(&out, &["pupil_mm"]);
+
+    // A recording in an unknown format.
+    let out = gazelight(&["inspect", &d("bad.toml")]);
+    assert_clean_failure(&out, &["bad.toml"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn nan_scene_is_rejected() {
+    let dir = tmp("nan");
+    let img = gazelight_vision::RgbImage::from_pixels(8, 8, vec![[f32::NAN; 3]; 64]).expect("img");
+    let exr = dir.join("nan.exr");
+    gazelight_vision::scene::write_exr(&exr, &img).expect("exr");
+    let out = gazelight(&[
+        "render",
+        "--scene",
+        exr.to_str().expect("utf-8"),
+        "--out",
+        dir.join("o").to_str().expect("utf-8"),
+    ]);
+    assert_clean_failure(&out, &["nan.exr", "NaN"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
