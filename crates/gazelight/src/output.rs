@@ -78,8 +78,8 @@ impl ContactSheet {
                 for y in ty * f..(ty + 1) * f {
                     for x in tx * f..(tx + 1) * f {
                         let i = (y * frame.width + x) * 4;
-                        for c in 0..3 {
-                            acc[c] += u32::from(frame.rgba8[i + c]);
+                        for (a, v) in acc.iter_mut().zip(&frame.rgba8[i..i + 3]) {
+                            *a += u32::from(*v);
                         }
                     }
                 }
