@@ -1,21 +1,27 @@
 //! `gazelight inspect`: a summary of a recording (Neon native directory,
-//! EyeLink ASC, pupil CSV): rates, pupil ranges per eye, confidence,
+//! Pupil Core recording, EyeLink ASC, pupil CSV) or of a live Pupil Remote: rates, pupil ranges per eye, confidence,
 //! dropouts, blinks (the recording's own and the filter chain's), warnings.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
+use gazelight_tracker::PupilConfig;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
-use gazelight_tracker::summary::summarize_importer;
+use gazelight_tracker::summary::{summarize_importer, summarize_live};
+use std::time::Duration;
 
 /// Arguments of `gazelight inspect`.
 #[derive(Args, Debug)]
 pub struct InspectArgs {
-    /// A recording: a Neon native directory, an EyeLink `.asc`, or a pupil
-    /// `.csv` trace.
+    /// A recording (a Neon native directory, a Pupil Core recording
+    /// directory, an EyeLink `.asc`, a pupil `.csv` trace) or a live Pupil
+    /// Remote as `pupil://HOST[:PORT]` (default port 50020).
     pub path: PathBuf,
+    /// For a live source: how long to collect, seconds.
+    #[arg(long, default_value_t = 5.0)]
+    pub secs: f64,
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     pub json: bool,
@@ -23,9 +29,28 @@ pub struct InspectArgs {
 
 /// Runs `gazelight inspect`.
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
-    let mut importer = import::open(&args.path)?;
-    let summary = summarize_importer(importer.as_mut(), FilterChain::with_defaults())
-        .with_context(|| format!("while reading {}", args.path.display()))?;
+    let uri = args.path.to_string_lossy();
+    let summary = if uri.starts_with("pupil://") {
+        if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
+            anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
+        }
+        let config = PupilConfig::from_uri(&uri)?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .context("cannot start the async runtime")?;
+        eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+        runtime.block_on(summarize_live(
+            config,
+            Duration::from_secs_f64(args.secs),
+            FilterChain::with_defaults(),
+        ))?
+    } else {
+        let mut importer = import::open(&args.path)?;
+        summarize_importer(importer.as_mut(), FilterChain::with_defaults())
+            .with_context(|| format!("while reading {}", args.path.display()))?
+    };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

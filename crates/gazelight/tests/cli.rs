@@ -234,3 +234,71 @@ fn nan_scene_is_rejected() {
     assert_clean_failure(&out, &["nan.exr", "NaN"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn inspect_summarises_a_live_peer() {
+    use std::io::{BufRead, BufReader};
+    let ready = Command::new("python3")
+        .args(["-c", "import zmq, msgpack"])
+        .output();
+    if !ready.map(|o| o.status.success()).unwrap_or(false) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must have python3 + pyzmq + msgpack"
+        );
+        eprintln!(
+            "SKIP inspect_summarises_a_live_peer: python3 with pyzmq + msgpack not available"
+        );
+        return;
+    }
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args([
+            "--remote-port",
+            "0",
+            "--sub-port",
+            "0",
+            "--pub-port",
+            "0",
+            "--rate",
+            "200",
+            "--timeout",
+            "20",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn peer");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY line");
+    let port = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .expect("remote port")
+        .to_owned();
+    let out = gazelight(&[
+        "inspect",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--secs",
+        "1.5",
+        "--json",
+    ]);
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json summary");
+    assert!(json["clock_offset_s"].is_object(), "{json}");
+    let text = json.to_string();
+    assert!(text.contains("rate_hz"), "{text}");
+
+    // Nothing listening: a clear error, not a hang or a panic.
+    let out = gazelight(&["inspect", "pupil://127.0.0.1:9", "--secs", "0.5"]);
+    assert_clean_failure(&out, &["127.0.0.1:9"]);
+}
