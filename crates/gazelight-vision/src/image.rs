@@ -82,6 +82,10 @@ impl RgbImage {
                 if !c.is_finite() || *c < 0.0 {
                     *c = 0.0;
                     changed += 1;
+                } else if *c < f32::MIN_POSITIVE {
+                    // Subnormal: physically black, and slow in arithmetic;
+                    // flushed to 0 without counting it as a repair.
+                    *c = 0.0;
                 }
             }
         }

@@ -232,7 +232,7 @@ pub struct FramePipeline {
     glare: Option<(PsfBuilder, GlareConvolver)>,
     psf_pupil_mm: f64,
     acuity: AcuityBlur,
-    srgb_lut: Vec<u8>,
+    srgb_lut: Box<[u8; SRGB_LUT_SIZE]>,
 }
 
 impl FramePipeline {
@@ -275,9 +275,10 @@ impl FramePipeline {
         } else {
             None
         };
-        let srgb_lut = (0..SRGB_LUT_SIZE)
-            .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u8)
-            .collect();
+        let mut srgb_lut = Box::new([0u8; SRGB_LUT_SIZE]);
+        for (i, v) in srgb_lut.iter_mut().enumerate() {
+            *v = (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u8;
+        }
         Ok(Self {
             config,
             width,
@@ -449,7 +450,7 @@ impl FramePipeline {
             .acuity
             .sigma_px(adaptation_cd_m2, self.deg_per_px);
         let blur = acuity_sigma_px > AcuityBlur::MIN_SIGMA_PX;
-        let lut = &self.srgb_lut;
+        let lut: &[u8; SRGB_LUT_SIZE] = &self.srgb_lut;
         if blur || self.config.keep_display_linear {
             self.display
                 .pixels
@@ -510,23 +511,29 @@ fn clamp01(rgb: [f32; 3]) -> [f32; 3] {
     rgb.map(|v| v.clamp(0.0, 1.0))
 }
 
+/// NaN, ±∞, negative and subnormal values become 0. Subnormals (below
+/// 1.2e-38 cd/m², physically black) would otherwise slow every later
+/// arithmetic pass by an order of magnitude on x86.
 #[inline]
 fn sanitize(v: f32) -> f32 {
-    if v.is_finite() && v > 0.0 { v } else { 0.0 }
+    if v.is_finite() && v >= f32::MIN_POSITIVE {
+        v
+    } else {
+        0.0
+    }
 }
 
-#[inline]
-fn encode_px(lut: &[u8], rgb: [f32; 3], out: &mut [u8]) {
-    for c in 0..3 {
-        let v = rgb[c];
-        let v = if v.is_finite() {
-            v.clamp(0.0, 1.0)
-        } else {
-            0.0
+#[inline(always)]
+fn encode_px(lut: &[u8; SRGB_LUT_SIZE], rgb: [f32; 3], out: &mut [u8]) {
+    if let Ok(out) = <&mut [u8; 4]>::try_from(out) {
+        // NaN maps to 0; the index is then provably in range.
+        let idx = |v: f32| {
+            ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * (SRGB_LUT_SIZE - 1) as f32 + 0.5)
+                as usize)
+                .min(SRGB_LUT_SIZE - 1)
         };
-        out[c] = lut[(v * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize];
+        *out = [lut[idx(rgb[0])], lut[idx(rgb[1])], lut[idx(rgb[2])], 255];
     }
-    out[3] = 255;
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {
