@@ -1016,29 +1016,6 @@ mod tests {
         assert!((total - area).abs() / area < 0.01);
     }
 
-    /// Mean of M along the four axis directions at integer radius r.
-    fn axis_profile(m: &MonoPsf, r_max: usize) -> Vec<f64> {
-        let n = m.size;
-        let c = n / 2;
-        let v = &m.values;
-        (0..=r_max)
-            .map(|r| {
-                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
-                    / 4.0
-            })
-            .collect()
-    }
-
-    /// First local minimum of the axis profile (parabolic sub-sample), rad.
-    fn first_minimum_rad(m: &MonoPsf) -> f64 {
-        let p = axis_profile(m, m.size / 2 - 1);
-        let i = (1..p.len() - 1)
-            .find(|&i| p[i] <= p[i - 1] && p[i] < p[i + 1])
-            .expect("a minimum");
-        let (a, b, c) = (p[i - 1], p[i], p[i + 1]);
-        (i as f64 + 0.5 * (a - c) / (a - 2.0 * b + c)) * m.rad_per_px
-    }
-
     #[test]
     fn gpu_clean_aperture_is_airy_with_first_minimum_at_1_22_lambda_over_d() {
         let Some(ctx) =
@@ -1065,7 +1042,7 @@ mod tests {
         for d_mm in [2.0, 4.0, 8.0] {
             gpu.try_rebuild(d_mm).unwrap();
             let m = gpu.read_intensity().unwrap();
-            let r = first_minimum_rad(&m);
+            let r = m.first_minimum_rad().expect("a dark ring");
             let expected = 1.22 * lambda_m / (d_mm * 1e-3);
             let err = (r - expected).abs() / expected;
             println!(
@@ -1074,7 +1051,7 @@ mod tests {
             );
             assert!(err < 0.03, "D = {d_mm} mm: error {err}");
             let c = m.size / 2;
-            let p = axis_profile(&m, 1);
+            let p = m.axis_profile(1);
             assert!(m.values[c * m.size + c] > p[1], "peak not at the centre");
             assert_unit_energy(&gpu.read_kernel().unwrap(), &format!("D = {d_mm} mm"));
             radii.push(r);

@@ -316,6 +316,39 @@ pub struct MonoPsf {
     pub values: Vec<f64>,
 }
 
+impl MonoPsf {
+    /// Radial profile along the four axis directions from the centre
+    /// (mean of +x, −x, +y, −y), radii `0..=r_max` samples.
+    pub fn axis_profile(&self, r_max: usize) -> Vec<f64> {
+        let n = self.size;
+        let c = n / 2;
+        let r_max = r_max.min(c.saturating_sub(1));
+        let v = &self.values;
+        (0..=r_max)
+            .map(|r| {
+                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
+                    / 4.0
+            })
+            .collect()
+    }
+
+    /// Radius of the first dark ring in radians: the first local minimum of
+    /// the axis profile, refined by a parabola through the three samples
+    /// around it. `None` when the profile has no minimum.
+    pub fn first_minimum_rad(&self) -> Option<f64> {
+        let p = self.axis_profile(self.size / 2);
+        let i = (1..p.len().saturating_sub(1)).find(|&i| p[i] <= p[i - 1] && p[i] < p[i + 1])?;
+        let (a, b, c) = (p[i - 1], p[i], p[i + 1]);
+        let denom = a - 2.0 * b + c;
+        let offset = if denom.abs() > 0.0 {
+            0.5 * (a - c) / denom
+        } else {
+            0.0
+        };
+        Some((i as f64 + offset) * self.rad_per_px)
+    }
+}
+
 /// The spectral glare kernel at display resolution.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PsfKernel {
@@ -780,38 +813,13 @@ mod tests {
         }
     }
 
-    /// Mean of M along the four axis directions at integer radius r.
-    fn axis_profile(m: &MonoPsf, r_max: usize) -> Vec<f64> {
-        let n = m.size;
-        let c = n / 2;
-        (0..=r_max)
-            .map(|r| {
-                let v = &m.values;
-                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
-                    / 4.0
-            })
-            .collect()
-    }
-
-    /// First local minimum of the axis profile, sub-sample by a parabola
-    /// through the three samples around it, in radians.
-    fn first_minimum_rad(m: &MonoPsf) -> f64 {
-        let p = axis_profile(m, m.size / 2 - 1);
-        let i = (1..p.len() - 1)
-            .find(|&i| p[i] <= p[i - 1] && p[i] < p[i + 1])
-            .expect("a minimum");
-        let (a, b, c) = (p[i - 1], p[i], p[i + 1]);
-        let offset = 0.5 * (a - c) / (a - 2.0 * b + c);
-        (i as f64 + offset) * m.rad_per_px
-    }
-
     #[test]
     fn clean_aperture_is_airy_with_first_minimum_at_1_22_lambda_over_d() {
         let lambda_m = REFERENCE_WAVELENGTH_NM * 1e-9;
         let mut radii = Vec::new();
         for d_mm in [2.0, 4.0, 8.0] {
             let m = monochromatic_psf(&airy_params(d_mm), REFERENCE_WAVELENGTH_NM).unwrap();
-            let r = first_minimum_rad(&m);
+            let r = m.first_minimum_rad().expect("a dark ring");
             let expected = 1.22 * lambda_m / (d_mm * 1e-3);
             let err = (r - expected).abs() / expected;
             eprintln!(
@@ -823,7 +831,7 @@ mod tests {
                 "D = {d_mm} mm: first minimum {r:.4e} rad, expected {expected:.4e} (err {err:.4})"
             );
             // The peak is on axis and the first minimum is dark (Airy: exactly 0).
-            let p = axis_profile(&m, 2);
+            let p = m.axis_profile(2);
             let c = m.size / 2;
             let peak = m.values[c * m.size + c];
             assert!(p[0] == peak && peak > p[1], "peak not at the centre");
@@ -845,7 +853,7 @@ mod tests {
         let params = airy_params(4.0);
         let m = monochromatic_psf(&params, 450.0).unwrap();
         let expected = 1.22 * 450e-9 / 4e-3;
-        let r = first_minimum_rad(&m);
+        let r = m.first_minimum_rad().expect("a dark ring");
         assert!((r - expected).abs() / expected < 0.03, "{r} vs {expected}");
         assert!((m.rad_per_px - 450e-6 / 64.0).abs() < 1e-15);
     }
