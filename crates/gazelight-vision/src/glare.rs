@@ -566,26 +566,4 @@ mod tests {
         assert_eq!(img, base);
         assert_eq!(GlareConvolver::new(3).window_px(), 16);
     }
-
-    #[test]
-    #[ignore = "timing for the report; run with --release -- --ignored --nocapture"]
-    fn time_apply_512_on_vive_frame() {
-        let k = build_kernel(&PsfParams::default()).unwrap();
-        let mut conv = GlareConvolver::new(512);
-        let t = std::time::Instant::now();
-        conv.set_kernel(&k);
-        let set_ms = t.elapsed().as_secs_f64() * 1e3;
-        let mut img = random_image(1440, 1600, 11);
-        conv.apply(&mut img, [720.0, 800.0], 128.0);
-        let runs = 20;
-        let t = std::time::Instant::now();
-        for i in 0..runs {
-            conv.apply(&mut img, [700.0 + i as f64, 800.0], 128.0);
-        }
-        let ms = t.elapsed().as_secs_f64() * 1e3 / runs as f64;
-        eprintln!(
-            "GlareConvolver::apply (512 window, 1440x1600): {ms:.2} ms; set_kernel {set_ms:.2} ms; threads {}",
-            rayon::current_num_threads()
-        );
-    }
 }

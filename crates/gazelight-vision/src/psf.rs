@@ -1157,24 +1157,4 @@ mod tests {
         .wavelengths_nm();
         assert_eq!(w, vec![380.0, 510.0, 640.0, 770.0]);
     }
-
-    #[test]
-    #[ignore = "timing for the report; run with --release -- --ignored --nocapture"]
-    fn time_build_kernel_default() {
-        let p = PsfParams::default();
-        let _ = build_kernel(&p).unwrap();
-        let mut builder = PsfBuilder::new(p).unwrap();
-        let t = std::time::Instant::now();
-        let runs = 10;
-        for i in 0..runs {
-            let _ = builder.rebuild(3.0 + 0.3 * i as f64);
-        }
-        let ms = t.elapsed().as_secs_f64() * 1e3 / runs as f64;
-        let t = std::time::Instant::now();
-        let _ = build_kernel(&PsfParams::default()).unwrap();
-        let ms_fresh = t.elapsed().as_secs_f64() * 1e3;
-        eprintln!(
-            "PsfBuilder::rebuild (N=512, 32 λ, 65 px): {ms:.2} ms; build_kernel from scratch {ms_fresh:.2} ms"
-        );
-    }
 }
