@@ -8,6 +8,9 @@
 
 mod config;
 mod demo;
+// Shared by run / serve / relay, which are being built on it.
+#[allow(dead_code)]
+mod hub;
 mod inspect;
 mod output;
 mod psf_cmd;

@@ -1,0 +1,317 @@
+//! The service hub: what a running session (`run`, `replay --serve`) shares
+//! with its observers — the status page (`serve`), the Pupil-compatible
+//! relay, recorders and tests.
+//!
+//! Writers are the source task (the eye-state `watch` channel, the sample
+//! broadcast, source health) and the frame loop (frame statistics, history,
+//! the latest frame and PSF kernel). Readers never block the writers for
+//! more than a copy: every shared value sits behind a short `Mutex` whose
+//! critical sections copy into preallocated storage, so the frame loop does
+//! not allocate in steady state. Queues are bounded: the sample broadcast
+//! drops the oldest values for a lagging receiver (the receiver learns how
+//! many), and the history is a fixed-size ring.
+
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use gazelight_tracker::Sample;
+use gazelight_tracker::pupil::LiveEyeState;
+use serde::Serialize;
+use tokio::sync::{broadcast, watch};
+
+/// Capacity of the filtered-sample broadcast (≈ 4 s at 1 kHz).
+pub const SAMPLE_BROADCAST_CAPACITY: usize = 4096;
+/// Points kept in the status history ring (≈ 45 s at 90 Hz).
+pub const HISTORY_CAPACITY: usize = 4096;
+
+/// Health of the tracker source.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceHealth {
+    /// Not connected yet.
+    #[default]
+    Connecting,
+    /// Samples are arriving.
+    Live,
+    /// The source was connected and is gone (the service keeps running).
+    Lost,
+    /// A finite source (a replay) has ended.
+    Ended,
+}
+
+/// Source-side counters, written by the source task.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SourceStatus {
+    /// The source URI (`pupil://127.0.0.1:50020`, `replay://…`).
+    pub uri: String,
+    pub health: SourceHealth,
+    /// Samples per second over the last second.
+    pub sample_rate_hz: f64,
+    /// Mean confidence of the samples over the last second.
+    pub confidence: f64,
+    /// Fraction of pupil samples over the last second that the filter
+    /// rejected or held (blink, low confidence, dropout).
+    pub dropout_rate: f64,
+    /// Samples received since start.
+    pub samples_total: u64,
+    /// Samples dropped by bounded queues since start.
+    pub samples_dropped: u64,
+    /// Re-connections since start.
+    pub reconnects: u64,
+    /// Why the source was last lost, if it was.
+    pub last_error: Option<String>,
+}
+
+/// Frame-loop figures of the newest frame, written by the frame loop.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FrameStatus {
+    /// Frames produced since start.
+    pub frames: u64,
+    /// Frames that missed their deadline since start.
+    pub frames_late: u64,
+    /// Session time of the newest frame, s.
+    pub t_secs: f64,
+    /// Calibrated pupil per eye [right, left] (Pupil's eye indices), mm.
+    pub pupil_mm: [f32; 2],
+    /// Pupil the frame used (binocular), mm.
+    pub frame_pupil_mm: f32,
+    /// Gaze used for the frame, normalised display coordinates.
+    pub gaze_uv: [f32; 2],
+    /// Adaptation luminance after the frame, cd/m².
+    pub adaptation_cd_m2: f64,
+    /// Pooled target luminance, cd/m².
+    pub target_cd_m2: f64,
+    /// Age of the `EyeState` the frame used, ms.
+    pub eye_state_age_ms: f64,
+    /// Whole-frame processing time, ms.
+    pub frame_ms: f64,
+    /// Per-stage times of the newest frame, ms.
+    pub timings: gazelight_vision::pipeline::StageTimings,
+    /// PSF rebuilds since start.
+    pub psf_rebuilds: u64,
+}
+
+/// One point of the plotted history.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct HistoryPoint {
+    pub t_secs: f64,
+    /// [right, left], mm.
+    pub pupil_mm: [f32; 2],
+    pub adaptation_cd_m2: f64,
+    pub eye_state_age_ms: f64,
+    pub frame_ms: f64,
+}
+
+/// A fixed-capacity ring of history points (no allocation after creation).
+#[derive(Debug)]
+pub struct History {
+    points: Vec<HistoryPoint>,
+    next: usize,
+    len: usize,
+}
+
+impl History {
+    fn new(capacity: usize) -> Self {
+        Self {
+            points: vec![HistoryPoint::default(); capacity.max(1)],
+            next: 0,
+            len: 0,
+        }
+    }
+
+    /// Appends a point, overwriting the oldest when full.
+    pub fn push(&mut self, point: HistoryPoint) {
+        let cap = self.points.len();
+        self.points[self.next] = point;
+        self.next = (self.next + 1) % cap;
+        self.len = (self.len + 1).min(cap);
+    }
+
+    /// Points in time order, oldest first.
+    pub fn iter(&self) -> impl Iterator<Item = &HistoryPoint> {
+        let cap = self.points.len();
+        let start = (self.next + cap - self.len) % cap;
+        (0..self.len).map(move |i| &self.points[(start + i) % cap])
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+}
+
+/// The newest display frame (RGBA8), copied at a limited rate.
+#[derive(Debug, Default)]
+pub struct FrameSnapshot {
+    pub width: usize,
+    pub height: usize,
+    /// Frame counter of the copy (0 = none yet).
+    pub frame: u64,
+    pub rgba8: Vec<u8>,
+}
+
+/// The glare kernel in use.
+#[derive(Debug, Default)]
+pub struct PsfSnapshot {
+    /// Rebuild counter of the copy (0 = none yet).
+    pub rebuild: u64,
+    pub pupil_mm: f64,
+    /// Side of the square kernel, pixels.
+    pub size_px: usize,
+    /// Kernel values (luminance channel, sums to ≈ 1), row-major.
+    pub values: Vec<f32>,
+}
+
+/// Everything a session shares. Cheap to clone through `Arc`.
+#[derive(Debug)]
+pub struct Hub {
+    /// Latest filtered, calibrated eye state (the source task writes it).
+    pub eye: watch::Receiver<LiveEyeState>,
+    /// Filtered samples as they arrive, for recorders and the relay.
+    pub samples: broadcast::Sender<Sample>,
+    source: Mutex<SourceStatus>,
+    frame: Mutex<FrameStatus>,
+    history: Mutex<History>,
+    latest_frame: Mutex<FrameSnapshot>,
+    psf: Mutex<PsfSnapshot>,
+    shutdown: watch::Sender<bool>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A poisoned lock only means a panic elsewhere; the data is plain values.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Hub {
+    /// A hub around the source's eye-state channel.
+    pub fn new(uri: &str, eye: watch::Receiver<LiveEyeState>) -> Arc<Self> {
+        let (samples, _) = broadcast::channel(SAMPLE_BROADCAST_CAPACITY);
+        let (shutdown, _) = watch::channel(false);
+        Arc::new(Self {
+            eye,
+            samples,
+            source: Mutex::new(SourceStatus {
+                uri: uri.to_owned(),
+                ..SourceStatus::default()
+            }),
+            frame: Mutex::new(FrameStatus::default()),
+            history: Mutex::new(History::new(HISTORY_CAPACITY)),
+            latest_frame: Mutex::new(FrameSnapshot::default()),
+            psf: Mutex::new(PsfSnapshot::default()),
+            shutdown,
+        })
+    }
+
+    /// Updates the source status in place.
+    pub fn update_source(&self, f: impl FnOnce(&mut SourceStatus)) {
+        f(&mut lock(&self.source));
+    }
+
+    /// A copy of the source status.
+    pub fn source(&self) -> SourceStatus {
+        lock(&self.source).clone()
+    }
+
+    /// Publishes the newest frame's figures and appends a history point.
+    pub fn publish_frame(&self, status: FrameStatus) {
+        *lock(&self.frame) = status;
+        lock(&self.history).push(HistoryPoint {
+            t_secs: status.t_secs,
+            pupil_mm: status.pupil_mm,
+            adaptation_cd_m2: status.adaptation_cd_m2,
+            eye_state_age_ms: status.eye_state_age_ms,
+            frame_ms: status.frame_ms,
+        });
+    }
+
+    /// The newest frame's figures.
+    pub fn frame(&self) -> FrameStatus {
+        *lock(&self.frame)
+    }
+
+    /// Read access to the history ring.
+    pub fn with_history<R>(&self, f: impl FnOnce(&History) -> R) -> R {
+        f(&lock(&self.history))
+    }
+
+    /// Copies a display frame into the snapshot (reuses its buffer).
+    pub fn publish_display(&self, frame: u64, width: usize, height: usize, rgba8: &[u8]) {
+        let mut snap = lock(&self.latest_frame);
+        snap.width = width;
+        snap.height = height;
+        snap.frame = frame;
+        snap.rgba8.clear();
+        snap.rgba8.extend_from_slice(rgba8);
+    }
+
+    /// Read access to the newest display frame.
+    pub fn with_display<R>(&self, f: impl FnOnce(&FrameSnapshot) -> R) -> R {
+        f(&lock(&self.latest_frame))
+    }
+
+    /// Copies the glare kernel in use (after a rebuild).
+    pub fn publish_psf(&self, rebuild: u64, pupil_mm: f64, size_px: usize, values: &[f32]) {
+        let mut snap = lock(&self.psf);
+        snap.rebuild = rebuild;
+        snap.pupil_mm = pupil_mm;
+        snap.size_px = size_px;
+        snap.values.clear();
+        snap.values.extend_from_slice(values);
+    }
+
+    /// Read access to the kernel in use.
+    pub fn with_psf<R>(&self, f: impl FnOnce(&PsfSnapshot) -> R) -> R {
+        f(&lock(&self.psf))
+    }
+
+    /// Asks every task of the session to stop (Ctrl-C, end of replay).
+    pub fn request_shutdown(&self) {
+        self.shutdown.send_replace(true);
+    }
+
+    /// Whether shutdown was requested.
+    pub fn shutting_down(&self) -> bool {
+        *self.shutdown.borrow()
+    }
+
+    /// A receiver that changes to `true` on shutdown.
+    pub fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.shutdown.subscribe()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn history_ring_keeps_newest_in_order() {
+        let mut h = History::new(3);
+        for i in 0..5 {
+            h.push(HistoryPoint {
+                t_secs: i as f64,
+                ..HistoryPoint::default()
+            });
+        }
+        let ts: Vec<f64> = h.iter().map(|p| p.t_secs).collect();
+        assert_eq!(ts, vec![2.0, 3.0, 4.0]);
+        assert_eq!(h.len(), 3);
+    }
+
+    #[test]
+    fn snapshots_reuse_their_buffers() {
+        let (_tx, rx) = watch::channel(LiveEyeState::default());
+        let hub = Hub::new("test://", rx);
+        let px = vec![7u8; 16];
+        hub.publish_display(1, 2, 2, &px);
+        let cap = hub.with_display(|s| s.rgba8.capacity());
+        hub.publish_display(2, 2, 2, &px);
+        hub.with_display(|s| {
+            assert_eq!(s.frame, 2);
+            assert_eq!(s.rgba8, px);
+            assert_eq!(s.rgba8.capacity(), cap);
+        });
+    }
+}
