@@ -32,3 +32,4 @@ pub use recording::{PldataReader, PldataWriter, RecordingError};
 pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod summary;
 pub mod synthetic;
+pub mod transport;
