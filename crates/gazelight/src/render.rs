@@ -8,8 +8,8 @@ use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::{
-    DetectorMethod, EYE_LEFT, EYE_RIGHT, GazeEyes, GazeSample, GazeTrace, PupilOrigin, PupilSample,
-    PupilUnit, Sample, TraceSample,
+    DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeState, GazeEyes, GazeSample, GazeTrace, PupilOrigin,
+    PupilSample, PupilUnit, Sample, TraceSample,
 };
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline};
@@ -84,9 +84,17 @@ fn parse_size(s: &str) -> Result<(usize, usize), String> {
     Ok((w, h))
 }
 
-/// Runs `gazelight render`.
-pub fn run(args: RenderArgs) -> anyhow::Result<()> {
-    let started = Instant::now();
+/// What `render` and `replay` share: the configuration, the scene and its
+/// view for the head orientation.
+pub(crate) struct Setup {
+    pub config: RenderConfig,
+    pub scene: Scene,
+    pub view: ViewParams,
+    pub view_img: RgbImage,
+}
+
+/// Loads the configuration and scene and renders the panorama view.
+pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
     let config = match &args.config {
         Some(p) => RenderConfig::load(p)?,
         None => RenderConfig::default(),
@@ -128,21 +136,62 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         height,
     };
     let projection = PanoramaView::new(view).context("view")?;
-
     let mut view_img = RgbImage::new(width, height);
     projection.render(&scene.image, &mut view_img);
+    Ok(Setup {
+        config,
+        scene,
+        view,
+        view_img,
+    })
+}
 
-    // Trace.
+/// Runs `gazelight render`.
+pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let setup = prepare(&args)?;
     let trace = match &args.trace {
         Some(path) => GazeTrace::load(path)?,
-        None if args.scene.is_none() => demo::demo_trace(&view, &view_img)?,
+        None if args.scene.is_none() => demo::demo_trace(&setup.view, &setup.view_img)?,
         None => sweep_trace(),
     };
     let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
     let duration = trace.duration_secs();
+    let mut feeder = TraceFeeder::new(trace);
+    render_sequence(&args, &setup, &mut feeder, t0, duration, started)
+}
+
+/// Something that feeds the frame loop: pushes every sample up to a time
+/// through the tracker's filter chain and maps the resulting `EyeState`
+/// onto the pipeline's per-frame input.
+pub(crate) trait EyeFeed {
+    /// The frame input at `t_secs` (feeding the adaptation luminance of the
+    /// previous frame back to the pupil model first).
+    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput;
+    /// Whether either pupil is held or modelled rather than measured.
+    fn held(&self) -> bool;
+}
+
+/// Renders frames from `t0` over `duration_secs` (or `--frames`) and writes
+/// the outputs.
+pub(crate) fn render_sequence(
+    args: &RenderArgs,
+    setup: &Setup,
+    eye: &mut dyn EyeFeed,
+    t0: f64,
+    duration_secs: f64,
+    started: Instant,
+) -> anyhow::Result<()> {
+    let Setup {
+        config,
+        scene,
+        view,
+        view_img,
+    } = setup;
+    let (width, height) = (view.width, view.height);
     let frames = args
         .frames
-        .unwrap_or_else(|| ((duration * args.fps).floor() as usize + 1).max(1));
+        .unwrap_or_else(|| ((duration_secs * args.fps).floor() as usize + 1).max(1));
     if frames == 0 {
         bail!("--frames 0: nothing to render");
     }
@@ -165,7 +214,6 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let mut pipeline =
         FramePipeline::new(config.pipeline.clone(), width, height, view.deg_per_px())?;
     let mut out = DisplayFrame::new(width, height);
-    let mut eye = TraceFeeder::new();
     let mut last_adaptation = None;
     let mut timeline = Vec::with_capacity(frames);
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
@@ -181,12 +229,11 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     for i in 0..frames {
         let t_secs = t0 + i as f64 * dt_secs;
         let input = eye.input(
-            &trace,
             t_secs,
             if i == 0 { 0.0 } else { dt_secs as f32 },
             last_adaptation,
         );
-        let stats = pipeline.process(&view_img, &input, &mut out)?;
+        let stats = pipeline.process(view_img, &input, &mut out)?;
         last_adaptation = Some(stats.adaptation_cd_m2);
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
@@ -200,7 +247,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             gaze_u: input.gaze_uv[0],
             gaze_v: input.gaze_uv[1],
             pupil_mm: input.pupil_mm,
-            pupil_held: eye.held,
+            pupil_held: eye.held(),
             stats,
         });
         progress.inc(1);
@@ -254,32 +301,33 @@ fn sweep_trace() -> GazeTrace {
 /// maps the resulting `EyeState` onto the pipeline's per-frame input, so the
 /// PSF never sees a pupil of 0 (the failure of 001 §7.1).
 struct TraceFeeder {
+    trace: GazeTrace,
     chain: FilterChain,
     next: usize,
     held: bool,
 }
 
 impl TraceFeeder {
-    fn new() -> Self {
+    fn new(trace: GazeTrace) -> Self {
         Self {
+            trace,
             chain: FilterChain::with_defaults(),
             next: 0,
             held: false,
         }
     }
+}
 
-    /// Pushes every sample up to `t_secs` and returns the frame input.
-    fn input(
-        &mut self,
-        trace: &GazeTrace,
-        t_secs: f64,
-        dt_secs: f32,
-        adaptation_cd_m2: Option<f64>,
-    ) -> FrameInput {
+impl EyeFeed for TraceFeeder {
+    fn held(&self) -> bool {
+        self.held
+    }
+
+    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput {
         if let Some(l) = adaptation_cd_m2 {
             self.chain.set_adaptation_luminance(l);
         }
-        while let Some(s) = trace.samples.get(self.next) {
+        while let Some(s) = self.trace.samples.get(self.next) {
             if s.t_secs > t_secs {
                 break;
             }
@@ -303,15 +351,25 @@ impl TraceFeeder {
             }));
             self.next += 1;
         }
-        let state = self.chain.state();
-        self.held = state
-            .eyes
-            .iter()
-            .any(|e| e.pupil_origin != PupilOrigin::Measured);
+        let (input, held) = frame_input(self.chain.state(), dt_secs);
+        self.held = held;
+        input
+    }
+}
+
+/// Maps a filtered `EyeState` onto the pipeline's per-frame input; also says
+/// whether either pupil is held or modelled rather than measured.
+pub(crate) fn frame_input(state: &EyeState, dt_secs: f32) -> (FrameInput, bool) {
+    let held = state
+        .eyes
+        .iter()
+        .any(|e| e.pupil_origin != PupilOrigin::Measured);
+    (
         FrameInput {
             gaze_uv: state.gaze_uv,
             pupil_mm: state.pupil_mm(),
             dt_secs,
-        }
-    }
+        },
+        held,
+    )
 }

@@ -1,0 +1,205 @@
+//! `gazelight replay`: a recorded session (any format the device crate
+//! imports: a Neon or Pupil Core recording directory, an EyeLink `.asc`, a
+//! pupil `.csv`) + a scene → the same outputs as `render` (frames, contact
+//! sheet, `timeline.csv`, plot).
+//!
+//! The recording is streamed, never loaded whole: one pass reads only the
+//! time range (for the frame count and the progress bar), a second pass
+//! feeds the samples through the tracker's filter chain just ahead of the
+//! frame clock. Frames are placed on the recording's own clock at `--fps`,
+//! so a replay is deterministic and runs as fast as the pipeline allows.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::bail;
+use clap::Args;
+use gazelight_tracker::calibration::PupilCalibration;
+use gazelight_tracker::filter::FilterChain;
+use gazelight_tracker::import::{self, Importer};
+use gazelight_tracker::{PupilUnit, Sample};
+use gazelight_vision::pipeline::FrameInput;
+
+use crate::render::{self, EyeFeed, RenderArgs};
+
+/// Arguments of `gazelight replay`.
+#[derive(Args, Debug)]
+pub struct ReplayArgs {
+    /// The recording: a Neon or Pupil Core directory, an EyeLink `.asc`, or
+    /// a pupil `.csv`.
+    #[arg(value_name = "RECORDING")]
+    pub recording: PathBuf,
+    /// Calibration profile (JSON, `calibration/schema.json`) mapping the
+    /// tracker's raw pupil units onto millimetres. Needed for recordings
+    /// whose pupil is not in mm (EyeLink, Pupil Core 2D).
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+    /// Start this many seconds into the recording (samples before it still
+    /// warm up the filters).
+    #[arg(long, value_name = "S", default_value_t = 0.0)]
+    pub from_secs: f64,
+    /// Replay at most this many seconds.
+    #[arg(long, value_name = "S")]
+    pub secs: Option<f64>,
+    #[command(flatten)]
+    pub render: RenderArgs,
+}
+
+/// Runs `gazelight replay`.
+pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    if args.render.trace.is_some() {
+        bail!("replay takes the recording as its argument; --trace belongs to `render`");
+    }
+    if !(args.from_secs.is_finite() && args.from_secs >= 0.0) {
+        bail!("--from-secs {}: expected a time ≥ 0", args.from_secs);
+    }
+    if let Some(s) = args.secs
+        && !(s.is_finite() && s > 0.0)
+    {
+        bail!("--secs {s}: expected a duration > 0");
+    }
+    let calibration = match &args.calibration {
+        Some(path) => Some(PupilCalibration::load(path)?),
+        None => None,
+    };
+
+    // Pass 1: the time range (streamed).
+    let range = scan(&args.recording)?;
+    let Some((t_first, t_last, pupil_units)) = range else {
+        bail!(
+            "{}: the recording holds no readable samples",
+            args.recording.display()
+        );
+    };
+    if calibration.is_none() && pupil_units.iter().any(|u| *u != PupilUnit::Mm) {
+        tracing::warn!(
+            recording = %args.recording.display(),
+            "pupil samples are not in millimetres and no --calibration was given: \
+             the pupil falls back to the light-adaptation model"
+        );
+    }
+    let t0 = t_first + args.from_secs;
+    if t0 > t_last {
+        bail!(
+            "--from-secs {}: the recording is only {:.3} s long",
+            args.from_secs,
+            t_last - t_first
+        );
+    }
+    let mut duration = t_last - t0;
+    if let Some(s) = args.secs {
+        duration = duration.min(s);
+    }
+    tracing::info!(
+        recording = %args.recording.display(),
+        t_first_secs = t_first,
+        duration_secs = t_last - t_first,
+        "replaying {:.2} s from {:.2} s",
+        duration,
+        args.from_secs
+    );
+
+    // Pass 2: render, feeding the samples just ahead of the frame clock.
+    let setup = render::prepare(&args.render)?;
+    let importer = import::open(&args.recording)?;
+    let mut feeder = SampleFeeder::new(importer);
+    if let Some(c) = calibration {
+        feeder.chain.set_calibration(c);
+    }
+    render::render_sequence(&args.render, &setup, &mut feeder, t0, duration, started)?;
+    let w = feeder.importer.warnings();
+    if w.skipped_records > 0 {
+        println!(
+            "{}: skipped {} malformed records (see the log)",
+            args.recording.display(),
+            w.skipped_records
+        );
+    }
+    Ok(())
+}
+
+/// Reads the recording once for its time range and pupil units.
+fn scan(path: &std::path::Path) -> anyhow::Result<Option<(f64, f64, Vec<PupilUnit>)>> {
+    let importer = import::open(path)?;
+    let mut range: Option<(f64, f64)> = None;
+    let mut units: Vec<PupilUnit> = Vec::new();
+    for item in importer {
+        let Ok(sample) = item else { continue };
+        let t = sample.t_secs();
+        if !t.is_finite() {
+            continue;
+        }
+        range = Some(match range {
+            None => (t, t),
+            Some((a, b)) => (a.min(t), b.max(t)),
+        });
+        if let Sample::Pupil(p) = &sample
+            && !units.contains(&p.unit)
+        {
+            units.push(p.unit);
+        }
+    }
+    Ok(range.map(|(a, b)| (a, b, units)))
+}
+
+/// Feeds an importer's samples through the filter chain up to each frame's
+/// time (one sample of look-ahead; nothing else is buffered).
+struct SampleFeeder {
+    importer: Box<dyn Importer + Send>,
+    chain: FilterChain,
+    pending: Option<Sample>,
+    ended: bool,
+    held: bool,
+}
+
+impl SampleFeeder {
+    fn new(importer: Box<dyn Importer + Send>) -> Self {
+        Self {
+            importer,
+            chain: FilterChain::with_defaults(),
+            pending: None,
+            ended: false,
+            held: false,
+        }
+    }
+
+    fn next_sample(&mut self) -> Option<Sample> {
+        if let Some(s) = self.pending.take() {
+            return Some(s);
+        }
+        while !self.ended {
+            match self.importer.next() {
+                Some(Ok(s)) => return Some(s),
+                Some(Err(e)) => {
+                    tracing::warn!(error = %e, "recording ended early");
+                    self.ended = true;
+                }
+                None => self.ended = true,
+            }
+        }
+        None
+    }
+}
+
+impl EyeFeed for SampleFeeder {
+    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput {
+        if let Some(l) = adaptation_cd_m2 {
+            self.chain.set_adaptation_luminance(l);
+        }
+        while let Some(s) = self.next_sample() {
+            if s.t_secs() > t_secs {
+                self.pending = Some(s);
+                break;
+            }
+            self.chain.push(&s);
+        }
+        let (input, held) = render::frame_input(self.chain.state(), dt_secs);
+        self.held = held;
+        input
+    }
+
+    fn held(&self) -> bool {
+        self.held
+    }
+}
