@@ -1,0 +1,564 @@
+//! The frame loop of a live session: a dedicated thread at the display
+//! rate, paced by a deadline clock (deadline `k` is `start + k · period`,
+//! so sleeping never drifts; a frame that ends after its deadline is
+//! counted late, and deadlines that passed entirely meanwhile are counted
+//! dropped and skipped rather than rendered in a burst).
+//!
+//! Each frame ([`FrameLoop::step`]):
+//! 1. reads the newest `EyeState` from the hub (`watch::borrow`, never
+//!    waits) and computes its age;
+//! 2. when the state is stale (the tracker vanished), fills the pupil the
+//!    way the filter chain fills a dropout (the tracker crate's
+//!    [`DropoutFill`]: hold the last pupil for `dropout.hold_s`, then ease
+//!    towards the Watson–Yellott pupil at the current adaptation luminance)
+//!    and limits the output's rate ([`SlewLimiter`]), so glare neither
+//!    freezes on a lost tracker nor jumps when it returns;
+//! 3. follows the head orientation (a head trace re-renders the view);
+//! 4. runs [`FramePipeline::process`] and feeds the adaptation luminance
+//!    back to the source's filter chain;
+//! 5. publishes the frame's figures (and history) to the hub, the display
+//!    frame at most every 100 ms, the glare kernel after each rebuild, and
+//!    hands a row (and the frame) to the output writer.
+//!
+//! Steady state allocates nothing: every buffer is created in
+//! [`FrameLoop::new`] (the test below counts allocations).
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use gazelight_tracker::filter::{DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterConfig, SlewLimiter};
+use gazelight_tracker::pupil::clock::host_now_secs;
+use gazelight_tracker::pupil_model::PupilModel;
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
+use gazelight_vision::RgbImage;
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline, PipelineConfig};
+use gazelight_vision::scene::{PanoramaView, ViewParams};
+
+use super::head::Head;
+use super::source_task::{AdaptationCell, AgeClock};
+use super::writer::{OutputWriter, PsfEvent, Row, WriterReport};
+use crate::hub::{FrameStatus, Hub, SourceHealth};
+
+/// An `EyeState` older than this is stale: the tracker is not delivering.
+pub const STALE_AFTER_SECS: f64 = 0.25;
+/// Shortest interval between display-frame copies to the hub.
+const DISPLAY_PUBLISH_SECS: f64 = 0.1;
+/// EyeState ages kept for the summary (≈ 3 h at 90 Hz).
+const AGE_SAMPLES: usize = 1 << 20;
+/// Largest frame interval fed to the temporal model, s.
+const MAX_DT_SECS: f32 = 0.1;
+
+/// Everything the loop needs, assembled by `run`.
+pub struct FrameLoopSetup {
+    pub hub: Arc<Hub>,
+    pub age_clock: AgeClock,
+    pub adaptation: Arc<AdaptationCell>,
+    pub pipeline: PipelineConfig,
+    pub filter: FilterConfig,
+    /// The panorama, cd/m².
+    pub pano: RgbImage,
+    pub view: ViewParams,
+    pub head: Head,
+    pub fps: f64,
+    pub writer: Option<OutputWriter>,
+}
+
+/// What a finished run did.
+#[derive(Clone, Debug, Default)]
+pub struct RunSummary {
+    pub frames: u64,
+    pub frames_late: u64,
+    /// Display deadlines that passed with no frame (skipped).
+    pub frames_dropped: u64,
+    pub wall_secs: f64,
+    pub psf_rebuilds: u64,
+    pub eye_state_age_median_ms: f64,
+    pub eye_state_age_p99_ms: f64,
+    pub eye_state_age_max_ms: f64,
+    pub mean_frame_ms: f64,
+    pub writer: Option<WriterReport>,
+    pub frames_not_written: u64,
+    pub rows_dropped: u64,
+}
+
+/// The per-frame state; build with [`FrameLoop::new`], drive with
+/// [`FrameLoop::step`] or [`FrameLoop::run`].
+pub struct FrameLoop {
+    hub: Arc<Hub>,
+    age_clock: AgeClock,
+    adaptation_cell: Arc<AdaptationCell>,
+    pipeline: FramePipeline,
+    pano: RgbImage,
+    view: ViewParams,
+    view_img: RgbImage,
+    head: Head,
+    out: DisplayFrame,
+    model: PupilModel,
+    fill: [DropoutFill; 2],
+    slew: [SlewLimiter; 2],
+    adaptation_cd_m2: Option<f64>,
+    frames: u64,
+    late: u64,
+    dropped: u64,
+    psf_rebuilds: u64,
+    last_display_secs: f64,
+    psf_scratch: Vec<f32>,
+    ages_ms: Vec<f32>,
+    age_next: usize,
+    frame_ms_sum: f64,
+    fps: f64,
+    writer: Option<OutputWriter>,
+}
+
+impl FrameLoop {
+    /// Builds the pipeline and every buffer, renders the initial view and
+    /// publishes the initial kernel.
+    pub fn new(setup: FrameLoopSetup) -> anyhow::Result<Self> {
+        let FrameLoopSetup {
+            hub,
+            age_clock,
+            adaptation,
+            pipeline,
+            filter,
+            pano,
+            view,
+            head,
+            fps,
+            writer,
+        } = setup;
+        let pipeline = FramePipeline::new(pipeline, view.width, view.height, view.deg_per_px())?;
+        let mut view = view;
+        if let Some((yaw, pitch)) = head.orientation(0.0) {
+            view.yaw_deg = yaw;
+            view.pitch_deg = pitch;
+        }
+        let mut view_img = RgbImage::new(view.width, view.height);
+        PanoramaView::new(view)?.render(&pano, &mut view_img);
+        let model = filter.pupil_model;
+        let model_mm = model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
+        let kernel_len = pipeline.psf_kernel().map_or(0, |k| k.size * k.size);
+        let mut this = Self {
+            hub,
+            age_clock,
+            adaptation_cell: adaptation,
+            pipeline,
+            pano,
+            view,
+            view_img,
+            head,
+            out: DisplayFrame::new(view.width, view.height),
+            model,
+            fill: [DropoutFill::new(filter.dropout, model_mm); 2],
+            slew: [SlewLimiter::new(filter.physio.max_rate_mm_per_s, model_mm); 2],
+            adaptation_cd_m2: None,
+            frames: 0,
+            late: 0,
+            dropped: 0,
+            psf_rebuilds: 0,
+            last_display_secs: f64::NEG_INFINITY,
+            psf_scratch: Vec::with_capacity(kernel_len),
+            ages_ms: Vec::with_capacity(AGE_SAMPLES),
+            age_next: 0,
+            frame_ms_sum: 0.0,
+            fps,
+            writer,
+        };
+        this.publish_kernel(0.0);
+        Ok(this)
+    }
+
+    fn publish_kernel(&mut self, t_secs: f64) {
+        let generation = self.psf_rebuilds + 1;
+        if let Some(k) = self.pipeline.psf_kernel() {
+            self.psf_scratch.clear();
+            // Rec. 709 luminance of the linear-sRGB kernel.
+            self.psf_scratch.extend(
+                k.rgb
+                    .iter()
+                    .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]),
+            );
+            self.hub
+                .publish_psf(generation, k.pupil_mm, k.size, &self.psf_scratch);
+            if let Some(w) = &mut self.writer {
+                w.psf(PsfEvent {
+                    generation,
+                    t_secs,
+                    pupil_mm: k.pupil_mm,
+                });
+            }
+        }
+    }
+
+    /// Renders one frame at host time `now_host_secs`, session time
+    /// `t_secs`, `dt_secs` after the previous frame.
+    pub fn step(&mut self, now_host_secs: f64, t_secs: f64, dt_secs: f32) -> anyhow::Result<FrameStatus> {
+        let started = Instant::now();
+        let live = *self.hub.eye.borrow();
+        let mut state = live.state;
+        let age_secs = match self.age_clock {
+            AgeClock::SampleTime => now_host_secs - state.t_secs,
+            AgeClock::PublishTime => now_host_secs - live.updated_host_secs,
+        }
+        .max(0.0);
+        let fresh = live.updates > 0 && age_secs <= STALE_AFTER_SECS;
+        let model_mm = self.model.pupil_mm(
+            self.adaptation_cd_m2
+                .unwrap_or(DEFAULT_ADAPTATION_LUMINANCE_CD_M2),
+        );
+        for e in [EYE_RIGHT, EYE_LEFT] {
+            let ch = &mut state.eyes[e];
+            let measured = (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
+            let (filled, origin) = self.fill[e].update(now_host_secs, measured, model_mm);
+            let target = if fresh { ch.pupil_mm } else { filled };
+            ch.pupil_mm = self.slew[e].step(now_host_secs, target);
+            if !fresh {
+                ch.pupil_origin = origin;
+            }
+        }
+        let held = state
+            .eyes
+            .iter()
+            .any(|e| e.pupil_origin != PupilOrigin::Measured);
+        let input = FrameInput {
+            gaze_uv: state.gaze_uv,
+            pupil_mm: state.pupil_mm(),
+            dt_secs: dt_secs.clamp(0.0, MAX_DT_SECS),
+        };
+
+        if let Some((yaw, pitch)) = self.head.orientation(t_secs)
+            && ((yaw - self.view.yaw_deg).abs() > 1e-6 || (pitch - self.view.pitch_deg).abs() > 1e-6)
+        {
+            self.view.yaw_deg = yaw;
+            self.view.pitch_deg = pitch;
+            PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
+        }
+
+        let stats = self.pipeline.process(&self.view_img, &input, &mut self.out)?;
+        self.adaptation_cd_m2 = Some(stats.adaptation_cd_m2);
+        self.adaptation_cell.set(stats.adaptation_cd_m2);
+        if stats.psf_rebuilt {
+            self.psf_rebuilds += 1;
+            self.publish_kernel(t_secs);
+        }
+        self.frames += 1;
+        let age_ms = age_secs * 1e3;
+        if self.ages_ms.len() < self.ages_ms.capacity() {
+            self.ages_ms.push(age_ms as f32);
+        } else {
+            self.ages_ms[self.age_next] = age_ms as f32;
+            self.age_next = (self.age_next + 1) % self.ages_ms.len();
+        }
+        let frame_ms = started.elapsed().as_secs_f64() * 1e3;
+        self.frame_ms_sum += frame_ms;
+        let status = FrameStatus {
+            frames: self.frames,
+            frames_late: self.late,
+            t_secs,
+            pupil_mm: [state.eyes[EYE_RIGHT].pupil_mm, state.eyes[EYE_LEFT].pupil_mm],
+            frame_pupil_mm: input.pupil_mm,
+            gaze_uv: input.gaze_uv,
+            adaptation_cd_m2: stats.adaptation_cd_m2,
+            target_cd_m2: stats.target_cd_m2,
+            eye_state_age_ms: age_ms,
+            frame_ms,
+            timings: stats.timings,
+            psf_rebuilds: self.psf_rebuilds,
+        };
+        self.hub.publish_frame(status);
+        if t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS {
+            self.last_display_secs = t_secs;
+            self.hub
+                .publish_display(self.frames, self.out.width, self.out.height, &self.out.rgba8);
+        }
+        if let Some(w) = &mut self.writer {
+            // Read the health without cloning the status (no allocation).
+            let mut health = SourceHealth::Connecting;
+            self.hub.update_source(|s| health = s.health);
+            w.row(Row {
+                frame: self.frames,
+                t_secs,
+                gaze_u: input.gaze_uv[0],
+                gaze_v: input.gaze_uv[1],
+                pupil_mm: status.pupil_mm,
+                frame_pupil_mm: input.pupil_mm,
+                pupil_held: held,
+                eye_state_age_ms: age_ms,
+                health,
+                target_cd_m2: stats.target_cd_m2,
+                adaptation_cd_m2: stats.adaptation_cd_m2,
+                psf_pupil_mm: stats.psf_pupil_mm,
+                psf_rebuilt: stats.psf_rebuilt,
+                frame_ms,
+            });
+            w.frame(self.frames, &self.out);
+        }
+        Ok(status)
+    }
+
+    /// Runs at the display rate until the hub's shutdown, then flushes the
+    /// outputs and returns the summary.
+    pub fn run(mut self) -> anyhow::Result<RunSummary> {
+        let period_secs = 1.0 / self.fps;
+        let start = Instant::now();
+        let mut deadline_index: u64 = 0;
+        let mut prev: Option<Instant> = None;
+        let mut result = Ok(());
+        while !self.hub.shutting_down() {
+            let now = Instant::now();
+            let dt = prev.map_or(0.0, |p| (now - p).as_secs_f32());
+            prev = Some(now);
+            if let Err(e) = self.step(host_now_secs(), (now - start).as_secs_f64(), dt) {
+                result = Err(e);
+                break;
+            }
+            deadline_index += 1;
+            let deadline = start + Duration::from_secs_f64(deadline_index as f64 * period_secs);
+            let after = Instant::now();
+            if after > deadline {
+                self.late += 1;
+                // Deadlines that passed entirely during this frame get no
+                // frame; the next frame aims at the next future deadline.
+                let slots = ((after - start).as_secs_f64() / period_secs).floor() as u64;
+                if slots > deadline_index {
+                    self.dropped += slots - deadline_index;
+                    deadline_index = slots;
+                }
+            } else {
+                std::thread::sleep(deadline - after);
+            }
+        }
+        let wall_secs = start.elapsed().as_secs_f64();
+        let summary = self.summary(wall_secs);
+        let writer = self.writer.take();
+        let mut summary = summary;
+        if let Some(w) = writer {
+            summary.frames_not_written = w.frames_skipped;
+            summary.rows_dropped = w.dropped;
+            summary.writer = Some(w.finish()?);
+        }
+        result.map(|()| summary)
+    }
+
+    fn summary(&mut self, wall_secs: f64) -> RunSummary {
+        let ages = &mut self.ages_ms;
+        ages.sort_unstable_by(f32::total_cmp);
+        let pct = |p: f64| -> f64 {
+            if ages.is_empty() {
+                return f64::NAN;
+            }
+            let i = ((ages.len() - 1) as f64 * p).round() as usize;
+            f64::from(ages[i])
+        };
+        RunSummary {
+            frames: self.frames,
+            frames_late: self.late,
+            frames_dropped: self.dropped,
+            wall_secs,
+            psf_rebuilds: self.psf_rebuilds,
+            eye_state_age_median_ms: pct(0.5),
+            eye_state_age_p99_ms: pct(0.99),
+            eye_state_age_max_ms: pct(1.0),
+            mean_frame_ms: if self.frames > 0 {
+                self.frame_ms_sum / self.frames as f64
+            } else {
+                0.0
+            },
+            writer: None,
+            frames_not_written: 0,
+            rows_dropped: 0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use gazelight_tracker::pupil::LiveEyeState;
+    use gazelight_tracker::{EyeState, PupilOrigin};
+    use gazelight_vision::scene::{LuminanceScale, Scene};
+    use tokio::sync::watch;
+
+    use super::*;
+    use crate::demo;
+
+    /// Counts allocations made on threads that opted in (the test thread
+    /// and its rayon pool), so other tests running in parallel do not
+    /// disturb the count.
+    struct Counting;
+
+    thread_local! {
+        static COUNT_HERE: Cell<bool> = const { Cell::new(false) };
+    }
+    static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+    fn note() {
+        if COUNT_HERE.with(Cell::get) {
+            ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            note();
+            unsafe { System.alloc(layout) }
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            unsafe { System.dealloc(ptr, layout) }
+        }
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            note();
+            unsafe { System.realloc(ptr, layout, new_size) }
+        }
+    }
+
+    #[global_allocator]
+    static GLOBAL: Counting = Counting;
+
+    fn live_state(t: f64, pupil_mm: f32, gaze_u: f32, updates: u64) -> LiveEyeState {
+        let mut state = EyeState {
+            t_secs: t,
+            gaze_uv: [gaze_u, 0.5],
+            gaze_valid: true,
+            ..EyeState::default()
+        };
+        for e in &mut state.eyes {
+            e.pupil_mm = pupil_mm;
+            e.pupil_origin = PupilOrigin::Measured;
+            e.confidence = 0.95;
+        }
+        LiveEyeState {
+            state,
+            updated_host_secs: t,
+            updates,
+        }
+    }
+
+    fn small_loop(tx_state: LiveEyeState, out: Option<&std::path::Path>) -> (FrameLoop, watch::Sender<LiveEyeState>) {
+        let (tx, rx) = watch::channel(tx_state);
+        let hub = Hub::new("test://", rx);
+        let scene = Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), LuminanceScale::default())
+            .expect("embedded scene");
+        let view = demo::default_view(320, 256);
+        let mut config = PipelineConfig::default();
+        config.glare.window_px = 128;
+        config.glare.psf.grid_size = 128;
+        config.glare.psf.kernel_size = 63;
+        let writer = out.map(|dir| {
+            let mut psf = config.glare.psf.clone();
+            psf.ppd = view.ppd();
+            OutputWriter::start(dir, view.width, view.height, psf, true).expect("writer")
+        });
+        let fl = FrameLoop::new(FrameLoopSetup {
+            hub,
+            age_clock: AgeClock::SampleTime,
+            adaptation: Arc::new(AdaptationCell::default()),
+            pipeline: config,
+            filter: FilterConfig::default(),
+            pano: scene.image,
+            view,
+            head: Head::Fixed,
+            fps: 90.0,
+            writer,
+        })
+        .expect("frame loop");
+        (fl, tx)
+    }
+
+    #[test]
+    fn steady_state_steps_do_not_allocate() {
+        let dir = std::env::temp_dir().join(format!("gazelight-alloc-{}", std::process::id()));
+        let (mut fl, tx) = small_loop(live_state(0.0, 5.0, 0.3, 1), Some(&dir));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .start_handler(|_| COUNT_HERE.with(|c| c.set(true)))
+            .build()
+            .expect("pool");
+        let dt = 1.0 / 90.0;
+        let mut t = 0.0;
+        pool.install(|| {
+            // Warm-up: first frames, PSF rebuild to 5 mm, first display copy.
+            for i in 0..10u64 {
+                tx.send_replace(live_state(t, 5.0, 0.3, i + 2));
+                fl.step(t, t, dt as f32).expect("frame");
+                t += dt;
+            }
+            COUNT_HERE.with(|c| c.set(true));
+            ALLOCS.store(0, Ordering::SeqCst);
+            for i in 0..60u64 {
+                // A live-ish state: new samples every frame, gaze moving,
+                // pupil jittering below the rebuild threshold.
+                let u = 0.2 + 0.6 * (i % 10) as f32 / 10.0;
+                tx.send_replace(live_state(t - 0.004, 5.0 + 0.01 * (i % 3) as f32, u, 20 + i));
+                fl.step(t, t, dt as f32).expect("frame");
+                t += dt;
+            }
+            COUNT_HERE.with(|c| c.set(false));
+        });
+        let n = ALLOCS.load(Ordering::SeqCst);
+        let summary = fl.run_summary_for_test();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(n, 0, "steady-state frames allocated {n} times");
+        assert_eq!(summary.frames, 70);
+        assert!(
+            (summary.eye_state_age_median_ms - 4.0).abs() < 0.5,
+            "{summary:?}"
+        );
+    }
+
+    #[test]
+    fn a_lost_tracker_holds_then_eases_to_the_model_and_recovers() {
+        let (mut fl, tx) = small_loop(live_state(0.0, 3.0, 0.5, 1), None);
+        let dt = 1.0 / 90.0;
+        let mut t = 0.0;
+        // 1 s live at 3 mm.
+        while t < 1.0 {
+            tx.send_replace(live_state(t, 3.0, 0.5, 2));
+            let s = fl.step(t, t, dt as f32).unwrap();
+            assert!(s.eye_state_age_ms < 1.0);
+            t += dt;
+        }
+        let lost_at = t;
+        // Lost: the state stops; fresh for 0.25 s, then held for 0.5 s.
+        let mut last = fl.step(t, t, dt as f32).unwrap();
+        while t < lost_at + 0.65 {
+            last = fl.step(t, t, dt as f32).unwrap();
+            t += dt;
+        }
+        assert!((last.frame_pupil_mm - 3.0).abs() < 1e-3, "held: {last:?}");
+        while t < lost_at + 4.0 {
+            last = fl.step(t, t, dt as f32).unwrap();
+            t += dt;
+        }
+        assert!(last.eye_state_age_ms > 3900.0, "{last:?}");
+        // Eased towards the model pupil at 0.5 mm/s (dropout default) for
+        // the ≈ 3.25 s after the hold.
+        let model = PupilModel::default().pupil_mm(last.adaptation_cd_m2);
+        assert!(model > 4.0, "the night scene's model pupil: {model}");
+        let expected = (model - 3.0).min(0.5 * (4.0 - STALE_AFTER_SECS - 0.5) as f32);
+        let eased = last.frame_pupil_mm - 3.0;
+        assert!((eased - expected).abs() < 0.15, "eased {eased} mm, expected {expected}: {last:?}");
+        // The tracker comes back at 6 mm: the pupil returns at ≤ 6 mm/s.
+        tx.send_replace(live_state(t, 6.0, 0.5, 3));
+        let back = fl.step(t, t, dt as f32).unwrap();
+        assert!(back.eye_state_age_ms < 1.0);
+        assert!((back.frame_pupil_mm - last.frame_pupil_mm).abs() <= 6.0 * dt as f32 + 1e-3);
+        for _ in 0..90 {
+            t += dt;
+            tx.send_replace(live_state(t, 6.0, 0.5, 4));
+            last = fl.step(t, t, dt as f32).unwrap();
+        }
+        assert!((last.frame_pupil_mm - 6.0).abs() < 1e-3, "{last:?}");
+    }
+
+    impl FrameLoop {
+        fn run_summary_for_test(mut self) -> RunSummary {
+            if let Some(w) = self.writer.take() {
+                w.finish().expect("writer");
+            }
+            self.summary(0.0)
+        }
+    }
+}

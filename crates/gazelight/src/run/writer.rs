@@ -1,0 +1,273 @@
+//! Outputs of a live run (`--out DIR`), written on their own thread so the
+//! frame loop never touches a file:
+//!
+//! - `timeline.csv`: one row per frame (streamed, so memory stays bounded);
+//! - `frames/frame_NNNNNN.png`: the display frames, through a fixed pool of
+//!   frame buffers — when the encoder falls behind, a frame's image is
+//!   skipped (counted), never queued without bound;
+//! - `psf.csv`: one row per glare kernel built (the initial one and every
+//!   rebuild): the pupil it was built for and the radius of the first dark
+//!   ring of its monochromatic PSF at the reference wavelength
+//!   ([`MonoPsf::first_minimum_rad`], 001 eq 8), which for a clear circular
+//!   pupil is 1.22 λ / D — it follows the live pupil.
+//!
+//! The frame loop hands rows, frames and kernel events over bounded
+//! `sync_channel`s (preallocated ring buffers: sending does not allocate).
+
+use std::io::Write;
+use std::path::Path;
+use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::thread::JoinHandle;
+
+use anyhow::Context;
+use gazelight_vision::pipeline::DisplayFrame;
+use gazelight_vision::psf::{MonoPsf, PsfParams, REFERENCE_WAVELENGTH_NM, monochromatic_psf};
+
+use crate::hub::SourceHealth;
+use crate::output;
+
+/// Frame buffers in flight between the loop and the PNG encoder.
+const FRAME_POOL: usize = 4;
+/// Rows/events queued before the loop starts dropping them (counted).
+const QUEUE: usize = 4096;
+
+/// One row of the live `timeline.csv`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Row {
+    pub frame: u64,
+    pub t_secs: f64,
+    pub gaze_u: f32,
+    pub gaze_v: f32,
+    /// Calibrated pupil per eye, [right, left], mm.
+    pub pupil_mm: [f32; 2],
+    /// Pupil the frame used, mm.
+    pub frame_pupil_mm: f32,
+    /// Either pupil held or modelled rather than measured.
+    pub pupil_held: bool,
+    pub eye_state_age_ms: f64,
+    pub health: SourceHealth,
+    pub target_cd_m2: f64,
+    pub adaptation_cd_m2: f64,
+    pub psf_pupil_mm: f64,
+    pub psf_rebuilt: bool,
+    pub frame_ms: f64,
+}
+
+const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,pupil_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms";
+
+fn health_name(h: SourceHealth) -> &'static str {
+    match h {
+        SourceHealth::Connecting => "connecting",
+        SourceHealth::Live => "live",
+        SourceHealth::Lost => "lost",
+        SourceHealth::Ended => "ended",
+    }
+}
+
+/// A kernel build: generation (1 = the initial kernel), time, pupil.
+#[derive(Clone, Copy, Debug)]
+pub struct PsfEvent {
+    pub generation: u64,
+    pub t_secs: f64,
+    pub pupil_mm: f64,
+}
+
+enum Msg {
+    Row(Row),
+    Frame(u64, DisplayFrame),
+    Psf(PsfEvent),
+}
+
+/// What the writer did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WriterReport {
+    pub rows: u64,
+    pub frames_written: u64,
+    pub psf_rows: u64,
+}
+
+/// The writer thread's handle (owned by the frame loop).
+pub struct OutputWriter {
+    tx: Option<SyncSender<Msg>>,
+    pool: Receiver<DisplayFrame>,
+    thread: Option<JoinHandle<anyhow::Result<WriterReport>>>,
+    write_frames: bool,
+    /// Rows or events dropped because the queue was full.
+    pub dropped: u64,
+    /// Frames whose image was not written because no buffer was free.
+    pub frames_skipped: u64,
+}
+
+impl OutputWriter {
+    /// Creates `dir` (and `frames/`), opens the files and starts the
+    /// thread. `psf` are the kernel parameters (ppd set) for `psf.csv`.
+    pub fn start(
+        dir: &Path,
+        width: usize,
+        height: usize,
+        psf: PsfParams,
+        write_frames: bool,
+    ) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let frames_dir = dir.join("frames");
+        if write_frames {
+            std::fs::create_dir_all(&frames_dir)
+                .with_context(|| format!("cannot create {}", frames_dir.display()))?;
+        }
+        let open = |name: &str| -> anyhow::Result<std::io::BufWriter<std::fs::File>> {
+            let p = dir.join(name);
+            let f = std::fs::File::create(&p)
+                .with_context(|| format!("cannot write {}", p.display()))?;
+            Ok(std::io::BufWriter::new(f))
+        };
+        let mut timeline = open("timeline.csv")?;
+        let mut psf_csv = open("psf.csv")?;
+        writeln!(timeline, "{HEADER}")?;
+        writeln!(
+            psf_csv,
+            "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin"
+        )?;
+        let (tx, rx) = sync_channel::<Msg>(QUEUE);
+        let (pool_tx, pool) = sync_channel::<DisplayFrame>(FRAME_POOL);
+        for _ in 0..FRAME_POOL {
+            let _ = pool_tx.try_send(DisplayFrame::new(width, height));
+        }
+        let dir_owned = dir.to_path_buf();
+        let thread = std::thread::Builder::new()
+            .name("gazelight-writer".into())
+            .spawn(move || -> anyhow::Result<WriterReport> {
+                let mut report = WriterReport::default();
+                let timeline_path = dir_owned.join("timeline.csv");
+                let psf_path = dir_owned.join("psf.csv");
+                for msg in rx {
+                    match msg {
+                        Msg::Row(r) => {
+                            write_row(&mut timeline, &r)
+                                .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+                            report.rows += 1;
+                        }
+                        Msg::Frame(i, frame) => {
+                            let p = frames_dir.join(format!("frame_{i:06}.png"));
+                            let r = output::write_png(&p, &frame);
+                            let _ = pool_tx.try_send(frame);
+                            r?;
+                            report.frames_written += 1;
+                        }
+                        Msg::Psf(ev) => {
+                            let mut params = psf.clone();
+                            params.pupil_mm = ev.pupil_mm;
+                            let ring = monochromatic_psf(&params, REFERENCE_WAVELENGTH_NM)
+                                .ok()
+                                .as_ref()
+                                .and_then(MonoPsf::first_minimum_rad)
+                                .unwrap_or(f64::NAN);
+                            writeln!(
+                                psf_csv,
+                                "{},{:.4},{:.4},{},{:.6e},{:.4}",
+                                ev.generation,
+                                ev.t_secs,
+                                ev.pupil_mm,
+                                REFERENCE_WAVELENGTH_NM,
+                                ring,
+                                ring.to_degrees() * 60.0
+                            )
+                            .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                            report.psf_rows += 1;
+                        }
+                    }
+                }
+                timeline
+                    .flush()
+                    .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+                psf_csv
+                    .flush()
+                    .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                Ok(report)
+            })
+            .context("cannot start the writer thread")?;
+        Ok(Self {
+            tx: Some(tx),
+            pool,
+            thread: Some(thread),
+            write_frames,
+            dropped: 0,
+            frames_skipped: 0,
+        })
+    }
+
+    fn send(&mut self, msg: Msg) -> Option<Msg> {
+        let tx = self.tx.as_ref()?;
+        match tx.try_send(msg) {
+            Ok(()) => None,
+            Err(TrySendError::Full(m)) | Err(TrySendError::Disconnected(m)) => {
+                self.dropped += 1;
+                Some(m)
+            }
+        }
+    }
+
+    /// Queues a timeline row (never blocks).
+    pub fn row(&mut self, row: Row) {
+        let _ = self.send(Msg::Row(row));
+    }
+
+    /// Queues a kernel event (never blocks).
+    pub fn psf(&mut self, ev: PsfEvent) {
+        let _ = self.send(Msg::Psf(ev));
+    }
+
+    /// Copies the frame into a free pool buffer and queues it; skips it
+    /// when none is free (never blocks, never allocates).
+    pub fn frame(&mut self, index: u64, frame: &DisplayFrame) {
+        if !self.write_frames {
+            return;
+        }
+        match self.pool.try_recv() {
+            Ok(mut buf) if buf.rgba8.len() == frame.rgba8.len() => {
+                buf.rgba8.copy_from_slice(&frame.rgba8);
+                if let Some(Msg::Frame(_, b)) = self.send(Msg::Frame(index, buf)) {
+                    // Queue full: the buffer stays ours, the image is skipped.
+                    self.frames_skipped += 1;
+                    self.dropped -= 1;
+                    drop(b);
+                }
+            }
+            Ok(_) | Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => {
+                self.frames_skipped += 1
+            }
+        }
+    }
+
+    /// Flushes everything and joins the thread.
+    pub fn finish(mut self) -> anyhow::Result<WriterReport> {
+        self.tx = None;
+        match self.thread.take() {
+            Some(t) => t
+                .join()
+                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))?,
+            None => Ok(WriterReport::default()),
+        }
+    }
+}
+
+fn write_row(w: &mut impl Write, r: &Row) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3}",
+        r.frame,
+        r.t_secs,
+        r.gaze_u,
+        r.gaze_v,
+        r.pupil_mm[0],
+        r.pupil_mm[1],
+        r.frame_pupil_mm,
+        u8::from(r.pupil_held),
+        r.eye_state_age_ms,
+        health_name(r.health),
+        r.target_cd_m2,
+        r.adaptation_cd_m2,
+        r.psf_pupil_mm,
+        u8::from(r.psf_rebuilt),
+        r.frame_ms
+    )
+}

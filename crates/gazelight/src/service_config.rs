@@ -1,0 +1,312 @@
+//! The service configuration file (TOML) of `gazelight run`: one file for
+//! the source, the display, the scene, the perception pipeline, the filter
+//! chain and the network endpoints. Every field is optional (a missing one
+//! takes the CLI flag or the default); unknown fields are errors that name
+//! the field, and every value is validated on load with an error naming
+//! the file and the field (`config run.toml: display.fps = -5: …`).
+//! Relative paths are resolved against the directory of the file.
+//!
+//! ```toml
+//! [source]
+//! uri = "pupil://127.0.0.1:50020"   # or replay://PATH?speed=1, synthetic://demo
+//! calibration = "profile.json"
+//!
+//! [display]
+//! fps = 90.0
+//! size = "720x800"
+//! headless = true
+//!
+//! [scene]
+//! file = "city.exr"
+//! luminance_scale = { kind = "median_key", key_cd_m2 = 20.0 }
+//! head = "fixed"                    # or "trace:head.csv"
+//! yaw_deg = -78.4
+//! pitch_deg = -6.0
+//! hfov_deg = 90.0
+//!
+//! [pipeline]                        # as in the render configuration
+//! glare = { window_px = 256 }
+//!
+//! [filter]                          # the tracker's filter chain
+//! dropout = { hold_s = 0.5 }
+//!
+//! [output]
+//! dir = "out"
+//!
+//! [http]
+//! addr = "127.0.0.1:8080"
+//!
+//! [relay]
+//! addr = "127.0.0.1:50030"
+//! ```
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use gazelight_tracker::filter::FilterConfig;
+use gazelight_vision::pipeline::PipelineConfig;
+use gazelight_vision::scene::LuminanceScale;
+use serde::Deserialize;
+
+/// `[source]`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SourceSettings {
+    /// Source URI (`pupil://HOST:PORT`, `replay://PATH[?speed=S]`,
+    /// `synthetic://demo`).
+    pub uri: Option<String>,
+    /// Calibration profile (JSON).
+    pub calibration: Option<PathBuf>,
+}
+
+/// `[display]`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DisplaySettings {
+    /// Display rate, Hz.
+    pub fps: Option<f64>,
+    /// Display size per eye, `"WIDTHxHEIGHT"`.
+    pub size: Option<String>,
+    /// Run with no window.
+    pub headless: Option<bool>,
+}
+
+/// `[scene]`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SceneSettings {
+    /// HDR panorama (OpenEXR / Radiance); default the embedded night scene.
+    pub file: Option<PathBuf>,
+    /// cd/m² per file unit, or a median key.
+    pub luminance_scale: Option<LuminanceScale>,
+    /// `"fixed"` or `"trace:FILE"`.
+    pub head: Option<String>,
+    pub yaw_deg: Option<f64>,
+    pub pitch_deg: Option<f64>,
+    pub hfov_deg: Option<f64>,
+}
+
+/// `[output]`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OutputSettings {
+    /// Directory for frames, `timeline.csv` and `psf.csv`.
+    pub dir: Option<PathBuf>,
+}
+
+/// `[http]` / `[relay]`.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EndpointSettings {
+    /// `HOST:PORT` to listen on.
+    pub addr: Option<String>,
+}
+
+/// The whole service configuration.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServiceConfig {
+    pub source: SourceSettings,
+    pub display: DisplaySettings,
+    pub scene: SceneSettings,
+    pub pipeline: PipelineConfig,
+    pub filter: FilterConfig,
+    pub output: OutputSettings,
+    pub http: EndpointSettings,
+    pub relay: EndpointSettings,
+}
+
+/// Largest display rate accepted, Hz.
+pub const MAX_FPS: f64 = 1000.0;
+
+/// Checks a display rate.
+pub fn check_fps(fps: f64) -> Result<f64, String> {
+    if fps.is_finite() && fps > 0.0 && fps <= MAX_FPS {
+        Ok(fps)
+    } else {
+        Err(format!("{fps}: expected 0 < fps ≤ {MAX_FPS}"))
+    }
+}
+
+/// Parses `WIDTHxHEIGHT` (each side 8..=8192 pixels).
+pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
+    let w: usize = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: width is not a number"))?;
+    let h: usize = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: height is not a number"))?;
+    if !(8..=8192).contains(&w) || !(8..=8192).contains(&h) {
+        return Err(format!("`{s}`: each side must be 8..=8192 pixels"));
+    }
+    Ok((w, h))
+}
+
+/// Parses a listening address; only a literal `IP:PORT` is accepted.
+pub fn parse_addr(s: &str) -> Result<SocketAddr, String> {
+    s.parse::<SocketAddr>()
+        .map_err(|_| format!("`{s}`: expected IP:PORT, e.g. 127.0.0.1:8080"))
+}
+
+/// Head orientation source.
+#[derive(Clone, Debug, PartialEq)]
+pub enum HeadSpec {
+    /// The view stays at the configured yaw/pitch.
+    Fixed,
+    /// A head trace CSV (`t_secs,yaw_deg,pitch_deg`).
+    Trace(PathBuf),
+    /// The mouse drags the view (needs a window).
+    Mouse,
+}
+
+/// Parses `fixed`, `trace:FILE` or `mouse`.
+pub fn parse_head(s: &str) -> Result<HeadSpec, String> {
+    match s {
+        "fixed" => Ok(HeadSpec::Fixed),
+        "mouse" => Ok(HeadSpec::Mouse),
+        _ => match s.strip_prefix("trace:") {
+            Some(p) if !p.is_empty() => Ok(HeadSpec::Trace(PathBuf::from(p))),
+            _ => Err(format!(
+                "`{s}`: expected fixed, mouse or trace:FILE (a CSV t_secs,yaw_deg,pitch_deg)"
+            )),
+        },
+    }
+}
+
+impl ServiceConfig {
+    /// Loads and validates a TOML file; errors name the file and the field.
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        let mut config: Self =
+            toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        config
+            .validate()
+            .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let resolve = |p: &mut Option<PathBuf>| {
+            if let Some(p) = p
+                && p.is_relative()
+            {
+                *p = base.join(&*p);
+            }
+        };
+        resolve(&mut config.source.calibration);
+        resolve(&mut config.scene.file);
+        resolve(&mut config.output.dir);
+        if let Some(h) = &config.scene.head
+            && let Some(rel) = h.strip_prefix("trace:")
+            && Path::new(rel).is_relative()
+        {
+            config.scene.head = Some(format!("trace:{}", base.join(rel).display()));
+        }
+        Ok(config)
+    }
+
+    /// Checks every field; the error names it (`display.fps = …: …`).
+    pub fn validate(&self) -> Result<(), String> {
+        if let Some(uri) = &self.source.uri
+            && uri.trim().is_empty()
+        {
+            return Err("source.uri is empty".to_owned());
+        }
+        if let Some(fps) = self.display.fps {
+            check_fps(fps).map_err(|e| format!("display.fps = {e}"))?;
+        }
+        if let Some(size) = &self.display.size {
+            parse_size(size).map_err(|e| format!("display.size = {e}"))?;
+        }
+        if let Some(scale) = &self.scene.luminance_scale {
+            scale
+                .validate()
+                .map_err(|e| format!("scene.luminance_scale: {e}"))?;
+        }
+        if let Some(head) = &self.scene.head {
+            parse_head(head).map_err(|e| format!("scene.head = {e}"))?;
+        }
+        if let Some(y) = self.scene.yaw_deg
+            && !y.is_finite()
+        {
+            return Err(format!("scene.yaw_deg = {y}: expected a finite angle"));
+        }
+        if let Some(p) = self.scene.pitch_deg
+            && !(p.is_finite() && p.abs() <= 90.0)
+        {
+            return Err(format!("scene.pitch_deg = {p}: expected −90 ≤ pitch ≤ 90"));
+        }
+        if let Some(f) = self.scene.hfov_deg
+            && !(f > 0.0 && f < 179.0)
+        {
+            return Err(format!("scene.hfov_deg = {f}: expected 0 < hfov < 179"));
+        }
+        self.pipeline
+            .validate()
+            .map_err(|e| format!("pipeline: {e}"))?;
+        self.filter.validate().map_err(|e| format!("filter.{e}"))?;
+        for (name, ep) in [("http", &self.http), ("relay", &self.relay)] {
+            if let Some(a) = &ep.addr {
+                parse_addr(a).map_err(|e| format!("{name}.addr = {e}"))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn load_str(text: &str) -> anyhow::Result<ServiceConfig> {
+        let dir = std::env::temp_dir().join(format!("gazelight-svc-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("c{}.toml", text.len()));
+        std::fs::write(&path, text).unwrap();
+        let r = ServiceConfig::load(&path);
+        let _ = std::fs::remove_file(&path);
+        r
+    }
+
+    #[test]
+    fn a_full_file_loads_and_resolves_paths() {
+        let c = load_str(
+            "[source]\nuri = \"pupil://127.0.0.1:50020\"\ncalibration = \"p.json\"\n\
+             [display]\nfps = 90.0\nsize = \"720x800\"\nheadless = true\n\
+             [scene]\nhead = \"trace:h.csv\"\nyaw_deg = 10.0\n\
+             [http]\naddr = \"127.0.0.1:8080\"\n[relay]\naddr = \"127.0.0.1:50030\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.display.fps, Some(90.0));
+        assert!(c.source.calibration.unwrap().is_absolute());
+        assert!(c.scene.head.unwrap().starts_with("trace:/"));
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let e = load_str("[display]\nfps = -5.0\n").unwrap_err().to_string();
+        assert!(e.contains("display.fps") && e.contains("-5"), "{e}");
+        let e = load_str("[display]\nsize = \"720by800\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("display.size"), "{e}");
+        let e = load_str("[source]\nurl = \"x\"\n").unwrap_err().to_string();
+        assert!(e.contains("url"), "{e}");
+        let e = load_str("[http]\naddr = \"localhost\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("http.addr"), "{e}");
+        let e = load_str("[filter.dropout]\nhold_s = -1.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("dropout.hold_s"), "{e}");
+        let e = load_str("[scene]\nhead = \"spin\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("scene.head"), "{e}");
+    }
+}
