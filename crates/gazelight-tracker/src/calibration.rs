@@ -485,6 +485,37 @@ impl CalibrationConfig {
     }
 }
 
+/// One phase of one eye, as [`CalibrationSession::summary`] reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct PhaseSummary {
+    /// Eye index (0 = right, 1 = left).
+    pub eye: u8,
+    pub phase: Phase,
+    /// Unit of the raw values.
+    pub unit: PupilUnit,
+    /// Samples in the analysis window (after the settle time).
+    pub samples: u64,
+    /// Of those, valid ones (confident, not in a blink).
+    pub valid: u64,
+    /// Smallest valid raw value (√area for area units); NaN when none.
+    pub raw_min: f64,
+    /// Largest valid raw value; NaN when none.
+    pub raw_max: f64,
+    /// Median of the valid raw values; NaN when none.
+    pub raw_median: f64,
+}
+
+impl PhaseSummary {
+    /// Valid fraction of the phase's samples (0 when there were none).
+    pub fn valid_fraction(&self) -> f64 {
+        if self.samples == 0 {
+            0.0
+        } else {
+            self.valid as f64 / self.samples as f64
+        }
+    }
+}
+
 /// Where a session is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Progress {
@@ -613,6 +644,37 @@ impl CalibrationSession {
             self.values[i][e].push(raw);
         }
         Ok(progress)
+    }
+
+    /// Per phase and eye: how many samples fell in the analysis window, how
+    /// many were valid, and the range and median of the valid raw values —
+    /// what a technician checks before trusting (or rejecting) a profile.
+    /// Eyes that never reported are left out.
+    pub fn summary(&self) -> Vec<PhaseSummary> {
+        let mut out = Vec::new();
+        for e in 0..2 {
+            let Some(unit) = self.unit[e] else { continue };
+            for (i, phase) in self.cfg.order.iter().enumerate() {
+                let mut vals = self.values[i][e].clone();
+                let (raw_min, raw_max, raw_median) = if vals.is_empty() {
+                    (f64::NAN, f64::NAN, f64::NAN)
+                } else {
+                    let m = median(&mut vals);
+                    (vals[0], vals[vals.len() - 1], m)
+                };
+                out.push(PhaseSummary {
+                    eye: e as u8,
+                    phase: *phase,
+                    unit,
+                    samples: self.total[i][e],
+                    valid: self.values[i][e].len() as u64,
+                    raw_min,
+                    raw_max,
+                    raw_median,
+                });
+            }
+        }
+        out
     }
 
     /// Computes the calibration: the median of each phase's valid samples per

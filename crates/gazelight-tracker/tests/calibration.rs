@@ -313,3 +313,42 @@ async fn async_driver_matches_the_sync_one_and_fails_on_a_short_source() {
     assert!(err.to_string().contains("replay of short"), "{err}");
     assert!(!path.exists());
 }
+
+#[test]
+fn summary_reports_each_phase_and_eye() {
+    use gazelight_tracker::calibration::{CalibrationSession, Progress};
+    // Same synthetic session as above: 7 mm dark, 3 mm bright at 12 px/mm.
+    let samples = black_white_session(3, 5.0, 7.0, 3.0, PupilUnit::Px, 12.0, 0.1, 0.3);
+    let mut session = CalibrationSession::new(CalibrationConfig::default()).unwrap();
+    let mut sink = LogSink::default();
+    for s in &samples {
+        if let Sample::Pupil(p) = s
+            && session.feed(p, &mut sink).unwrap() == Progress::Done
+        {
+            break;
+        }
+    }
+    let summary = session.summary();
+    assert_eq!(summary.len(), 4, "{summary:?}");
+    let cal = session.finish().unwrap();
+    for s in &summary {
+        assert!(s.samples > 0 && s.valid <= s.samples);
+        // The 200 ms blink per phase is excluded; most samples are valid.
+        assert!(
+            s.valid_fraction() > 0.8 && s.valid_fraction() < 1.0,
+            "{s:?}"
+        );
+        assert!(s.raw_min <= s.raw_median && s.raw_median <= s.raw_max);
+        let c = if s.eye == 0 {
+            cal.eyes.right
+        } else {
+            cal.eyes.left
+        }
+        .unwrap();
+        let expected = match s.phase {
+            Phase::Black => c.raw_black,
+            Phase::White => c.raw_white,
+        };
+        assert_eq!(s.raw_median, expected, "summary median = profile value");
+    }
+}
