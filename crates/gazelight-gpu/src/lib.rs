@@ -24,15 +24,22 @@
 //! tone reproduction, scotopic colour, display encode) are not built yet:
 //! until they are, the frame pipeline runs on the CPU reference.
 
+pub mod acuity;
 pub mod context;
 pub mod cpu;
 pub mod error;
 pub mod fft;
+pub mod frame;
+pub mod glare;
+pub mod pooling;
 pub mod psf;
 pub mod shaders;
+pub mod temporal;
 pub mod testing;
+pub mod tone;
 
 pub use context::{AdapterChoice, ContextOptions, GpuContext};
 pub use error::GpuError;
 pub use fft::{FftDirection, FftParams, FftPass, GpuFft2d};
+pub use frame::{EncodedFrame, FrameState, FrameTimestamps, GpuFramePipeline};
 pub use psf::GpuPsfBuilder;

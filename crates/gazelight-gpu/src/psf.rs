@@ -71,7 +71,7 @@ pub const REBUILD_TIMESTAMPS: u32 = 6;
 /// The fixed-point unit puts the bound of the peak of `M` at 2³¹.
 const FIXED_POINT_PEAK: f64 = 2_147_483_648.0;
 
-fn uniform_entry<T>(binding: u32) -> wgpu::BindGroupLayoutEntry {
+pub(crate) fn uniform_entry<T>(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
@@ -84,7 +84,7 @@ fn uniform_entry<T>(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+pub(crate) fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
         visibility: wgpu::ShaderStages::COMPUTE,
@@ -97,7 +97,7 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn layout(
+pub(crate) fn layout(
     ctx: &GpuContext,
     label: &'static str,
     entries: &[wgpu::BindGroupLayoutEntry],
@@ -110,7 +110,7 @@ fn layout(
     })
 }
 
-fn bind_group(
+pub(crate) fn bind_group(
     ctx: &GpuContext,
     label: &'static str,
     layout: &wgpu::BindGroupLayout,

@@ -40,6 +40,20 @@ macro_rules! with_common {
     };
 }
 
+/// `shaders/<file>` with `shaders/common.wgsl` and `shaders/frame_state.wgsl`
+/// (the per-frame state struct and encoding helpers) prepended.
+macro_rules! with_frame_state {
+    ($file:literal) => {
+        concat!(
+            include_str!("../../../shaders/common.wgsl"),
+            "\n",
+            include_str!("../../../shaders/frame_state.wgsl"),
+            "\n",
+            include_str!(concat!("../../../shaders/", $file))
+        )
+    };
+}
+
 /// Shared helpers (complex arithmetic, constants).
 pub const COMMON: WgslShader = WgslShader {
     name: "common.wgsl",
@@ -77,6 +91,42 @@ pub const PSF_NORMALIZE: WgslShader = WgslShader {
     source: include_str!("../../../shaders/psf_normalize.wgsl"),
 };
 
+/// The per-frame state struct shared by the frame passes.
+pub const FRAME_STATE: WgslShader = WgslShader {
+    name: "frame_state.wgsl",
+    source: include_str!("../../../shaders/frame_state.wgsl"),
+};
+
+/// Stage 1: scene import, block luminance and gaze-weighted pooling.
+pub const POOLING: WgslShader = WgslShader {
+    name: "pooling.wgsl",
+    source: with_frame_state!("pooling.wgsl"),
+};
+
+/// Stage 2: temporal adaptation step (one thread).
+pub const TEMPORAL: WgslShader = WgslShader {
+    name: "temporal.wgsl",
+    source: with_frame_state!("temporal.wgsl"),
+};
+
+/// Stage 4: windowed FFT glare at the gaze with the Gaussian falloff blend.
+pub const GLARE: WgslShader = WgslShader {
+    name: "glare.wgsl",
+    source: include_str!("../../../shaders/glare.wgsl"),
+};
+
+/// Stage 5 (+ 8): acuity blur of Lab lightness, then encoding.
+pub const ACUITY: WgslShader = WgslShader {
+    name: "acuity.wgsl",
+    source: with_frame_state!("acuity.wgsl"),
+};
+
+/// Stages 6–8: tone reproduction, colour, display encoding.
+pub const TONE: WgslShader = WgslShader {
+    name: "tone.wgsl",
+    source: with_frame_state!("tone.wgsl"),
+};
+
 /// Every shader of the crate (for the limits test and tooling).
 pub const ALL: &[WgslShader] = &[
     COMMON,
@@ -85,6 +135,12 @@ pub const ALL: &[WgslShader] = &[
     PSF_INTENSITY,
     PSF_SPECTRAL,
     PSF_NORMALIZE,
+    FRAME_STATE,
+    POOLING,
+    TEMPORAL,
+    GLARE,
+    ACUITY,
+    TONE,
 ];
 
 /// What one compute entry point needs from the device.

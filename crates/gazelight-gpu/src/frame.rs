@@ -1,0 +1,1482 @@
+//! The whole frame pipeline on the GPU: [`GpuFramePipeline`], the twin of
+//! [`gazelight_vision::pipeline::FramePipeline`] (DESIGN.md stages 1–8).
+//!
+//! # Passes (one command encoder per frame, nothing read back in between)
+//!
+//! | stage | pass | shader |
+//! | --- | --- | --- |
+//! | 1 | scene import + block luminance + pooling reductions | `pooling.wgsl` ([`crate::pooling`]) |
+//! | 2 | adaptation step (1 thread) | `temporal.wgsl` ([`crate::temporal`]) |
+//! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm`, then the kernel spectrum | [`crate::psf`], `glare.wgsl`, [`crate::fft`] |
+//! | 4 | windowed FFT glare at the gaze, Gaussian falloff blend | `glare.wgsl` ([`crate::glare`]) |
+//! | 6–7 (+8) | tone + colour scalars (1 thread), per pixel tone + colour (+ encode) | `tone.wgsl` ([`crate::tone`]) |
+//! | 5 (+8) | acuity σ and taps (1 thread), separable Lab blur, encode | `acuity.wgsl` ([`crate::acuity`]) |
+//!
+//! As on the CPU, acuity runs after tone reproduction on display light, and
+//! the frame's scalars (pooled target, adaptation, tone/colour/acuity
+//! parameters) live in a small GPU buffer ([`FrameState`]) written by the
+//! one-thread passes, so a frame never waits for the host.
+//!
+//! # Use
+//!
+//! * Service: [`GpuFramePipeline::new`], then per frame
+//!   [`GpuFramePipeline::process`] (uploads the HDR frame, records and submits
+//!   all passes, reads back the 48-byte [`FrameState`] for [`FrameStats`]) and
+//!   [`GpuFramePipeline::display`] (reads back the RGBA8 frame).
+//! * Host renderer, on its own device ([`GpuContext::from_device`]) and its
+//!   own buffers: [`GpuFramePipeline::bind_io`] binds the host's scene buffer
+//!   (`width·height` RGBA `f32` texels in cd/m², row-major, alpha ignored —
+//!   e.g. filled from an `Rgba32Float` render target with
+//!   `copy_texture_to_buffer`) and output buffer (`width·height` `u32`, RGBA8
+//!   sRGB packed little-endian — bytes `r g b a`, copyable into an
+//!   `Rgba8Unorm` texture with `copy_buffer_to_texture`); both need
+//!   `STORAGE` usage. Bind once; then per frame
+//!   [`GpuFramePipeline::encode`] records everything into the host's
+//!   encoder (the host submits; nothing is read back or waited for).
+//!   [`GpuFramePipeline::read_state`] reads the frame scalars when wanted.
+//!
+//! # Parity with the CPU (measured by the tests below)
+//!
+//! The GPU works in f32 where the CPU's scalar models use f64 (pooling sums,
+//! adaptation state, threshold functions); the per-pixel stages are f32 on
+//! both. The display values agree within 1/255; the 8-bit encoding uses the
+//! CPU's own table, so differences come only from rounding near a code
+//! boundary.
+//!
+//! Nothing is allocated per frame on the host in steady state: all buffers,
+//! bind groups and the host staging copy of the scene are made in `new`
+//! (wgpu's command encoder and its internal staging for `write_buffer` are
+//! the only per-frame allocations, inside wgpu).
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use gazelight_vision::pipeline::{
+    DisplayFrame, FrameInput, FrameStats, PUPIL_MM_RANGE, PipelineConfig, StageTimings, srgb_encode,
+};
+use gazelight_vision::temporal::AdaptationState;
+use gazelight_vision::{RgbImage, VisionError};
+
+use crate::acuity::{AcuityParams, AcuityPass};
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::fft::{FftDirection, GpuFft2d, read_mapped};
+use crate::glare::{GlareParams, GlarePass};
+use crate::pooling::{POOL_THREADS, PoolParams, PoolingPass};
+use crate::psf::GpuPsfBuilder;
+use crate::temporal::{TemporalParams, TemporalPass};
+use crate::tone::{ToneParams, TonePass};
+
+/// Entries of the sRGB table (`SRGB_LUT_SIZE` in frame_state.wgsl and the CPU).
+const SRGB_LUT_SIZE: usize = 16384;
+/// Threads per side of the 8×8 per-pixel workgroups.
+const TILE: u32 = 8;
+/// The pupil of the first PSF, mm (as the CPU pipeline).
+const INITIAL_PUPIL_MM: f64 = 4.0;
+
+/// Timestamps written by [`GpuFramePipeline::encode_timed`] into its frame
+/// query set: pairs (begin, end) for 0–1 pooling, 2–3 temporal, 4–5 kernel
+/// spectrum (after a PSF rebuild; unwritten otherwise), 6–7 glare,
+/// 8–9 tone + colour + acuity + encode.
+pub const FRAME_TIMESTAMPS: u32 = 10;
+
+/// The per-frame scalars on the GPU: the twin of `struct FrameState` in
+/// `shaders/frame_state.wgsl`, field by field.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct FrameState {
+    /// Pooled target luminance, cd/m².
+    pub target_cd_m2: f32,
+    /// Adaptation luminance after the step, cd/m².
+    pub adaptation_cd_m2: f32,
+    /// Light-adaptation target L̄ (000 eq 8), cd/m².
+    pub light_target_cd_m2: f32,
+    /// Acuity blur σ, display pixels.
+    pub acuity_sigma_px: f32,
+    /// Prepared tone operator, first scalar.
+    pub tone_a: f32,
+    /// Prepared tone operator, second scalar.
+    pub tone_b: f32,
+    /// Prepared tone operator, third scalar.
+    pub tone_c: f32,
+    /// Scotopic shift σ (001 eq 4/14).
+    pub shift_sigma: f32,
+    /// Colour discrimination σ_c (000 eq 11).
+    pub discrimination_sigma: f32,
+    /// Blur radius, pixels; 0 = no blur.
+    pub blur_radius: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+}
+
+/// What [`GpuFramePipeline::encode`] decided on the host for one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EncodedFrame {
+    /// Pupil the PSF is built for after this frame, mm.
+    pub psf_pupil_mm: f64,
+    /// Whether this frame rebuilt the PSF.
+    pub psf_rebuilt: bool,
+}
+
+/// Query sets for [`GpuFramePipeline::encode_timed`].
+#[derive(Debug, Clone, Copy)]
+pub struct FrameTimestamps<'a> {
+    /// At least [`FRAME_TIMESTAMPS`] timestamp queries.
+    pub frame: &'a wgpu::QuerySet,
+    /// At least [`crate::psf::REBUILD_TIMESTAMPS`] queries for the PSF rebuild (written
+    /// only on frames that rebuild it).
+    pub psf: &'a wgpu::QuerySet,
+}
+
+struct GlareStage {
+    psf: GpuPsfBuilder,
+    fft: GpuFft2d,
+    pass: GlarePass,
+    params: GlareParams,
+    uniform: wgpu::Buffer,
+    spectrum: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    sigma_px: f64,
+    threshold_mm: f64,
+}
+
+/// The frame pipeline on the GPU. Build once per display size; see the
+/// module docs for the two ways to drive it.
+pub struct GpuFramePipeline {
+    ctx: GpuContext,
+    config: PipelineConfig,
+    width: u32,
+    height: u32,
+    deg_per_px: f64,
+    small: [u32; 2],
+    ds: u32,
+    partial_count: u32,
+    has_state: bool,
+    psf_pupil_mm: f64,
+    pooling: PoolingPass,
+    temporal: TemporalPass,
+    tone: TonePass,
+    acuity: AcuityPass,
+    pool_params: PoolParams,
+    temporal_params: TemporalParams,
+    pool_uniform: wgpu::Buffer,
+    temporal_uniform: wgpu::Buffer,
+    tone_uniform: wgpu::Buffer,
+    acuity_uniform: wgpu::Buffer,
+    scene: wgpu::Buffer,
+    work: wgpu::Buffer,
+    small_lum: wgpu::Buffer,
+    partials: wgpu::Buffer,
+    state: wgpu::Buffer,
+    taps: wgpu::Buffer,
+    lab: wgpu::Buffer,
+    horizontal: wgpu::Buffer,
+    linear: wgpu::Buffer,
+    lut: wgpu::Buffer,
+    output: wgpu::Buffer,
+    state_staging: wgpu::Buffer,
+    frame_staging: wgpu::Buffer,
+    image_staging: wgpu::Buffer,
+    pool_group: wgpu::BindGroup,
+    temporal_group: wgpu::BindGroup,
+    tone_group: wgpu::BindGroup,
+    acuity_group: wgpu::BindGroup,
+    glare: Option<GlareStage>,
+    host_scene: Vec<[f32; 4]>,
+    display: DisplayFrame,
+}
+
+impl std::fmt::Debug for GpuFramePipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuFramePipeline")
+            .field("adapter", &self.ctx.describe())
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("deg_per_px", &self.deg_per_px)
+            .field("glare", &self.glare.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+fn invalid(source: VisionError) -> GpuError {
+    GpuError::InvalidParams {
+        what: "GPU frame pipeline",
+        source,
+    }
+}
+
+fn entries<'a>(buffers: &[&'a wgpu::Buffer]) -> Vec<wgpu::BindGroupEntry<'a>> {
+    buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect()
+}
+
+fn make_group(
+    ctx: &GpuContext,
+    label: &'static str,
+    layout: &wgpu::BindGroupLayout,
+    buffers: &[&wgpu::Buffer],
+) -> Result<wgpu::BindGroup, GpuError> {
+    let entries = entries(buffers);
+    ctx.scoped(&format!("{label} bind group"), |device| {
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
+    })
+}
+
+impl GpuFramePipeline {
+    /// Builds the pipeline for `width × height` frames whose pixels subtend
+    /// `deg_per_px` degrees, on `ctx`'s device; builds the first PSF (4 mm)
+    /// and its spectrum. The configuration is validated as the CPU's.
+    ///
+    /// (The CPU's [`FramePipeline::new`] takes `deg_per_px` too: pooling,
+    /// acuity and the PSF's angular sampling need it.)
+    ///
+    /// [`FramePipeline::new`]: gazelight_vision::pipeline::FramePipeline::new
+    pub fn new(
+        ctx: &GpuContext,
+        config: PipelineConfig,
+        width: usize,
+        height: usize,
+        deg_per_px: f64,
+    ) -> Result<Self, GpuError> {
+        config.validate().map_err(invalid)?;
+        if width == 0 || height == 0 || width > 16384 || height > 16384 {
+            return Err(invalid(VisionError::invalid(
+                "frame size",
+                format!("{width}x{height}"),
+                "1..=16384 pixels per side",
+            )));
+        }
+        if !(deg_per_px.is_finite() && deg_per_px > 0.0) {
+            return Err(invalid(VisionError::invalid(
+                "deg_per_px",
+                deg_per_px,
+                "a finite number > 0",
+            )));
+        }
+        let pixels = (width * height) as u64;
+        let max_binding = ctx
+            .limits()
+            .max_storage_buffer_binding_size
+            .min(ctx.limits().max_buffer_size);
+        if pixels * 16 > max_binding {
+            return Err(GpuError::Wgpu {
+                what: "GPU frame pipeline".to_owned(),
+                message: format!(
+                    "a {width}x{height} RGBA f32 frame ({} bytes) exceeds the device's storage \
+                     binding limit of {max_binding} bytes",
+                    pixels * 16
+                ),
+            });
+        }
+        let (w32, h32) = (width as u32, height as u32);
+        let ds = config.pooling_downsample.unwrap_or(8) as u32;
+        let small = [w32.div_ceil(ds), h32.div_ceil(ds)];
+        let small_n = small[0] * small[1];
+        let partial_count = small_n.div_ceil(POOL_THREADS).clamp(1, POOL_THREADS);
+        let keep = config.keep_display_linear;
+        let max_radius = crate::acuity::max_radius(&config.acuity, deg_per_px);
+
+        let pooling = PoolingPass::new(ctx)?;
+        let temporal = TemporalPass::new(ctx)?;
+        let tone = TonePass::new(ctx)?;
+        let acuity = AcuityPass::new(ctx)?;
+
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        let uniform = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let staging = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+        let buffer = |label: &'static str, size: u64, usage| {
+            ctx.scoped(&format!("buffer '{label}'"), |device| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: size.max(16),
+                    usage,
+                    mapped_at_creation: false,
+                })
+            })
+        };
+        let scene = buffer("frame scene", pixels * 16, storage)?;
+        let work = buffer("frame work", pixels * 16, storage)?;
+        let small_lum = buffer("frame block luminance", u64::from(small_n) * 4, storage)?;
+        let partials = buffer(
+            "frame pooling partials",
+            u64::from(partial_count) * 8,
+            storage,
+        )?;
+        let state = buffer("frame state", size_of::<FrameState>() as u64, storage)?;
+        let taps = buffer(
+            "frame acuity taps",
+            u64::from(2 * max_radius + 1) * 4,
+            storage,
+        )?;
+        let lab = buffer("frame lab", pixels * 16, storage)?;
+        let horizontal = buffer("frame blur rows", pixels * 4, storage)?;
+        let linear = buffer(
+            "frame display linear",
+            if keep { pixels * 16 } else { 16 },
+            storage,
+        )?;
+        let lut = buffer("srgb table", (SRGB_LUT_SIZE * 4) as u64, storage)?;
+        let output = buffer("frame rgba8", pixels * 4, storage)?;
+        let state_staging = buffer(
+            "frame state staging",
+            size_of::<FrameState>() as u64,
+            staging,
+        )?;
+        let frame_staging = buffer("frame rgba8 staging", pixels * 4, staging)?;
+        let image_staging = buffer("frame image staging", pixels * 16, staging)?;
+        let pool_uniform = buffer("pooling params", size_of::<PoolParams>() as u64, uniform)?;
+        let temporal_uniform = buffer(
+            "temporal params",
+            size_of::<TemporalParams>() as u64,
+            uniform,
+        )?;
+        let tone_uniform = buffer("tone params", size_of::<ToneParams>() as u64, uniform)?;
+        let acuity_uniform = buffer("acuity params", size_of::<AcuityParams>() as u64, uniform)?;
+
+        let queue = ctx.queue();
+        let table: Vec<u32> = (0..SRGB_LUT_SIZE)
+            .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u32)
+            .collect();
+        queue.write_buffer(&lut, 0, bytemuck::cast_slice(&table));
+        let tone_params = ToneParams::new(&config.tone, &config.colour, w32, h32, keep);
+        queue.write_buffer(&tone_uniform, 0, bytemuck::bytes_of(&tone_params));
+        let acuity_params = AcuityParams::new(&config.acuity, deg_per_px, w32, h32, keep);
+        queue.write_buffer(&acuity_uniform, 0, bytemuck::bytes_of(&acuity_params));
+        queue.write_buffer(&state, 0, bytemuck::bytes_of(&FrameState::default()));
+
+        let pool_group = make_group(
+            ctx,
+            "pooling.wgsl",
+            pooling.bind_group_layout(),
+            &[&pool_uniform, &scene, &work, &small_lum, &partials, &state],
+        )?;
+        let temporal_group = make_group(
+            ctx,
+            "temporal.wgsl",
+            temporal.bind_group_layout(),
+            &[&temporal_uniform, &state],
+        )?;
+        let tone_group = make_group(
+            ctx,
+            "tone.wgsl",
+            tone.bind_group_layout(),
+            &[&tone_uniform, &state, &work, &lab, &linear, &lut, &output],
+        )?;
+        let acuity_group = make_group(
+            ctx,
+            "acuity.wgsl",
+            acuity.bind_group_layout(),
+            &[
+                &acuity_uniform,
+                &state,
+                &taps,
+                &lab,
+                &horizontal,
+                &linear,
+                &lut,
+                &output,
+            ],
+        )?;
+
+        let glare = if config.glare.enabled {
+            let mut params = config.glare.psf.clone();
+            params.ppd = 1.0 / deg_per_px;
+            params.pupil_mm = INITIAL_PUPIL_MM;
+            params.validate().map_err(invalid)?;
+            let psf = GpuPsfBuilder::new(ctx, &params)?;
+            let window = config.glare.window_px as u32;
+            let fft = GpuFft2d::new(ctx, window, window, 3)?;
+            let pass = GlarePass::new(ctx)?;
+            let glare_params = GlareParams::new(window, params.kernel_size as u32, w32, h32);
+            let uniform_buf = buffer("glare params", size_of::<GlareParams>() as u64, uniform)?;
+            let spectrum = buffer(
+                "glare kernel spectrum",
+                u64::from(window) * u64::from(window) * 3 * 8,
+                storage,
+            )?;
+            let sums = buffer("glare kernel sums", 16, storage)?;
+            let group = make_group(
+                ctx,
+                "glare.wgsl",
+                pass.bind_group_layout(),
+                &[
+                    &uniform_buf,
+                    psf.kernel_buffer(),
+                    &sums,
+                    fft.data_buffer(),
+                    &spectrum,
+                    &work,
+                ],
+            )?;
+            queue.write_buffer(&uniform_buf, 0, bytemuck::bytes_of(&glare_params));
+            Some(GlareStage {
+                psf,
+                fft,
+                pass,
+                params: glare_params,
+                uniform: uniform_buf,
+                spectrum,
+                group,
+                sigma_px: config.glare.falloff_sigma_frac * config.glare.window_px as f64,
+                threshold_mm: config.glare.psf_rebuild_threshold_mm,
+            })
+        } else {
+            None
+        };
+
+        let mut pipeline = Self {
+            ctx: ctx.clone(),
+            width: w32,
+            height: h32,
+            deg_per_px,
+            small,
+            ds,
+            partial_count,
+            has_state: false,
+            psf_pupil_mm: INITIAL_PUPIL_MM,
+            pooling,
+            temporal,
+            tone,
+            acuity,
+            pool_params: PoolParams::for_frame(
+                &config.pooling,
+                [w32, h32],
+                small,
+                ds,
+                partial_count,
+                [0.0, 0.0],
+                deg_per_px * f64::from(ds),
+            ),
+            temporal_params: TemporalParams::new(&config.temporal),
+            pool_uniform,
+            temporal_uniform,
+            tone_uniform,
+            acuity_uniform,
+            scene,
+            work,
+            small_lum,
+            partials,
+            state,
+            taps,
+            lab,
+            horizontal,
+            linear,
+            lut,
+            output,
+            state_staging,
+            frame_staging,
+            image_staging,
+            pool_group,
+            temporal_group,
+            tone_group,
+            acuity_group,
+            glare,
+            host_scene: vec![[0.0; 4]; width * height],
+            display: DisplayFrame::new(width, height),
+            config,
+        };
+        // The first kernel's spectrum.
+        if let Some(g) = pipeline.glare.as_ref() {
+            let mut encoder =
+                ctx.device()
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                        label: Some("glare kernel spectrum"),
+                    });
+            Self::encode_kernel_spectrum(g, &mut encoder, None);
+            ctx.queue().submit([encoder.finish()]);
+        }
+        pipeline.has_state = false;
+        Ok(pipeline)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The device context.
+    pub fn context(&self) -> &GpuContext {
+        &self.ctx
+    }
+
+    /// Frame width, pixels.
+    pub fn width(&self) -> usize {
+        self.width as usize
+    }
+
+    /// Frame height, pixels.
+    pub fn height(&self) -> usize {
+        self.height as usize
+    }
+
+    /// Angular size of a display pixel, degrees.
+    pub fn deg_per_px(&self) -> f64 {
+        self.deg_per_px
+    }
+
+    /// The scene input buffer: `width·height` RGBA f32 texels, cd/m²
+    /// (the one bound by default, or the host's after [`Self::bind_io`]).
+    pub fn scene_buffer(&self) -> &wgpu::Buffer {
+        &self.scene
+    }
+
+    /// The RGBA8 output buffer: `width·height` packed `u32` (bytes r g b a).
+    pub fn output_buffer(&self) -> &wgpu::Buffer {
+        &self.output
+    }
+
+    /// The PSF builder (glare enabled only), e.g. to read its kernel.
+    pub fn psf(&self) -> Option<&GpuPsfBuilder> {
+        self.glare.as_ref().map(|g| &g.psf)
+    }
+
+    /// Binds a host's own scene and/or output buffers in place of the
+    /// pipeline's (see the module docs for their layouts); `None` keeps the
+    /// current one. Made once, not per frame. Both need `STORAGE` usage and
+    /// at least `width·height·16` (scene) / `width·height·4` (output) bytes.
+    /// [`Self::process`] and [`Self::display`] keep working (they upload into
+    /// and read from whatever is bound, which needs `COPY_DST`/`COPY_SRC`).
+    pub fn bind_io(
+        &mut self,
+        scene: Option<&wgpu::Buffer>,
+        output: Option<&wgpu::Buffer>,
+    ) -> Result<(), GpuError> {
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        for (buffer, what, bytes) in [
+            (scene, "host scene buffer", pixels * 16),
+            (output, "host output buffer", pixels * 4),
+        ] {
+            if let Some(b) = buffer {
+                if b.size() < bytes {
+                    return Err(GpuError::Length {
+                        what,
+                        expected: bytes as usize,
+                        got: b.size() as usize,
+                    });
+                }
+                if !b.usage().contains(wgpu::BufferUsages::STORAGE) {
+                    return Err(GpuError::Wgpu {
+                        what: what.to_owned(),
+                        message: "needs wgpu::BufferUsages::STORAGE".to_owned(),
+                    });
+                }
+            }
+        }
+        if let Some(s) = scene {
+            self.scene = s.clone();
+        }
+        if let Some(o) = output {
+            self.output = o.clone();
+        }
+        let ctx = &self.ctx;
+        self.pool_group = make_group(
+            ctx,
+            "pooling.wgsl",
+            self.pooling.bind_group_layout(),
+            &[
+                &self.pool_uniform,
+                &self.scene,
+                &self.work,
+                &self.small_lum,
+                &self.partials,
+                &self.state,
+            ],
+        )?;
+        self.tone_group = make_group(
+            ctx,
+            "tone.wgsl",
+            self.tone.bind_group_layout(),
+            &[
+                &self.tone_uniform,
+                &self.state,
+                &self.work,
+                &self.lab,
+                &self.linear,
+                &self.lut,
+                &self.output,
+            ],
+        )?;
+        self.acuity_group = make_group(
+            ctx,
+            "acuity.wgsl",
+            self.acuity.bind_group_layout(),
+            &[
+                &self.acuity_uniform,
+                &self.state,
+                &self.taps,
+                &self.lab,
+                &self.horizontal,
+                &self.linear,
+                &self.lut,
+                &self.output,
+            ],
+        )?;
+        Ok(())
+    }
+
+    /// Sets the adaptation state (e.g. to start a replay adapted): the next
+    /// frame steps from it instead of starting adapted to its target.
+    pub fn set_adaptation(&mut self, state: AdaptationState) {
+        let values = [
+            state.luminance_cd_m2 as f32,
+            state.light_target_cd_m2 as f32,
+        ];
+        // adaptation_cd_m2 and light_target_cd_m2 are at bytes 4..12.
+        self.ctx
+            .queue()
+            .write_buffer(&self.state, 4, bytemuck::cast_slice(&values));
+        self.has_state = true;
+    }
+
+    fn encode_kernel_spectrum(
+        g: &GlareStage,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        let w = g.params.window;
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("glare kernel crop + renormalise"),
+                timestamp_writes: timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: Some(4),
+                    end_of_pass_write_index: None,
+                }),
+            });
+            pass.set_bind_group(0, &g.group, &[]);
+            pass.set_pipeline(&g.pass.kernel_sums);
+            pass.dispatch_workgroups(1, 1, 1);
+            pass.set_pipeline(&g.pass.kernel_scatter);
+            pass.dispatch_workgroups(w.div_ceil(TILE), w.div_ceil(TILE), 1);
+        }
+        g.fft.encode(
+            encoder,
+            FftDirection::Forward,
+            timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
+                query_set,
+                beginning_of_pass_write_index: None,
+                end_of_pass_write_index: Some(5),
+            }),
+        );
+        encoder.copy_buffer_to_buffer(g.fft.data_buffer(), 0, &g.spectrum, 0, g.spectrum.size());
+    }
+
+    /// Records one frame into `encoder` (the caller submits): all stages, on
+    /// the bound scene buffer, into the bound output buffer. Input handling
+    /// is the CPU's: the gaze is clamped to the frame (non-finite → centre),
+    /// a negative or non-finite `dt` counts as 0, the pupil is clamped to
+    /// [`PUPIL_MM_RANGE`] (non-finite → the current PSF's pupil).
+    pub fn encode(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &FrameInput,
+    ) -> EncodedFrame {
+        self.encode_timed(encoder, input, None)
+    }
+
+    /// As [`Self::encode`], writing GPU timestamps (see [`FRAME_TIMESTAMPS`]
+    /// and [`crate::psf::REBUILD_TIMESTAMPS`]).
+    pub fn encode_timed(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        input: &FrameInput,
+        timestamps: Option<FrameTimestamps<'_>>,
+    ) -> EncodedFrame {
+        let (w, h) = (f64::from(self.width), f64::from(self.height));
+        let coord = |v: f32| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.5
+            }
+        };
+        let gaze_px = [
+            f64::from(coord(input.gaze_uv[0])) * w,
+            f64::from(coord(input.gaze_uv[1])) * h,
+        ];
+        let dt_secs = if input.dt_secs.is_finite() {
+            input.dt_secs.max(0.0)
+        } else {
+            0.0
+        };
+        let pupil_mm = if input.pupil_mm.is_finite() {
+            f64::from(input.pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1))
+        } else {
+            self.psf_pupil_mm
+        };
+        let ds = f64::from(self.ds);
+        self.pool_params = PoolParams::for_frame(
+            &self.config.pooling,
+            [self.width, self.height],
+            self.small,
+            self.ds,
+            self.partial_count,
+            [gaze_px[0] / ds, gaze_px[1] / ds],
+            self.deg_per_px * ds,
+        );
+        self.temporal_params.dt_secs = dt_secs;
+        self.temporal_params.reset = u32::from(!self.has_state);
+        self.has_state = true;
+        let queue = self.ctx.queue();
+        queue.write_buffer(&self.pool_uniform, 0, bytemuck::bytes_of(&self.pool_params));
+        queue.write_buffer(
+            &self.temporal_uniform,
+            0,
+            bytemuck::bytes_of(&self.temporal_params),
+        );
+        let pair = |first: u32| {
+            timestamps.map(|t| wgpu::ComputePassTimestampWrites {
+                query_set: t.frame,
+                beginning_of_pass_write_index: Some(first),
+                end_of_pass_write_index: Some(first + 1),
+            })
+        };
+        let tiles = |x: u32, y: u32| (x.div_ceil(TILE), y.div_ceil(TILE));
+
+        // Stage 1: import, block luminance, pooling reductions.
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stage 1: pooling"),
+                timestamp_writes: pair(0),
+            });
+            pass.set_bind_group(0, &self.pool_group, &[]);
+            let (gx, gy) = tiles(self.width, self.height);
+            pass.set_pipeline(&self.pooling.import_scene);
+            pass.dispatch_workgroups(gx, gy, 1);
+            let (sx, sy) = tiles(self.small[0], self.small[1]);
+            pass.set_pipeline(&self.pooling.block_luminance);
+            pass.dispatch_workgroups(sx, sy, 1);
+            pass.set_pipeline(&self.pooling.pool_partial);
+            pass.dispatch_workgroups(self.partial_count, 1, 1);
+            pass.set_pipeline(&self.pooling.pool_final);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        // Stage 2: adaptation.
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stage 2: temporal adaptation"),
+                timestamp_writes: pair(2),
+            });
+            pass.set_bind_group(0, &self.temporal_group, &[]);
+            pass.set_pipeline(&self.temporal.adapt);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        // Stages 3 + 4: PSF (cached) and glare at the gaze.
+        let mut psf_rebuilt = false;
+        if let Some(g) = self.glare.as_mut() {
+            if (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
+                g.psf
+                    .encode_rebuild_timed(encoder, pupil_mm, timestamps.map(|t| t.psf));
+                Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
+                self.psf_pupil_mm = pupil_mm;
+                psf_rebuilt = true;
+            }
+            if g.params.place(gaze_px, g.sigma_px) {
+                queue.write_buffer(&g.uniform, 0, bytemuck::bytes_of(&g.params));
+                let win = g.params.window;
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("stage 4: glare window"),
+                        timestamp_writes: timestamps.map(|t| wgpu::ComputePassTimestampWrites {
+                            query_set: t.frame,
+                            beginning_of_pass_write_index: Some(6),
+                            end_of_pass_write_index: None,
+                        }),
+                    });
+                    pass.set_bind_group(0, &g.group, &[]);
+                    pass.set_pipeline(&g.pass.window_gather);
+                    pass.dispatch_workgroups(win.div_ceil(TILE), win.div_ceil(TILE), 1);
+                }
+                g.fft.encode(encoder, FftDirection::Forward, None);
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("stage 4: glare spectrum product"),
+                        timestamp_writes: None,
+                    });
+                    pass.set_bind_group(0, &g.group, &[]);
+                    pass.set_pipeline(&g.pass.spectrum_multiply);
+                    let groups = (3 * win * win).div_ceil(64);
+                    let max = self.ctx.limits().max_compute_workgroups_per_dimension;
+                    let gx = groups.min(max);
+                    pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
+                }
+                g.fft.encode(encoder, FftDirection::Inverse, None);
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("stage 4: glare blend"),
+                        timestamp_writes: timestamps.map(|t| wgpu::ComputePassTimestampWrites {
+                            query_set: t.frame,
+                            beginning_of_pass_write_index: None,
+                            end_of_pass_write_index: Some(7),
+                        }),
+                    });
+                    pass.set_bind_group(0, &g.group, &[]);
+                    pass.set_pipeline(&g.pass.blend);
+                    pass.dispatch_workgroups(win.div_ceil(TILE), win.div_ceil(TILE), 1);
+                }
+            }
+        }
+        // Stages 6–7 (+8), 5 (+8).
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stages 5-8: tone, colour, acuity, encode"),
+                timestamp_writes: pair(8),
+            });
+            pass.set_bind_group(0, &self.tone_group, &[]);
+            pass.set_pipeline(&self.tone.prepare);
+            pass.dispatch_workgroups(1, 1, 1);
+            pass.set_bind_group(0, &self.acuity_group, &[]);
+            pass.set_pipeline(&self.acuity.prepare);
+            pass.dispatch_workgroups(1, 1, 1);
+            let (gx, gy) = tiles(self.width, self.height);
+            pass.set_bind_group(0, &self.tone_group, &[]);
+            pass.set_pipeline(&self.tone.tone_map);
+            pass.dispatch_workgroups(gx, gy, 1);
+            pass.set_bind_group(0, &self.acuity_group, &[]);
+            pass.set_pipeline(&self.acuity.blur_h);
+            pass.dispatch_workgroups(gx, gy, 1);
+            pass.set_pipeline(&self.acuity.blur_v);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        EncodedFrame {
+            psf_pupil_mm: self.psf_pupil_mm,
+            psf_rebuilt,
+        }
+    }
+
+    /// Uploads `scene` (linear RGB, cd/m², the pipeline's size) into the
+    /// bound scene buffer, records and submits the frame, and reads back the
+    /// frame's scalars (blocking) for the stats. `timings.total_ms` is the
+    /// wall time of the call; per-stage GPU times come from
+    /// [`Self::encode_timed`] (see `benches/gpu_frame.rs`).
+    pub fn process(
+        &mut self,
+        scene: &RgbImage,
+        input: &FrameInput,
+    ) -> Result<FrameStats, GpuError> {
+        let start = Instant::now();
+        let expected = self.host_scene.len();
+        if scene.width != self.width as usize
+            || scene.height != self.height as usize
+            || scene.pixels.len() != expected
+        {
+            return Err(invalid(VisionError::SizeMismatch {
+                what: "scene frame",
+                expected_w: self.width as usize,
+                expected_h: self.height as usize,
+                got_w: scene.width,
+                got_h: scene.height,
+            }));
+        }
+        for (d, s) in self.host_scene.iter_mut().zip(&scene.pixels) {
+            *d = [s[0], s[1], s[2], 0.0];
+        }
+        self.ctx
+            .queue()
+            .write_buffer(&self.scene, 0, bytemuck::cast_slice(&self.host_scene));
+        let mut encoder =
+            self.ctx
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("gazelight frame"),
+                });
+        let encoded = self.encode(&mut encoder, input);
+        self.ctx.queue().submit([encoder.finish()]);
+        let state = self.read_state()?;
+        Ok(FrameStats {
+            target_cd_m2: f64::from(state.target_cd_m2),
+            adaptation_cd_m2: f64::from(state.adaptation_cd_m2),
+            psf_pupil_mm: encoded.psf_pupil_mm,
+            psf_rebuilt: encoded.psf_rebuilt,
+            acuity_sigma_px: state.acuity_sigma_px,
+            timings: StageTimings {
+                total_ms: start.elapsed().as_secs_f64() * 1e3,
+                ..StageTimings::default()
+            },
+        })
+    }
+
+    /// Reads the frame's scalars back (blocking; waits for the queue).
+    pub fn read_state(&self) -> Result<FrameState, GpuError> {
+        let mut encoder =
+            self.ctx
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("frame state read-back"),
+                });
+        encoder.copy_buffer_to_buffer(
+            &self.state,
+            0,
+            &self.state_staging,
+            0,
+            size_of::<FrameState>() as u64,
+        );
+        self.ctx.queue().submit([encoder.finish()]);
+        let mut state = FrameState::default();
+        read_mapped(&self.ctx, &self.state_staging, "frame state", |bytes| {
+            state = bytemuck::pod_read_unaligned(&bytes[..size_of::<FrameState>()]);
+        })?;
+        Ok(state)
+    }
+
+    /// Reads the display frame of the last frame back (blocking).
+    pub fn display(&mut self) -> Result<&DisplayFrame, GpuError> {
+        let bytes = u64::from(self.width) * u64::from(self.height) * 4;
+        let mut encoder =
+            self.ctx
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("display read-back"),
+                });
+        encoder.copy_buffer_to_buffer(&self.output, 0, &self.frame_staging, 0, bytes);
+        self.ctx.queue().submit([encoder.finish()]);
+        let out = &mut self.display.rgba8;
+        read_mapped(&self.ctx, &self.frame_staging, "display frame", |b| {
+            let n = out.len();
+            out.copy_from_slice(&b[..n]);
+        })?;
+        Ok(&self.display)
+    }
+
+    fn read_image(
+        &self,
+        source: &wgpu::Buffer,
+        what: &'static str,
+        out: &mut RgbImage,
+    ) -> Result<(), GpuError> {
+        let pixels = self.width as usize * self.height as usize;
+        if out.width != self.width as usize || out.height != self.height as usize {
+            *out = RgbImage::new(self.width as usize, self.height as usize);
+        }
+        if source.size() < (pixels * 16) as u64 {
+            return Err(GpuError::Length {
+                what,
+                expected: pixels * 16,
+                got: source.size() as usize,
+            });
+        }
+        let mut encoder = self
+            .ctx
+            .device()
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(what) });
+        encoder.copy_buffer_to_buffer(source, 0, &self.image_staging, 0, (pixels * 16) as u64);
+        self.ctx.queue().submit([encoder.finish()]);
+        read_mapped(&self.ctx, &self.image_staging, what, |bytes| {
+            let texels: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..pixels * 16]);
+            for (d, s) in out.pixels.iter_mut().zip(texels) {
+                *d = [s[0], s[1], s[2]];
+            }
+        })
+    }
+
+    /// Reads back the working frame after glare (stage 4): scene light in
+    /// cd/m², sanitised, with the glare blended in. For tests and tools.
+    pub fn read_scene_after_glare(&self, out: &mut RgbImage) -> Result<(), GpuError> {
+        self.read_image(&self.work, "frame after glare", out)
+    }
+
+    /// Reads back the display-linear frame (after acuity; needs
+    /// `keep_display_linear` in the config). For tests and tools.
+    pub fn read_display_linear(&self, out: &mut RgbImage) -> Result<(), GpuError> {
+        if !self.config.keep_display_linear {
+            return Err(invalid(VisionError::invalid(
+                "keep_display_linear",
+                false,
+                "true to read the display-linear frame",
+            )));
+        }
+        self.read_image(&self.linear, "display-linear frame", out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::PathBuf;
+
+    use gazelight_vision::acuity::AcuityModel;
+    use gazelight_vision::colour::ColourModel;
+    use gazelight_vision::glare::GlareConvolver;
+    use gazelight_vision::pipeline::FramePipeline;
+    use gazelight_vision::pooling::{DEFAULT_E2_DEG, DEFAULT_GAZE_WINDOW_DEG, PoolingModel};
+    use gazelight_vision::psf::PsfBuilder;
+    use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+    use gazelight_vision::temporal::TemporalModel;
+    use gazelight_vision::tone::ToneModel;
+
+    use super::*;
+    use crate::testing::test_context;
+
+    /// A perspective view `hfov_deg` wide into one of the shared panoramas,
+    /// in the file's units taken as cd/m².
+    fn view_fov(
+        name: &str,
+        yaw_deg: f64,
+        pitch_deg: f64,
+        hfov_deg: f64,
+        width: usize,
+        height: usize,
+    ) -> (RgbImage, f64) {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data/hdr/blender-world")
+            .join(name);
+        let scene = Scene::load(&path, LuminanceScale::default()).unwrap();
+        let params = ViewParams {
+            yaw_deg,
+            pitch_deg,
+            hfov_deg,
+            width,
+            height,
+        };
+        let mut img = RgbImage::new(width, height);
+        PanoramaView::new(params)
+            .unwrap()
+            .render(&scene.image, &mut img);
+        (img, params.deg_per_px())
+    }
+
+    /// A view 104° wide (the Vive Pro's field).
+    fn view(
+        name: &str,
+        yaw_deg: f64,
+        pitch_deg: f64,
+        width: usize,
+        height: usize,
+    ) -> (RgbImage, f64) {
+        view_fov(name, yaw_deg, pitch_deg, 104.0, width, height)
+    }
+
+    /// Normalised coordinates of the brightest pixel.
+    fn brightest_uv(img: &RgbImage) -> [f32; 2] {
+        let (mut best, mut at) = (f32::MIN, 0);
+        for (i, p) in img.pixels.iter().enumerate() {
+            let l = gazelight_vision::image::luminance(*p);
+            if l > best {
+                (best, at) = (l, i);
+            }
+        }
+        [
+            ((at % img.width) as f32 + 0.5) / img.width as f32,
+            ((at / img.width) as f32 + 0.5) / img.height as f32,
+        ]
+    }
+
+    fn no_glare(mut config: PipelineConfig) -> PipelineConfig {
+        config.glare.enabled = false;
+        config
+    }
+
+    fn inputs() -> [FrameInput; 4] {
+        [
+            FrameInput {
+                gaze_uv: [0.5, 0.5],
+                pupil_mm: 4.0,
+                dt_secs: 1.0 / 90.0,
+            },
+            FrameInput {
+                gaze_uv: [0.31, 0.62],
+                pupil_mm: 4.05,
+                dt_secs: 1.0 / 90.0,
+            },
+            FrameInput {
+                gaze_uv: [0.72, 0.4],
+                pupil_mm: 5.3,
+                dt_secs: 0.05,
+            },
+            FrameInput {
+                gaze_uv: [0.95, 0.08],
+                pupil_mm: 3.1,
+                dt_secs: 0.2,
+            },
+        ]
+    }
+
+    fn rel(a: f64, b: f64) -> f64 {
+        (a - b).abs() / b.abs().max(1e-12)
+    }
+
+    #[test]
+    fn pooling_and_adaptation_match_the_cpu_for_every_model() {
+        let Some(ctx) = test_context("pooling_and_adaptation_match_the_cpu_for_every_model") else {
+            return;
+        };
+        let (img, dpp) = view("studio.exr", 30.0, -5.0, 96, 80);
+        let poolings = [
+            PoolingModel::default(),
+            PoolingModel::CentreWeight { follow_gaze: true },
+            PoolingModel::CentreWeight { follow_gaze: false },
+            PoolingModel::Eccentricity {
+                e2_deg: DEFAULT_E2_DEG,
+            },
+            PoolingModel::GazeWindow {
+                size_deg: DEFAULT_GAZE_WINDOW_DEG,
+            },
+            PoolingModel::PanoramaMean,
+        ];
+        let temporals = [
+            TemporalModel::krawczyk(),
+            TemporalModel::power_dt(),
+            TemporalModel::log_exponential(),
+            TemporalModel::linear(),
+        ];
+        let mut worst = (0.0f64, 0.0f64);
+        for (i, pooling) in poolings.iter().enumerate() {
+            let temporal = temporals[i % temporals.len()];
+            for downsample in [Some(1), None] {
+                let config = no_glare(PipelineConfig {
+                    pooling: *pooling,
+                    temporal,
+                    pooling_downsample: downsample,
+                    ..PipelineConfig::default()
+                });
+                let mut cpu = FramePipeline::new(config.clone(), 96, 80, dpp).unwrap();
+                let mut gpu = GpuFramePipeline::new(ctx, config, 96, 80, dpp).unwrap();
+                let mut out = DisplayFrame::new(96, 80);
+                // A dark start, so every frame adapts towards the scene.
+                let start = AdaptationState::new(0.01);
+                cpu.set_adaptation(start);
+                gpu.set_adaptation(start);
+                for input in inputs() {
+                    let c = cpu.process(&img, &input, &mut out).unwrap();
+                    let g = gpu.process(&img, &input).unwrap();
+                    let (et, ea) = (
+                        rel(g.target_cd_m2, c.target_cd_m2),
+                        rel(g.adaptation_cd_m2, c.adaptation_cd_m2),
+                    );
+                    assert!(
+                        et < 1e-4 && ea < 1e-4,
+                        "{pooling:?} {temporal:?} ds {downsample:?} {input:?}: target {} vs {}, \
+                         adaptation {} vs {}",
+                        g.target_cd_m2,
+                        c.target_cd_m2,
+                        g.adaptation_cd_m2,
+                        c.adaptation_cd_m2
+                    );
+                    worst = (worst.0.max(et), worst.1.max(ea));
+                }
+            }
+        }
+        println!(
+            "worst relative error: pooled target {:.2e}, adaptation {:.2e}",
+            worst.0, worst.1
+        );
+    }
+
+    #[test]
+    fn glare_window_matches_the_cpu_convolver() {
+        let Some(ctx) = test_context("glare_window_matches_the_cpu_convolver") else {
+            return;
+        };
+        // Street lamps at night, window 64 px placed near the border so it
+        // is clipped by the image.
+        // 12 ppd: the kernel spreads over many pixels.
+        let (img, dpp) = view_fov("night.exr", -78.4, -6.0, 10.0, 120, 96);
+        let mut config = PipelineConfig {
+            keep_display_linear: true,
+            ..PipelineConfig::default()
+        };
+        config.glare.window_px = 64;
+        let mut gpu = GpuFramePipeline::new(ctx, config.clone(), 120, 96, dpp).unwrap();
+        let mut params = config.glare.psf.clone();
+        params.ppd = 1.0 / dpp;
+        params.pupil_mm = 4.0;
+        let mut builder = PsfBuilder::new(params).unwrap();
+        let mut conv = GlareConvolver::new(64);
+        conv.set_kernel(builder.rebuild(4.0));
+        let sigma_px = config.glare.falloff_sigma_frac * 64.0;
+        let mut gpu_img = RgbImage::new(120, 96);
+        let mut worst = 0.0f64;
+        let lamp = brightest_uv(&img);
+        for gaze_uv in [lamp, [0.5, 0.5], [0.1, 0.85], [0.93, 0.2]] {
+            let input = FrameInput {
+                gaze_uv,
+                pupil_mm: 4.0,
+                dt_secs: 1.0 / 90.0,
+            };
+            gpu.process(&img, &input).unwrap();
+            gpu.read_scene_after_glare(&mut gpu_img).unwrap();
+            let mut cpu_img = img.clone();
+            for p in &mut cpu_img.pixels {
+                for c in p.iter_mut() {
+                    if !(c.is_finite() && *c >= f32::MIN_POSITIVE) {
+                        *c = 0.0;
+                    }
+                }
+            }
+            let before = cpu_img.clone();
+            let gaze_px = [f64::from(gaze_uv[0]) * 120.0, f64::from(gaze_uv[1]) * 96.0];
+            conv.apply(&mut cpu_img, gaze_px, sigma_px);
+            let peak = cpu_img
+                .pixels
+                .iter()
+                .flatten()
+                .fold(0.0f32, |m, &v| m.max(v));
+            let (mut max_err, mut changed) = (0.0f64, 0.0f64);
+            for ((g, c), b) in gpu_img
+                .pixels
+                .iter()
+                .zip(&cpu_img.pixels)
+                .zip(&before.pixels)
+            {
+                for k in 0..3 {
+                    max_err = max_err.max(f64::from((g[k] - c[k]).abs()));
+                    changed = changed.max(f64::from((c[k] - b[k]).abs()));
+                }
+            }
+            let e = max_err / f64::from(peak);
+            println!(
+                "gaze {gaze_uv:?}: max |GPU − CPU| {max_err:.3e} cd/m² = {e:.2e} of the peak \
+                 {peak:.3e}; glare changed pixels by up to {changed:.3e}"
+            );
+            if gaze_uv == lamp {
+                // The glare must do something for the comparison to mean anything.
+                assert!(changed > 1e3 * max_err, "glare too weak to test: {changed}");
+            }
+            assert!(e < 2e-5, "{e:e}");
+            worst = worst.max(e);
+        }
+        println!("worst glare error {worst:.2e} of the peak");
+    }
+
+    #[test]
+    fn tone_colour_and_acuity_match_the_cpu() {
+        let Some(ctx) = test_context("tone_colour_and_acuity_match_the_cpu") else {
+            return;
+        };
+        let mut worst = 0.0f32;
+        let cases = [
+            // Night at 9.6 ppd: scotopic shift and the acuity blur (σ > 0.3 px).
+            (
+                "night.exr",
+                -6.0,
+                ToneModel::default(),
+                ColourModel::ScotopicShift,
+                AcuityModel::default(),
+            ),
+            (
+                "night.exr",
+                -6.0,
+                ToneModel::gaze_exposure(),
+                ColourModel::Both,
+                AcuityModel::LarsonKrawczyk,
+            ),
+            (
+                "city.exr",
+                0.0,
+                ToneModel::naka_rushton(),
+                ColourModel::Discrimination,
+                AcuityModel::default(),
+            ),
+            (
+                "studio.exr",
+                0.0,
+                ToneModel::default(),
+                ColourModel::Both,
+                AcuityModel::None,
+            ),
+        ];
+        for (name, pitch, tone, colour, acuity) in cases {
+            let (img, dpp) = view_fov(name, -78.4, pitch, 10.0, 96, 96);
+            let config = no_glare(PipelineConfig {
+                tone,
+                colour,
+                acuity,
+                temporal: TemporalModel::power_dt(),
+                keep_display_linear: true,
+                ..PipelineConfig::default()
+            });
+            let mut cpu = FramePipeline::new(config.clone(), 96, 96, dpp).unwrap();
+            let mut gpu = GpuFramePipeline::new(ctx, config, 96, 96, dpp).unwrap();
+            let mut out = DisplayFrame::new(96, 96);
+            let mut lin = RgbImage::new(96, 96);
+            let mut blurred = false;
+            for input in inputs() {
+                let c = cpu.process(&img, &input, &mut out).unwrap();
+                let g = gpu.process(&img, &input).unwrap();
+                gpu.read_display_linear(&mut lin).unwrap();
+                assert!(
+                    (g.acuity_sigma_px - c.acuity_sigma_px).abs()
+                        <= 1e-4 * c.acuity_sigma_px.max(1.0),
+                    "{name}: σ {} vs {}",
+                    g.acuity_sigma_px,
+                    c.acuity_sigma_px
+                );
+                blurred |= c.acuity_sigma_px > 0.3;
+                let mut max_err = 0.0f32;
+                for (a, b) in lin.pixels.iter().zip(&cpu.display_linear().pixels) {
+                    for k in 0..3 {
+                        max_err = max_err.max((a[k] - b[k]).abs());
+                    }
+                }
+                assert!(
+                    max_err < 2e-4,
+                    "{name} {tone:?} {colour:?} {acuity:?}: {max_err}"
+                );
+                worst = worst.max(max_err);
+                let display = gpu.display().unwrap();
+                let codes = display
+                    .rgba8
+                    .iter()
+                    .zip(&out.rgba8)
+                    .map(|(a, b)| a.abs_diff(*b))
+                    .max();
+                assert!(codes <= Some(1), "{name}: {codes:?}");
+            }
+            if name == "night.exr" {
+                assert!(blurred, "{name} {acuity:?}: the acuity blur never ran");
+            }
+        }
+        println!("worst display-linear difference {worst:.2e}");
+    }
+
+    #[test]
+    fn whole_frame_matches_the_cpu_within_one_code() {
+        let Some(ctx) = test_context("whole_frame_matches_the_cpu_within_one_code") else {
+            return;
+        };
+        // Street lamps at 6.4 ppd (glare, scotopic colour, acuity blur), and a
+        // hazy sun at the Vive Pro's 104° field.
+        for (name, yaw, fov, w, h) in [
+            ("night.exr", -78.4, 20.0, 128, 128),
+            ("city.exr", 40.0, 104.0, 160, 144),
+        ] {
+            let (img, dpp) = view_fov(name, yaw, -6.0, fov, w, h);
+            let config = PipelineConfig::default();
+            let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+            let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+            let mut out = DisplayFrame::new(w, h);
+            let mut rebuilds = 0;
+            let mut worst = 0u8;
+            for input in inputs() {
+                let c = cpu.process(&img, &input, &mut out).unwrap();
+                let g = gpu.process(&img, &input).unwrap();
+                assert_eq!(g.psf_rebuilt, c.psf_rebuilt, "{name} {input:?}");
+                assert_eq!(g.psf_pupil_mm, c.psf_pupil_mm);
+                rebuilds += usize::from(g.psf_rebuilt);
+                let display = gpu.display().unwrap();
+                let mut differing = 0usize;
+                let mut max = 0u8;
+                for (a, b) in display.rgba8.iter().zip(&out.rgba8) {
+                    let d = a.abs_diff(*b);
+                    max = max.max(d);
+                    differing += usize::from(d > 0);
+                }
+                println!(
+                    "{name} {w}x{h} {input:?}: target {:.4} / {:.4} cd/m², adaptation {:.4} / \
+                     {:.4}, σ {:.3} px, rebuilt {}, max code difference {max}, {differing} of \
+                     {} channel values differ",
+                    g.target_cd_m2,
+                    c.target_cd_m2,
+                    g.adaptation_cd_m2,
+                    c.adaptation_cd_m2,
+                    g.acuity_sigma_px,
+                    g.psf_rebuilt,
+                    out.rgba8.len()
+                );
+                assert!(max <= 1, "{name}: display values differ by {max}/255");
+                worst = worst.max(max);
+            }
+            assert_eq!(rebuilds, 2, "{name}: the pupil path rebuilds the PSF twice");
+            println!("{name}: worst display difference {worst}/255");
+        }
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let Some(ctx) = test_context("bad_input_is_an_error_not_a_panic") else {
+            return;
+        };
+        let config = no_glare(PipelineConfig::default());
+        let err = GpuFramePipeline::new(ctx, config.clone(), 0, 8, 0.1).unwrap_err();
+        assert!(err.to_string().contains("frame size"), "{err}");
+        let err = GpuFramePipeline::new(ctx, config.clone(), 8, 8, f64::NAN).unwrap_err();
+        assert!(err.to_string().contains("deg_per_px"), "{err}");
+        let mut bad = config.clone();
+        bad.glare.window_px = 100;
+        bad.glare.enabled = true;
+        let err = GpuFramePipeline::new(ctx, bad, 8, 8, 0.1).unwrap_err();
+        assert!(err.to_string().contains("glare.window_px"), "{err}");
+        let mut gpu = GpuFramePipeline::new(ctx, config, 8, 8, 0.1).unwrap();
+        let err = gpu.process(&RgbImage::new(8, 9), &inputs()[0]).unwrap_err();
+        assert!(err.to_string().contains("scene frame"), "{err}");
+        let err = gpu
+            .read_display_linear(&mut RgbImage::new(8, 8))
+            .unwrap_err();
+        assert!(err.to_string().contains("keep_display_linear"), "{err}");
+        // Non-finite input is handled as the CPU does, no NaN in the output.
+        let mut img = RgbImage::new(8, 8);
+        img.pixels[3] = [f32::NAN, f32::INFINITY, -1.0];
+        let input = FrameInput {
+            gaze_uv: [f32::NAN, 2.0],
+            pupil_mm: f32::NAN,
+            dt_secs: f32::NAN,
+        };
+        let stats = gpu.process(&img, &input).unwrap();
+        assert!(stats.target_cd_m2.is_finite() && stats.adaptation_cd_m2.is_finite());
+        // A host output buffer that is too small is refused.
+        let small = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        assert!(matches!(
+            gpu.bind_io(None, Some(&small)),
+            Err(GpuError::Length { .. })
+        ));
+    }
+
+    #[test]
+    fn host_buffers_and_encoder_give_the_same_frame() {
+        let Some(ctx) = test_context("host_buffers_and_encoder_give_the_same_frame") else {
+            return;
+        };
+        let (img, dpp) = view("sunset.exr", 0.0, 0.0, 64, 48);
+        let config = no_glare(PipelineConfig::default());
+        let mut own = GpuFramePipeline::new(ctx, config.clone(), 64, 48, dpp).unwrap();
+        own.process(&img, &inputs()[1]).unwrap();
+        let expected = own.display().unwrap().rgba8.clone();
+        // A host renderer: its own scene and output buffers, its encoder.
+        let host = GpuContext::from_device(ctx.device().clone(), ctx.queue().clone());
+        let usage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        let scene = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: Some("host scene"),
+            size: 64 * 48 * 16,
+            usage,
+            mapped_at_creation: false,
+        });
+        let output = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: Some("host output"),
+            size: 64 * 48 * 4,
+            usage,
+            mapped_at_creation: false,
+        });
+        let texels: Vec<[f32; 4]> = img.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
+        ctx.queue()
+            .write_buffer(&scene, 0, bytemuck::cast_slice(&texels));
+        let mut gpu = GpuFramePipeline::new(&host, config, 64, 48, dpp).unwrap();
+        gpu.bind_io(Some(&scene), Some(&output)).unwrap();
+        let mut encoder = ctx.device().create_command_encoder(&Default::default());
+        let encoded = gpu.encode(&mut encoder, &inputs()[1]);
+        ctx.queue().submit([encoder.finish()]);
+        assert!(!encoded.psf_rebuilt);
+        let got = gpu.display().unwrap().rgba8.clone();
+        assert_eq!(got, expected);
+        assert!(gpu.read_state().unwrap().target_cd_m2 > 0.0);
+    }
+}

@@ -1,0 +1,196 @@
+//! Stage 1 on the GPU, the twin of `shaders/pooling.wgsl`: scene import
+//! (sanitised copy), block luminance (the CPU pipeline's pass A) and the
+//! gaze-weighted luminance pooling of [`gazelight_vision::pooling`]
+//! (001 §4.1, 000 eq 5–6, 003 eq 1, 004 §3.1, 000 §3.2) as two-level
+//! workgroup reductions (core WebGPU has no float atomics). The pooled
+//! target lands in [`crate::frame::FrameState::target_cd_m2`].
+//!
+//! The weights are evaluated per block in f32 on the GPU; the spans and
+//! model constants that depend only on the gaze are computed on the host in
+//! f64 exactly as the CPU does ([`PoolParams::for_frame`]).
+
+use bytemuck::{Pod, Zeroable};
+use gazelight_vision::pooling::PoolingModel;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::shaders;
+
+/// Threads per workgroup of the reductions (`POOL_THREADS`).
+pub const POOL_THREADS: u32 = 256;
+
+/// Uniforms of `pooling.wgsl` (`struct PoolParams`), field by field.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct PoolParams {
+    /// Frame width, pixels.
+    pub width: u32,
+    /// Frame height, pixels.
+    pub height: u32,
+    /// Block plane width.
+    pub small_w: u32,
+    /// Block plane height.
+    pub small_h: u32,
+    /// Block size, pixels.
+    pub ds: u32,
+    /// 0 Gaussian, 1 centre weight, 2 eccentricity, 3 gaze window, 4 panorama.
+    pub model: u32,
+    /// Workgroups of `pool_partial`.
+    pub partial_count: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Span of blocks with weight (models 0 and 3): `[x0, x1) × [y0, y1)`.
+    pub x0: u32,
+    /// See `x0`.
+    pub x1: u32,
+    /// See `x0`.
+    pub y0: u32,
+    /// See `x0`.
+    pub y1: u32,
+    /// Gaze on the block plane, blocks.
+    pub gaze_x: f32,
+    /// Gaze on the block plane, blocks.
+    pub gaze_y: f32,
+    /// Model parameters (see the shader header).
+    pub p0: f32,
+    /// Model parameters.
+    pub p1: f32,
+    /// Model parameters.
+    pub p2: f32,
+    /// Model parameters.
+    pub p3: f32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
+}
+
+/// `span` of `gazelight_vision::pooling`: the blocks in `[lo, hi)`, clamped.
+fn span(lo: f64, hi: f64, n: usize) -> (u32, u32) {
+    let a = lo.floor().max(0.0).min(n as f64) as u32;
+    let b = hi.ceil().max(0.0).min(n as f64) as u32;
+    (a, b.max(a))
+}
+
+impl PoolParams {
+    /// The uniforms of one frame: `gaze_px` on the block plane (finite),
+    /// `deg_per_block` the angular size of one block.
+    #[allow(clippy::too_many_arguments)]
+    pub fn for_frame(
+        model: &PoolingModel,
+        frame: [u32; 2],
+        small: [u32; 2],
+        ds: u32,
+        partial_count: u32,
+        gaze_px: [f64; 2],
+        deg_per_block: f64,
+    ) -> Self {
+        let (w, h) = (small[0] as usize, small[1] as usize);
+        let mut p = Self {
+            width: frame[0],
+            height: frame[1],
+            small_w: small[0],
+            small_h: small[1],
+            ds,
+            model: 0,
+            partial_count,
+            _pad0: 0,
+            x0: 0,
+            x1: small[0],
+            y0: 0,
+            y1: small[1],
+            gaze_x: gaze_px[0] as f32,
+            gaze_y: gaze_px[1] as f32,
+            p0: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            p3: 0.0,
+            _pad1: 0,
+            _pad2: 0,
+        };
+        match *model {
+            PoolingModel::Gaussian { sigma_deg } => {
+                let sigma_px = sigma_deg / deg_per_block;
+                let reach = 6.0 * sigma_px + 1.0;
+                (p.x0, p.x1) = span(gaze_px[0] - reach, gaze_px[0] + reach, w);
+                (p.y0, p.y1) = span(gaze_px[1] - reach, gaze_px[1] + reach, h);
+                p.p0 = (1.0 / (sigma_px * std::f64::consts::SQRT_2)) as f32;
+            }
+            PoolingModel::CentreWeight { follow_gaze } => {
+                p.model = 1;
+                let c = if follow_gaze {
+                    gaze_px
+                } else {
+                    [w as f64 / 2.0, h as f64 / 2.0]
+                };
+                p.p0 = (w as f64 / 2.0) as f32;
+                p.p1 = (h as f64 / 2.0) as f32;
+                p.p2 = c[0] as f32;
+                p.p3 = c[1] as f32;
+            }
+            PoolingModel::Eccentricity { e2_deg } => {
+                p.model = 2;
+                p.p0 = e2_deg as f32;
+                p.p1 = deg_per_block as f32;
+            }
+            PoolingModel::GazeWindow { size_deg } => {
+                p.model = 3;
+                let half = size_deg / deg_per_block / 2.0;
+                let (lo_x, hi_x) = (gaze_px[0] - half, gaze_px[0] + half);
+                let (lo_y, hi_y) = (gaze_px[1] - half, gaze_px[1] + half);
+                (p.x0, p.x1) = span(lo_x, hi_x, w);
+                (p.y0, p.y1) = span(lo_y, hi_y, h);
+                p.p0 = lo_x as f32;
+                p.p1 = hi_x as f32;
+                p.p2 = lo_y as f32;
+                p.p3 = hi_y as f32;
+            }
+            PoolingModel::PanoramaMean => p.model = 4,
+        }
+        p
+    }
+}
+
+/// The twin of `shaders/pooling.wgsl`. Bindings: 0 [`PoolParams`], 1 scene
+/// (RGBA f32, read-only), 2 working frame (RGBA f32), 3 block luminance
+/// (f32), 4 partial sums (`vec2<f32>`), 5 [`crate::frame::FrameState`].
+#[derive(Debug, Clone)]
+pub struct PoolingPass {
+    layout: wgpu::BindGroupLayout,
+    pub(crate) import_scene: wgpu::ComputePipeline,
+    pub(crate) block_luminance: wgpu::ComputePipeline,
+    pub(crate) pool_partial: wgpu::ComputePipeline,
+    pub(crate) pool_final: wgpu::ComputePipeline,
+}
+
+impl PoolingPass {
+    /// Checks the shader against the device limits and builds the pipelines.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = layout(
+            ctx,
+            "pooling.wgsl",
+            &[
+                uniform_entry::<PoolParams>(0),
+                storage_entry(1, true),
+                storage_entry(2, false),
+                storage_entry(3, false),
+                storage_entry(4, false),
+                storage_entry(5, false),
+            ],
+        )?;
+        let s = &shaders::POOLING;
+        Ok(Self {
+            import_scene: ctx.create_compute_pipeline(s, "import_scene", &[&layout])?,
+            block_luminance: ctx.create_compute_pipeline(s, "block_luminance", &[&layout])?,
+            pool_partial: ctx.create_compute_pipeline(s, "pool_partial", &[&layout])?,
+            pool_final: ctx.create_compute_pipeline(s, "pool_final", &[&layout])?,
+            layout,
+        })
+    }
+
+    /// The bind group layout (group 0).
+    pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+}

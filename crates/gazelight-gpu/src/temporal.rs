@@ -1,0 +1,98 @@
+//! Stage 2 on the GPU, the twin of `shaders/temporal.wgsl`: one thread
+//! advances the adaptation state in [`crate::frame::FrameState`] towards
+//! the pooled target, with the models of [`gazelight_vision::temporal`]
+//! (001 eq 2–4, 000 eq 7–8, 003 eq 2–3), in f32. Running it on the GPU keeps
+//! the frame in one command buffer with no read-back between stages.
+
+use bytemuck::{Pod, Zeroable};
+use gazelight_vision::temporal::TemporalModel;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::shaders;
+
+/// Uniforms of `temporal.wgsl` (`struct TemporalParams`), field by field.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct TemporalParams {
+    /// 0 Krawczyk, 1 p^dt, 2 log exponential, 3 log linear.
+    pub model: u32,
+    /// 1: start adapted to the target (first frame).
+    pub reset: u32,
+    /// Model 1: record the overshoot target (000 eq 8).
+    pub overshoot: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Time step, seconds.
+    pub dt_secs: f32,
+    /// τ_rod, p_light or τ_light (see the shader header).
+    pub a: f32,
+    /// τ_cone, p_dark or τ_dark.
+    pub b: f32,
+    /// Padding.
+    pub _pad1: f32,
+}
+
+impl TemporalParams {
+    /// The uniforms for `model` (dt and reset are set per frame).
+    pub fn new(model: &TemporalModel) -> Self {
+        let (m, a, b, overshoot) = match *model {
+            TemporalModel::Krawczyk {
+                tau_rod_secs,
+                tau_cone_secs,
+            } => (0, tau_rod_secs, tau_cone_secs, false),
+            TemporalModel::PowerDt {
+                p_light,
+                p_dark,
+                overshoot,
+            } => (1, p_light, p_dark, overshoot),
+            TemporalModel::LogExponential {
+                tau_light_secs,
+                tau_dark_secs,
+            } => (2, tau_light_secs, tau_dark_secs, false),
+            TemporalModel::Linear {
+                tau_light_secs,
+                tau_dark_secs,
+            } => (3, tau_light_secs, tau_dark_secs, false),
+        };
+        Self {
+            model: m,
+            reset: 1,
+            overshoot: u32::from(overshoot),
+            _pad0: 0,
+            dt_secs: 0.0,
+            a: a as f32,
+            b: b as f32,
+            _pad1: 0.0,
+        }
+    }
+}
+
+/// The twin of `shaders/temporal.wgsl`. Bindings: 0 [`TemporalParams`],
+/// 1 [`crate::frame::FrameState`].
+#[derive(Debug, Clone)]
+pub struct TemporalPass {
+    layout: wgpu::BindGroupLayout,
+    pub(crate) adapt: wgpu::ComputePipeline,
+}
+
+impl TemporalPass {
+    /// Checks the shader against the device limits and builds the pipeline.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = layout(
+            ctx,
+            "temporal.wgsl",
+            &[uniform_entry::<TemporalParams>(0), storage_entry(1, false)],
+        )?;
+        Ok(Self {
+            adapt: ctx.create_compute_pipeline(&shaders::TEMPORAL, "adapt", &[&layout])?,
+            layout,
+        })
+    }
+
+    /// The bind group layout (group 0).
+    pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+}

@@ -1,0 +1,160 @@
+//! Stages 6–8 on the GPU, the twin of `shaders/tone.wgsl`: the per-frame
+//! tone and colour scalars (one thread, from the adaptation state on the
+//! GPU), then per pixel tone reproduction ([`gazelight_vision::tone`],
+//! 000 eq 1–4, 8–10, 003 eq 4–5, 004 §3.2–3.3), colour
+//! ([`gazelight_vision::colour`], 001 eq 14, 000 eq 11–12), clamping to the
+//! display, and either the sRGB encoding (8-bit, through the CPU's own
+//! 16384-entry table, so equal inputs give equal bytes) or CIE Lab for the
+//! acuity pass. The threshold functions run in f32 on the GPU; `t_p` of the
+//! display adaptation and the gaze-exposure gamma, which do not depend on
+//! the frame, come from the host in f64.
+
+use bytemuck::{Pod, Zeroable};
+use gazelight_vision::colour::ColourModel;
+use gazelight_vision::tone::ToneModel;
+use gazelight_vision::tvi;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::shaders;
+
+/// Uniforms of `tone.wgsl` (`struct ToneParams`), field by field.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct ToneParams {
+    /// Frame width.
+    pub width: u32,
+    /// Frame height.
+    pub height: u32,
+    /// 0 Ward/Ferwerda, 1 Naka–Rushton, 2 gaze exposure.
+    pub model: u32,
+    /// Scotopic shift on.
+    pub colour_shift: u32,
+    /// Colour discrimination on.
+    pub colour_discrimination: u32,
+    /// Also write the display-linear frame.
+    pub keep_linear: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Display peak, cd/m².
+    pub peak_cd_m2: f32,
+    /// `t_p(peak/2)` (000 eq 1), cd/m².
+    pub tp_da_cd_m2: f32,
+    /// Naka–Rushton saturation exponent.
+    pub saturation: f32,
+    /// Gaze-exposure gamma (004 §3.2).
+    pub gamma: f32,
+    /// `2^−stops_below`.
+    pub window_lo: f32,
+    /// `2^stops_above`.
+    pub window_hi: f32,
+    /// Padding.
+    pub _pad2: f32,
+    /// Padding.
+    pub _pad3: f32,
+}
+
+impl ToneParams {
+    /// The uniforms for the models of a pipeline.
+    pub fn new(
+        tone: &ToneModel,
+        colour: &ColourModel,
+        width: u32,
+        height: u32,
+        keep_linear: bool,
+    ) -> Self {
+        let (shift, discrimination) = match colour {
+            ColourModel::ScotopicShift => (true, false),
+            ColourModel::Discrimination => (false, true),
+            ColourModel::Both => (true, true),
+            ColourModel::None => (false, false),
+        };
+        let mut p = Self {
+            width,
+            height,
+            model: 0,
+            colour_shift: u32::from(shift),
+            colour_discrimination: u32::from(discrimination),
+            keep_linear: u32::from(keep_linear),
+            _pad0: 0,
+            _pad1: 0,
+            peak_cd_m2: 1.0,
+            tp_da_cd_m2: 1.0,
+            saturation: 1.0,
+            gamma: 1.0,
+            window_lo: 1.0,
+            window_hi: 1.0,
+            _pad2: 0.0,
+            _pad3: 0.0,
+        };
+        match *tone {
+            ToneModel::WardFerwerda { display_peak_cd_m2 } => {
+                p.peak_cd_m2 = display_peak_cd_m2 as f32;
+                // 000 eq 9: display adaptation L_da = half the display peak
+                p.tp_da_cd_m2 = tvi::t_p(0.5 * display_peak_cd_m2) as f32;
+            }
+            ToneModel::NakaRushton { saturation } => {
+                p.model = 1;
+                p.saturation = saturation as f32;
+            }
+            ToneModel::GazeExposure {
+                stops_below,
+                stops_above,
+                target_display,
+            } => {
+                p.model = 2;
+                let lo = 2f64.powf(-stops_below);
+                let hi = 2f64.powf(stops_above);
+                // 004 §3.2: the target maps to target_display; independent of L_wa
+                let x_t = (1.0 - lo) / (hi - lo);
+                p.gamma = (target_display.ln() / x_t.ln()) as f32;
+                p.window_lo = lo as f32;
+                p.window_hi = hi as f32;
+            }
+        }
+        p
+    }
+}
+
+/// The twin of `shaders/tone.wgsl`. Bindings: 0 [`ToneParams`],
+/// 1 [`crate::frame::FrameState`], 2 working frame (read-only), 3 Lab frame,
+/// 4 display-linear frame, 5 sRGB table (read-only), 6 RGBA8 output.
+#[derive(Debug, Clone)]
+pub struct TonePass {
+    layout: wgpu::BindGroupLayout,
+    pub(crate) prepare: wgpu::ComputePipeline,
+    pub(crate) tone_map: wgpu::ComputePipeline,
+}
+
+impl TonePass {
+    /// Checks the shader against the device limits and builds the pipelines.
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        let layout = layout(
+            ctx,
+            "tone.wgsl",
+            &[
+                uniform_entry::<ToneParams>(0),
+                storage_entry(1, false),
+                storage_entry(2, true),
+                storage_entry(3, false),
+                storage_entry(4, false),
+                storage_entry(5, true),
+                storage_entry(6, false),
+            ],
+        )?;
+        let s = &shaders::TONE;
+        Ok(Self {
+            prepare: ctx.create_compute_pipeline(s, "prepare_tone", &[&layout])?,
+            tone_map: ctx.create_compute_pipeline(s, "tone_map", &[&layout])?,
+            layout,
+        })
+    }
+
+    /// The bind group layout (group 0).
+    pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+}
