@@ -6,8 +6,10 @@
 //! gazelight psf --pupil-mm 4 --out psf/  # one glare kernel as EXR + PNG + JSON
 //! ```
 
+mod calibrate_cmd;
 mod config;
 mod demo;
+mod devices;
 // Shared by run / serve / relay, which are being built on it.
 #[allow(dead_code)]
 mod hub;
@@ -17,11 +19,11 @@ mod psf_cmd;
 // Started by `run --relay` / `--http`, which are being wired.
 #[allow(dead_code)]
 mod relay;
-#[allow(dead_code)]
-mod serve;
 mod render;
 mod replay;
 mod run;
+#[allow(dead_code)]
+mod serve;
 mod service_config;
 
 use clap::{Parser, Subcommand};
@@ -53,12 +55,21 @@ enum Command {
     /// the display rate on a panorama for the head orientation; frames,
     /// timeline.csv and psf.csv with --out. Ctrl-C or --secs ends it.
     Run(run::RunArgs),
+    /// The hardware-in-loop black/white pupil calibration against a live
+    /// tracker: shows black then white (in the host application through
+    /// `gazelight.stimulus`, or by hand), prints a per-eye summary and writes
+    /// the profile, or refuses with the reason.
+    Calibrate(calibrate_cmd::CalibrateArgs),
     /// Build one glare point spread function for a pupil diameter and write
     /// it as kernel.exr, kernel.png and psf.json.
     Psf(psf_cmd::PsfArgs),
     /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
     /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
     Inspect(inspect::InspectArgs),
+    /// List connected HID devices (page-0x12 eye trackers and known vendor
+    /// profiles marked), USB devices and serial ports, with their source
+    /// URIs.
+    Devices(devices::DevicesArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -74,8 +85,10 @@ fn main() -> std::process::ExitCode {
         Command::Render(args) => render::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Run(args) => run::run(args),
+        Command::Calibrate(args) => calibrate_cmd::run(args),
         Command::Psf(args) => psf_cmd::run(args),
         Command::Inspect(args) => inspect::run(args),
+        Command::Devices(args) => devices::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

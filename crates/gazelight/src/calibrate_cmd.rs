@@ -1,0 +1,283 @@
+//! `gazelight calibrate`: the hardware-in-loop black/white pupil calibration
+//! (001 §5) against a live tracker.
+//!
+//! The stimulus (black, then white, then nothing) goes to a sink:
+//! `--stimulus remote` sends it to the host application as the
+//! `gazelight.stimulus` notification through the tracker's Pupil Remote
+//! (the host shows the colour full screen); `--stimulus log` only prints it
+//! (a technician switching the display by hand, or tests). The samples come
+//! from the live source; each phase's robust statistics map the raw pupil
+//! units linearly onto 2–8 mm per eye. A per-eye summary (samples, valid
+//! fraction, raw range) is printed whether it succeeds or not; the profile
+//! is written only on success — a phase with too few valid samples, or a
+//! white phase whose pupil is not smaller, is refused with the reason.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use gazelight_tracker::calibration::{
+    CalibrationConfig, CalibrationSession, LogSink, Phase, PhaseSummary, Progress, Stimulus,
+    StimulusError, StimulusSink,
+};
+use gazelight_tracker::pupil::{PupilConfig, PupilSource, RemoteSink};
+use gazelight_tracker::source::SampleSource;
+use gazelight_tracker::{Sample, SourceError};
+
+/// Where the stimulus goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum StimulusKind {
+    /// To the host application as a `gazelight.stimulus` notification
+    /// (`{"subject": "gazelight.stimulus", "color": "black"|"white"|"none"}`)
+    /// through the tracker's Pupil Remote.
+    Remote,
+    /// Printed only: someone switches the display by hand.
+    Log,
+    /// Full screen in the service's own window.
+    Window,
+}
+
+/// Arguments of `gazelight calibrate`.
+#[derive(Args, Debug)]
+pub struct CalibrateArgs {
+    /// Tracker source (Pupil Capture's Pupil Remote).
+    #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
+    pub source: String,
+    /// Where the black/white stimulus is shown.
+    #[arg(long, value_enum, default_value = "remote")]
+    pub stimulus: StimulusKind,
+    /// Duration of each phase, s (001 §5: 5 s).
+    #[arg(long, value_name = "S", default_value_t = 5.0)]
+    pub phase_secs: f64,
+    /// Samples in the first S seconds of a phase are ignored while the pupil
+    /// adapts.
+    #[arg(long, value_name = "S", default_value_t = 2.0)]
+    pub settle_secs: f64,
+    /// Show white first.
+    #[arg(long)]
+    pub white_first: bool,
+    /// Minimum fraction of valid samples per phase and eye.
+    #[arg(long, value_name = "F", default_value_t = 0.5)]
+    pub min_valid_fraction: f64,
+    /// Free-text description stored in the profile (tracker, operator).
+    #[arg(long)]
+    pub description: Option<String>,
+    /// Where the profile is written (JSON, `calibration/schema.json`).
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// Give up when the tracker sends nothing for this long, s.
+    #[arg(long, value_name = "S", default_value_t = 5.0)]
+    pub silence_secs: f64,
+}
+
+/// Prints every stimulus change as it happens (the technician's cue) and
+/// forwards it to an inner sink, if any.
+struct AnnouncingSink<'a> {
+    inner: Option<&'a mut (dyn StimulusSink + Send)>,
+    phase_secs: f64,
+    first_t: Option<f64>,
+}
+
+impl StimulusSink for AnnouncingSink<'_> {
+    fn show(&mut self, stimulus: Stimulus, at_t_secs: f64) -> Result<(), StimulusError> {
+        let t0 = *self.first_t.get_or_insert(at_t_secs);
+        match stimulus {
+            Stimulus::None => eprintln!("[{:5.1} s] stimulus off", at_t_secs - t0),
+            s => eprintln!(
+                "[{:5.1} s] showing {} for {:.1} s",
+                at_t_secs - t0,
+                format!("{s:?}").to_uppercase(),
+                self.phase_secs
+            ),
+        }
+        match &mut self.inner {
+            Some(sink) => sink.show(stimulus, at_t_secs),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Runs `gazelight calibrate`.
+pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
+    let mut cfg = CalibrationConfig {
+        phase_duration_s: args.phase_secs,
+        settle_s: args.settle_secs,
+        min_valid_fraction: args.min_valid_fraction,
+        ..CalibrationConfig::default()
+    };
+    if args.white_first {
+        cfg.order = [Phase::White, Phase::Black];
+    }
+    cfg.validate().context("calibration settings")?;
+    if !(args.silence_secs.is_finite() && args.silence_secs > 0.0) {
+        bail!(
+            "--silence-secs {}: expected a duration > 0",
+            args.silence_secs
+        );
+    }
+    if args.stimulus == StimulusKind::Window {
+        bail!(
+            "--stimulus window: the service's display window is not available in this build; \
+             use --stimulus remote (the host application shows the stimulus) or --stimulus log"
+        );
+    }
+    if let Some(parent) = args.out.parent()
+        && !parent.as_os_str().is_empty()
+        && !parent.is_dir()
+    {
+        bail!(
+            "--out {}: directory {} does not exist",
+            args.out.display(),
+            parent.display()
+        );
+    }
+    let pupil =
+        PupilConfig::from_uri(&args.source).with_context(|| format!("--source {}", args.source))?;
+
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(calibrate(args, cfg, pupil))
+}
+
+async fn calibrate(
+    args: CalibrateArgs,
+    cfg: CalibrationConfig,
+    pupil: PupilConfig,
+) -> anyhow::Result<()> {
+    let (mut source, _raw) = PupilSource::spawn(pupil);
+    let connect = Duration::from_secs_f64(args.silence_secs);
+    source.client().wait_connected(connect).await.with_context(|| {
+        format!(
+            "no tracker at {}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?",
+            args.source
+        )
+    })?;
+    eprintln!(
+        "connected to {} ({}); calibrating: {:?} then {:?}, {:.1} s each, {:.1} s settle",
+        args.source,
+        source.client().stats().version.unwrap_or_default(),
+        cfg.order[0],
+        cfg.order[1],
+        cfg.phase_duration_s,
+        cfg.settle_s
+    );
+    let mut remote = match args.stimulus {
+        StimulusKind::Remote => Some(RemoteSink::new(
+            source.client().notifier(),
+            &tokio::runtime::Handle::current(),
+        )),
+        _ => None,
+    };
+    let mut log = LogSink::default();
+    let inner: &mut (dyn StimulusSink + Send) = match &mut remote {
+        Some(r) => r,
+        None => &mut log,
+    };
+    let mut sink = AnnouncingSink {
+        inner: Some(inner),
+        phase_secs: cfg.phase_duration_s,
+        first_t: None,
+    };
+
+    let mut session = CalibrationSession::new(cfg)?;
+    let silence = Duration::from_secs_f64(args.silence_secs);
+    let mut skipped = 0u64;
+    let outcome: anyhow::Result<()> = loop {
+        let next = match tokio::time::timeout(silence, source.next()).await {
+            Ok(r) => r,
+            Err(_) => {
+                break Err(anyhow::anyhow!(
+                    "{}: no samples for {:.1} s ({:?})",
+                    args.source,
+                    args.silence_secs,
+                    session.progress()
+                ));
+            }
+        };
+        match next {
+            Ok(Some(Sample::Pupil(p))) => match session.feed(&p, &mut sink) {
+                Ok(Progress::Done) => break Ok(()),
+                Ok(_) => {}
+                Err(e) => break Err(e.into()),
+            },
+            Ok(Some(_)) => {}
+            Ok(None) => {
+                break Err(anyhow::anyhow!(
+                    "{} ended before the calibration finished",
+                    args.source
+                ));
+            }
+            Err(e @ (SourceError::Item { .. } | SourceError::Disconnected { .. })) => {
+                skipped += 1;
+                if skipped <= 10 {
+                    tracing::warn!(error = %e, "calibration: source item skipped");
+                }
+            }
+            Err(e @ SourceError::Fatal { .. }) => break Err(e.into()),
+        }
+    };
+    // Whatever happened, turn the stimulus off and make sure it arrived.
+    if outcome.is_err()
+        && let Some(r) = &mut remote
+    {
+        let _ = r.show(Stimulus::None, f64::NAN);
+    }
+    if let Some(r) = &mut remote {
+        r.flush()
+            .await
+            .context("the host application did not receive every stimulus")?;
+    }
+    print_summary(&session.summary());
+    outcome?;
+
+    let mut profile = session
+        .finish()
+        .context("calibration refused; no profile written")?;
+    profile.description = args.description.clone().or_else(|| {
+        Some(format!(
+            "gazelight calibrate --source {} ({:?} stimulus)",
+            args.source, args.stimulus
+        ))
+    });
+    profile
+        .save(&args.out)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    for (name, eye) in [
+        ("right (0)", profile.eyes.right),
+        ("left (1)", profile.eyes.left),
+    ] {
+        if let Some(c) = eye {
+            println!(
+                "eye {name}: raw {:.3} (black) → {:.1} mm, raw {:.3} (white) → {:.1} mm [{:?}]",
+                c.raw_black, c.mm_max, c.raw_white, c.mm_min, c.raw_unit
+            );
+        }
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn print_summary(summary: &[PhaseSummary]) {
+    if summary.is_empty() {
+        println!("no pupil samples were received");
+        return;
+    }
+    println!("eye    phase  unit            samples  valid   raw min   raw median   raw max");
+    for s in summary {
+        println!(
+            "{:<6} {:<6} {:<15} {:>7}  {:>5.1}%  {:>8.3}  {:>10.3}  {:>8.3}",
+            if s.eye == 0 { "right" } else { "left" },
+            format!("{:?}", s.phase).to_lowercase(),
+            format!("{:?}", s.unit),
+            s.samples,
+            100.0 * s.valid_fraction(),
+            s.raw_min,
+            s.raw_median,
+            s.raw_max
+        );
+    }
+}

@@ -1,0 +1,224 @@
+//! `gazelight calibrate --stimulus remote` against the pyzmq Pupil peer
+//! (crates/gazelight-tracker/tests/pupil_peer.py), whose simulated pupil
+//! follows the `gazelight.stimulus` notifications: a real black/white
+//! session over the network, then a refused one (no light response).
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+
+fn gazelight(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run gazelight")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir =
+        std::env::temp_dir().join(format!("gazelight-calibrate-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn python_ready() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import zmq, msgpack"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must have python3 + pyzmq + msgpack"
+        );
+        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
+    }
+    ok
+}
+
+/// Starts the peer; returns it and its Pupil Remote port.
+fn peer(extra: &[&str]) -> (Child, String) {
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args([
+            "--remote-port",
+            "0",
+            "--sub-port",
+            "0",
+            "--pub-port",
+            "0",
+            "--rate",
+            "200",
+            "--timeout",
+            "30",
+        ])
+        .args(extra)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawn peer");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY line");
+    let port = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .expect("remote port")
+        .to_owned();
+    (child, port)
+}
+
+/// Asks the peer for the stimuli it received (its `peer.stimulus` command),
+/// through a tiny pyzmq REQ client.
+fn peer_stimuli(port: &str) -> serde_json::Value {
+    let code = format!(
+        "import zmq,sys\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
+         s.connect('tcp://127.0.0.1:{port}')\ns.send_string('peer.stimulus')\nprint(s.recv_string())\n"
+    );
+    let out = Command::new("python3")
+        .args(["-c", &code])
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("json")
+}
+
+#[test]
+fn remote_stimulus_calibration_against_the_peer() {
+    if !python_ready() {
+        return;
+    }
+    let (mut child, port) = peer(&["--black-gain", "1.5", "--white-gain", "0.6"]);
+    let dir = tmp("ok");
+    let profile = dir.join("profile.json");
+    let out = gazelight(&[
+        "calibrate",
+        "--source",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--stimulus",
+        "remote",
+        "--phase-secs",
+        "1.5",
+        "--settle-secs",
+        "0.7",
+        "--out",
+        profile.to_str().expect("utf-8"),
+    ]);
+    let stimuli = peer_stimuli(&port);
+    let _ = child.kill();
+    let _ = child.wait();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "calibrate failed: {stdout}\n{stderr}");
+    // The host application (the peer) received black, white, none in order.
+    let log: Vec<String> = stimuli["log"]
+        .as_array()
+        .expect("log")
+        .iter()
+        .map(|v| v.as_str().unwrap_or_default().to_owned())
+        .collect();
+    assert_eq!(log, ["black", "white", "none"], "{stimuli}");
+    // The per-eye summary was printed for both phases of both eyes.
+    for needle in [
+        "right  black",
+        "right  white",
+        "left   black",
+        "left   white",
+    ] {
+        assert!(
+            stdout.contains(needle),
+            "summary lacks `{needle}`: {stdout}"
+        );
+    }
+    // The profile maps each eye's black pupil above its white one, and the
+    // ratio matches the peer's light response (black 1.5×, white 0.6× the
+    // resting pupil → 2.5×) up to the first-order settling in 0.8 s.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&profile).expect("profile")).expect("json");
+    assert_eq!(json["schema"], "gazelight.pupil-calibration/1");
+    for eye in ["right", "left"] {
+        let e = &json["eyes"][eye];
+        let black = e["raw_black"].as_f64().expect("raw_black");
+        let white = e["raw_white"].as_f64().expect("raw_white");
+        let ratio = black / white;
+        assert!(
+            (2.2..=2.6).contains(&ratio),
+            "{eye}: black/white = {ratio:.3} ({json})"
+        );
+        assert_eq!(e["mm_min"], 2.0);
+        assert_eq!(e["mm_max"], 8.0);
+    }
+}
+
+#[test]
+fn no_light_response_is_refused_and_writes_nothing() {
+    if !python_ready() {
+        return;
+    }
+    let (mut child, port) = peer(&["--black-gain", "1.0", "--white-gain", "1.0"]);
+    let dir = tmp("refused");
+    let profile = dir.join("profile.json");
+    let out = gazelight(&[
+        "calibrate",
+        "--source",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--stimulus",
+        "remote",
+        "--phase-secs",
+        "1.0",
+        "--settle-secs",
+        "0.3",
+        "--out",
+        profile.to_str().expect("utf-8"),
+    ]);
+    let stimuli = peer_stimuli(&port);
+    let _ = child.kill();
+    let _ = child.wait();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a flat response must be refused");
+    assert!(stderr.contains("no profile written"), "{stderr}");
+    assert!(
+        stderr.contains("white"),
+        "the reason names the white phase: {stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(!profile.exists(), "nothing may be written on refusal");
+    // The stimulus was still turned off at the end.
+    let log = stimuli["log"].as_array().expect("log");
+    assert_eq!(
+        log.last().and_then(|v| v.as_str()),
+        Some("none"),
+        "{stimuli}"
+    );
+}
+
+#[test]
+fn no_tracker_is_a_clear_error() {
+    let dir = tmp("none");
+    let profile = dir.join("profile.json");
+    let out = gazelight(&[
+        "calibrate",
+        "--source",
+        "pupil://127.0.0.1:9",
+        "--silence-secs",
+        "1",
+        "--out",
+        profile.to_str().expect("utf-8"),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("no tracker at pupil://127.0.0.1:9"),
+        "{stderr}"
+    );
+    assert!(!profile.exists());
+}
