@@ -11,6 +11,7 @@
 //!   or Gazepoint Open Gaze API records.
 //! - [`gazepoint`]: the Open Gaze API over TCP (and its record parser, shared
 //!   with the serial transport).
+//! - [`discover`]: what is connected (`gazelight devices`).
 //! - [`uri`]: `hid://…`, `usb://…`, `serial://…`, `gazepoint://…`,
 //!   `pupil://…`, `replay://…` source URIs, and [`open`] which turns one into
 //!   an [`AnySource`].
@@ -28,6 +29,7 @@
 //! device is a [`SourceError`] naming the device, and a live source reopens
 //! its device on the next call after a [`SourceError::Disconnected`].
 
+pub mod discover;
 pub mod framing;
 pub mod gazepoint;
 pub mod hid;
