@@ -16,6 +16,7 @@ mod hub;
 mod inspect;
 mod output;
 mod psf_cmd;
+mod record_cmd;
 // Started by `run --relay` / `--http`, which are being wired.
 #[allow(dead_code)]
 mod relay;
@@ -60,6 +61,10 @@ enum Command {
     /// `gazelight.stimulus`, or by hand), prints a per-eye summary and writes
     /// the profile, or refuses with the reason.
     Calibrate(calibrate_cmd::CalibrateArgs),
+    /// Record a live Pupil source in Pupil's own recording layout
+    /// (.pldata + _timestamps.npy + info.player.json); flushed every second,
+    /// Ctrl-C keeps every received datum.
+    Record(record_cmd::RecordArgs),
     /// Build one glare point spread function for a pupil diameter and write
     /// it as kernel.exr, kernel.png and psf.json.
     Psf(psf_cmd::PsfArgs),
@@ -86,6 +91,7 @@ fn main() -> std::process::ExitCode {
         Command::Replay(args) => replay::run(args),
         Command::Run(args) => run::run(args),
         Command::Calibrate(args) => calibrate_cmd::run(args),
+        Command::Record(args) => record_cmd::run(args),
         Command::Psf(args) => psf_cmd::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Devices(args) => devices::run(args),

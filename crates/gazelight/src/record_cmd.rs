@@ -1,0 +1,304 @@
+//! `gazelight record`: a live Pupil source → a recording in Pupil's own
+//! layout (`pupil.pldata` + `pupil_timestamps.npy`, `gaze.pldata` +
+//! `gaze_timestamps.npy`, `notify.pldata` … and `info.player.json`), the
+//! exact bytes that came off the bus, so Pupil Player, Pupil's
+//! `file_methods.load_pldata_file` and `gazelight replay` all read it.
+//!
+//! Every received datum is kept: the writers flush at least every second
+//! (`PldataWriter` rewrites the `.npy` header in place, so the files are
+//! complete after every flush), Ctrl-C drains what is queued before closing,
+//! and a lost tracker only pauses the recording while the client reconnects.
+//! Datums the bounded raw queue had to drop (a disk slower than the tracker)
+//! are counted and reported, never silently lost.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use gazelight_tracker::PldataWriter;
+use gazelight_tracker::pupil::{PupilClient, PupilConfig, RawDatum};
+
+/// Capacity of the raw-datum queue between the client and the writers
+/// (≈ 16 s of a binocular 200 Hz tracker with gaze).
+const RAW_QUEUE: usize = 16_384;
+
+/// Arguments of `gazelight record`.
+#[derive(Args, Debug)]
+pub struct RecordArgs {
+    /// Tracker source (Pupil Capture's Pupil Remote).
+    #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
+    pub source: String,
+    /// Recording directory (created; must not already hold a recording).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long, value_name = "S")]
+    pub secs: Option<f64>,
+    /// Topic prefixes to record.
+    #[arg(long, value_delimiter = ',', default_value = "pupil.,gaze.,notify.")]
+    pub topics: Vec<String>,
+    /// Give up when no tracker answers within this time at start, s.
+    #[arg(long, value_name = "S", default_value_t = 5.0)]
+    pub connect_secs: f64,
+}
+
+/// Runs `gazelight record`.
+pub fn run(args: RecordArgs) -> anyhow::Result<()> {
+    if let Some(s) = args.secs
+        && !(s.is_finite() && s > 0.0)
+    {
+        bail!("--secs {s}: expected a duration > 0");
+    }
+    if !(args.connect_secs.is_finite() && args.connect_secs > 0.0) {
+        bail!(
+            "--connect-secs {}: expected a duration > 0",
+            args.connect_secs
+        );
+    }
+    if args.topics.iter().any(|t| t.trim().is_empty()) {
+        bail!("--topics: empty topic prefix");
+    }
+    let mut pupil =
+        PupilConfig::from_uri(&args.source).with_context(|| format!("--source {}", args.source))?;
+    pupil.topics = args.topics.clone();
+    pupil.raw_capacity = RAW_QUEUE;
+    if args.out.join("info.player.json").exists() {
+        bail!(
+            "--out {}: already holds a recording (info.player.json); choose a new directory",
+            args.out.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(record(args, pupil))
+}
+
+/// The writers of one recording, one per stream (the topic's first part).
+struct Recording {
+    dir: PathBuf,
+    writers: BTreeMap<String, PldataWriter>,
+    first_pupil_t: Option<f64>,
+    last_pupil_t: Option<f64>,
+    start_system_s: f64,
+    uuid: String,
+    records: u64,
+}
+
+impl Recording {
+    fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_owned(),
+            writers: BTreeMap::new(),
+            first_pupil_t: None,
+            last_pupil_t: None,
+            start_system_s: SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+            uuid: new_uuid(),
+            records: 0,
+        }
+    }
+
+    fn append(&mut self, d: &RawDatum) -> anyhow::Result<()> {
+        let stream = d.topic.split('.').next().unwrap_or_default();
+        if stream.is_empty() {
+            return Ok(());
+        }
+        if !self.writers.contains_key(stream) {
+            let w = PldataWriter::create(&self.dir, stream)?;
+            self.writers.insert(stream.to_owned(), w);
+        }
+        if let Some(w) = self.writers.get_mut(stream) {
+            w.append(&d.topic, &d.payload, d.pupil_t_secs)?;
+        }
+        if d.pupil_t_secs.is_finite() {
+            self.first_pupil_t.get_or_insert(d.pupil_t_secs);
+            self.last_pupil_t = Some(d.pupil_t_secs);
+        }
+        self.records += 1;
+        Ok(())
+    }
+
+    fn flush_if_due(&mut self) -> anyhow::Result<()> {
+        for w in self.writers.values_mut() {
+            w.flush_if_due()?;
+        }
+        Ok(())
+    }
+
+    /// `info.player.json` (Pupil Player recording format 2.x).
+    fn write_info(&self, version: &str) -> anyhow::Result<()> {
+        let start_synced = self.first_pupil_t.unwrap_or(0.0);
+        let duration = match (self.first_pupil_t, self.last_pupil_t) {
+            (Some(a), Some(b)) => (b - a).max(0.0),
+            _ => 0.0,
+        };
+        let info = serde_json::json!({
+            "meta_version": "2.3",
+            "min_player_version": "2.0",
+            "recording_uuid": self.uuid,
+            "recording_name": self.dir.file_name().and_then(|n| n.to_str()).unwrap_or("gazelight"),
+            "recording_software_name": "gazelight",
+            "recording_software_version": env!("CARGO_PKG_VERSION"),
+            "start_time_system_s": self.start_system_s,
+            "start_time_synced_s": start_synced,
+            "duration_s": duration,
+            "system_info": format!("gazelight record; source Pupil {version}"),
+        });
+        let path = self.dir.join("info.player.json");
+        let text = serde_json::to_string_pretty(&info)?;
+        // Write then rename, so a crash never leaves half a file.
+        let tmp = self.dir.join(".info.player.json.tmp");
+        std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(())
+    }
+
+    /// Closes every stream; returns (stream, records) pairs.
+    fn close(self) -> anyhow::Result<Vec<(String, u64)>> {
+        let mut out = Vec::new();
+        for (name, w) in self.writers {
+            out.push((name, w.close()?));
+        }
+        Ok(out)
+    }
+}
+
+async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
+    let (client, mut streams) = PupilClient::spawn(pupil);
+    client
+        .wait_connected(Duration::from_secs_f64(args.connect_secs))
+        .await
+        .with_context(|| {
+            format!(
+                "no tracker at {}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?",
+                args.source
+            )
+        })?;
+    let Some(mut raw) = streams.raw.take() else {
+        bail!("internal: the Pupil client has no raw channel");
+    };
+    let version = client.stats().version.unwrap_or_default();
+    let mut rec = Recording::new(&args.out);
+    rec.write_info(&version)?;
+    eprintln!(
+        "recording {} (Pupil {version}) into {}{}",
+        args.source,
+        args.out.display(),
+        match args.secs {
+            Some(s) => format!(" for {s:.1} s"),
+            None => "; Ctrl-C stops".to_owned(),
+        }
+    );
+    let started = Instant::now();
+    let deadline = args
+        .secs
+        .map(|s| tokio::time::Instant::now() + Duration::from_secs_f64(s));
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    let mut was_connected = true;
+    let mut last_report = Instant::now();
+    let ctrl_c = tokio::signal::ctrl_c();
+    tokio::pin!(ctrl_c);
+    let reason = loop {
+        let until_deadline = async {
+            match deadline {
+                Some(d) => tokio::time::sleep_until(d).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            d = raw.recv() => match d {
+                Some(d) => rec.append(&d)?,
+                None => break "the Pupil client stopped",
+            },
+            // Decoded samples are not recorded (the raw bytes are); keep
+            // the channel empty so the client does not count drops.
+            _ = streams.samples.recv() => {}
+            _ = tick.tick() => {
+                rec.flush_if_due()?;
+                let stats = client.stats();
+                if was_connected && !stats.connected {
+                    eprintln!(
+                        "tracker lost ({}); recording continues when it is back",
+                        stats.last_error.as_deref().unwrap_or("no reason given")
+                    );
+                } else if !was_connected && stats.connected {
+                    eprintln!("tracker back; recording");
+                }
+                was_connected = stats.connected;
+                if last_report.elapsed() >= Duration::from_secs(10) {
+                    last_report = Instant::now();
+                    eprintln!(
+                        "{:.0} s: {} datums, {} dropped by the queue",
+                        started.elapsed().as_secs_f64(),
+                        rec.records,
+                        stats.raw_dropped
+                    );
+                }
+            }
+            _ = until_deadline => break "duration reached",
+            r = &mut ctrl_c => {
+                if let Err(e) = r {
+                    tracing::warn!(error = %e, "cannot listen for Ctrl-C");
+                    continue;
+                }
+                break "Ctrl-C";
+            }
+        }
+    };
+    // Keep everything that was received: drain the queue before closing.
+    while let Ok(d) = raw.try_recv() {
+        rec.append(&d)?;
+    }
+    let stats = client.stats();
+    client.shutdown().await;
+    rec.write_info(&version)?;
+    let total = rec.records;
+    let streams_written = rec.close()?;
+    let per_stream: Vec<String> = streams_written
+        .iter()
+        .map(|(n, k)| format!("{n}: {k}"))
+        .collect();
+    println!(
+        "stopped ({reason}) after {:.1} s: {total} datums ({}), {} dropped by the queue, {} malformed skipped; wrote {}",
+        started.elapsed().as_secs_f64(),
+        if per_stream.is_empty() {
+            "none".to_owned()
+        } else {
+            per_stream.join(", ")
+        },
+        stats.raw_dropped,
+        stats.malformed,
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// A random RFC 4122 v4 UUID from the kernel, or a time-based fallback.
+fn new_uuid() -> String {
+    if let Ok(s) = std::fs::read_to_string("/proc/sys/kernel/random/uuid") {
+        let s = s.trim();
+        if s.len() == 36 {
+            return s.to_owned();
+        }
+    }
+    let nanos = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    let h = format!("{nanos:032x}");
+    format!(
+        "{}-{}-4{}-8{}-{}",
+        &h[0..8],
+        &h[8..12],
+        &h[13..16],
+        &h[17..20],
+        &h[20..32]
+    )
+}
