@@ -1,9 +1,26 @@
 //! The gazelight frame pipeline on wgpu compute passes.
 //!
-//! Every stage of the CPU reference pipeline in `gazelight-vision` gets a
+//! Every stage of the CPU reference pipeline in `gazelight-vision` has a
 //! WGSL twin here (see DESIGN.md, "Data flow"), matched against it by parity
-//! tests. This crate currently provides the foundation:
+//! tests, and [`GpuFramePipeline`] runs them all, per frame, in one command
+//! encoder with nothing read back between stages:
 //!
+//! - [`frame`]: [`GpuFramePipeline`] — `new(ctx, config, width, height,
+//!   deg_per_px)`, `process(scene, input) -> FrameStats`, `display()`; and,
+//!   for a host renderer on its own device and buffers, `bind_io` +
+//!   `encode(encoder, input)`. Whole-frame display values match
+//!   `FramePipeline` within 1/255;
+//! - [`pooling`] (stage 1): scene import, block luminance and the
+//!   gaze-weighted pooling of every `PoolingModel` as workgroup reductions;
+//! - [`temporal`] (stage 2): the adaptation step, one GPU thread;
+//! - [`psf`] (stage 3): the glare PSF (001 §4.2, eq 5–10) rebuilt on the GPU
+//!   from the live pupil — aperture, FFT, intensity, spectral sum into
+//!   display pixels, normalisation — when the pupil moved more than the
+//!   threshold, cached otherwise;
+//! - [`glare`] (stage 4): windowed FFT convolution at the gaze with the
+//!   Gaussian falloff blend, kernel spectrum cached between rebuilds;
+//! - [`acuity`] (stage 5): σ rule of `AcuityModel`, separable Lab blur;
+//! - [`tone`] (stages 6–8): tone reproduction, colour, sRGB encoding;
 //! - [`context`]: the device — a caller's `wgpu::Device` + `Queue` (library
 //!   use inside a host renderer) or an own one, hardware adapter first,
 //!   software (lavapipe) second, a clear [`GpuError::NoAdapter`] otherwise so
@@ -12,17 +29,14 @@
 //!   each checked against the device limits (workgroup storage, which wgpu 30
 //!   does not check, and workgroup size) before a pipeline is built;
 //! - [`fft`]: a batched 2D Stockham FFT (radix 4/2, complex f32, powers of two
-//!   up to 2048 per side), the transform behind the glare PSF (001 eq 8) and
-//!   the FFT convolution of the frame with it;
-//! - [`psf`]: the glare PSF (001 §4.2, eq 5–10) rebuilt on the GPU from the
-//!   live pupil — aperture, FFT, intensity, spectral sum into display pixels,
-//!   normalisation — matched against `gazelight_vision::psf`;
-//! - [`cpu`]: the f64 reference of the kernels, mirroring their index schemes;
+//!   up to 2048 per side), behind the PSF (001 eq 8) and the glare
+//!   convolution;
+//! - [`cpu`]: the f64 reference of the FFT kernels, mirroring their index
+//!   schemes;
 //! - [`testing`]: the shared test device and the `GAZELIGHT_REQUIRE_GPU` rule.
 //!
-//! The other per-frame stages (pooling, adaptation, glare convolution, acuity,
-//! tone reproduction, scotopic colour, display encode) are not built yet:
-//! until they are, the frame pipeline runs on the CPU reference.
+//! Benchmarks: `benches/gpu_frame.rs` (per stage, GPU timestamps when the
+//! adapter has them), `benches/gpu_psf.rs`, `benches/gpu_fft.rs`.
 
 pub mod acuity;
 pub mod context;
