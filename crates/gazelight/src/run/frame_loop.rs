@@ -26,7 +26,9 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use gazelight_tracker::filter::{DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterConfig, SlewLimiter};
+use gazelight_tracker::filter::{
+    DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterConfig, SlewLimiter,
+};
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil_model::PupilModel;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
@@ -191,7 +193,12 @@ impl FrameLoop {
 
     /// Renders one frame at host time `now_host_secs`, session time
     /// `t_secs`, `dt_secs` after the previous frame.
-    pub fn step(&mut self, now_host_secs: f64, t_secs: f64, dt_secs: f32) -> anyhow::Result<FrameStatus> {
+    pub fn step(
+        &mut self,
+        now_host_secs: f64,
+        t_secs: f64,
+        dt_secs: f32,
+    ) -> anyhow::Result<FrameStatus> {
         let started = Instant::now();
         let live = *self.hub.eye.borrow();
         let mut state = live.state;
@@ -207,7 +214,8 @@ impl FrameLoop {
         );
         for e in [EYE_RIGHT, EYE_LEFT] {
             let ch = &mut state.eyes[e];
-            let measured = (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
+            let measured =
+                (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
             let (filled, origin) = self.fill[e].update(now_host_secs, measured, model_mm);
             let target = if fresh { ch.pupil_mm } else { filled };
             ch.pupil_mm = self.slew[e].step(now_host_secs, target);
@@ -226,14 +234,17 @@ impl FrameLoop {
         };
 
         if let Some((yaw, pitch)) = self.head.orientation(t_secs)
-            && ((yaw - self.view.yaw_deg).abs() > 1e-6 || (pitch - self.view.pitch_deg).abs() > 1e-6)
+            && ((yaw - self.view.yaw_deg).abs() > 1e-6
+                || (pitch - self.view.pitch_deg).abs() > 1e-6)
         {
             self.view.yaw_deg = yaw;
             self.view.pitch_deg = pitch;
             PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
         }
 
-        let stats = self.pipeline.process(&self.view_img, &input, &mut self.out)?;
+        let stats = self
+            .pipeline
+            .process(&self.view_img, &input, &mut self.out)?;
         self.adaptation_cd_m2 = Some(stats.adaptation_cd_m2);
         self.adaptation_cell.set(stats.adaptation_cd_m2);
         if stats.psf_rebuilt {
@@ -254,7 +265,10 @@ impl FrameLoop {
             frames: self.frames,
             frames_late: self.late,
             t_secs,
-            pupil_mm: [state.eyes[EYE_RIGHT].pupil_mm, state.eyes[EYE_LEFT].pupil_mm],
+            pupil_mm: [
+                state.eyes[EYE_RIGHT].pupil_mm,
+                state.eyes[EYE_LEFT].pupil_mm,
+            ],
             frame_pupil_mm: input.pupil_mm,
             gaze_uv: input.gaze_uv,
             adaptation_cd_m2: stats.adaptation_cd_m2,
@@ -267,8 +281,12 @@ impl FrameLoop {
         self.hub.publish_frame(status);
         if t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS {
             self.last_display_secs = t_secs;
-            self.hub
-                .publish_display(self.frames, self.out.width, self.out.height, &self.out.rgba8);
+            self.hub.publish_display(
+                self.frames,
+                self.out.width,
+                self.out.height,
+                &self.out.rgba8,
+            );
         }
         if let Some(w) = &mut self.writer {
             // Read the health without cloning the status (no allocation).
@@ -436,11 +454,18 @@ mod tests {
         }
     }
 
-    fn small_loop(tx_state: LiveEyeState, out: Option<&std::path::Path>) -> (FrameLoop, watch::Sender<LiveEyeState>) {
+    fn small_loop(
+        tx_state: LiveEyeState,
+        out: Option<&std::path::Path>,
+    ) -> (FrameLoop, watch::Sender<LiveEyeState>) {
         let (tx, rx) = watch::channel(tx_state);
         let hub = Hub::new("test://", rx);
-        let scene = Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), LuminanceScale::default())
-            .expect("embedded scene");
+        let scene = Scene::from_bytes(
+            demo::NIGHT_EXR,
+            demo::name_path(),
+            LuminanceScale::default(),
+        )
+        .expect("embedded scene");
         let view = demo::default_view(320, 256);
         let mut config = PipelineConfig::default();
         config.glare.window_px = 128;
@@ -491,7 +516,12 @@ mod tests {
                 // A live-ish state: new samples every frame, gaze moving,
                 // pupil jittering below the rebuild threshold.
                 let u = 0.2 + 0.6 * (i % 10) as f32 / 10.0;
-                tx.send_replace(live_state(t - 0.004, 5.0 + 0.01 * (i % 3) as f32, u, 20 + i));
+                tx.send_replace(live_state(
+                    t - 0.004,
+                    5.0 + 0.01 * (i % 3) as f32,
+                    u,
+                    20 + i,
+                ));
                 fl.step(t, t, dt as f32).expect("frame");
                 t += dt;
             }
@@ -539,7 +569,10 @@ mod tests {
         assert!(model > 4.0, "the night scene's model pupil: {model}");
         let expected = (model - 3.0).min(0.5 * (4.0 - STALE_AFTER_SECS - 0.5) as f32);
         let eased = last.frame_pupil_mm - 3.0;
-        assert!((eased - expected).abs() < 0.15, "eased {eased} mm, expected {expected}: {last:?}");
+        assert!(
+            (eased - expected).abs() < 0.15,
+            "eased {eased} mm, expected {expected}: {last:?}"
+        );
         // The tracker comes back at 6 mm: the pupil returns at ≤ 6 mm/s.
         tx.send_replace(live_state(t, 6.0, 0.5, 3));
         let back = fl.step(t, t, dt as f32).unwrap();

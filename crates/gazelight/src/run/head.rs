@@ -53,10 +53,7 @@ impl HeadTrace {
                     .ok_or_else(|| format!("line {n}: {name} `{f}` is not a finite number"))?;
             }
             if v[2].abs() > 90.0 {
-                return Err(format!(
-                    "line {n}: pitch_deg {} outside −90..=90",
-                    v[2]
-                ));
+                return Err(format!("line {n}: pitch_deg {} outside −90..=90", v[2]));
             }
             if let Some(last) = points.last()
                 && v[0] <= last.0

@@ -142,10 +142,14 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
     };
     let headless = args.headless || config.display.headless.unwrap_or(false);
     if !headless {
-        tracing::warn!("this build has no window yet: running headless (frames go to --out and the hub)");
+        tracing::warn!(
+            "this build has no window yet: running headless (frames go to --out and the hub)"
+        );
     }
     if args.mouse_gaze {
-        tracing::warn!("--mouse-gaze is only meaningful with a window, and this run has none: ignored");
+        tracing::warn!(
+            "--mouse-gaze is only meaningful with a window, and this run has none: ignored"
+        );
     }
     if head == HeadSpec::Mouse {
         head::require_window("--head mouse")?;
@@ -189,8 +193,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let base = demo::default_view(r.size.0, r.size.1);
     let view = ViewParams {
         yaw_deg: args.yaw_deg.or(cfg.scene.yaw_deg).unwrap_or(base.yaw_deg),
-        pitch_deg: args.pitch_deg.or(cfg.scene.pitch_deg).unwrap_or(base.pitch_deg),
-        hfov_deg: args.hfov_deg.or(cfg.scene.hfov_deg).unwrap_or(base.hfov_deg),
+        pitch_deg: args
+            .pitch_deg
+            .or(cfg.scene.pitch_deg)
+            .unwrap_or(base.pitch_deg),
+        hfov_deg: args
+            .hfov_deg
+            .or(cfg.scene.hfov_deg)
+            .unwrap_or(base.hfov_deg),
         width: r.size.0,
         height: r.size.1,
     };

@@ -159,9 +159,11 @@ pub fn open_source(
             let trace = demo::demo_trace(demo_ctx.view, demo_ctx.view_img)
                 .with_context(|| format!("source `{uri}`"))?;
             let samples = DemoSamples::new(trace.samples, demo::DEMO_SECS);
-            let source = ReplaySource::new("synthetic demo (looped)", samples, Pacing::Scaled {
-                speed: 1.0,
-            });
+            let source = ReplaySource::new(
+                "synthetic demo (looped)",
+                samples,
+                Pacing::Scaled { speed: 1.0 },
+            );
             let describe = source.describe();
             let (hub, task) = start_generic(uri, source, chain, adaptation.clone());
             Ok(SourceHandle {
@@ -639,12 +641,8 @@ mod tests {
         });
         let source = ReplaySource::new("t", samples, Pacing::AsFastAsPossible);
         let adaptation = Arc::new(AdaptationCell::default());
-        let (hub, task) = start_generic(
-            "test://",
-            source,
-            FilterChain::with_defaults(),
-            adaptation,
-        );
+        let (hub, task) =
+            start_generic("test://", source, FilterChain::with_defaults(), adaptation);
         let mut rx = hub.samples.subscribe();
         tokio::time::timeout(Duration::from_secs(5), task)
             .await

@@ -142,8 +142,9 @@ impl OutputWriter {
                 for msg in rx {
                     match msg {
                         Msg::Row(r) => {
-                            write_row(&mut timeline, &r)
-                                .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+                            write_row(&mut timeline, &r).with_context(|| {
+                                format!("cannot write {}", timeline_path.display())
+                            })?;
                             report.rows += 1;
                         }
                         Msg::Frame(i, frame) => {

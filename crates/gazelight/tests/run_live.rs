@@ -1,0 +1,496 @@
+//! `gazelight run` end to end against the pyzmq Pupil peer
+//! (crates/gazelight-tracker/tests/pupil_peer.py), on 127.0.0.1 only, every
+//! wait bounded:
+//! - the peer's pupil changes (through its `gazelight.stimulus`
+//!   notification) and the glare kernel is rebuilt for it: the first dark
+//!   ring of the kernel's PSF follows 1.22 λ / D (bigger pupil → smaller
+//!   ring);
+//! - the peer is killed mid-run and restarted: frames keep coming, the
+//!   `EyeState` ages, the health goes Lost then Live, no restart;
+//! - a malformed configuration fails with the field named;
+//! - no tracker at all: a clear message, frames still produced;
+//! - Ctrl-C (SIGINT) ends the run cleanly with a summary.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use gazelight_vision::psf::REFERENCE_WAVELENGTH_NM;
+
+fn python_ready() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import zmq, msgpack"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must have python3 + pyzmq + msgpack"
+        );
+        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
+    }
+    ok
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gazelight-run-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("addr")
+        .port()
+}
+
+struct Peer {
+    child: Child,
+    remote_port: u16,
+}
+
+impl Drop for Peer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn spawn_peer(remote_port: u16, rate_hz: f64, timeout_secs: f64) -> Peer {
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args([
+            "--remote-port",
+            &remote_port.to_string(),
+            "--rate",
+            &rate_hz.to_string(),
+            "--timeout",
+            &timeout_secs.to_string(),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("spawn peer");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY line");
+    let port: u16 = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
+    Peer {
+        child,
+        remote_port: port,
+    }
+}
+
+/// Tells the peer's simulated pupil to respond to a black/white stimulus
+/// (a `notify.gazelight.stimulus` notification through Pupil Remote).
+fn stimulus(remote_port: u16, color: &str) {
+    let script = format!(
+        "import zmq, msgpack\n\
+         c = zmq.Context.instance(); s = c.socket(zmq.REQ)\n\
+         s.setsockopt(zmq.LINGER, 0); s.setsockopt(zmq.RCVTIMEO, 3000)\n\
+         s.connect('tcp://127.0.0.1:{remote_port}')\n\
+         s.send_multipart([b'notify.gazelight.stimulus', msgpack.packb({{'subject': 'gazelight.stimulus', 'color': '{color}'}}, use_bin_type=True)])\n\
+         assert s.recv_string() == 'Message forwarded.'\n"
+    );
+    let out = Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "stimulus: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn spawn_run(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .arg("run")
+        .args(args)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run gazelight")
+}
+
+/// Waits for the child (bounded) and collects its output.
+fn wait_bounded(mut child: Child, limit: Duration) -> Output {
+    let start = Instant::now();
+    loop {
+        if child.try_wait().expect("try_wait").is_some() {
+            return child.wait_with_output().expect("output");
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let out = child.wait_with_output().expect("output");
+            panic!(
+                "gazelight run did not end within {limit:?}; stderr: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// A CSV as a header → column index map and rows of fields.
+struct Csv {
+    header: Vec<String>,
+    rows: Vec<Vec<String>>,
+}
+
+impl Csv {
+    fn read(path: &Path) -> Self {
+        let text =
+            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut lines = text.lines();
+        let header = lines
+            .next()
+            .expect("header")
+            .split(',')
+            .map(str::to_owned)
+            .collect();
+        let rows = lines
+            .map(|l| l.split(',').map(str::to_owned).collect())
+            .collect();
+        Self { header, rows }
+    }
+
+    fn col(&self, name: &str) -> usize {
+        self.header
+            .iter()
+            .position(|h| h == name)
+            .unwrap_or_else(|| panic!("no column {name} in {:?}", self.header))
+    }
+
+    fn f64s(&self, name: &str) -> Vec<f64> {
+        let c = self.col(name);
+        self.rows
+            .iter()
+            .map(|r| r[c].parse::<f64>().expect("number"))
+            .collect()
+    }
+
+    fn strs(&self, name: &str) -> Vec<String> {
+        let c = self.col(name);
+        self.rows.iter().map(|r| r[c].clone()).collect()
+    }
+}
+
+fn assert_success(out: &Output) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(
+        out.status.success(),
+        "exit {:?}; stderr: {stderr}",
+        out.status
+    );
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    stderr
+}
+
+/// The largest gap between consecutive frames, s.
+fn max_gap(t: &[f64]) -> f64 {
+    t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max)
+}
+
+#[test]
+fn live_pupil_changes_rebuild_the_psf_and_its_ring_follows() {
+    if !python_ready() {
+        return;
+    }
+    let peer = spawn_peer(0, 200.0, 40.0);
+    let dir = tmp("psf");
+    let run = spawn_run(&[
+        "--source",
+        &format!("pupil://127.0.0.1:{}", peer.remote_port),
+        "--headless",
+        "--secs",
+        "8",
+        "--size",
+        "320x256",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    std::thread::sleep(Duration::from_millis(2500));
+    stimulus(peer.remote_port, "black");
+    std::thread::sleep(Duration::from_millis(2500));
+    stimulus(peer.remote_port, "white");
+    let out = wait_bounded(run, Duration::from_secs(60));
+    let stderr = assert_success(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("EyeState age median"), "{stdout}");
+    eprintln!("{stdout}");
+
+    let timeline = Csv::read(&dir.join("timeline.csv"));
+    let t = timeline.f64s("t_secs");
+    assert!(t.len() > 100, "{} frames", t.len());
+    assert!(max_gap(&t) < 0.5, "frames stalled: gap {}", max_gap(&t));
+    let health = timeline.strs("source_health");
+    let live = health.iter().filter(|h| *h == "live").count();
+    assert!(
+        live as f64 > 0.7 * health.len() as f64,
+        "live in {live} of {} frames; {stderr}",
+        health.len()
+    );
+    let mut ages: Vec<f64> = timeline
+        .f64s("eye_state_age_ms")
+        .into_iter()
+        .zip(&health)
+        .filter(|(_, h)| *h == "live")
+        .map(|(a, _)| a)
+        .collect();
+    ages.sort_by(f64::total_cmp);
+    let median_age = ages[ages.len() / 2];
+    assert!(
+        median_age < 30.0,
+        "EyeState age median {median_age} ms at 200 Hz"
+    );
+
+    // The kernels built: (t, pupil, first ring).
+    let psf = Csv::read(&dir.join("psf.csv"));
+    let kt = psf.f64s("t_secs");
+    let kp = psf.f64s("pupil_mm");
+    let kr = psf.f64s("first_ring_rad");
+    assert!(kp.len() >= 4, "only {} kernels: {kp:?}", kp.len());
+    // The peer's resting pupil is (3.75 + 4.25) / 2 = 4.0 mm, 1.5× under
+    // black (6.0 mm) and 0.6× under white (2.4 mm).
+    let near = |target: f64| {
+        kp.iter()
+            .position(|p| (p - target).abs() < 0.15)
+            .unwrap_or_else(|| panic!("no kernel built near {target} mm: {kp:?}"))
+    };
+    let (i4, i6, i24) = (near(4.0), near(6.0), near(2.4));
+    assert!(kt[i4] < kt[i6] && kt[i6] < kt[i24], "order {kt:?} {kp:?}");
+    // Bigger pupil → smaller ring, as 1.22 λ / D (Airy; 001 eq 8 for a
+    // clear aperture); the PSF grid samples the ring coarsely, hence 12 %.
+    assert!(
+        kr[i6] < kr[i4] && kr[i4] < kr[i24],
+        "rings {kr:?} for {kp:?}"
+    );
+    let lambda_m = REFERENCE_WAVELENGTH_NM * 1e-9;
+    for &i in &[i4, i6, i24] {
+        let airy = 1.22 * lambda_m / (kp[i] * 1e-3);
+        let err = (kr[i] - airy).abs() / airy;
+        assert!(
+            err < 0.12,
+            "pupil {} mm: ring {} rad vs 1.22λ/D {airy} rad",
+            kp[i],
+            kr[i]
+        );
+    }
+    let ratio = kr[i24] / kr[i6];
+    let expected = kp[i6] / kp[i24];
+    assert!(
+        (ratio / expected - 1.0).abs() < 0.15,
+        "ring ratio {ratio} vs pupil ratio {expected}"
+    );
+    // Every rebuild in the timeline is a kernel in psf.csv (+ the initial).
+    let rebuilt = timeline
+        .f64s("psf_rebuilt")
+        .iter()
+        .filter(|v| **v > 0.5)
+        .count();
+    assert_eq!(rebuilt + 1, kp.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn tracker_vanishes_and_returns_without_a_restart() {
+    if !python_ready() {
+        return;
+    }
+    let port = free_port();
+    let peer = spawn_peer(port, 200.0, 40.0);
+    let dir = tmp("fault");
+    let run = spawn_run(&[
+        "--source",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--headless",
+        "--secs",
+        "12",
+        "--size",
+        "320x256",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    std::thread::sleep(Duration::from_secs(3));
+    drop(peer); // killed
+    std::thread::sleep(Duration::from_secs(3));
+    let _peer = spawn_peer(port, 200.0, 40.0);
+    let out = wait_bounded(run, Duration::from_secs(60));
+    let stderr = assert_success(&out);
+    eprintln!("{}", String::from_utf8_lossy(&out.stdout));
+
+    let timeline = Csv::read(&dir.join("timeline.csv"));
+    let t = timeline.f64s("t_secs");
+    let age = timeline.f64s("eye_state_age_ms");
+    let health = timeline.strs("source_health");
+    let pupil = timeline.f64s("pupil_mm");
+    let held = timeline.f64s("pupil_held");
+    assert!(t.last().copied().unwrap_or(0.0) > 11.0);
+    assert!(max_gap(&t) < 0.5, "frames stalled: gap {}", max_gap(&t));
+    // Live, then Lost, then Live again.
+    let first_live = health.iter().position(|h| h == "live").expect("live");
+    let lost = first_live
+        + health[first_live..]
+            .iter()
+            .position(|h| h == "lost")
+            .unwrap_or_else(|| panic!("never lost; {stderr}"));
+    let back = lost
+        + health[lost..]
+            .iter()
+            .position(|h| h == "live")
+            .unwrap_or_else(|| panic!("never live again; {stderr}"));
+    assert!(t[lost] > 2.5 && t[lost] < 5.0, "lost at {}", t[lost]);
+    assert!(t[back] > 6.0, "live again at {}", t[back]);
+    // The state aged while lost (≥ 3 s without samples) and is fresh again.
+    let max_lost_age = age[lost..back].iter().copied().fold(0.0, f64::max);
+    assert!(
+        max_lost_age > 2500.0,
+        "max age while lost {max_lost_age} ms"
+    );
+    let tail = &age[age.len() - 20..];
+    assert!(
+        tail.iter().all(|a| *a < 100.0),
+        "stale after return: {tail:?}"
+    );
+    // While lost the pupil is held, then eases towards the model pupil at
+    // the (dark) adaptation luminance, away from the live 4.0 mm.
+    assert!(held[lost..back].iter().any(|h| *h > 0.5));
+    let before = pupil[lost.saturating_sub(5)];
+    let end_lost = pupil[back - 1];
+    assert!(
+        (before - 4.0).abs() < 0.2 && (end_lost - before).abs() > 0.3,
+        "pupil {before} mm before, {end_lost} mm at the end of the loss"
+    );
+    // Back to the tracker's 4.0 mm.
+    assert!(
+        (pupil[pupil.len() - 1] - 4.0).abs() < 0.2,
+        "{}",
+        pupil[pupil.len() - 1]
+    );
+    assert!(stderr.contains("lost Pupil Capture"), "{stderr}");
+    assert!(stderr.contains("live again"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn malformed_config_names_the_field() {
+    let dir = tmp("config");
+    for (text, needles) in [
+        ("[display]\nfps = 0.0\n", &["display.fps", "0"][..]),
+        (
+            "[source]\nurl = \"pupil://x\"\n",
+            &["unknown field", "url"][..],
+        ),
+        ("[display]\nsize = \"720*800\"\n", &["display.size"][..]),
+        ("[relay]\naddr = \"somewhere\"\n", &["relay.addr"][..]),
+    ] {
+        let path = dir.join("bad.toml");
+        std::fs::write(&path, text).expect("write");
+        let out = wait_bounded(
+            spawn_run(&["--config", path.to_str().expect("utf-8"), "--secs", "1"]),
+            Duration::from_secs(30),
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{text}: expected failure");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+        assert!(stderr.contains("bad.toml"), "{stderr}");
+        for n in needles {
+            assert!(stderr.contains(n), "{text}: stderr lacks `{n}`: {stderr}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn no_tracker_is_reported_and_frames_continue() {
+    let port = free_port();
+    let dir = tmp("absent");
+    let out = wait_bounded(
+        spawn_run(&[
+            "--source",
+            &format!("pupil://127.0.0.1:{port}"),
+            "--headless",
+            "--secs",
+            "3",
+            "--size",
+            "320x256",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ]),
+        Duration::from_secs(60),
+    );
+    let stderr = assert_success(&out);
+    assert!(
+        stderr.contains(&format!("no Pupil Capture at 127.0.0.1:{port}")),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("frames continue with the pupil model"),
+        "{stderr}"
+    );
+    let timeline = Csv::read(&dir.join("timeline.csv"));
+    let t = timeline.f64s("t_secs");
+    assert!(t.len() > 60, "{} frames in 3 s", t.len());
+    assert!(max_gap(&t) < 0.5);
+    assert!(timeline.strs("source_health").iter().all(|h| h != "live"));
+    // The pupil is the model's, never 0.
+    assert!(
+        timeline
+            .f64s("pupil_mm")
+            .iter()
+            .all(|p| (1.5..9.0).contains(p))
+    );
+    let frames = std::fs::read_dir(dir.join("frames"))
+        .expect("frames")
+        .count();
+    assert!(frames > 10, "{frames} frame images");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn sigint_ends_the_run_cleanly_with_a_summary() {
+    let dir = tmp("sigint");
+    let child = spawn_run(&[
+        "--source",
+        "synthetic://demo",
+        "--headless",
+        "--size",
+        "320x256",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    std::thread::sleep(Duration::from_secs(3));
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    let out = wait_bounded(child, Duration::from_secs(20));
+    assert_success(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("frames in") && stdout.contains("late"),
+        "{stdout}"
+    );
+    let timeline = Csv::read(&dir.join("timeline.csv"));
+    assert!(timeline.rows.len() > 30);
+    let _ = std::fs::remove_dir_all(&dir);
+}
