@@ -206,7 +206,7 @@ impl FrameDecoder {
     /// The next complete frame in the buffer: `None` when more bytes are
     /// needed.
     pub fn next_frame(&mut self) -> Option<Result<FramedSample, FrameError>> {
-        loop {
+        {
             // Find the sync pattern.
             let sync = self
                 .buf
@@ -259,7 +259,7 @@ impl FrameDecoder {
                 Ok(_) => self.frames += 1,
                 Err(_) => self.errors += 1,
             }
-            return Some(result);
+            Some(result)
         }
     }
 }

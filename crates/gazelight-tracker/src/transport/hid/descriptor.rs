@@ -177,7 +177,7 @@ impl Field {
 
     /// Whether the field sits inside a collection with this usage.
     pub fn in_collection(&self, page: u16, usage: u16) -> bool {
-        self.collections.iter().any(|c| *c == (page, usage))
+        self.collections.contains(&(page, usage))
     }
 }
 
