@@ -1,0 +1,866 @@
+//! The live status page: HTTP + WebSocket (axum) on 127.0.0.1 by default.
+//!
+//! | route | content |
+//! | --- | --- |
+//! | `GET /` | a self-contained page (no CDN): plain JS + `<canvas>` plots of the pupil per eye and the adaptation luminance over time, the PSF image and the latest frame |
+//! | `GET /page.js` | the page's script |
+//! | `GET /api/status` | [`Status`] as JSON, versioned by `schema` |
+//! | `GET /api/history` | [`HistoryJson`]: the hub's history ring as arrays |
+//! | `GET /frame.png` | the latest display frame (404 before the first) |
+//! | `GET /psf.png` | the glare kernel in use, log-scaled over [`PSF_DECADES`] decades (404 before the first) |
+//! | `GET /ws` | WebSocket pushing the status JSON every [`ServeOptions::push_interval`] (100 ms) |
+//!
+//! **Bounded WebSocket memory.** One task renders the status JSON per
+//! push interval into a `watch` channel (latest value only), and only while
+//! clients are connected. Each client task sends the newest value when it
+//! changes; a client slower than the pushes skips values (counted in
+//! [`ServeStats::ws_skipped`]) instead of queueing them, and a send that
+//! does not complete within [`ServeOptions::send_timeout`] (a client that
+//! stopped reading and whose socket buffers are full) drops the client
+//! ([`ServeStats::ws_dropped_slow`]). At most one message per client is in
+//! flight at any time ([`ServeStats::ws_in_flight_max`]).
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use anyhow::Context as _;
+use axum::Router;
+use axum::extract::State;
+use axum::extract::ws::{Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use gazelight_tracker::PupilOrigin;
+use gazelight_tracker::pupil::clock::host_now_secs;
+use serde::Serialize;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+use crate::hub::{FrameStatus, Hub, SourceStatus};
+
+/// Version of the `/api/status` and `/api/history` JSON layouts; bumped on
+/// any incompatible change.
+pub const STATUS_SCHEMA: u32 = 1;
+/// Decades of kernel values shown in `/psf.png` (the peak is white, values
+/// below peak·10⁻⁶ black).
+pub const PSF_DECADES: f64 = 6.0;
+
+const PAGE_HTML: &str = include_str!("page.html");
+const PAGE_JS: &str = include_str!("page.js");
+
+/// Server settings.
+#[derive(Clone, Copy, Debug)]
+pub struct ServeOptions {
+    /// Interval of the WebSocket status pushes.
+    pub push_interval: Duration,
+    /// A WebSocket send that takes longer drops the client.
+    pub send_timeout: Duration,
+}
+
+impl Default for ServeOptions {
+    fn default() -> Self {
+        Self {
+            push_interval: Duration::from_millis(100),
+            send_timeout: Duration::from_secs(1),
+        }
+    }
+}
+
+/// Counters of a running server.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ServeStats {
+    /// WebSocket clients connected now.
+    pub ws_clients: u64,
+    /// WebSocket messages sent.
+    pub ws_sent: u64,
+    /// Pushes a client skipped because it was still sending an older one.
+    pub ws_skipped: u64,
+    /// Clients dropped because a send did not complete in time.
+    pub ws_dropped_slow: u64,
+    /// Sends in progress now (all clients).
+    pub ws_in_flight: u64,
+    /// Most sends ever in progress at once, all clients together (each
+    /// client task awaits its one send, so at most the number of clients).
+    pub ws_in_flight_max: u64,
+    /// Status pushes rendered.
+    pub pushes: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    ws_clients: AtomicU64,
+    ws_sent: AtomicU64,
+    ws_skipped: AtomicU64,
+    ws_dropped_slow: AtomicU64,
+    ws_in_flight: AtomicU64,
+    ws_in_flight_max: AtomicU64,
+    pushes: AtomicU64,
+}
+
+impl Counters {
+    fn snapshot(&self) -> ServeStats {
+        let l = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        ServeStats {
+            ws_clients: l(&self.ws_clients),
+            ws_sent: l(&self.ws_sent),
+            ws_skipped: l(&self.ws_skipped),
+            ws_dropped_slow: l(&self.ws_dropped_slow),
+            ws_in_flight: l(&self.ws_in_flight),
+            ws_in_flight_max: l(&self.ws_in_flight_max),
+            pushes: l(&self.pushes),
+        }
+    }
+}
+
+/// Handle to a running server.
+pub struct ServeHandle {
+    addr: SocketAddr,
+    counters: Arc<Counters>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl ServeHandle {
+    /// The bound address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> ServeStats {
+        self.counters.snapshot()
+    }
+
+    /// Waits for the server to end (after the hub's shutdown).
+    pub async fn join(mut self) {
+        for t in self.tasks.drain(..) {
+            let _ = t.await;
+        }
+    }
+}
+
+impl Drop for ServeHandle {
+    fn drop(&mut self) {
+        for t in &self.tasks {
+            t.abort();
+        }
+    }
+}
+
+#[derive(Clone)]
+struct AppState {
+    hub: Arc<Hub>,
+    counters: Arc<Counters>,
+    pushes: watch::Receiver<Utf8Bytes>,
+    options: ServeOptions,
+}
+
+/// Starts the status server on `addr` (port 0 picks a free port) with the
+/// default options; it runs until [`Hub::shutdown_signal`] turns true. A
+/// port in use is an error naming the address.
+pub async fn spawn(hub: Arc<Hub>, addr: SocketAddr) -> anyhow::Result<ServeHandle> {
+    spawn_with(hub, addr, ServeOptions::default()).await
+}
+
+/// [`spawn`] with explicit options.
+pub async fn spawn_with(
+    hub: Arc<Hub>,
+    addr: SocketAddr,
+    options: ServeOptions,
+) -> anyhow::Result<ServeHandle> {
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("status server: binding {addr}"))?;
+    let addr = listener
+        .local_addr()
+        .with_context(|| format!("status server: address of the socket bound to {addr}"))?;
+    let counters = Arc::new(Counters::default());
+    let (push_tx, push_rx) = watch::channel(Utf8Bytes::from_static("{}"));
+    let state = AppState {
+        hub: hub.clone(),
+        counters: counters.clone(),
+        pushes: push_rx,
+        options,
+    };
+    let app = router(state);
+    let mut shutdown = hub.shutdown_signal();
+    let server = tokio::spawn(async move {
+        let stop = async move { shutdown_requested(&mut shutdown).await };
+        if let Err(e) = axum::serve(listener, app)
+            .with_graceful_shutdown(stop)
+            .await
+        {
+            tracing::warn!(error = %e, "status server stopped with an error");
+        }
+    });
+    let pusher = tokio::spawn(push_status(hub, push_tx, counters.clone(), options));
+    tracing::info!(%addr, "status page at http://{addr}/");
+    Ok(ServeHandle {
+        addr,
+        counters,
+        tasks: vec![server, pusher],
+    })
+}
+
+/// Resolves when the shutdown flag is (or becomes) true, or its sender is
+/// gone.
+async fn shutdown_requested(rx: &mut watch::Receiver<bool>) {
+    let _ = rx.wait_for(|v| *v).await;
+}
+
+fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/", get(page))
+        .route("/page.js", get(script))
+        .route("/api/status", get(status_json))
+        .route("/api/history", get(history_json))
+        .route("/frame.png", get(frame_png))
+        .route("/psf.png", get(psf_png))
+        .route("/ws", get(ws_upgrade))
+        .with_state(state)
+}
+
+/// Renders the status into the push channel once per interval while
+/// anyone listens.
+async fn push_status(
+    hub: Arc<Hub>,
+    tx: watch::Sender<Utf8Bytes>,
+    counters: Arc<Counters>,
+    options: ServeOptions,
+) {
+    let mut tick = tokio::time::interval(options.push_interval);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut shutdown = hub.shutdown_signal();
+    loop {
+        tokio::select! {
+            _ = shutdown_requested(&mut shutdown) => break,
+            _ = tick.tick() => {}
+        }
+        // The server's own clone in AppState is one receiver.
+        if tx.receiver_count() <= 1 {
+            continue;
+        }
+        match serde_json::to_string(&Status::collect(&hub)) {
+            Ok(json) => {
+                tx.send_replace(Utf8Bytes::from(json));
+                counters.pushes.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => tracing::warn!(error = %e, "status server: encoding the status"),
+        }
+    }
+}
+
+/// The live eye state as the status reports it.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct EyeStatus {
+    /// Updates of the filter chain since start.
+    pub updates: u64,
+    /// Host time of the state, s.
+    pub t_secs: f64,
+    /// Age of the state now, ms.
+    pub age_ms: f64,
+    /// Filtered gaze, normalised, top-left origin.
+    pub gaze_uv: [f32; 2],
+    pub gaze_valid: bool,
+    pub blink: bool,
+    /// Calibrated pupil per eye [right, left], mm.
+    pub pupil_mm: [f32; 2],
+    /// Where each eye's pupil came from.
+    pub pupil_origin: [PupilOrigin; 2],
+    /// Confidence of each eye's newest raw sample.
+    pub confidence: [f32; 2],
+    /// Pupil the pipeline uses (binocular), mm.
+    pub binocular_pupil_mm: f32,
+}
+
+/// The kernel in use.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct PsfStatus {
+    /// Rebuild counter of the kernel (0 = none yet).
+    pub rebuild: u64,
+    pub pupil_mm: f64,
+    pub size_px: usize,
+}
+
+/// The newest display frame.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct DisplayStatus {
+    /// Frame counter of the snapshot (0 = none yet).
+    pub frame: u64,
+    pub width: usize,
+    pub height: usize,
+}
+
+/// `/api/status` (schema [`STATUS_SCHEMA`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct Status {
+    pub schema: u32,
+    pub service: &'static str,
+    pub version: &'static str,
+    /// Host time of this status, s.
+    pub now_secs: f64,
+    pub shutting_down: bool,
+    /// Tracker source: uri, health, sample rate, confidence, dropout rate.
+    pub source: SourceStatus,
+    pub eye: EyeStatus,
+    /// Frame loop: frames, late frames, timings, adaptation, EyeState age
+    /// at frame time, PSF rebuilds.
+    pub frame: FrameStatus,
+    pub psf: PsfStatus,
+    pub display: DisplayStatus,
+}
+
+impl Status {
+    /// Collects the hub's current values.
+    pub fn collect(hub: &Hub) -> Self {
+        let now = host_now_secs();
+        let live = *hub.eye.borrow();
+        let s = live.state;
+        Self {
+            schema: STATUS_SCHEMA,
+            service: "gazelight",
+            version: env!("CARGO_PKG_VERSION"),
+            now_secs: now,
+            shutting_down: hub.shutting_down(),
+            source: hub.source(),
+            eye: EyeStatus {
+                updates: live.updates,
+                t_secs: s.t_secs,
+                age_ms: s.age_secs(now) * 1e3,
+                gaze_uv: s.gaze_uv,
+                gaze_valid: s.gaze_valid,
+                blink: s.blink,
+                pupil_mm: [s.eyes[0].pupil_mm, s.eyes[1].pupil_mm],
+                pupil_origin: [s.eyes[0].pupil_origin, s.eyes[1].pupil_origin],
+                confidence: [s.eyes[0].confidence, s.eyes[1].confidence],
+                binocular_pupil_mm: s.pupil_mm(),
+            },
+            frame: hub.frame(),
+            psf: hub.with_psf(|p| PsfStatus {
+                rebuild: p.rebuild,
+                pupil_mm: p.pupil_mm,
+                size_px: p.size_px,
+            }),
+            display: hub.with_display(|d| DisplayStatus {
+                frame: d.frame,
+                width: d.width,
+                height: d.height,
+            }),
+        }
+    }
+}
+
+/// `/api/history`: the history ring, oldest first, as parallel arrays.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct HistoryJson {
+    pub schema: u32,
+    pub t_secs: Vec<f64>,
+    pub pupil_right_mm: Vec<f32>,
+    pub pupil_left_mm: Vec<f32>,
+    pub adaptation_cd_m2: Vec<f64>,
+    pub eye_state_age_ms: Vec<f64>,
+    pub frame_ms: Vec<f64>,
+}
+
+impl HistoryJson {
+    /// Copies the hub's history ring.
+    pub fn collect(hub: &Hub) -> Self {
+        hub.with_history(|h| {
+            let n = h.len();
+            let mut out = HistoryJson {
+                schema: STATUS_SCHEMA,
+                t_secs: Vec::with_capacity(n),
+                pupil_right_mm: Vec::with_capacity(n),
+                pupil_left_mm: Vec::with_capacity(n),
+                adaptation_cd_m2: Vec::with_capacity(n),
+                eye_state_age_ms: Vec::with_capacity(n),
+                frame_ms: Vec::with_capacity(n),
+            };
+            for p in h.iter() {
+                out.t_secs.push(p.t_secs);
+                out.pupil_right_mm.push(p.pupil_mm[0]);
+                out.pupil_left_mm.push(p.pupil_mm[1]);
+                out.adaptation_cd_m2.push(p.adaptation_cd_m2);
+                out.eye_state_age_ms.push(p.eye_state_age_ms);
+                out.frame_ms.push(p.frame_ms);
+            }
+            out
+        })
+    }
+}
+
+fn no_store<T: IntoResponse>(content_type: &'static str, body: T) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, content_type),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+async fn page() -> Response {
+    no_store("text/html; charset=utf-8", PAGE_HTML)
+}
+
+async fn script() -> Response {
+    no_store("text/javascript; charset=utf-8", PAGE_JS)
+}
+
+fn json_response<T: Serialize>(value: &T) -> Response {
+    match serde_json::to_string(value) {
+        Ok(s) => no_store("application/json", s),
+        Err(e) => (
+            StatusCode::INTERNAL_SERVER_ERROR,
+            format!("encoding JSON: {e}"),
+        )
+            .into_response(),
+    }
+}
+
+async fn status_json(State(st): State<AppState>) -> Response {
+    json_response(&Status::collect(&st.hub))
+}
+
+async fn history_json(State(st): State<AppState>) -> Response {
+    json_response(&HistoryJson::collect(&st.hub))
+}
+
+fn png_response(
+    width: usize,
+    height: usize,
+    color: image::ExtendedColorType,
+    data: &[u8],
+) -> Response {
+    use image::ImageEncoder as _;
+    let (Ok(w), Ok(h)) = (u32::try_from(width), u32::try_from(height)) else {
+        return (StatusCode::INTERNAL_SERVER_ERROR, "image too large").into_response();
+    };
+    let mut buf = Vec::new();
+    match image::codecs::png::PngEncoder::new(&mut buf).write_image(data, w, h, color) {
+        Ok(()) => no_store("image/png", buf),
+        Err(e) => (
+            StatusCode::INTERNAL_SERVER_ERROR,
+            format!("encoding PNG {width}x{height}: {e}"),
+        )
+            .into_response(),
+    }
+}
+
+async fn frame_png(State(st): State<AppState>) -> Response {
+    // Copy under the lock, encode outside it.
+    let snap = st.hub.with_display(|d| {
+        (d.frame > 0 && d.rgba8.len() == d.width * d.height * 4 && d.width > 0)
+            .then(|| (d.width, d.height, d.rgba8.clone()))
+    });
+    match snap {
+        Some((w, h, px)) => png_response(w, h, image::ExtendedColorType::Rgba8, &px),
+        None => (StatusCode::NOT_FOUND, "no frame yet").into_response(),
+    }
+}
+
+/// The kernel as 8-bit grey, log-scaled: the peak is 255, a value
+/// `PSF_DECADES` decades below it (or less, or non-finite) is 0.
+pub fn psf_log_gray(values: &[f32]) -> Vec<u8> {
+    let peak = values
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0f32, f32::max);
+    values
+        .iter()
+        .map(|&v| {
+            if !(peak > 0.0 && v.is_finite() && v > 0.0) {
+                return 0;
+            }
+            let level = 1.0 + f64::from(v / peak).log10() / PSF_DECADES;
+            (level.clamp(0.0, 1.0) * 255.0).round() as u8
+        })
+        .collect()
+}
+
+async fn psf_png(State(st): State<AppState>) -> Response {
+    let snap = st.hub.with_psf(|p| {
+        (p.rebuild > 0 && p.size_px > 0 && p.values.len() == p.size_px * p.size_px)
+            .then(|| (p.size_px, psf_log_gray(&p.values)))
+    });
+    match snap {
+        Some((n, gray)) => png_response(n, n, image::ExtendedColorType::L8, &gray),
+        None => (StatusCode::NOT_FOUND, "no PSF yet").into_response(),
+    }
+}
+
+async fn ws_upgrade(State(st): State<AppState>, ws: WebSocketUpgrade) -> Response {
+    ws.on_upgrade(move |socket| ws_client(socket, st))
+}
+
+/// One WebSocket client: sends the newest status when it changes; never
+/// more than one send in flight; a stuck send drops the client.
+async fn ws_client(mut socket: WebSocket, st: AppState) {
+    let c = &st.counters;
+    c.ws_clients.fetch_add(1, Ordering::Relaxed);
+    let mut pushes = st.pushes.clone();
+    let mut shutdown = st.hub.shutdown_signal();
+    // Generation counting for skipped pushes.
+    let mut seen = st.counters.pushes.load(Ordering::Relaxed);
+    loop {
+        tokio::select! {
+            _ = shutdown_requested(&mut shutdown) => {
+                let _ = tokio::time::timeout(st.options.send_timeout, socket.send(Message::Close(None))).await;
+                break;
+            }
+            incoming = socket.recv() => match incoming {
+                // The page sends nothing; pings are answered by the library.
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break,
+                Some(Ok(_)) => {}
+            },
+            changed = pushes.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                let msg = pushes.borrow_and_update().clone();
+                let now = c.pushes.load(Ordering::Relaxed);
+                if now > seen + 1 {
+                    c.ws_skipped.fetch_add(now - seen - 1, Ordering::Relaxed);
+                }
+                seen = now;
+                let in_flight = c.ws_in_flight.fetch_add(1, Ordering::Relaxed) + 1;
+                c.ws_in_flight_max.fetch_max(in_flight, Ordering::Relaxed);
+                let sent = tokio::time::timeout(st.options.send_timeout, socket.send(Message::Text(msg))).await;
+                c.ws_in_flight.fetch_sub(1, Ordering::Relaxed);
+                match sent {
+                    Ok(Ok(())) => {
+                        c.ws_sent.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Ok(Err(_)) => break,
+                    Err(_) => {
+                        c.ws_dropped_slow.fetch_add(1, Ordering::Relaxed);
+                        tracing::info!("status server: dropping a WebSocket client that stopped reading");
+                        break;
+                    }
+                }
+            }
+        }
+    }
+    c.ws_clients.fetch_sub(1, Ordering::Relaxed);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gazelight_tracker::EyeState;
+    use gazelight_tracker::pupil::LiveEyeState;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::net::TcpStream;
+
+    fn loopback() -> SocketAddr {
+        "127.0.0.1:0".parse().unwrap()
+    }
+
+    /// A raw HTTP/1.1 GET: (status code, body).
+    async fn get(addr: SocketAddr, path: &str) -> (u16, Vec<u8>) {
+        let mut s = TcpStream::connect(addr).await.unwrap();
+        let req = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+        s.write_all(req.as_bytes()).await.unwrap();
+        let mut buf = Vec::new();
+        tokio::time::timeout(Duration::from_secs(5), s.read_to_end(&mut buf))
+            .await
+            .expect("response in time")
+            .unwrap();
+        let end = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+        let head = String::from_utf8_lossy(&buf[..end]).to_string();
+        let code = head.split(' ').nth(1).unwrap().parse().unwrap();
+        assert!(
+            !head
+                .to_ascii_lowercase()
+                .contains("transfer-encoding: chunked"),
+            "{head}"
+        );
+        (code, buf[end + 4..].to_vec())
+    }
+
+    async fn get_json(addr: SocketAddr, path: &str) -> serde_json::Value {
+        let (code, body) = get(addr, path).await;
+        assert_eq!(code, 200, "{path}");
+        serde_json::from_slice(&body).unwrap()
+    }
+
+    fn live(k: u64, pupil_mm: [f32; 2]) -> LiveEyeState {
+        let mut state = EyeState {
+            t_secs: host_now_secs(),
+            gaze_uv: [0.25, 0.75],
+            gaze_valid: true,
+            ..EyeState::default()
+        };
+        for (e, ch) in state.eyes.iter_mut().enumerate() {
+            ch.pupil_mm = pupil_mm[e];
+            ch.pupil_origin = PupilOrigin::Measured;
+            ch.confidence = 0.9;
+        }
+        LiveEyeState {
+            state,
+            updated_host_secs: state.t_secs,
+            updates: k,
+        }
+    }
+
+    fn frame(n: u64, adaptation_cd_m2: f64, pupil_mm: [f32; 2]) -> FrameStatus {
+        FrameStatus {
+            frames: n,
+            frames_late: n / 10,
+            t_secs: n as f64 / 90.0,
+            pupil_mm,
+            frame_pupil_mm: 0.5 * (pupil_mm[0] + pupil_mm[1]),
+            adaptation_cd_m2,
+            target_cd_m2: adaptation_cd_m2 * 2.0,
+            eye_state_age_ms: 1.5,
+            frame_ms: 6.0,
+            psf_rebuilds: n / 3,
+            ..FrameStatus::default()
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn status_history_and_images_follow_the_hub() {
+        let (tx, rx) = watch::channel(LiveEyeState::default());
+        let hub = Hub::new("pupil://127.0.0.1:50020", rx);
+        let server = spawn(hub.clone(), loopback()).await.unwrap();
+        let addr = server.local_addr();
+
+        let (code, body) = get(addr, "/").await;
+        assert_eq!(code, 200);
+        let html = String::from_utf8(body).unwrap();
+        assert!(html.contains("<canvas") && html.contains("/page.js"));
+        assert!(
+            !html.contains("http://") && !html.contains("https://"),
+            "no CDN"
+        );
+        let (code, js) = get(addr, "/page.js").await;
+        assert_eq!(code, 200);
+        assert!(String::from_utf8(js).unwrap().contains("new WebSocket"));
+        assert_eq!(get(addr, "/frame.png").await.0, 404);
+        assert_eq!(get(addr, "/psf.png").await.0, 404);
+        assert_eq!(get(addr, "/nope").await.0, 404);
+
+        // Session state 1.
+        tx.send_replace(live(10, [3.5, 3.75]));
+        hub.update_source(|s| {
+            s.health = crate::hub::SourceHealth::Live;
+            s.sample_rate_hz = 600.0;
+            s.confidence = 0.93;
+            s.dropout_rate = 0.02;
+        });
+        hub.publish_frame(frame(9, 40.0, [3.5, 3.75]));
+        let s1 = get_json(addr, "/api/status").await;
+        assert_eq!(s1["schema"], STATUS_SCHEMA);
+        assert_eq!(s1["source"]["uri"], "pupil://127.0.0.1:50020");
+        assert_eq!(s1["source"]["health"], "live");
+        assert_eq!(s1["source"]["sample_rate_hz"], 600.0);
+        assert_eq!(s1["source"]["dropout_rate"], 0.02);
+        assert_eq!(s1["eye"]["updates"], 10);
+        assert_eq!(s1["eye"]["pupil_mm"][1], 3.75);
+        assert_eq!(s1["eye"]["pupil_origin"][0], "measured");
+        assert_eq!(s1["frame"]["frames"], 9);
+        assert_eq!(s1["frame"]["adaptation_cd_m2"], 40.0);
+        assert_eq!(s1["frame"]["eye_state_age_ms"], 1.5);
+        assert_eq!(s1["frame"]["psf_rebuilds"], 3);
+        assert!(s1["frame"]["timings"]["total_ms"].is_number());
+        assert!(s1["eye"]["age_ms"].as_f64().unwrap() >= 0.0);
+
+        // Session state 2: the values move.
+        tx.send_replace(live(11, [4.0, 4.25]));
+        hub.publish_frame(frame(10, 12.5, [4.0, 4.25]));
+        let s2 = get_json(addr, "/api/status").await;
+        assert_eq!(s2["eye"]["updates"], 11);
+        assert_eq!(s2["eye"]["pupil_mm"][0], 4.0);
+        assert_eq!(s2["frame"]["frames"], 10);
+        assert_eq!(s2["frame"]["adaptation_cd_m2"], 12.5);
+        assert!(s2["now_secs"].as_f64() > s1["now_secs"].as_f64());
+
+        let h = get_json(addr, "/api/history").await;
+        assert_eq!(h["schema"], STATUS_SCHEMA);
+        assert_eq!(h["adaptation_cd_m2"], serde_json::json!([40.0, 12.5]));
+        assert_eq!(h["pupil_left_mm"], serde_json::json!([3.75, 4.25]));
+        assert_eq!(h["t_secs"].as_array().unwrap().len(), 2);
+
+        // The latest frame, exactly.
+        let (w, hgt) = (6usize, 4usize);
+        let px: Vec<u8> = (0..w * hgt * 4).map(|i| (i * 7 % 251) as u8).collect();
+        hub.publish_display(10, w, hgt, &px);
+        let (code, png) = get(addr, "/frame.png").await;
+        assert_eq!(code, 200);
+        let img = image::load_from_memory(&png).unwrap().to_rgba8();
+        assert_eq!((img.width() as usize, img.height() as usize), (w, hgt));
+        assert_eq!(img.as_raw(), &px);
+
+        // The kernel, log-scaled: peak → 255, 10⁻³ of it → half way
+        // (3 of 6 decades), 10⁻⁷ → 0.
+        let mut k = vec![0.0f32; 9];
+        k[4] = 0.5;
+        k[1] = 0.5e-3;
+        k[7] = 0.5e-7;
+        hub.publish_psf(1, 4.0, 3, &k);
+        let (code, png) = get(addr, "/psf.png").await;
+        assert_eq!(code, 200);
+        let img = image::load_from_memory(&png).unwrap().to_luma8();
+        assert_eq!(img.get_pixel(1, 1).0[0], 255);
+        assert_eq!(img.get_pixel(1, 0).0[0], 128);
+        assert_eq!(img.get_pixel(1, 2).0[0], 0);
+        assert_eq!(img.get_pixel(0, 0).0[0], 0);
+
+        hub.request_shutdown();
+        tokio::time::timeout(Duration::from_secs(3), server.join())
+            .await
+            .expect("the server stops on shutdown");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn port_in_use_is_an_error_naming_the_address() {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = taken.local_addr().unwrap();
+        let (_tx, rx) = watch::channel(LiveEyeState::default());
+        let err = match spawn(Hub::new("test://", rx), addr).await {
+            Ok(_) => panic!("a taken port must fail"),
+            Err(e) => format!("{e:#}"),
+        };
+        assert!(err.contains(&addr.to_string()), "{err}");
+    }
+
+    /// Completes a WebSocket handshake on a raw socket; returns the socket
+    /// and any bytes read past the response head.
+    async fn ws_handshake(stream: &mut TcpStream, addr: SocketAddr) -> Vec<u8> {
+        let req = format!(
+            "GET /ws HTTP/1.1\r\nHost: {addr}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+             Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        );
+        stream.write_all(req.as_bytes()).await.unwrap();
+        let mut buf = Vec::new();
+        let mut chunk = [0u8; 512];
+        loop {
+            let n = tokio::time::timeout(Duration::from_secs(3), stream.read(&mut chunk))
+                .await
+                .unwrap()
+                .unwrap();
+            assert!(n > 0, "closed during the handshake");
+            buf.extend_from_slice(&chunk[..n]);
+            if let Some(end) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
+                let head = String::from_utf8_lossy(&buf[..end]).to_string();
+                assert!(head.starts_with("HTTP/1.1 101"), "{head}");
+                // RFC 6455 §1.3's example key and accept value.
+                assert!(head.contains("s3pPLMBiTxaQ9kYGzzhZRbK+xOo="), "{head}");
+                return buf[end + 4..].to_vec();
+            }
+        }
+    }
+
+    /// Reads one unmasked server text frame.
+    async fn ws_read_text(stream: &mut TcpStream, pending: &mut Vec<u8>) -> String {
+        async fn need(stream: &mut TcpStream, pending: &mut Vec<u8>, n: usize) {
+            let mut chunk = [0u8; 4096];
+            while pending.len() < n {
+                let k = stream.read(&mut chunk).await.unwrap();
+                assert!(k > 0, "closed");
+                pending.extend_from_slice(&chunk[..k]);
+            }
+        }
+        need(stream, pending, 2).await;
+        assert_eq!(pending[0], 0x81, "a final text frame");
+        let (len, head) = match pending[1] & 0x7f {
+            126 => {
+                need(stream, pending, 4).await;
+                (u16::from_be_bytes([pending[2], pending[3]]) as usize, 4)
+            }
+            127 => {
+                need(stream, pending, 10).await;
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&pending[2..10]);
+                (u64::from_be_bytes(b) as usize, 10)
+            }
+            n => (n as usize, 2),
+        };
+        need(stream, pending, head + len).await;
+        let text = String::from_utf8(pending[head..head + len].to_vec()).unwrap();
+        pending.drain(..head + len);
+        text
+    }
+
+    fn rss_kib() -> Option<u64> {
+        let s = std::fs::read_to_string("/proc/self/status").ok()?;
+        let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+        line.split_whitespace().nth(1)?.parse().ok()
+    }
+
+    /// A client that completes the handshake and never reads: pushes at
+    /// 1 kHz (≈ 100× the page's rate) for at least 3 s while a second,
+    /// reading client must keep receiving. The stalled client is dropped once its
+    /// socket buffers are full, nothing queues per client, and the
+    /// process's memory stays flat.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn websocket_client_that_never_reads_is_dropped_memory_bounded() {
+        let (tx, rx) = watch::channel(LiveEyeState::default());
+        let hub = Hub::new("test://", rx);
+        let options = ServeOptions {
+            push_interval: Duration::from_millis(1),
+            send_timeout: Duration::from_millis(300),
+        };
+        let server = spawn_with(hub.clone(), loopback(), options).await.unwrap();
+        let addr = server.local_addr();
+
+        // The stalled client: a small receive buffer, never read.
+        let sock = tokio::net::TcpSocket::new_v4().unwrap();
+        sock.set_recv_buffer_size(4096).unwrap();
+        let mut stalled = sock.connect(addr).await.unwrap();
+        let _ = ws_handshake(&mut stalled, addr).await;
+        // The reading client.
+        let mut reader = TcpStream::connect(addr).await.unwrap();
+        let mut pending = ws_handshake(&mut reader, addr).await;
+
+        let rss_before = rss_kib();
+        let start = std::time::Instant::now();
+        let mut k = 0u64;
+        let mut received = 0u64;
+        let mut seen_updates = std::collections::BTreeSet::new();
+        // At least 3 s, and until the stalled client's socket buffers (the
+        // kernel's, up to a few MB on loopback) are full and it is dropped.
+        while start.elapsed() < Duration::from_secs(3)
+            || (server.stats().ws_dropped_slow == 0 && start.elapsed() < Duration::from_secs(15))
+        {
+            k += 1;
+            tx.send_replace(live(k, [3.0 + (k % 100) as f32 * 0.01, 4.0]));
+            hub.publish_frame(frame(k, 10.0 + k as f64, [3.0, 4.0]));
+            // Read whatever the reading client has, without stalling.
+            while let Ok(text) = tokio::time::timeout(
+                Duration::from_millis(1),
+                ws_read_text(&mut reader, &mut pending),
+            )
+            .await
+            {
+                let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+                assert_eq!(v["schema"], STATUS_SCHEMA);
+                seen_updates.insert(v["eye"]["updates"].as_u64().unwrap());
+                received += 1;
+            }
+        }
+        let stats = server.stats();
+        let rss_after = rss_kib();
+        eprintln!(
+            "ws stats after {:?}: {stats:?}; received by the reader: {received}; RSS {rss_before:?} → {rss_after:?} KiB",
+            start.elapsed()
+        );
+        assert_eq!(stats.ws_dropped_slow, 1, "the stalled client is dropped");
+        assert_eq!(stats.ws_clients, 1, "the reading client stays");
+        assert!(stats.ws_in_flight_max <= 2, "one send per client at most");
+        assert!(received > 100, "the reader keeps receiving ({received})");
+        assert!(seen_updates.len() > 50, "with changing values");
+        if let (Some(a), Some(b)) = (rss_before, rss_after) {
+            assert!(b < a + 32 * 1024, "RSS grew from {a} to {b} KiB");
+        }
+        drop(stalled);
+        hub.request_shutdown();
+        tokio::time::timeout(Duration::from_secs(3), server.join())
+            .await
+            .expect("the server stops on shutdown");
+    }
+}
