@@ -864,3 +864,206 @@ mod tests {
             .expect("the server stops on shutdown");
     }
 }
+
+/// The page in headless Chromium (Debian's `chromium`) against a hub fed
+/// like a session: the page loads, its values change between two loads,
+/// it reports no script errors; a screenshot goes to docs/status_page.png.
+#[cfg(test)]
+mod browser_tests {
+    use super::*;
+    use gazelight_tracker::EyeState;
+    use gazelight_tracker::pupil::LiveEyeState;
+    use std::process::Command;
+
+    const CHROMIUM_FLAGS: [&str; 8] = [
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--hide-scrollbars",
+    ];
+
+    /// Runs chromium with a fresh profile; returns stdout.
+    fn chromium(args: &[String]) -> String {
+        let profile = std::env::temp_dir().join(format!(
+            "gazelight-chromium-{}-{}",
+            std::process::id(),
+            host_now_secs().to_bits()
+        ));
+        let out = Command::new("chromium")
+            .args(CHROMIUM_FLAGS)
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .args(args)
+            .output()
+            .expect("headless Chromium (Debian package `chromium`) must be installed");
+        let _ = std::fs::remove_dir_all(&profile);
+        assert!(
+            out.status.success(),
+            "chromium {args:?}: {}\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    /// The page's mirrored state (`#state`) and counters from a DOM dump.
+    fn page_state(dom: &str) -> (u64, u64, serde_json::Value, String) {
+        let attr = |name: &str| -> u64 {
+            let key = format!("{name}=\"");
+            let i = dom
+                .find(&key)
+                .unwrap_or_else(|| panic!("no {name} in {dom}"))
+                + key.len();
+            dom[i..].split('"').next().unwrap().parse().unwrap()
+        };
+        let start = dom.find("<pre id=\"state\"").expect("#state");
+        let body = &dom[start..];
+        let open = body.find('>').unwrap() + 1;
+        let close = body.find("</pre>").unwrap();
+        let json = body[open..close]
+            .replace("&quot;", "\"")
+            .replace("&amp;", "&");
+        let state = if json.trim().is_empty() {
+            serde_json::Value::Null
+        } else {
+            serde_json::from_str(&json).unwrap()
+        };
+        let e0 = dom.find("<div id=\"errors\">").expect("#errors") + "<div id=\"errors\">".len();
+        let errors = dom[e0..].split("</div>").next().unwrap().to_owned();
+        (attr("data-updates"), attr("data-errors"), state, errors)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn page_loads_updates_and_has_no_errors_in_headless_chromium() {
+        let (tx, rx) = watch::channel(LiveEyeState::default());
+        let hub = Hub::new("pupil://127.0.0.1:50020", rx);
+        // A real glare kernel (001 §4.2) for the PSF image.
+        let kernel = tokio::task::spawn_blocking(|| {
+            gazelight_vision::psf::build_kernel(&gazelight_vision::psf::PsfParams {
+                pupil_mm: 5.0,
+                ..Default::default()
+            })
+        })
+        .await
+        .unwrap()
+        .unwrap();
+        let lum: Vec<f32> = kernel
+            .rgb
+            .iter()
+            .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2])
+            .collect();
+        hub.publish_psf(1, kernel.pupil_mm, kernel.size, &lum);
+        let server = spawn(hub.clone(), "127.0.0.1:0".parse().unwrap())
+            .await
+            .unwrap();
+        let url = format!("http://{}/", server.local_addr());
+
+        // A session at 90 Hz: the pupil constricts after a light step and
+        // the adaptation luminance follows it.
+        let feeder_hub = hub.clone();
+        let feeder = tokio::spawn(async move {
+            let (w, h) = (320usize, 180usize);
+            let mut rgba = vec![0u8; w * h * 4];
+            let mut tick = tokio::time::interval(Duration::from_millis(11));
+            for k in 1u64.. {
+                tick.tick().await;
+                if feeder_hub.shutting_down() {
+                    break;
+                }
+                let t = k as f64 / 90.0;
+                let step = (-(t - 0.5).max(0.0) / 1.5).exp();
+                let pupil = [3.0 + 3.0 * step as f32, 3.1 + 3.0 * step as f32];
+                let adaptation = 10f64.powf(2.0 - 2.0 * step);
+                let mut state = EyeState {
+                    t_secs: host_now_secs(),
+                    gaze_uv: [0.5 + 0.2 * (t.sin() as f32), 0.5],
+                    gaze_valid: true,
+                    ..EyeState::default()
+                };
+                for (e, ch) in state.eyes.iter_mut().enumerate() {
+                    ch.pupil_mm = pupil[e];
+                    ch.pupil_origin = PupilOrigin::Measured;
+                    ch.confidence = 0.95;
+                }
+                tx.send_replace(LiveEyeState {
+                    state,
+                    updated_host_secs: state.t_secs,
+                    updates: k,
+                });
+                feeder_hub.update_source(|s| {
+                    s.health = crate::hub::SourceHealth::Live;
+                    s.sample_rate_hz = 600.0;
+                    s.confidence = 0.95;
+                    s.samples_total = k * 7;
+                });
+                feeder_hub.publish_frame(FrameStatus {
+                    frames: k,
+                    t_secs: t,
+                    pupil_mm: pupil,
+                    frame_pupil_mm: 0.5 * (pupil[0] + pupil[1]),
+                    adaptation_cd_m2: adaptation,
+                    target_cd_m2: 100.0,
+                    eye_state_age_ms: 1.2,
+                    frame_ms: 7.5,
+                    psf_rebuilds: 1,
+                    ..FrameStatus::default()
+                });
+                for (i, px) in rgba.chunks_exact_mut(4).enumerate() {
+                    let (x, y) = (i % w, i / w);
+                    let v = ((x + k as usize) % w * 255 / w) as u8;
+                    px.copy_from_slice(&[v, (y * 255 / h) as u8, 255 - v, 255]);
+                }
+                feeder_hub.publish_display(k, w, h, &rgba);
+            }
+        });
+
+        let dump = |url: String| {
+            tokio::task::spawn_blocking(move || {
+                chromium(&[
+                    "--virtual-time-budget=3000".into(),
+                    "--dump-dom".into(),
+                    url,
+                ])
+            })
+        };
+        let first = dump(url.clone()).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let second = dump(url.clone()).await.unwrap();
+        let (u1, e1, s1, err1) = page_state(&first);
+        let (u2, e2, s2, err2) = page_state(&second);
+        eprintln!("first load: {u1} updates {s1}; second: {u2} updates {s2}");
+        assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
+        assert!(err1.trim().is_empty() && err2.trim().is_empty());
+        assert!(u1 >= 1 && u2 >= 1, "the page got WebSocket updates");
+        let f1 = s1["frames"].as_u64().unwrap();
+        let f2 = s2["frames"].as_u64().unwrap();
+        assert!(f2 > f1, "frames move: {f1} → {f2}");
+        assert_ne!(s1["adaptation_cd_m2"], s2["adaptation_cd_m2"]);
+        assert_ne!(s1["pupil_mm"], s2["pupil_mm"]);
+        assert_eq!(s2["health"], "live");
+        assert_eq!(s2["psf_rebuild"], 1);
+
+        let shot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/status_page.png");
+        let shot_arg = format!("--screenshot={shot}");
+        let u = url.clone();
+        tokio::task::spawn_blocking(move || {
+            chromium(&[
+                "--virtual-time-budget=4000".into(),
+                "--window-size=1280,820".into(),
+                shot_arg,
+                u,
+            ])
+        })
+        .await
+        .unwrap();
+        let img = image::open(shot).expect("the screenshot");
+        assert_eq!((img.width(), img.height()), (1280, 820));
+
+        hub.request_shutdown();
+        let _ = feeder.await;
+        server.join().await;
+    }
+}
