@@ -1,0 +1,215 @@
+//! `gazelight run --http` end to end: a live session against the pyzmq
+//! Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) with the
+//! status server on 127.0.0.1:
+//! - `/api/status` values change while the session runs (frames, EyeState
+//!   updates, adaptation) and show the source live with the peer's pupils;
+//! - the page in headless Chromium (Debian `chromium`): it loads, the
+//!   values it shows change between two loads, no script errors;
+//! - a screenshot of the page for the README: docs/status_page.png.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const CHROMIUM_FLAGS: [&str; 8] = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--hide-scrollbars",
+];
+
+struct Proc(Child);
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("addr")
+        .port()
+}
+
+fn spawn_peer() -> (Proc, u16) {
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args(["--rate", "200", "--timeout", "90"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("python3 with pyzmq + msgpack");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY line");
+    let port = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
+    (Proc(child), port)
+}
+
+/// A raw HTTP/1.1 GET of a JSON document.
+fn get_json(port: u16, path: &str) -> serde_json::Value {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).expect("response");
+    let end = buf.windows(4).position(|w| w == b"\r\n\r\n").expect("head");
+    let head = String::from_utf8_lossy(&buf[..end]);
+    assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
+    serde_json::from_slice(&buf[end + 4..]).expect("JSON body")
+}
+
+fn wait_status(port: u16, limit: Duration) {
+    let start = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(start.elapsed() < limit, "nothing listens on {port}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn chromium(args: &[String]) -> String {
+    let profile = std::env::temp_dir().join(format!(
+        "gazelight-chromium-e2e-{}-{}",
+        std::process::id(),
+        args.len()
+    ));
+    let _ = std::fs::remove_dir_all(&profile);
+    let out = Command::new("chromium")
+        .args(CHROMIUM_FLAGS)
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(args)
+        .output()
+        .expect("headless Chromium (Debian package `chromium`) must be installed");
+    let _ = std::fs::remove_dir_all(&profile);
+    assert!(
+        out.status.success(),
+        "chromium {args:?}: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// (WebSocket updates, script errors, mirrored #state, #errors text).
+fn page_state(dom: &str) -> (u64, u64, serde_json::Value, String) {
+    let attr = |name: &str| -> u64 {
+        let key = format!("{name}=\"");
+        let i = dom
+            .find(&key)
+            .unwrap_or_else(|| panic!("no {name} in {dom}"))
+            + key.len();
+        dom[i..].split('"').next().unwrap().parse().unwrap()
+    };
+    let start = dom.find("<pre id=\"state\"").expect("#state");
+    let body = &dom[start..];
+    let open = body.find('>').unwrap() + 1;
+    let close = body.find("</pre>").unwrap();
+    let json = body[open..close]
+        .replace("&quot;", "\"")
+        .replace("&amp;", "&");
+    let state = if json.trim().is_empty() {
+        serde_json::Value::Null
+    } else {
+        serde_json::from_str(&json).unwrap()
+    };
+    let e0 = dom.find("<div id=\"errors\">").expect("#errors") + "<div id=\"errors\">".len();
+    let errors = dom[e0..].split("</div>").next().unwrap().to_owned();
+    (attr("data-updates"), attr("data-errors"), state, errors)
+}
+
+#[test]
+fn status_page_of_a_live_session() {
+    let (_peer, peer_port) = spawn_peer();
+    let http_port = free_port();
+    let _run = Proc(
+        Command::new(env!("CARGO_BIN_EXE_gazelight"))
+            .args(["run", "--headless", "--size", "480x270", "--secs", "80"])
+            .args(["--source", &format!("pupil://127.0.0.1:{peer_port}")])
+            .args(["--http", &format!("127.0.0.1:{http_port}")])
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("gazelight run"),
+    );
+    wait_status(http_port, Duration::from_secs(20));
+    std::thread::sleep(Duration::from_secs(3));
+
+    // The JSON follows the session.
+    let s1 = get_json(http_port, "/api/status");
+    std::thread::sleep(Duration::from_millis(500));
+    let s2 = get_json(http_port, "/api/status");
+    assert_eq!(s1["schema"], 1);
+    assert_eq!(s2["source"]["health"], "live", "{s2}");
+    assert!(
+        s2["source"]["sample_rate_hz"].as_f64().unwrap() > 100.0,
+        "{s2}"
+    );
+    let f1 = s1["frame"]["frames"].as_u64().unwrap();
+    let f2 = s2["frame"]["frames"].as_u64().unwrap();
+    assert!(f2 > f1, "frames {f1} → {f2}");
+    assert!(s2["eye"]["updates"].as_u64() > s1["eye"]["updates"].as_u64());
+    // The peer's 3D pupils through the identity calibration.
+    let p = &s2["eye"]["pupil_mm"];
+    assert!((p[0].as_f64().unwrap() - 3.75).abs() < 0.05, "{p}");
+    assert!((p[1].as_f64().unwrap() - 4.25).abs() < 0.05, "{p}");
+    assert!(s2["frame"]["adaptation_cd_m2"].as_f64().unwrap() > 0.0);
+    assert!(s2["frame"]["psf_rebuilds"].as_u64().unwrap() >= 1);
+    let h = get_json(http_port, "/api/history");
+    assert!(h["t_secs"].as_array().unwrap().len() > 10);
+
+    // The page in headless Chromium, twice.
+    let url = format!("http://127.0.0.1:{http_port}/");
+    let first = chromium(&[
+        "--virtual-time-budget=3000".into(),
+        "--dump-dom".into(),
+        url.clone(),
+    ]);
+    std::thread::sleep(Duration::from_millis(500));
+    let second = chromium(&[
+        "--virtual-time-budget=3000".into(),
+        "--dump-dom".into(),
+        url.clone(),
+    ]);
+    let (u1, e1, d1, err1) = page_state(&first);
+    let (u2, e2, d2, err2) = page_state(&second);
+    eprintln!("page: {u1} updates {d1}; then {u2} updates {d2}");
+    assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
+    assert!(err1.trim().is_empty() && err2.trim().is_empty());
+    assert!(u1 >= 1 && u2 >= 1, "WebSocket updates reached the page");
+    assert!(d2["frames"].as_u64() > d1["frames"].as_u64(), "{d1} → {d2}");
+    assert_ne!(d1["now_secs"], d2["now_secs"]);
+    assert_eq!(d2["health"], "live");
+    assert!(d2["psf_rebuild"].as_u64().unwrap() >= 1);
+
+    // The README's screenshot.
+    let shot = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/status_page.png");
+    chromium(&[
+        "--virtual-time-budget=4000".into(),
+        "--window-size=1280,820".into(),
+        format!("--screenshot={}", shot.display()),
+        url,
+    ]);
+    let img = image::open(&shot).expect("the screenshot");
+    assert_eq!((img.width(), img.height()), (1280, 820));
+}
