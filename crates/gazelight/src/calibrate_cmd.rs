@@ -4,7 +4,8 @@
 //! The stimulus (black, then white, then nothing) goes to a sink:
 //! `--stimulus remote` sends it to the host application as the
 //! `gazelight.stimulus` notification through the tracker's Pupil Remote
-//! (the host shows the colour full screen); `--stimulus log` only prints it
+//! (the host shows the colour full screen); `--stimulus window` shows it full
+//! screen in the service's own window; `--stimulus log` only prints it
 //! (a technician switching the display by hand, or tests). The samples come
 //! from the live source; each phase's robust statistics map the raw pupil
 //! units linearly onto 2–8 mm per eye. A per-eye summary (samples, valid
@@ -13,6 +14,8 @@
 //! white phase whose pupil is not smaller, is refused with the reason.
 
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
@@ -24,6 +27,26 @@ use gazelight_tracker::calibration::{
 use gazelight_tracker::pupil::{PupilConfig, PupilSource, RemoteSink};
 use gazelight_tracker::source::SampleSource;
 use gazelight_tracker::{Sample, SourceError};
+
+use crate::window::{self, Content, SolidColour, WindowOptions};
+
+fn parse_window_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("`{s}`: expected WIDTHxHEIGHT, e.g. 800x600"))?;
+    let w: u32 = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: width is not a number"))?;
+    let h: u32 = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: height is not a number"))?;
+    if !(16..=16384).contains(&w) || !(16..=16384).contains(&h) {
+        return Err(format!("`{s}`: each side must be 16..=16384 pixels"));
+    }
+    Ok((w, h))
+}
 
 /// Where the stimulus goes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -66,6 +89,12 @@ pub struct CalibrateArgs {
     /// Where the profile is written (JSON, `calibration/schema.json`).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
+    /// Size of the stimulus window when not full screen, WIDTHxHEIGHT.
+    #[arg(long, value_name = "WxH", value_parser = parse_window_size, default_value = "800x600")]
+    pub window_size: (u32, u32),
+    /// Show the stimulus window at its size instead of full screen.
+    #[arg(long)]
+    pub no_fullscreen: bool,
     /// Give up when the tracker sends nothing for this long, s.
     #[arg(long, value_name = "S", default_value_t = 5.0)]
     pub silence_secs: f64,
@@ -116,12 +145,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             args.silence_secs
         );
     }
-    if args.stimulus == StimulusKind::Window {
-        bail!(
-            "--stimulus window: the service's display window is not available in this build; \
-             use --stimulus remote (the host application shows the stimulus) or --stimulus log"
-        );
-    }
     if let Some(parent) = args.out.parent()
         && !parent.as_os_str().is_empty()
         && !parent.is_dir()
@@ -140,13 +163,84 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
-    runtime.block_on(calibrate(args, cfg, pupil))
+    if args.stimulus != StimulusKind::Window {
+        return runtime.block_on(calibrate(args, cfg, pupil, None));
+    }
+
+    // The window needs the main thread: the routine runs beside it and the
+    // window shows the colour the routine sets; closing the window aborts.
+    let colour = SolidColour::new(PRE_STIMULUS_RGB8);
+    let control = Arc::new(WindowControl::default());
+    let options = WindowOptions {
+        title: "gazelight calibration".to_owned(),
+        width: args.window_size.0,
+        height: args.window_size.1,
+        fullscreen: !args.no_fullscreen,
+    };
+    let worker = {
+        let colour = colour.clone();
+        let control = control.clone();
+        std::thread::Builder::new()
+            .name("calibration".into())
+            .spawn(move || {
+                let r =
+                    runtime.block_on(calibrate(args, cfg, pupil, Some((colour, control.clone()))));
+                control.done.store(true, Ordering::Relaxed);
+                r
+            })
+            .context("cannot start the calibration thread")?
+    };
+    let stop = {
+        let control = control.clone();
+        move || control.done.load(Ordering::Relaxed)
+    };
+    let on_close = {
+        let control = control.clone();
+        move || control.cancelled.store(true, Ordering::Relaxed)
+    };
+    let window = window::run(options, Content::Solid(colour), None, stop, on_close);
+    if window.is_err() {
+        control.cancelled.store(true, Ordering::Relaxed);
+    }
+    let result = worker
+        .join()
+        .map_err(|_| anyhow::anyhow!("the calibration thread panicked"))?;
+    window?;
+    result
+}
+
+/// Colour of the window before the first phase and after the last (mid
+/// grey, sRGB-encoded).
+const PRE_STIMULUS_RGB8: [u8; 3] = [128, 128, 128];
+
+/// Shared between the window (main thread) and the routine.
+#[derive(Debug, Default)]
+struct WindowControl {
+    /// The routine has finished (the window closes).
+    done: AtomicBool,
+    /// The user closed the window (the routine aborts).
+    cancelled: AtomicBool,
+}
+
+/// Shows the stimulus full screen in the service's window.
+struct WindowSink(Arc<SolidColour>);
+
+impl StimulusSink for WindowSink {
+    fn show(&mut self, stimulus: Stimulus, _at_t_secs: f64) -> Result<(), StimulusError> {
+        self.0.set(match stimulus {
+            Stimulus::Black => [0, 0, 0],
+            Stimulus::White => [255, 255, 255],
+            Stimulus::None => PRE_STIMULUS_RGB8,
+        });
+        Ok(())
+    }
 }
 
 async fn calibrate(
     args: CalibrateArgs,
     cfg: CalibrationConfig,
     pupil: PupilConfig,
+    window: Option<(Arc<SolidColour>, Arc<WindowControl>)>,
 ) -> anyhow::Result<()> {
     let (mut source, _raw) = PupilSource::spawn(pupil);
     let connect = Duration::from_secs_f64(args.silence_secs);
@@ -173,9 +267,12 @@ async fn calibrate(
         _ => None,
     };
     let mut log = LogSink::default();
-    let inner: &mut (dyn StimulusSink + Send) = match &mut remote {
-        Some(r) => r,
-        None => &mut log,
+    let mut window_sink = window.as_ref().map(|(c, _)| WindowSink(c.clone()));
+    let cancelled = window.as_ref().map(|(_, ctl)| ctl.clone());
+    let inner: &mut (dyn StimulusSink + Send) = match (&mut remote, &mut window_sink) {
+        (Some(r), _) => r,
+        (None, Some(w)) => w,
+        (None, None) => &mut log,
     };
     let mut sink = AnnouncingSink {
         inner: Some(inner),
@@ -187,6 +284,12 @@ async fn calibrate(
     let silence = Duration::from_secs_f64(args.silence_secs);
     let mut skipped = 0u64;
     let outcome: anyhow::Result<()> = loop {
+        if cancelled
+            .as_ref()
+            .is_some_and(|c| c.cancelled.load(Ordering::Relaxed))
+        {
+            break Err(anyhow::anyhow!("the calibration window was closed"));
+        }
         let next = match tokio::time::timeout(silence, source.next()).await {
             Ok(r) => r,
             Err(_) => {

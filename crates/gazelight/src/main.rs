@@ -26,6 +26,9 @@ mod run;
 #[allow(dead_code)]
 mod serve;
 mod service_config;
+// Used by run / calibrate once wired (in progress).
+#[allow(dead_code)]
+mod window;
 
 use clap::{Parser, Subcommand};
 

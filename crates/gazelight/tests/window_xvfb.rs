@@ -1,0 +1,254 @@
+//! The service's window under Xvfb (a real X server, lavapipe presenting
+//! through Vulkan's X11 WSI): screenshots of the root window taken with
+//! `xwd` while the window shows a known thing.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+/// A private X server on a free display number; killed on drop.
+struct Xvfb {
+    child: Child,
+    display: String,
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn have(cmd: &str) -> bool {
+    Command::new("sh")
+        .args(["-c", &format!("command -v {cmd}")])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+fn xvfb() -> Option<Xvfb> {
+    if !(have("Xvfb") && have("xwd")) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must install xvfb and x11-apps"
+        );
+        eprintln!("SKIP: Xvfb / xwd not installed");
+        return None;
+    }
+    for n in 0..20 {
+        let display = format!(":{}", 140 + (std::process::id() % 50) + n * 50);
+        let lock = format!("/tmp/.X{}-lock", &display[1..]);
+        if Path::new(&lock).exists() {
+            continue;
+        }
+        let child = Command::new("Xvfb")
+            .args([&display, "-screen", "0", "800x600x24", "-nolisten", "tcp"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn Xvfb");
+        let x = Xvfb { child, display };
+        // Wait until it accepts connections.
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(10) {
+            let ok = Command::new("xwd")
+                .args([
+                    "-root",
+                    "-silent",
+                    "-display",
+                    &x.display,
+                    "-out",
+                    "/dev/null",
+                ])
+                .output()
+                .map(|o| o.status.success())
+                .unwrap_or(false);
+            if ok {
+                return Some(x);
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+    panic!("no Xvfb display came up");
+}
+
+/// An X window dump (XWD, version 7, 24/32-bit TrueColor) as RGB rows.
+struct Shot {
+    width: usize,
+    height: usize,
+    rgb: Vec<[u8; 3]>,
+}
+
+impl Shot {
+    fn take(display: &str) -> Shot {
+        let out = Command::new("xwd")
+            .args(["-root", "-silent", "-display", display])
+            .output()
+            .expect("xwd");
+        assert!(out.status.success(), "xwd failed");
+        let b = out.stdout;
+        let be =
+            |i: usize| u32::from_be_bytes([b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]]);
+        let header_size = be(0) as usize;
+        assert_eq!(be(1), 7, "XWD version");
+        let (width, height) = (be(4) as usize, be(5) as usize);
+        let byte_order = be(7);
+        let bits_per_pixel = be(11) as usize;
+        let bytes_per_line = be(12) as usize;
+        let (rmask, gmask, bmask) = (be(14), be(15), be(16));
+        let ncolors = be(19) as usize;
+        assert_eq!(bits_per_pixel, 32, "expected a 24/32-bit visual");
+        let data = &b[header_size + 12 * ncolors..];
+        let shift = |m: u32| m.trailing_zeros();
+        let mut rgb = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let i = y * bytes_per_line + 4 * x;
+                let w = [data[i], data[i + 1], data[i + 2], data[i + 3]];
+                let v = if byte_order == 0 {
+                    u32::from_le_bytes(w)
+                } else {
+                    u32::from_be_bytes(w)
+                };
+                rgb.push([
+                    ((v & rmask) >> shift(rmask)) as u8,
+                    ((v & gmask) >> shift(gmask)) as u8,
+                    ((v & bmask) >> shift(bmask)) as u8,
+                ]);
+            }
+        }
+        Shot { width, height, rgb }
+    }
+
+    fn at(&self, x: usize, y: usize) -> [u8; 3] {
+        self.rgb[y * self.width + x]
+    }
+}
+
+fn python_peer() -> Option<(Child, String)> {
+    let ok = Command::new("python3")
+        .args(["-c", "import zmq, msgpack"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        assert!(std::env::var_os("CI").is_none(), "CI must have pyzmq");
+        return None;
+    }
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args(["--remote-port", "0", "--sub-port", "0", "--pub-port", "0"])
+        .args(["--rate", "100", "--timeout", "40"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawn peer");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY");
+    let port = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .expect("port")
+        .to_owned();
+    Some((child, port))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("gazelight-xvfb-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("tmp");
+    dir
+}
+
+/// Streams a child's stderr lines into a channel.
+fn lines_of(child: &mut Child) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    let stderr = child.stderr.take().expect("stderr");
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+fn wait_for(rx: &mpsc::Receiver<String>, needle: &str, limit: Duration, log: &mut String) {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if let Ok(line) = rx.recv_timeout(Duration::from_millis(100)) {
+            log.push_str(&line);
+            log.push('\n');
+            if line.contains(needle) {
+                return;
+            }
+        }
+    }
+    panic!("`{needle}` never appeared; output so far:\n{log}");
+}
+
+#[test]
+fn calibration_window_shows_black_then_white_full_screen() {
+    let Some(x) = xvfb() else { return };
+    let Some((mut peer, port)) = python_peer() else {
+        return;
+    };
+    let dir = tmp("cal");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "calibrate",
+            "--source",
+            &format!("pupil://127.0.0.1:{port}"),
+            "--stimulus",
+            "window",
+            "--phase-secs",
+            "3",
+            "--settle-secs",
+            "1",
+            "--out",
+            dir.join("p.json").to_str().expect("utf-8"),
+        ])
+        .env("DISPLAY", &x.display)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn calibrate");
+    let rx = lines_of(&mut child);
+    let mut log = String::new();
+    wait_for(&rx, "showing BLACK", Duration::from_secs(20), &mut log);
+    std::thread::sleep(Duration::from_millis(1200));
+    let black = Shot::take(&x.display);
+    wait_for(&rx, "showing WHITE", Duration::from_secs(10), &mut log);
+    std::thread::sleep(Duration::from_millis(1200));
+    let white = Shot::take(&x.display);
+    let out = child.wait_with_output().expect("calibrate");
+    let _ = peer.kill();
+    let _ = peer.wait();
+    // Full screen: every corner and the centre carry the stimulus.
+    for (sx, sy) in [(5, 5), (black.width - 5, black.height - 5), (400, 300)] {
+        assert_eq!(black.at(sx, sy), [0, 0, 0], "black phase at ({sx},{sy})");
+        assert_eq!(
+            white.at(sx, sy),
+            [255, 255, 255],
+            "white phase at ({sx},{sy})"
+        );
+    }
+    // The peer's simulated pupil reacts only to `gazelight.stimulus`
+    // notifications, not to light on a screen it cannot see: the routine
+    // must refuse rather than write a profile from a flat response.
+    while let Ok(line) = rx.recv_timeout(Duration::from_secs(2)) {
+        log.push_str(&line);
+        log.push('\n');
+    }
+    assert!(!out.status.success(), "a flat response must be refused");
+    assert!(log.contains("no profile written"), "{log}");
+    assert!(!dir.join("p.json").exists());
+}
