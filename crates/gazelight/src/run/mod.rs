@@ -19,6 +19,7 @@ pub mod head;
 pub mod source_task;
 pub mod writer;
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -98,6 +99,14 @@ pub struct RunArgs {
     /// Scale the scene so its median luminance is this many cd/m².
     #[arg(long)]
     pub scene_key_cd_m2: Option<f64>,
+    /// Re-publish the filtered, calibrated stream as a Pupil-compatible
+    /// Network API with Pupil Remote at this address (e.g. 127.0.0.1:50030).
+    #[arg(long, value_name = "IP:PORT", value_parser = service_config::parse_addr)]
+    pub relay: Option<SocketAddr>,
+    /// Serve the status page and API (HTTP + WebSocket) at this address
+    /// (e.g. 127.0.0.1:8080).
+    #[arg(long, value_name = "IP:PORT", value_parser = service_config::parse_addr)]
+    pub http: Option<SocketAddr>,
     /// Service configuration (TOML); flags override it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
@@ -112,6 +121,8 @@ struct Resolved {
     out: Option<PathBuf>,
     calibration: Option<PathBuf>,
     head: HeadSpec,
+    relay: Option<SocketAddr>,
+    http: Option<SocketAddr>,
     config: ServiceConfig,
 }
 
@@ -154,7 +165,24 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
     if head == HeadSpec::Mouse {
         head::require_window("--head mouse")?;
     }
+    // Validated on load.
+    let addr = |a: &Option<String>| -> anyhow::Result<Option<SocketAddr>> {
+        a.as_deref()
+            .map(service_config::parse_addr)
+            .transpose()
+            .map_err(|e| anyhow::anyhow!(e))
+    };
+    let relay = match args.relay {
+        Some(a) => Some(a),
+        None => addr(&config.relay.addr)?,
+    };
+    let http = match args.http {
+        Some(a) => Some(a),
+        None => addr(&config.http.addr)?,
+    };
     Ok(Resolved {
+        relay,
+        http,
         uri: args
             .source
             .clone()
@@ -261,6 +289,40 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             fps = r.fps,
             "running"
         );
+
+        // Observers of the hub: the Pupil-compatible relay and the status
+        // server. Both run until the hub's shutdown.
+        let endpoints = async {
+            let relay = match r.relay {
+                Some(addr) => {
+                    let h = crate::relay::spawn(hub.clone(), addr)
+                        .await
+                        .with_context(|| format!("--relay {addr}"))?;
+                    tracing::info!(remote = %h.local_addr(), sub_port = h.sub_port(), "relay: Pupil Remote listening");
+                    Some(h)
+                }
+                None => None,
+            };
+            let http = match r.http {
+                Some(addr) => {
+                    let h = crate::serve::spawn(hub.clone(), addr)
+                        .await
+                        .with_context(|| format!("--http {addr}"))?;
+                    tracing::info!("status page at http://{}/", h.local_addr());
+                    Some(h)
+                }
+                None => None,
+            };
+            anyhow::Ok((relay, http))
+        }
+        .await;
+        let _endpoints = match endpoints {
+            Ok(e) => e,
+            Err(e) => {
+                hub.request_shutdown();
+                return Err(e);
+            }
+        };
 
         // Ctrl-C and --secs end the run the same way.
         {

@@ -396,12 +396,10 @@ pub fn spawn_source_task<S: SampleSource + 'static>(
                     hub.update_source(|s| s.health = SourceHealth::Ended);
                     break;
                 }
-                Err(SourceError::Item { .. }) => {
+                Err(e @ SourceError::Item { .. }) => {
                     item_errors += 1;
                     if item_errors <= 10 {
-                        if let Err(e) = &result {
-                            tracing::warn!(error = %e, "skipped a bad item");
-                        }
+                        tracing::warn!(error = %e, "skipped a bad item");
                     }
                 }
                 Err(SourceError::Disconnected { reason, .. }) => {
