@@ -6,6 +6,7 @@
 //! gazelight psf --pupil-mm 4 --out psf/  # one glare kernel as EXR + PNG + JSON
 //! ```
 
+mod backend;
 mod calibrate_cmd;
 mod config;
 mod demo;

@@ -12,9 +12,10 @@ use gazelight_tracker::{
     PupilSample, PupilUnit, Sample, TraceSample,
 };
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput};
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
+use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
 use crate::demo;
 use crate::output::{self, TimelineRow};
@@ -64,6 +65,14 @@ pub struct RenderArgs {
     /// Write only the contact sheet, timeline and plot, not every frame.
     #[arg(long)]
     pub no_frames: bool,
+    /// Frame pipeline: `gpu` = the wgpu pipeline on the best adapter
+    /// (hardware, else a software one such as lavapipe; an error when there
+    /// is none); `cpu` = the CPU reference pipeline; `auto` = a hardware GPU
+    /// when present, else the CPU, because a software adapter runs on the
+    /// same cores and is slower than the CPU pipeline. The choice is logged
+    /// and named in the summary.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    pub backend: BackendChoice,
 }
 
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
@@ -211,8 +220,13 @@ pub(crate) fn render_sequence(
         frames,
         "rendering"
     );
-    let mut pipeline =
-        FramePipeline::new(config.pipeline.clone(), width, height, view.deg_per_px())?;
+    let mut pipeline = Renderer::new(
+        args.backend,
+        &config.pipeline,
+        width,
+        height,
+        view.deg_per_px(),
+    )?;
     let mut out = DisplayFrame::new(width, height);
     let mut last_adaptation = None;
     let mut timeline = Vec::with_capacity(frames);
@@ -263,12 +277,14 @@ pub(crate) fn render_sequence(
         / timeline.len() as f64;
     let rebuilds = timeline.iter().filter(|r| r.stats.psf_rebuilt).count();
     println!(
-        "rendered {frames} frames ({width}x{height}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline, {rebuilds} PSF rebuilds",
+        "rendered {frames} frames ({width}x{height}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline ({}), {rebuilds} PSF rebuilds",
         view.ppd(),
         scene.name,
         started.elapsed().as_secs_f64(),
-        mean_ms
+        mean_ms,
+        pipeline.describe()
     );
+    println!("backend {}", pipeline.describe());
     println!(
         "wrote {}/{{{}contact_sheet.png, timeline.csv, plot.png}}",
         args.out.display(),
