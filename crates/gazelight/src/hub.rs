@@ -136,10 +136,6 @@ impl History {
     pub fn len(&self) -> usize {
         self.len
     }
-
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
 }
 
 /// The newest display frame (RGBA8), copied at a limited rate.

@@ -11,24 +11,17 @@ mod calibrate_cmd;
 mod config;
 mod demo;
 mod devices;
-// Shared by run / serve / relay, which are being built on it.
-#[allow(dead_code)]
 mod hub;
 mod inspect;
 mod output;
 mod psf_cmd;
 mod record_cmd;
-// Started by `run --relay` / `--http`, which are being wired.
-#[allow(dead_code)]
 mod relay;
 mod render;
 mod replay;
 mod run;
-#[allow(dead_code)]
 mod serve;
 mod service_config;
-// Used by run / calibrate once wired (in progress).
-#[allow(dead_code)]
 mod window;
 
 use clap::{Parser, Subcommand};

@@ -128,7 +128,8 @@ impl SolidColour {
 }
 
 /// The cursor over the frame as a normalised gaze (u right, v down, in
-/// [0, 1]), for `--mouse-gaze`; `None` until the cursor enters the frame.
+/// [0, 1]), for `--mouse-gaze`; `None` until the cursor enters the frame,
+/// then the last position over the frame.
 #[derive(Debug, Default)]
 pub struct MouseGaze(Mutex<Option<[f32; 2]>>);
 
@@ -594,15 +595,13 @@ impl ApplicationHandler for App {
                     let cx = (position.x / ww * 2.0 - 1.0) / f64::from(s[0]);
                     let cy = (1.0 - position.y / wh * 2.0) / f64::from(s[1]);
                     let (u, v) = ((cx + 1.0) / 2.0, (1.0 - cy) / 2.0);
-                    let inside = (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v);
-                    mouse.set(inside.then_some([u as f32, v as f32]));
+                    if (0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v) {
+                        mouse.set(Some([u as f32, v as f32]));
+                    }
                 }
             }
-            WindowEvent::CursorLeft { .. } => {
-                if let Some(mouse) = &self.mouse {
-                    mouse.set(None);
-                }
-            }
+            // Leaving the window keeps the last gaze (it does not snap
+            // back to the centre while the user reaches for something).
             WindowEvent::RedrawRequested => {
                 if let Err(e) = self.redraw() {
                     self.fail(event_loop, e);

@@ -252,3 +252,172 @@ fn calibration_window_shows_black_then_white_full_screen() {
     assert!(log.contains("no profile written"), "{log}");
     assert!(!dir.join("p.json").exists());
 }
+
+fn png_rgb(path: &Path) -> (usize, usize, Vec<u8>) {
+    let img = image::open(path).expect("png").to_rgb8();
+    (img.width() as usize, img.height() as usize, img.into_raw())
+}
+
+fn shared(rel: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(rel)
+        .to_str()
+        .expect("utf-8")
+        .to_owned()
+}
+
+#[test]
+fn run_window_shows_the_replayed_session() {
+    let Some(x) = xvfb() else { return };
+    let dir = tmp("run");
+    let (w, h) = (160usize, 120usize);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            "--source",
+            &format!("replay://{}", shared("eye/neon-demo")),
+            "--size",
+            &format!("{w}x{h}"),
+            "--fps",
+            "10",
+            "--secs",
+            "8",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ])
+        .env("DISPLAY", &x.display)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn run");
+    let rx = lines_of(&mut child);
+    let mut log = String::new();
+    wait_for(&rx, "window adapter", Duration::from_secs(30), &mut log);
+    std::thread::sleep(Duration::from_secs(3));
+    let shot = Shot::take(&x.display);
+    let out = child.wait_with_output().expect("run");
+    while let Ok(line) = rx.recv_timeout(Duration::from_secs(2)) {
+        log.push_str(&line);
+        log.push('\n');
+    }
+    assert!(out.status.success(), "run failed:\n{log}");
+    assert!(!log.contains("running headless"), "{log}");
+    // No window manager: the window sits at the root's origin. Its pixels
+    // are one of the frames the session wrote (the window shows the newest
+    // frame; adaptation moves slowly, so the nearest written frame is
+    // within a few codes).
+    let mut region: Vec<u8> = Vec::with_capacity(w * h * 3);
+    for y in 0..h {
+        for x in 0..w {
+            region.extend_from_slice(&shot.at(x, y));
+        }
+    }
+    let max = region.iter().copied().max().unwrap_or(0);
+    assert!(max > 40, "the window region is black: max {max}");
+    let mut best = f64::MAX;
+    let mut best_name = String::new();
+    for entry in std::fs::read_dir(dir.join("frames")).expect("frames") {
+        let path = entry.expect("entry").path();
+        let (fw, fh, rgb) = png_rgb(&path);
+        assert_eq!((fw, fh), (w, h));
+        let mad = rgb
+            .iter()
+            .zip(&region)
+            .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
+            .sum::<f64>()
+            / rgb.len() as f64;
+        if mad < best {
+            best = mad;
+            best_name = path.display().to_string();
+        }
+    }
+    eprintln!("window vs nearest written frame ({best_name}): mean |Δ| = {best:.2} codes");
+    assert!(
+        best < 3.0,
+        "the window does not show the session's frames: {best:.2}"
+    );
+    // Outside the window: the X root (black).
+    assert_eq!(shot.at(w + 50, h + 50), [0, 0, 0]);
+}
+
+#[test]
+fn mouse_gaze_follows_the_cursor() {
+    let Some(x) = xvfb() else { return };
+    if !have("xdotool") {
+        assert!(std::env::var_os("CI").is_none(), "CI must install xdotool");
+        eprintln!("SKIP: xdotool not installed");
+        return;
+    }
+    let dir = tmp("mouse");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            // No tracker: the mouse is the gaze (development mode).
+            "--source",
+            "pupil://127.0.0.1:9",
+            "--mouse-gaze",
+            "--size",
+            "160x120",
+            "--fps",
+            "20",
+            "--secs",
+            "7",
+            "--no-frames",
+            "--out",
+            dir.to_str().expect("utf-8"),
+        ])
+        .env("DISPLAY", &x.display)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn run");
+    let rx = lines_of(&mut child);
+    let mut log = String::new();
+    wait_for(&rx, "window adapter", Duration::from_secs(30), &mut log);
+    std::thread::sleep(Duration::from_millis(800));
+    let mv = |px: &str, py: &str| {
+        let ok = Command::new("xdotool")
+            .args(["mousemove", px, py])
+            .env("DISPLAY", &x.display)
+            .status()
+            .expect("xdotool");
+        assert!(ok.success());
+    };
+    mv("40", "30");
+    std::thread::sleep(Duration::from_millis(1500));
+    mv("120", "90");
+    std::thread::sleep(Duration::from_millis(1500));
+    let out = child.wait_with_output().expect("run");
+    while let Ok(line) = rx.recv_timeout(Duration::from_secs(2)) {
+        log.push_str(&line);
+        log.push('\n');
+    }
+    assert!(out.status.success(), "run failed:\n{log}");
+    let text = std::fs::read_to_string(dir.join("timeline.csv")).expect("timeline");
+    let gaze: Vec<(f64, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[2].parse().expect("u"), f[3].parse().expect("v"))
+        })
+        .collect();
+    let near = |u: f64, v: f64| {
+        gaze.iter()
+            .any(|g| (g.0 - u).abs() < 0.02 && (g.1 - v).abs() < 0.02)
+    };
+    // Pixel centres (40.5, 30.5) and (120.5, 90.5) of a 160×120 frame.
+    assert!(
+        near(0.253, 0.254),
+        "no frame gazed at (0.25, 0.25): {gaze:?}"
+    );
+    assert!(
+        near(0.753, 0.754),
+        "no frame gazed at (0.75, 0.75): {gaze:?}"
+    );
+}

@@ -40,6 +40,7 @@ use super::head::Head;
 use super::source_task::{AdaptationCell, AgeClock};
 use super::writer::{OutputWriter, PsfEvent, Row, WriterReport};
 use crate::hub::{FrameStatus, Hub, SourceHealth};
+use crate::window::{DisplaySlot, MouseGaze};
 
 /// An `EyeState` older than this is stale: the tracker is not delivering.
 pub const STALE_AFTER_SECS: f64 = 0.25;
@@ -63,6 +64,22 @@ pub struct FrameLoopSetup {
     pub head: Head,
     pub fps: f64,
     pub writer: Option<OutputWriter>,
+    /// The window's newest-frame slot (every frame is offered to it).
+    pub display: Option<Arc<DisplaySlot>>,
+    /// The cursor as gaze (`--mouse-gaze`) or as head orientation
+    /// (`--head mouse`), from the window.
+    pub mouse: Option<MouseControl>,
+}
+
+/// What the mouse drives in a windowed run.
+#[derive(Clone, Debug)]
+pub struct MouseControl {
+    pub cursor: Arc<MouseGaze>,
+    /// The cursor is the gaze (development without a tracker).
+    pub gaze: bool,
+    /// The cursor turns the head: the view centre follows it across the
+    /// field of view, from the configured orientation.
+    pub head: bool,
 }
 
 /// What a finished run did.
@@ -110,6 +127,10 @@ pub struct FrameLoop {
     frame_ms_sum: f64,
     fps: f64,
     writer: Option<OutputWriter>,
+    display: Option<Arc<DisplaySlot>>,
+    mouse: Option<MouseControl>,
+    /// Head orientation the mouse-driven head turns from.
+    base_yaw_pitch_deg: (f64, f64),
 }
 
 impl FrameLoop {
@@ -127,6 +148,8 @@ impl FrameLoop {
             head,
             fps,
             writer,
+            display,
+            mouse,
         } = setup;
         let pipeline = FramePipeline::new(pipeline, view.width, view.height, view.deg_per_px())?;
         let mut view = view;
@@ -164,6 +187,9 @@ impl FrameLoop {
             frame_ms_sum: 0.0,
             fps,
             writer,
+            display,
+            mouse,
+            base_yaw_pitch_deg: (view.yaw_deg, view.pitch_deg),
         };
         this.publish_kernel(0.0);
         Ok(this)
@@ -227,13 +253,32 @@ impl FrameLoop {
             .eyes
             .iter()
             .any(|e| e.pupil_origin != PupilOrigin::Measured);
+        let cursor = self.mouse.as_ref().and_then(|m| m.cursor.get());
+        if let (Some(m), Some(uv)) = (&self.mouse, cursor)
+            && m.gaze
+        {
+            state.gaze_uv = uv;
+            state.gaze_valid = true;
+        }
         let input = FrameInput {
             gaze_uv: state.gaze_uv,
             pupil_mm: state.pupil_mm(),
             dt_secs: dt_secs.clamp(0.0, MAX_DT_SECS),
         };
 
-        if let Some((yaw, pitch)) = self.head.orientation(t_secs)
+        let mouse_head = match (&self.mouse, cursor) {
+            (Some(m), Some(uv)) if m.head => {
+                let vfov_deg =
+                    self.view.hfov_deg * self.view.height as f64 / self.view.width as f64;
+                Some((
+                    self.base_yaw_pitch_deg.0 + (f64::from(uv[0]) - 0.5) * self.view.hfov_deg,
+                    (self.base_yaw_pitch_deg.1 - (f64::from(uv[1]) - 0.5) * vfov_deg)
+                        .clamp(-89.0, 89.0),
+                ))
+            }
+            _ => None,
+        };
+        if let Some((yaw, pitch)) = mouse_head.or_else(|| self.head.orientation(t_secs))
             && ((yaw - self.view.yaw_deg).abs() > 1e-6
                 || (pitch - self.view.pitch_deg).abs() > 1e-6)
         {
@@ -279,6 +324,9 @@ impl FrameLoop {
             psf_rebuilds: self.psf_rebuilds,
         };
         self.hub.publish_frame(status);
+        if let Some(slot) = &self.display {
+            slot.put(&self.out.rgba8);
+        }
         if t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS {
             self.last_display_secs = t_secs;
             self.hub.publish_display(
@@ -487,6 +535,9 @@ mod tests {
             head: Head::Fixed,
             fps: 90.0,
             writer,
+            // The window's slot takes every frame: part of the steady state.
+            display: Some(DisplaySlot::new(view.width as u32, view.height as u32)),
+            mouse: None,
         })
         .expect("frame loop");
         (fl, tx)

@@ -108,7 +108,7 @@ impl Head {
 
 /// Refuses `mouse` without a window.
 pub fn require_window(what: &str) -> anyhow::Result<()> {
-    bail!("{what} needs a window, and this build runs headless only (the window is not built yet)")
+    bail!("{what} needs the window: drop --headless (or set display.headless = false)")
 }
 
 #[cfg(test)]

@@ -11,8 +11,11 @@
 //! frame loop finishes its frame, the outputs are flushed and a summary
 //! (frames, late frames, `EyeState` age median/p99) is printed.
 //!
-//! This build is headless (frames go to `--out` and the hub); the window
-//! (winit + wgpu) is future work.
+//! Frames are shown in the service's window (winit + a wgpu surface, vsync;
+//! see [`crate::window`]) unless `--headless`; the window takes the newest
+//! frame and never slows the loop. With `--mouse-gaze` the cursor is the
+//! gaze, with `--head mouse` it turns the head. Frames also go to `--out`
+//! and to the hub (status page, relay).
 
 pub mod frame_loop;
 pub mod head;
@@ -21,6 +24,8 @@ pub mod writer;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
@@ -32,7 +37,8 @@ use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
 use crate::demo;
 use crate::service_config::{self, HeadSpec, ServiceConfig};
-use frame_loop::{FrameLoop, FrameLoopSetup, RunSummary};
+use crate::window::{self, Content, DisplaySlot, MouseGaze, WindowOptions};
+use frame_loop::{FrameLoop, FrameLoopSetup, MouseControl, RunSummary};
 use head::{Head, HeadTrace};
 use source_task::{DemoContext, open_source};
 use writer::OutputWriter;
@@ -82,9 +88,14 @@ pub struct RunArgs {
     /// With --out: write timeline.csv and psf.csv only, no frame images.
     #[arg(long)]
     pub no_frames: bool,
-    /// Run with no window (this build has none yet: always headless).
+    /// Run with no window (frames go to --out and the hub). Without it the
+    /// frames are shown in a window (winit + wgpu, vsync); when no display
+    /// can be opened the run goes on headless and says so.
     #[arg(long)]
     pub headless: bool,
+    /// Show the window full screen (borderless) instead of at the frame size.
+    #[arg(long)]
+    pub fullscreen: bool,
     /// Calibration profile (JSON, calibration/schema.json) mapping the
     /// tracker's raw pupil units onto millimetres.
     #[arg(long, value_name = "FILE")]
@@ -121,6 +132,7 @@ struct Resolved {
     out: Option<PathBuf>,
     calibration: Option<PathBuf>,
     head: HeadSpec,
+    headless: bool,
     relay: Option<SocketAddr>,
     http: Option<SocketAddr>,
     config: ServiceConfig,
@@ -152,17 +164,10 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
         (None, None) => HeadSpec::Fixed,
     };
     let headless = args.headless || config.display.headless.unwrap_or(false);
-    if !headless {
-        tracing::warn!(
-            "this build has no window yet: running headless (frames go to --out and the hub)"
-        );
+    if headless && args.mouse_gaze {
+        bail!("--mouse-gaze needs the window: drop --headless");
     }
-    if args.mouse_gaze {
-        tracing::warn!(
-            "--mouse-gaze is only meaningful with a window, and this run has none: ignored"
-        );
-    }
-    if head == HeadSpec::Mouse {
+    if headless && head == HeadSpec::Mouse {
         head::require_window("--head mouse")?;
     }
     // Validated on load.
@@ -181,6 +186,7 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
         None => addr(&config.http.addr)?,
     };
     Ok(Resolved {
+        headless,
         relay,
         http,
         uri: args
@@ -238,8 +244,26 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let head = match &r.head {
         HeadSpec::Fixed => Head::Fixed,
         HeadSpec::Trace(p) => Head::Trace(HeadTrace::load(p)?),
-        HeadSpec::Mouse => unreachable!("refused in resolve"),
+        // Driven by the window's cursor (refused headless in `resolve`).
+        HeadSpec::Mouse => Head::Fixed,
     };
+    let window = (!r.headless).then(|| {
+        (
+            DisplaySlot::new(view.width as u32, view.height as u32),
+            Arc::new(MouseGaze::default()),
+        )
+    });
+    let mouse = window.as_ref().and_then(|(_, cursor)| {
+        (args.mouse_gaze || r.head == HeadSpec::Mouse).then(|| MouseControl {
+            cursor: cursor.clone(),
+            gaze: args.mouse_gaze,
+            head: r.head == HeadSpec::Mouse,
+        })
+    });
+    let display = window.as_ref().map(|(slot, _)| slot.clone());
+    // The window (main thread) and the session (below) stop each other.
+    let session_done = Arc::new(AtomicBool::new(false));
+    let window_closed = Arc::new(AtomicBool::new(false));
 
     // Filter chain (+ calibration).
     let calibration = match &r.calibration {
@@ -272,7 +296,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         .thread_name("gazelight-io")
         .build()
         .context("cannot start the tokio runtime")?;
-    let summary = runtime.block_on(async {
+    let session = || {
+        runtime.block_on(async {
         let source = open_source(
             &r.uri,
             chain,
@@ -316,7 +341,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             anyhow::Ok((relay, http))
         }
         .await;
-        let _endpoints = match endpoints {
+        let (relay, http) = match endpoints {
             Ok(e) => e,
             Err(e) => {
                 hub.request_shutdown();
@@ -324,7 +349,21 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             }
         };
 
-        // Ctrl-C and --secs end the run the same way.
+        // Ctrl-C, --secs and closing the window end the run the same way.
+        {
+            let hub = hub.clone();
+            let closed = window_closed.clone();
+            tokio::spawn(async move {
+                let mut tick = tokio::time::interval(Duration::from_millis(50));
+                while !hub.shutting_down() {
+                    tick.tick().await;
+                    if closed.load(Ordering::Relaxed) {
+                        tracing::info!("window closed: shutting down");
+                        hub.request_shutdown();
+                    }
+                }
+            });
+        }
         {
             let hub = hub.clone();
             tokio::spawn(async move {
@@ -353,6 +392,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             head,
             fps: r.fps,
             writer,
+            display,
+            mouse,
         };
         let (done_tx, done_rx) = tokio::sync::oneshot::channel();
         let thread_hub = hub.clone();
@@ -377,9 +418,59 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 tracing::warn!("a source task did not stop within 3 s");
             }
         }
+        // The relay and the status server stop on the hub's shutdown.
+        if let Some(h) = relay {
+            let stats = h.stats();
+            tracing::info!(?stats, pub_port = h.pub_port(), "relay stopped");
+            let _ = tokio::time::timeout(Duration::from_secs(2), h.join()).await;
+        }
+        if let Some(h) = http {
+            let stats = h.stats();
+            tracing::info!(?stats, "status server stopped");
+            let _ = tokio::time::timeout(Duration::from_secs(2), h.join()).await;
+        }
         let status = hub.source();
         result.map(|s| (s, status))
-    });
+    })
+    };
+    let summary = match window {
+        None => session(),
+        Some((slot, cursor)) => std::thread::scope(|scope| {
+            let worker = scope.spawn(|| {
+                let r = session();
+                session_done.store(true, Ordering::Relaxed);
+                r
+            });
+            let options = WindowOptions {
+                title: format!("gazelight — {}", r.uri),
+                width: view.width as u32,
+                height: view.height as u32,
+                fullscreen: args.fullscreen,
+            };
+            let done = session_done.clone();
+            let closed = window_closed.clone();
+            let shown = window::run(
+                options,
+                Content::Frames(slot.clone()),
+                Some(cursor),
+                move || done.load(Ordering::Relaxed),
+                move || closed.store(true, Ordering::Relaxed),
+            );
+            match shown {
+                Ok(stats) => tracing::info!(
+                    presented = stats.presented,
+                    skipped = slot.skipped(),
+                    "window closed"
+                ),
+                Err(e) => {
+                    eprintln!("no window ({e:#}); running headless");
+                }
+            }
+            worker
+                .join()
+                .unwrap_or_else(|_| Err(anyhow::anyhow!("the session thread panicked")))
+        }),
+    };
     runtime.shutdown_timeout(Duration::from_secs(1));
     let (summary, source) = summary?;
     print_summary(&summary, r.fps, &source, r.out.as_deref());
