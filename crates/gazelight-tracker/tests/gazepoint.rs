@@ -63,10 +63,12 @@ async fn handshake_records_malformed_record_drop_and_reconnect() {
             full_record(3, 5.02991, (0.1, 0.9, 0), 3.95, 0.0),
         ],
         drop_after: true,
+        line_interval: None,
     };
     let session2 = Session {
         lines: vec![full_record(1, 0.01667, (0.75, 0.25, 1), 5.5, 5.4)],
         drop_after: false,
+        line_interval: None,
     };
     let simulator = sim::start(vec![session1, session2]).await.unwrap();
     let mut src = GazepointSource::with_timeouts("127.0.0.1", simulator.addr.port(), timeouts());

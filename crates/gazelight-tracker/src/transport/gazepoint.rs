@@ -608,6 +608,9 @@ pub mod sim {
         pub lines: Vec<String>,
         /// Close the connection after the last line.
         pub drop_after: bool,
+        /// Time between lines (a tracker's sample period); `None` sends
+        /// them all at once.
+        pub line_interval: Option<std::time::Duration>,
     }
 
     /// A running simulator.
@@ -676,6 +679,9 @@ pub mod sim {
                     continue;
                 }
                 for l in &session.lines {
+                    if let Some(dt) = session.line_interval {
+                        tokio::time::sleep(dt).await;
+                    }
                     if w.write_all(format!("{l}\r\n").as_bytes()).await.is_err() {
                         break;
                     }

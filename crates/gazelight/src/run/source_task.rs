@@ -26,6 +26,7 @@ use gazelight_tracker::filter::{ConfidenceGate, FilterChain};
 use gazelight_tracker::import;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil::{LiveEyeState, PupilClient, PupilConfig};
+use gazelight_tracker::transport::{self, SourceUri};
 use gazelight_tracker::{
     DetectorMethod, EYE_LEFT, EYE_RIGHT, GazeEyes, GazeSample, Pacing, PupilSample, PupilUnit,
     ReplaySource, Sample, SampleSource, SourceError, TraceSample,
@@ -174,8 +175,26 @@ pub fn open_source(
                 describe,
             })
         }
+        // Hardware transports of the tracker crate: HID, raw USB, serial,
+        // the Gazepoint Open Gaze API. They go through the same generic
+        // task (filter chain → hub) as a replay, on the host clock.
+        "hid" | "usb" | "serial" | "gazepoint" => {
+            let parsed =
+                SourceUri::parse(uri).map_err(|e| anyhow::anyhow!("source `{uri}`: {e}"))?;
+            let source = transport::open(&parsed).with_context(|| format!("source `{uri}`"))?;
+            let describe = source.describe();
+            let (hub, task) = start_generic(uri, source, chain, adaptation.clone());
+            Ok(SourceHandle {
+                hub,
+                age_clock: AgeClock::PublishTime,
+                adaptation,
+                tasks: vec![task],
+                describe,
+            })
+        }
         other => bail!(
-            "source `{uri}`: unknown scheme `{other}` (expected pupil://, replay:// or synthetic://)"
+            "source `{uri}`: unknown scheme `{other}` (expected pupil://, replay://, synthetic://, \
+             hid://, usb://, serial:// or gazepoint://)"
         ),
     }
 }
