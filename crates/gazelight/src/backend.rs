@@ -232,7 +232,6 @@ impl Renderer {
     }
 
     /// Why this backend was chosen (e.g. "auto: hardware GPU present").
-    #[allow(dead_code)] // for `run`'s status output, being wired
     pub fn reason(&self) -> &str {
         match self {
             Renderer::Cpu(_, why) | Renderer::Gpu(_, why) => why,
@@ -287,7 +286,6 @@ impl Renderer {
     /// The current PSF kernel at display pixels (`None` with glare off). On
     /// the GPU it is read back (blocking) the first time after a rebuild and
     /// cached: call it on rebuilds, not every frame.
-    #[allow(dead_code)] // for `run`'s psf.csv and status page, being wired
     pub fn psf_kernel(&mut self) -> anyhow::Result<Option<&PsfKernel>> {
         match self {
             Renderer::Cpu(p, _) => Ok(p.psf_kernel()),

@@ -33,12 +33,13 @@ use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil_model::PupilModel;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline, PipelineConfig};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, PipelineConfig};
 use gazelight_vision::scene::{PanoramaView, ViewParams};
 
 use super::head::Head;
 use super::source_task::{AdaptationCell, AgeClock};
 use super::writer::{OutputWriter, PsfEvent, Row, WriterReport};
+use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub, SourceHealth};
 use crate::window::{DisplaySlot, MouseGaze};
 
@@ -57,6 +58,8 @@ pub struct FrameLoopSetup {
     pub age_clock: AgeClock,
     pub adaptation: Arc<AdaptationCell>,
     pub pipeline: PipelineConfig,
+    /// Which frame pipeline renders (CPU reference or GPU).
+    pub backend: BackendChoice,
     pub filter: FilterConfig,
     /// The panorama, cd/m².
     pub pano: RgbImage,
@@ -106,7 +109,7 @@ pub struct FrameLoop {
     hub: Arc<Hub>,
     age_clock: AgeClock,
     adaptation_cell: Arc<AdaptationCell>,
-    pipeline: FramePipeline,
+    pipeline: Renderer,
     pano: RgbImage,
     view: ViewParams,
     view_img: RgbImage,
@@ -142,6 +145,7 @@ impl FrameLoop {
             age_clock,
             adaptation,
             pipeline,
+            backend,
             filter,
             pano,
             view,
@@ -151,7 +155,14 @@ impl FrameLoop {
             display,
             mouse,
         } = setup;
-        let pipeline = FramePipeline::new(pipeline, view.width, view.height, view.deg_per_px())?;
+        let mut pipeline = Renderer::new(
+            backend,
+            &pipeline,
+            view.width,
+            view.height,
+            view.deg_per_px(),
+        )?;
+        tracing::info!(backend = %pipeline.describe(), reason = pipeline.reason(), "frame pipeline");
         let mut view = view;
         if let Some((yaw, pitch)) = head.orientation(0.0) {
             view.yaw_deg = yaw;
@@ -161,7 +172,7 @@ impl FrameLoop {
         PanoramaView::new(view)?.render(&pano, &mut view_img);
         let model = filter.pupil_model;
         let model_mm = model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
-        let kernel_len = pipeline.psf_kernel().map_or(0, |k| k.size * k.size);
+        let kernel_len = pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size);
         let mut this = Self {
             hub,
             age_clock,
@@ -197,7 +208,14 @@ impl FrameLoop {
 
     fn publish_kernel(&mut self, t_secs: f64) {
         let generation = self.psf_rebuilds + 1;
-        if let Some(k) = self.pipeline.psf_kernel() {
+        let kernel = match self.pipeline.psf_kernel() {
+            Ok(k) => k,
+            Err(e) => {
+                tracing::warn!(error = %format!("{e:#}"), "cannot read the glare kernel back");
+                None
+            }
+        };
+        if let Some(k) = kernel {
             self.psf_scratch.clear();
             // Rec. 709 luminance of the linear-sRGB kernel.
             self.psf_scratch.extend(
@@ -529,6 +547,7 @@ mod tests {
             age_clock: AgeClock::SampleTime,
             adaptation: Arc::new(AdaptationCell::default()),
             pipeline: config,
+            backend: BackendChoice::Cpu,
             filter: FilterConfig::default(),
             pano: scene.image,
             view,

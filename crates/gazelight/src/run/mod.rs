@@ -35,6 +35,7 @@ use gazelight_tracker::filter::FilterChain;
 use gazelight_vision::RgbImage;
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
+use crate::backend::BackendChoice;
 use crate::demo;
 use crate::service_config::{self, HeadSpec, ServiceConfig};
 use crate::window::{self, Content, DisplaySlot, MouseGaze, WindowOptions};
@@ -93,6 +94,10 @@ pub struct RunArgs {
     /// can be opened the run goes on headless and says so.
     #[arg(long)]
     pub headless: bool,
+    /// Frame pipeline: auto (a hardware GPU when present, else the CPU —
+    /// a software adapter is slower than the CPU pipeline), gpu, or cpu.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    pub backend: BackendChoice,
     /// Show the window full screen (borderless) instead of at the frame size.
     #[arg(long)]
     pub fullscreen: bool,
@@ -386,6 +391,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             age_clock: source.age_clock,
             adaptation: source.adaptation.clone(),
             pipeline: cfg.pipeline.clone(),
+            backend: args.backend,
             filter: cfg.filter,
             pano: scene.image,
             view,
