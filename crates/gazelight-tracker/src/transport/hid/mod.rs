@@ -11,5 +11,7 @@ pub mod descriptor;
 pub mod livetrack;
 pub mod page12;
 pub mod source;
+#[doc(hidden)]
+pub mod testdata;
 
 pub use source::{HidOptions, HidProfile, HidSource, HidStats};
