@@ -138,6 +138,23 @@ impl ColourFrame {
         self.shift(rgb)
     }
 
+    /// [`apply`](Self::apply) as a matrix: `apply(rgb) = M·rgb` (both
+    /// models are linear in the colour), `M[i][j] = apply(e_j)[i]`. The
+    /// frame pipeline folds it with a linear tone operator into one affine
+    /// map per frame.
+    pub fn matrix(&self) -> [[f32; 3]; 3] {
+        let cols = [
+            self.apply([1.0, 0.0, 0.0]),
+            self.apply([0.0, 1.0, 0.0]),
+            self.apply([0.0, 0.0, 1.0]),
+        ];
+        [
+            [cols[0][0], cols[1][0], cols[2][0]],
+            [cols[0][1], cols[1][1], cols[2][1]],
+            [cols[0][2], cols[1][2], cols[2][2]],
+        ]
+    }
+
     #[inline]
     fn shift(&self, rgb: [f32; 3]) -> [f32; 3] {
         let s = self.shift_sigma;
@@ -272,5 +289,39 @@ mod tests {
         assert_eq!(a, b);
         assert_eq!(ColourModel::default(), ColourModel::ScotopicShift);
         assert!(ColourModel::Both.validate().is_ok());
+    }
+
+    #[test]
+    fn matrix_reproduces_apply() {
+        let colours = [
+            [0.6f32, 0.3, 0.1],
+            [0.0, 0.0, 1.0],
+            [0.9, 0.9, 0.05],
+            [0.02, 0.5, 0.7],
+        ];
+        for model in [
+            ColourModel::ScotopicShift,
+            ColourModel::Discrimination,
+            ColourModel::Both,
+            ColourModel::None,
+        ] {
+            for la in [1e-5, 0.01, 0.04, 0.5, 2.9, 100.0] {
+                let f = model.prepare(la);
+                let m = f.matrix();
+                for c in colours {
+                    let want = f.apply(c);
+                    for i in 0..3 {
+                        let got = m[i][0] * c[0] + m[i][1] * c[1] + m[i][2] * c[2];
+                        assert!(
+                            (got - want[i]).abs() < 1e-6,
+                            "{model:?} {la}: {got} vs {want:?}"
+                        );
+                    }
+                }
+            }
+        }
+        // Night: every column is the tint times a luminance weight.
+        let m = ColourModel::ScotopicShift.prepare(1e-6).matrix();
+        assert!((m[2][1] / m[0][1] - SCOTOPIC_TINT[2] / SCOTOPIC_TINT[0]).abs() < 1e-3);
     }
 }

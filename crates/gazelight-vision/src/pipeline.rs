@@ -28,13 +28,13 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::acuity::{AcuityBlur, AcuityModel};
-use crate::colour::ColourModel;
+use crate::colour::{ColourFrame, ColourModel};
 use crate::glare::GlareConvolver;
 use crate::image::luminance;
 use crate::pooling::PoolingModel;
 use crate::psf::{PsfBuilder, PsfParams};
 use crate::temporal::{AdaptationState, TemporalModel};
-use crate::tone::ToneModel;
+use crate::tone::{self, Op as ToneOp, ToneFrame, ToneModel};
 use crate::{RgbImage, VisionError};
 
 /// Smallest and largest pupil the PSF is ever built for, mm. Real pupils
@@ -233,6 +233,9 @@ pub struct FramePipeline {
     psf_pupil_mm: f64,
     acuity: AcuityBlur,
     srgb_lut: Box<[u8; SRGB_LUT_SIZE]>,
+    /// Run the pre-optimisation per-pixel passes (the tests' reference).
+    #[cfg(test)]
+    reference: bool,
 }
 
 impl FramePipeline {
@@ -294,6 +297,8 @@ impl FramePipeline {
             psf_pupil_mm,
             acuity: AcuityBlur::new(width, height),
             srgb_lut,
+            #[cfg(test)]
+            reference: false,
         })
     }
 
@@ -376,25 +381,16 @@ impl FramePipeline {
 
         // Pass A: copy + sanitise, and block-average luminance for pooling.
         let ds = self.config.downsample();
-        let small_w = self.small_w;
-        self.work
-            .pixels
-            .par_chunks_mut(w * ds)
-            .zip(scene.pixels.par_chunks(w * ds))
-            .zip(self.small_lum.par_chunks_mut(small_w))
-            .for_each(|((dst, src), small_row)| {
-                small_row.fill(0.0);
-                let rows = src.len() / w;
-                for (i, (d, s)) in dst.iter_mut().zip(src).enumerate() {
-                    let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
-                    *d = p;
-                    small_row[(i % w) / ds] += luminance(p);
-                }
-                for (bx, v) in small_row.iter_mut().enumerate() {
-                    let cols = (w - bx * ds).min(ds);
-                    *v /= (cols * rows) as f32;
-                }
-            });
+        #[cfg(test)]
+        let reference = self.reference;
+        #[cfg(not(test))]
+        let reference = false;
+        if reference {
+            #[cfg(test)]
+            reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+        } else {
+            pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+        }
         let small_gaze = [gaze_px[0] / ds as f64, gaze_px[1] / ds as f64];
         let target_cd_m2 = self
             .config
@@ -451,43 +447,52 @@ impl FramePipeline {
             .sigma_px(adaptation_cd_m2, self.deg_per_px);
         let blur = acuity_sigma_px > AcuityBlur::MIN_SIGMA_PX;
         let lut: &[u8; SRGB_LUT_SIZE] = &self.srgb_lut;
-        if blur || self.config.keep_display_linear {
-            self.display
-                .pixels
-                .par_chunks_mut(w)
-                .zip(self.work.pixels.par_chunks(w))
-                .for_each(|(dst, src)| {
-                    for (d, s) in dst.iter_mut().zip(src) {
-                        *d = clamp01(colour.apply(tone.apply(*s)));
-                    }
-                });
+        let map = PixelMap::new(&tone, &colour);
+        let to_display = blur || self.config.keep_display_linear;
+        if reference {
+            #[cfg(test)]
+            reference_pass_c(
+                &tone,
+                &colour,
+                &self.work,
+                &mut self.display,
+                out,
+                lut,
+                to_display,
+            );
+        } else if to_display {
+            map.run(
+                &self.work.pixels,
+                w,
+                DisplayLinear(&mut self.display.pixels),
+            );
         } else {
-            out.rgba8
-                .par_chunks_mut(w * 4)
-                .zip(self.work.pixels.par_chunks(w))
-                .for_each(|(dst, src)| {
-                    for (d, s) in dst.chunks_exact_mut(4).zip(src) {
-                        encode_px(lut, colour.apply(tone.apply(*s)), d);
-                    }
-                });
+            map.run(
+                &self.work.pixels,
+                w,
+                Encode {
+                    lut,
+                    rgba8: &mut out.rgba8,
+                },
+            );
         }
         let t_tone = Instant::now();
 
         // Stage 5 (+ 8): acuity loss on display light, then encode.
-        if blur || self.config.keep_display_linear {
+        if to_display {
             if blur {
                 self.acuity.apply(&mut self.display, acuity_sigma_px);
             }
             let t_blur = Instant::now();
             timings.acuity_ms = ms(t_tone, t_blur);
-            out.rgba8
-                .par_chunks_mut(w * 4)
-                .zip(self.display.pixels.par_chunks(w))
-                .for_each(|(dst, src)| {
-                    for (d, s) in dst.chunks_exact_mut(4).zip(src) {
-                        encode_px(lut, *s, d);
-                    }
-                });
+            affine_encode_rows(
+                &self.display.pixels,
+                w,
+                lut,
+                &mut out.rgba8,
+                &IDENTITY,
+                &[0.0; 3],
+            );
             timings.tone_colour_encode_ms = ms(t_glare, t_tone) + ms(t_blur, Instant::now());
         } else {
             timings.tone_colour_encode_ms = ms(t_glare, t_tone);
@@ -504,38 +509,588 @@ impl FramePipeline {
     }
 }
 
-/// Display light is bounded by the display: values above its peak clip.
-/// NaN stays NaN, so the tests can see it.
-#[inline]
-fn clamp01(rgb: [f32; 3]) -> [f32; 3] {
-    rgb.map(|v| v.clamp(0.0, 1.0))
-}
-
 /// NaN, ±∞, negative and subnormal values become 0. Subnormals (below
 /// 1.2e-38 cd/m², physically black) would otherwise slow every later
-/// arithmetic pass by an order of magnitude on x86.
-#[inline]
+/// arithmetic pass by an order of magnitude on x86. Branch-free: both
+/// comparisons are false for NaN.
+#[inline(always)]
 fn sanitize(v: f32) -> f32 {
-    if v.is_finite() && v >= f32::MIN_POSITIVE {
+    if (f32::MIN_POSITIVE..f32::INFINITY).contains(&v) {
         v
     } else {
         0.0
     }
 }
 
-#[inline(always)]
-fn encode_px(lut: &[u8; SRGB_LUT_SIZE], rgb: [f32; 3], out: &mut [u8]) {
-    if let Ok(out) = <&mut [u8; 4]>::try_from(out) {
-        // NaN maps to 0; the index is then provably in range.
-        let idx = |v: f32| {
-            ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * (SRGB_LUT_SIZE - 1) as f32 + 0.5)
-                as usize)
-                .min(SRGB_LUT_SIZE - 1)
-        };
-        *out = [lut[idx(rgb[0])], lut[idx(rgb[1])], lut[idx(rgb[2])], 255];
+/// Pass A: `work` = sanitised `scene`; `small_lum` = mean luminance of
+/// every `ds × ds` block (edge blocks over the pixels they have). Rows of
+/// blocks run in parallel; within a block row, each row adds its pixels to
+/// the block sums `ds` at a time (no per-pixel division).
+fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usize, small_w: usize) {
+    let w = scene.width;
+    work.pixels
+        .par_chunks_mut(w * ds)
+        .zip(scene.pixels.par_chunks(w * ds))
+        .zip(small_lum.par_chunks_mut(small_w))
+        .for_each(|((dst, src), small_row)| {
+            small_row.fill(0.0);
+            let rows = src.len() / w;
+            for (drow, srow) in dst.chunks_exact_mut(w).zip(src.chunks_exact(w)) {
+                for ((dblk, sblk), acc) in drow
+                    .chunks_mut(ds)
+                    .zip(srow.chunks(ds))
+                    .zip(small_row.iter_mut())
+                {
+                    let mut sum = 0.0f32;
+                    for (d, s) in dblk.iter_mut().zip(sblk) {
+                        let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
+                        *d = p;
+                        sum += luminance(p);
+                    }
+                    *acc += sum;
+                }
+            }
+            for (bx, v) in small_row.iter_mut().enumerate() {
+                let cols = (w - bx * ds).min(ds);
+                *v /= (cols * rows) as f32;
+            }
+        });
+}
+
+/// Rows per parallel task in the per-pixel passes.
+const ROWS_PER_TASK: usize = 8;
+
+/// Stages 6 + 7 specialised once per frame: tone reproduction followed by
+/// the colour model, which is linear in the colour
+/// ([`crate::colour::ColourFrame::matrix`]).
+#[derive(Clone, Copy, Debug)]
+enum PixelMap {
+    /// A linear tone operator (Ward/Ferwerda) folded with the colour
+    /// matrix: `M·(scale·c + offset) = (scale·M)·c + M·offset`.
+    Affine { m: [[f32; 3]; 3], b: [f32; 3] },
+    /// Naka–Rushton, then the colour matrix.
+    NakaRushton {
+        s: f32,
+        saturation: f32,
+        m: [[f32; 3]; 3],
+    },
+    /// The gaze exposure window, then the colour matrix.
+    Window {
+        lo: f32,
+        inv_range: f32,
+        gamma: f32,
+        m: [[f32; 3]; 3],
+    },
+}
+
+/// Where the fused pass writes.
+enum Sink<'a> {
+    /// Display-linear, clamped to [0, 1].
+    DisplayLinear(&'a mut [[f32; 3]]),
+    /// sRGB-encoded RGBA8.
+    Encode {
+        lut: &'a [u8; SRGB_LUT_SIZE],
+        rgba8: &'a mut [u8],
+    },
+}
+use Sink::{DisplayLinear, Encode};
+
+impl PixelMap {
+    fn new(tone: &ToneFrame, colour: &ColourFrame) -> Self {
+        let m = colour.matrix();
+        match tone.op() {
+            ToneOp::Linear { scale, offset } => {
+                let mut ms = m;
+                let mut b = [0.0f32; 3];
+                for (row, bi) in ms.iter_mut().zip(&mut b) {
+                    *bi = (row[0] + row[1] + row[2]) * offset;
+                    for v in row.iter_mut() {
+                        *v *= scale;
+                    }
+                }
+                Self::Affine { m: ms, b }
+            }
+            ToneOp::NakaRushton { s, saturation } => Self::NakaRushton { s, saturation, m },
+            ToneOp::Window {
+                lo,
+                inv_range,
+                gamma,
+            } => Self::Window {
+                lo,
+                inv_range,
+                gamma,
+                m,
+            },
+        }
     }
+
+    /// Maps every pixel of `src` (rows of `w`) into `sink`; one
+    /// monomorphic loop per operator.
+    fn run(&self, src: &[[f32; 3]], w: usize, sink: Sink<'_>) {
+        match *self {
+            Self::Affine { m, b } => match sink {
+                Encode { lut, rgba8 } => affine_encode_rows(src, w, lut, rgba8, &m, &b),
+                DisplayLinear(dst) => affine_display_rows(src, w, dst, &m, &b),
+            },
+            Self::NakaRushton { s, saturation, m } => run_sink(src, w, sink, move |c| {
+                mat_mul(&m, tone::naka_rushton(c.map(tone::clean), s, saturation))
+            }),
+            Self::Window {
+                lo,
+                inv_range,
+                gamma,
+                m,
+            } => run_sink(src, w, sink, move |c| {
+                mat_mul(&m, tone::window(c.map(tone::clean), lo, inv_range, gamma))
+            }),
+        }
+    }
+}
+
+#[inline(always)]
+fn mat_mul(m: &[[f32; 3]; 3], c: [f32; 3]) -> [f32; 3] {
+    [
+        m[0][0] * c[0] + m[0][1] * c[1] + m[0][2] * c[2],
+        m[1][0] * c[0] + m[1][1] * c[1] + m[1][2] * c[2],
+        m[2][0] * c[0] + m[2][1] * c[1] + m[2][2] * c[2],
+    ]
+}
+
+#[inline(always)]
+fn run_sink<F>(src: &[[f32; 3]], w: usize, sink: Sink<'_>, f: F)
+where
+    F: Fn([f32; 3]) -> [f32; 3] + Sync + Send,
+{
+    match sink {
+        DisplayLinear(dst) => dst
+            .par_chunks_mut(w * ROWS_PER_TASK)
+            .zip(src.par_chunks(w * ROWS_PER_TASK))
+            .for_each(|(dst, src)| {
+                for (d, s) in dst.iter_mut().zip(src) {
+                    *d = f(*s).map(|v| v.clamp(0.0, 1.0));
+                }
+            }),
+        Encode { lut, rgba8 } => encode_rows(src, w, lut, rgba8, f),
+    }
+}
+
+/// Pixels per block of the affine passes: each block is split into
+/// channel planes so the arithmetic compiles to vector instructions.
+const LANES: usize = 8;
+
+const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+/// `m·clean(p) + b` for the `LANES` pixels of `src`, as channel planes.
+#[inline(always)]
+fn affine_block(src: &[[f32; 3]], m: &[[f32; 3]; 3], b: &[f32; 3]) -> [[f32; LANES]; 3] {
+    let mut planes = [[0.0f32; LANES]; 3];
+    for (i, p) in src.iter().take(LANES).enumerate() {
+        for c in 0..3 {
+            planes[c][i] = sanitize(p[c]);
+        }
+    }
+    let mut out = [[0.0f32; LANES]; 3];
+    for (o, (row, bc)) in out.iter_mut().zip(m.iter().zip(b)) {
+        for i in 0..LANES {
+            o[i] = row[0] * planes[0][i] + row[1] * planes[1][i] + row[2] * planes[2][i] + bc;
+        }
+    }
+    out
+}
+
+/// `rgba8` = sRGB encoding of `m·clean(p) + b` for every pixel `p` of
+/// `src` (rows of `w`), `LANES` pixels at a time.
+fn affine_encode_rows(
+    src: &[[f32; 3]],
+    w: usize,
+    lut: &[u8; SRGB_LUT_SIZE],
+    rgba8: &mut [u8],
+    m: &[[f32; 3]; 3],
+    b: &[f32; 3],
+) {
+    let encode = |src: &[[f32; 3]], dst: &mut [u8]| {
+        let planes = affine_block(src, m, b);
+        let mut idx = [[0usize; LANES]; 3];
+        for (ix, plane) in idx.iter_mut().zip(&planes) {
+            for (i, v) in ix.iter_mut().zip(plane) {
+                *i = lut_index(*v);
+            }
+        }
+        for (i, d) in dst.chunks_exact_mut(4).enumerate().take(src.len()) {
+            let word = u32::from(lut[idx[0][i]])
+                | u32::from(lut[idx[1][i]]) << 8
+                | u32::from(lut[idx[2][i]]) << 16
+                | 0xff00_0000;
+            d.copy_from_slice(&word.to_le_bytes());
+        }
+    };
+    rgba8
+        .par_chunks_mut(w * 4 * ROWS_PER_TASK)
+        .zip(src.par_chunks(w * ROWS_PER_TASK))
+        .for_each(|(dst, src)| {
+            let mut blocks = src.chunks_exact(LANES);
+            let mut out = dst.chunks_exact_mut(4 * LANES);
+            for (s, d) in (&mut blocks).zip(&mut out) {
+                encode(s, d);
+            }
+            encode(blocks.remainder(), out.into_remainder());
+        });
+}
+
+/// `dst` = `m·clean(p) + b` clamped to [0, 1] for every pixel `p` of `src`.
+fn affine_display_rows(
+    src: &[[f32; 3]],
+    w: usize,
+    dst: &mut [[f32; 3]],
+    m: &[[f32; 3]; 3],
+    b: &[f32; 3],
+) {
+    let map = |src: &[[f32; 3]], dst: &mut [[f32; 3]]| {
+        let planes = affine_block(src, m, b);
+        for (i, d) in dst.iter_mut().enumerate().take(src.len()) {
+            *d = [planes[0][i], planes[1][i], planes[2][i]].map(|v| v.clamp(0.0, 1.0));
+        }
+    };
+    dst.par_chunks_mut(w * ROWS_PER_TASK)
+        .zip(src.par_chunks(w * ROWS_PER_TASK))
+        .for_each(|(dst, src)| {
+            let mut blocks = src.chunks_exact(LANES);
+            let mut out = dst.chunks_exact_mut(LANES);
+            for (s, d) in (&mut blocks).zip(&mut out) {
+                map(s, d);
+            }
+            map(blocks.remainder(), out.into_remainder());
+        });
+}
+
+/// `rgba8` = sRGB encoding of `f(p)` for every pixel `p` of `src`.
+#[inline(always)]
+fn encode_rows<F>(src: &[[f32; 3]], w: usize, lut: &[u8; SRGB_LUT_SIZE], rgba8: &mut [u8], f: F)
+where
+    F: Fn([f32; 3]) -> [f32; 3] + Sync + Send,
+{
+    rgba8
+        .par_chunks_mut(w * 4 * ROWS_PER_TASK)
+        .zip(src.par_chunks(w * ROWS_PER_TASK))
+        .for_each(|(dst, src)| {
+            for (d, s) in dst.chunks_exact_mut(4).zip(src) {
+                let [r, g, b] = f(*s);
+                d.copy_from_slice(&[lut[lut_index(r)], lut[lut_index(g)], lut[lut_index(b)], 255]);
+            }
+        });
+}
+
+/// Index of display-linear `v` in the sRGB table: clamped to [0, 1] (NaN
+/// → 0: `max`/`min` return the non-NaN operand), then `⌊v·(N−1) + 0.5⌋`,
+/// the nearest entry.
+///
+/// The floor is taken without a float → int conversion (whose saturating
+/// semantics keep the loop scalar): for `0 ≤ x < 2²²`, adding 2²³ leaves
+/// `round(x)` (ties to even) in the low mantissa bits, exactly; one
+/// comparison turns that into `⌊x⌋`. Bit-identical to `x as usize`.
+#[inline(always)]
+#[allow(clippy::manual_clamp)] // `clamp` keeps NaN; this maps it to 0
+fn lut_index(v: f32) -> usize {
+    const MAGIC: f32 = 8_388_608.0; // 2^23: one unit in the last place is 1
+    let x = v.max(0.0).min(1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5;
+    let y = x + MAGIC;
+    let rounded = y.to_bits() & 0x007f_ffff;
+    let floor = rounded - u32::from(y - MAGIC > x);
+    (floor as usize).min(SRGB_LUT_SIZE - 1)
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {
     b.duration_since(a).as_secs_f64() * 1e3
+}
+
+/// The per-pixel passes as they were before they were specialised, kept as
+/// the reference the optimised passes are tested against.
+#[cfg(test)]
+fn reference_pass_a(
+    scene: &RgbImage,
+    work: &mut RgbImage,
+    small_lum: &mut [f32],
+    ds: usize,
+    small_w: usize,
+) {
+    fn sanitize(v: f32) -> f32 {
+        if v.is_finite() && v >= f32::MIN_POSITIVE {
+            v
+        } else {
+            0.0
+        }
+    }
+    let w = scene.width;
+    work.pixels
+        .chunks_mut(w * ds)
+        .zip(scene.pixels.chunks(w * ds))
+        .zip(small_lum.chunks_mut(small_w))
+        .for_each(|((dst, src), small_row)| {
+            small_row.fill(0.0);
+            let rows = src.len() / w;
+            for (i, (d, s)) in dst.iter_mut().zip(src).enumerate() {
+                let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
+                *d = p;
+                small_row[(i % w) / ds] += luminance(p);
+            }
+            for (bx, v) in small_row.iter_mut().enumerate() {
+                let cols = (w - bx * ds).min(ds);
+                *v /= (cols * rows) as f32;
+            }
+        });
+}
+
+/// Reference stages 6 + 7 (+ 8): `colour.apply(tone.apply(p))` per pixel.
+#[cfg(test)]
+fn reference_pass_c(
+    tone: &ToneFrame,
+    colour: &ColourFrame,
+    work: &RgbImage,
+    display: &mut RgbImage,
+    out: &mut DisplayFrame,
+    lut: &[u8; SRGB_LUT_SIZE],
+    to_display: bool,
+) {
+    if to_display {
+        for (d, s) in display.pixels.iter_mut().zip(&work.pixels) {
+            *d = colour.apply(tone.apply(*s)).map(|v| v.clamp(0.0, 1.0));
+        }
+    } else {
+        for (d, s) in out.rgba8.chunks_exact_mut(4).zip(&work.pixels) {
+            let idx = |v: f32| {
+                ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * (SRGB_LUT_SIZE - 1) as f32
+                    + 0.5) as usize)
+                    .min(SRGB_LUT_SIZE - 1)
+            };
+            let rgb = colour.apply(tone.apply(*s));
+            d.copy_from_slice(&[lut[idx(rgb[0])], lut[idx(rgb[1])], lut[idx(rgb[2])], 255]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::acuity::AcuityModel;
+    use crate::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+
+    /// A view into a shared panorama scaled by `cd_m2_per_unit`.
+    fn view(
+        name: &str,
+        cd_m2_per_unit: f64,
+        yaw_deg: f64,
+        hfov_deg: f64,
+        width: usize,
+        height: usize,
+    ) -> (RgbImage, f64) {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data/hdr/blender-world")
+            .join(name);
+        let scale = LuminanceScale::CdM2PerUnit {
+            factor: cd_m2_per_unit,
+        };
+        let scene = Scene::load(&path, scale).unwrap();
+        let params = ViewParams {
+            yaw_deg,
+            pitch_deg: -6.0,
+            hfov_deg,
+            width,
+            height,
+        };
+        let mut img = RgbImage::new(width, height);
+        PanoramaView::new(params)
+            .unwrap()
+            .render(&scene.image, &mut img);
+        (img, params.deg_per_px())
+    }
+
+    /// Runs the optimised and the reference pipeline side by side over a
+    /// few frames (gaze moving, pupil changing so the PSF is rebuilt) and
+    /// checks every display byte within 1/255, the display-linear frame
+    /// and the frame statistics.
+    fn compare(config: &PipelineConfig, img: &RgbImage, dpp: f64, what: &str) -> (usize, usize) {
+        let (w, h) = (img.width, img.height);
+        let mut fast = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+        let mut slow = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+        slow.reference = true;
+        // Start adapted to a dim 0.05 cd/m²: the day view light-adapts
+        // (000 eq 10's offset), the night view dark-adapts.
+        fast.set_adaptation(AdaptationState::new(0.05));
+        slow.set_adaptation(AdaptationState::new(0.05));
+        let (mut out_fast, mut out_slow) = (DisplayFrame::new(w, h), DisplayFrame::new(w, h));
+        let frames = [
+            ([0.5, 0.45], 4.0, 1.0 / 90.0),
+            ([0.3, 0.6], 4.0, 1.0 / 90.0),
+            ([0.7, 0.4], 6.5, 0.5),
+            ([0.02, 0.98], 2.5, 2.0),
+        ];
+        let mut differing = 0;
+        let mut light_adapting = 0;
+        for (n, (gaze_uv, pupil_mm, dt_secs)) in frames.into_iter().enumerate() {
+            let input = FrameInput {
+                gaze_uv,
+                pupil_mm,
+                dt_secs,
+            };
+            let a = fast.process(img, &input, &mut out_fast).unwrap();
+            let b = slow.process(img, &input, &mut out_slow).unwrap();
+            assert_eq!(a.psf_rebuilt, b.psf_rebuilt);
+            let state = fast.adaptation().unwrap();
+            light_adapting += usize::from(state.light_target_cd_m2 > state.luminance_cd_m2);
+            assert!(
+                (a.target_cd_m2 / b.target_cd_m2 - 1.0).abs() < 1e-5,
+                "{what} frame {n}: pooled {} vs {}",
+                a.target_cd_m2,
+                b.target_cd_m2
+            );
+            assert!((a.adaptation_cd_m2 / b.adaptation_cd_m2 - 1.0).abs() < 1e-5);
+            for (i, (p, q)) in out_fast.rgba8.iter().zip(&out_slow.rgba8).enumerate() {
+                assert!(
+                    p.abs_diff(*q) <= 1,
+                    "{what} frame {n}: byte {i} (pixel {}, {}) {p} vs {q}",
+                    (i / 4) % w,
+                    i / 4 / w
+                );
+                differing += usize::from(p != q);
+            }
+            if config.keep_display_linear {
+                for (p, q) in fast.display.pixels.iter().zip(&slow.display.pixels) {
+                    for c in 0..3 {
+                        assert!(
+                            (p[c] - q[c]).abs() < 1e-5,
+                            "{what} frame {n}: {p:?} vs {q:?}"
+                        );
+                    }
+                }
+            }
+        }
+        (differing, light_adapting)
+    }
+
+    fn config(
+        tone: ToneModel,
+        colour: ColourModel,
+        acuity: AcuityModel,
+        keep: bool,
+    ) -> PipelineConfig {
+        PipelineConfig {
+            tone,
+            colour,
+            acuity,
+            keep_display_linear: keep,
+            ..PipelineConfig::default()
+        }
+    }
+
+    #[test]
+    fn optimised_passes_match_the_reference_on_real_views() {
+        // A dim night (scotopic: acuity blur, full scotopic shift) seen
+        // through a narrow field so the blur is wider than a pixel, and a
+        // daylight city at the headset's field (no blur).
+        let (night, night_dpp) = view("night.exr", 1e-3, -78.4, 20.0, 180, 200);
+        let (mut city, city_dpp) = view("city.exr", 50.0, 40.0, 104.0, 180, 200);
+        // Values the pipeline must clean: NaN, ±∞, negative, subnormal.
+        for (i, v) in [f32::NAN, f32::INFINITY, -5.0, 1e-40, f32::NEG_INFINITY]
+            .into_iter()
+            .enumerate()
+        {
+            city.pixels[1000 + 37 * i][i % 3] = v;
+        }
+        // Both views exercise the paths they are meant to.
+        let probe = FramePipeline::new(PipelineConfig::default(), 180, 200, night_dpp)
+            .unwrap()
+            .process(
+                &night,
+                &FrameInput {
+                    gaze_uv: [0.5, 0.45],
+                    pupil_mm: 4.0,
+                    dt_secs: 0.0,
+                },
+                &mut DisplayFrame::new(180, 200),
+            )
+            .unwrap();
+        assert!(
+            probe.acuity_sigma_px > AcuityBlur::MIN_SIGMA_PX,
+            "{probe:?}"
+        );
+
+        let mut total = 0;
+        let mut light_adapting_frames = 0;
+        for (img, dpp, name) in [(&night, night_dpp, "night"), (&city, city_dpp, "city")] {
+            for tone in [
+                ToneModel::default(),
+                ToneModel::naka_rushton(),
+                ToneModel::gaze_exposure(),
+            ] {
+                for colour in [
+                    ColourModel::ScotopicShift,
+                    ColourModel::Discrimination,
+                    ColourModel::Both,
+                    ColourModel::None,
+                ] {
+                    for (acuity, keep) in [
+                        (AcuityModel::default(), false),
+                        (AcuityModel::None, false),
+                        (AcuityModel::None, true),
+                    ] {
+                        let what = format!("{name} {tone:?} {colour:?} {acuity:?} keep {keep}");
+                        let mut cfg = config(tone, colour, acuity, keep);
+                        if name == "city" {
+                            // p^dt with the light-adaptation overshoot (000 eq 7–8).
+                            cfg.temporal = TemporalModel::power_dt();
+                        }
+                        let (d, l) = compare(&cfg, img, dpp, &what);
+                        total += d;
+                        light_adapting_frames += l;
+                    }
+                }
+            }
+        }
+        // Off-by-one bytes come only from rounding at table-entry edges.
+        let bytes = 2 * 3 * 4 * 3 * 4 * 180 * 200 * 4;
+        eprintln!("bytes differing by 1: {total} of {bytes}");
+        assert!(total * 1000 < bytes, "{total} of {bytes} bytes differ");
+        assert!(light_adapting_frames > 0, "no frame used 000 eq 10");
+    }
+
+    #[test]
+    fn lut_index_matches_the_clamped_rounding() {
+        for v in [
+            f32::NAN,
+            -1.0,
+            0.0,
+            1e-9,
+            0.5,
+            0.999_99,
+            1.0,
+            7.0,
+            f32::INFINITY,
+        ] {
+            let want = ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) })
+                * (SRGB_LUT_SIZE - 1) as f32
+                + 0.5) as usize;
+            assert_eq!(lut_index(v), want, "{v}");
+        }
+        assert_eq!(lut_index(f32::NEG_INFINITY), 0);
+        // Every f32 in [0, 1] step 2^-24 around each table entry's
+        // rounding edge, and a dense sweep: identical to the cast.
+        let cast = |v: f32| (v.clamp(0.0, 1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize;
+        for k in 0..SRGB_LUT_SIZE {
+            let edge = (k as f32 + 0.5) / (SRGB_LUT_SIZE - 1) as f32;
+            let mut v = edge;
+            for _ in 0..8 {
+                v = f32::from_bits(v.to_bits().saturating_sub(1));
+            }
+            for _ in 0..16 {
+                assert_eq!(lut_index(v), cast(v), "{v:e}");
+                v = f32::from_bits(v.to_bits() + 1);
+            }
+        }
+        for i in 0..=1_000_000u32 {
+            let v = i as f32 / 1e6;
+            assert_eq!(lut_index(v), cast(v), "{v:e}");
+        }
+    }
 }

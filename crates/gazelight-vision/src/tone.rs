@@ -224,10 +224,16 @@ fn ward_ferwerda(l_wa: f64, l_bar: f64, peak_cd_m2: f64) -> (f64, f64) {
     }
 }
 
+/// The per-pixel operator of a prepared [`ToneFrame`], for callers that
+/// specialise their pixel loop on it (the frame pipeline matches once per
+/// frame, not once per pixel).
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Op {
+pub(crate) enum Op {
+    /// `scale·c + offset` per channel (Ward/Ferwerda, 000 eq 9–10).
     Linear { scale: f32, offset: f32 },
+    /// 003 eq 4–5.
     NakaRushton { s: f32, saturation: f32 },
+    /// 004 §3.1–3.2, decoded from sRGB.
     Window { lo: f32, inv_range: f32, gamma: f32 },
 }
 
@@ -253,37 +259,61 @@ impl ToneFrame {
                 c[1] * scale + offset,
                 c[2] * scale + offset,
             ],
-            Op::NakaRushton { s, saturation } => {
-                let w = NAKA_RUSHTON_WEIGHTS;
-                let l = w[0] * c[0] + w[1] * c[1] + w[2] * c[2];
-                if l <= 0.0 {
-                    return [0.0; 3];
-                }
-                // 003 eq 4
-                let l_ldr = l / (l + s);
-                // 003 eq 5
-                let inv = 1.0 / l;
-                [
-                    (c[0] * inv).powf(saturation) * l_ldr,
-                    (c[1] * inv).powf(saturation) * l_ldr,
-                    (c[2] * inv).powf(saturation) * l_ldr,
-                ]
-            }
+            Op::NakaRushton { s, saturation } => naka_rushton(c, s, saturation),
             Op::Window {
                 lo,
                 inv_range,
                 gamma,
-            } => {
-                let f = |v: f32| srgb_to_linear(((v - lo) * inv_range).clamp(0.0, 1.0).powf(gamma));
-                [f(c[0]), f(c[1]), f(c[2])]
-            }
+            } => window(c, lo, inv_range, gamma),
         }
+    }
+
+    /// If the operator is linear per channel (`scale·c + offset`, the
+    /// Ward/Ferwerda operator), its `(scale, offset)`.
+    pub fn linear(&self) -> Option<(f32, f32)> {
+        match self.op {
+            Op::Linear { scale, offset } => Some((scale, offset)),
+            _ => None,
+        }
+    }
+
+    /// The operator, for specialised pixel loops.
+    pub(crate) fn op(&self) -> Op {
+        self.op
     }
 }
 
-#[inline]
-fn clean(v: f32) -> f32 {
-    if v > 0.0 && v.is_finite() { v } else { 0.0 }
+/// 003 eq 4–5 on a cleaned pixel (no negative or NaN components).
+#[inline(always)]
+pub(crate) fn naka_rushton(c: [f32; 3], s: f32, saturation: f32) -> [f32; 3] {
+    let w = NAKA_RUSHTON_WEIGHTS;
+    let l = w[0] * c[0] + w[1] * c[1] + w[2] * c[2];
+    if l <= 0.0 {
+        return [0.0; 3];
+    }
+    // 003 eq 4
+    let l_ldr = l / (l + s);
+    // 003 eq 5
+    let inv = 1.0 / l;
+    [
+        (c[0] * inv).powf(saturation) * l_ldr,
+        (c[1] * inv).powf(saturation) * l_ldr,
+        (c[2] * inv).powf(saturation) * l_ldr,
+    ]
+}
+
+/// 004 §3.1–3.2 on a cleaned pixel, decoded from sRGB.
+#[inline(always)]
+pub(crate) fn window(c: [f32; 3], lo: f32, inv_range: f32, gamma: f32) -> [f32; 3] {
+    let f = |v: f32| srgb_to_linear(((v - lo) * inv_range).clamp(0.0, 1.0).powf(gamma));
+    [f(c[0]), f(c[1]), f(c[2])]
+}
+
+/// Negative, NaN and infinite components become 0 (branch-free: both
+/// comparisons are false for NaN).
+#[inline(always)]
+pub(crate) fn clean(v: f32) -> f32 {
+    if v > 0.0 && v < f32::INFINITY { v } else { 0.0 }
 }
 
 /// The sRGB electro-optical transfer function (IEC 61966-2-1): encoded
