@@ -7,28 +7,15 @@
 //! without one it prints a skip line, unless `GAZELIGHT_REQUIRE_GPU=1`, in
 //! which case it fails.
 
+mod common;
+
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
 use std::time::Instant;
 
+use common::{gazelight, gazelight_env, tmp};
+
 use gazelight_gpu::testing::test_context;
-
-fn gazelight(args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gazelight"));
-    cmd.args(args).env("RUST_LOG", "warn");
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    cmd.output().expect("run gazelight")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-backend-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
 
 /// Relative paths of every file under `dir`.
 fn files(dir: &Path) -> BTreeSet<String> {
@@ -101,7 +88,7 @@ fn render_gpu_matches_cpu() {
         args.push(dir.to_str().expect("utf-8"));
         args.extend_from_slice(DEMO);
         let started = Instant::now();
-        let out = gazelight(&args, &[]);
+        let out = gazelight(&args);
         let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{backend}: {stdout}\n{stderr}");
@@ -233,7 +220,7 @@ fn without_an_adapter_gpu_fails_clearly_and_auto_uses_the_cpu() {
     let mut args = vec!["render", "--backend", "gpu", "--out"];
     args.push(dir.to_str().expect("utf-8"));
     args.extend_from_slice(&["--size", "96x80", "--frames", "2"]);
-    let out = gazelight(&args, NO_ADAPTER_ENV);
+    let out = gazelight_env(&args, NO_ADAPTER_ENV);
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!("--backend gpu without an adapter:\n{stderr}");
     assert!(!out.status.success(), "{stderr}");
@@ -250,7 +237,7 @@ fn without_an_adapter_gpu_fails_clearly_and_auto_uses_the_cpu() {
     let mut args = vec!["render", "--backend", "auto", "--out"];
     args.push(dir.to_str().expect("utf-8"));
     args.extend_from_slice(&["--size", "96x80", "--frames", "2"]);
-    let out = gazelight(&args, NO_ADAPTER_ENV);
+    let out = gazelight_env(&args, NO_ADAPTER_ENV);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!("--backend auto without an adapter:\n{stdout}\n{stderr}");

@@ -3,79 +3,33 @@
 //! follows the `gazelight.stimulus` notifications: a real black/white
 //! session over the network, then a refused one (no light response).
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
 
-fn gazelight(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gazelight"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run gazelight")
-}
+use std::process::Command;
 
-fn tmp(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("gazelight-calibrate-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn python_ready() -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", "import zmq, msgpack"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have python3 + pyzmq + msgpack"
-        );
-        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
-    }
-    ok
-}
-
-/// Starts the peer; returns it and its Pupil Remote port.
-fn peer(extra: &[&str]) -> (Child, String) {
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args([
-            "--remote-port",
-            "0",
-            "--sub-port",
-            "0",
-            "--pub-port",
-            "0",
-            "--rate",
-            "200",
-            "--timeout",
-            "30",
-        ])
-        .args(extra)
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn peer");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .expect("remote port")
-        .to_owned();
-    (child, port)
-}
+use common::{Peer, gazelight, python_ready, spawn_peer, tmp};
 
 /// Asks the peer for the stimuli it received (its `peer.stimulus` command),
 /// through a tiny pyzmq REQ client.
-fn peer_stimuli(port: &str) -> serde_json::Value {
+/// Starts the peer (200 Hz, 30 s) with extra arguments.
+fn peer(extra: &[&str]) -> Peer {
+    let mut args = vec![
+        "--remote-port",
+        "0",
+        "--sub-port",
+        "0",
+        "--pub-port",
+        "0",
+        "--rate",
+        "200",
+        "--timeout",
+        "30",
+    ];
+    args.extend_from_slice(extra);
+    spawn_peer(&args)
+}
+
+fn peer_stimuli(port: u16) -> serde_json::Value {
     let code = format!(
         "import zmq,sys\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
          s.connect('tcp://127.0.0.1:{port}')\ns.send_string('peer.stimulus')\nprint(s.recv_string())\n"
@@ -97,13 +51,13 @@ fn remote_stimulus_calibration_against_the_peer() {
     if !python_ready() {
         return;
     }
-    let (mut child, port) = peer(&["--black-gain", "1.5", "--white-gain", "0.6"]);
+    let peer = peer(&["--black-gain", "1.5", "--white-gain", "0.6"]);
     let dir = tmp("ok");
     let profile = dir.join("profile.json");
     let out = gazelight(&[
         "calibrate",
         "--source",
-        &format!("pupil://127.0.0.1:{port}"),
+        &format!("pupil://127.0.0.1:{}", peer.remote_port),
         "--stimulus",
         "remote",
         "--phase-secs",
@@ -113,9 +67,8 @@ fn remote_stimulus_calibration_against_the_peer() {
         "--out",
         profile.to_str().expect("utf-8"),
     ]);
-    let stimuli = peer_stimuli(&port);
-    let _ = child.kill();
-    let _ = child.wait();
+    let stimuli = peer_stimuli(peer.remote_port);
+    drop(peer);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "calibrate failed: {stdout}\n{stderr}");
@@ -164,13 +117,13 @@ fn no_light_response_is_refused_and_writes_nothing() {
     if !python_ready() {
         return;
     }
-    let (mut child, port) = peer(&["--black-gain", "1.0", "--white-gain", "1.0"]);
+    let peer = peer(&["--black-gain", "1.0", "--white-gain", "1.0"]);
     let dir = tmp("refused");
     let profile = dir.join("profile.json");
     let out = gazelight(&[
         "calibrate",
         "--source",
-        &format!("pupil://127.0.0.1:{port}"),
+        &format!("pupil://127.0.0.1:{}", peer.remote_port),
         "--stimulus",
         "remote",
         "--phase-secs",
@@ -180,9 +133,8 @@ fn no_light_response_is_refused_and_writes_nothing() {
         "--out",
         profile.to_str().expect("utf-8"),
     ]);
-    let stimuli = peer_stimuli(&port);
-    let _ = child.kill();
-    let _ = child.wait();
+    let stimuli = peer_stimuli(peer.remote_port);
+    drop(peer);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "a flat response must be refused");
     assert!(stderr.contains("no profile written"), "{stderr}");

@@ -1,30 +1,12 @@
 //! The CLI end to end: the default render, `psf`, `inspect`, and bad input
 //! (clear error naming the file and the problem, non-zero exit, no panic).
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
+
+use std::process::Output;
 use std::time::Instant;
 
-fn gazelight(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gazelight"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run gazelight")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(rel)
-}
+use common::{gazelight, python_ready, shared, spawn_peer, tmp};
 
 fn assert_clean_failure(out: &Output, needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -237,48 +219,22 @@ fn nan_scene_is_rejected() {
 
 #[test]
 fn inspect_summarises_a_live_peer() {
-    use std::io::{BufRead, BufReader};
-    let ready = Command::new("python3")
-        .args(["-c", "import zmq, msgpack"])
-        .output();
-    if !ready.map(|o| o.status.success()).unwrap_or(false) {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have python3 + pyzmq + msgpack"
-        );
-        eprintln!(
-            "SKIP inspect_summarises_a_live_peer: python3 with pyzmq + msgpack not available"
-        );
+    if !python_ready() {
         return;
     }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args([
-            "--remote-port",
-            "0",
-            "--sub-port",
-            "0",
-            "--pub-port",
-            "0",
-            "--rate",
-            "200",
-            "--timeout",
-            "20",
-        ])
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .expect("spawn peer");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .expect("remote port")
-        .to_owned();
+    let peer = spawn_peer(&[
+        "--remote-port",
+        "0",
+        "--sub-port",
+        "0",
+        "--pub-port",
+        "0",
+        "--rate",
+        "200",
+        "--timeout",
+        "20",
+    ]);
+    let port = peer.remote_port;
     let out = gazelight(&[
         "inspect",
         &format!("pupil://127.0.0.1:{port}"),
@@ -286,8 +242,7 @@ fn inspect_summarises_a_live_peer() {
         "1.5",
         "--json",
     ]);
-    let _ = child.kill();
-    let _ = child.wait();
+    drop(peer);
     assert!(
         out.status.success(),
         "{}",

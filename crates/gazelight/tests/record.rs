@@ -2,81 +2,30 @@
 //! tracker lose no received datum, and the result is a recording in Pupil's
 //! layout that the reader, the importer and `replay` accept.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{python_ready, spawn_peer, tmp_path, wait_exit};
 
 use gazelight_tracker::PldataReader;
 use gazelight_tracker::recording::{read_npy_f64, stream_paths};
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-record-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn python_ready() -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", "import zmq, msgpack"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have python3 + pyzmq + msgpack"
-        );
-        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
-    }
-    ok
-}
-
-fn peer(timeout_secs: &str) -> (Child, String) {
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args([
-            "--remote-port",
-            "0",
-            "--sub-port",
-            "0",
-            "--pub-port",
-            "0",
-            "--rate",
-            "200",
-            "--timeout",
-            timeout_secs,
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn peer");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .expect("remote port")
-        .to_owned();
-    (child, port)
-}
-
-fn wait_with_deadline(child: &mut Child, limit: Duration) -> std::process::ExitStatus {
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().expect("wait") {
-            return status;
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            panic!("gazelight record did not stop within {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
+/// The peer: ephemeral ports, 200 Hz, gone after 20 s.
+const PEER_ARGS: &[&str] = &[
+    "--remote-port",
+    "0",
+    "--sub-port",
+    "0",
+    "--pub-port",
+    "0",
+    "--rate",
+    "200",
+    "--timeout",
+    "20",
+];
 
 /// Reads one stream back: (records in the .pldata, timestamps in the .npy,
 /// the datum count `record` reported for it).
@@ -115,13 +64,13 @@ fn ctrl_c_keeps_every_received_datum() {
     if !python_ready() {
         return;
     }
-    let (mut peer, port) = peer("20");
-    let dir = tmp("ctrlc");
+    let peer = spawn_peer(PEER_ARGS);
+    let dir = tmp_path("ctrlc");
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
             "record",
             "--source",
-            &format!("pupil://127.0.0.1:{port}"),
+            &format!("pupil://127.0.0.1:{}", peer.remote_port),
             "--out",
             dir.to_str().expect("utf-8"),
         ])
@@ -137,7 +86,7 @@ fn ctrl_c_keeps_every_received_datum() {
         .status()
         .expect("kill -INT");
     assert!(sent.success());
-    let status = wait_with_deadline(&mut child, Duration::from_secs(10));
+    let status = wait_exit(&mut child, Duration::from_secs(10));
     let mut stdout = String::new();
     let mut stderr = String::new();
     use std::io::Read;
@@ -153,8 +102,7 @@ fn ctrl_c_keeps_every_received_datum() {
         .expect("stderr")
         .read_to_string(&mut stderr)
         .expect("read");
-    let _ = peer.kill();
-    let _ = peer.wait();
+    drop(peer);
     assert!(status.success(), "record failed: {stdout}\n{stderr}");
     assert!(stdout.contains("stopped (Ctrl-C)"), "{stdout}");
     assert!(stdout.contains("0 dropped by the queue"), "{stdout}");
@@ -204,13 +152,13 @@ fn lost_tracker_keeps_what_was_received() {
     if !python_ready() {
         return;
     }
-    let (mut peer, port) = peer("20");
-    let dir = tmp("lost");
+    let peer = spawn_peer(PEER_ARGS);
+    let dir = tmp_path("lost");
     let child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
             "record",
             "--source",
-            &format!("pupil://127.0.0.1:{port}"),
+            &format!("pupil://127.0.0.1:{}", peer.remote_port),
             "--out",
             dir.to_str().expect("utf-8"),
             "--secs",
@@ -222,8 +170,7 @@ fn lost_tracker_keeps_what_was_received() {
         .spawn()
         .expect("spawn record");
     std::thread::sleep(Duration::from_millis(1500));
-    let _ = peer.kill();
-    let _ = peer.wait();
+    drop(peer);
     let out = child.wait_with_output().expect("record output");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -240,7 +187,7 @@ fn lost_tracker_keeps_what_was_received() {
 
 #[test]
 fn bad_arguments_are_refused() {
-    let dir = tmp("bad");
+    let dir = tmp_path("bad");
     let out = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
             "record",

@@ -11,11 +11,13 @@
 //! calibration the filtered, calibrated pupil the relay publishes converges
 //! to the 3D values.
 
-use std::io::{BufRead, BufReader};
-use std::net::TcpStream;
+mod common;
+
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{Proc, free_port, spawn_peer, wait_listening};
 
 use gazelight_tracker::pupil::{PupilClient, PupilConfig};
 use gazelight_tracker::{PupilUnit, Sample};
@@ -24,58 +26,10 @@ use gazelight_tracker::{PupilUnit, Sample};
 const PEER_MM: [f64; 2] = [3.75, 4.25];
 const PEER_PX: [f64; 2] = [31.5, 36.25];
 
-struct Proc(Child);
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .expect("bind")
-        .local_addr()
-        .expect("addr")
-        .port()
-}
-
-fn spawn_peer() -> (Proc, u16) {
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args(["--rate", "200", "--timeout", "60"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python3 with pyzmq + msgpack");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
-    (Proc(child), port)
-}
-
-fn wait_listening(port: u16, limit: Duration) {
-    let start = Instant::now();
-    while TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            start.elapsed() < limit,
-            "nothing listens on {port} after {limit:?}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 #[test]
 fn pupil_clients_read_the_relay_of_a_live_session() {
-    let (_peer, peer_port) = spawn_peer();
+    let peer = spawn_peer(&["--rate", "200", "--timeout", "60"]);
+    let peer_port = peer.remote_port;
     let relay_port = free_port();
     let run = Proc(
         Command::new(env!("CARGO_BIN_EXE_gazelight"))

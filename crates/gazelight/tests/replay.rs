@@ -2,32 +2,11 @@
 //! (importer → filter chain → frame pipeline → outputs), deterministic, and
 //! bad input refused with a clear error.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn gazelight(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gazelight"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run gazelight")
-}
+use std::path::Path;
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-replay-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn shared(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(rel)
-        .to_str()
-        .expect("utf-8")
-        .to_owned()
-}
+use common::{gazelight, shared_str, tmp};
 
 /// The model columns of timeline.csv (t, gaze, pupil, held, target,
 /// adaptation, psf pupil, rebuilt, sigma), without the timing columns.
@@ -50,7 +29,7 @@ fn col(rows: &[Vec<String>], i: usize) -> Vec<f64> {
 
 #[test]
 fn neon_recording_replays_deterministically() {
-    let rec = shared("eye/neon-demo");
+    let rec = shared_str("eye/neon-demo");
     let a = tmp("neon-a");
     let b = tmp("neon-b");
     for dir in [&a, &b] {
@@ -112,7 +91,7 @@ fn neon_recording_replays_deterministically() {
 
 #[test]
 fn eyelink_replay_with_window_and_frames() {
-    let rec = shared("eye/eyelink-psa/both_eyes.asc");
+    let rec = shared_str("eye/eyelink-psa/both_eyes.asc");
     let out_dir = tmp("eyelink");
     let out = gazelight(&[
         "replay",
@@ -166,7 +145,7 @@ fn replay_refuses_bad_input() {
 
     let late = gazelight(&[
         "replay",
-        &shared("eye/neon-demo"),
+        &shared_str("eye/neon-demo"),
         "--from-secs",
         "500",
         "--out",

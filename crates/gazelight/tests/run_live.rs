@@ -11,86 +11,26 @@
 //! - no tracker at all: a clear message, frames still produced;
 //! - Ctrl-C (SIGINT) ends the run cleanly with a summary.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use common::{Peer, free_port, python_ready, spawn_peer, tmp, wait_bounded};
 
 use gazelight_vision::psf::REFERENCE_WAVELENGTH_NM;
 
-fn python_ready() -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", "import zmq, msgpack"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have python3 + pyzmq + msgpack"
-        );
-        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
-    }
-    ok
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-run-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .expect("bind")
-        .local_addr()
-        .expect("addr")
-        .port()
-}
-
-struct Peer {
-    child: Child,
-    remote_port: u16,
-}
-
-impl Drop for Peer {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn spawn_peer(remote_port: u16, rate_hz: f64, timeout_secs: f64) -> Peer {
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args([
-            "--remote-port",
-            &remote_port.to_string(),
-            "--rate",
-            &rate_hz.to_string(),
-            "--timeout",
-            &timeout_secs.to_string(),
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn peer");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port: u16 = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
-    Peer {
-        child,
-        remote_port: port,
-    }
+/// The peer on `remote_port` (0: any), 200 Hz, gone after 40 s.
+fn peer_on(remote_port: u16) -> Peer {
+    spawn_peer(&[
+        "--remote-port",
+        &remote_port.to_string(),
+        "--rate",
+        "200",
+        "--timeout",
+        "40",
+    ])
 }
 
 /// Tells the peer's simulated pupil to respond to a black/white stimulus
@@ -125,25 +65,6 @@ fn spawn_run(args: &[&str]) -> Child {
         .stderr(Stdio::piped())
         .spawn()
         .expect("run gazelight")
-}
-
-/// Waits for the child (bounded) and collects its output.
-fn wait_bounded(mut child: Child, limit: Duration) -> Output {
-    let start = Instant::now();
-    loop {
-        if child.try_wait().expect("try_wait").is_some() {
-            return child.wait_with_output().expect("output");
-        }
-        if start.elapsed() > limit {
-            let _ = child.kill();
-            let out = child.wait_with_output().expect("output");
-            panic!(
-                "gazelight run did not end within {limit:?}; stderr: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 /// A CSV as a header → column index map and rows of fields.
@@ -211,7 +132,7 @@ fn live_pupil_changes_rebuild_the_psf_and_its_ring_follows() {
     if !python_ready() {
         return;
     }
-    let peer = spawn_peer(0, 200.0, 40.0);
+    let peer = peer_on(0);
     let dir = tmp("psf");
     let run = spawn_run(&[
         "--source",
@@ -314,7 +235,7 @@ fn tracker_vanishes_and_returns_without_a_restart() {
         return;
     }
     let port = free_port();
-    let peer = spawn_peer(port, 200.0, 40.0);
+    let peer = peer_on(port);
     let dir = tmp("fault");
     let run = spawn_run(&[
         "--source",
@@ -331,7 +252,7 @@ fn tracker_vanishes_and_returns_without_a_restart() {
     std::thread::sleep(Duration::from_secs(3));
     drop(peer); // killed
     std::thread::sleep(Duration::from_secs(3));
-    let _peer = spawn_peer(port, 200.0, 40.0);
+    let _peer = peer_on(port);
     let out = wait_bounded(run, Duration::from_secs(60));
     let stderr = assert_success(&out);
     eprintln!("{}", String::from_utf8_lossy(&out.stdout));

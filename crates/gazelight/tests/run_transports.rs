@@ -4,8 +4,12 @@
 //! Pupil source (the HID, serial and USB transports are exercised through
 //! real kernel paths by the QEMU stage, `.ci/qemu/run`).
 
+mod common;
+
 use std::process::Command;
 use std::time::Duration;
+
+use common::tmp_path;
 
 use gazelight_tracker::transport::gazepoint::sim::{self, Session};
 
@@ -52,8 +56,7 @@ async fn run_reads_a_gazepoint_tracker() {
     .await
     .expect("simulator");
     let port = server.addr.port();
-    let dir = std::env::temp_dir().join(format!("gazelight-run-gp-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = tmp_path("gp");
     let dir_arg = dir.to_str().expect("utf-8").to_owned();
     let out = tokio::task::spawn_blocking(move || {
         Command::new(env!("CARGO_BIN_EXE_gazelight"))

@@ -7,11 +7,15 @@
 //!   values it shows change between two loads, no script errors;
 //! - a screenshot of the page for the README: docs/status_page.png.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod common;
+
+use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use common::{Proc, free_port, spawn_peer, wait_listening};
 
 const CHROMIUM_FLAGS: [&str; 8] = [
     "--headless",
@@ -23,44 +27,6 @@ const CHROMIUM_FLAGS: [&str; 8] = [
     "--no-first-run",
     "--hide-scrollbars",
 ];
-
-struct Proc(Child);
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .expect("bind")
-        .local_addr()
-        .expect("addr")
-        .port()
-}
-
-fn spawn_peer() -> (Proc, u16) {
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args(["--rate", "200", "--timeout", "90"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python3 with pyzmq + msgpack");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY line");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .and_then(|p| p.parse().ok())
-        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
-    (Proc(child), port)
-}
 
 /// A raw HTTP/1.1 GET of a JSON document.
 fn get_json(port: u16, path: &str) -> serde_json::Value {
@@ -77,14 +43,6 @@ fn get_json(port: u16, path: &str) -> serde_json::Value {
     let head = String::from_utf8_lossy(&buf[..end]);
     assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
     serde_json::from_slice(&buf[end + 4..]).expect("JSON body")
-}
-
-fn wait_status(port: u16, limit: Duration) {
-    let start = Instant::now();
-    while TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(start.elapsed() < limit, "nothing listens on {port}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 fn chromium(args: &[String]) -> String {
@@ -139,7 +97,8 @@ fn page_state(dom: &str) -> (u64, u64, serde_json::Value, String) {
 
 #[test]
 fn status_page_of_a_live_session() {
-    let (_peer, peer_port) = spawn_peer();
+    let peer = spawn_peer(&["--rate", "200", "--timeout", "90"]);
+    let peer_port = peer.remote_port;
     let http_port = free_port();
     let _run = Proc(
         Command::new(env!("CARGO_BIN_EXE_gazelight"))
@@ -152,7 +111,7 @@ fn status_page_of_a_live_session() {
             .spawn()
             .expect("gazelight run"),
     );
-    wait_status(http_port, Duration::from_secs(20));
+    wait_listening(http_port, Duration::from_secs(20));
     std::thread::sleep(Duration::from_secs(3));
 
     // The JSON follows the session.

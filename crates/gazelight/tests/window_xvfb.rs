@@ -2,11 +2,16 @@
 //! through Vulkan's X11 WSI): screenshots of the root window taken with
 //! `xwd` while the window shows a known thing.
 
+mod common;
+
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+
+use common::{python_ready, shared_str, spawn_peer, tmp};
 
 /// A private X server on a free display number; killed on drop.
 struct Xvfb {
@@ -38,7 +43,11 @@ fn xvfb() -> Option<Xvfb> {
         eprintln!("SKIP: Xvfb / xwd not installed");
         return None;
     }
-    for n in 0..20 {
+    // Tests of this binary run in parallel: each takes its own display
+    // number (a lock-file check alone races with a sibling's Xvfb start).
+    static NEXT_DISPLAY: AtomicU32 = AtomicU32::new(0);
+    for _ in 0..20 {
+        let n = NEXT_DISPLAY.fetch_add(1, Ordering::Relaxed);
         let display = format!(":{}", 140 + (std::process::id() % 50) + n * 50);
         let lock = format!("/tmp/.X{}-lock", &display[1..]);
         if Path::new(&lock).exists() {
@@ -50,10 +59,14 @@ fn xvfb() -> Option<Xvfb> {
             .stderr(Stdio::null())
             .spawn()
             .expect("spawn Xvfb");
-        let x = Xvfb { child, display };
+        let mut x = Xvfb { child, display };
         // Wait until it accepts connections.
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(10) {
+            // Exited: the display is someone else's; try the next one.
+            if x.child.try_wait().expect("try_wait Xvfb").is_some() {
+                break;
+            }
             let ok = Command::new("xwd")
                 .args([
                     "-root",
@@ -128,44 +141,6 @@ impl Shot {
     }
 }
 
-fn python_peer() -> Option<(Child, String)> {
-    let ok = Command::new("python3")
-        .args(["-c", "import zmq, msgpack"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !ok {
-        assert!(std::env::var_os("CI").is_none(), "CI must have pyzmq");
-        return None;
-    }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-    let mut child = Command::new("python3")
-        .arg(script)
-        .args(["--remote-port", "0", "--sub-port", "0", "--pub-port", "0"])
-        .args(["--rate", "100", "--timeout", "40"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn peer");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("READY");
-    let port = line
-        .split_whitespace()
-        .find_map(|w| w.strip_prefix("remote="))
-        .expect("port")
-        .to_owned();
-    Some((child, port))
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("gazelight-xvfb-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("tmp");
-    dir
-}
-
 /// Streams a child's stderr lines into a channel.
 fn lines_of(child: &mut Child) -> mpsc::Receiver<String> {
     let (tx, rx) = mpsc::channel();
@@ -197,15 +172,27 @@ fn wait_for(rx: &mpsc::Receiver<String>, needle: &str, limit: Duration, log: &mu
 #[test]
 fn calibration_window_shows_black_then_white_full_screen() {
     let Some(x) = xvfb() else { return };
-    let Some((mut peer, port)) = python_peer() else {
+    if !python_ready() {
         return;
-    };
+    }
+    let peer = spawn_peer(&[
+        "--remote-port",
+        "0",
+        "--sub-port",
+        "0",
+        "--pub-port",
+        "0",
+        "--rate",
+        "100",
+        "--timeout",
+        "40",
+    ]);
     let dir = tmp("cal");
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
             "calibrate",
             "--source",
-            &format!("pupil://127.0.0.1:{port}"),
+            &format!("pupil://127.0.0.1:{}", peer.remote_port),
             "--stimulus",
             "window",
             "--phase-secs",
@@ -230,8 +217,7 @@ fn calibration_window_shows_black_then_white_full_screen() {
     std::thread::sleep(Duration::from_millis(1200));
     let white = Shot::take(&x.display);
     let out = child.wait_with_output().expect("calibrate");
-    let _ = peer.kill();
-    let _ = peer.wait();
+    drop(peer);
     // Full screen: every corner and the centre carry the stimulus.
     for (sx, sy) in [(5, 5), (black.width - 5, black.height - 5), (400, 300)] {
         assert_eq!(black.at(sx, sy), [0, 0, 0], "black phase at ({sx},{sy})");
@@ -258,15 +244,6 @@ fn png_rgb(path: &Path) -> (usize, usize, Vec<u8>) {
     (img.width() as usize, img.height() as usize, img.into_raw())
 }
 
-fn shared(rel: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(rel)
-        .to_str()
-        .expect("utf-8")
-        .to_owned()
-}
-
 #[test]
 fn run_window_shows_the_replayed_session() {
     let Some(x) = xvfb() else { return };
@@ -276,7 +253,7 @@ fn run_window_shows_the_replayed_session() {
         .args([
             "run",
             "--source",
-            &format!("replay://{}", shared("eye/neon-demo")),
+            &format!("replay://{}", shared_str("eye/neon-demo")),
             "--size",
             &format!("{w}x{h}"),
             "--fps",

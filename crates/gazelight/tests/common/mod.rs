@@ -1,0 +1,184 @@
+//! Helpers shared by the `gazelight` binary's integration tests: running
+//! the binary, per-test temporary directories, the shared real data, the
+//! pyzmq Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) and
+//! bounded waits for child processes and listening ports.
+//!
+//! Every test file declares `mod common;`, so each test binary compiles its
+//! own copy of this module and uses only some of the helpers; hence the
+//! module-wide `dead_code` allowance.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs the binary to completion with `RUST_LOG=warn`.
+pub fn gazelight(args: &[&str]) -> Output {
+    gazelight_env(args, &[])
+}
+
+/// Runs the binary to completion with `RUST_LOG=warn` and extra
+/// environment variables.
+pub fn gazelight_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gazelight"));
+    cmd.args(args).env("RUST_LOG", "warn");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("run gazelight")
+}
+
+/// A fresh, empty temporary directory private to this test binary and
+/// process (`gazelight-<test file>-<pid>-<name>`).
+pub fn tmp(name: &str) -> PathBuf {
+    let dir = tmp_path(name);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+/// Like [`tmp`], but the directory is only removed, not created (for
+/// commands that create their output directory themselves).
+pub fn tmp_path(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "gazelight-{}-{}-{name}",
+        env!("CARGO_CRATE_NAME"),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// A path under the shared real data (/work/shared/data).
+pub fn shared(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data")
+        .join(rel)
+}
+
+/// [`shared`] as a UTF-8 string, for command lines.
+pub fn shared_str(rel: &str) -> String {
+    shared(rel).to_str().expect("utf-8").to_owned()
+}
+
+/// Whether python3 with pyzmq + msgpack (the Pupil peer's needs) is
+/// available. Outside CI a missing one prints a SKIP line; with `CI` set
+/// it fails the test.
+pub fn python_ready() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import zmq, msgpack"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !ok {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must have python3 + pyzmq + msgpack"
+        );
+        eprintln!("SKIP: python3 with pyzmq + msgpack not available");
+    }
+    ok
+}
+
+/// A child process killed (and reaped) on drop.
+pub struct Proc(pub Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A running pyzmq Pupil peer; killed on drop.
+pub struct Peer {
+    _proc: Proc,
+    /// Its Pupil Remote port, from its `READY remote=<port> …` line.
+    pub remote_port: u16,
+}
+
+/// Starts crates/gazelight-tracker/tests/pupil_peer.py with `args` and
+/// waits for its `READY remote=<port> sub=<port> pub=<port>` line.
+pub fn spawn_peer(args: &[&str]) -> Peer {
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
+    let mut child = Command::new("python3")
+        .arg(script)
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("spawn peer (python3 with pyzmq + msgpack)");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("READY line");
+    let remote_port = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("remote="))
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no remote port in {line:?}"));
+    Peer {
+        _proc: Proc(child),
+        remote_port,
+    }
+}
+
+/// A TCP port free on 127.0.0.1 at the time of the call.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("addr")
+        .port()
+}
+
+/// Waits (bounded by `limit`) until something accepts connections on
+/// 127.0.0.1:`port`.
+pub fn wait_listening(port: u16, limit: Duration) {
+    let start = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            start.elapsed() < limit,
+            "nothing listens on {port} after {limit:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Waits for the child (bounded by `limit`, killed past it) and collects
+/// its output.
+pub fn wait_bounded(mut child: Child, limit: Duration) -> Output {
+    let start = Instant::now();
+    loop {
+        if child.try_wait().expect("try_wait").is_some() {
+            return child.wait_with_output().expect("output");
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let out = child.wait_with_output().expect("output");
+            panic!(
+                "gazelight did not end within {limit:?}; stderr: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Waits for the child (bounded by `limit`, killed past it) without
+/// taking its pipes.
+pub fn wait_exit(child: &mut Child, limit: Duration) -> ExitStatus {
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            return status;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            panic!("gazelight did not end within {limit:?}");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
