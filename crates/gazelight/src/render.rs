@@ -42,7 +42,7 @@ pub struct RenderArgs {
     pub fps: f64,
     /// Display size per eye, WIDTHxHEIGHT (default 720x800, half the Vive
     /// Pro's 1440x1600).
-    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    #[arg(long, value_name = "WxH", value_parser = crate::service_config::parse_size)]
     pub size: Option<(usize, usize)>,
     /// Head yaw, degrees (positive right).
     #[arg(long, allow_hyphen_values = true)]
@@ -73,24 +73,6 @@ pub struct RenderArgs {
     /// and named in the summary.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
-}
-
-fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
-    let w: usize = w
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}`: width is not a number"))?;
-    let h: usize = h
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}`: height is not a number"))?;
-    if !(8..=8192).contains(&w) || !(8..=8192).contains(&h) {
-        return Err(format!("`{s}`: each side must be 8..=8192 pixels"));
-    }
-    Ok((w, h))
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
