@@ -7,28 +7,10 @@ mod common;
 
 use std::process::Command;
 
-use common::{Peer, gazelight, python_ready, spawn_peer, tmp};
+use common::{gazelight, python_ready, spawn_peer_any_port, tmp};
 
 /// Asks the peer for the stimuli it received (its `peer.stimulus` command),
 /// through a tiny pyzmq REQ client.
-/// Starts the peer (200 Hz, 30 s) with extra arguments.
-fn peer(extra: &[&str]) -> Peer {
-    let mut args = vec![
-        "--remote-port",
-        "0",
-        "--sub-port",
-        "0",
-        "--pub-port",
-        "0",
-        "--rate",
-        "200",
-        "--timeout",
-        "30",
-    ];
-    args.extend_from_slice(extra);
-    spawn_peer(&args)
-}
-
 fn peer_stimuli(port: u16) -> serde_json::Value {
     let code = format!(
         "import zmq,sys\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
@@ -51,7 +33,7 @@ fn remote_stimulus_calibration_against_the_peer() {
     if !python_ready() {
         return;
     }
-    let peer = peer(&["--black-gain", "1.5", "--white-gain", "0.6"]);
+    let peer = spawn_peer_any_port("200", "30", &["--black-gain", "1.5", "--white-gain", "0.6"]);
     let dir = tmp("ok");
     let profile = dir.join("profile.json");
     let out = gazelight(&[
@@ -117,7 +99,7 @@ fn no_light_response_is_refused_and_writes_nothing() {
     if !python_ready() {
         return;
     }
-    let peer = peer(&["--black-gain", "1.0", "--white-gain", "1.0"]);
+    let peer = spawn_peer_any_port("200", "30", &["--black-gain", "1.0", "--white-gain", "1.0"]);
     let dir = tmp("refused");
     let profile = dir.join("profile.json");
     let out = gazelight(&[

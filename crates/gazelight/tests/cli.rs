@@ -6,7 +6,7 @@ mod common;
 use std::process::Output;
 use std::time::Instant;
 
-use common::{gazelight, python_ready, shared, spawn_peer, tmp};
+use common::{gazelight, python_ready, shared, spawn_peer_any_port, tmp};
 
 fn assert_clean_failure(out: &Output, needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -222,18 +222,7 @@ fn inspect_summarises_a_live_peer() {
     if !python_ready() {
         return;
     }
-    let peer = spawn_peer(&[
-        "--remote-port",
-        "0",
-        "--sub-port",
-        "0",
-        "--pub-port",
-        "0",
-        "--rate",
-        "200",
-        "--timeout",
-        "20",
-    ]);
+    let peer = spawn_peer_any_port("200", "20", &[]);
     let port = peer.remote_port;
     let out = gazelight(&[
         "inspect",

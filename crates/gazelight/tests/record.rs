@@ -8,24 +8,10 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{python_ready, spawn_peer, tmp_path, wait_exit};
+use common::{python_ready, spawn_peer_any_port, tmp_path, wait_exit};
 
 use gazelight_tracker::PldataReader;
 use gazelight_tracker::recording::{read_npy_f64, stream_paths};
-
-/// The peer: ephemeral ports, 200 Hz, gone after 20 s.
-const PEER_ARGS: &[&str] = &[
-    "--remote-port",
-    "0",
-    "--sub-port",
-    "0",
-    "--pub-port",
-    "0",
-    "--rate",
-    "200",
-    "--timeout",
-    "20",
-];
 
 /// Reads one stream back: (records in the .pldata, timestamps in the .npy,
 /// the datum count `record` reported for it).
@@ -64,7 +50,7 @@ fn ctrl_c_keeps_every_received_datum() {
     if !python_ready() {
         return;
     }
-    let peer = spawn_peer(PEER_ARGS);
+    let peer = spawn_peer_any_port("200", "20", &[]);
     let dir = tmp_path("ctrlc");
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
@@ -152,7 +138,7 @@ fn lost_tracker_keeps_what_was_received() {
     if !python_ready() {
         return;
     }
-    let peer = spawn_peer(PEER_ARGS);
+    let peer = spawn_peer_any_port("200", "20", &[]);
     let dir = tmp_path("lost");
     let child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::{python_ready, shared_str, spawn_peer, tmp};
+use common::{python_ready, shared_str, spawn_peer_any_port, tmp};
 
 /// A private X server on a free display number; killed on drop.
 struct Xvfb {
@@ -175,18 +175,7 @@ fn calibration_window_shows_black_then_white_full_screen() {
     if !python_ready() {
         return;
     }
-    let peer = spawn_peer(&[
-        "--remote-port",
-        "0",
-        "--sub-port",
-        "0",
-        "--pub-port",
-        "0",
-        "--rate",
-        "100",
-        "--timeout",
-        "40",
-    ]);
+    let peer = spawn_peer_any_port("100", "40", &[]);
     let dir = tmp("cal");
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([

@@ -125,6 +125,26 @@ pub fn spawn_peer(args: &[&str]) -> Peer {
     }
 }
 
+/// [`spawn_peer`] on ephemeral ports (Pupil Remote, SUB and PUB all 0)
+/// publishing at `rate_hz` and exiting after `timeout_secs`, with `extra`
+/// arguments appended.
+pub fn spawn_peer_any_port(rate_hz: &str, timeout_secs: &str, extra: &[&str]) -> Peer {
+    let mut args = vec![
+        "--remote-port",
+        "0",
+        "--sub-port",
+        "0",
+        "--pub-port",
+        "0",
+        "--rate",
+        rate_hz,
+        "--timeout",
+        timeout_secs,
+    ];
+    args.extend_from_slice(extra);
+    spawn_peer(&args)
+}
+
 /// A TCP port free on 127.0.0.1 at the time of the call.
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
