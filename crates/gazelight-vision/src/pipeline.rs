@@ -203,8 +203,10 @@ impl DisplayFrame {
     }
 }
 
-/// Size of the sRGB encoding table over linear [0, 1].
+/// Size of the sRGB encoding table over linear [0, 1] (a power of two:
+/// [`lut_index`] masks with `N − 1`).
 const SRGB_LUT_SIZE: usize = 16384;
+const _: () = assert!(SRGB_LUT_SIZE.is_power_of_two());
 
 /// sRGB transfer function (IEC 61966-2-1), linear [0, 1] → encoded [0, 1].
 pub fn srgb_encode(linear: f32) -> f32 {
@@ -680,22 +682,63 @@ const LANES: usize = 8;
 
 const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
-/// `m·clean(p) + b` for the `LANES` pixels of `src`, as channel planes.
+/// `m·max(p, 0) + b` for `LANES` pixels, as channel planes. Fixed trip
+/// counts and selects instead of branches, so that the compiler can
+/// vectorise every loop.
 #[inline(always)]
-fn affine_block(src: &[[f32; 3]], m: &[[f32; 3]; 3], b: &[f32; 3]) -> [[f32; LANES]; 3] {
+fn affine_block(src: &[[f32; 3]; LANES], m: &[[f32; 3]; 3], b: &[f32; 3]) -> [[f32; LANES]; 3] {
     let mut planes = [[0.0f32; LANES]; 3];
-    for (i, p) in src.iter().take(LANES).enumerate() {
+    for i in 0..LANES {
         for c in 0..3 {
-            planes[c][i] = sanitize(p[c]);
+            // Pass A already replaced NaN, ±∞, negatives and
+            // subnormals; what glare adds is finite but may be slightly
+            // negative (FFT round-off). Plain selects vectorise; the
+            // class tests of `sanitize` would not.
+            let v = src[i][c];
+            planes[c][i] = (if v > 0.0 { v } else { 0.0 }).min(f32::MAX);
         }
     }
     let mut out = [[0.0f32; LANES]; 3];
-    for (o, (row, bc)) in out.iter_mut().zip(m.iter().zip(b)) {
+    for c in 0..3 {
+        let row = m[c];
         for i in 0..LANES {
-            o[i] = row[0] * planes[0][i] + row[1] * planes[1][i] + row[2] * planes[2][i] + bc;
+            out[c][i] =
+                row[0] * planes[0][i] + row[1] * planes[1][i] + row[2] * planes[2][i] + b[c];
         }
     }
     out
+}
+
+/// Runs `f` over `LANES` pixels of `src` at a time; a short tail is
+/// padded with black and only its own outputs are written.
+#[inline(always)]
+fn for_blocks<T, const K: usize>(
+    src: &[[f32; 3]],
+    dst: &mut [T],
+    f: impl Fn(&[[f32; 3]; LANES], &mut [T; K]),
+) where
+    T: Copy + Default,
+{
+    let mut s_blocks = src.chunks_exact(LANES);
+    let mut d_blocks = dst.chunks_exact_mut(K);
+    for (s, d) in (&mut s_blocks).zip(&mut d_blocks) {
+        if let (Ok(s), Ok(d)) = (
+            <&[[f32; 3]; LANES]>::try_from(s),
+            <&mut [T; K]>::try_from(d),
+        ) {
+            f(s, d);
+        }
+    }
+    let tail = s_blocks.remainder();
+    if !tail.is_empty() {
+        let mut s = [[0.0f32; 3]; LANES];
+        s[..tail.len()].copy_from_slice(tail);
+        let mut d = [T::default(); K];
+        f(&s, &mut d);
+        let out = d_blocks.into_remainder();
+        let n = out.len();
+        out.copy_from_slice(&d[..n]);
+    }
 }
 
 /// `rgba8` = sRGB encoding of `m·clean(p) + b` for every pixel `p` of
@@ -708,33 +751,26 @@ fn affine_encode_rows(
     m: &[[f32; 3]; 3],
     b: &[f32; 3],
 ) {
-    let encode = |src: &[[f32; 3]], dst: &mut [u8]| {
+    let encode = |src: &[[f32; 3]; LANES], dst: &mut [u8; 4 * LANES]| {
         let planes = affine_block(src, m, b);
         let mut idx = [[0usize; LANES]; 3];
-        for (ix, plane) in idx.iter_mut().zip(&planes) {
-            for (i, v) in ix.iter_mut().zip(plane) {
-                *i = lut_index(*v);
+        for c in 0..3 {
+            for i in 0..LANES {
+                idx[c][i] = lut_index(planes[c][i]);
             }
         }
-        for (i, d) in dst.chunks_exact_mut(4).enumerate().take(src.len()) {
+        for i in 0..LANES {
             let word = u32::from(lut[idx[0][i]])
                 | u32::from(lut[idx[1][i]]) << 8
                 | u32::from(lut[idx[2][i]]) << 16
                 | 0xff00_0000;
-            d.copy_from_slice(&word.to_le_bytes());
+            dst[4 * i..4 * i + 4].copy_from_slice(&word.to_le_bytes());
         }
     };
     rgba8
         .par_chunks_mut(w * 4 * ROWS_PER_TASK)
         .zip(src.par_chunks(w * ROWS_PER_TASK))
-        .for_each(|(dst, src)| {
-            let mut blocks = src.chunks_exact(LANES);
-            let mut out = dst.chunks_exact_mut(4 * LANES);
-            for (s, d) in (&mut blocks).zip(&mut out) {
-                encode(s, d);
-            }
-            encode(blocks.remainder(), out.into_remainder());
-        });
+        .for_each(|(dst, src)| for_blocks(src, dst, encode));
 }
 
 /// `dst` = `m·clean(p) + b` clamped to [0, 1] for every pixel `p` of `src`.
@@ -745,22 +781,15 @@ fn affine_display_rows(
     m: &[[f32; 3]; 3],
     b: &[f32; 3],
 ) {
-    let map = |src: &[[f32; 3]], dst: &mut [[f32; 3]]| {
+    let map = |src: &[[f32; 3]; LANES], dst: &mut [[f32; 3]; LANES]| {
         let planes = affine_block(src, m, b);
-        for (i, d) in dst.iter_mut().enumerate().take(src.len()) {
+        for (i, d) in dst.iter_mut().enumerate() {
             *d = [planes[0][i], planes[1][i], planes[2][i]].map(|v| v.clamp(0.0, 1.0));
         }
     };
     dst.par_chunks_mut(w * ROWS_PER_TASK)
         .zip(src.par_chunks(w * ROWS_PER_TASK))
-        .for_each(|(dst, src)| {
-            let mut blocks = src.chunks_exact(LANES);
-            let mut out = dst.chunks_exact_mut(LANES);
-            for (s, d) in (&mut blocks).zip(&mut out) {
-                map(s, d);
-            }
-            map(blocks.remainder(), out.into_remainder());
-        });
+        .for_each(|(dst, src)| for_blocks(src, dst, map));
 }
 
 /// `rgba8` = sRGB encoding of `f(p)` for every pixel `p` of `src`.
@@ -781,7 +810,7 @@ where
 }
 
 /// Index of display-linear `v` in the sRGB table: clamped to [0, 1] (NaN
-/// → 0: `max`/`min` return the non-NaN operand), then `⌊v·(N−1) + 0.5⌋`,
+/// → 0), then `⌊v·(N−1) + 0.5⌋`,
 /// the nearest entry.
 ///
 /// The floor is taken without a float → int conversion (whose saturating
@@ -789,14 +818,17 @@ where
 /// `round(x)` (ties to even) in the low mantissa bits, exactly; one
 /// comparison turns that into `⌊x⌋`. Bit-identical to `x as usize`.
 #[inline(always)]
-#[allow(clippy::manual_clamp)] // `clamp` keeps NaN; this maps it to 0
 fn lut_index(v: f32) -> usize {
     const MAGIC: f32 = 8_388_608.0; // 2^23: one unit in the last place is 1
-    let x = v.max(0.0).min(1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5;
+    // Selects: `v > 0` is false for NaN.
+    let v = if v > 0.0 { v } else { 0.0 };
+    let v = if v < 1.0 { v } else { 1.0 };
+    let x = v * (SRGB_LUT_SIZE - 1) as f32 + 0.5;
     let y = x + MAGIC;
     let rounded = y.to_bits() & 0x007f_ffff;
     let floor = rounded - u32::from(y - MAGIC > x);
-    (floor as usize).min(SRGB_LUT_SIZE - 1)
+    // A no-op (floor ≤ N − 1 here) that proves the index in range.
+    floor as usize & (SRGB_LUT_SIZE - 1)
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {
