@@ -138,6 +138,34 @@ impl ThreadedSource {
     }
 }
 
+/// The next sample of a source that reopens its device: reads from the open
+/// reader thread; a lost device (or a thread that ended) closes the reader,
+/// so the caller's next call reopens it. `Ok(None)` when no reader is open.
+pub(crate) async fn recv_reopenable(
+    reader: &mut Option<ThreadedSource>,
+    source_name: &str,
+) -> Result<Option<Sample>, SourceError> {
+    let Some(r) = reader.as_mut() else {
+        return Ok(None);
+    };
+    match r.recv().await {
+        Some(Ok(s)) => Ok(Some(s)),
+        Some(Err(e)) => {
+            if matches!(e, SourceError::Disconnected { .. }) {
+                *reader = None;
+            }
+            Err(e)
+        }
+        None => {
+            *reader = None;
+            Err(SourceError::Disconnected {
+                source_name: source_name.to_owned(),
+                reason: "reader stopped".to_owned(),
+            })
+        }
+    }
+}
+
 impl Drop for ThreadedSource {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);

@@ -257,25 +257,7 @@ impl HidSource {
                 }
             }
         }
-        let Some(reader) = self.reader.as_mut() else {
-            return Ok(None);
-        };
-        match reader.recv().await {
-            Some(Ok(s)) => Ok(Some(s)),
-            Some(Err(e)) => {
-                if matches!(e, SourceError::Disconnected { .. }) {
-                    self.reader = None;
-                }
-                Err(e)
-            }
-            None => {
-                self.reader = None;
-                Err(SourceError::Disconnected {
-                    source_name: self.name.clone(),
-                    reason: "reader stopped".to_owned(),
-                })
-            }
-        }
+        super::super::recv_reopenable(&mut self.reader, &self.name).await
     }
 }
 
