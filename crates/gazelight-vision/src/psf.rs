@@ -113,6 +113,19 @@ pub const SPECTRUM_MAX_NM: f64 = 770.0;
 /// Display resolution of the HTC Vive Pro, pixels per degree.
 // 001 §4.3: 1440 px / 104° ≈ 13.85 ppd
 pub const VIVE_PRO_PPD: f64 = 13.85;
+/// Default kernel field, degrees (±20°, the glare window of issue 10).
+pub const DEFAULT_FIELD_DEG: f64 = 40.0;
+/// Default observer age, years (CIE 146:2002's young reference observer).
+pub const DEFAULT_AGE_YEARS: f64 = 25.0;
+/// Default ocular pigmentation (CIE 146:2002: 0.5 = brown eyes).
+pub const DEFAULT_PIGMENTATION: f64 = 0.5;
+/// Valid range of the CIE 146 age, years.
+pub const AGE_YEARS_RANGE: (f64, f64) = (0.0, 120.0);
+/// Valid range of the CIE 146 pigmentation (0 very dark … 1.2 very light).
+pub const PIGMENTATION_RANGE: (f64, f64) = (0.0, 1.2);
+/// Valid range of the kernel field, degrees (CIE 146 holds to 100°; the
+/// field's half width is at most that).
+pub const FIELD_DEG_RANGE: (f64, f64) = (0.01, 200.0);
 /// Smallest pupil the PSF is built for, in pupil-plane samples across.
 const MIN_PUPIL_SAMPLES: f64 = 4.0;
 
@@ -145,6 +158,17 @@ pub struct PsfParams {
     /// (4..=2048); the centre is pixel `(size/2, size/2)` (a power-of-two
     /// kernel has one more pixel on the negative side).
     pub kernel_size: usize,
+    /// Angular width of the kernel's field, degrees: the kernel covers
+    /// ±`field_deg / 2` around the point source (the glare window).
+    pub field_deg: f64,
+    /// Observer's age, years (CIE 146:2002 General Disability Glare, `A`).
+    pub age_years: f64,
+    /// Ocular pigmentation (CIE 146:2002, `p`): 0 very dark eyes, 0.5
+    /// brown, 1.0 blue-green, 1.2 very light.
+    pub pigmentation: f64,
+    /// Whether the intraocular stray light (the CIE 146 veil) is part of
+    /// the kernel; `false` leaves the wave-optics near field alone.
+    pub stray_light: bool,
     /// Seed of the particle field.
     pub seed: u64,
 }
@@ -163,6 +187,10 @@ impl Default for PsfParams {
             wavelength_count: 32,
             ppd: VIVE_PRO_PPD,
             kernel_size: 65,
+            field_deg: DEFAULT_FIELD_DEG,
+            age_years: DEFAULT_AGE_YEARS,
+            pigmentation: DEFAULT_PIGMENTATION,
+            stray_light: true,
             seed: 0x6a7e_11e7,
         }
     }
@@ -253,6 +281,33 @@ impl PsfParams {
                 "psf.ppd",
                 self.ppd,
                 "a finite number > 0",
+            ));
+        }
+        if !(self.field_deg.is_finite()
+            && (FIELD_DEG_RANGE.0..=FIELD_DEG_RANGE.1).contains(&self.field_deg))
+        {
+            return Err(VisionError::invalid(
+                "psf.field_deg",
+                self.field_deg,
+                "0.01..=200 degrees (the kernel covers ±field_deg/2)",
+            ));
+        }
+        if !(self.age_years.is_finite()
+            && (AGE_YEARS_RANGE.0..=AGE_YEARS_RANGE.1).contains(&self.age_years))
+        {
+            return Err(VisionError::invalid(
+                "psf.age_years",
+                self.age_years,
+                "0..=120 years (CIE 146:2002 observer age)",
+            ));
+        }
+        if !(self.pigmentation.is_finite()
+            && (PIGMENTATION_RANGE.0..=PIGMENTATION_RANGE.1).contains(&self.pigmentation))
+        {
+            return Err(VisionError::invalid(
+                "psf.pigmentation",
+                self.pigmentation,
+                "0..=1.2 (CIE 146:2002: 0 very dark, 0.5 brown, 1.0 blue-green, 1.2 very light eyes)",
             ));
         }
         let ks = self.kernel_size;
@@ -1093,6 +1148,30 @@ mod tests {
             },
             PsfParams {
                 defocus_dioptres: 50.0,
+                ..ok.clone()
+            },
+            PsfParams {
+                field_deg: 0.0,
+                ..ok.clone()
+            },
+            PsfParams {
+                field_deg: f64::NAN,
+                ..ok.clone()
+            },
+            PsfParams {
+                age_years: -1.0,
+                ..ok.clone()
+            },
+            PsfParams {
+                age_years: 500.0,
+                ..ok.clone()
+            },
+            PsfParams {
+                pigmentation: 1.5,
+                ..ok.clone()
+            },
+            PsfParams {
+                pigmentation: f64::NAN,
                 ..ok.clone()
             },
         ];
