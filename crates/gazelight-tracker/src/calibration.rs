@@ -238,10 +238,12 @@ impl PupilCalibration {
 
     /// Reads and validates a profile; errors name the file and field.
     pub fn load(path: &Path) -> Result<Self, CalibrationError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
+        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES).map_err(
+            |source| CalibrationError::Io {
+                path: path.to_owned(),
+                source,
+            },
+        )?;
         Self::parse(&text, path)
     }
 

@@ -324,7 +324,7 @@ enum Parse {
 impl PldataReader {
     /// Opens a `.pldata` file.
     pub fn open(path: &Path) -> Result<Self, RecordingError> {
-        let file = File::open(path).map_err(io_err(path))?;
+        let file = gazelight_input::open(path).map_err(io_err(path))?;
         Ok(Self {
             path: path.to_owned(),
             file,
@@ -617,7 +617,8 @@ impl Iterator for PldataSamples {
 /// Reads a `.npy` file holding a 1-D float64 array (formats 1.0–3.0,
 /// little- or big-endian).
 pub fn read_npy_f64(path: &Path) -> Result<Vec<f64>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let bytes =
+        gazelight_input::read(path, gazelight_input::MAX_SCENE_BYTES).map_err(io_err(path))?;
     parse_npy_f64(&bytes).map_err(|reason| RecordingError::Npy {
         path: path.to_owned(),
         reason,

@@ -59,7 +59,7 @@ const HEADER: &str = "t_secs,gaze_u,gaze_v,pupil_mm,confidence";
 impl GazeTrace {
     /// Reads a trace file.
     pub fn load(path: &Path) -> Result<Self, TraceError> {
-        let file = std::fs::File::open(path).map_err(|source| TraceError::Io {
+        let file = gazelight_input::open(path).map_err(|source| TraceError::Io {
             path: path.to_owned(),
             source,
         })?;
@@ -75,13 +75,34 @@ impl GazeTrace {
         };
         let mut samples: Vec<TraceSample> = Vec::new();
         let mut saw_header = false;
-        for (i, line) in reader.lines().enumerate() {
-            let line_no = i + 1;
-            let line = line.map_err(|source| TraceError::Io {
-                path: path.to_owned(),
-                source,
-            })?;
-            let line = line.trim();
+        let mut reader = reader;
+        let mut buf = String::new();
+        let mut line_no = 0usize;
+        loop {
+            line_no += 1;
+            let read =
+                gazelight_input::read_line(&mut reader, &mut buf, gazelight_input::MAX_LINE_BYTES)
+                    .map_err(|source| TraceError::Io {
+                        path: path.to_owned(),
+                        source,
+                    })?;
+            match read {
+                gazelight_input::Line::Eof => break,
+                gazelight_input::Line::Read => {}
+                gazelight_input::Line::TooLong(n) => {
+                    return Err(err(
+                        line_no,
+                        format!(
+                            "line of {n} bytes, longer than the {} a trace row can be",
+                            gazelight_input::MAX_LINE_BYTES
+                        ),
+                    ));
+                }
+                gazelight_input::Line::NotUtf8 => {
+                    return Err(err(line_no, "not UTF-8 text".into()));
+                }
+            }
+            let line = buf.trim();
             if line.is_empty() || line.starts_with('#') {
                 continue;
             }

@@ -40,7 +40,7 @@ pub struct CsvPupilImporter<R: BufRead = BufReader<File>> {
 impl CsvPupilImporter<BufReader<File>> {
     /// Opens a CSV trace.
     pub fn open(path: &Path) -> Result<Self, ImportError> {
-        let f = File::open(path).map_err(|source| ImportError::Io {
+        let f = gazelight_input::open(path).map_err(|source| ImportError::Io {
             path: path.to_owned(),
             source,
         })?;
@@ -79,7 +79,9 @@ impl<R: BufRead> CsvPupilImporter<R> {
                 position: Position::Line(self.line_no),
                 reason: format!(
                     "header must name a time column (time|t|t_secs) and a left and/or right \
-                     pupil column in mm, found `{line}`"
+                     pupil column in mm, found `{}`{}",
+                    line.escape_debug(),
+                    header_hint(line)
                 ),
             }),
         }
@@ -136,6 +138,27 @@ impl<R: BufRead> CsvPupilImporter<R> {
     }
 }
 
+/// Why a header line that does not parse may look the way it does.
+fn header_hint(line: &str) -> &'static str {
+    if line.contains('\0') {
+        " (NUL bytes between the characters: the file is UTF-16; save it as UTF-8)"
+    } else if line.contains('\r') {
+        " (carriage returns inside the line: CR-only line endings; use LF or CRLF)"
+    } else if line.contains('\t') && !line.contains(',') {
+        " (the fields are separated by tabs; expected commas)"
+    } else if line.contains(';') && !line.contains(',') {
+        " (the fields are separated by semicolons; expected commas)"
+    } else if line
+        .bytes()
+        .next()
+        .is_some_and(|b| b.is_ascii_digit() || b == b'-')
+    {
+        " (the first line holds numbers: the header line is missing)"
+    } else {
+        ""
+    }
+}
+
 impl<R: BufRead> Iterator for CsvPupilImporter<R> {
     type Item = Result<Sample, ImportError>;
 
@@ -147,9 +170,53 @@ impl<R: BufRead> Iterator for CsvPupilImporter<R> {
             if self.done {
                 return None;
             }
-            self.line.clear();
-            match self.reader.read_line(&mut self.line) {
-                Ok(0) => {
+            match gazelight_input::read_line(
+                &mut self.reader,
+                &mut self.line,
+                gazelight_input::MAX_LINE_BYTES,
+            ) {
+                Ok(gazelight_input::Line::TooLong(n)) => {
+                    self.line_no += 1;
+                    if self.cols.is_none() {
+                        self.done = true;
+                        return Some(Err(ImportError::Structure {
+                            path: self.path.clone(),
+                            position: Position::Line(self.line_no),
+                            reason: format!(
+                                "the header line is {n} bytes long (limit {}): not a CSV \
+                                 with one record per line (CR-only line endings?)",
+                                gazelight_input::MAX_LINE_BYTES
+                            ),
+                        }));
+                    }
+                    self.warnings.skip(
+                        &self.path,
+                        Position::Line(self.line_no),
+                        format_args!(
+                            "line of {n} bytes, longer than the {} bytes a record can be",
+                            gazelight_input::MAX_LINE_BYTES
+                        ),
+                    );
+                }
+                Ok(gazelight_input::Line::NotUtf8) => {
+                    self.line_no += 1;
+                    if self.cols.is_none() {
+                        self.done = true;
+                        return Some(Err(ImportError::Structure {
+                            path: self.path.clone(),
+                            position: Position::Line(self.line_no),
+                            reason: "the header line is not UTF-8 text (a UTF-16 file? save \
+                                     it as UTF-8)"
+                                .into(),
+                        }));
+                    }
+                    self.warnings.skip(
+                        &self.path,
+                        Position::Line(self.line_no),
+                        "line is not valid UTF-8",
+                    );
+                }
+                Ok(gazelight_input::Line::Eof) => {
                     self.done = true;
                     if self.cols.is_none() {
                         return Some(Err(ImportError::Structure {
@@ -159,10 +226,10 @@ impl<R: BufRead> Iterator for CsvPupilImporter<R> {
                         }));
                     }
                 }
-                Ok(_) => {
+                Ok(gazelight_input::Line::Read) => {
                     self.line_no += 1;
                     let line = std::mem::take(&mut self.line);
-                    let trimmed = line.trim();
+                    let trimmed = line.trim().trim_start_matches('\u{feff}');
                     if !trimmed.is_empty() && !trimmed.starts_with('#') {
                         match self.cols {
                             None => match self.header(trimmed) {
@@ -177,14 +244,6 @@ impl<R: BufRead> Iterator for CsvPupilImporter<R> {
                         }
                     }
                     self.line = line;
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {
-                    self.line_no += 1;
-                    self.warnings.skip(
-                        &self.path,
-                        Position::Line(self.line_no),
-                        "line is not valid UTF-8",
-                    );
                 }
                 Err(source) => {
                     self.done = true;
@@ -205,6 +264,9 @@ impl<R: BufRead> Importer for CsvPupilImporter<R> {
     fn format(&self) -> &'static str {
         "csv"
     }
+    fn position(&self) -> Position {
+        Position::Line(self.line_no)
+    }
 }
 
 /// One light flash of a stimulus file.
@@ -220,10 +282,12 @@ pub struct Flash {
 /// unnamed column is an index). Small file: read whole. Any bad row is an
 /// error naming file and line.
 pub fn load_stimuli(path: &Path) -> Result<Vec<Flash>, ImportError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io {
-        path: path.to_owned(),
-        source,
-    })?;
+    let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES).map_err(
+        |source| ImportError::Io {
+            path: path.to_owned(),
+            source,
+        },
+    )?;
     let mut lines = text
         .lines()
         .enumerate()

@@ -56,7 +56,7 @@ pub struct AscImporter<R: BufRead = BufReader<File>> {
 impl AscImporter<BufReader<File>> {
     /// Opens an ASC file.
     pub fn open(path: &Path) -> Result<Self, ImportError> {
-        let f = File::open(path).map_err(|source| ImportError::Io {
+        let f = gazelight_input::open(path).map_err(|source| ImportError::Io {
             path: path.to_owned(),
             source,
         })?;
@@ -264,19 +264,33 @@ impl<R: BufRead> Iterator for AscImporter<R> {
             if self.done {
                 return None;
             }
-            self.line.clear();
-            match self.reader.read_line(&mut self.line) {
-                Ok(0) => {
+            match gazelight_input::read_line(
+                &mut self.reader,
+                &mut self.line,
+                gazelight_input::MAX_LINE_BYTES,
+            ) {
+                Ok(gazelight_input::Line::Eof) => {
                     self.done = true;
                 }
-                Ok(_) => {
+                Ok(gazelight_input::Line::TooLong(n)) => {
+                    self.line_no += 1;
+                    self.warnings.skip(
+                        &self.path,
+                        Position::Line(self.line_no),
+                        format_args!(
+                            "line of {n} bytes, longer than the {} bytes a line can be",
+                            gazelight_input::MAX_LINE_BYTES
+                        ),
+                    );
+                }
+                Ok(gazelight_input::Line::Read) => {
                     self.line_no += 1;
                     let line = std::mem::take(&mut self.line);
                     self.handle_line(&line);
                     self.line = line;
                 }
-                Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {
-                    // Not UTF-8: read_line has consumed the line; skip it.
+                Ok(gazelight_input::Line::NotUtf8) => {
+                    // Not UTF-8: the line was consumed; skip it.
                     self.line_no += 1;
                     self.warnings.skip(
                         &self.path,
@@ -302,6 +316,9 @@ impl<R: BufRead> Importer for AscImporter<R> {
     }
     fn format(&self) -> &'static str {
         "eyelink-asc"
+    }
+    fn position(&self) -> Position {
+        Position::Line(self.line_no)
     }
 }
 

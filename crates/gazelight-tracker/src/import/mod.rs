@@ -28,6 +28,7 @@ pub mod csv;
 pub mod eyelink;
 pub mod neon;
 pub mod pupil_core;
+pub mod time_guard;
 
 use std::path::{Path, PathBuf};
 
@@ -108,19 +109,41 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     fn warnings(&self) -> &ImportWarnings;
     /// A short name of the format ("neon", "eyelink-asc", "csv").
     fn format(&self) -> &'static str;
+    /// Where the most recently returned sample came from (a text
+    /// importer's line); [`Position::File`] when the format cannot say.
+    fn position(&self) -> Position {
+        Position::File
+    }
+    /// Clock statistics of the accepted samples, when the importer keeps
+    /// them (every importer [`open`] returns does: it is wrapped in a
+    /// [`time_guard::TimeGuard`]).
+    fn time_stats(&self) -> Option<&time_guard::TimeStats> {
+        None
+    }
 }
 
 /// Opens a recording, picking the importer from the path: a directory with
 /// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
 /// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
 /// EyeLink ASC export, `*.csv` a pupil CSV trace.
+///
+/// Every importer comes wrapped in a [`time_guard::TimeGuard`]: samples
+/// with absurd or isolated out-of-line timestamps are skipped and counted,
+/// and a file of which (nearly) nothing is readable ends in an error.
 pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
+    use time_guard::TimeGuard;
     if path.is_dir() {
         if path.join("info.json").is_file() && path.join("eye_state.dtype").is_file() {
-            return Ok(Box::new(neon::NeonImporter::open(path)?));
+            return Ok(Box::new(TimeGuard::new(
+                neon::NeonImporter::open(path)?,
+                path,
+            )));
         }
         if pupil_core::PupilCoreImporter::detect(path) {
-            return Ok(Box::new(pupil_core::PupilCoreImporter::open(path)?));
+            return Ok(Box::new(TimeGuard::new(
+                pupil_core::PupilCoreImporter::open(path)?,
+                path,
+            )));
         }
         return Err(ImportError::UnknownFormat {
             path: path.to_owned(),
@@ -134,8 +157,14 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("asc") => Ok(Box::new(eyelink::AscImporter::open(path)?)),
-        Some("csv") => Ok(Box::new(csv::CsvPupilImporter::open(path)?)),
+        Some("asc") => Ok(Box::new(TimeGuard::new(
+            eyelink::AscImporter::open(path)?,
+            path,
+        ))),
+        Some("csv") => Ok(Box::new(TimeGuard::new(
+            csv::CsvPupilImporter::open(path)?,
+            path,
+        ))),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
             reason: "expected a Neon or Pupil Core directory, an .asc or a .csv file".into(),

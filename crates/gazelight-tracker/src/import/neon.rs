@@ -190,10 +190,12 @@ impl Dtype {
 
     /// Reads and parses a `.dtype` file.
     pub fn load(path: &Path) -> Result<Self, ImportError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
+        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES).map_err(
+            |source| ImportError::Io {
+                path: path.to_owned(),
+                source,
+            },
+        )?;
         Self::parse(&text, path)
     }
 
@@ -278,7 +280,7 @@ impl BinStream {
             if self.readers.is_none() {
                 let (raw, time) = &self.parts[self.part];
                 let open = |p: &PathBuf| {
-                    File::open(p)
+                    gazelight_input::open(p)
                         .map(BufReader::new)
                         .map_err(|source| ImportError::Io {
                             path: p.clone(),
@@ -399,10 +401,13 @@ impl NeonImporter {
     /// Opens a Neon recording directory: reads `info.json` and the layouts.
     pub fn open(dir: &Path) -> Result<Self, ImportError> {
         let info_path = dir.join("info.json");
-        let info_text = std::fs::read_to_string(&info_path).map_err(|source| ImportError::Io {
-            path: info_path.clone(),
-            source,
-        })?;
+        let info_text =
+            gazelight_input::read_to_string(&info_path, gazelight_input::MAX_TEXT_BYTES).map_err(
+                |source| ImportError::Io {
+                    path: info_path.clone(),
+                    source,
+                },
+            )?;
         let info: serde_json::Value =
             serde_json::from_str(&info_text).map_err(|e| ImportError::Structure {
                 path: info_path.clone(),
