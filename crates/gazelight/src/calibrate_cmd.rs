@@ -16,7 +16,6 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -138,13 +137,10 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
     if args.white_first {
         cfg.order = [Phase::White, Phase::Black];
     }
+    crate::bounds::secs("--phase-secs", args.phase_secs)?;
+    crate::bounds::secs_or_zero("--settle-secs", args.settle_secs)?;
     cfg.validate().context("calibration settings")?;
-    if !(args.silence_secs.is_finite() && args.silence_secs > 0.0) {
-        bail!(
-            "--silence-secs {}: expected a duration > 0",
-            args.silence_secs
-        );
-    }
+    crate::bounds::secs("--silence-secs", args.silence_secs)?;
     if let Some(parent) = args.out.parent()
         && !parent.as_os_str().is_empty()
         && !parent.is_dir()
@@ -242,8 +238,14 @@ async fn calibrate(
     pupil: PupilConfig,
     window: Option<(Arc<SolidColour>, Arc<WindowControl>)>,
 ) -> anyhow::Result<()> {
+    // SIGINT, SIGTERM and SIGHUP abort the routine the same way: the
+    // stimulus is turned off and no profile is written.
+    let signals = crate::shutdown::Signals::new()
+        .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
+    let signal = signals.first();
+    tokio::pin!(signal);
     let (mut source, _raw) = PupilSource::spawn(pupil);
-    let connect = Duration::from_secs_f64(args.silence_secs);
+    let connect = crate::bounds::secs("--silence-secs", args.silence_secs)?;
     source.client().wait_connected(connect).await.with_context(|| {
         format!(
             "no tracker at {}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?",
@@ -281,7 +283,7 @@ async fn calibrate(
     };
 
     let mut session = CalibrationSession::new(cfg)?;
-    let silence = Duration::from_secs_f64(args.silence_secs);
+    let silence = connect;
     let mut skipped = 0u64;
     let outcome: anyhow::Result<()> = loop {
         if cancelled
@@ -290,7 +292,13 @@ async fn calibrate(
         {
             break Err(anyhow::anyhow!("the calibration window was closed"));
         }
-        let next = match tokio::time::timeout(silence, source.next()).await {
+        let next = tokio::select! {
+            name = &mut signal => {
+                break Err(anyhow::anyhow!("{name}: calibration aborted; no profile written"));
+            }
+            r = tokio::time::timeout(silence, source.next()) => r,
+        };
+        let next = match next {
             Ok(r) => r,
             Err(_) => {
                 break Err(anyhow::anyhow!(

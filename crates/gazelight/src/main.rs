@@ -7,6 +7,7 @@
 //! ```
 
 mod backend;
+mod bounds;
 mod calibrate_cmd;
 mod config;
 mod demo;
@@ -22,9 +23,10 @@ mod replay;
 mod run;
 mod serve;
 mod service_config;
+mod shutdown;
 mod window;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Gaze-tracked HDR perception: adaptation, glare from the live pupil,
 /// night vision.
@@ -75,7 +77,14 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    // Negative numbers are values, not flags (`--yaw-deg -78`, `--secs -1`
+    // reaches the range check that names the flag instead of clap's
+    // "unexpected argument"), for every subcommand's options.
+    let command = Cli::command().mut_subcommands(|sub| sub.allow_negative_numbers(true));
+    let cli = match Cli::from_arg_matches(&command.get_matches()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .or_else(|_| tracing_subscriber::EnvFilter::try_new(&cli.log))
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));

@@ -6,7 +6,7 @@
 //!
 //! Every received datum is kept: the writers flush at least every second
 //! (`PldataWriter` rewrites the `.npy` header in place, so the files are
-//! complete after every flush), Ctrl-C drains what is queued before closing,
+//! complete after every flush), Ctrl-C, SIGTERM and SIGHUP drain what is queued before closing,
 //! and a lost tracker only pauses the recording while the client reconnects.
 //! Datums the bounded raw queue had to drop (a disk slower than the tracker)
 //! are counted and reported, never silently lost.
@@ -46,17 +46,10 @@ pub struct RecordArgs {
 
 /// Runs `gazelight record`.
 pub fn run(args: RecordArgs) -> anyhow::Result<()> {
-    if let Some(s) = args.secs
-        && !(s.is_finite() && s > 0.0)
-    {
-        bail!("--secs {s}: expected a duration > 0");
+    if let Some(s) = args.secs {
+        crate::bounds::secs("--secs", s)?;
     }
-    if !(args.connect_secs.is_finite() && args.connect_secs > 0.0) {
-        bail!(
-            "--connect-secs {}: expected a duration > 0",
-            args.connect_secs
-        );
-    }
+    crate::bounds::secs("--connect-secs", args.connect_secs)?;
     if args.topics.iter().any(|t| t.trim().is_empty()) {
         bail!("--topics: empty topic prefix");
     }
@@ -172,9 +165,15 @@ impl Recording {
 }
 
 async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
+    // SIGINT, SIGTERM and SIGHUP stop the recording the same way: drained,
+    // flushed, info.player.json with the real duration (registered before
+    // anything is written, so no signal leaves a truncated record).
+    let signals = crate::shutdown::Signals::new()
+        .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
+    let connect = crate::bounds::secs("--connect-secs", args.connect_secs)?;
     let (client, mut streams) = PupilClient::spawn(pupil);
     client
-        .wait_connected(Duration::from_secs_f64(args.connect_secs))
+        .wait_connected(connect)
         .await
         .with_context(|| {
             format!(
@@ -198,14 +197,18 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
         }
     );
     let started = Instant::now();
-    let deadline = args
-        .secs
-        .map(|s| tokio::time::Instant::now() + Duration::from_secs_f64(s));
+    let deadline = match args.secs {
+        Some(s) => {
+            let d = crate::bounds::secs("--secs", s)?;
+            tokio::time::Instant::now().checked_add(d)
+        }
+        None => None,
+    };
     let mut tick = tokio::time::interval(Duration::from_millis(250));
     let mut was_connected = true;
     let mut last_report = Instant::now();
-    let ctrl_c = tokio::signal::ctrl_c();
-    tokio::pin!(ctrl_c);
+    let signal = signals.first();
+    tokio::pin!(signal);
     let reason = loop {
         let until_deadline = async {
             match deadline {
@@ -244,13 +247,8 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
                 }
             }
             _ = until_deadline => break "duration reached",
-            r = &mut ctrl_c => {
-                if let Err(e) = r {
-                    tracing::warn!(error = %e, "cannot listen for Ctrl-C");
-                    continue;
-                }
-                break "Ctrl-C";
-            }
+            // Ctrl-C is SIGINT; the others are named.
+            name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
         }
     };
     // Keep everything that was received: drain the queue before closing.

@@ -10,7 +10,7 @@
 //! - **Pupil Remote** (REP, the relay's address) answers `SUB_PORT` and
 //!   `PUB_PORT` (ports of the bus, as text), `t` (the relay's clock,
 //!   seconds, as Python's `repr(float)`), `v` (version), `T <secs>` (sets the
-//!   relay's clock, "Timesync successful."), and forwards any multi-frame
+//!   relay's clock, "Timesync successful."; |T| ≤ 1e10 s, else refused), and forwards any multi-frame
 //!   request `[topic, payload, …]` — notifications are
 //!   `[notify.<subject>, msgpack]` — onto the bus, answering
 //!   "Message forwarded." exactly like Capture. Anything else gets a reply
@@ -122,6 +122,12 @@ struct Counters {
 fn bump(c: &AtomicU64, n: u64) {
     c.fetch_add(n, Ordering::Relaxed);
 }
+
+/// Largest |T| accepted by `T <secs>`: 10¹⁰ s (317 years) covers Pupil
+/// time (seconds since the tracker started) and Unix time up to year 2286;
+/// a larger value would make every published timestamp absurd (1e308 makes
+/// them all 1e308) and is refused with the clock left as it was.
+pub const MAX_SYNC_T_SECS: f64 = 1e10;
 
 /// The relay's clock: host time plus an offset a client may set with `T`.
 #[derive(Default)]
@@ -330,10 +336,14 @@ impl Remote {
             _ if cmd.starts_with('T') => {
                 let arg = cmd.get(2..).unwrap_or("").trim();
                 match arg.parse::<f64>() {
-                    Ok(t) if t.is_finite() => {
+                    Ok(t) if t.is_finite() && t.abs() <= MAX_SYNC_T_SECS => {
                         self.clock.set_now(t);
                         "Timesync successful.".to_owned()
                     }
+                    Ok(t) if t.is_finite() => format!(
+                        "'{arg}' is outside the clock range this relay accepts \
+                         (|T| ≤ {MAX_SYNC_T_SECS:e} s); clock unchanged."
+                    ),
                     _ => format!("'{arg}' cannot be converted to float."),
                 }
             }
@@ -771,6 +781,30 @@ mod tests {
                 .await
                 .contains("cannot be converted"),
             "a bad T argument is refused"
+        );
+        // An absurd T is refused and leaves the clock where it was; so are
+        // the non-finite ones.
+        for absurd in [
+            "T 1e308", "T -1e308", "T 1.0e11", "T nan", "T inf", "T -inf",
+        ] {
+            let reply = request(&mut req, absurd.into()).await;
+            assert_ne!(reply, "Timesync successful.", "{absurd}");
+            let t: f64 = request(&mut req, "t".into()).await.parse().unwrap();
+            assert!((t - 1000.25).abs() < 0.5, "{absurd} moved the clock to {t}");
+        }
+        assert!(
+            request(&mut req, "T 1e308".into())
+                .await
+                .contains("outside the clock range"),
+        );
+        // The edge of the range is accepted (Unix time is well inside it).
+        assert_eq!(
+            request(&mut req, "T 1e10".into()).await,
+            "Timesync successful."
+        );
+        assert_eq!(
+            request(&mut req, "T 1000.25".into()).await,
+            "Timesync successful."
         );
 
         // Anything else is answered, never left hanging.

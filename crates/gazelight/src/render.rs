@@ -90,9 +90,7 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
         Some(p) => RenderConfig::load(p)?,
         None => RenderConfig::default(),
     };
-    if !(args.fps.is_finite() && args.fps > 0.0 && args.fps <= 1000.0) {
-        bail!("--fps {}: expected 0 < fps ≤ 1000", args.fps);
-    }
+    crate::bounds::fps("--fps", args.fps)?;
 
     // Scene.
     let scale = match (args.luminance_scale, args.scene_key_cd_m2) {
@@ -100,10 +98,12 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
         (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
         (None, None) => config.scene.luminance_scale.unwrap_or_default(),
     };
+    crate::bounds::luminance_scale(scale)?;
     let scene = match &args.scene {
         Some(path) => Scene::load(path, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
+    crate::bounds::scene_luminance(&scene)?;
     if scene.repaired_components > 0 {
         tracing::info!(
             scene = %scene.name,
@@ -180,12 +180,18 @@ pub(crate) fn render_sequence(
         view_img,
     } = setup;
     let (width, height) = (view.width, view.height);
-    let frames = args
-        .frames
-        .unwrap_or_else(|| ((duration_secs * args.fps).floor() as usize + 1).max(1));
-    if frames == 0 {
-        bail!("--frames 0: nothing to render");
-    }
+    let frames = match args.frames {
+        Some(n) => crate::bounds::frames(&format!("--frames {n}"), n)?,
+        None => {
+            // Saturating float → int: an absurd span gives usize::MAX and
+            // is refused by the bound, never allocated.
+            let n = ((duration_secs * args.fps).floor() as usize).saturating_add(1);
+            crate::bounds::frames(&format!("{duration_secs:.1} s at --fps {}", args.fps), n)?
+        }
+    };
+    // SIGINT, SIGTERM and SIGHUP stop the sequence after the current frame;
+    // what was rendered is written out whole.
+    let stop = crate::shutdown::stop_flag();
 
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
@@ -211,7 +217,7 @@ pub(crate) fn render_sequence(
     )?;
     let mut out = DisplayFrame::new(width, height);
     let mut last_adaptation = None;
-    let mut timeline = Vec::with_capacity(frames);
+    let mut timeline = Vec::with_capacity(frames.min(4096));
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
     let mut sheet = output::ContactSheet::new(width, height);
     let progress = indicatif::ProgressBar::new(frames as u64);
@@ -223,6 +229,9 @@ pub(crate) fn render_sequence(
     );
     let dt_secs = 1.0 / args.fps;
     for i in 0..frames {
+        if stop.as_ref().is_some_and(|s| s.requested()) {
+            break;
+        }
         let t_secs = t0 + i as f64 * dt_secs;
         let input = eye.input(
             t_secs,
@@ -249,6 +258,14 @@ pub(crate) fn render_sequence(
         progress.inc(1);
     }
     progress.finish_and_clear();
+    let requested = frames;
+    let frames = timeline.len();
+    let interrupted = stop.as_ref().and_then(|s| s.signal());
+    if let Some(sig) = interrupted
+        && frames == 0
+    {
+        bail!("{sig}: stopped before the first frame; nothing written");
+    }
     output::write_timeline(&args.out.join("timeline.csv"), &timeline)?;
     sheet.write(&args.out.join("contact_sheet.png"))?;
     output::write_plot(&args.out.join("plot.png"), &timeline)?;
@@ -272,6 +289,11 @@ pub(crate) fn render_sequence(
         args.out.display(),
         if args.no_frames { "" } else { "frames/, " }
     );
+    if let Some(sig) = interrupted {
+        bail!(
+            "{sig}: stopped after {frames} of {requested} frames; the outputs hold those {frames}"
+        );
+    }
     Ok(())
 }
 

@@ -54,10 +54,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if !(args.from_secs.is_finite() && args.from_secs >= 0.0) {
         bail!("--from-secs {}: expected a time ≥ 0", args.from_secs);
     }
-    if let Some(s) = args.secs
-        && !(s.is_finite() && s > 0.0)
-    {
-        bail!("--secs {s}: expected a duration > 0");
+    if let Some(s) = args.secs {
+        crate::bounds::secs("--secs", s)?;
     }
     let calibration = match &args.calibration {
         Some(path) => Some(PupilCalibration::load(path)?),

@@ -115,17 +115,23 @@ pub struct ServiceConfig {
     pub output: OutputSettings,
     pub http: EndpointSettings,
     pub relay: EndpointSettings,
+    /// Lab Streaming Layer: outlets, discovery scope, inlet mapping.
+    pub lsl: gazelight_tracker::lsl::LslConfig,
 }
 
 /// Largest display rate accepted, Hz.
-pub const MAX_FPS: f64 = 1000.0;
+pub const MAX_FPS: f64 = crate::bounds::MAX_FPS;
 
 /// Checks a display rate.
 pub fn check_fps(fps: f64) -> Result<f64, String> {
-    if fps.is_finite() && fps > 0.0 && fps <= MAX_FPS {
+    let min = crate::bounds::MIN_FPS;
+    if fps.is_finite() && fps >= min && fps <= MAX_FPS {
         Ok(fps)
     } else {
-        Err(format!("{fps}: expected 0 < fps ≤ {MAX_FPS}"))
+        Err(format!(
+            "{}: expected a rate {min} ≤ Hz ≤ {MAX_FPS}",
+            crate::bounds::Num(fps)
+        ))
     }
 }
 
@@ -200,6 +206,7 @@ impl ServiceConfig {
         resolve(&mut config.source.calibration);
         resolve(&mut config.scene.file);
         resolve(&mut config.output.dir);
+        resolve(&mut config.lsl.config_file);
         if let Some(h) = &config.scene.head
             && let Some(rel) = h.strip_prefix("trace:")
             && Path::new(rel).is_relative()

@@ -408,7 +408,13 @@ impl FrameLoop {
                     deadline_index = slots;
                 }
             } else {
-                std::thread::sleep(deadline - after);
+                // Sleep in slices so a shutdown (a signal, --secs) is seen
+                // within `SHUTDOWN_POLL` even at a very low --fps.
+                let mut now = after;
+                while now < deadline && !self.hub.shutting_down() {
+                    std::thread::sleep((deadline - now).min(crate::bounds::SHUTDOWN_POLL));
+                    now = Instant::now();
+                }
             }
         }
         let wall_secs = start.elapsed().as_secs_f64();

@@ -158,10 +158,8 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
         (None, Some(s)) => service_config::parse_size(s).map_err(|e| anyhow::anyhow!(e))?,
         (None, None) => (720, 800),
     };
-    if let Some(s) = args.secs
-        && !(s.is_finite() && s > 0.0)
-    {
-        bail!("--secs {s}: expected a duration > 0");
+    if let Some(s) = args.secs {
+        crate::bounds::secs("--secs", s)?;
     }
     let head = match (&args.head, &config.scene.head) {
         (Some(h), _) => h.clone(),
@@ -224,11 +222,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         (None, None) => cfg.scene.luminance_scale.unwrap_or_default(),
     };
     scale.validate().context("luminance scale")?;
+    crate::bounds::luminance_scale(scale)?;
     let scene_path = args.scene.clone().or_else(|| cfg.scene.file.clone());
     let scene = match &scene_path {
         Some(p) => Scene::load(p, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
+    crate::bounds::scene_luminance(&scene)?;
     let base = demo::default_view(r.size.0, r.size.1);
     let view = ViewParams {
         yaw_deg: args.yaw_deg.or(cfg.scene.yaw_deg).unwrap_or(base.yaw_deg),
@@ -303,6 +303,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         .context("cannot start the tokio runtime")?;
     let session = || {
         runtime.block_on(async {
+        // SIGINT, SIGTERM and SIGHUP end the run the same way (registered
+        // before the source starts, so none of them kills the process with
+        // half-written outputs).
+        let signals = crate::shutdown::Signals::new()
+            .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
         let source = open_source(
             &r.uri,
             chain,
@@ -354,7 +359,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             }
         };
 
-        // Ctrl-C, --secs and closing the window end the run the same way.
+        // A signal, --secs and closing the window end the run the same way.
         {
             let hub = hub.clone();
             let closed = window_closed.clone();
@@ -372,16 +377,17 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         {
             let hub = hub.clone();
             tokio::spawn(async move {
-                if tokio::signal::ctrl_c().await.is_ok() {
-                    tracing::info!("Ctrl-C: shutting down");
-                    hub.request_shutdown();
-                }
+                let name = signals.first().await;
+                tracing::info!("{name}: shutting down");
+                hub.request_shutdown();
             });
         }
         if let Some(secs) = r.secs {
             let hub = hub.clone();
+            // Bounded in `resolve` (0 < secs ≤ 30 days).
+            let secs = crate::bounds::secs("--secs", secs)?;
             tokio::spawn(async move {
-                tokio::time::sleep(Duration::from_secs_f64(secs)).await;
+                tokio::time::sleep(secs).await;
                 hub.request_shutdown();
             });
         }

@@ -14,9 +14,12 @@
 //! The frame loop hands rows, frames and kernel events over bounded
 //! `sync_channel`s (preallocated ring buffers: sending does not allocate).
 
+use std::fmt::Write as _;
 use std::io::Write;
 use std::path::Path;
-use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, TrySendError, sync_channel};
+use std::sync::mpsc::{
+    Receiver, RecvTimeoutError, SyncSender, TryRecvError, TrySendError, sync_channel,
+};
 use std::thread::JoinHandle;
 
 use anyhow::Context;
@@ -30,6 +33,8 @@ use crate::output;
 const FRAME_POOL: usize = 4;
 /// Rows/events queued before the loop starts dropping them (counted).
 const QUEUE: usize = 4096;
+/// The files are flushed at least this often (whole rows only).
+const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// One row of the live `timeline.csv`.
 #[derive(Clone, Copy, Debug, Default)]
@@ -127,6 +132,9 @@ impl OutputWriter {
             psf_csv,
             "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin"
         )?;
+        // The headers are on disk before the session starts.
+        timeline.flush()?;
+        psf_csv.flush()?;
         let (tx, rx) = sync_channel::<Msg>(QUEUE);
         let (pool_tx, pool) = sync_channel::<DisplayFrame>(FRAME_POOL);
         for _ in 0..FRAME_POOL {
@@ -139,10 +147,33 @@ impl OutputWriter {
                 let mut report = WriterReport::default();
                 let timeline_path = dir_owned.join("timeline.csv");
                 let psf_path = dir_owned.join("psf.csv");
-                for msg in rx {
+                // Rows are formatted here and handed to the file whole, and
+                // the files are flushed at least every `FLUSH_EVERY`: the
+                // files only ever hold complete rows, up to a second old,
+                // whatever ends the process.
+                let mut line = String::with_capacity(256);
+                let mut last_flush = std::time::Instant::now();
+                loop {
+                    let msg = match rx.recv_timeout(FLUSH_EVERY) {
+                        Ok(m) => Some(m),
+                        Err(RecvTimeoutError::Timeout) => None,
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    };
+                    if last_flush.elapsed() >= FLUSH_EVERY {
+                        last_flush = std::time::Instant::now();
+                        timeline
+                            .flush()
+                            .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+                        psf_csv
+                            .flush()
+                            .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                    }
+                    let Some(msg) = msg else { continue };
                     match msg {
                         Msg::Row(r) => {
-                            write_row(&mut timeline, &r).with_context(|| {
+                            line.clear();
+                            format_row(&mut line, &r);
+                            timeline.write_all(line.as_bytes()).with_context(|| {
                                 format!("cannot write {}", timeline_path.display())
                             })?;
                             report.rows += 1;
@@ -162,8 +193,9 @@ impl OutputWriter {
                                 .as_ref()
                                 .and_then(MonoPsf::first_minimum_rad)
                                 .unwrap_or(f64::NAN);
-                            writeln!(
-                                psf_csv,
+                            line.clear();
+                            let _ = writeln!(
+                                line,
                                 "{},{:.4},{:.4},{},{:.6e},{:.4}",
                                 ev.generation,
                                 ev.t_secs,
@@ -171,8 +203,10 @@ impl OutputWriter {
                                 REFERENCE_WAVELENGTH_NM,
                                 ring,
                                 ring.to_degrees() * 60.0
-                            )
-                            .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                            );
+                            psf_csv
+                                .write_all(line.as_bytes())
+                                .with_context(|| format!("cannot write {}", psf_path.display()))?;
                             report.psf_rows += 1;
                         }
                     }
@@ -251,8 +285,9 @@ impl OutputWriter {
     }
 }
 
-fn write_row(w: &mut impl Write, r: &Row) -> std::io::Result<()> {
-    writeln!(
+/// Formats one timeline row (with its newline) into `w`.
+fn format_row(w: &mut String, r: &Row) {
+    let _ = writeln!(
         w,
         "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3}",
         r.frame,
@@ -270,5 +305,5 @@ fn write_row(w: &mut impl Write, r: &Row) -> std::io::Result<()> {
         r.psf_pupil_mm,
         u8::from(r.psf_rebuilt),
         r.frame_ms
-    )
+    );
 }

@@ -20,6 +20,8 @@
 //! ([`ServeStats::ws_dropped_slow`]). At most one message per client is in
 //! flight at any time ([`ServeStats::ws_in_flight_max`]).
 
+mod capped;
+
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -187,6 +189,9 @@ pub async fn spawn_with(
     let mut shutdown = hub.shutdown_signal();
     let server = tokio::spawn(async move {
         let stop = async move { shutdown_requested(&mut shutdown).await };
+        // At most `capped::MAX_CONNECTIONS` open at once: clients can never
+        // starve the session's writers of descriptors.
+        let listener = capped::CappedListener::new(listener, capped::MAX_CONNECTIONS);
         if let Err(e) = axum::serve(listener, app)
             .with_graceful_shutdown(stop)
             .await
