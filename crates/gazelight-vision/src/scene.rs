@@ -7,6 +7,18 @@
 //! the simpler thing of mapping the image's median luminance onto a chosen
 //! "scene key", and [`LuminanceScale::CdM2PerUnit`] takes the factor as is.
 //!
+//! ## Units of Radiance files
+//!
+//! A Radiance `.hdr` holds radiance in W·sr⁻¹·m⁻² multiplied by the
+//! header's `EXPOSURE=` values (their product; 1 when absent) and
+//! per-channel `COLORCORR=` factors. Radiance's luminance is
+//! 179 lm/W × (0.265 R + 0.670 G + 0.065 B) / EXPOSURE (the Radiance
+//! reference manual, "luminance"; 179 lm/W is its white efficacy). The
+//! loader divides the pixels by EXPOSURE and COLORCORR and multiplies them
+//! by 179, so a Radiance file's unit is cd/m² and the default
+//! [`LuminanceScale`] (1) reads an absolute rendering as it was rendered.
+//! OpenEXR files carry no such convention: their unit is the file's own.
+//!
 //! ## Panorama convention
 //!
 //! Equirectangular, x = longitude from −180° (left edge) to +180° (right
@@ -34,6 +46,19 @@ use serde::{Deserialize, Serialize};
 
 use crate::image::luminance;
 use crate::{RgbImage, VisionError};
+
+mod exr_header;
+pub use exr_header::{MAX_PIXELS, MAX_SIDE_PX};
+
+/// Radiance's luminous efficacy of its white, lm/W: luminance =
+/// 179 × (0.265 R + 0.670 G + 0.065 B) / EXPOSURE (Radiance reference
+/// manual).
+pub const RADIANCE_EFFICACY_LM_PER_W: f64 = 179.0;
+
+/// Panorama aspect (width / height) of an equirectangular image, and how
+/// far from it a scene may be before the loader warns.
+pub const EQUIRECT_ASPECT: f64 = 2.0;
+const ASPECT_TOLERANCE: f64 = 0.02;
 
 /// File formats the loader understands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -103,9 +128,11 @@ pub struct Scene {
 impl Scene {
     /// Loads a scene file and applies the luminance scale.
     pub fn load(path: &Path, scale: LuminanceScale) -> Result<Self, VisionError> {
-        let bytes = std::fs::read(path).map_err(|e| VisionError::SceneRead {
-            path: path.to_owned(),
-            reason: e.to_string(),
+        let bytes = gazelight_input::read(path, gazelight_input::MAX_SCENE_BYTES).map_err(|e| {
+            VisionError::SceneRead {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            }
         })?;
         Self::from_bytes(&bytes, path, scale)
     }
@@ -144,6 +171,9 @@ impl Scene {
             }
         };
         image.scale(factor as f32);
+        if let Some(w) = geometry_warning(&image) {
+            tracing::warn!(scene = %name.display(), "{w}");
+        }
         Ok(Self {
             name: name.display().to_string(),
             image,
@@ -151,6 +181,24 @@ impl Scene {
             repaired_components: bad,
         })
     }
+}
+
+/// A warning when an image is not shaped like an equirectangular panorama
+/// (2:1): a fisheye or a perspective photo would be mapped as if it were one.
+pub fn geometry_warning(image: &RgbImage) -> Option<String> {
+    if image.height == 0 {
+        return None;
+    }
+    let aspect = image.width as f64 / image.height as f64;
+    ((aspect / EQUIRECT_ASPECT - 1.0).abs() > ASPECT_TOLERANCE).then(|| {
+        format!(
+            "the scene is {}×{} (aspect {aspect:.3}), not a 2:1 equirectangular panorama: it is \
+             mapped as one (longitude across the width, latitude down the height), so a \
+             fisheye or perspective image will look distorted; convert it to an \
+             equirectangular panorama first",
+            image.width, image.height
+        )
+    })
 }
 
 /// Median luminance of an image (file units).
@@ -172,19 +220,45 @@ pub fn decode_hdr(bytes: &[u8], name: &Path) -> Result<RgbImage, VisionError> {
     };
     match HdrFormat::sniff(bytes) {
         Some(HdrFormat::Exr) => {
-            decode_exr(Cursor::new(bytes)).map_err(|e| read_err(format!("corrupt OpenEXR: {e}")))
+            let header = exr_header::check(bytes).map_err(|p| {
+                read_err(if p.unsupported {
+                    format!("OpenEXR feature not supported: {}", p.reason)
+                } else {
+                    format!("corrupt OpenEXR: {}", p.reason)
+                })
+            })?;
+            decode_exr(Cursor::new(bytes), header.has_rgb())
+                .map_err(|e| read_err(format!("corrupt OpenEXR: {e}")))
         }
-        Some(HdrFormat::Radiance) => {
-            decode_radiance(bytes).map_err(|e| read_err(format!("corrupt Radiance HDR: {e}")))
-        }
+        Some(HdrFormat::Radiance) => decode_radiance(bytes).map_err(read_err),
         None => Err(read_err(
             "not an OpenEXR or Radiance .hdr file (unknown magic bytes)".to_string(),
         )),
     }
 }
 
-fn decode_exr(reader: impl Read + Seek + Send) -> Result<RgbImage, exr::error::Error> {
+fn decode_exr(reader: impl Read + Seek + Send, rgb: bool) -> Result<RgbImage, exr::error::Error> {
     use exr::prelude::*;
+    if !rgb {
+        // A luminance image (Y, as OpenEXR's luminance/chroma files and
+        // grey renders write): grey RGB with R = G = B = Y.
+        let image = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .specific_channels()
+            .required("Y")
+            .collect_pixels(
+                |resolution, _channels| RgbImage::new(resolution.width(), resolution.height()),
+                |img: &mut RgbImage, pos, (y,): (f32,)| {
+                    *img.get_mut(pos.x(), pos.y()) = [y, y, y];
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .non_parallel()
+            .from_buffered(reader)?;
+        return Ok(image.layer_data.channel_data.pixels);
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -201,13 +275,56 @@ fn decode_exr(reader: impl Read + Seek + Send) -> Result<RgbImage, exr::error::E
     Ok(image.layer_data.channel_data.pixels)
 }
 
-fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, image::ImageError> {
-    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Hdr)?.into_rgb32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let pixels = img.pixels().map(|p| [p.0[0], p.0[1], p.0[2]]).collect();
+/// Decodes a Radiance file into cd/m² (see the module docs): checks the
+/// claimed size against [`MAX_SIDE_PX`], [`MAX_PIXELS`] and the file size
+/// before allocating, then applies 179 / (EXPOSURE × COLORCORR).
+fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, String> {
+    use image::ImageDecoder;
+    let decoder = image::codecs::hdr::HdrDecoder::new(Cursor::new(bytes))
+        .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
+    let meta = decoder.metadata();
+    let (w, h) = (u64::from(meta.width), u64::from(meta.height));
+    if w == 0 || h == 0 || w > MAX_SIDE_PX || h > MAX_SIDE_PX || w * h > MAX_PIXELS {
+        return Err(format!(
+            "corrupt Radiance HDR: the header claims {w}×{h} pixels; a scene may have 1 to \
+             {MAX_SIDE_PX} per side and at most {MAX_PIXELS} in all"
+        ));
+    }
+    // Run-length encoded scan lines shrink a flat line to ~4 bytes per 127
+    // pixels, never further: 2 bytes per 127 pixels and channel at best.
+    let min_bytes = w * h / 64;
+    if (bytes.len() as u64) < min_bytes {
+        return Err(format!(
+            "corrupt Radiance HDR: the header claims {w}×{h} pixels but the file holds only {} \
+             bytes (at least {min_bytes} needed): it is truncated or its header lies",
+            bytes.len()
+        ));
+    }
+    let exposure = f64::from(meta.exposure.unwrap_or(1.0));
+    let corr = meta.color_correction.unwrap_or((1.0, 1.0, 1.0));
+    let corr = [f64::from(corr.0), f64::from(corr.1), f64::from(corr.2)];
+    if !(exposure.is_finite() && exposure > 0.0)
+        || corr.iter().any(|c| !(c.is_finite() && *c > 0.0))
+    {
+        return Err(format!(
+            "corrupt Radiance HDR: EXPOSURE {exposure} / COLORCORR {corr:?} must be finite and > 0"
+        ));
+    }
+    let mut buf = vec![0u8; decoder.total_bytes() as usize];
+    decoder
+        .read_image(&mut buf)
+        .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
+    let k = corr.map(|c| (RADIANCE_EFFICACY_LM_PER_W / (exposure * c)) as f32);
+    let pixels = buf
+        .chunks_exact(12)
+        .map(|p| {
+            let f = |i: usize| f32::from_ne_bytes([p[i], p[i + 1], p[i + 2], p[i + 3]]);
+            [f(0) * k[0], f(4) * k[1], f(8) * k[2]]
+        })
+        .collect();
     Ok(RgbImage {
-        width: w,
-        height: h,
+        width: w as usize,
+        height: h as usize,
         pixels,
     })
 }
@@ -493,6 +610,164 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
+    /// A one-channel float EXR (`name` = "Y", "A", "R", ...), ZIP-compressed
+    /// by the `exr` crate's defaults.
+    fn one_channel_exr(name: &str, w: usize, h: usize, v: f32) -> Vec<u8> {
+        use exr::prelude::*;
+        let channels = SpecificChannels::build()
+            .with_channel::<f32>(name)
+            .with_pixel_fn(move |_pos: Vec2<usize>| (v,));
+        let image = Image::from_channels((w, h), channels);
+        let mut buf = Cursor::new(Vec::new());
+        image.write().to_buffered(&mut buf).unwrap();
+        buf.into_inner()
+    }
+
+    /// A small RGB EXR as the project writes them.
+    fn small_rgb_exr(w: usize, h: usize) -> Vec<u8> {
+        let dir =
+            std::env::temp_dir().join(format!("gazelight-exr-{}-{w}x{h}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("small.exr");
+        let img = RgbImage::from_pixels(w, h, vec![[0.5, 1.0, 2.0]; w * h]).unwrap();
+        write_exr(&path, &img).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        bytes
+    }
+
+    /// Byte offset of an attribute's value in an EXR header.
+    fn attribute_value(bytes: &[u8], name: &str, ty: &str) -> usize {
+        let key = [name.as_bytes(), b"\0", ty.as_bytes(), b"\0"].concat();
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap();
+        at + key.len() + 4
+    }
+
+    #[test]
+    fn tiny_exr_claiming_a_huge_image_is_refused_before_allocating() {
+        let good = small_rgb_exr(8, 4);
+        assert!(good.len() < 1000, "{} bytes", good.len());
+        let at = attribute_value(&good, "dataWindow", "box2i");
+        for (x1, y1, what) in [
+            (99_999i32, 99_999i32, "at most"), // 1e10 pixels: over the cap
+            (i32::MAX, i32::MAX, "at most"),   // 4.6e18: would overflow usize math
+            (16_383, 8_191, "at least"),       // within the cap, not in 500 bytes
+        ] {
+            let mut bytes = good.clone();
+            bytes[at + 8..at + 12].copy_from_slice(&x1.to_le_bytes());
+            bytes[at + 12..at + 16].copy_from_slice(&y1.to_le_bytes());
+            let t = std::time::Instant::now();
+            let e = Scene::from_bytes(&bytes, Path::new("huge.exr"), LuminanceScale::default())
+                .unwrap_err()
+                .to_string();
+            assert!(t.elapsed().as_secs_f64() < 1.0);
+            assert!(e.contains("huge.exr") && e.contains(what), "{e}");
+        }
+        // A negative window is empty, not a wrap-around.
+        let mut bytes = good.clone();
+        bytes[at..at + 4].copy_from_slice(&5i32.to_le_bytes());
+        bytes[at + 8..at + 12].copy_from_slice(&(-5i32).to_le_bytes());
+        let e = Scene::from_bytes(&bytes, Path::new("neg.exr"), LuminanceScale::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("empty"), "{e}");
+        // The untouched file still loads.
+        let s = Scene::from_bytes(&good, Path::new("ok.exr"), LuminanceScale::default()).unwrap();
+        assert_eq!((s.image.width, s.image.height), (8, 4));
+    }
+
+    #[test]
+    fn exr_compression_newer_than_the_reader_is_unsupported_not_corrupt() {
+        let good = small_rgb_exr(8, 4);
+        let at = attribute_value(&good, "compression", "compression");
+        for code in [10u8, 11, 12, 200] {
+            let mut bytes = good.clone();
+            bytes[at] = code;
+            let e = Scene::from_bytes(&bytes, Path::new("z.exr"), LuminanceScale::default())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("unsupported compression") && !e.contains("corrupt"),
+                "{code}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn y_only_exr_is_a_luminance_image_and_a_or_r_only_is_named() {
+        let y = one_channel_exr("Y", 16, 8, 3.0);
+        let s = Scene::from_bytes(&y, Path::new("y.exr"), LuminanceScale::default()).unwrap();
+        assert_eq!((s.image.width, s.image.height), (16, 8));
+        assert!(s.image.pixels.iter().all(|p| *p == [3.0, 3.0, 3.0]));
+        for name in ["A", "R"] {
+            let b = one_channel_exr(name, 16, 8, 1.0);
+            let e = Scene::from_bytes(&b, Path::new("x.exr"), LuminanceScale::default())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("channels [{name}]")) && e.contains("R, G and B"),
+                "{e}"
+            );
+        }
+    }
+
+    /// A Radiance file as Radiance writes it: flat RGBE scan lines.
+    fn radiance_file(header: &str, w: usize, h: usize, rgbe: [u8; 4]) -> Vec<u8> {
+        let mut b =
+            format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n{header}\n-Y {h} +X {w}\n").into_bytes();
+        for _ in 0..w * h {
+            b.extend_from_slice(&rgbe);
+        }
+        b
+    }
+
+    #[test]
+    fn radiance_exposure_is_honoured() {
+        // RGBE (128, 128, 128, 129) = 0.5·2¹ = 1.0 W/sr/m² per channel
+        // (Ward's RGBE: value = (m + 0.5)/256 · 2^(e−128); the decoder
+        // drops the +0.5). Radiance: L = 179 × (0.265+0.670+0.065)·1.0 /
+        // EXPOSURE = 179 / EXPOSURE cd/m².
+        for (header, exposure) in [
+            ("", 1.0f32),
+            ("EXPOSURE=0.5\n", 0.5),
+            ("EXPOSURE=2\nEXPOSURE=0.25\n", 0.5),
+        ] {
+            let b = radiance_file(header, 8, 4, [128, 128, 128, 129]);
+            let s = Scene::from_bytes(&b, Path::new("sky.hdr"), LuminanceScale::default()).unwrap();
+            let l = luminance(s.image.get(3, 2));
+            let want = 179.0 / exposure;
+            assert!((l - want).abs() < 1e-3 * want, "{header:?}: {l} vs {want}");
+        }
+        let b = radiance_file("EXPOSURE=0\n", 8, 4, [128, 128, 128, 129]);
+        assert!(Scene::from_bytes(&b, Path::new("z.hdr"), LuminanceScale::default()).is_err());
+    }
+
+    #[test]
+    fn radiance_claiming_a_huge_image_is_refused() {
+        let mut b = radiance_file("", 8, 4, [128, 128, 128, 129]);
+        let text = String::from_utf8_lossy(&b).replace("-Y 4 +X 8", "-Y 30000 +X 30000");
+        b = text.into_bytes();
+        let e = Scene::from_bytes(&b, Path::new("big.hdr"), LuminanceScale::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("big.hdr") && e.contains("30000"), "{e}");
+        let mut b = radiance_file("", 8, 4, [128, 128, 128, 129]);
+        let text = String::from_utf8_lossy(&b).replace("-Y 4 +X 8", "-Y 8000 +X 16000");
+        b = text.into_bytes();
+        let e = Scene::from_bytes(&b, Path::new("big.hdr"), LuminanceScale::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("truncated"), "{e}");
+    }
+
+    #[test]
+    fn non_panorama_geometry_is_warned_about() {
+        let square = RgbImage::new(64, 64);
+        let w = geometry_warning(&square).unwrap();
+        assert!(w.contains("64×64") && w.contains("not a 2:1"), "{w}");
+        assert!(geometry_warning(&RgbImage::new(1024, 512)).is_none());
+    }
+
     #[test]
     fn radiance_round_trip() {
         let mut buf = Vec::new();
@@ -509,9 +784,11 @@ mod tests {
         )
         .unwrap();
         assert_eq!((s.image.width, s.image.height), (4, 2));
+        // Radiance's unit is W/sr/m²: 179 lm/W turns it into cd/m².
         let p = s.image.get(3, 1);
+        let k = RADIANCE_EFFICACY_LM_PER_W as f32;
         assert!(
-            (p[0] - 40.0).abs() < 0.5 && (p[1] - 15.0).abs() < 0.2,
+            (p[0] - 40.0 * k).abs() < 0.5 * k && (p[1] - 15.0 * k).abs() < 0.2 * k,
             "{p:?}"
         );
     }
