@@ -1,191 +1,287 @@
-// Stage 4: windowed FFT glare at the gaze (001 §4.2.3; the twin of
-// gazelight_vision::glare::GlareConvolver). W×W window centred on the pixel
-// under the gaze, three colour planes of W² complex values in the FFT's data
-// buffer (plane c at c·W²), transformed by gazelight_gpu::fft. Entry points:
+// Stage 4: glare at the gaze with the kernel split into a full-resolution
+// core and a coarse wide field (001 §4.2.3; the twin of
+// gazelight_vision::glare::GlareConvolver, step by step). Two FFT windows,
+// each three colour planes of W² complex values (plane c at c·W²),
+// transformed by gazelight_gpu::fft: the fine one (W_f display pixels per
+// side, origin (ofx, ofy)) and the coarse one (W_c blocks of b × b display
+// pixels, origin (ocx, ocy), block (W_c/2) centred on the gaze pixel).
 //
-// On a PSF rebuild (kernel cached otherwise):
-// 1. `kernel_sums` (one workgroup): per-channel sums of the kernel cropped to
-//    radius r = min(size/2, W/4);
-// 2. `kernel_scatter`: the cropped kernel / its sum, centred on index (0, 0)
-//    (wrapped), into the data buffer (a channel without light becomes the
-//    identity); the host then runs the forward FFT and copies the spectrum.
+// On a PSF rebuild (spectra cached otherwise):
+// 1. `kernel_fine`: (1 − g(d))·K for |dx|, |dy| ≤ r_fine, centred on index
+//    (0, 0) (wrapped), g the smoothstep from 0 at r_fine/2 to 1 at r_fine;
+// 2. `kernel_coarse`: g(d)·K summed over the b × b pixels of each block
+//    (block bx holds dx = bx·b − b/2 … bx·b + b/2), wrapped; the host then
+//    runs both forward FFTs and copies the spectra.
 // Per frame:
-// 3. `window_gather`: source light w(d)·img of the window ∩ image (0
-//    elsewhere), w(d) = (G(d) − G(R))/(1 − G(R)), G(d) = e^(−d²/2σ²) for
-//    d < R = W/2 − r − 1, 0 beyond (σ → ∞ limit 1 − d²/R²);
-// 4. `spectrum_multiply`: data ·= kernel spectrum (forward FFT before,
-//    inverse FFT — with its 1/W² — after);
-// 5. `blend`: img = (1 − w)·img + (K ∗ w·img) over window ∩ image.
+// 3. `gather_fine`: source light w(d)·img in the fine window (sources in the
+//    box [sx0, sx1) × [sy0, sy1) around the gaze), w = 1 for d ≤ d_full,
+//    (G(d − d_full) − G(3σ))/(1 − G(3σ)) beyond, 0 from d_full + 3σ;
+// 4. `gather_coarse`: the same light box-summed into the coarse blocks;
+// 5. `multiply_fine`, `multiply_coarse`: data ·= kernel spectrum (forward
+//    FFT before, inverse FFT — with its 1/W² — after);
+// 6. `blend`: over the coarse window ∩ image, out = (1 − w)·img + fine +
+//    bilinear(coarse / b²) at the block centres (outside the fine window:
+//    img + coarse term).
 
 struct GlareParams {
-    // Window size W (power of two).
-    window: u32,
-    // PSF kernel size, pixels; its centre is (size/2, size/2).
+    // Fine window W_f, coarse window W_c (blocks), block b, r_fine.
+    wf: u32,
+    wc: u32,
+    block: u32,
+    r_fine: u32,
+    // Kernel size (centre size/2), frame size.
     kernel_size: u32,
-    // Radius r of the cropped kernel.
-    radius: u32,
-    // 1: use the σ → ∞ limit weight 1 − d²/R².
-    linear_limit: u32,
-    // Frame size.
     width: u32,
     height: u32,
-    // Window origin in the frame (gaze pixel − W/2).
-    origin_x: i32,
-    origin_y: i32,
-    // Window ∩ image in window coordinates: [i0, i1) × [j0, j1).
-    i0: u32,
-    i1: u32,
-    j0: u32,
-    j1: u32,
-    // Gaze, frame pixels.
+    _pad0: u32,
+    // Window origins in the frame.
+    ofx: i32,
+    ofy: i32,
+    ocx: i32,
+    ocy: i32,
+    // Source box ∩ image, frame pixels: [sx0, sx1) × [sy0, sy1).
+    sx0: i32,
+    sx1: i32,
+    sy0: i32,
+    sy1: i32,
+    // Output region (coarse window ∩ image): [x0, x1) × [y0, y1).
+    x0: i32,
+    x1: i32,
+    y0: i32,
+    y1: i32,
+    // Gaze, frame pixels; full-weight radius and fade σ, pixels.
     gaze_x: f32,
     gaze_y: f32,
-    // 1/(2σ²), R², G(R).
-    inv_2s2: f32,
-    r2: f32,
-    g_r: f32,
-    _pad0: f32,
-    _pad1: f32,
-    _pad2: f32,
+    d_full: f32,
+    sigma: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: GlareParams;
 @group(0) @binding(1) var<storage, read> kernel: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read_write> sums: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> data: array<vec2<f32>>;
-@group(0) @binding(4) var<storage, read> spectrum: array<vec2<f32>>;
-@group(0) @binding(5) var<storage, read_write> work: array<vec4<f32>>;
-
-const SUM_THREADS: u32 = 256u;
-var<workgroup> tree: array<vec4<f32>, 256>;
+@group(0) @binding(2) var<storage, read_write> fine: array<vec2<f32>>;
+@group(0) @binding(3) var<storage, read> fine_spectrum: array<vec2<f32>>;
+@group(0) @binding(4) var<storage, read_write> coarse: array<vec2<f32>>;
+@group(0) @binding(5) var<storage, read> coarse_spectrum: array<vec2<f32>>;
+@group(0) @binding(6) var<storage, read_write> work: array<vec4<f32>>;
 
 fn kernel_at(dx: i32, dy: i32) -> vec4<f32> {
     let c = i32(params.kernel_size / 2u);
     return kernel[u32(c + dy) * params.kernel_size + u32(c + dx)];
 }
 
-@compute @workgroup_size(256, 1, 1)
-fn kernel_sums(@builtin(local_invocation_index) t: u32) {
-    let side = 2u * params.radius + 1u;
-    let r = i32(params.radius);
-    var acc = vec4<f32>(0.0);
-    for (var k = t; k < side * side; k += SUM_THREADS) {
-        acc += kernel_at(i32(k % side) - r, i32(k / side) - r);
-    }
-    tree[t] = acc;
-    workgroupBarrier();
-    for (var stride = SUM_THREADS / 2u; stride > 0u; stride = stride / 2u) {
-        if t < stride {
-            tree[t] += tree[t + stride];
-        }
-        workgroupBarrier();
-    }
-    if t == 0u {
-        sums[0] = tree[0];
-    }
+// The fine/coarse split g: smoothstep from 0 at r_fine/2 to 1 at r_fine.
+fn split_weight(d: f32) -> f32 {
+    let r = f32(params.r_fine);
+    let s = clamp((d - 0.5 * r) / (0.5 * r), 0.0, 1.0);
+    return s * s * (3.0 - 2.0 * s);
+}
+
+// Offset of window index i in a W-periodic window: i wrapped to (−W/2, W/2].
+fn wrapped(i: u32, w: u32) -> i32 {
+    return select(i32(i), i32(i) - i32(w), i > w / 2u);
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn kernel_scatter(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let w = params.window;
+fn kernel_fine(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let w = params.wf;
     if gid.x >= w || gid.y >= w {
         return;
     }
-    // Index (i, j) holds offset (dx, dy) = (i, j) wrapped to (−W/2, W/2].
-    let dx = select(i32(gid.x), i32(gid.x) - i32(w), gid.x > w / 2u);
-    let dy = select(i32(gid.y), i32(gid.y) - i32(w), gid.y > w / 2u);
-    let r = i32(params.radius);
-    let inside = abs(dx) <= r && abs(dy) <= r;
-    var k = vec4<f32>(0.0);
-    if inside {
-        k = kernel_at(dx, dy);
+    let dx = wrapped(gid.x, w);
+    let dy = wrapped(gid.y, w);
+    let r = i32(params.r_fine);
+    var k = vec3<f32>(0.0);
+    if abs(dx) <= r && abs(dy) <= r {
+        let keep = 1.0 - split_weight(length(vec2<f32>(f32(dx), f32(dy))));
+        if keep > 0.0 {
+            k = kernel_at(dx, dy).xyz * keep;
+        }
     }
-    let s = sums[0];
-    let origin = gid.x == 0u && gid.y == 0u;
     let index = gid.y * w + gid.x;
     let plane = w * w;
-    for (var c = 0u; c < 3u; c++) {
-        let sum = s[c];
-        var v = 0.0;
-        if sum > 0.0 && finite_f32(sum) {
-            v = k[c] / sum;
-        } else if origin {
-            v = 1.0;
-        }
-        data[c * plane + index] = vec2<f32>(v, 0.0);
+    fine[index] = vec2<f32>(k.x, 0.0);
+    fine[plane + index] = vec2<f32>(k.y, 0.0);
+    fine[2u * plane + index] = vec2<f32>(k.z, 0.0);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn kernel_coarse(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let w = params.wc;
+    if gid.x >= w || gid.y >= w {
+        return;
     }
+    let b = i32(params.block);
+    let hb = b / 2;
+    let rk = i32(params.kernel_size / 2u);
+    let bx = wrapped(gid.x, w);
+    let by = wrapped(gid.y, w);
+    let x_lo = max(bx * b - hb, -rk);
+    let x_hi = min(bx * b + hb, rk);
+    let y_lo = max(by * b - hb, -rk);
+    let y_hi = min(by * b + hb, rk);
+    var acc = vec3<f32>(0.0);
+    for (var dy = y_lo; dy <= y_hi; dy++) {
+        for (var dx = x_lo; dx <= x_hi; dx++) {
+            let g = split_weight(length(vec2<f32>(f32(dx), f32(dy))));
+            if g > 0.0 {
+                acc += kernel_at(dx, dy).xyz * g;
+            }
+        }
+    }
+    let index = gid.y * w + gid.x;
+    let plane = w * w;
+    coarse[index] = vec2<f32>(acc.x, 0.0);
+    coarse[plane + index] = vec2<f32>(acc.y, 0.0);
+    coarse[2u * plane + index] = vec2<f32>(acc.z, 0.0);
 }
 
-fn finite_f32(v: f32) -> bool {
-    return (bitcast<u32>(v) & 0x7f800000u) != 0x7f800000u;
-}
-
-// Falloff weight of the source at window pixel (i, j).
-fn falloff(i: u32, j: u32) -> f32 {
-    let dx = f32(params.origin_x + i32(i)) + 0.5 - params.gaze_x;
-    let dy = f32(params.origin_y + i32(j)) + 0.5 - params.gaze_y;
-    let d2 = dx * dx + dy * dy;
-    if d2 >= params.r2 {
+// Source weight of frame pixel (x, y): 0 outside the source box.
+fn source_weight(x: i32, y: i32) -> f32 {
+    if x < params.sx0 || x >= params.sx1 || y < params.sy0 || y >= params.sy1 {
         return 0.0;
     }
-    if params.linear_limit != 0u {
-        return 1.0 - d2 / params.r2;
+    let dx = f32(x) + 0.5 - params.gaze_x;
+    let dy = f32(y) + 0.5 - params.gaze_y;
+    let d = sqrt(dx * dx + dy * dy);
+    if d <= params.d_full {
+        return 1.0;
     }
-    let g = exp(-d2 * params.inv_2s2);
-    return clamp((g - params.g_r) / (1.0 - params.g_r), 0.0, 1.0);
+    let t = d - params.d_full;
+    let s = params.sigma;
+    if t >= 3.0 * s {
+        return 0.0;
+    }
+    // G(3σ) = exp(−9/2)
+    let g_r = exp(-4.5);
+    return clamp((exp(-t * t / (2.0 * s * s)) - g_r) / (1.0 - g_r), 0.0, 1.0);
 }
 
-fn in_window(i: u32, j: u32) -> bool {
-    return i >= params.i0 && i < params.i1 && j >= params.j0 && j < params.j1;
-}
-
-fn frame_index(i: u32, j: u32) -> u32 {
-    let x = u32(params.origin_x + i32(i));
-    let y = u32(params.origin_y + i32(j));
-    return y * params.width + x;
+fn frame_index(x: i32, y: i32) -> u32 {
+    return u32(y) * params.width + u32(x);
 }
 
 @compute @workgroup_size(8, 8, 1)
-fn window_gather(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let w = params.window;
+fn gather_fine(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let w = params.wf;
     if gid.x >= w || gid.y >= w {
         return;
     }
+    let x = params.ofx + i32(gid.x);
+    let y = params.ofy + i32(gid.y);
     var v = vec3<f32>(0.0);
-    if in_window(gid.x, gid.y) {
-        v = work[frame_index(gid.x, gid.y)].xyz * falloff(gid.x, gid.y);
+    let wgt = source_weight(x, y);
+    if wgt > 0.0 {
+        v = work[frame_index(x, y)].xyz * wgt;
     }
     let index = gid.y * w + gid.x;
     let plane = w * w;
-    data[index] = vec2<f32>(v.x, 0.0);
-    data[plane + index] = vec2<f32>(v.y, 0.0);
-    data[2u * plane + index] = vec2<f32>(v.z, 0.0);
+    fine[index] = vec2<f32>(v.x, 0.0);
+    fine[plane + index] = vec2<f32>(v.y, 0.0);
+    fine[2u * plane + index] = vec2<f32>(v.z, 0.0);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn gather_coarse(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let w = params.wc;
+    if gid.x >= w || gid.y >= w {
+        return;
+    }
+    let b = i32(params.block);
+    let bx0 = params.ocx + i32(gid.x) * b;
+    let by0 = params.ocy + i32(gid.y) * b;
+    let x_lo = max(bx0, params.sx0);
+    let x_hi = min(bx0 + b, params.sx1);
+    let y_lo = max(by0, params.sy0);
+    let y_hi = min(by0 + b, params.sy1);
+    var acc = vec3<f32>(0.0);
+    for (var y = y_lo; y < y_hi; y++) {
+        for (var x = x_lo; x < x_hi; x++) {
+            let wgt = source_weight(x, y);
+            if wgt > 0.0 {
+                acc += work[frame_index(x, y)].xyz * wgt;
+            }
+        }
+    }
+    let index = gid.y * w + gid.x;
+    let plane = w * w;
+    coarse[index] = vec2<f32>(acc.x, 0.0);
+    coarse[plane + index] = vec2<f32>(acc.y, 0.0);
+    coarse[2u * plane + index] = vec2<f32>(acc.z, 0.0);
+}
+
+fn cmul(a: vec2<f32>, b: vec2<f32>) -> vec2<f32> {
+    return vec2<f32>(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x);
 }
 
 @compute @workgroup_size(64, 1, 1)
-fn spectrum_multiply(
+fn multiply_fine(
     @builtin(global_invocation_id) gid: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
 ) {
     let k = gid.x + gid.y * groups.x * 64u;
-    if k >= 3u * params.window * params.window {
+    if k >= 3u * params.wf * params.wf {
         return;
     }
-    let a = data[k];
-    let b = spectrum[k];
-    data[k] = vec2<f32>(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x);
+    fine[k] = cmul(fine[k], fine_spectrum[k]);
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn multiply_coarse(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    let k = gid.x + gid.y * groups.x * 64u;
+    if k >= 3u * params.wc * params.wc {
+        return;
+    }
+    coarse[k] = cmul(coarse[k], coarse_spectrum[k]);
+}
+
+fn coarse_at(j: i32, i: i32) -> vec3<f32> {
+    let w = i32(params.wc);
+    if j < 0 || i < 0 || j >= w || i >= w {
+        return vec3<f32>(0.0);
+    }
+    let index = u32(j * w + i);
+    let plane = params.wc * params.wc;
+    return vec3<f32>(coarse[index].x, coarse[plane + index].x, coarse[2u * plane + index].x);
 }
 
 @compute @workgroup_size(8, 8, 1)
 fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let w = params.window;
-    if gid.x >= w || gid.y >= w || !in_window(gid.x, gid.y) {
+    let x = params.x0 + i32(gid.x);
+    let y = params.y0 + i32(gid.y);
+    if x >= params.x1 || y >= params.y1 {
         return;
     }
-    let keep = 1.0 - falloff(gid.x, gid.y);
-    let f = frame_index(gid.x, gid.y);
-    let index = gid.y * w + gid.x;
-    let plane = w * w;
-    let glare = vec3<f32>(data[index].x, data[plane + index].x, data[2u * plane + index].x);
-    work[f] = vec4<f32>(work[f].xyz * keep + glare, 0.0);
+    let bf = f32(params.block);
+    let v = (f32(y - params.ocy) + 0.5) / bf - 0.5;
+    let j0f = floor(v);
+    let fy = v - j0f;
+    let j0 = i32(j0f);
+    let u = (f32(x - params.ocx) + 0.5) / bf - 0.5;
+    let i0f = floor(u);
+    let fx = u - i0f;
+    let i0 = i32(i0f);
+    let a = coarse_at(j0, i0);
+    let b = coarse_at(j0, i0 + 1);
+    let c = coarse_at(j0 + 1, i0);
+    let d = coarse_at(j0 + 1, i0 + 1);
+    let add = ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy)
+        * (1.0 / (bf * bf));
+    let f = frame_index(x, y);
+    var p = work[f].xyz;
+    let fi = x - params.ofx;
+    let fj = y - params.ofy;
+    let wf = i32(params.wf);
+    if fi >= 0 && fi < wf && fj >= 0 && fj < wf {
+        let index = u32(fj * wf + fi);
+        let plane = params.wf * params.wf;
+        let keep = 1.0 - source_weight(x, y);
+        let glare = vec3<f32>(fine[index].x, fine[plane + index].x, fine[2u * plane + index].x);
+        p = p * keep + glare + add;
+    } else {
+        p = p + add;
+    }
+    work[f] = vec4<f32>(p, 0.0);
 }

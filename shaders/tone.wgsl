@@ -5,9 +5,9 @@
 //    state (the CPU's ToneModel::prepare_adapting and ColourModel::prepare),
 //    into FrameState;
 // 2. `tone_map` (per pixel): display = clamp01(colour(tone(work))), then
-//    either sRGB-encoded into `output` (no acuity blur this frame), or
-//    written as CIE Lab into `lab` for the acuity pass (stage 5), which
-//    encodes. `keep_linear` also writes the display-linear value.
+//    sRGB-encoded into `output`; `keep_linear` also writes the
+//    display-linear value. The acuity blur (stage 5, acuity.wgsl) has
+//    already run on the HDR work frame.
 //
 // Tone models (`model`):
 //   0 Ward/Ferwerda threshold ratio (000 eq 9) with the light-adaptation
@@ -48,10 +48,9 @@ struct ToneParams {
 @group(0) @binding(0) var<uniform> params: ToneParams;
 @group(0) @binding(1) var<storage, read_write> state: FrameState;
 @group(0) @binding(2) var<storage, read> work: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> lab: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read_write> linear_out: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> lut: array<u32>;
-@group(0) @binding(6) var<storage, read_write> output: array<u32>;
+@group(0) @binding(3) var<storage, read_write> linear_out: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> lut: array<u32>;
+@group(0) @binding(5) var<storage, read_write> output: array<u32>;
 
 // 001 §3.3 / gazelight_vision::temporal::MIN_LUMINANCE_CD_M2.
 const MIN_ADAPTATION_CD_M2: f32 = 1e-6;
@@ -215,24 +214,6 @@ fn colour(rgb_in: vec3<f32>) -> vec3<f32> {
     return rgb * (1.0 - s) + SCOTOPIC_TINT * (l * s);
 }
 
-// CIE Lab of a linear sRGB colour (D65), as gazelight_vision::acuity::rgb_to_lab.
-fn lab_f(t: f32) -> f32 {
-    if t > 216.0 / 24389.0 {
-        return pow(t, 1.0 / 3.0);
-    }
-    return (24389.0 / 27.0 * t + 16.0) / 116.0;
-}
-
-fn rgb_to_lab(rgb: vec3<f32>) -> vec3<f32> {
-    let x = 0.4124564 * rgb.x + 0.3575761 * rgb.y + 0.1804375 * rgb.z;
-    let y = 0.2126729 * rgb.x + 0.7151522 * rgb.y + 0.072175 * rgb.z;
-    let z = 0.0193339 * rgb.x + 0.119192 * rgb.y + 0.9503041 * rgb.z;
-    let fx = lab_f(x / 0.95047);
-    let fy = lab_f(y / 1.0);
-    let fz = lab_f(z / 1.08883);
-    return vec3<f32>(116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz));
-}
-
 @compute @workgroup_size(8, 8, 1)
 fn tone_map(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= params.width || gid.y >= params.height {
@@ -240,10 +221,6 @@ fn tone_map(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let i = gid.y * params.width + gid.x;
     let display = clamp(colour(tone(work[i].xyz)), vec3<f32>(0.0), vec3<f32>(1.0));
-    if state.blur_radius > 0u {
-        lab[i] = vec4<f32>(rgb_to_lab(display), 0.0);
-        return;
-    }
     if params.keep_linear != 0u {
         linear_out[i] = vec4<f32>(display, 1.0);
     }

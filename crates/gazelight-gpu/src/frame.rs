@@ -7,13 +7,15 @@
 //! | --- | --- | --- |
 //! | 1 | scene import + block luminance + pooling reductions | `pooling.wgsl` ([`crate::pooling`]) |
 //! | 2 | adaptation step (1 thread) | `temporal.wgsl` ([`crate::temporal`]) |
-//! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm`, then the kernel spectrum | [`crate::psf`], `glare.wgsl`, [`crate::fft`] |
-//! | 4 | windowed FFT glare at the gaze, Gaussian falloff blend | `glare.wgsl` ([`crate::glare`]) |
-//! | 6–7 (+8) | tone + colour scalars (1 thread), per pixel tone + colour (+ encode) | `tone.wgsl` ([`crate::tone`]) |
-//! | 5 (+8) | acuity σ and taps (1 thread), separable Lab blur, encode | `acuity.wgsl` ([`crate::acuity`]) |
+//! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm` (interim: CPU-built, uploaded), then the split kernel's two spectra | [`crate::psf`], `glare.wgsl`, [`crate::fft`] |
+//! | 4 | glare at the gaze: full-resolution core in a fine FFT window, wide field on b×b blocks in a coarse one, full weight to `full_weight_deg`, Gaussian fade beyond | `glare.wgsl` ([`crate::glare`]) |
+//! | 5 | per-pixel-σ separable Lab-lightness blur of the HDR frame (σ of the frame's adaptation for the stats, 1 thread) | `acuity.wgsl` ([`crate::acuity`]) |
+//! | 6–8 | tone + colour scalars (1 thread), per pixel tone + colour + encode | `tone.wgsl` ([`crate::tone`]) |
 //!
-//! As on the CPU, acuity runs after tone reproduction on display light, and
-//! the frame's scalars (pooled target, adaptation, tone/colour/acuity
+//! As on the CPU, acuity runs on the HDR frame in cd/m² after glare and
+//! before tone reproduction, each pixel with the σ of its own lightness
+//! (001 §4.3.1, eq 12); the frame after it is the retinal image
+//! ([`GpuFramePipeline::read_retinal`]). The frame's scalars (pooled target, adaptation, tone/colour/acuity
 //! parameters) live in a small GPU buffer ([`FrameState`]) written by the
 //! one-thread passes, so a frame never waits for the host.
 //!
@@ -61,7 +63,7 @@ use crate::acuity::{AcuityParams, AcuityPass};
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::fft::{FftDirection, GpuFft2d, read_mapped};
-use crate::glare::{GlareParams, GlarePass};
+use crate::glare::{GlareGeometry, GlareParams, GlarePass};
 use crate::pooling::{POOL_THREADS, PoolParams, PoolingPass};
 use crate::psf::GpuPsfBuilder;
 use crate::temporal::{TemporalParams, TemporalPass};
@@ -103,7 +105,8 @@ pub struct FrameState {
     pub shift_sigma: f32,
     /// Colour discrimination σ_c (000 eq 11).
     pub discrimination_sigma: f32,
-    /// Blur radius, pixels; 0 = no blur.
+    /// Largest acuity tap radius of the per-pixel blur, pixels; 0 = never
+    /// blurs.
     pub blur_radius: u32,
     /// Padding.
     pub _pad0: u32,
@@ -132,13 +135,15 @@ pub struct FrameTimestamps<'a> {
 
 struct GlareStage {
     psf: GpuPsfBuilder,
-    fft: GpuFft2d,
+    geometry: GlareGeometry,
+    fine: GpuFft2d,
+    coarse: GpuFft2d,
     pass: GlarePass,
     params: GlareParams,
     uniform: wgpu::Buffer,
-    spectrum: wgpu::Buffer,
+    fine_spectrum: wgpu::Buffer,
+    coarse_spectrum: wgpu::Buffer,
     group: wgpu::BindGroup,
-    sigma_px: f64,
     threshold_mm: f64,
 }
 
@@ -170,8 +175,7 @@ pub struct GpuFramePipeline {
     small_lum: wgpu::Buffer,
     partials: wgpu::Buffer,
     state: wgpu::Buffer,
-    taps: wgpu::Buffer,
-    lab: wgpu::Buffer,
+    lightness: wgpu::Buffer,
     horizontal: wgpu::Buffer,
     linear: wgpu::Buffer,
     lut: wgpu::Buffer,
@@ -183,6 +187,7 @@ pub struct GpuFramePipeline {
     temporal_group: wgpu::BindGroup,
     tone_group: wgpu::BindGroup,
     acuity_group: wgpu::BindGroup,
+    acuity_radius: u32,
     glare: Option<GlareStage>,
     host_scene: Vec<[f32; 4]>,
     display: DisplayFrame,
@@ -286,7 +291,6 @@ impl GpuFramePipeline {
         let small_n = small[0] * small[1];
         let partial_count = small_n.div_ceil(POOL_THREADS).clamp(1, POOL_THREADS);
         let keep = config.keep_display_linear;
-        let max_radius = crate::acuity::max_radius(&config.acuity, deg_per_px);
 
         let pooling = PoolingPass::new(ctx)?;
         let temporal = TemporalPass::new(ctx)?;
@@ -317,13 +321,8 @@ impl GpuFramePipeline {
             storage,
         )?;
         let state = buffer("frame state", size_of::<FrameState>() as u64, storage)?;
-        let taps = buffer(
-            "frame acuity taps",
-            u64::from(2 * max_radius + 1) * 4,
-            storage,
-        )?;
-        let lab = buffer("frame lab", pixels * 16, storage)?;
-        let horizontal = buffer("frame blur rows", pixels * 4, storage)?;
+        let lightness = buffer("frame acuity lightness", pixels * 4, storage)?;
+        let horizontal = buffer("frame acuity rows", pixels * 4, storage)?;
         let linear = buffer(
             "frame display linear",
             if keep { pixels * 16 } else { 16 },
@@ -354,7 +353,7 @@ impl GpuFramePipeline {
         queue.write_buffer(&lut, 0, bytemuck::cast_slice(&table));
         let tone_params = ToneParams::new(&config.tone, &config.colour, w32, h32, keep);
         queue.write_buffer(&tone_uniform, 0, bytemuck::bytes_of(&tone_params));
-        let acuity_params = AcuityParams::new(&config.acuity, deg_per_px, w32, h32, keep);
+        let acuity_params = AcuityParams::new(&config.acuity, deg_per_px, w32, h32);
         queue.write_buffer(&acuity_uniform, 0, bytemuck::bytes_of(&acuity_params));
         queue.write_buffer(&state, 0, bytemuck::bytes_of(&FrameState::default()));
 
@@ -374,22 +373,13 @@ impl GpuFramePipeline {
             ctx,
             "tone.wgsl",
             tone.bind_group_layout(),
-            &[&tone_uniform, &state, &work, &lab, &linear, &lut, &output],
+            &[&tone_uniform, &state, &work, &linear, &lut, &output],
         )?;
         let acuity_group = make_group(
             ctx,
             "acuity.wgsl",
             acuity.bind_group_layout(),
-            &[
-                &acuity_uniform,
-                &state,
-                &taps,
-                &lab,
-                &horizontal,
-                &linear,
-                &lut,
-                &output,
-            ],
+            &[&acuity_uniform, &state, &work, &lightness, &horizontal],
         )?;
 
         let glare = if config.glare.enabled {
@@ -398,17 +388,24 @@ impl GpuFramePipeline {
             params.pupil_mm = INITIAL_PUPIL_MM;
             params.validate().map_err(invalid)?;
             let psf = GpuPsfBuilder::new(ctx, &params)?;
-            let window = config.glare.window_px as u32;
-            let fft = GpuFft2d::new(ctx, window, window, 3)?;
+            let geometry =
+                GlareGeometry::new(psf.kernel_size(), deg_per_px, config.glare.window())?;
+            let (wf, wc) = (geometry.wf as u32, geometry.wc as u32);
+            let fine = GpuFft2d::new(ctx, wf, wf, 3)?;
+            let coarse = GpuFft2d::new(ctx, wc, wc, 3)?;
             let pass = GlarePass::new(ctx)?;
-            let glare_params = GlareParams::new(window, params.kernel_size as u32, w32, h32);
+            let glare_params = GlareParams::new(&geometry, psf.kernel_size() as u32, w32, h32);
             let uniform_buf = buffer("glare params", size_of::<GlareParams>() as u64, uniform)?;
-            let spectrum = buffer(
-                "glare kernel spectrum",
-                u64::from(window) * u64::from(window) * 3 * 8,
+            let fine_spectrum = buffer(
+                "glare fine kernel spectrum",
+                u64::from(wf) * u64::from(wf) * 3 * 8,
                 storage,
             )?;
-            let sums = buffer("glare kernel sums", 16, storage)?;
+            let coarse_spectrum = buffer(
+                "glare coarse kernel spectrum",
+                u64::from(wc) * u64::from(wc) * 3 * 8,
+                storage,
+            )?;
             let group = make_group(
                 ctx,
                 "glare.wgsl",
@@ -416,22 +413,25 @@ impl GpuFramePipeline {
                 &[
                     &uniform_buf,
                     psf.kernel_buffer(),
-                    &sums,
-                    fft.data_buffer(),
-                    &spectrum,
+                    fine.data_buffer(),
+                    &fine_spectrum,
+                    coarse.data_buffer(),
+                    &coarse_spectrum,
                     &work,
                 ],
             )?;
             queue.write_buffer(&uniform_buf, 0, bytemuck::bytes_of(&glare_params));
             Some(GlareStage {
                 psf,
-                fft,
+                geometry,
+                fine,
+                coarse,
                 pass,
                 params: glare_params,
                 uniform: uniform_buf,
-                spectrum,
+                fine_spectrum,
+                coarse_spectrum,
                 group,
-                sigma_px: config.glare.falloff_sigma_frac * config.glare.window_px as f64,
                 threshold_mm: config.glare.psf_rebuild_threshold_mm,
             })
         } else {
@@ -471,9 +471,9 @@ impl GpuFramePipeline {
             small_lum,
             partials,
             state,
-            taps,
-            lab,
+            lightness,
             horizontal,
+            acuity_radius: acuity_params.max_radius,
             linear,
             lut,
             output,
@@ -604,7 +604,6 @@ impl GpuFramePipeline {
                 &self.tone_uniform,
                 &self.state,
                 &self.work,
-                &self.lab,
                 &self.linear,
                 &self.lut,
                 &self.output,
@@ -617,12 +616,9 @@ impl GpuFramePipeline {
             &[
                 &self.acuity_uniform,
                 &self.state,
-                &self.taps,
-                &self.lab,
+                &self.work,
+                &self.lightness,
                 &self.horizontal,
-                &self.linear,
-                &self.lut,
-                &self.output,
             ],
         )?;
         Ok(())
@@ -647,10 +643,10 @@ impl GpuFramePipeline {
         encoder: &mut wgpu::CommandEncoder,
         timestamps: Option<&wgpu::QuerySet>,
     ) {
-        let w = g.params.window;
+        let (wf, wc) = (g.params.wf, g.params.wc);
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("glare kernel crop + renormalise"),
+                label: Some("glare kernel split: fine core, coarse wide field"),
                 timestamp_writes: timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
                     query_set,
                     beginning_of_pass_write_index: Some(4),
@@ -658,12 +654,13 @@ impl GpuFramePipeline {
                 }),
             });
             pass.set_bind_group(0, &g.group, &[]);
-            pass.set_pipeline(&g.pass.kernel_sums);
-            pass.dispatch_workgroups(1, 1, 1);
-            pass.set_pipeline(&g.pass.kernel_scatter);
-            pass.dispatch_workgroups(w.div_ceil(TILE), w.div_ceil(TILE), 1);
+            pass.set_pipeline(&g.pass.kernel_fine);
+            pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
+            pass.set_pipeline(&g.pass.kernel_coarse);
+            pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
         }
-        g.fft.encode(
+        g.fine.encode(encoder, FftDirection::Forward, None);
+        g.coarse.encode(
             encoder,
             FftDirection::Forward,
             timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
@@ -672,7 +669,20 @@ impl GpuFramePipeline {
                 end_of_pass_write_index: Some(5),
             }),
         );
-        encoder.copy_buffer_to_buffer(g.fft.data_buffer(), 0, &g.spectrum, 0, g.spectrum.size());
+        encoder.copy_buffer_to_buffer(
+            g.fine.data_buffer(),
+            0,
+            &g.fine_spectrum,
+            0,
+            g.fine_spectrum.size(),
+        );
+        encoder.copy_buffer_to_buffer(
+            g.coarse.data_buffer(),
+            0,
+            &g.coarse_spectrum,
+            0,
+            g.coarse_spectrum.size(),
+        );
     }
 
     /// Records one frame into `encoder` (the caller submits): all stages, on
@@ -779,18 +789,25 @@ impl GpuFramePipeline {
         let mut psf_rebuilt = false;
         if let Some(g) = self.glare.as_mut() {
             if (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
-                g.psf
-                    .encode_rebuild_timed(encoder, pupil_mm, timestamps.map(|t| t.psf));
+                let built_mm =
+                    g.psf
+                        .encode_rebuild_timed(encoder, pupil_mm, timestamps.map(|t| t.psf));
                 Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
-                self.psf_pupil_mm = pupil_mm;
+                self.psf_pupil_mm = built_mm;
                 psf_rebuilt = true;
             }
-            if g.params.place(gaze_px, g.sigma_px) {
+            if g.params.place(&g.geometry, gaze_px) {
                 queue.write_buffer(&g.uniform, 0, bytemuck::bytes_of(&g.params));
-                let win = g.params.window;
+                let (wf, wc) = (g.params.wf, g.params.wc);
+                let max = self.ctx.limits().max_compute_workgroups_per_dimension;
+                let linear = |n: u32| {
+                    let groups = n.div_ceil(64);
+                    let gx = groups.min(max);
+                    (gx, groups.div_ceil(gx))
+                };
                 {
                     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("stage 4: glare window"),
+                        label: Some("stage 4: glare sources"),
                         timestamp_writes: timestamps.map(|t| wgpu::ComputePassTimestampWrites {
                             query_set: t.frame,
                             beginning_of_pass_write_index: Some(6),
@@ -798,23 +815,28 @@ impl GpuFramePipeline {
                         }),
                     });
                     pass.set_bind_group(0, &g.group, &[]);
-                    pass.set_pipeline(&g.pass.window_gather);
-                    pass.dispatch_workgroups(win.div_ceil(TILE), win.div_ceil(TILE), 1);
+                    pass.set_pipeline(&g.pass.gather_fine);
+                    pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
+                    pass.set_pipeline(&g.pass.gather_coarse);
+                    pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
                 }
-                g.fft.encode(encoder, FftDirection::Forward, None);
+                g.fine.encode(encoder, FftDirection::Forward, None);
+                g.coarse.encode(encoder, FftDirection::Forward, None);
                 {
                     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("stage 4: glare spectrum product"),
+                        label: Some("stage 4: glare spectrum products"),
                         timestamp_writes: None,
                     });
                     pass.set_bind_group(0, &g.group, &[]);
-                    pass.set_pipeline(&g.pass.spectrum_multiply);
-                    let groups = (3 * win * win).div_ceil(64);
-                    let max = self.ctx.limits().max_compute_workgroups_per_dimension;
-                    let gx = groups.min(max);
-                    pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
+                    pass.set_pipeline(&g.pass.multiply_fine);
+                    let (gx, gy) = linear(3 * wf * wf);
+                    pass.dispatch_workgroups(gx, gy, 1);
+                    pass.set_pipeline(&g.pass.multiply_coarse);
+                    let (gx, gy) = linear(3 * wc * wc);
+                    pass.dispatch_workgroups(gx, gy, 1);
                 }
-                g.fft.encode(encoder, FftDirection::Inverse, None);
+                g.fine.encode(encoder, FftDirection::Inverse, None);
+                g.coarse.encode(encoder, FftDirection::Inverse, None);
                 {
                     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                         label: Some("stage 4: glare blend"),
@@ -826,30 +848,33 @@ impl GpuFramePipeline {
                     });
                     pass.set_bind_group(0, &g.group, &[]);
                     pass.set_pipeline(&g.pass.blend);
-                    pass.dispatch_workgroups(win.div_ceil(TILE), win.div_ceil(TILE), 1);
+                    let (ow, oh) = g.params.output_size();
+                    pass.dispatch_workgroups(ow.div_ceil(TILE), oh.div_ceil(TILE), 1);
                 }
             }
         }
-        // Stages 6–7 (+8), 5 (+8).
+        // Stage 5 (per-pixel acuity on the HDR frame), stages 6–8.
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("stages 5-8: tone, colour, acuity, encode"),
+                label: Some("stages 5-8: acuity, tone, colour, encode"),
                 timestamp_writes: pair(8),
             });
-            pass.set_bind_group(0, &self.tone_group, &[]);
-            pass.set_pipeline(&self.tone.prepare);
-            pass.dispatch_workgroups(1, 1, 1);
+            let (gx, gy) = tiles(self.width, self.height);
             pass.set_bind_group(0, &self.acuity_group, &[]);
             pass.set_pipeline(&self.acuity.prepare);
             pass.dispatch_workgroups(1, 1, 1);
-            let (gx, gy) = tiles(self.width, self.height);
+            if self.acuity_radius > 0 {
+                pass.set_pipeline(&self.acuity.lightness);
+                pass.dispatch_workgroups(gx, gy, 1);
+                pass.set_pipeline(&self.acuity.blur_h);
+                pass.dispatch_workgroups(gx, gy, 1);
+                pass.set_pipeline(&self.acuity.blur_v);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
             pass.set_bind_group(0, &self.tone_group, &[]);
+            pass.set_pipeline(&self.tone.prepare);
+            pass.dispatch_workgroups(1, 1, 1);
             pass.set_pipeline(&self.tone.tone_map);
-            pass.dispatch_workgroups(gx, gy, 1);
-            pass.set_bind_group(0, &self.acuity_group, &[]);
-            pass.set_pipeline(&self.acuity.blur_h);
-            pass.dispatch_workgroups(gx, gy, 1);
-            pass.set_pipeline(&self.acuity.blur_v);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         EncodedFrame {
@@ -983,10 +1008,11 @@ impl GpuFramePipeline {
         })
     }
 
-    /// Reads back the working frame after glare (stage 4): scene light in
-    /// cd/m², sanitised, with the glare blended in. For tests and tools.
-    pub fn read_scene_after_glare(&self, out: &mut RgbImage) -> Result<(), GpuError> {
-        self.read_image(&self.work, "frame after glare", out)
+    /// Reads back the retinal image of the last frame: the working frame
+    /// after glare (stage 4) and acuity (stage 5), linear RGB in cd/m²,
+    /// sanitised — the twin of `FramePipeline::retinal`. For tests and tools.
+    pub fn read_retinal(&self, out: &mut RgbImage) -> Result<(), GpuError> {
+        self.read_image(&self.work, "retinal image", out)
     }
 
     /// Reads back the display-linear frame (after acuity; needs
@@ -1180,23 +1206,42 @@ mod tests {
         let Some(ctx) = test_context("glare_window_matches_the_cpu_convolver") else {
             return;
         };
-        // Street lamps at night, window 64 px placed near the border so it
-        // is clipped by the image.
-        // 12 ppd: the kernel spreads over many pixels.
+        // Street lamps at night at 12 ppd: the ±20° kernel (481 px) reaches
+        // far past the 120×96 frame, the core (2°) spans 49 px, the wide
+        // field goes through 5×5 blocks. Gazes near the borders clip the
+        // windows.
         let (img, dpp) = view_fov("night.exr", -78.4, -6.0, 10.0, 120, 96);
-        let mut config = PipelineConfig {
+        // Acuity off: the retinal image is the glare output alone.
+        let config = PipelineConfig {
             keep_display_linear: true,
+            acuity: AcuityModel::None,
             ..PipelineConfig::default()
         };
-        config.glare.window_px = 64;
         let mut gpu = GpuFramePipeline::new(ctx, config.clone(), 120, 96, dpp).unwrap();
         let mut params = config.glare.psf.clone();
         params.ppd = 1.0 / dpp;
         params.pupil_mm = 4.0;
-        let mut builder = PsfBuilder::new(params).unwrap();
-        let mut conv = GlareConvolver::new(64);
-        conv.set_kernel(builder.rebuild(4.0));
-        let sigma_px = config.glare.falloff_sigma_frac * 64.0;
+        let builder = PsfBuilder::new(params).unwrap();
+        let mut conv = GlareConvolver::new(builder.kernel(), config.glare.window()).unwrap();
+        let geometry =
+            GlareGeometry::new(builder.kernel().size, dpp, config.glare.window()).unwrap();
+        // The GPU's sizes are the CPU convolver's.
+        assert_eq!(geometry.r_fine, conv.fine_radius_px());
+        assert_eq!(geometry.block, conv.block_px());
+        assert_eq!(geometry.r_src, conv.source_radius_px());
+        assert!(geometry.wf >= conv.fine_window_px() && geometry.wc >= conv.coarse_window_blocks());
+        println!(
+            "kernel {} px, fine radius {} px, block {} px, source radius {:.1} px, windows GPU \
+             {}/{} (CPU {}/{})",
+            builder.kernel().size,
+            geometry.r_fine,
+            geometry.block,
+            geometry.r_src,
+            geometry.wf,
+            geometry.wc,
+            conv.fine_window_px(),
+            conv.coarse_window_blocks()
+        );
         let mut gpu_img = RgbImage::new(120, 96);
         let mut worst = 0.0f64;
         let lamp = brightest_uv(&img);
@@ -1207,7 +1252,7 @@ mod tests {
                 dt_secs: 1.0 / 90.0,
             };
             gpu.process(&img, &input).unwrap();
-            gpu.read_scene_after_glare(&mut gpu_img).unwrap();
+            gpu.read_retinal(&mut gpu_img).unwrap();
             let mut cpu_img = img.clone();
             for p in &mut cpu_img.pixels {
                 for c in p.iter_mut() {
@@ -1218,7 +1263,7 @@ mod tests {
             }
             let before = cpu_img.clone();
             let gaze_px = [f64::from(gaze_uv[0]) * 120.0, f64::from(gaze_uv[1]) * 96.0];
-            conv.apply(&mut cpu_img, gaze_px, sigma_px);
+            conv.apply(&mut cpu_img, gaze_px);
             let peak = cpu_img
                 .pixels
                 .iter()
@@ -1245,7 +1290,7 @@ mod tests {
                 // The glare must do something for the comparison to mean anything.
                 assert!(changed > 1e3 * max_err, "glare too weak to test: {changed}");
             }
-            assert!(e < 2e-5, "{e:e}");
+            assert!(e < 1e-4, "{e:e}");
             worst = worst.max(e);
         }
         println!("worst glare error {worst:.2e} of the peak");
@@ -1343,6 +1388,72 @@ mod tests {
     }
 
     #[test]
+    fn per_pixel_acuity_matches_the_cpu() {
+        let Some(ctx) = test_context("per_pixel_acuity_matches_the_cpu") else {
+            return;
+        };
+        // Street lamps at night: dark pixels blur with their own σ, the lamps
+        // and lit facades (L* ≥ 1) stay sharp. 10° over 96 px (9.6 ppd) and
+        // 4° over 120 px (30 ppd: radii up to 7 px for eq 12, 64 for Larson).
+        let mut worst = 0.0f64;
+        for (fov, w, h) in [(10.0, 96, 80), (4.0, 120, 96)] {
+            let (img, dpp) = view_fov("night.exr", -78.4, -6.0, fov, w, h);
+            for acuity in [AcuityModel::default(), AcuityModel::LarsonKrawczyk] {
+                let config = no_glare(PipelineConfig {
+                    acuity,
+                    keep_display_linear: true,
+                    ..PipelineConfig::default()
+                });
+                let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+                let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+                let mut out = DisplayFrame::new(w, h);
+                let mut retinal = RgbImage::new(w, h);
+                for input in inputs() {
+                    cpu.process(&img, &input, &mut out).unwrap();
+                    gpu.process(&img, &input).unwrap();
+                    gpu.read_retinal(&mut retinal).unwrap();
+                    let (mut max_rel, mut changed, mut sharp) = (0.0f64, 0usize, 0usize);
+                    for ((g, c), s) in retinal
+                        .pixels
+                        .iter()
+                        .zip(&cpu.retinal().pixels)
+                        .zip(&img.pixels)
+                    {
+                        let moved = (0..3).any(|k| (c[k] - s[k]).abs() > 1e-6 * s[k].abs());
+                        changed += usize::from(moved);
+                        sharp += usize::from(!moved && g == c);
+                        for k in 0..3 {
+                            let e =
+                                f64::from((g[k] - c[k]).abs()) / f64::from(c[k].abs().max(1e-4));
+                            max_rel = max_rel.max(e);
+                        }
+                    }
+                    let display = gpu.display().unwrap();
+                    let codes = display
+                        .rgba8
+                        .iter()
+                        .zip(&out.rgba8)
+                        .map(|(a, b)| a.abs_diff(*b))
+                        .max()
+                        .unwrap_or(0);
+                    println!(
+                        "{fov}° {w}x{h} {acuity:?} {input:?}: {changed} of {} px blurred on \
+                         the CPU, {sharp} bit-identical unblurred on both, retinal max \
+                         relative |GPU − CPU| {max_rel:.2e}, display codes ≤ {codes}",
+                        w * h
+                    );
+                    // The blur ran on part of the frame, not all of it.
+                    assert!(changed > w * h / 10 && changed < w * h, "{changed}");
+                    assert!(max_rel < 1e-3, "{acuity:?}: retinal {max_rel:e}");
+                    assert!(codes <= 1, "{acuity:?}: display differs by {codes}/255");
+                    worst = worst.max(max_rel);
+                }
+            }
+        }
+        println!("worst retinal relative difference {worst:.2e}");
+    }
+
+    #[test]
     fn whole_frame_matches_the_cpu_within_one_code() {
         let Some(ctx) = test_context("whole_frame_matches_the_cpu_within_one_code") else {
             return;
@@ -1405,10 +1516,10 @@ mod tests {
         let err = GpuFramePipeline::new(ctx, config.clone(), 8, 8, f64::NAN).unwrap_err();
         assert!(err.to_string().contains("deg_per_px"), "{err}");
         let mut bad = config.clone();
-        bad.glare.window_px = 100;
+        bad.glare.full_weight_deg = -1.0;
         bad.glare.enabled = true;
         let err = GpuFramePipeline::new(ctx, bad, 8, 8, 0.1).unwrap_err();
-        assert!(err.to_string().contains("glare.window_px"), "{err}");
+        assert!(err.to_string().contains("glare.full_weight_deg"), "{err}");
         let mut gpu = GpuFramePipeline::new(ctx, config, 8, 8, 0.1).unwrap();
         let err = gpu.process(&RgbImage::new(8, 9), &inputs()[0]).unwrap_err();
         assert!(err.to_string().contains("scene frame"), "{err}");

@@ -1,158 +1,245 @@
-//! Stage 4 on the GPU, the twin of `shaders/glare.wgsl`: the windowed FFT
-//! glare of [`gazelight_vision::glare::GlareConvolver`] (001 §4.2.3) — the
-//! frame's light within `R` of the gaze, weighted by the Gaussian falloff,
-//! convolved with the glare kernel by FFT ([`crate::fft::GpuFft2d`], three
-//! planes) in a `W×W` window at the gaze, and blended back as
-//! `(1 − w)·img + K ∗ (w·img)`. The kernel's spectrum is made on the GPU
-//! from [`crate::GpuPsfBuilder`]'s kernel buffer after each PSF rebuild
-//! (crop to radius `min(size/2, W/4)`, per-channel renormalisation, forward
-//! FFT) and cached between rebuilds.
+//! Stage 4 on the GPU, the twin of `shaders/glare.wgsl`: the glare of
+//! [`gazelight_vision::glare::GlareConvolver`] (001 §4.2.3) — every source
+//! within `full_weight_deg` of the gaze at full weight, a Gaussian fade
+//! beyond — with the kernel split exactly into a full-resolution core
+//! (radius [`FINE_RADIUS_DEG`]) convolved in a fine FFT window and a smooth
+//! wide field summed over `b × b` blocks ([`COARSE_PX_DEG`]) convolved in a
+//! coarse FFT window of blocks and spread back bilinearly. The kernel's
+//! split parts are made on the GPU from [`crate::GpuPsfBuilder`]'s kernel
+//! buffer after each PSF rebuild, transformed ([`crate::fft::GpuFft2d`],
+//! three planes each) and cached between rebuilds.
 //!
-//! The window placement, `R`, `G(R)` and `1/2σ²` are computed on the host in
-//! f64 as the CPU does ([`GlareParams::place`]); the falloff weights and the
-//! convolution run in f32 (the CPU's spectra are f32 too).
+//! [`GlareGeometry`] reproduces the CPU convolver's sizes (fine radius,
+//! block, source radius and the windows it needs) in f64 as the CPU does,
+//! and [`GlareParams::place`] its per-frame placement (origins, source box,
+//! output region). The GPU's FFT windows are the next powers of two of the
+//! sizes the CPU needs (the CPU also takes `3·2^k`, `5·2^k`): a larger
+//! window only adds zeros, as the convolution is linear, not circular, in
+//! both. The weights and the convolutions run in f32 (the CPU's spectra are
+//! f32 too).
+//!
+//! [`FINE_RADIUS_DEG`]: gazelight_vision::glare::FINE_RADIUS_DEG
+//! [`COARSE_PX_DEG`]: gazelight_vision::glare::COARSE_PX_DEG
 
 use bytemuck::{Pod, Zeroable};
+use gazelight_vision::VisionError;
+use gazelight_vision::glare::{COARSE_PX_DEG, FINE_RADIUS_DEG, GlareWindow};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::psf::{layout, storage_entry, uniform_entry};
 use crate::shaders;
 
+/// Largest GPU FFT window, samples per side ([`crate::fft`]).
+const MAX_GPU_WINDOW: usize = 2048;
+
+/// The sizes of the split convolution for one kernel and weight window, as
+/// `GlareConvolver::new` computes them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GlareGeometry {
+    /// Fine kernel radius, display pixels.
+    pub r_fine: usize,
+    /// Coarse block, display pixels (odd).
+    pub block: usize,
+    /// Full-weight radius, pixels.
+    pub d_full: f64,
+    /// Fade σ, pixels.
+    pub sigma: f64,
+    /// Source radius where the weight reaches 0, pixels.
+    pub r_src: f64,
+    /// Fine window the CPU needs, pixels per side (before its FFT rounding).
+    pub fine_needed: usize,
+    /// Coarse window the CPU needs, blocks per side.
+    pub coarse_needed: usize,
+    /// GPU fine window (power of two ≥ `fine_needed`).
+    pub wf: usize,
+    /// GPU coarse window (power of two ≥ `coarse_needed`).
+    pub wc: usize,
+}
+
+impl GlareGeometry {
+    /// The geometry for a `kernel_size` kernel of `deg_per_px` pixels and the
+    /// weight `window`; an error names the setting when a GPU window would
+    /// exceed 2048 samples.
+    pub fn new(kernel_size: usize, deg_per_px: f64, window: GlareWindow) -> Result<Self, GpuError> {
+        let invalid = |source| GpuError::InvalidParams {
+            what: "GPU glare",
+            source,
+        };
+        window.validate().map_err(invalid)?;
+        if !(deg_per_px.is_finite() && deg_per_px > 0.0) || kernel_size == 0 {
+            return Err(invalid(VisionError::invalid(
+                "glare kernel",
+                format!("{kernel_size}x{kernel_size} at {deg_per_px} deg/px"),
+                "a square kernel with a finite pixel size",
+            )));
+        }
+        let ppd = 1.0 / deg_per_px;
+        let r_kernel = kernel_size / 2;
+        let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
+        let half_b = (COARSE_PX_DEG * ppd / 2.0).floor() as usize;
+        let block = 2 * half_b + 1;
+        let r_coarse = (r_kernel + half_b).div_ceil(block);
+        let d_full = window.full_weight_deg * ppd;
+        let sigma = window.fade_sigma_deg * ppd;
+        let r_src = d_full + 3.0 * sigma;
+        let src_px = r_src.ceil() as usize + 1;
+        let fine_needed = 2 * (src_px + r_fine) + 2;
+        let coarse_needed = 2 * (src_px.div_ceil(block) + 1 + r_coarse) + 2;
+        let (wf, wc) = (
+            fine_needed.next_power_of_two(),
+            coarse_needed.next_power_of_two(),
+        );
+        if wf > MAX_GPU_WINDOW || wc > MAX_GPU_WINDOW {
+            return Err(invalid(VisionError::invalid(
+                "glare.full_weight_deg",
+                window.full_weight_deg,
+                "a weight region (full_weight_deg + 3 fade_sigma_deg) whose GPU FFT windows at \
+                 this ppd are ≤ 2048 samples",
+            )));
+        }
+        Ok(Self {
+            r_fine,
+            block,
+            d_full,
+            sigma,
+            r_src,
+            fine_needed,
+            coarse_needed,
+            wf,
+            wc,
+        })
+    }
+}
+
 /// Uniforms of `glare.wgsl` (`struct GlareParams`), field by field.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct GlareParams {
-    /// Window size W.
-    pub window: u32,
+    /// Fine window W_f, pixels.
+    pub wf: u32,
+    /// Coarse window W_c, blocks.
+    pub wc: u32,
+    /// Block b, pixels (odd).
+    pub block: u32,
+    /// Fine kernel radius, pixels.
+    pub r_fine: u32,
     /// PSF kernel size, pixels.
     pub kernel_size: u32,
-    /// Radius of the cropped kernel, `min(size/2, W/4)`.
-    pub radius: u32,
-    /// 1: the σ → ∞ limit weight `1 − d²/R²`.
-    pub linear_limit: u32,
     /// Frame width.
     pub width: u32,
     /// Frame height.
     pub height: u32,
-    /// Window origin x in the frame.
-    pub origin_x: i32,
-    /// Window origin y in the frame.
-    pub origin_y: i32,
-    /// Window ∩ image, window coordinates `[i0, i1) × [j0, j1)`.
-    pub i0: u32,
-    /// See `i0`.
-    pub i1: u32,
-    /// See `i0`.
-    pub j0: u32,
-    /// See `i0`.
-    pub j1: u32,
+    /// Padding.
+    pub _pad0: u32,
+    /// Fine window origin x.
+    pub ofx: i32,
+    /// Fine window origin y.
+    pub ofy: i32,
+    /// Coarse window origin x.
+    pub ocx: i32,
+    /// Coarse window origin y.
+    pub ocy: i32,
+    /// Source box ∩ image, `[sx0, sx1) × [sy0, sy1)`.
+    pub sx0: i32,
+    /// See `sx0`.
+    pub sx1: i32,
+    /// See `sx0`.
+    pub sy0: i32,
+    /// See `sx0`.
+    pub sy1: i32,
+    /// Output region (coarse window ∩ image), `[x0, x1) × [y0, y1)`.
+    pub x0: i32,
+    /// See `x0`.
+    pub x1: i32,
+    /// See `x0`.
+    pub y0: i32,
+    /// See `x0`.
+    pub y1: i32,
     /// Gaze x, frame pixels.
     pub gaze_x: f32,
     /// Gaze y, frame pixels.
     pub gaze_y: f32,
-    /// `1/(2σ²)`, σ the falloff, pixels.
-    pub inv_2s2: f32,
-    /// `R²`, R the largest source distance that glares.
-    pub r2: f32,
-    /// `G(R) = e^(−R²/2σ²)`.
-    pub g_r: f32,
-    /// Padding.
-    pub _pad0: f32,
-    /// Padding.
-    pub _pad1: f32,
-    /// Padding.
-    pub _pad2: f32,
+    /// Full-weight radius, pixels.
+    pub d_full: f32,
+    /// Fade σ, pixels.
+    pub sigma: f32,
 }
 
 impl GlareParams {
-    /// The static part: window, kernel size and cropped radius, frame size.
-    pub fn new(window: u32, kernel_size: u32, width: u32, height: u32) -> Self {
+    /// The static part for `geometry`, a `kernel_size` kernel and the frame.
+    pub fn new(geometry: &GlareGeometry, kernel_size: u32, width: u32, height: u32) -> Self {
         Self {
-            window,
+            wf: geometry.wf as u32,
+            wc: geometry.wc as u32,
+            block: geometry.block as u32,
+            r_fine: geometry.r_fine as u32,
             kernel_size,
-            radius: (kernel_size / 2).min(window / 4),
-            linear_limit: 0,
             width,
             height,
-            origin_x: 0,
-            origin_y: 0,
-            i0: 0,
-            i1: 0,
-            j0: 0,
-            j1: 0,
-            gaze_x: 0.0,
-            gaze_y: 0.0,
-            inv_2s2: 0.0,
-            r2: 0.0,
-            g_r: 0.0,
-            _pad0: 0.0,
-            _pad1: 0.0,
-            _pad2: 0.0,
+            d_full: geometry.d_full as f32,
+            sigma: geometry.sigma as f32,
+            ..Self::zeroed()
         }
     }
 
-    /// `R = W/2 − r − 1`, pixels.
-    pub fn source_radius_px(&self) -> f64 {
-        f64::from(self.window / 2) - f64::from(self.radius) - 1.0
-    }
-
-    /// Places the window at `gaze_px` with falloff σ `falloff_sigma_px`, as
-    /// `GlareConvolver::apply`; `false` when that applies no glare (window
-    /// off the image, `R ≤ 0`, bad gaze or σ).
-    pub fn place(&mut self, gaze_px: [f64; 2], falloff_sigma_px: f64) -> bool {
-        if !gaze_px[0].is_finite()
-            || !gaze_px[1].is_finite()
-            || falloff_sigma_px.is_nan()
-            || falloff_sigma_px <= 0.0
-        {
+    /// Places the windows at `gaze_px` as `GlareConvolver::apply` does;
+    /// `false` when that applies no glare (bad gaze, no source pixel in the
+    /// image, empty output region).
+    pub fn place(&mut self, geometry: &GlareGeometry, gaze_px: [f64; 2]) -> bool {
+        if !gaze_px[0].is_finite() || !gaze_px[1].is_finite() {
             return false;
         }
-        let w = i64::from(self.window);
-        let half = w / 2;
         let (iw, ih) = (i64::from(self.width), i64::from(self.height));
-        let limit = (iw.max(ih) + 2 * w) as f64;
+        let (wf, wc) = (i64::from(self.wf), i64::from(self.wc));
+        let b = i64::from(self.block);
+        let hb = b / 2;
+        let limit = (iw.max(ih) + 2 * wf * b) as f64;
         let gx = gaze_px[0].clamp(-limit, limit);
         let gy = gaze_px[1].clamp(-limit, limit);
-        let ox = gx.floor() as i64 - half;
-        let oy = gy.floor() as i64 - half;
-        if ox + w <= 0 || oy + w <= 0 || ox >= iw || oy >= ih {
+        let (gxi, gyi) = (gx.floor() as i64, gy.floor() as i64);
+        let (ofx, ofy) = (gxi - wf / 2, gyi - wf / 2);
+        let (ocx, ocy) = (gxi - hb - (wc / 2) * b, gyi - hb - (wc / 2) * b);
+        let rs = geometry.r_src.ceil() as i64 + 1;
+        let (sx0, sx1) = ((gxi - rs).max(0), (gxi + rs + 1).min(iw));
+        let (sy0, sy1) = ((gyi - rs).max(0), (gyi + rs + 1).min(ih));
+        if sx0 >= sx1 || sy0 >= sy1 {
             return false;
         }
-        let r_src = self.source_radius_px();
-        if r_src <= 0.0 {
+        let (x0, x1) = (ocx.max(0), (ocx + wc * b).min(iw));
+        let (y0, y1) = (ocy.max(0), (ocy + wc * b).min(ih));
+        if x0 >= x1 || y0 >= y1 {
             return false;
         }
-        let inv_2s2 = 1.0 / (2.0 * falloff_sigma_px * falloff_sigma_px);
-        let g_r = (-r_src * r_src * inv_2s2).exp();
-        self.origin_x = ox as i32;
-        self.origin_y = oy as i32;
-        self.i0 = (-ox).max(0) as u32;
-        self.j0 = (-oy).max(0) as u32;
-        self.i1 = (iw - ox).min(w) as u32;
-        self.j1 = (ih - oy).min(w) as u32;
+        let to = |v: i64| v as i32;
+        (self.ofx, self.ofy, self.ocx, self.ocy) = (to(ofx), to(ofy), to(ocx), to(ocy));
+        (self.sx0, self.sx1, self.sy0, self.sy1) = (to(sx0), to(sx1), to(sy0), to(sy1));
+        (self.x0, self.x1, self.y0, self.y1) = (to(x0), to(x1), to(y0), to(y1));
         self.gaze_x = gx as f32;
         self.gaze_y = gy as f32;
-        self.inv_2s2 = inv_2s2 as f32;
-        self.r2 = (r_src * r_src) as f32;
-        self.g_r = g_r as f32;
-        // GlareConvolver's falloff_weight: the limit where 1 − G(R) vanishes.
-        self.linear_limit = u32::from(1.0 - g_r <= 1e-9);
         true
+    }
+
+    /// Output region size, pixels (`x1 − x0`, `y1 − y0`).
+    pub fn output_size(&self) -> (u32, u32) {
+        ((self.x1 - self.x0) as u32, (self.y1 - self.y0) as u32)
     }
 }
 
 /// The twin of `shaders/glare.wgsl`. Bindings: 0 [`GlareParams`], 1 PSF
-/// kernel (`vec4<f32>`, read-only), 2 kernel sums (`vec4<f32>`), 3 the FFT's
-/// data buffer (3 planes of W² `vec2<f32>`), 4 the cached kernel spectrum
-/// (read-only), 5 the working frame (RGBA f32).
+/// kernel (`vec4<f32>`, read-only), 2 the fine FFT's data buffer, 3 the
+/// cached fine kernel spectrum (read-only), 4 the coarse FFT's data buffer,
+/// 5 the cached coarse kernel spectrum (read-only), 6 the working frame
+/// (RGBA f32).
 #[derive(Debug, Clone)]
 pub struct GlarePass {
     layout: wgpu::BindGroupLayout,
-    pub(crate) kernel_sums: wgpu::ComputePipeline,
-    pub(crate) kernel_scatter: wgpu::ComputePipeline,
-    pub(crate) window_gather: wgpu::ComputePipeline,
-    pub(crate) spectrum_multiply: wgpu::ComputePipeline,
+    pub(crate) kernel_fine: wgpu::ComputePipeline,
+    pub(crate) kernel_coarse: wgpu::ComputePipeline,
+    pub(crate) gather_fine: wgpu::ComputePipeline,
+    pub(crate) gather_coarse: wgpu::ComputePipeline,
+    pub(crate) multiply_fine: wgpu::ComputePipeline,
+    pub(crate) multiply_coarse: wgpu::ComputePipeline,
     pub(crate) blend: wgpu::ComputePipeline,
 }
 
@@ -166,18 +253,22 @@ impl GlarePass {
                 uniform_entry::<GlareParams>(0),
                 storage_entry(1, true),
                 storage_entry(2, false),
-                storage_entry(3, false),
-                storage_entry(4, true),
-                storage_entry(5, false),
+                storage_entry(3, true),
+                storage_entry(4, false),
+                storage_entry(5, true),
+                storage_entry(6, false),
             ],
         )?;
         let s = &shaders::GLARE;
+        let p = |entry| ctx.create_compute_pipeline(s, entry, &[&layout]);
         Ok(Self {
-            kernel_sums: ctx.create_compute_pipeline(s, "kernel_sums", &[&layout])?,
-            kernel_scatter: ctx.create_compute_pipeline(s, "kernel_scatter", &[&layout])?,
-            window_gather: ctx.create_compute_pipeline(s, "window_gather", &[&layout])?,
-            spectrum_multiply: ctx.create_compute_pipeline(s, "spectrum_multiply", &[&layout])?,
-            blend: ctx.create_compute_pipeline(s, "blend", &[&layout])?,
+            kernel_fine: p("kernel_fine")?,
+            kernel_coarse: p("kernel_coarse")?,
+            gather_fine: p("gather_fine")?,
+            gather_coarse: p("gather_coarse")?,
+            multiply_fine: p("multiply_fine")?,
+            multiply_coarse: p("multiply_coarse")?,
+            blend: p("blend")?,
             layout,
         })
     }

@@ -13,13 +13,14 @@
 //! - [`pooling`] (stage 1): scene import, block luminance and the
 //!   gaze-weighted pooling of every `PoolingModel` as workgroup reductions;
 //! - [`temporal`] (stage 2): the adaptation step, one GPU thread;
-//! - [`psf`] (stage 3): the glare PSF (001 §4.2, eq 5–10) rebuilt on the GPU
-//!   from the live pupil — aperture, FFT, intensity, spectral sum into
-//!   display pixels, normalisation — when the pupil moved more than the
-//!   threshold, cached otherwise;
+//! - [`psf`] (stage 3): the glare kernel, rebuilt when the pupil moved more
+//!   than the threshold, cached otherwise — an interim: built by the CPU
+//!   model ([`gazelight_vision::psf`], wave-optics near field + CIE 146
+//!   stray light) and uploaded, until its WGSL twin exists;
 //! - [`glare`] (stage 4): windowed FFT convolution at the gaze with the
 //!   Gaussian falloff blend, kernel spectrum cached between rebuilds;
-//! - [`acuity`] (stage 5): σ rule of `AcuityModel`, separable Lab blur;
+//! - [`acuity`] (stage 5): per-pixel σ from each pixel's own lightness
+//!   (001 eq 11–13), separable Lab-lightness blur of the HDR frame;
 //! - [`tone`] (stages 6–8): tone reproduction, colour, sRGB encoding;
 //! - [`context`]: the device — a caller's `wgpu::Device` + `Queue` (library
 //!   use inside a host renderer) or an own one, hardware adapter first,
@@ -29,8 +30,7 @@
 //!   each checked against the device limits (workgroup storage, which wgpu 30
 //!   does not check, and workgroup size) before a pipeline is built;
 //! - [`fft`]: a batched 2D Stockham FFT (radix 4/2, complex f32, powers of two
-//!   up to 2048 per side), behind the PSF (001 eq 8) and the glare
-//!   convolution;
+//!   up to 2048 per side), behind the glare convolution;
 //! - [`cpu`]: the f64 reference of the FFT kernels, mirroring their index
 //!   schemes;
 //! - [`testing`]: the shared test device and the `GAZELIGHT_REQUIRE_GPU` rule.

@@ -66,31 +66,6 @@ pub const FFT: WgslShader = WgslShader {
     source: with_common!("fft.wgsl"),
 };
 
-/// Pupil-plane field L = P·F·A of the glare PSF (001 eq 7).
-pub const PSF_APERTURE: WgslShader = WgslShader {
-    name: "psf_aperture.wgsl",
-    source: include_str!("../../../shaders/psf_aperture.wgsl"),
-};
-
-/// Monochromatic PSF M = |FFT(L)/N|²/(λd)² with fftshift (001 eq 8).
-pub const PSF_INTENSITY: WgslShader = WgslShader {
-    name: "psf_intensity.wgsl",
-    source: with_common!("psf_intensity.wgsl"),
-};
-
-/// Summed-area table of M and the spectral sum into display pixels
-/// (001 eq 9–10).
-pub const PSF_SPECTRAL: WgslShader = WgslShader {
-    name: "psf_spectral.wgsl",
-    source: include_str!("../../../shaders/psf_spectral.wgsl"),
-};
-
-/// Per-channel unit energy of the glare kernel (workgroup reductions).
-pub const PSF_NORMALIZE: WgslShader = WgslShader {
-    name: "psf_normalize.wgsl",
-    source: include_str!("../../../shaders/psf_normalize.wgsl"),
-};
-
 /// The per-frame state struct shared by the frame passes.
 pub const FRAME_STATE: WgslShader = WgslShader {
     name: "frame_state.wgsl",
@@ -131,10 +106,6 @@ pub const TONE: WgslShader = WgslShader {
 pub const ALL: &[WgslShader] = &[
     COMMON,
     FFT,
-    PSF_APERTURE,
-    PSF_INTENSITY,
-    PSF_SPECTRAL,
-    PSF_NORMALIZE,
     FRAME_STATE,
     POOLING,
     TEMPORAL,

@@ -3,9 +3,9 @@
 //! GPU), then per pixel tone reproduction ([`gazelight_vision::tone`],
 //! 000 eq 1–4, 8–10, 003 eq 4–5, 004 §3.2–3.3), colour
 //! ([`gazelight_vision::colour`], 001 eq 14, 000 eq 11–12), clamping to the
-//! display, and either the sRGB encoding (8-bit, through the CPU's own
-//! 16384-entry table, so equal inputs give equal bytes) or CIE Lab for the
-//! acuity pass. The threshold functions run in f32 on the GPU; `t_p` of the
+//! display, and the sRGB encoding (8-bit, through the CPU's own
+//! 16384-entry table, so equal inputs give equal bytes). The acuity blur
+//! (stage 5) has already run on the HDR frame. The threshold functions run in f32 on the GPU; `t_p` of the
 //! display adaptation and the gaze-exposure gamma, which do not depend on
 //! the frame, come from the host in f64.
 
@@ -120,8 +120,8 @@ impl ToneParams {
 }
 
 /// The twin of `shaders/tone.wgsl`. Bindings: 0 [`ToneParams`],
-/// 1 [`crate::frame::FrameState`], 2 working frame (read-only), 3 Lab frame,
-/// 4 display-linear frame, 5 sRGB table (read-only), 6 RGBA8 output.
+/// 1 [`crate::frame::FrameState`], 2 working frame (read-only),
+/// 3 display-linear frame, 4 sRGB table (read-only), 5 RGBA8 output.
 #[derive(Debug, Clone)]
 pub struct TonePass {
     layout: wgpu::BindGroupLayout,
@@ -140,9 +140,8 @@ impl TonePass {
                 storage_entry(1, false),
                 storage_entry(2, true),
                 storage_entry(3, false),
-                storage_entry(4, false),
-                storage_entry(5, true),
-                storage_entry(6, false),
+                storage_entry(4, true),
+                storage_entry(5, false),
             ],
         )?;
         let s = &shaders::TONE;
