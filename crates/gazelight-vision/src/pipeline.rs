@@ -11,13 +11,17 @@
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
 //! | B | 4 glare | [`GlareConvolver::apply`]: FFT convolution in a window at the gaze, Gaussian falloff blend |
-//! | C | 6 tone + 7 colour (+ 8 encode) | per pixel, fused: tone reproduction, colour, and — when no acuity blur is needed — sRGB encoding |
-//! | D | 5 acuity (+ 8 encode) | separable blur of Lab lightness, then sRGB encoding |
+//! | D | 5 acuity | [`AcuityBlur::apply`]: separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13) |
+//! | C | 6 tone + 7 colour + 8 encode | per pixel, fused: tone reproduction, colour, sRGB encoding |
 //!
-//! Acuity loss (stage 5) runs on display-relative light after tone
-//! reproduction rather than before it: CIE Lab lightness needs a bounded
-//! white, which the HDR frame does not have, while the display frame does
-//! (white = display peak). Glare, being optical, runs on scene luminance.
+//! Acuity loss (stage 5) runs on the HDR frame in cd/m², after glare and
+//! before tone reproduction, as in 001 §4.3.1 ("the linear HDR values (i.e.,
+//! before tone mapping)"): visual acuity depends on the absolute luminance
+//! reaching the retina, so each pixel's σ comes from its lightness against
+//! a fixed Lab white in cd/m² (`lab_white_cd_m2`, see [`crate::acuity`]),
+//! not against the display or the adaptation. The frame after this stage is
+//! the retinal image, linear RGB in cd/m² after glare and acuity
+//! ([`FramePipeline::retinal`]); tone reproduction maps it to the display.
 //!
 //! Nothing is allocated per frame once the pipeline is built (the tests
 //! prove it with a counting allocator).
@@ -174,7 +178,8 @@ pub struct FrameStats {
     pub psf_pupil_mm: f64,
     /// Whether the PSF was rebuilt this frame.
     pub psf_rebuilt: bool,
-    /// Acuity blur σ, display pixels.
+    /// Acuity blur σ of a pixel at the adaptation luminance, display
+    /// pixels (for reporting: every pixel's σ follows its own lightness).
     pub acuity_sigma_px: f32,
     /// Per-stage timings.
     pub timings: StageTimings,
@@ -280,6 +285,7 @@ impl FramePipeline {
         } else {
             None
         };
+        let acuity = AcuityBlur::new(&config.acuity, width, height, deg_per_px);
         let mut srgb_lut = Box::new([0u8; SRGB_LUT_SIZE]);
         for (i, v) in srgb_lut.iter_mut().enumerate() {
             *v = (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u8;
@@ -297,7 +303,7 @@ impl FramePipeline {
             small_h,
             glare,
             psf_pupil_mm,
-            acuity: AcuityBlur::new(width, height),
+            acuity,
             srgb_lut,
             #[cfg(test)]
             reference: false,
@@ -326,9 +332,15 @@ impl FramePipeline {
 
     /// The display-linear frame of the last [`FramePipeline::process`]
     /// (display-relative, 1 = peak), kept only when
-    /// [`PipelineConfig::keep_display_linear`] is set or acuity blur ran.
+    /// [`PipelineConfig::keep_display_linear`] is set.
     pub fn display_linear(&self) -> &RgbImage {
         &self.display
+    }
+
+    /// The retinal image of the last [`FramePipeline::process`]: linear
+    /// RGB in cd/m² after glare and acuity, before tone reproduction.
+    pub fn retinal(&self) -> &RgbImage {
+        &self.work
     }
 
     /// The current PSF kernel (at display pixels), if glare is enabled.
@@ -437,20 +449,29 @@ impl FramePipeline {
         }
         let t_glare = Instant::now();
 
-        // Stages 6 + 7 (+ 8): tone reproduction and colour, fused.
+        // Stage 5: acuity loss on the HDR frame, σ per pixel.
+        if reference {
+            #[cfg(test)]
+            reference_acuity(&self.config.acuity, self.deg_per_px, &mut self.work);
+        } else {
+            self.acuity.apply(&mut self.work);
+        }
+        let acuity_sigma_px = self
+            .config
+            .acuity
+            .sigma_px(adaptation_cd_m2, self.deg_per_px);
+        let t_acuity = Instant::now();
+        timings.acuity_ms = ms(t_glare, t_acuity);
+
+        // Stages 6 + 7 + 8: tone reproduction, colour and encoding, fused.
         let tone = self
             .config
             .tone
             .prepare_adapting(adaptation_cd_m2, state.light_target_cd_m2);
         let colour = self.config.colour.prepare(adaptation_cd_m2);
-        let acuity_sigma_px = self
-            .config
-            .acuity
-            .sigma_px(adaptation_cd_m2, self.deg_per_px);
-        let blur = acuity_sigma_px > AcuityBlur::MIN_SIGMA_PX;
         let lut: &[u8; SRGB_LUT_SIZE] = &self.srgb_lut;
         let map = PixelMap::new(&tone, &colour);
-        let to_display = blur || self.config.keep_display_linear;
+        let to_display = self.config.keep_display_linear;
         if reference {
             #[cfg(test)]
             reference_pass_c(
@@ -478,15 +499,7 @@ impl FramePipeline {
                 },
             );
         }
-        let t_tone = Instant::now();
-
-        // Stage 5 (+ 8): acuity loss on display light, then encode.
         if to_display {
-            if blur {
-                self.acuity.apply(&mut self.display, acuity_sigma_px);
-            }
-            let t_blur = Instant::now();
-            timings.acuity_ms = ms(t_tone, t_blur);
             affine_encode_rows(
                 &self.display.pixels,
                 w,
@@ -495,10 +508,8 @@ impl FramePipeline {
                 &IDENTITY,
                 &[0.0; 3],
             );
-            timings.tone_colour_encode_ms = ms(t_glare, t_tone) + ms(t_blur, Instant::now());
-        } else {
-            timings.tone_colour_encode_ms = ms(t_glare, t_tone);
         }
+        timings.tone_colour_encode_ms = ms(t_acuity, Instant::now());
         timings.total_ms = ms(t_start, Instant::now());
         Ok(FrameStats {
             target_cd_m2,
@@ -872,6 +883,95 @@ fn reference_pass_a(
         });
 }
 
+/// Reference stage 5, written plainly in f64: every pixel's full CIE Lab
+/// (IEC 61966-2-1 matrices, D65 white scaled to the Lab white), σ from
+/// [`AcuityModel::sigma_px`] of its own lightness, then of its
+/// horizontally blurred lightness, Gaussian taps from `exp`, back to RGB
+/// with the pixel's a*, b*.
+#[cfg(test)]
+fn reference_acuity(model: &AcuityModel, deg_per_px: f64, img: &mut RgbImage) {
+    use crate::acuity::lightness_to_y;
+    const M: [[f64; 3]; 3] = [
+        [0.412_456_4, 0.357_576_1, 0.180_437_5],
+        [0.212_672_9, 0.715_152_2, 0.072_175],
+        [0.019_333_9, 0.119_192, 0.950_304_1],
+    ];
+    const MI: [[f64; 3]; 3] = [
+        [3.240_454_2, -1.537_138_5, -0.498_531_4],
+        [-0.969_266, 1.876_010_8, 0.041_556],
+        [0.055_643_4, -0.204_025_9, 1.057_225_2],
+    ];
+    let (w, h) = (img.width, img.height);
+    let white = model.lab_white_cd_m2();
+    let wn = [0.950_47 * white, white, 1.088_83 * white];
+    let f = |t: f64| {
+        if t > 216.0 / 24389.0 {
+            t.cbrt()
+        } else {
+            (24389.0 / 27.0 * t + 16.0) / 116.0
+        }
+    };
+    let finv = |v: f64| {
+        if v > 6.0 / 29.0 {
+            v * v * v
+        } else {
+            (116.0 * v - 16.0) * 27.0 / 24389.0
+        }
+    };
+    let lab: Vec<[f64; 3]> = img
+        .pixels
+        .iter()
+        .map(|p| {
+            let p = p.map(f64::from);
+            let xyz = M.map(|r| r[0] * p[0] + r[1] * p[1] + r[2] * p[2]);
+            let (fx, fy, fz) = (f(xyz[0] / wn[0]), f(xyz[1] / wn[1]), f(xyz[2] / wn[2]));
+            [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+        })
+        .collect();
+    let sigma = |l: f64| f64::from(model.sigma_px(lightness_to_y(l) * white, deg_per_px));
+    let blur = |s: f64, v: &dyn Fn(i64) -> f64| -> f64 {
+        if s <= f64::from(AcuityBlur::MIN_SIGMA_PX) {
+            return v(0);
+        }
+        let r = ((3.0 * s).ceil() as i64).min(AcuityBlur::MAX_RADIUS_PX as i64);
+        let (mut acc, mut norm) = (0.0f64, 0.0f64);
+        for k in -r..=r {
+            let g = (-((k * k) as f64) / (2.0 * s * s)).exp();
+            acc += g * v(k);
+            norm += g;
+        }
+        acc / norm
+    };
+    let mut hz = vec![0.0f64; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let l = lab[y * w + x][0];
+            hz[y * w + x] = blur(sigma(l), &|k| {
+                lab[y * w + (x as i64 + k).clamp(0, w as i64 - 1) as usize][0]
+            });
+        }
+    }
+    for y in 0..h {
+        for x in 0..w {
+            let hv = hz[y * w + x];
+            let l = blur(sigma(hv), &|k| {
+                hz[(y as i64 + k).clamp(0, h as i64 - 1) as usize * w + x]
+            });
+            let [l0, a, b] = lab[y * w + x];
+            if l != l0 {
+                let fy = (l + 16.0) / 116.0;
+                let xyz = [
+                    finv(fy + a / 500.0) * wn[0],
+                    finv(fy) * wn[1],
+                    finv(fy - b / 200.0) * wn[2],
+                ];
+                img.pixels[y * w + x] =
+                    MI.map(|r| (r[0] * xyz[0] + r[1] * xyz[1] + r[2] * xyz[2]) as f32);
+            }
+        }
+    }
+}
+
 /// Reference stages 6 + 7 (+ 8): `colour.apply(tone.apply(p))` per pixel.
 #[cfg(test)]
 fn reference_pass_c(
@@ -987,6 +1087,15 @@ mod tests {
                 );
                 differing += usize::from(p != q);
             }
+            // The retinal image (after glare and acuity, cd/m²).
+            for (p, q) in fast.retinal().pixels.iter().zip(&slow.retinal().pixels) {
+                for c in 0..3 {
+                    assert!(
+                        (p[c] - q[c]).abs() <= 2e-4 * q[c].abs().max(1e-3),
+                        "{what} frame {n}: retinal {p:?} vs {q:?}"
+                    );
+                }
+            }
             if config.keep_display_linear {
                 for (p, q) in fast.display.pixels.iter().zip(&slow.display.pixels) {
                     for c in 0..3 {
@@ -1047,6 +1156,12 @@ mod tests {
             probe.acuity_sigma_px > AcuityBlur::MIN_SIGMA_PX,
             "{probe:?}"
         );
+        // Per pixel: the night view's dark pixels blur.
+        let mut blur = AcuityBlur::new(&AcuityModel::default(), 180, 200, night_dpp);
+        let mut blurred = night.clone();
+        let changed = blur.apply(&mut blurred);
+        eprintln!("night view: {changed} of 36000 px blurred");
+        assert!(changed > 36000 / 4, "{changed}");
 
         let mut total = 0;
         let mut light_adapting_frames = 0;
@@ -1064,6 +1179,7 @@ mod tests {
                 ] {
                     for (acuity, keep) in [
                         (AcuityModel::default(), false),
+                        (AcuityModel::LarsonKrawczyk, false),
                         (AcuityModel::None, false),
                         (AcuityModel::None, true),
                     ] {
@@ -1081,7 +1197,7 @@ mod tests {
             }
         }
         // Off-by-one bytes come only from rounding at table-entry edges.
-        let bytes = 2 * 3 * 4 * 3 * 4 * 180 * 200 * 4;
+        let bytes = 2 * 3 * 4 * 4 * 4 * 180 * 200 * 4;
         eprintln!("bytes differing by 1: {total} of {bytes}");
         assert!(total * 1000 < bytes, "{total} of {bytes} bytes differ");
         assert!(light_adapting_frames > 0, "no frame used 000 eq 10");
