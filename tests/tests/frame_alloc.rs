@@ -58,10 +58,8 @@ fn steady_state_frames_do_not_allocate() {
     PanoramaView::new(view)
         .expect("view")
         .render(&scene.image, &mut frame);
-    let mut config = PipelineConfig::default();
-    config.glare.window_px = 128;
-    config.glare.psf.grid_size = 128;
-    config.glare.psf.kernel_size = 63;
+    // The default glare: ±20° kernel, fine core + coarse wide field.
+    let config = PipelineConfig::default();
     let mut pipeline =
         FramePipeline::new(config, view.width, view.height, view.deg_per_px()).expect("pipeline");
     let mut out = DisplayFrame::new(view.width, view.height);

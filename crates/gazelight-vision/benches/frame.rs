@@ -13,9 +13,11 @@ use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use gazelight_vision::RgbImage;
+use gazelight_vision::glare::{GlareConvolver, GlareWindow};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, PipelineConfig, StageTimings,
 };
+use gazelight_vision::psf::{PsfParams, build_kernel};
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
 fn view_of(name: &str, yaw_deg: f64, width: usize, height: usize) -> (RgbImage, ViewParams) {
@@ -116,6 +118,49 @@ fn bench_size(c: &mut Criterion, scene: &str, yaw_deg: f64, w: usize, h: usize) 
     );
 }
 
+/// The glare stage alone at 720×800 (default kernel: ±20° field with the
+/// CIE 146 wide field, full weight 12° around the gaze), against an f32
+/// RGBA copy of the same frame measured in the same run (the floor).
+fn glare_stage(c: &mut Criterion) {
+    let (w, h) = (720, 800);
+    let (img, view) = view_of("night.exr", -78.4, w, h);
+    let params = PsfParams {
+        ppd: 1.0 / view.deg_per_px(),
+        ..PsfParams::default()
+    };
+    let kernel = build_kernel(&params).expect("kernel");
+    let mut conv = GlareConvolver::new(&kernel, GlareWindow::default()).expect("convolver");
+    eprintln!(
+        "glare stage {w}x{h} at {:.2} ppd: kernel {} px, fine window {} px (radius {} px), coarse window {} blocks of {} px",
+        params.ppd,
+        kernel.size,
+        conv.fine_window_px(),
+        conv.fine_radius_px(),
+        conv.coarse_window_blocks(),
+        conv.block_px()
+    );
+    let mut work = img.clone();
+    let src: Vec<[f32; 4]> = img.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
+    let mut dst = vec![[0.0f32; 4]; w * h];
+    let mut group = c.benchmark_group(format!("glare_{w}x{h}"));
+    group.sample_size(30);
+    group.bench_function("glare_stage", |b| {
+        b.iter(|| {
+            // Energy conserving: applying it again and again keeps the
+            // frame finite, and the FFT work does not depend on the values.
+            conv.apply(black_box(&mut work), [0.5 * w as f64, 0.45 * h as f64]);
+            black_box(&work);
+        })
+    });
+    group.bench_function("f32_rgba_copy_floor", |b| {
+        b.iter(|| {
+            dst.copy_from_slice(black_box(&src));
+            black_box(&dst);
+        })
+    });
+    group.finish();
+}
+
 fn frame(c: &mut Criterion) {
     // GAZELIGHT_BENCH_SIZES=720x800 restricts the sizes (the per-stage
     // figures are not covered by criterion's filter).
@@ -133,5 +178,5 @@ fn frame(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, frame);
+criterion_group!(benches, glare_stage, frame);
 criterion_main!(benches);

@@ -20,6 +20,7 @@
 //! | [`colour`] | scotopic colour shift, colour discrimination | 001 eq 14, 000 eq 11–12 |
 //! | [`acuity`] | acuity loss blur | 001 eq 11–13 |
 //! | [`psf`] | the glare point spread function | 001 §4.2, eq 5–10 |
+//! | [`stray_light`] | CIE 146:2002 stray light, particle Airy lobes, J1 | CIE 146:2002 |
 //! | [`glare`] | windowed FFT glare convolution at the gaze | 001 §4.2.3 |
 //! | [`scene`] | OpenEXR / Radiance loading, panorama views | 004 §3.3 |
 //! | [`pipeline`] | the full frame pipeline, stages 1–8 | all |
@@ -33,6 +34,7 @@ pub mod pipeline;
 pub mod pooling;
 pub mod psf;
 pub mod scene;
+pub mod stray_light;
 pub mod temporal;
 pub mod tone;
 pub mod tvi;

@@ -1,93 +1,131 @@
-//! The glare point spread function (001 §4.2, eq 5–10), in physical units.
+//! The glare point spread function in physical units: wave optics near the
+//! source (001 §4.2, eq 5–10) and the eye's intraocular stray light
+//! calibrated to CIE 146:2002 out to the edge of the glare field.
 //!
-//! # Model
+//! # Public API (mirrored by the GPU twin)
 //!
-//! The eye is modelled after 001 §4.2.2 (which follows Ritschel et al. and
-//! Kakimoto et al.): a pupil-plane grid of `N × N` complex samples holds the
-//! lens equation (001 eq 7)
+//! * [`PsfParams`] — what is asked for: pupil, particles, display ppd, the
+//!   kernel field `field_deg` (the kernel covers ±`field_deg`/2), the CIE 146
+//!   observer (`age_years`, `pigmentation`), `stray_light` on/off,
+//!   `glare_scale` ([`GlareScale::Physical`] or 001's own [`GlareScale::Seed`]),
+//!   and `pupil_range_mm`, the pupils a [`PsfBuilder`] will be rebuilt for.
+//! * [`PsfParams::sampling`] → [`PsfSampling`]: the pupil-plane grid chosen
+//!   for the request (`grid_size` N, a power of two ≤ [`MAX_GRID_SIZE`],
+//!   `pupil_plane_mm` W), the radius of the wave-optics region
+//!   `near_radius_px` and the kernel radius `kernel_radius_px`, all in display
+//!   pixels.
+//! * [`PsfBuilder`] / [`build_kernel`] → [`PsfKernel`]: the full-resolution
+//!   kernel, `(2 kernel_radius_px + 1)²` display pixels, each channel summing
+//!   to 1. This is the kernel the glare convolver applies to a point source
+//!   ([`crate::glare`] splits it into a full-resolution core and a coarse
+//!   wide field, exactly: the two parts add up to this kernel).
+//! * [`monochromatic_psf`] (001 eq 8 on the chosen grid),
+//!   [`particle_transmission`] (the static particle field `P` on that grid).
+//!
+//! # The kernel
+//!
+//! For a display pixel at angle θ from the source (pixel centre), with
+//! `Ω_px = (deg_per_px in rad)²` its solid angle, each channel `c`:
 //!
 //! ```text
-//! L(x, y) = P(x, y) · F(x, y) · A(x, y)
+//! K_c = α_c · N_c + f(θ) · CIE146(θ; A, p) · Ω_px
+//! N_c = near field (FFT, θ ≤ near radius)  or  particle lobes (beyond it)
+//! α_c = (1 − Σ f·CIE146·Ω_px) / Σ N_c          (whole kernel: unit energy)
 //! ```
+//!
+//! `f` is a smoothstep from 0 at 0.1° (where CIE 146 starts to hold) to 1 at
+//! 0.3° ([`STRAY_LIGHT_FADE_DEG`]); below 0.1° the kernel is wave optics
+//! alone. With `stray_light = false` the second term is absent and `α_c = 1 /
+//! Σ N_c`. CIE 146 is taken as achromatic (the same in R, G and B).
+//!
+//! ## Near field: wave optics (001 eq 5–10)
+//!
+//! A pupil-plane grid of `N × N` complex samples holds the lens equation
+//! (001 eq 7) `L = P · F · A`:
 //!
 //! * `P` — the static particle field of the cornea and lens: `particles`
-//!   opaque discs of diameter `particle_um`, at seeded pseudo-random positions
-//!   (a SplitMix64 generator, so a seed always gives the same field) spread
-//!   uniformly over the disc of the largest pupil the grid supports
-//!   (`pupil_plane_mm / 2`), so that a dilating pupil uncovers more particles
-//!   of the same static field. Discs wider than a sample are drawn
-//!   anti-aliased; smaller ones remove their geometric area from the nearest
-//!   four samples (bilinear splat of the opacity). Overlaps multiply
-//!   transmissions.
-//! * `F` — the Fresnel term `exp(iπ(x² + y²)/(λd))` with λ = 575 nm and
-//!   d = 24 mm (001 eq 6). The refraction of the cornea and lens of an eye
-//!   focused on the retina contributes the opposite quadratic phase
-//!   `exp(−iπ(x² + y²)/(λ f))` with `f = d`; their product is the residual
-//!   defocus `exp(iπ(x² + y²)·ΔD/λ)` with `ΔD = 1/d − 1/f` in dioptres
-//!   ([`PsfParams::defocus_dioptres`], default 0 = in focus). The product is
-//!   evaluated analytically: the bare Fresnel term cannot be sampled on any
-//!   practical grid (at the edge of a 20 mm plane with 512 samples its phase
-//!   advances by about 2π·28 per sample), and a physical eye does see its
-//!   in-focus Airy pattern. [`PsfParams::validate`] rejects a defocus whose
-//!   phase would alias on the grid.
-//! * `A` — the pupil aperture, a disc of the live pupil diameter `pupil_mm`
-//!   with an anti-aliased (one sample wide) edge.
+//!   opaque discs of diameter `particle_um` (default 5 µm), at seeded
+//!   pseudo-random positions (SplitMix64) spread uniformly over the disc of
+//!   the largest pupil of `pupil_range_mm`, so that a dilating pupil uncovers
+//!   more particles of the same static field. Discs at least a sample wide
+//!   are drawn anti-aliased; smaller ones lower the transmission of the
+//!   nearest four samples by the area they cover (bilinear split). Overlaps
+//!   multiply transmissions.
+//! * `F` — the Fresnel term (001 eq 6) times the eye's refraction: the
+//!   residual defocus `exp(iπ r² ΔD / λ)` ([`PsfParams::defocus_dioptres`],
+//!   0 = focused; the bare Fresnel phase cannot be sampled on any practical
+//!   grid, and a focused eye sees its in-focus Airy pattern).
+//! * `A` — the pupil, a disc of `pupil_mm` with a one-sample anti-aliased edge.
 //!
-//! The monochromatic PSF is the Fraunhofer far field (001 eq 5, 8):
+//! `M = |FFT(L)/N|² / (λd)²` (001 eq 8, λ = 575 nm, d = 24 mm); by Parseval
+//! `Σ M (λd)² = Σ |L|²`. One FFT sample subtends `Δθ = λ / W` rad; the FFT
+//! field spans `λ / Δx`, `Δx = W / N`.
 //!
-//! ```text
-//! M = |FFT(L) / N|² / (λ d)²        (λ, d in mm; the FFT is 2-D and unnormalised)
-//! ```
+//! ### Sampling per request
 //!
-//! By Parseval, `Σ M · (λd)² = Σ |L|²`: the PSF holds exactly the light that
-//! passes the pupil (the open area in samples).
+//! [`PsfParams::sampling`] picks `Δx` and `N` so that, at the display's ppd:
 //!
-//! ## Physical sampling
+//! * the core is never interpolated: one FFT sample is no wider than one
+//!   display pixel even at 770 nm, `770 nm / W ≤ deg_per_px` (rad), so every
+//!   display pixel integrates whole FFT samples;
+//! * the plane is at least twice the largest pupil (`W ≥ 2 D_max`: the
+//!   optical transfer function, the aperture's autocorrelation, is twice as
+//!   wide as the aperture, so the intensity PSF does not alias);
+//! * the smallest pupil is at least [`MIN_PUPIL_SAMPLES`] samples across;
+//! * the FFT field holds the near-field region at every wavelength: the
+//!   380 nm PSF at the region's edge reads `M` at `575/380` times that angle,
+//!   so `λ / (2Δx) ≥ (575/380) · near radius`.
 //!
-//! With pupil-plane spacing `Δx = pupil_plane_mm / N`, the FFT's frequency
-//! spacing is `1/(N Δx)` cycles per mm. A plane-wave component of spatial
-//! frequency `ν` leaves the pupil at angle `θ = λ ν` (small angles; the grating
-//! equation), so one far-field sample subtends
+//! `N` is the next power of two of `W/Δx` (the GPU Stockham FFT needs it),
+//! at most [`MAX_GRID_SIZE`]; a request that needs more is an error naming
+//! the ppd and pupil range. The near region has radius
+//! [`NEAR_FIELD_RADIUS_DEG`] (0.5°) in display pixels, at least 2 and at
+//! most [`NEAR_FIELD_MAX_PX`] pixels. At the defaults (13.85 ppd, pupils
+//! 1.5–9 mm) that is N = 1024 over an 18.2 mm plane; at 6000 ppd and a 2 mm
+//! pupil, N = 4096 over a 341 mm plane.
 //!
-//! ```text
-//! Δθ = λ / (N Δx) = λ / pupil_plane_mm     radians,
-//! ```
+//! ### Spectral sum
 //!
-//! and the whole FFT field spans `N Δθ = λ / Δx`. At the reference 575 nm, with
-//! the defaults (N = 512, 20 mm plane) that is Δθ = 2.875e-5 rad
-//! (1.65e-3 °/sample) and a field of 0.84°. The first dark ring of a clean
-//! aperture of diameter D lies at `1.22 λ / D` rad, i.e. `1.22 · pupil_plane_mm / D`
-//! samples; the tests find it there. Finer detail of the particles (the
-//! scattering angle of a particle of size s is about λ/s) than `λ/Δx` wraps
-//! around the periodic FFT field: glare is simulated up to the field's edge.
+//! 001 eq 9–10: `φ_i = 380 + i/k (770 − 380)` nm, `k + 1 = wavelength_count`,
+//! `S_XYZ = 1/(k+1) Σ_i xyz(φ_i) M(θ λ/φ_i) (λ/φ_i)²` with the CIE 1931
+//! colour matching functions in the fit of Wyman, Sloan and Shirley (001
+//! [44]). Only the 575 nm field is transformed; the Jacobian `(λ/φ_i)²` keeps
+//! every wavelength at the same energy. Each display pixel receives the exact
+//! integral of the rescaled `M` over its area (a summed-area table). XYZ →
+//! linear sRGB, negatives clamped to 0.
 //!
-//! ## Spectral kernel
+//! ### Particles: scattered power ∝ covered area
 //!
-//! 001 eq 9–10: `φ_i = 380 + i/k (770 − 380)` nm, `i = 0..=k`, with
-//! `k + 1 = wavelength_count`, and `S_XYZ = 1/(k+1) Σ_i xyz(φ_i) M(x λ/φ_i, y λ/φ_i)`
-//! with the CIE 1931 colour matching functions in the multi-lobe Gaussian fit
-//! of Wyman, Sloan and Shirley (JCGT 2(2), 2013) cited by 001 ([44]). Only the
-//! 575 nm field is transformed (as in 001); the PSF at `φ_i` is the Fraunhofer
-//! scaling of it. One deviation from the literal eq 9: the rescaled PSF is
-//! multiplied by the Jacobian `(λ/φ_i)²`, so that every wavelength carries the
-//! same energy and a flat (equal-energy) spectrum is weighted by the colour
-//! matching functions alone — without it eq 9 would give 770 nm
-//! `(770/380)² ≈ 4×` the weight of 380 nm.
+//! A particle of diameter `s` scatters, by Babinet's principle, the Airy lobe
+//! of a disc of its size: power equal to its area `a`, angular scale `λ/s`
+//! (a 5 µm particle: 6.6°, far beyond the FFT field). The two parts:
 //!
-//! The sum is not point-sampled: each display pixel receives the integral of
-//! `M(θ λ/φ_i)(λ/φ_i)²` over its area, computed exactly (for the piecewise
-//! constant reading of `M`) from a summed-area table. That is the
-//! energy-preserving area average when the display pixel is larger than an
-//! FFT sample (the usual case: at 13.85 ppd a display pixel is about 44 FFT
-//! samples wide) and a box reconstruction when it is smaller. The display
-//! kernel is `kernel_size × kernel_size` pixels of `deg_per_px = 1/ppd`,
-//! centred at `(size/2, size/2)`; light falling outside it is dropped.
+//! * inside the near region the FFT is exact for particles wider than a
+//!   sample; for a sub-sample particle (covered fraction `f = a/Δx²` of one
+//!   sample) the lowered amplitude `1 − f` adds a field of amplitude `f Δx²`
+//!   that is flat over the FFT field, intensity `a² / λ²` per sr — exactly the
+//!   centre of the particle's own lobe, `a · (π s²/4) / λ²`. So the FFT's
+//!   near field is right for any particle size;
+//! * beyond the near region the kernel is the incoherent sum of the lobes
+//!   ([`crate::stray_light::airy_lobe_per_sr`], spectrally summed like
+//!   `M`): `σ_p · lobe(θ) · Ω_px` with `σ_p = n_in a / (π D²/4)`, `n_in` the
+//!   particles inside the pupil. The power of the lobes is `σ_p`, linear in
+//!   the covered area (the old kernel, which had only the FFT field, gave
+//!   the sub-sample particles' scatter ∝ area² and lost the rest).
 //!
-//! `S_XYZ` is converted to linear sRGB (Rec. 709 primaries, D65 white),
-//! negative components (monochromatic light is outside the sRGB gamut) are
-//! clamped to 0, and **each channel is normalised to sum to 1**, so the kernel
-//! redistributes light without changing its amount and a white point source
-//! stays white (its centre keeps the source colour; the fringes are coloured).
+//! CIE 146 is the measured total stray light; the particle lobes are added
+//! to it (at the default 1000 particles of 5 µm over a 9 mm disc, a 4 mm
+//! pupil holds ≈ 200 of them and scatters 0.03 % of its light, far below the
+//! ≈ 25 % of the CIE veil; more or larger particles make the corona visible).
+//!
+//! ## Seed scale ([`GlareScale::Seed`])
+//!
+//! 001 §4.2.2 evaluates its PSF in normalised device coordinates: the FFT's
+//! `N` output samples are laid over the glare window. In seed scale the grid
+//! is fixed (N = 512 over a 20 mm plane) and one FFT sample at 575 nm is
+//! `field_deg / N` degrees, the whole field is the FFT near field, and there
+//! are no stray-light or analytic particle terms (001 has neither). It is for
+//! side-by-side comparisons with the paper's figures, not physics.
 
 use std::sync::Arc;
 
@@ -97,6 +135,7 @@ use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
 use crate::VisionError;
+use crate::stray_light::{airy_lobe_per_sr, cie146_veil_per_sr};
 
 /// Reference wavelength of the monochromatic PSF, nm.
 // 001 eq 6: λ = 575 nm, the mean of the visible spectrum
@@ -126,8 +165,60 @@ pub const PIGMENTATION_RANGE: (f64, f64) = (0.0, 1.2);
 /// Valid range of the kernel field, degrees (CIE 146 holds to 100°; the
 /// field's half width is at most that).
 pub const FIELD_DEG_RANGE: (f64, f64) = (0.01, 200.0);
-/// Smallest pupil the PSF is built for, in pupil-plane samples across.
-const MIN_PUPIL_SAMPLES: f64 = 4.0;
+/// Default range of pupils a builder is rebuilt for, mm (the pipeline's
+/// clamp range: real pupils span about 2–8 mm, 001 §5).
+pub const DEFAULT_PUPIL_RANGE_MM: [f64; 2] = [1.5, 9.0];
+/// Smallest pupil, in pupil-plane samples across.
+pub const MIN_PUPIL_SAMPLES: f64 = 24.0;
+/// Largest pupil-plane grid (FFT size).
+pub const MAX_GRID_SIZE: usize = 4096;
+/// Largest kernel, display pixels per side (`2 · kernel_radius_px + 1`).
+pub const MAX_KERNEL_PX: usize = 4097;
+/// Target radius of the wave-optics near-field region, degrees.
+pub const NEAR_FIELD_RADIUS_DEG: f64 = 0.5;
+/// Fewest and most display pixels of the near-field radius.
+pub const NEAR_FIELD_MIN_PX: usize = 2;
+/// See [`NEAR_FIELD_MIN_PX`].
+pub const NEAR_FIELD_MAX_PX: usize = 512;
+/// The CIE 146 term fades in (smoothstep) between these angles, degrees
+/// (CIE 146:2002 holds from 0.1°).
+pub const STRAY_LIGHT_FADE_DEG: (f64, f64) = (0.1, 0.3);
+/// Seed scale: the pupil-plane grid (001 gives none; these are the tree's
+/// earlier defaults, 8 mm pupils at 2.5× in the plane).
+const SEED_GRID: (usize, f64) = (512, 20.0);
+
+/// Which angular scale the kernel has.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GlareScale {
+    /// Physical units: the FFT sample is `λ / W` rad, plus CIE 146 stray light.
+    #[default]
+    Physical,
+    /// 001's own scale: the FFT's N samples span the glare field (§4.2.2, NDC).
+    Seed,
+}
+
+impl std::str::FromStr for GlareScale {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "physical" => Ok(Self::Physical),
+            "seed" => Ok(Self::Seed),
+            other => Err(format!(
+                "unknown glare scale `{other}`: expected `physical` or `seed`"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for GlareScale {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Physical => "physical",
+            Self::Seed => "seed",
+        })
+    }
+}
 
 /// Parameters of the glare PSF.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -135,29 +226,20 @@ const MIN_PUPIL_SAMPLES: f64 = 4.0;
 pub struct PsfParams {
     /// Pupil diameter, mm (the aperture `A` of 001 eq 7).
     pub pupil_mm: f64,
+    /// Pupils a builder is rebuilt for, mm `[min, max]`: the plane is sized
+    /// for the largest, the sampling for the smallest. `pupil_mm` must lie in it.
+    pub pupil_range_mm: [f64; 2],
     /// Number of scattering particles in the static field `P` (0 = a clean
     /// aperture, whose PSF is an Airy pattern).
     pub particles: usize,
-    /// Diameter of one particle, µm.
-    // 001 Fig. 4: particle diameters of 6 µm and 10 µm (1000 particles)
+    /// Diameter of one particle, µm (a few µm: lens and corneal scatterers).
     pub particle_um: f64,
-    /// Residual defocus of the eye, dioptres: the Fresnel term (001 eq 6) times
-    /// the eye's refraction; 0 = focused on the retina.
+    /// Residual defocus of the eye, dioptres; 0 = focused on the retina.
     pub defocus_dioptres: f64,
-    /// Pupil-plane grid size `N` (FFT size), a power of two in 64..=2048.
-    pub grid_size: usize,
-    /// Physical width of the pupil-plane grid, mm. The default, 20 mm, is
-    /// 2.5 × the largest pupil of 001 §5 (8 mm): pupils up to half the plane
-    /// (10 mm) give an alias-free intensity PSF.
-    pub pupil_plane_mm: f64,
     /// Number of wavelengths `k + 1` of the spectral sum (001 eq 9–10), ≥ 2.
     pub wavelength_count: usize,
     /// Display resolution, pixels per degree.
     pub ppd: f64,
-    /// Output kernel size, display pixels: odd (3..=2049) or a power of two
-    /// (4..=2048); the centre is pixel `(size/2, size/2)` (a power-of-two
-    /// kernel has one more pixel on the negative side).
-    pub kernel_size: usize,
     /// Angular width of the kernel's field, degrees: the kernel covers
     /// ±`field_deg / 2` around the point source (the glare window).
     pub field_deg: f64,
@@ -169,6 +251,8 @@ pub struct PsfParams {
     /// Whether the intraocular stray light (the CIE 146 veil) is part of
     /// the kernel; `false` leaves the wave-optics near field alone.
     pub stray_light: bool,
+    /// Angular scale: physical (default) or 001's own.
+    pub glare_scale: GlareScale,
     /// Seed of the particle field.
     pub seed: u64,
 }
@@ -177,71 +261,169 @@ impl Default for PsfParams {
     fn default() -> Self {
         Self {
             pupil_mm: 4.0,
+            pupil_range_mm: DEFAULT_PUPIL_RANGE_MM,
             // 001 Fig. 4: 1000 particles
             particles: 1000,
-            // 001 Fig. 4 (right): 10 µm particles
-            particle_um: 10.0,
+            // lens/cornea scatterers of a few µm (001 Fig. 4 uses 6 and 10 µm)
+            particle_um: 5.0,
             defocus_dioptres: 0.0,
-            grid_size: 512,
-            pupil_plane_mm: 20.0,
             wavelength_count: 32,
             ppd: VIVE_PRO_PPD,
-            kernel_size: 65,
             field_deg: DEFAULT_FIELD_DEG,
             age_years: DEFAULT_AGE_YEARS,
             pigmentation: DEFAULT_PIGMENTATION,
             stray_light: true,
+            glare_scale: GlareScale::Physical,
             seed: 0x6a7e_11e7,
         }
     }
 }
 
-impl PsfParams {
+/// The sampling chosen for a request ([`PsfParams::sampling`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PsfSampling {
+    /// Pupil-plane grid `N` (FFT size), a power of two.
+    pub grid_size: usize,
+    /// Width of the pupil plane `W`, mm.
+    pub pupil_plane_mm: f64,
+    /// Radius of the wave-optics near-field region, display pixels.
+    pub near_radius_px: usize,
+    /// Kernel radius, display pixels (the kernel is `2r + 1` wide).
+    pub kernel_radius_px: usize,
+    /// Display pixel, degrees.
+    pub deg_per_px: f64,
+    /// Angular size of one FFT sample of the 575 nm field as laid on the
+    /// display, radians: `λ / W` (physical) or `field / N` (seed scale).
+    pub ref_rad_per_sample: f64,
+}
+
+impl PsfSampling {
     /// Pupil-plane sample spacing `Δx`, mm.
     pub fn sample_mm(&self) -> f64 {
         self.pupil_plane_mm / self.grid_size as f64
     }
 
-    /// Largest pupil the grid supports without aliasing the intensity PSF, mm
-    /// (half the pupil plane: the optical transfer function is the aperture's
-    /// autocorrelation, twice as wide as the aperture).
-    pub fn max_pupil_mm(&self) -> f64 {
-        self.pupil_plane_mm / 2.0
-    }
-
-    /// Smallest pupil the grid resolves (4 samples across), mm.
-    pub fn min_pupil_mm(&self) -> f64 {
-        MIN_PUPIL_SAMPLES * self.sample_mm()
-    }
-
-    /// Angular size of one far-field sample at `wavelength_nm`, radians:
-    /// `λ / (N Δx)`.
+    /// Angular size of one FFT sample of the PSF at `wavelength_nm`, radians
+    /// (the 575 nm sample scaled by `φ / 575`, Fraunhofer).
     pub fn rad_per_sample(&self, wavelength_nm: f64) -> f64 {
-        wavelength_nm * 1e-6 / self.pupil_plane_mm
+        self.ref_rad_per_sample * wavelength_nm / REFERENCE_WAVELENGTH_NM
     }
 
-    /// Checks every field; the error names the field and the valid range.
-    pub fn validate(&self) -> Result<(), VisionError> {
-        if !self.grid_size.is_power_of_two() || !(64..=2048).contains(&self.grid_size) {
+    /// Kernel size, display pixels per side.
+    pub fn kernel_size(&self) -> usize {
+        2 * self.kernel_radius_px + 1
+    }
+}
+
+impl PsfParams {
+    /// Largest pupil the builder supports, mm (`pupil_range_mm[1]`).
+    pub fn max_pupil_mm(&self) -> f64 {
+        self.pupil_range_mm[1]
+    }
+
+    /// Smallest pupil the builder supports, mm (`pupil_range_mm[0]`).
+    pub fn min_pupil_mm(&self) -> f64 {
+        self.pupil_range_mm[0]
+    }
+
+    /// Kernel radius, display pixels: `round(field_deg / 2 · ppd)`, ≥ 1.
+    pub fn kernel_radius_px(&self) -> usize {
+        ((self.field_deg / 2.0 * self.ppd).round() as usize).max(1)
+    }
+
+    /// Kernel size, display pixels per side (`2 · radius + 1`).
+    pub fn kernel_size(&self) -> usize {
+        2 * self.kernel_radius_px() + 1
+    }
+
+    /// Whether the CIE 146 term is in the kernel (on, and physical scale).
+    pub fn has_stray_light(&self) -> bool {
+        self.stray_light && self.glare_scale == GlareScale::Physical
+    }
+
+    /// The pupil-plane sampling for this request (see the module docs).
+    pub fn sampling(&self) -> Result<PsfSampling, VisionError> {
+        self.validate_fields()?;
+        let deg_per_px = 1.0 / self.ppd;
+        let rad_px = deg_per_px.to_radians();
+        let kernel_radius_px = self.kernel_radius_px();
+        if let GlareScale::Seed = self.glare_scale {
+            let (n, w) = SEED_GRID;
+            let s = PsfSampling {
+                grid_size: n,
+                pupil_plane_mm: w,
+                near_radius_px: kernel_radius_px,
+                kernel_radius_px,
+                deg_per_px,
+                ref_rad_per_sample: self.field_deg.to_radians() / n as f64,
+            };
+            if self.max_pupil_mm() > w / 2.0
+                || self.min_pupil_mm() < MIN_PUPIL_SAMPLES * s.sample_mm()
+            {
+                return Err(VisionError::invalid(
+                    "psf.pupil_range_mm",
+                    format!("{:?}", self.pupil_range_mm),
+                    "within 0.94..=10 mm in seed glare scale (512 samples over 20 mm)",
+                ));
+            }
+            return Ok(s);
+        }
+        let near_radius_px = ((NEAR_FIELD_RADIUS_DEG * self.ppd).round() as usize)
+            .clamp(NEAR_FIELD_MIN_PX, NEAR_FIELD_MAX_PX)
+            .min(kernel_radius_px);
+        let lambda_mm = REFERENCE_WAVELENGTH_NM * 1e-6;
+        // The 380 nm PSF at the region's edge (plus the pixel's corner
+        // margin) reads M at 575/380 times the angle.
+        let near_rad = (near_radius_px as f64 + 0.75) * rad_px;
+        let dx_field = lambda_mm / (2.0 * near_rad * REFERENCE_WAVELENGTH_NM / SPECTRUM_MIN_NM);
+        let dx_pupil = self.min_pupil_mm() / MIN_PUPIL_SAMPLES;
+        let dx = dx_field.min(dx_pupil);
+        // One FFT sample ≤ one display pixel at 770 nm; plane ≥ 2 D_max.
+        let w_min = (2.0 * self.max_pupil_mm()).max(SPECTRUM_MAX_NM * 1e-6 / rad_px);
+        let need = (w_min / dx).ceil();
+        if !(need.is_finite() && need <= MAX_GRID_SIZE as f64) {
             return Err(VisionError::invalid(
-                "psf.grid_size",
-                self.grid_size,
-                "a power of two in 64..=2048",
+                "psf.ppd",
+                self.ppd,
+                "a ppd and pupil_range_mm whose pupil plane fits a 4096-sample FFT (plane ≥ 770 nm / pixel angle and ≥ 2 × the largest pupil, sample ≤ smallest pupil / 24 and ≤ what the near field needs); lower the ppd or raise the smallest pupil",
             ));
         }
-        if !(self.pupil_plane_mm.is_finite() && self.pupil_plane_mm > 0.0) {
+        let n = (need as usize).next_power_of_two().max(64);
+        Ok(PsfSampling {
+            grid_size: n,
+            pupil_plane_mm: n as f64 * dx,
+            near_radius_px,
+            kernel_radius_px,
+            deg_per_px,
+            ref_rad_per_sample: lambda_mm / (n as f64 * dx),
+        })
+    }
+
+    /// Checks every field and that a sampling exists; the error names the
+    /// field and the valid range.
+    pub fn validate(&self) -> Result<(), VisionError> {
+        self.sampling().map(|_| ())
+    }
+
+    fn validate_fields(&self) -> Result<(), VisionError> {
+        let [lo, hi] = self.pupil_range_mm;
+        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo <= hi && hi <= 20.0) {
             return Err(VisionError::invalid(
-                "psf.pupil_plane_mm",
-                self.pupil_plane_mm,
-                "a finite number > 0",
+                "psf.pupil_range_mm",
+                format!("{:?}", self.pupil_range_mm),
+                "[min, max] with 0 < min ≤ max ≤ 20 mm",
             ));
         }
         self.check_pupil(self.pupil_mm)?;
-        if self.particles > 0 && !(self.particle_um.is_finite() && self.particle_um > 0.0) {
+        if self.particles > 0
+            && !(self.particle_um.is_finite()
+                && self.particle_um > 0.0
+                && self.particle_um <= 1000.0)
+        {
             return Err(VisionError::invalid(
                 "psf.particle_um",
                 self.particle_um,
-                "a finite diameter > 0 µm",
+                "a finite diameter in (0, 1000] µm",
             ));
         }
         if self.particles > 10_000_000 {
@@ -251,22 +433,11 @@ impl PsfParams {
                 "at most 10 000 000",
             ));
         }
-        if !self.defocus_dioptres.is_finite() {
+        if !(self.defocus_dioptres.is_finite() && self.defocus_dioptres.abs() <= 20.0) {
             return Err(VisionError::invalid(
                 "psf.defocus_dioptres",
                 self.defocus_dioptres,
-                "a finite number",
-            ));
-        }
-        // Phase step per sample at the edge of the largest pupil: 2π r ΔD Δx / λ ≤ π.
-        let r_m = self.max_pupil_mm() / 2.0 * 1e-3;
-        let step = 2.0 * r_m * self.defocus_dioptres.abs() * self.sample_mm() * 1e-3
-            / (REFERENCE_WAVELENGTH_NM * 1e-9);
-        if step > 1.0 {
-            return Err(VisionError::invalid(
-                "psf.defocus_dioptres",
-                self.defocus_dioptres,
-                "small enough that the defocus phase advances < π per pupil-plane sample (|ΔD| ≤ λ / (2 r Δx)); use a larger grid_size",
+                "a finite number in -20..=20 dioptres",
             ));
         }
         if self.wavelength_count < 2 || self.wavelength_count > 1024 {
@@ -276,11 +447,11 @@ impl PsfParams {
                 "2..=1024 (k + 1 of 001 eq 10, k ≥ 1)",
             ));
         }
-        if !(self.ppd.is_finite() && self.ppd > 0.0) {
+        if !(self.ppd.is_finite() && self.ppd > 0.0 && self.ppd <= 1e5) {
             return Err(VisionError::invalid(
                 "psf.ppd",
                 self.ppd,
-                "a finite number > 0",
+                "a finite number in (0, 100000]",
             ));
         }
         if !(self.field_deg.is_finite()
@@ -290,6 +461,13 @@ impl PsfParams {
                 "psf.field_deg",
                 self.field_deg,
                 "0.01..=200 degrees (the kernel covers ±field_deg/2)",
+            ));
+        }
+        if self.kernel_size() > MAX_KERNEL_PX {
+            return Err(VisionError::invalid(
+                "psf.field_deg",
+                self.field_deg,
+                "field_deg × ppd ≤ 4096 display pixels (use a smaller field at this ppd)",
             ));
         }
         if !(self.age_years.is_finite()
@@ -310,20 +488,11 @@ impl PsfParams {
                 "0..=1.2 (CIE 146:2002: 0 very dark, 0.5 brown, 1.0 blue-green, 1.2 very light eyes)",
             ));
         }
-        let ks = self.kernel_size;
-        let ok = (ks % 2 == 1 && (3..=2049).contains(&ks))
-            || (ks.is_power_of_two() && (4..=2048).contains(&ks));
-        if !ok {
-            return Err(VisionError::invalid(
-                "psf.kernel_size",
-                ks,
-                "odd in 3..=2049 or a power of two in 4..=2048",
-            ));
-        }
         Ok(())
     }
 
-    fn check_pupil(&self, pupil_mm: f64) -> Result<(), VisionError> {
+    /// Checks that `pupil_mm` is finite and in `pupil_range_mm`.
+    pub fn check_pupil(&self, pupil_mm: f64) -> Result<(), VisionError> {
         if !(pupil_mm.is_finite() && pupil_mm > 0.0) {
             return Err(VisionError::invalid(
                 "psf.pupil_mm",
@@ -331,18 +500,11 @@ impl PsfParams {
                 "a finite diameter > 0 mm",
             ));
         }
-        if pupil_mm > self.max_pupil_mm() {
+        if pupil_mm < self.min_pupil_mm() || pupil_mm > self.max_pupil_mm() {
             return Err(VisionError::invalid(
                 "psf.pupil_mm",
                 pupil_mm,
-                "at most pupil_plane_mm / 2 (the aperture must fit twice into the pupil-plane grid)",
-            ));
-        }
-        if pupil_mm < self.min_pupil_mm() {
-            return Err(VisionError::invalid(
-                "psf.pupil_mm",
-                pupil_mm,
-                "at least 4 pupil-plane samples across (pupil_plane_mm / grid_size · 4)",
+                "within psf.pupil_range_mm (default 1.5..=9 mm)",
             ));
         }
         Ok(())
@@ -404,7 +566,8 @@ impl MonoPsf {
     }
 }
 
-/// The spectral glare kernel at display resolution.
+/// The glare kernel at display resolution: the full-resolution composite
+/// (near field + particle lobes + CIE 146 stray light) over ±`field_deg`/2.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PsfKernel {
     /// Pixels per side.
@@ -415,8 +578,8 @@ pub struct PsfKernel {
     pub pupil_mm: f64,
     /// Wavelengths of the spectral sum, nm.
     pub wavelengths_nm: Vec<f64>,
-    /// Linear sRGB weights, row-major, centre at `(size/2, size/2)`; each
-    /// channel sums to 1.
+    /// Linear sRGB weights (fraction of a point source's light per pixel),
+    /// row-major, centre at `(size/2, size/2)`; each channel sums to 1.
     pub rgb: Vec<[f32; 3]>,
 }
 
@@ -430,6 +593,15 @@ impl PsfKernel {
             }
         }
         e
+    }
+
+    /// Luminance fraction per steradian of the pixel at `(dx, dy)` for a
+    /// white source (Rec. 709 luminance weights of the channels / `Ω_px`).
+    pub fn luminance_per_sr(&self, dx: isize, dy: isize) -> f64 {
+        let p = self.at(dx, dy);
+        let rad = self.deg_per_px.to_radians();
+        (0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]))
+            / (rad * rad)
     }
 
     /// Index of the centre pixel along each axis (`size / 2`).
@@ -494,25 +666,32 @@ impl SplitMix64 {
     }
 }
 
-/// Transmission of the static particle field `P` on the N × N grid.
-fn particle_field(params: &PsfParams) -> Vec<f64> {
-    let n = params.grid_size;
-    let dx = params.sample_mm();
-    let mut t = vec![1.0f64; n * n];
-    if params.particles == 0 {
-        return t;
-    }
+/// Particle centres of the static field, mm, uniform over the disc of the
+/// largest pupil.
+fn particle_positions(params: &PsfParams) -> Vec<[f64; 2]> {
     let mut rng = SplitMix64(params.seed);
     let field_r_mm = params.max_pupil_mm() / 2.0;
+    (0..params.particles)
+        .map(|_| {
+            let r = field_r_mm * rng.next_f64().sqrt();
+            let a = std::f64::consts::TAU * rng.next_f64();
+            [r * a.cos(), r * a.sin()]
+        })
+        .collect()
+}
+
+/// Transmission of the static particle field `P` on the N × N grid.
+fn particle_field(params: &PsfParams, sampling: &PsfSampling, positions: &[[f64; 2]]) -> Vec<f64> {
+    let n = sampling.grid_size;
+    let dx = sampling.sample_mm();
+    let mut t = vec![1.0f64; n * n];
     let rad_samples = params.particle_um * 1e-3 / 2.0 / dx;
     let half = (n / 2) as f64;
-    for _ in 0..params.particles {
-        let r = field_r_mm * rng.next_f64().sqrt();
-        let a = std::f64::consts::TAU * rng.next_f64();
+    for &[px, py] in positions {
         // Continuous grid coordinate: sample j sits at (j - N/2) Δx.
-        let cx = r * a.cos() / dx + half;
-        let cy = r * a.sin() / dx + half;
-        if rad_samples >= 1.0 {
+        let cx = px / dx + half;
+        let cy = py / dx + half;
+        if rad_samples >= 0.5 {
             let x0 = (cx - rad_samples - 1.0).floor().max(0.0) as usize;
             let x1 = ((cx + rad_samples + 1.0).ceil() as usize).min(n - 1);
             let y0 = (cy - rad_samples - 1.0).floor().max(0.0) as usize;
@@ -546,6 +725,7 @@ fn particle_field(params: &PsfParams) -> Vec<f64> {
 /// Pupil-plane field, FFT plan and scratch: computes monochromatic PSFs.
 struct MonoEngine {
     n: usize,
+    dx: f64,
     fft: Arc<dyn Fft<f64>>,
     field: Vec<Complex<f64>>,
     scratch: Vec<Complex<f64>>,
@@ -553,53 +733,67 @@ struct MonoEngine {
 }
 
 impl MonoEngine {
-    fn new(params: &PsfParams) -> Self {
-        let n = params.grid_size;
+    fn new(params: &PsfParams, sampling: &PsfSampling, positions: &[[f64; 2]]) -> Self {
+        let n = sampling.grid_size;
         let fft = FftPlanner::<f64>::new().plan_fft_forward(n);
         let scratch = vec![Complex::new(0.0, 0.0); fft.get_inplace_scratch_len()];
         Self {
             n,
+            dx: sampling.sample_mm(),
             fft,
             field: vec![Complex::new(0.0, 0.0); n * n],
             scratch,
-            particles: particle_field(params),
+            particles: particle_field(params, sampling, positions),
         }
     }
 
     /// Fills `out` (N², centred) with M (001 eq 8) for `pupil_mm` at
     /// `wavelength_nm`. Allocates nothing.
-    fn compute(&mut self, params: &PsfParams, pupil_mm: f64, wavelength_nm: f64, out: &mut [f64]) {
+    fn compute(
+        &mut self,
+        defocus_dioptres: f64,
+        pupil_mm: f64,
+        wavelength_nm: f64,
+        out: &mut [f64],
+    ) {
         let n = self.n;
-        let dx = params.sample_mm();
+        let dx = self.dx;
         let half = (n / 2) as f64;
         let r_samples = pupil_mm / 2.0 / dx;
         let lambda_m = wavelength_nm * 1e-9;
         // Residual of Fresnel term (001 eq 6) × the eye's refraction: π r² ΔD / λ.
-        let defocus_per_mm2 = std::f64::consts::PI * params.defocus_dioptres * 1e-6 / lambda_m;
+        let defocus_per_mm2 = std::f64::consts::PI * defocus_dioptres * 1e-6 / lambda_m;
         let edge = r_samples + 1.0;
-        for (j, row) in self.field.chunks_exact_mut(n).enumerate() {
-            let y = j as f64 - half;
-            let prow = &self.particles[j * n..(j + 1) * n];
-            for (i, v) in row.iter_mut().enumerate() {
-                let x = i as f64 - half;
-                let r2 = x * x + y * y;
-                if r2 > edge * edge {
-                    *v = Complex::new(0.0, 0.0);
-                    continue;
+        let particles = &self.particles;
+        self.field
+            .par_chunks_mut(n)
+            .enumerate()
+            .for_each(|(j, row)| {
+                let y = j as f64 - half;
+                let prow = &particles[j * n..(j + 1) * n];
+                for (i, v) in row.iter_mut().enumerate() {
+                    let x = i as f64 - half;
+                    let r2 = x * x + y * y;
+                    if r2 > edge * edge {
+                        *v = Complex::new(0.0, 0.0);
+                        continue;
+                    }
+                    // 001 eq 7: anti-aliased aperture A
+                    let a = (r_samples - r2.sqrt() + 0.5).clamp(0.0, 1.0);
+                    let amp = a * prow[i];
+                    *v = if defocus_per_mm2 == 0.0 {
+                        Complex::new(amp, 0.0)
+                    } else {
+                        Complex::from_polar(amp, defocus_per_mm2 * r2 * dx * dx)
+                    };
                 }
-                // 001 eq 7: anti-aliased aperture A
-                let a = (r_samples - r2.sqrt() + 0.5).clamp(0.0, 1.0);
-                let amp = a * prow[i];
-                *v = if defocus_per_mm2 == 0.0 {
-                    Complex::new(amp, 0.0)
-                } else {
-                    Complex::from_polar(amp, defocus_per_mm2 * r2 * dx * dx)
-                };
-            }
-        }
-        // 2-D FFT: rows, transpose, rows, transpose back.
+            });
+        // 2-D FFT: rows, transpose, rows, transpose back. Rows outside the
+        // pupil are zero and stay zero in the first pass.
+        let lo = ((half - edge).floor().max(0.0)) as usize;
+        let hi = (((half + edge).ceil() as usize) + 1).min(n);
         self.fft
-            .process_with_scratch(&mut self.field, &mut self.scratch);
+            .process_with_scratch(&mut self.field[lo * n..hi * n], &mut self.scratch);
         transpose_square(&mut self.field, n);
         self.fft
             .process_with_scratch(&mut self.field, &mut self.scratch);
@@ -609,29 +803,37 @@ impl MonoEngine {
         // |FFT/N|² with N the samples per side: Σ|FFT/N|² = Σ|L|² (Parseval).
         let scale = 1.0 / (n * n) as f64 / (lambda_d * lambda_d);
         let h = n / 2;
-        for j in 0..n {
-            let sj = (j + h) % n;
-            for i in 0..n {
-                let si = (i + h) % n;
-                out[sj * n + si] = self.field[j * n + i].norm_sqr() * scale;
+        let field = &self.field;
+        out.par_chunks_mut(n).enumerate().for_each(|(sj, orow)| {
+            let j = (sj + n - h) % n;
+            for (si, o) in orow.iter_mut().enumerate() {
+                let i = (si + n - h) % n;
+                *o = field[j * n + i].norm_sqr() * scale;
+            }
+        });
+    }
+}
+
+/// In-place transpose of a square row-major matrix, in cache-sized blocks.
+pub(crate) fn transpose_square<T: Copy>(m: &mut [T], n: usize) {
+    const B: usize = 16;
+    for bj in (0..n).step_by(B) {
+        for bi in (bj..n).step_by(B) {
+            for j in bj..(bj + B).min(n) {
+                let start = if bi == bj { j + 1 } else { bi };
+                for i in start..(bi + B).min(n) {
+                    m.swap(j * n + i, i * n + j);
+                }
             }
         }
     }
 }
 
-/// In-place transpose of a square row-major matrix.
-pub(crate) fn transpose_square<T: Copy>(m: &mut [T], n: usize) {
-    for j in 0..n {
-        for i in (j + 1)..n {
-            m.swap(j * n + i, i * n + j);
-        }
-    }
-}
-
 /// The monochromatic PSF `M` (001 eq 8) of `params.pupil_mm` at
-/// `wavelength_nm`, at pupil-plane sampling (`rad_per_px = λ / (N Δx)`).
+/// `wavelength_nm`, on the grid [`PsfParams::sampling`] chooses
+/// (`rad_per_px = λ / W`, physical).
 pub fn monochromatic_psf(params: &PsfParams, wavelength_nm: f64) -> Result<MonoPsf, VisionError> {
-    params.validate()?;
+    let sampling = params.sampling()?;
     if !(wavelength_nm.is_finite() && (200.0..=2000.0).contains(&wavelength_nm)) {
         return Err(VisionError::invalid(
             "wavelength_nm",
@@ -639,40 +841,56 @@ pub fn monochromatic_psf(params: &PsfParams, wavelength_nm: f64) -> Result<MonoP
             "200..=2000 nm",
         ));
     }
-    let mut engine = MonoEngine::new(params);
-    let n = params.grid_size;
+    let positions = particle_positions(params);
+    let mut engine = MonoEngine::new(params, &sampling, &positions);
+    let n = sampling.grid_size;
     let mut values = vec![0.0; n * n];
-    engine.compute(params, params.pupil_mm, wavelength_nm, &mut values);
+    engine.compute(
+        params.defocus_dioptres,
+        params.pupil_mm,
+        wavelength_nm,
+        &mut values,
+    );
     Ok(MonoPsf {
         size: n,
         wavelength_nm,
-        rad_per_px: params.rad_per_sample(wavelength_nm),
+        rad_per_px: wavelength_nm * 1e-6 / sampling.pupil_plane_mm,
         values,
     })
 }
 
-/// Builds the spectral RGB glare kernel for `params` (001 eq 5–10).
+/// Builds the glare kernel for `params` (see the module docs).
 pub fn build_kernel(params: &PsfParams) -> Result<PsfKernel, VisionError> {
     let builder = PsfBuilder::new(params.clone())?;
     Ok(builder.kernel)
 }
 
+/// Radial table step, display pixels.
+const TABLE_STEP_PX: f64 = 0.25;
+
 /// Builds kernels repeatedly for a changing pupil: the FFT plan, the particle
-/// field and every buffer are made once, so [`PsfBuilder::rebuild`] allocates
-/// nothing. The resampling of the wavelengths runs in parallel (rayon).
+/// field, the analytic radial terms and every buffer are made once, so
+/// [`PsfBuilder::rebuild`] allocates nothing.
 pub struct PsfBuilder {
     params: PsfParams,
+    sampling: PsfSampling,
     engine: MonoEngine,
+    positions: Vec<[f64; 2]>,
     /// M at 575 nm, centred, N².
     mono: Vec<f64>,
     /// Summed-area table of `mono`, (N+1)².
     sat: Vec<f64>,
-    /// Colour matching function values per wavelength.
+    /// Colour matching function values per wavelength, / (k + 1).
     cmf: Vec<[f64; 3]>,
-    /// Energy per display pixel, per wavelength (count × size²).
-    per_wavelength: Vec<f64>,
-    /// XYZ accumulator, size².
-    xyz: Vec<[f64; 3]>,
+    /// Linear sRGB of the unit-power particle lobe per steradian, sampled
+    /// every [`TABLE_STEP_PX`] display pixels of radius.
+    lobe_table: Vec<[f64; 3]>,
+    /// `f · CIE146 · Ω_px` per kernel pixel (0 without stray light).
+    cie: Vec<f64>,
+    /// Σ `cie`.
+    cie_energy: f64,
+    /// Near field + lobes, per kernel pixel, linear sRGB (before α).
+    near: Vec<[f64; 3]>,
     kernel: PsfKernel,
 }
 
@@ -680,26 +898,106 @@ impl PsfBuilder {
     /// Validates `params`, prepares every buffer and builds the first kernel
     /// (for `params.pupil_mm`).
     pub fn new(params: PsfParams) -> Result<Self, VisionError> {
-        params.validate()?;
-        let n = params.grid_size;
-        let size = params.kernel_size;
+        let sampling = params.sampling()?;
+        let n = sampling.grid_size;
+        let r = sampling.kernel_radius_px;
+        let size = sampling.kernel_size();
         let wavelengths_nm = params.wavelengths_nm();
-        let cmf = wavelengths_nm.iter().map(|&l| cie_xyz_wyman(l)).collect();
-        let count = wavelengths_nm.len();
+        let inv = 1.0 / wavelengths_nm.len() as f64;
+        let cmf: Vec<[f64; 3]> = wavelengths_nm
+            .iter()
+            .map(|&l| cie_xyz_wyman(l).map(|v| v * inv))
+            .collect();
+        let rad_px = sampling.deg_per_px.to_radians();
+        let omega_px = rad_px * rad_px;
+
+        // Particle lobes (physical scale only): Σ_i cmf_i · lobe_φi per sr → sRGB.
+        let lobe_table = if params.glare_scale == GlareScale::Physical && params.particles > 0 {
+            let r_max = (r as f64 + 1.0) * std::f64::consts::SQRT_2 + 2.0;
+            let count = (r_max / TABLE_STEP_PX).ceil() as usize + 2;
+            let s_m = params.particle_um * 1e-6;
+            (0..count)
+                .into_par_iter()
+                .map(|i| {
+                    let theta = i as f64 * TABLE_STEP_PX * rad_px;
+                    let mut xyz = [0.0f64; 3];
+                    for (&phi, c) in wavelengths_nm.iter().zip(&cmf) {
+                        let l = airy_lobe_per_sr(theta, s_m, phi * 1e-9);
+                        for k in 0..3 {
+                            xyz[k] += c[k] * l;
+                        }
+                    }
+                    xyz_to_rgb(xyz)
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+
+        // CIE 146 veil, faded in over STRAY_LIGHT_FADE_DEG; pixels near the
+        // source are averaged over 5 × 5 sub-samples.
+        let mut cie = vec![0.0f64; size * size];
+        if params.has_stray_light() {
+            let dpp = sampling.deg_per_px;
+            let (a, p) = (params.age_years, params.pigmentation);
+            let veil = |t_deg: f64| -> f64 {
+                let (f0, f1) = STRAY_LIGHT_FADE_DEG;
+                if t_deg <= f0 {
+                    return 0.0;
+                }
+                let s = ((t_deg - f0) / (f1 - f0)).clamp(0.0, 1.0);
+                s * s * (3.0 - 2.0 * s) * cie146_veil_per_sr(t_deg, a, p)
+            };
+            cie.par_chunks_mut(size).enumerate().for_each(|(v, row)| {
+                let y = v as f64 - r as f64;
+                for (u, out) in row.iter_mut().enumerate() {
+                    let x = u as f64 - r as f64;
+                    let d = x.hypot(y);
+                    let per_sr = if d * dpp < 2.0 * STRAY_LIGHT_FADE_DEG.1 || d < 6.0 {
+                        let mut acc = 0.0;
+                        for sy in 0..5 {
+                            for sx in 0..5 {
+                                let ox = x + (sx as f64 - 2.0) / 5.0;
+                                let oy = y + (sy as f64 - 2.0) / 5.0;
+                                acc += veil(ox.hypot(oy) * dpp);
+                            }
+                        }
+                        acc / 25.0
+                    } else {
+                        veil(d * dpp)
+                    };
+                    *out = per_sr * omega_px;
+                }
+            });
+        }
+        let cie_energy: f64 = cie.iter().sum();
+        if cie_energy >= 0.95 {
+            return Err(VisionError::invalid(
+                "psf.field_deg",
+                params.field_deg,
+                "a field whose CIE 146 stray light holds < 95 % of the light (narrower field, younger age or lower pigmentation)",
+            ));
+        }
+        let positions = particle_positions(&params);
+        let engine = MonoEngine::new(&params, &sampling, &positions);
         let mut builder = Self {
-            engine: MonoEngine::new(&params),
+            engine,
+            positions,
             mono: vec![0.0; n * n],
             sat: vec![0.0; (n + 1) * (n + 1)],
             cmf,
-            per_wavelength: vec![0.0; count * size * size],
-            xyz: vec![[0.0; 3]; size * size],
+            lobe_table,
+            cie,
+            cie_energy,
+            near: vec![[0.0; 3]; size * size],
             kernel: PsfKernel {
                 size,
-                deg_per_px: 1.0 / params.ppd,
+                deg_per_px: sampling.deg_per_px,
                 pupil_mm: params.pupil_mm,
                 wavelengths_nm,
                 rgb: vec![[0.0; 3]; size * size],
             },
+            sampling,
             params,
         };
         let pupil = builder.params.pupil_mm;
@@ -712,15 +1010,38 @@ impl PsfBuilder {
         &self.params
     }
 
+    /// The sampling chosen for the parameters.
+    pub fn sampling(&self) -> &PsfSampling {
+        &self.sampling
+    }
+
     /// The most recently built kernel.
     pub fn kernel(&self) -> &PsfKernel {
         &self.kernel
     }
 
-    /// Rebuilds the kernel for a new pupil diameter. A diameter outside the
-    /// supported range ([`PsfParams::min_pupil_mm`] ..= [`PsfParams::max_pupil_mm`])
-    /// is clamped into it; a non-finite one keeps the current kernel. Use
-    /// [`PsfBuilder::try_rebuild`] to get an error instead.
+    /// Energy of the CIE 146 term over the kernel field (0 without stray
+    /// light); the near field holds the rest.
+    pub fn stray_light_energy(&self) -> f64 {
+        self.cie_energy
+    }
+
+    /// Fraction of the light through a `pupil_mm` pupil that the particle
+    /// field scatters by the lobe sum: `n_in · a / (π D² / 4)`.
+    pub fn particle_scatter_fraction(&self, pupil_mm: f64) -> f64 {
+        let r = pupil_mm / 2.0;
+        let n_in = self
+            .positions
+            .iter()
+            .filter(|p| p[0] * p[0] + p[1] * p[1] <= r * r)
+            .count();
+        let s_mm = self.params.particle_um * 1e-3;
+        (n_in as f64 * s_mm * s_mm / (pupil_mm * pupil_mm)).min(1.0)
+    }
+
+    /// Rebuilds the kernel for a new pupil diameter. A diameter outside
+    /// `pupil_range_mm` is clamped into it; a non-finite one keeps the
+    /// current kernel. Use [`PsfBuilder::try_rebuild`] to get an error instead.
     pub fn rebuild(&mut self, pupil_mm: f64) -> &PsfKernel {
         if pupil_mm.is_finite() {
             let p = pupil_mm.clamp(self.params.min_pupil_mm(), self.params.max_pupil_mm());
@@ -737,9 +1058,9 @@ impl PsfBuilder {
     }
 
     fn build(&mut self, pupil_mm: f64) {
-        let n = self.params.grid_size;
+        let n = self.sampling.grid_size;
         self.engine.compute(
-            &self.params,
+            self.params.defocus_dioptres,
             pupil_mm,
             REFERENCE_WAVELENGTH_NM,
             &mut self.mono,
@@ -755,71 +1076,97 @@ impl PsfBuilder {
                 self.sat[(j + 1) * w + i + 1] = self.sat[j * w + i + 1] + row_sum;
             }
         }
+        // M → fraction of the light entering the pupil: Σ M (λd)² = Σ|L|²,
+        // the pupil admits π r² samples.
+        let lambda_d = REFERENCE_WAVELENGTH_NM * 1e-6 * PUPIL_RETINA_MM;
+        let r_samples = pupil_mm / 2.0 / self.sampling.sample_mm();
+        let to_fraction = lambda_d * lambda_d / (std::f64::consts::PI * r_samples * r_samples);
+        let sigma_p = if self.lobe_table.is_empty() {
+            0.0
+        } else {
+            self.particle_scatter_fraction(pupil_mm)
+        };
 
-        let size = self.params.kernel_size;
-        let c = (size / 2) as f64;
-        let rad_per_px = self.params.ppd.recip().to_radians();
-        let ref_rad = self.params.rad_per_sample(REFERENCE_WAVELENGTH_NM);
+        let r = self.sampling.kernel_radius_px;
+        let size = 2 * r + 1;
+        let near_r = self.sampling.near_radius_px as f64;
+        let rad_px = self.sampling.deg_per_px.to_radians();
+        let omega_px = rad_px * rad_px;
+        // FFT samples per display pixel at 575 nm.
+        let px_in_samples = rad_px / self.sampling.ref_rad_per_sample;
         let sat = &self.sat;
+        let cmf = &self.cmf;
         let wavelengths = &self.kernel.wavelengths_nm;
-        self.per_wavelength
-            .par_chunks_mut(size * size)
-            .zip(wavelengths.par_iter())
-            .for_each(|(energy, &phi)| {
-                // M_φ(θ)(λ/φ)² = M(θ λ/φ)(λ/φ)²; its integral over a display
-                // pixel is the integral of M over the pixel scaled by λ/φ.
-                let s = REFERENCE_WAVELENGTH_NM / phi;
-                let to_m = s * rad_per_px / ref_rad; // FFT samples per display px
-                let half = n as f64 / 2.0;
-                for v in 0..size {
-                    let y0 = (v as f64 - c - 0.5) * to_m + half + 0.5;
-                    let y1 = y0 + to_m;
-                    for u in 0..size {
-                        let x0 = (u as f64 - c - 0.5) * to_m + half + 0.5;
-                        let x1 = x0 + to_m;
-                        energy[v * size + u] = sat_lerp(sat, n, y1, x1)
-                            - sat_lerp(sat, n, y0, x1)
-                            - sat_lerp(sat, n, y1, x0)
-                            + sat_lerp(sat, n, y0, x0);
+        let lobe = &self.lobe_table;
+        let half = n as f64 / 2.0;
+        self.near
+            .par_chunks_mut(size)
+            .enumerate()
+            .for_each(|(v, row)| {
+                let y = v as f64 - r as f64;
+                for (u, out) in row.iter_mut().enumerate() {
+                    let x = u as f64 - r as f64;
+                    let d = x.hypot(y);
+                    if d <= near_r {
+                        // M_φ(θ)(λ/φ)² integrated over the pixel = ∫ M over the
+                        // pixel scaled by λ/φ (001 eq 9 with the Jacobian).
+                        let mut xyz = [0.0f64; 3];
+                        for (&phi, c) in wavelengths.iter().zip(cmf) {
+                            let to_m = px_in_samples * REFERENCE_WAVELENGTH_NM / phi;
+                            let y0 = (y - 0.5) * to_m + half + 0.5;
+                            let y1 = y0 + to_m;
+                            let x0 = (x - 0.5) * to_m + half + 0.5;
+                            let x1 = x0 + to_m;
+                            let e = (sat_lerp(sat, n, y1, x1)
+                                - sat_lerp(sat, n, y0, x1)
+                                - sat_lerp(sat, n, y1, x0)
+                                + sat_lerp(sat, n, y0, x0))
+                                * to_fraction;
+                            for k in 0..3 {
+                                xyz[k] += c[k] * e;
+                            }
+                        }
+                        *out = xyz_to_rgb(xyz);
+                    } else if sigma_p > 0.0 {
+                        let t = d / TABLE_STEP_PX;
+                        let i = (t.floor() as usize).min(lobe.len() - 2);
+                        let f = t - i as f64;
+                        let scale = sigma_p * omega_px;
+                        for k in 0..3 {
+                            out[k] = (lobe[i][k] * (1.0 - f) + lobe[i + 1][k] * f) * scale;
+                        }
+                    } else {
+                        *out = [0.0; 3];
                     }
                 }
             });
-
-        // 001 eq 9: S_XYZ = 1/(k+1) Σ xyz(φ_i) M_i
-        let count = self.cmf.len();
-        let inv = 1.0 / count as f64;
-        self.xyz.fill([0.0; 3]);
-        for (i, cmf) in self.cmf.iter().enumerate() {
-            let e = &self.per_wavelength[i * size * size..(i + 1) * size * size];
-            for (acc, &ei) in self.xyz.iter_mut().zip(e) {
-                for k in 0..3 {
-                    acc[k] += cmf[k] * ei * inv;
-                }
-            }
-        }
-        // XYZ → linear sRGB, negatives clamped, per-channel unit energy.
+        // α_c: the near field holds what the stray light leaves.
         let mut sums = [0.0f64; 3];
-        let m = &XYZ_TO_LINEAR_SRGB;
-        for (out, xyz) in self.kernel.rgb.iter_mut().zip(&self.xyz) {
-            for ch in 0..3 {
-                let v = (m[ch][0] * xyz[0] + m[ch][1] * xyz[1] + m[ch][2] * xyz[2]).max(0.0);
-                sums[ch] += v;
-                out[ch] = v as f32;
+        for p in &self.near {
+            for k in 0..3 {
+                sums[k] += p[k];
             }
         }
-        // Normalise in f64 from the f64 values, then store.
-        for (out, xyz) in self.kernel.rgb.iter_mut().zip(&self.xyz) {
-            for ch in 0..3 {
-                let v = (m[ch][0] * xyz[0] + m[ch][1] * xyz[1] + m[ch][2] * xyz[2]).max(0.0);
-                out[ch] = if sums[ch] > 0.0 {
-                    (v / sums[ch]) as f32
-                } else {
-                    0.0
-                };
+        let budget = 1.0 - self.cie_energy;
+        let alpha = sums.map(|s| if s > 0.0 { budget / s } else { 0.0 });
+        for ((out, nr), cie) in self.kernel.rgb.iter_mut().zip(&self.near).zip(&self.cie) {
+            for k in 0..3 {
+                out[k] = (alpha[k] * nr[k] + cie) as f32;
             }
         }
         self.kernel.pupil_mm = pupil_mm;
     }
+}
+
+/// CIE XYZ → linear sRGB, negatives (monochromatic light is outside the
+/// gamut) clamped to 0.
+fn xyz_to_rgb(xyz: [f64; 3]) -> [f64; 3] {
+    let m = &XYZ_TO_LINEAR_SRGB;
+    let mut out = [0.0f64; 3];
+    for (ch, o) in out.iter_mut().enumerate() {
+        *o = (m[ch][0] * xyz[0] + m[ch][1] * xyz[1] + m[ch][2] * xyz[2]).max(0.0);
+    }
+    out
 }
 
 /// Bilinear lookup of the summed-area table at continuous corner coordinates
@@ -844,36 +1191,262 @@ fn sat_lerp(sat: &[f64], n: usize, y: f64, x: f64) -> f64 {
 }
 
 /// The transmission of the static particle field `P` (001 eq 7) that
-/// [`build_kernel`] and [`PsfBuilder`] use for `params`: `grid_size²` values
-/// in 0..=1, row-major, sample `(i, j)` at `((i − N/2) Δx, (j − N/2) Δx)`.
-/// For the GPU twin, which uploads it once so both see the same field.
+/// [`build_kernel`] and [`PsfBuilder`] use for `params`: `N²` values in
+/// 0..=1 on the grid of [`PsfParams::sampling`], row-major, sample `(i, j)`
+/// at `((i − N/2) Δx, (j − N/2) Δx)`. For the GPU twin, which uploads it
+/// once so both see the same field.
 pub fn particle_transmission(params: &PsfParams) -> Result<Vec<f64>, VisionError> {
-    params.validate()?;
-    Ok(particle_field(params))
+    let sampling = params.sampling()?;
+    Ok(particle_field(
+        params,
+        &sampling,
+        &particle_positions(params),
+    ))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// A fine far-field sampling for ring measurements: 64 mm plane, N = 1024
-    /// (Δx = 62.5 µm, 8.98e-6 rad per sample at 575 nm).
-    fn airy_params(pupil_mm: f64) -> PsfParams {
-        PsfParams {
-            pupil_mm,
-            particles: 0,
-            grid_size: 1024,
-            pupil_plane_mm: 64.0,
-            ..PsfParams::default()
+    /// CIE 146:2002 General Disability Glare equation, written out here
+    /// independently of the code under test: L_veil / E_glare in sr⁻¹.
+    fn cie146(theta_deg: f64, age: f64, p: f64) -> f64 {
+        10.0 / theta_deg.powi(3)
+            + (5.0 / theta_deg.powi(2) + 0.1 * p / theta_deg) * (1.0 + (age / 62.5).powi(4))
+            + 0.0025 * p
+    }
+
+    /// Mean luminance per sr of the kernel's pixels whose centre distance
+    /// rounds to `d` pixels.
+    fn ring_mean(k: &PsfKernel, d: usize) -> f64 {
+        let r = d as isize + 1;
+        let (mut sum, mut n) = (0.0, 0usize);
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if ((dx * dx + dy * dy) as f64).sqrt().round() as usize == d {
+                    sum += k.luminance_per_sr(dx, dy);
+                    n += 1;
+                }
+            }
+        }
+        sum / n as f64
+    }
+
+    #[test]
+    fn kernel_follows_cie_146_per_steradian() {
+        let mut checked = 0;
+        for ppd in [14.0, 30.0] {
+            for pupil_mm in [2.0, 4.0, 8.0] {
+                for pigmentation in [0.5, 1.0] {
+                    let mut veil_10 = [0.0; 2];
+                    for (ai, age) in [25.0, 70.0].into_iter().enumerate() {
+                        let k = build_kernel(&PsfParams {
+                            pupil_mm,
+                            ppd,
+                            age_years: age,
+                            pigmentation,
+                            ..PsfParams::default()
+                        })
+                        .unwrap();
+                        for ch in k.energy() {
+                            assert!((ch - 1.0).abs() < 1e-4, "energy {ch}");
+                        }
+                        let r = k.centre();
+                        let mut worst: f64 = 1.0;
+                        for d in 1..=r {
+                            let theta = d as f64 * k.deg_per_px;
+                            if theta < 0.3 {
+                                continue;
+                            }
+                            let got = ring_mean(&k, d);
+                            let want = cie146(theta, age, pigmentation);
+                            let ratio = got / want;
+                            let tol = if theta < 1.0 { 3.0 } else { 2.0 };
+                            assert!(
+                                ratio < tol && ratio > 1.0 / tol,
+                                "ppd {ppd} D {pupil_mm} age {age} p {pigmentation}: θ {theta:.2}° kernel {got:.4e} /sr, CIE {want:.4e} (×{ratio:.3})"
+                            );
+                            worst = worst.max(ratio.max(1.0 / ratio));
+                            checked += 1;
+                        }
+                        let d10 = (10.0 * ppd).round() as usize;
+                        veil_10[ai] = ring_mean(&k, d10);
+                        eprintln!(
+                            "ppd {ppd} D {pupil_mm} age {age} p {pigmentation}: worst ratio to CIE 146 from 0.3° to {:.1}°: {worst:.3}",
+                            r as f64 * k.deg_per_px
+                        );
+                    }
+                    let t10 = (10.0 * ppd).round() / ppd;
+                    let want = cie146(t10, 70.0, pigmentation) / cie146(t10, 25.0, pigmentation);
+                    let got = veil_10[1] / veil_10[0];
+                    assert!(
+                        (got / want - 1.0).abs() < 0.25,
+                        "age 70 / age 25 veil at 10°: {got:.3}, CIE {want:.3}"
+                    );
+                }
+            }
+        }
+        assert!(checked > 1000);
+    }
+
+    /// J1 by its integral representation (DLMF 10.9.1), independent of
+    /// `stray_light::bessel_j1`: J1(x) = (1/π) ∫₀^π cos(τ − x sin τ) dτ.
+    fn j1_integral(x: f64) -> f64 {
+        let n = 600;
+        let h = std::f64::consts::PI / n as f64;
+        // Simpson's rule.
+        let f = |t: f64| (t - x * t.sin()).cos();
+        let mut acc = f(0.0) + f(std::f64::consts::PI);
+        for i in 1..n {
+            let w = if i % 2 == 1 { 4.0 } else { 2.0 };
+            acc += w * f(i as f64 * h);
+        }
+        acc * h / 3.0 / std::f64::consts::PI
+    }
+
+    /// The spectral Airy pattern per display pixel, linear sRGB, normalised
+    /// per channel over the pixels within `radius_px`: 001 eq 9–10 with the
+    /// same colour matching functions, 4 × 4 sub-samples per pixel.
+    fn spectral_airy(
+        d_mm: f64,
+        ppd: f64,
+        size: usize,
+        radius_px: f64,
+        count: usize,
+    ) -> Vec<[f64; 3]> {
+        let rad_px = (1.0 / ppd).to_radians();
+        let c = (size / 2) as f64;
+        let k = count - 1;
+        let phis: Vec<f64> = (0..=k)
+            .map(|i| 380.0 + i as f64 / k as f64 * 390.0)
+            .collect();
+        // Radial table of Σ cmf(φ) Airy_φ(θ) at 1/32 px steps.
+        let step = 1.0 / 32.0;
+        let n_tab = ((radius_px + 2.0) * std::f64::consts::SQRT_2 / step) as usize + 2;
+        let table: Vec<[f64; 3]> = (0..n_tab)
+            .into_par_iter()
+            .map(|i| {
+                let theta = i as f64 * step * rad_px;
+                let mut xyz = [0.0; 3];
+                for &phi in &phis {
+                    let lam = phi * 1e-9;
+                    let x = std::f64::consts::PI * d_mm * 1e-3 * theta / lam;
+                    let a = if x < 1e-9 {
+                        1.0
+                    } else {
+                        2.0 * j1_integral(x) / x
+                    };
+                    // Per sr: π D² / (4 λ²) (2 J1(x)/x)², unit power per wavelength.
+                    let i_sr =
+                        std::f64::consts::PI * (d_mm * 1e-3).powi(2) / (4.0 * lam * lam) * a * a;
+                    let cmf = cie_xyz_wyman(phi);
+                    for j in 0..3 {
+                        xyz[j] += cmf[j] * i_sr;
+                    }
+                }
+                let m = &XYZ_TO_LINEAR_SRGB;
+                let mut rgb = [0.0; 3];
+                for ch in 0..3 {
+                    rgb[ch] = (m[ch][0] * xyz[0] + m[ch][1] * xyz[1] + m[ch][2] * xyz[2]).max(0.0);
+                }
+                rgb
+            })
+            .collect();
+        let mut out = vec![[0.0f64; 3]; size * size];
+        out.par_chunks_mut(size).enumerate().for_each(|(v, row)| {
+            for (u, o) in row.iter_mut().enumerate() {
+                let (x, y) = (u as f64 - c, v as f64 - c);
+                if x.hypot(y) > radius_px {
+                    continue;
+                }
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let ox = x + (sx as f64 - 1.5) / 4.0;
+                        let oy = y + (sy as f64 - 1.5) / 4.0;
+                        let t = ox.hypot(oy) / step;
+                        let i = t.floor() as usize;
+                        let f = t - i as f64;
+                        for ch in 0..3 {
+                            o[ch] += (table[i][ch] * (1.0 - f) + table[i + 1][ch] * f) / 16.0;
+                        }
+                    }
+                }
+            }
+        });
+        let mut sums = [0.0; 3];
+        for p in &out {
+            for ch in 0..3 {
+                sums[ch] += p[ch];
+            }
+        }
+        for p in &mut out {
+            for ch in 0..3 {
+                p[ch] /= sums[ch];
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn clean_kernel_is_the_spectral_airy_pattern_at_any_ppd() {
+        // (ppd, pupil, field): the near field spans the first rings.
+        for (ppd, d_mm, field_deg) in [
+            (300.0, 2.0, 3.0),
+            (1000.0, 4.0, 1.0),
+            (6000.0, 2.0, 0.17),
+            (6000.0, 8.0, 0.17),
+        ] {
+            let params = PsfParams {
+                pupil_mm: d_mm,
+                pupil_range_mm: [d_mm, d_mm],
+                particles: 0,
+                stray_light: false,
+                ppd,
+                field_deg,
+                ..PsfParams::default()
+            };
+            let builder = PsfBuilder::new(params.clone()).unwrap();
+            let s = *builder.sampling();
+            let k = builder.kernel();
+            // One FFT sample ≤ one display pixel at 770 nm.
+            assert!(s.rad_per_sample(770.0) <= (1.0 / ppd).to_radians() * (1.0 + 1e-12));
+            let near = s.near_radius_px as f64;
+            let reference = spectral_airy(d_mm, ppd, k.size, near, params.wavelength_count);
+            let lum = |p: [f64; 3]| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2];
+            let peak = reference.iter().map(|p| lum(*p)).fold(0.0, f64::max);
+            let mut worst = 0.0f64;
+            for (kp, rp) in k.rgb.iter().zip(&reference) {
+                let kl = lum([f64::from(kp[0]), f64::from(kp[1]), f64::from(kp[2])]);
+                worst = worst.max((kl - lum(*rp)).abs() / peak);
+            }
+            eprintln!(
+                "ppd {ppd}, D {d_mm} mm: grid {} over {:.1} mm, near radius {} px; max |kernel − spectral Airy| = {:.2} % of the peak",
+                s.grid_size,
+                s.pupil_plane_mm,
+                s.near_radius_px,
+                worst * 100.0
+            );
+            assert!(worst < 0.05, "ppd {ppd} D {d_mm}: {worst}");
+            // The Airy core spans pixels at these ppd (not a single one).
+            assert!(k.at(0, 0)[1] < 0.5);
         }
     }
 
     #[test]
-    fn clean_aperture_is_airy_with_first_minimum_at_1_22_lambda_over_d() {
+    fn clean_aperture_first_dark_ring_at_1_22_lambda_over_d_scales_as_1_over_d() {
         let lambda_m = REFERENCE_WAVELENGTH_NM * 1e-9;
         let mut radii = Vec::new();
         for d_mm in [2.0, 4.0, 8.0] {
-            let m = monochromatic_psf(&airy_params(d_mm), REFERENCE_WAVELENGTH_NM).unwrap();
+            // A fine far-field grid: at 1500 ppd one sample is ≤ 1.16e-5 rad.
+            let params = PsfParams {
+                pupil_mm: d_mm,
+                pupil_range_mm: [d_mm, d_mm],
+                particles: 0,
+                ppd: 1500.0,
+                field_deg: 0.2,
+                ..PsfParams::default()
+            };
+            let m = monochromatic_psf(&params, REFERENCE_WAVELENGTH_NM).unwrap();
             let r = m.first_minimum_rad().expect("a dark ring");
             let expected = 1.22 * lambda_m / (d_mm * 1e-3);
             let err = (r - expected).abs() / expected;
@@ -881,105 +1454,167 @@ mod tests {
                 "D = {d_mm} mm: first minimum {r:.5e} rad, 1.22 λ/D = {expected:.5e} rad, error {:.2} %",
                 err * 100.0
             );
-            assert!(
-                err < 0.03,
-                "D = {d_mm} mm: first minimum {r:.4e} rad, expected {expected:.4e} (err {err:.4})"
-            );
-            // The peak is on axis and the first minimum is dark (Airy: exactly 0).
-            let p = m.axis_profile(2);
-            let c = m.size / 2;
-            let peak = m.values[c * m.size + c];
-            assert!(p[0] == peak && peak > p[1], "peak not at the centre");
+            assert!(err < 0.03, "D = {d_mm} mm: {r:.4e} vs {expected:.4e}");
             radii.push(r);
         }
-        // The ring radius scales as 1/D.
+        // A smaller pupil widens the rings: the radius scales as 1/D.
         for w in radii.windows(2) {
             let ratio = w[0] / w[1];
-            assert!(
-                (ratio - 2.0).abs() < 0.06,
-                "doubling D must halve the ring radius: ratio {ratio}"
-            );
+            assert!((ratio - 2.0).abs() < 0.06, "ratio {ratio}");
         }
     }
 
     #[test]
-    fn airy_minimum_follows_wavelength() {
-        // 001 eq 8 at another wavelength: the ring moves with λ.
-        let params = airy_params(4.0);
-        let m = monochromatic_psf(&params, 450.0).unwrap();
-        let expected = 1.22 * 450e-9 / 4e-3;
-        let r = m.first_minimum_rad().expect("a dark ring");
-        assert!((r - expected).abs() / expected < 0.03, "{r} vs {expected}");
-        assert!((m.rad_per_px - 450e-6 / 64.0).abs() < 1e-15);
+    fn smaller_pupil_gives_wider_rings_in_the_kernel() {
+        // Radius holding half the near-field light, display pixels.
+        let half_radius = |d_mm: f64| -> f64 {
+            let k = build_kernel(&PsfParams {
+                pupil_mm: d_mm,
+                particles: 0,
+                stray_light: false,
+                ppd: 2000.0,
+                field_deg: 0.2,
+                ..PsfParams::default()
+            })
+            .unwrap();
+            let c = k.centre() as f64;
+            let mut rings: Vec<(f64, f64)> = k
+                .rgb
+                .iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    let (x, y) = ((i % k.size) as f64 - c, (i / k.size) as f64 - c);
+                    (x.hypot(y), f64::from(p[1]))
+                })
+                .collect();
+            rings.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut acc = 0.0;
+            for (r, v) in rings {
+                acc += v;
+                if acc >= 0.5 {
+                    return r;
+                }
+            }
+            f64::INFINITY
+        };
+        let (r2, r4, r8) = (half_radius(2.0), half_radius(4.0), half_radius(8.0));
+        eprintln!("half-energy radius: D 2 mm {r2} px, 4 mm {r4} px, 8 mm {r8} px");
+        assert!(r2 > 1.6 * r4 && r4 > 1.6 * r8, "{r2} {r4} {r8}");
+    }
+
+    #[test]
+    fn particle_scatter_scales_with_covered_area() {
+        // Same covered area (5 % of a 4 mm pupil) from 5 µm particles (below
+        // one pupil-plane sample) and from 40 µm ones (above); the light
+        // scattered beyond 0.14° must match, and be the covered fraction.
+        let base = PsfParams {
+            pupil_mm: 4.0,
+            pupil_range_mm: [4.0, 4.0],
+            stray_light: false,
+            ppd: 14.0,
+            field_deg: 80.0,
+            ..PsfParams::default()
+        };
+        let beyond = |k: &PsfKernel, r_px: f64| -> f64 {
+            let c = k.centre() as f64;
+            k.rgb
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| ((i % k.size) as f64 - c).hypot((i / k.size) as f64 - c) > r_px)
+                .map(|(_, p)| {
+                    0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2])
+                })
+                .sum()
+        };
+        let clean = build_kernel(&PsfParams {
+            particles: 0,
+            ..base.clone()
+        })
+        .unwrap();
+        let e_clean = beyond(&clean, 2.0);
+        let mut scatter = Vec::new();
+        for (um, count) in [(5.0, 32_000usize), (40.0, 500)] {
+            let params = PsfParams {
+                particles: count,
+                particle_um: um,
+                ..base.clone()
+            };
+            let builder = PsfBuilder::new(params.clone()).unwrap();
+            let dx_um = builder.sampling().sample_mm() * 1e3;
+            let sigma = builder.particle_scatter_fraction(4.0);
+            let s = beyond(builder.kernel(), 2.0) - e_clean;
+            eprintln!(
+                "{count} particles of {um} µm (sample {dx_um:.1} µm): covered {:.4}, scattered beyond 0.14°: {s:.4}",
+                sigma
+            );
+            assert!((sigma - 0.05).abs() < 0.01, "covered fraction {sigma}");
+            assert!(
+                s > 0.75 * sigma && s < 1.15 * sigma,
+                "{um} µm: {s} vs {sigma}"
+            );
+            scatter.push((um, dx_um, s));
+        }
+        assert!(scatter[0].0 < scatter[0].1 && scatter[1].0 > scatter[1].1);
+        let ratio = scatter[0].2 / scatter[1].2;
+        assert!(
+            (0.8..1.25).contains(&ratio),
+            "5 µm vs 40 µm scatter ratio {ratio}"
+        );
+    }
+
+    #[test]
+    fn sampling_follows_the_request() {
+        let default = PsfParams::default().sampling().unwrap();
+        assert_eq!(default.grid_size, 1024);
+        assert!(default.pupil_plane_mm >= 18.0);
+        for (ppd, d) in [(14.0, 2.0), (60.0, 4.0), (1000.0, 2.0), (6000.0, 8.0)] {
+            let p = PsfParams {
+                pupil_mm: d,
+                pupil_range_mm: [d, d],
+                ppd,
+                field_deg: 2000.0 / ppd,
+                ..PsfParams::default()
+            };
+            let s = p.sampling().unwrap();
+            let rad_px = (1.0 / ppd).to_radians();
+            assert!(s.grid_size.is_power_of_two() && s.grid_size <= MAX_GRID_SIZE);
+            assert!(s.rad_per_sample(770.0) <= rad_px * (1.0 + 1e-12));
+            assert!(s.pupil_plane_mm >= 2.0 * d);
+            assert!(d / s.sample_mm() >= MIN_PUPIL_SAMPLES - 1e-9);
+            // The FFT half field holds the near region at 380 nm.
+            let half_field = REFERENCE_WAVELENGTH_NM * 1e-6 / (2.0 * s.sample_mm());
+            assert!(half_field >= s.near_radius_px as f64 * rad_px * 575.0 / 380.0);
+        }
+        // A request no 4096 grid can meet is an error naming the ppd.
+        let bad = PsfParams {
+            pupil_range_mm: [0.5, 9.0],
+            pupil_mm: 1.0,
+            ppd: 20000.0,
+            field_deg: 0.05,
+            ..PsfParams::default()
+        };
+        assert!(bad.sampling().unwrap_err().to_string().contains("psf.ppd"));
     }
 
     #[test]
     fn parseval_psf_holds_the_light_through_the_pupil() {
-        // Σ M (λd)² = Σ|L|² = open pupil area in samples (π R² / Δx²).
         let params = PsfParams {
             particles: 0,
             ..PsfParams::default()
         };
+        let s = params.sampling().unwrap();
         let m = monochromatic_psf(&params, REFERENCE_WAVELENGTH_NM).unwrap();
         let lambda_d = REFERENCE_WAVELENGTH_NM * 1e-6 * PUPIL_RETINA_MM;
         let total: f64 = m.values.iter().sum::<f64>() * lambda_d * lambda_d;
-        let r = params.pupil_mm / 2.0 / params.sample_mm();
+        let r = params.pupil_mm / 2.0 / s.sample_mm();
         let area = std::f64::consts::PI * r * r;
-        assert!(
-            (total - area).abs() / area < 0.01,
-            "Σ M (λd)² = {total}, pupil area {area} samples"
-        );
-    }
-
-    fn core_fraction(m: &MonoPsf, pupil_mm: f64) -> f64 {
-        let n = m.size;
-        let c = (n / 2) as f64;
-        let core = 1.22 * REFERENCE_WAVELENGTH_NM * 1e-9 / (pupil_mm * 1e-3) / m.rad_per_px;
-        let mut inside = 0.0;
-        let mut total = 0.0;
-        for j in 0..n {
-            for i in 0..n {
-                let v = m.values[j * n + i];
-                total += v;
-                if (i as f64 - c).hypot(j as f64 - c) <= core {
-                    inside += v;
-                }
-            }
-        }
-        inside / total
+        assert!((total - area).abs() / area < 0.01, "{total} vs {area}");
     }
 
     #[test]
-    fn particles_move_energy_out_of_the_airy_core() {
-        let clean = PsfParams {
-            particles: 0,
-            pupil_mm: 6.0,
-            ..PsfParams::default()
-        };
-        let dusty = PsfParams {
-            particles: 4000,
-            particle_um: 60.0,
-            ..clean.clone()
-        };
-        let f_clean = core_fraction(&monochromatic_psf(&clean, 575.0).unwrap(), 6.0);
-        let f_dusty = core_fraction(&monochromatic_psf(&dusty, 575.0).unwrap(), 6.0);
-        eprintln!("energy inside the Airy core: clean {f_clean:.4}, with particles {f_dusty:.4}");
-        // An Airy pattern holds 83.8 % of its energy inside the first dark ring.
-        assert!(
-            (f_clean - 0.838).abs() < 0.02,
-            "clean core fraction {f_clean}"
-        );
-        assert!(
-            f_dusty < f_clean - 0.02,
-            "particles must scatter light out of the core: {f_dusty} vs {f_clean}"
-        );
-    }
-
-    #[test]
-    fn kernel_has_unit_energy_per_channel() {
+    fn kernel_has_unit_energy_and_covers_the_field() {
         let k = build_kernel(&PsfParams::default()).unwrap();
-        assert_eq!(k.rgb.len(), 65 * 65);
-        assert!((k.deg_per_px - 1.0 / 13.85).abs() < 1e-12);
+        assert_eq!(k.size, 2 * (20.0f64 * 13.85).round() as usize + 1);
         for (ch, e) in k.energy().iter().enumerate() {
             assert!((e - 1.0).abs() < 1e-4, "channel {ch} sums to {e}");
         }
@@ -988,37 +1623,33 @@ mod tests {
                 .iter()
                 .all(|p| p.iter().all(|v| v.is_finite() && *v >= 0.0))
         );
-        // The centre pixel holds the most light.
         let c = k.at(0, 0);
         assert!(k.rgb.iter().all(|p| p[1] <= c[1]));
+        // Light reaches the field's edge.
+        assert!(k.at(k.centre() as isize, 0)[1] > 0.0);
     }
 
     #[test]
     fn clean_kernel_is_radially_symmetric() {
-        // High ppd so the Airy rings span many display pixels.
         let params = PsfParams {
             particles: 0,
             ppd: 2000.0,
-            kernel_size: 65,
+            field_deg: 64.0 / 2000.0,
             wavelength_count: 16,
             ..PsfParams::default()
         };
         let k = build_kernel(&params).unwrap();
         let peak = k.at(0, 0)[1];
+        let r = k.centre() as isize;
         let mut checked = 0;
-        for a in 0..=32isize {
+        for a in 0..=r {
             for b in 0..=a {
                 let v = k.at(a, b);
                 for (x, y) in [(-b, a), (-a, -b), (b, -a), (b, a), (-a, b)] {
                     let w = k.at(x, y);
                     for ch in 0..3 {
                         let tol = 1e-4 * v[ch].max(w[ch]) + 1e-7 * peak;
-                        assert!(
-                            (v[ch] - w[ch]).abs() <= tol,
-                            "({a},{b}) vs ({x},{y}) ch {ch}: {} vs {}",
-                            v[ch],
-                            w[ch]
-                        );
+                        assert!((v[ch] - w[ch]).abs() <= tol, "({a},{b}) vs ({x},{y})");
                     }
                     checked += 1;
                 }
@@ -1029,11 +1660,11 @@ mod tests {
 
     #[test]
     fn long_wavelengths_spread_further() {
-        // Fraunhofer scaling (001 eq 9): the red part of the halo is wider.
         let params = PsfParams {
             particles: 0,
+            stray_light: false,
             ppd: 2000.0,
-            kernel_size: 129,
+            field_deg: 128.0 / 2000.0,
             ..PsfParams::default()
         };
         let k = build_kernel(&params).unwrap();
@@ -1057,6 +1688,7 @@ mod tests {
         let p = PsfParams {
             particles: 3000,
             particle_um: 40.0,
+            field_deg: 10.0,
             ..PsfParams::default()
         };
         let a = build_kernel(&p).unwrap();
@@ -1075,7 +1707,7 @@ mod tests {
         let p = PsfParams {
             particles: 2000,
             particle_um: 30.0,
-            kernel_size: 33,
+            field_deg: 6.0,
             ..PsfParams::default()
         };
         let mut builder = PsfBuilder::new(p.clone()).unwrap();
@@ -1086,11 +1718,38 @@ mod tests {
         })
         .unwrap();
         assert_eq!(rebuilt, fresh);
-        // Out-of-range pupils are clamped, NaN keeps the kernel; try_rebuild errs.
         assert_eq!(builder.rebuild(50.0).pupil_mm, p.max_pupil_mm());
         assert_eq!(builder.rebuild(f64::NAN).pupil_mm, p.max_pupil_mm());
         assert!(builder.try_rebuild(-1.0).is_err());
         assert!(builder.try_rebuild(3.0).is_ok());
+    }
+
+    #[test]
+    fn seed_scale_lays_the_fft_field_over_the_glare_window() {
+        let physical = build_kernel(&PsfParams {
+            field_deg: 10.0,
+            ..PsfParams::default()
+        })
+        .unwrap();
+        let seed = build_kernel(&PsfParams {
+            field_deg: 10.0,
+            glare_scale: GlareScale::Seed,
+            ..PsfParams::default()
+        })
+        .unwrap();
+        assert_eq!(seed.size, physical.size);
+        for e in seed.energy() {
+            assert!((e - 1.0).abs() < 1e-4);
+        }
+        // 001's NDC scale magnifies the Airy core by (field/N)/(λ/W): at
+        // 13.85 ppd the core spreads over several pixels instead of one.
+        let (p0, s0) = (physical.at(0, 0)[1], seed.at(0, 0)[1]);
+        assert!(
+            p0 > 0.5 && s0 < 0.6 * p0,
+            "centre pixel: physical {p0}, seed {s0}"
+        );
+        assert_eq!("seed".parse::<GlareScale>(), Ok(GlareScale::Seed));
+        assert!("bogus".parse::<GlareScale>().is_err());
     }
 
     #[test]
@@ -1113,21 +1772,13 @@ mod tests {
             PsfParams {
                 pupil_mm: 12.0,
                 ..ok.clone()
-            }, // > 20 mm / 2
+            },
             PsfParams {
-                grid_size: 500,
+                pupil_range_mm: [3.0, 2.0],
                 ..ok.clone()
             },
             PsfParams {
-                grid_size: 32,
-                ..ok.clone()
-            },
-            PsfParams {
-                grid_size: 4096,
-                ..ok.clone()
-            },
-            PsfParams {
-                pupil_plane_mm: 0.0,
+                pupil_range_mm: [0.0, 2.0],
                 ..ok.clone()
             },
             PsfParams {
@@ -1139,7 +1790,7 @@ mod tests {
                 ..ok.clone()
             },
             PsfParams {
-                kernel_size: 10,
+                ppd: f64::INFINITY,
                 ..ok.clone()
             },
             PsfParams {
@@ -1156,6 +1807,11 @@ mod tests {
             },
             PsfParams {
                 field_deg: f64::NAN,
+                ..ok.clone()
+            },
+            PsfParams {
+                field_deg: 40.0,
+                ppd: 200.0,
                 ..ok.clone()
             },
             PsfParams {
@@ -1186,18 +1842,20 @@ mod tests {
 
     #[test]
     fn defocus_blurs_the_core() {
-        let focused = PsfParams {
-            particles: 0,
-            pupil_mm: 6.0,
-            ..PsfParams::default()
+        let core_peak = |dd: f64| -> f32 {
+            build_kernel(&PsfParams {
+                particles: 0,
+                stray_light: false,
+                pupil_mm: 6.0,
+                defocus_dioptres: dd,
+                ppd: 1000.0,
+                field_deg: 0.2,
+                ..PsfParams::default()
+            })
+            .unwrap()
+            .at(0, 0)[1]
         };
-        let blurred = PsfParams {
-            defocus_dioptres: 0.5,
-            ..focused.clone()
-        };
-        assert!(blurred.validate().is_ok());
-        let f0 = core_fraction(&monochromatic_psf(&focused, 575.0).unwrap(), 6.0);
-        let f1 = core_fraction(&monochromatic_psf(&blurred, 575.0).unwrap(), 6.0);
+        let (f0, f1) = (core_peak(0.0), core_peak(0.5));
         assert!(
             f1 < 0.5 * f0,
             "0.5 D of defocus must spread the core: {f1} vs {f0}"
@@ -1217,12 +1875,7 @@ mod tests {
         for (l, want) in table {
             let got = cie_xyz_wyman(l);
             for k in 0..3 {
-                assert!(
-                    (got[k] - want[k]).abs() < 0.04,
-                    "{l} nm component {k}: {} vs {}",
-                    got[k],
-                    want[k]
-                );
+                assert!((got[k] - want[k]).abs() < 0.04, "{l} nm component {k}");
             }
         }
     }

@@ -87,8 +87,8 @@ fn psf_writes_kernel_files() {
         "psf",
         "--pupil-mm",
         "4",
-        "--grid",
-        "256",
+        "--field-deg",
+        "10",
         "--out",
         out_dir.to_str().expect("utf-8"),
     ]);
@@ -100,6 +100,9 @@ fn psf_writes_kernel_files() {
     let text = std::fs::read_to_string(out_dir.join("psf.json")).expect("json");
     let json: serde_json::Value = serde_json::from_str(&text).expect("valid json");
     assert_eq!(json["pupil_mm"], 4.0);
+    assert_eq!(json["field_deg"], 10.0);
+    assert_eq!(json["age_years"], 25.0);
+    assert_eq!(json["pigmentation"], 0.5);
     assert!(json["deg_per_px"].as_f64().expect("deg") > 0.0);
     assert!(json["wavelengths_nm"].as_array().expect("wl").len() >= 2);
     for e in json["energy"].as_array().expect("energy") {
