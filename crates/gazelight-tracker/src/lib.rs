@@ -21,6 +21,7 @@ pub use trace::{GazeTrace, TraceError, TraceSample};
 pub mod calibration;
 pub mod filter;
 pub mod import;
+pub mod lsl;
 pub mod pupil;
 pub mod pupil_model;
 pub mod recording;

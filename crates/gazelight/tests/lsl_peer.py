@@ -1,0 +1,206 @@
+#!/usr/bin/env python3
+"""pylsl side of gazelight's LSL tests and benchmark.
+
+read:  resolve streams by name, read them for --secs, print one JSON object:
+       per stream the channel labels/units/types from the XML description,
+       the samples (values), their LSL timestamps, the receipt times
+       (pylsl.local_clock()) and the time correction. With --pupil-remote
+       PORT it also subscribes to that Pupil peer's bus and records every
+       datum's Pupil timestamp and its receipt time, plus the clock offsets
+       (time.time() - local_clock()) so Pupil time can be put on the LSL clock.
+
+relay: a pylsl outlet with Pupil Capture's LSL relay layout (name
+       --name, type Gaze, 22 channels labelled as App-PupilLabs'
+       pupil_capture_lsl_relay publishes them), or Neon's (--layout neon),
+       pushing the fixed values below at --rate Hz for --secs; with
+       --vanish-at T --gap G the outlet is destroyed at T s and a new one
+       (same name) appears G s later. Prints READY when the outlet exists.
+
+Run with LSLAPICFG pointing at a machine-only configuration.
+"""
+
+import argparse
+import json
+import sys
+import time
+
+import pylsl
+
+RELAY_LABELS = [
+    "confidence", "norm_pos_x", "norm_pos_y",
+    "gaze_point_3d_x", "gaze_point_3d_y", "gaze_point_3d_z",
+    "eye_center0_3d_x", "eye_center0_3d_y", "eye_center0_3d_z",
+    "eye_center1_3d_x", "eye_center1_3d_y", "eye_center1_3d_z",
+    "gaze_normal0_x", "gaze_normal0_y", "gaze_normal0_z",
+    "gaze_normal1_x", "gaze_normal1_y", "gaze_normal1_z",
+    "diameter0_2d", "diameter1_2d", "diameter0_3d", "diameter1_3d",
+]
+# The values the relay mimic publishes (the tests check the same numbers).
+RELAY_VALUES = {
+    "confidence": 0.93, "norm_pos_x": 0.3, "norm_pos_y": 0.8,
+    "gaze_point_3d_x": 12.0, "gaze_point_3d_y": -40.0, "gaze_point_3d_z": 500.0,
+    "diameter0_2d": 31.5, "diameter1_2d": 36.25,
+    "diameter0_3d": 3.75, "diameter1_3d": 4.25,
+}
+NEON_LABELS = ["x", "y", "pupil_diameter_left", "pupil_diameter_right"]
+NEON_VALUES = {"x": 800.0, "y": 300.0, "pupil_diameter_left": 4.5, "pupil_diameter_right": 3.5}
+
+
+def describe(info):
+    chans = []
+    ch = info.desc().child("channels").child("channel")
+    while not ch.empty():
+        chans.append({
+            "label": ch.child_value("label"),
+            "unit": ch.child_value("unit"),
+            "type": ch.child_value("type"),
+            "eye": ch.child_value("eye"),
+        })
+        ch = ch.next_sibling()
+    return {
+        "name": info.name(), "type": info.type(), "channels": chans,
+        "channel_count": info.channel_count(), "source": info.desc().child_value("source"),
+        "manufacturer": info.desc().child_value("manufacturer"),
+        "nominal_srate": info.nominal_srate(),
+    }
+
+
+def read(args):
+    names = args.names.split(",")
+    deadline = time.monotonic() + args.resolve_secs
+    inlets = {}
+    for n in names:
+        while n not in inlets:
+            found = pylsl.resolve_byprop("name", n, 1, 0.5)
+            if found:
+                inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=False)
+                inlet.open_stream(5.0)
+                inlets[n] = inlet
+            elif time.monotonic() > deadline:
+                print(json.dumps({"error": "stream %s not found" % n}))
+                return 1
+    sub = None
+    if args.pupil_remote:
+        import msgpack
+        import zmq
+        ctx = zmq.Context.instance()
+        req = ctx.socket(zmq.REQ)
+        req.connect("tcp://127.0.0.1:%d" % args.pupil_remote)
+        req.send_string("SUB_PORT")
+        sub_port = int(req.recv_string())
+        sub = ctx.socket(zmq.SUB)
+        sub.connect("tcp://127.0.0.1:%d" % sub_port)
+        sub.setsockopt_string(zmq.SUBSCRIBE, "pupil.0.3d")
+    print("READY", file=sys.stderr, flush=True)
+    out = {n: {"info": describe(i.info(5.0)), "values": [], "t": [], "rx": []} for n, i in inlets.items()}
+    datums = {"pupil_time": [], "rx": []}
+    clock_pairs = []
+    end = time.monotonic() + args.secs
+    quiet_since = None
+    while time.monotonic() < end:
+        got = False
+        for n, inlet in inlets.items():
+            while True:
+                s, ts = inlet.pull_sample(timeout=0.0)
+                if s is None:
+                    break
+                got = True
+                o = out[n]
+                o["values"].append(s)
+                o["t"].append(ts)
+                o["rx"].append(pylsl.local_clock())
+        if sub is not None:
+            while sub.poll(0):
+                topic, payload = sub.recv_multipart()
+                rx = pylsl.local_clock()
+                d = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+                datums["pupil_time"].append(d["timestamp"])
+                datums["rx"].append(rx)
+                got = True
+        if len(clock_pairs) < 200 or int(time.monotonic() * 10) % 10 == 0:
+            a = time.time()
+            l = pylsl.local_clock()
+            b = time.time()
+            clock_pairs.append([(a + b) / 2, l, b - a])
+        if got:
+            quiet_since = None
+        else:
+            if args.until_quiet and quiet_since is None:
+                quiet_since = time.monotonic()
+            if args.until_quiet and any(o["t"] for o in out.values()) and time.monotonic() - quiet_since > args.until_quiet:
+                break
+            time.sleep(0.0005)
+    for n, inlet in inlets.items():
+        try:
+            out[n]["time_correction"] = inlet.time_correction(1.0)
+        except Exception as e:  # lost
+            out[n]["time_correction"] = None
+    best = min(clock_pairs, key=lambda p: p[2])
+    result = {"streams": out, "wall_minus_lsl": best[0] - best[1], "wall_window": best[2]}
+    if sub is not None:
+        result["pupil_datums"] = datums
+    print(json.dumps(result))
+    return 0
+
+
+def make_outlet(args):
+    labels = RELAY_LABELS if args.layout == "relay" else NEON_LABELS
+    info = pylsl.StreamInfo(args.name, "Gaze", len(labels), args.rate, pylsl.cf_double64, args.name + "-src")
+    chans = info.desc().append_child("channels")
+    for l in labels:
+        c = chans.append_child("channel")
+        c.append_child_value("label", l)
+    return pylsl.StreamOutlet(info), labels
+
+
+def relay(args):
+    outlet, labels = make_outlet(args)
+    values_of = RELAY_VALUES if args.layout == "relay" else NEON_VALUES
+    values = [values_of.get(l, float("nan")) for l in labels]
+    print("READY", flush=True)
+    start = time.monotonic()
+    period = 1.0 / args.rate
+    next_t = start
+    pushed = 0
+    vanished = False
+    while time.monotonic() - start < args.secs:
+        now = time.monotonic()
+        if args.vanish_at and not vanished and now - start >= args.vanish_at:
+            del outlet
+            vanished = True
+            time.sleep(args.gap)
+            outlet, _ = make_outlet(args)
+            next_t = time.monotonic()
+            continue
+        if now >= next_t:
+            outlet.push_sample(values, pylsl.local_clock())
+            pushed += 1
+            next_t += period
+        else:
+            time.sleep(min(next_t - now, 0.01))
+    print("PUSHED %d" % pushed, flush=True)
+    return 0
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    sp = ap.add_subparsers(dest="cmd", required=True)
+    r = sp.add_parser("read")
+    r.add_argument("--names", required=True)
+    r.add_argument("--secs", type=float, default=5.0)
+    r.add_argument("--resolve-secs", type=float, default=10.0)
+    r.add_argument("--until-quiet", type=float, default=0.0, help="stop after this long without samples")
+    r.add_argument("--pupil-remote", type=int, default=0)
+    p = sp.add_parser("relay")
+    p.add_argument("--name", required=True)
+    p.add_argument("--layout", choices=["relay", "neon"], default="relay")
+    p.add_argument("--rate", type=float, default=120.0)
+    p.add_argument("--secs", type=float, default=6.0)
+    p.add_argument("--vanish-at", type=float, default=0.0)
+    p.add_argument("--gap", type=float, default=1.5)
+    args = ap.parse_args()
+    sys.exit(read(args) if args.cmd == "read" else relay(args))
+
+
+if __name__ == "__main__":
+    main()
