@@ -1458,11 +1458,13 @@ mod tests {
         let Some(ctx) = test_context("whole_frame_matches_the_cpu_within_one_code") else {
             return;
         };
-        // Street lamps at 6.4 ppd (glare, scotopic colour, acuity blur), and a
-        // hazy sun at the Vive Pro's 104° field.
+        // Street lamps at 6.4 ppd (glare, scotopic colour, per-pixel acuity),
+        // and a hazy sun over 40° at 4 ppd. (The Vive Pro's 104° over 160 px,
+        // ~1.1 ppd, is refused by the CPU kernel's sampling: its pupil plane
+        // would need more than a 4096-sample FFT.)
         for (name, yaw, fov, w, h) in [
             ("night.exr", -78.4, 20.0, 128, 128),
-            ("city.exr", 40.0, 104.0, 160, 144),
+            ("city.exr", 40.0, 40.0, 160, 144),
         ] {
             let (img, dpp) = view_fov(name, yaw, -6.0, fov, w, h);
             let config = PipelineConfig::default();
