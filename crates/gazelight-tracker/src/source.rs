@@ -19,6 +19,10 @@ use tokio::time::Instant;
 
 use crate::sample::Sample;
 
+/// Longest wall-clock offset from the first sample a paced replay waits
+/// for, s (one day): an absurd timestamp cannot overflow the clock.
+const MAX_PACING_GAP_SECS: f64 = 86_400.0;
+
 /// Why a source could not deliver a sample.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
@@ -145,8 +149,13 @@ where
                     self.last_target = Some(now);
                 }
                 Some((wall0, t0)) => {
-                    let dt = ((t - t0) / speed).max(0.0);
-                    let mut target = wall0 + std::time::Duration::from_secs_f64(dt);
+                    // An absurd gap (a timestamp of 1e308 among good ones)
+                    // is paced at most a day past the anchor instead of panicking
+                    // in `Duration::from_secs_f64` or the `Instant` addition;
+                    // the session's shutdown still ends the wait.
+                    let dt = ((t - t0) / speed).clamp(0.0, MAX_PACING_GAP_SECS);
+                    let gap = std::time::Duration::try_from_secs_f64(dt).unwrap_or_default();
+                    let mut target = wall0.checked_add(gap).unwrap_or_else(Instant::now);
                     if let Some(last) = self.last_target {
                         target = target.max(last);
                     }
