@@ -13,10 +13,21 @@
 //! For area units (EyeLink `PUPIL AREA`) the raw value is first turned into
 //! an equivalent diameter, √area, so the map stays linear in diameter.
 //!
-//! Profiles are JSON files (schema `gazelight.pupil-calibration/1`,
+//! The map is bounded: a raw value that is not finite or ≤ 0 (a blink, a
+//! lost pupil) is rejected before mapping ([`BadRawPupil`]), and the
+//! result is clamped to the profile's `[mm_min, mm_max]` (2–8 mm by
+//! default, 001 §5) — the line is never extrapolated past the pupils the
+//! observer showed in the black and white phases.
+//!
+//! A profile also describes its observer ([`Observer`]): age and ocular
+//! pigmentation, the CIE 146:2002 parameters of the glare kernel's stray
+//! light; defaults 25 years and 0.5.
+//!
+//! Profiles are JSON files (schema `gazelight.pupil-calibration/2`,
 //! documented in `calibration/schema.json` and `calibration/README.md` at
-//! the repository root). [`PupilCalibration::load`] validates every field
-//! and names the one that is wrong.
+//! the repository root). Version 1 profiles (no `observer`) still load,
+//! with the default observer. [`PupilCalibration::load`] validates every
+//! field and names the one that is wrong.
 //!
 //! The routine that produces a profile is [`CalibrationSession`]: a state
 //! machine fed timed raw pupil samples from any source, driving a
@@ -30,8 +41,68 @@ use crate::filter::{BlinkConfig, BlinkDetector, ConfidenceGate};
 use crate::sample::{PupilSample, PupilUnit, Sample};
 use crate::source::{SampleSource, SourceError};
 
-/// The schema identifier profiles carry.
-pub const SCHEMA: &str = "gazelight.pupil-calibration/1";
+/// The schema identifier profiles carry (and [`PupilCalibration::save`]
+/// writes).
+pub const SCHEMA: &str = "gazelight.pupil-calibration/2";
+/// The previous schema: no `observer`; still loaded, with the default
+/// observer.
+pub const SCHEMA_V1: &str = "gazelight.pupil-calibration/1";
+/// Default observer age, years (CIE 146:2002's young reference observer).
+pub const DEFAULT_AGE_YEARS: f64 = 25.0;
+/// Default ocular pigmentation (CIE 146:2002: 0.5 = brown eyes).
+pub const DEFAULT_PIGMENTATION: f64 = 0.5;
+/// Accepted observer ages, years.
+pub const AGE_YEARS_RANGE: (f64, f64) = (0.0, 120.0);
+/// Accepted pigmentation (CIE 146:2002: 0 very dark … 1.2 very light eyes).
+pub const PIGMENTATION_RANGE: (f64, f64) = (0.0, 1.2);
+
+/// The observer a profile was made for: the CIE 146:2002 stray-light
+/// parameters of the glare kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Observer {
+    /// Age, years (CIE 146 `A`).
+    pub age_years: f64,
+    /// Ocular pigmentation (CIE 146 `p`).
+    pub pigmentation: f64,
+}
+
+impl Default for Observer {
+    fn default() -> Self {
+        Self {
+            age_years: DEFAULT_AGE_YEARS,
+            pigmentation: DEFAULT_PIGMENTATION,
+        }
+    }
+}
+
+impl Observer {
+    /// Checks both fields; `Err((field, reason))` with `prefix.` before
+    /// the field name.
+    pub fn validate(&self, prefix: &str) -> Result<(), (String, String)> {
+        for (name, v, (lo, hi)) in [
+            ("age_years", self.age_years, AGE_YEARS_RANGE),
+            ("pigmentation", self.pigmentation, PIGMENTATION_RANGE),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err((
+                    format!("{prefix}{name}"),
+                    format!("must be a finite number in {lo}..={hi}, got {v}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Why a raw pupil value was not mapped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BadRawPupil {
+    /// NaN or ±∞.
+    NotFinite,
+    /// Zero or negative (a blink or a lost pupil).
+    NonPositive,
+}
 /// Default pupil diameter mapped to the white phase, mm (001 §5).
 pub const DEFAULT_MM_MIN: f64 = 2.0;
 /// Default pupil diameter mapped to the black phase, mm (001 §5).
@@ -54,12 +125,21 @@ pub struct EyeCalibration {
 }
 
 impl EyeCalibration {
-    /// Maps a raw diameter-like value (already √area for area units).
+    /// Maps a raw diameter-like value (already √area for area units) onto
+    /// mm: rejects a raw value that is not finite or ≤ 0 before mapping,
+    /// and clamps the line to `[mm_min, mm_max]`.
     #[inline]
-    pub fn map(&self, raw: f64) -> f64 {
-        self.mm_max
+    pub fn map(&self, raw: f64) -> Result<f64, BadRawPupil> {
+        if !raw.is_finite() {
+            return Err(BadRawPupil::NotFinite);
+        }
+        if raw <= 0.0 {
+            return Err(BadRawPupil::NonPositive);
+        }
+        let mm = self.mm_max
             + (raw - self.raw_black) * (self.mm_min - self.mm_max)
-                / (self.raw_white - self.raw_black)
+                / (self.raw_white - self.raw_black);
+        Ok(mm.clamp(self.mm_min, self.mm_max))
     }
 
     fn validate(&self, field: &str) -> Result<(), (String, String)> {
@@ -120,6 +200,9 @@ pub struct PupilCalibration {
     /// Per-eye maps; an eye without one passes mm sources through and has
     /// no mm value for raw-unit sources.
     pub eyes: EyeCalibrations,
+    /// The observer (absent in version 1 profiles: the default).
+    #[serde(default)]
+    pub observer: Observer,
 }
 
 /// Errors of loading, saving and running a calibration.
@@ -173,6 +256,7 @@ impl PupilCalibration {
             schema: SCHEMA.to_owned(),
             description: None,
             eyes: EyeCalibrations::default(),
+            observer: Observer::default(),
         }
     }
 
@@ -203,30 +287,35 @@ impl PupilCalibration {
     }
 
     /// The sample's diameter in mm: through this eye's map if it has one for
-    /// the sample's unit; else the tracker's own mm (`diameter_mm`, or a raw
-    /// value in mm); else `None` (uncalibrated raw units). The value is not
-    /// range-checked here.
+    /// the sample's unit (a raw value that is not finite or ≤ 0 is an
+    /// error, the result is clamped to the map's range); else the tracker's
+    /// own mm (`diameter_mm`, or a raw value in mm), not range-checked
+    /// here; else `Ok(None)` (uncalibrated raw units).
     #[inline]
-    pub fn to_mm(&self, p: &PupilSample) -> Option<f32> {
+    pub fn to_mm(&self, p: &PupilSample) -> Result<Option<f32>, BadRawPupil> {
         if let Some(c) = self.eye(p.eye)
             && c.raw_unit == p.unit
         {
-            return Some(c.map(Self::raw_value(p)) as f32);
+            if !p.diameter_raw.is_finite() {
+                return Err(BadRawPupil::NotFinite);
+            }
+            return c.map(Self::raw_value(p)).map(|mm| Some(mm as f32));
         }
         if let Some(mm) = p.diameter_mm {
-            return Some(mm);
+            return Ok(Some(mm));
         }
-        (p.unit == PupilUnit::Mm).then_some(p.diameter_raw)
+        Ok((p.unit == PupilUnit::Mm).then_some(p.diameter_raw))
     }
 
     /// Checks the schema and every map; `Err((field, reason))`.
     pub fn validate(&self) -> Result<(), (String, String)> {
-        if self.schema != SCHEMA {
+        if self.schema != SCHEMA && self.schema != SCHEMA_V1 {
             return Err((
                 "schema".into(),
                 format!("must be \"{SCHEMA}\", got \"{}\"", self.schema),
             ));
         }
+        self.observer.validate("observer.")?;
         if let Some(c) = &self.eyes.right {
             c.validate("eyes.right")?;
         }
@@ -266,6 +355,14 @@ impl PupilCalibration {
         };
         match root.get("schema").and_then(|v| v.as_str()) {
             Some(SCHEMA) => {}
+            Some(SCHEMA_V1) => {
+                if root.contains_key("observer") {
+                    return Err(invalid(
+                        "observer".into(),
+                        format!("is not part of \"{SCHEMA_V1}\"; use \"{SCHEMA}\""),
+                    ));
+                }
+            }
             Some(other) => {
                 return Err(invalid(
                     "schema".into(),
@@ -311,12 +408,33 @@ impl PupilCalibration {
                 }
             }
         }
-        let cal: Self = serde_json::from_value(value).map_err(|e| CalibrationError::Json {
+        if let Some(obs) = root.get("observer") {
+            let Some(obs) = obs.as_object() else {
+                return Err(invalid("observer".into(), "must be an object".into()));
+            };
+            for (key, v) in obs {
+                if key != "age_years" && key != "pigmentation" {
+                    return Err(invalid(
+                        format!("observer.{key}"),
+                        "unknown field (age_years|pigmentation)".into(),
+                    ));
+                }
+                if !v.is_number() {
+                    return Err(invalid(
+                        format!("observer.{key}"),
+                        "must be a number".into(),
+                    ));
+                }
+            }
+        }
+        let mut cal: Self = serde_json::from_value(value).map_err(|e| CalibrationError::Json {
             path: path.to_owned(),
             reason: e.to_string(),
         })?;
         cal.validate()
             .map_err(|(field, reason)| invalid(field, reason))?;
+        // A version 1 profile is read as version 2 with the default observer.
+        cal.schema = SCHEMA.to_owned();
         Ok(cal)
     }
 
@@ -745,6 +863,7 @@ impl CalibrationSession {
         Ok(PupilCalibration {
             schema: SCHEMA.to_owned(),
             description: None,
+            observer: Observer::default(),
             eyes: EyeCalibrations {
                 right: maps[0],
                 left: maps[1],

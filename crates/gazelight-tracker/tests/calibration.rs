@@ -53,14 +53,14 @@ fn synthetic_px_session_gives_the_expected_mapping() {
         assert_eq!(c.raw_unit, PupilUnit::Px);
         assert_eq!((c.mm_min, c.mm_max), (2.0, 8.0));
         // The map: black → 8, white → 2, midpoint → 5.
-        assert!((c.map(c.raw_black) - 8.0).abs() < 1e-9);
-        assert!((c.map(0.5 * (c.raw_black + c.raw_white)) - 5.0).abs() < 1e-9);
+        assert!((c.map(c.raw_black).unwrap() - 8.0).abs() < 1e-9);
+        assert!((c.map(0.5 * (c.raw_black + c.raw_white)).unwrap() - 5.0).abs() < 1e-9);
     }
     // Saved, and loads back identical.
     let back = PupilCalibration::load(&path).unwrap();
     assert_eq!(back, cal);
     let text = std::fs::read_to_string(&path).unwrap();
-    assert!(text.contains("\"schema\": \"gazelight.pupil-calibration/1\""));
+    assert!(text.contains("\"schema\": \"gazelight.pupil-calibration/2\""));
 }
 
 #[test]
@@ -351,4 +351,140 @@ fn summary_reports_each_phase_and_eye() {
         };
         assert_eq!(s.raw_median, expected, "summary median = profile value");
     }
+}
+
+fn px_map() -> gazelight_tracker::calibration::EyeCalibration {
+    gazelight_tracker::calibration::EyeCalibration {
+        raw_unit: PupilUnit::Px,
+        raw_black: 60.0,
+        raw_white: 20.0,
+        mm_min: 2.0,
+        mm_max: 8.0,
+    }
+}
+
+#[test]
+fn the_map_clamps_to_the_calibrated_range() {
+    use gazelight_tracker::calibration::EyeCalibration;
+    let c = px_map();
+    // Inside the phases' pupils the line itself (001 §5):
+    // 8 + (40 − 60)·(2 − 8)/(20 − 60) = 5 mm.
+    assert!((c.map(40.0).unwrap() - 5.0).abs() < 1e-12);
+    // Beyond them it is not extrapolated: a raw 100 px would be 14 mm,
+    // a raw 5 px −0.25 mm.
+    assert_eq!(c.map(100.0).unwrap(), 8.0);
+    assert_eq!(c.map(5.0).unwrap(), 2.0);
+    // The profile's own range, not 2–8 mm, when it configures another.
+    let narrow = EyeCalibration {
+        mm_min: 3.0,
+        mm_max: 7.0,
+        ..c
+    };
+    assert_eq!(narrow.map(1000.0).unwrap(), 7.0);
+    assert_eq!(narrow.map(1.0).unwrap(), 3.0);
+}
+
+#[test]
+fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
+    use gazelight_tracker::DetectorMethod;
+    use gazelight_tracker::calibration::{BadRawPupil, EyeCalibrations};
+    let c = px_map();
+    assert_eq!(c.map(0.0), Err(BadRawPupil::NonPositive));
+    assert_eq!(c.map(-3.0), Err(BadRawPupil::NonPositive));
+    assert_eq!(c.map(f64::NAN), Err(BadRawPupil::NotFinite));
+    assert_eq!(c.map(f64::INFINITY), Err(BadRawPupil::NotFinite));
+    // Unclamped, raw 0 would have mapped to 8 + 60·6/40 = 17 mm, then
+    // clamped to a plausible 8 mm: a blink would read as a wide pupil.
+    let mut cal = PupilCalibration::identity();
+    cal.eyes = EyeCalibrations {
+        right: Some(c),
+        left: None,
+    };
+    let sample = |raw: f32| gazelight_tracker::PupilSample {
+        t_secs: 1.0,
+        eye: 0,
+        diameter_raw: raw,
+        unit: PupilUnit::Px,
+        diameter_mm: None,
+        confidence: 1.0,
+        norm_pos: [0.5, 0.5],
+        method: DetectorMethod::Pupil2d,
+    };
+    assert_eq!(cal.to_mm(&sample(0.0)), Err(BadRawPupil::NonPositive));
+    assert_eq!(cal.to_mm(&sample(-1.0)), Err(BadRawPupil::NonPositive));
+    assert_eq!(cal.to_mm(&sample(f32::NAN)), Err(BadRawPupil::NotFinite));
+    assert_eq!(cal.to_mm(&sample(40.0)), Ok(Some(5.0)));
+    assert_eq!(cal.to_mm(&sample(1e6)), Ok(Some(8.0)));
+    // Area units: √area of a negative area is not a pupil either.
+    let mut area = sample(-4.0);
+    area.unit = PupilUnit::ArbitraryArea;
+    cal.eyes.right = Some(gazelight_tracker::calibration::EyeCalibration {
+        raw_unit: PupilUnit::ArbitraryArea,
+        ..c
+    });
+    assert!(cal.to_mm(&area).is_err());
+}
+
+#[test]
+fn profiles_carry_the_observer_and_version_1_still_loads() {
+    use gazelight_tracker::calibration::{Observer, SCHEMA};
+    let eyes = r#""eyes": {"right": {"raw_unit": "px", "raw_black": 60, "raw_white": 20, "mm_min": 2, "mm_max": 8}}"#;
+    let path = std::path::Path::new("profile.json");
+    // Version 1: no observer → CIE 146 defaults 25 years, 0.5.
+    let v1 = format!(r#"{{"schema": "gazelight.pupil-calibration/1", {eyes}}}"#);
+    let cal = PupilCalibration::parse(&v1, path).unwrap();
+    assert_eq!(cal.observer.age_years, 25.0);
+    assert_eq!(cal.observer.pigmentation, 0.5);
+    assert_eq!(cal.schema, SCHEMA);
+    // Version 2 with an observer.
+    let v2 = format!(
+        r#"{{"schema": "gazelight.pupil-calibration/2", "observer": {{"age_years": 70, "pigmentation": 1.0}}, {eyes}}}"#
+    );
+    let cal = PupilCalibration::parse(&v2, path).unwrap();
+    assert_eq!(
+        cal.observer,
+        Observer {
+            age_years: 70.0,
+            pigmentation: 1.0
+        }
+    );
+    // Round trip through save/load.
+    let file = tmp("observer");
+    cal.save(&file).unwrap();
+    let back = PupilCalibration::load(&file).unwrap();
+    assert_eq!(back, cal);
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.contains("\"gazelight.pupil-calibration/2\""), "{text}");
+    // Partial observer: the other field defaults.
+    let partial = format!(
+        r#"{{"schema": "gazelight.pupil-calibration/2", "observer": {{"age_years": 40}}, {eyes}}}"#
+    );
+    let cal = PupilCalibration::parse(&partial, path).unwrap();
+    assert_eq!(
+        (cal.observer.age_years, cal.observer.pigmentation),
+        (40.0, 0.5)
+    );
+    // Errors name the field.
+    for (observer, field) in [
+        (r#"{"pigmentation": 1.5}"#, "observer.pigmentation"),
+        (r#"{"age_years": -3}"#, "observer.age_years"),
+        (r#"{"age_years": "old"}"#, "observer.age_years"),
+        (r#"{"iris": 1}"#, "observer.iris"),
+        (r#"[]"#, "observer"),
+    ] {
+        let text = format!(
+            r#"{{"schema": "gazelight.pupil-calibration/2", "observer": {observer}, {eyes}}}"#
+        );
+        let err = PupilCalibration::parse(&text, path)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(&format!("`{field}`")), "{observer}: {err}");
+    }
+    let v1_with_observer = format!(
+        r#"{{"schema": "gazelight.pupil-calibration/1", "observer": {{"age_years": 30}}, {eyes}}}"#
+    );
+    let err = PupilCalibration::parse(&v1_with_observer, path)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("`observer`"), "{err}");
 }

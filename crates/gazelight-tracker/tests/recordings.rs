@@ -144,6 +144,7 @@ fn eyelink_blinks_match_sblink_eblink_per_eye() {
     let cal = PupilCalibration {
         schema: SCHEMA.into(),
         description: Some("percentile calibration of the PSA recording".into()),
+        observer: Default::default(),
         eyes: EyeCalibrations {
             right: maps[0],
             left: maps[1],

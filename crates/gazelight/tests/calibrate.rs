@@ -79,7 +79,7 @@ fn remote_stimulus_calibration_against_the_peer() {
     // resting pupil → 2.5×) up to the first-order settling in 0.8 s.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&profile).expect("profile")).expect("json");
-    assert_eq!(json["schema"], "gazelight.pupil-calibration/1");
+    assert_eq!(json["schema"], "gazelight.pupil-calibration/2");
     for eye in ["right", "left"] {
         let e = &json["eyes"][eye];
         let black = e["raw_black"].as_f64().expect("raw_black");

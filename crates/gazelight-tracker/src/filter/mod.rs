@@ -39,7 +39,7 @@ pub mod physio;
 
 use serde::{Deserialize, Serialize};
 
-use crate::calibration::PupilCalibration;
+use crate::calibration::{BadRawPupil, PupilCalibration};
 use crate::pupil_model::PupilModel;
 use crate::sample::{PupilSample, Sample};
 use crate::state::{EyeState, PupilOrigin};
@@ -331,11 +331,19 @@ impl FilterChain {
             None
         } else {
             match self.calibration.to_mm(p) {
-                None => {
+                Err(bad) => {
+                    let c = match bad {
+                        BadRawPupil::NotFinite => &mut self.stats.rejected_not_finite,
+                        BadRawPupil::NonPositive => &mut self.stats.rejected_non_positive,
+                    };
+                    c[e] += 1;
+                    None
+                }
+                Ok(None) => {
                     self.stats.uncalibrated[e] += 1;
                     None
                 }
-                Some(mm) => match self.physio[e].check(t, mm) {
+                Ok(Some(mm)) => match self.physio[e].check(t, mm) {
                     Ok(mm) => Some(mm),
                     Err(r) => {
                         let c = match r {
