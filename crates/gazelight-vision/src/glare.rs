@@ -25,7 +25,7 @@
 //! * **fine** `K_f = (1 − g)·K`, at full resolution, radius `r_fine`: the
 //!   Airy core, the steep CIE 10/θ³ part and the near field;
 //! * **coarse** `K_c`: `g·K` summed over blocks of `b × b` display pixels
-//!   (`b` odd, ≈ [`COARSE_PX_DEG`] = 0.4°), the smooth wide field out to the
+//!   (`b` the smallest odd size ≥ [`COARSE_PX_DEG`] = 0.4°), the smooth wide field out to the
 //!   kernel's edge.
 //!
 //! `Σ K_f + Σ K_c = Σ K` exactly. The fine part convolves the weighted frame
@@ -64,7 +64,8 @@ use crate::{RgbImage, VisionError};
 
 /// Radius of the full-resolution part of the kernel, degrees.
 pub const FINE_RADIUS_DEG: f64 = 2.0;
-/// Target size of one coarse block of the wide field, degrees.
+/// Smallest size of one coarse block of the wide field, degrees (the block
+/// is the smallest odd number of pixels at least this wide).
 pub const COARSE_PX_DEG: f64 = 0.4;
 /// Largest FFT window, samples per side.
 const MAX_WINDOW: usize = 4096;
@@ -239,6 +240,9 @@ pub struct GlareConvolver {
     coarse: Plane,
     /// Source weight over the fine window, W_f².
     weight: Vec<f32>,
+    /// The coarse result interpolated along x to display columns, `/ b²`:
+    /// `(W_c + 2) × (W_c · b)`, a zero row above and below.
+    hrows: Vec<[f32; 3]>,
 }
 
 impl GlareConvolver {
@@ -261,7 +265,9 @@ impl GlareConvolver {
         let ppd = 1.0 / dpp;
         let r_kernel = kernel.size / 2;
         let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
-        let half_b = ((COARSE_PX_DEG * ppd / 2.0).floor() as usize).max(0);
+        // The smallest odd block of at least COARSE_PX_DEG (0.4–0.6° above
+        // 5 ppd).
+        let half_b = (((COARSE_PX_DEG * ppd - 1.0) / 2.0).ceil().max(0.0)) as usize;
         let block = 2 * half_b + 1;
         let r_coarse = (r_kernel + half_b).div_ceil(block);
         let d_full = window.full_weight_deg * ppd;
@@ -289,6 +295,7 @@ impl GlareConvolver {
             fine: Plane::new(wf),
             coarse: Plane::new(wc),
             weight: vec![0.0; wf * wf],
+            hrows: vec![[0.0; 3]; (wc + 2) * wc * block],
         };
         conv.set_kernel(kernel)?;
         Ok(conv)
@@ -485,6 +492,7 @@ impl GlareConvolver {
 
         // Blend: out = (1 − w) img + fine + bilinear(coarse / b²).
         let inv_b2 = 1.0 / (b * b) as f32;
+        let bf = b as f32;
         let cw = wc as i64;
         // Output region: the coarse window ∩ image (it contains the fine one).
         let x0 = ocx.max(0);
@@ -495,57 +503,73 @@ impl GlareConvolver {
             return;
         }
         let width = img.width;
-        let (fine, coarse) = (&self.fine, &self.coarse);
+        // Bilinear, separable: the coarse rows interpolated along x once.
+        let span = wc * self.block;
+        let (cx0, cx1) = ((x0 - ocx) as usize, (x1 - ocx) as usize);
+        let coarse = &self.coarse;
+        self.hrows[..span].fill([0.0; 3]);
+        self.hrows[(wc + 1) * span..].fill([0.0; 3]);
+        self.hrows[span..(wc + 1) * span]
+            .par_chunks_mut(span)
+            .enumerate()
+            .for_each(|(j, hrow)| {
+                let at = |i: i64| -> [f32; 3] {
+                    if i < 0 || i >= cw {
+                        return [0.0; 3];
+                    }
+                    let idx = j * wc + i as usize;
+                    let rg = coarse.rg[idx];
+                    [rg.re, rg.im, coarse.b[idx].re]
+                };
+                for (xl, h) in hrow.iter_mut().enumerate().take(cx1).skip(cx0) {
+                    let u = (xl as f32 + 0.5) / bf - 0.5;
+                    let i0f = u.floor();
+                    let fx = u - i0f;
+                    let i0 = i0f as i64;
+                    let (a, c) = (at(i0), at(i0 + 1));
+                    for ch in 0..3 {
+                        h[ch] = (a[ch] * (1.0 - fx) + c[ch] * fx) * inv_b2;
+                    }
+                }
+            });
+        let fine = &self.fine;
         let weight = &self.weight;
-        let bf = b as f32;
+        let hrows = &self.hrows;
         img.pixels[y0 as usize * width..y1 as usize * width]
             .par_chunks_mut(width)
             .enumerate()
             .for_each(|(k, row)| {
                 let y = y0 + k as i64;
-                // Coarse rows around this display row.
                 let v = ((y - ocy) as f32 + 0.5) / bf - 0.5;
-                let j0 = v.floor();
-                let fy = v - j0;
-                let j0 = j0 as i64;
-                let coarse_at = |j: i64, i: i64| -> [f32; 3] {
-                    if j < 0 || i < 0 || j >= cw || i >= cw {
-                        return [0.0; 3];
-                    }
-                    let idx = (j * cw + i) as usize;
-                    let rg = coarse.rg[idx];
-                    [rg.re, rg.im, coarse.b[idx].re]
-                };
+                let j0f = v.floor();
+                let fy = v - j0f;
+                // hrows row j + 1 holds coarse row j; j0 ≥ −1.
+                let j0 = (j0f as i64 + 1).clamp(0, cw) as usize;
+                let lo = &hrows[j0 * span..(j0 + 1) * span];
+                let hi = &hrows[(j0 + 1) * span..(j0 + 2) * span];
                 let fj = y - ofy;
-                let in_fine_row = fj >= 0 && fj < wf as i64;
-                for x in x0..x1 {
-                    let u = ((x - ocx) as f32 + 0.5) / bf - 0.5;
-                    let i0f = u.floor();
-                    let fx = u - i0f;
-                    let i0 = i0f as i64;
-                    let a = coarse_at(j0, i0);
-                    let bb = coarse_at(j0, i0 + 1);
-                    let c = coarse_at(j0 + 1, i0);
-                    let d = coarse_at(j0 + 1, i0 + 1);
-                    let p = &mut row[x as usize];
-                    let mut add = [0.0f32; 3];
-                    for ch in 0..3 {
-                        add[ch] = ((a[ch] * (1.0 - fx) + bb[ch] * fx) * (1.0 - fy)
-                            + (c[ch] * (1.0 - fx) + d[ch] * fx) * fy)
-                            * inv_b2;
-                    }
-                    let fi = x - ofx;
-                    if in_fine_row && fi >= 0 && fi < wf as i64 {
-                        let idx = fj as usize * wf + fi as usize;
+                let row = &mut row[x0 as usize..x1 as usize];
+                if fj >= 0 && fj < wf as i64 {
+                    // The fine window's columns inside the image:
+                    // (1 − w)·img + fine.
+                    let fx0 = (x0 - ofx).max(0);
+                    let fx1 = (x1 - ofx).min(wf as i64);
+                    let base = fj as usize * wf;
+                    for fi in fx0..fx1 {
+                        let idx = base + fi as usize;
                         let keep = 1.0 - weight[idx];
                         let rg = fine.rg[idx];
-                        p[0] = p[0] * keep + rg.re + add[0];
-                        p[1] = p[1] * keep + rg.im + add[1];
-                        p[2] = p[2] * keep + fine.b[idx].re + add[2];
-                    } else {
-                        p[0] += add[0];
-                        p[1] += add[1];
-                        p[2] += add[2];
+                        let p = &mut row[(ofx + fi - x0) as usize];
+                        p[0] = p[0] * keep + rg.re;
+                        p[1] = p[1] * keep + rg.im;
+                        p[2] = p[2] * keep + fine.b[idx].re;
+                    }
+                }
+                // + the coarse wide field.
+                let (lo, hi) = (&lo[cx0..cx1], &hi[cx0..cx1]);
+                for ((p, a), c) in row.iter_mut().zip(lo).zip(hi) {
+                    for ch in 0..3 {
+                        p[ch] += a[ch] * (1.0 - fy) + c[ch] * fy;
                     }
                 }
             });
@@ -718,11 +742,16 @@ mod tests {
         conv.apply(&mut img, [cx as f64 + 0.5, cy as f64 + 0.5]);
         // The fine core (g = 0 inside r_fine/2, away from the coarse spread)
         // is exactly the kernel.
-        let exact = (conv.fine_radius_px() / 2).saturating_sub(2 * conv.block_px()) as isize;
-        assert!(exact >= 2, "test needs an exact core: {exact}");
+        // Coarse blocks start ≈ r_fine/2 − b/√2 out and spread one block in.
+        let exact = conv.fine_radius_px() as f64 / 2.0 - 1.5 * conv.block_px() as f64 - 1.0;
+        assert!(exact >= 1.0, "test needs an exact core: {exact}");
+        let e = exact.floor() as isize;
         let mut max_err = 0.0f32;
-        for dy in -exact..=exact {
-            for dx in -exact..=exact {
+        for dy in -e..=e {
+            for dx in -e..=e {
+                if ((dx * dx + dy * dy) as f64).sqrt() > exact {
+                    continue;
+                }
                 let want = k.at(dx, dy);
                 let got = img.get((cx as isize + dx) as usize, (cy as isize + dy) as usize);
                 for ch in 0..3 {
