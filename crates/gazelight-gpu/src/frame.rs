@@ -1454,6 +1454,78 @@ mod tests {
     }
 
     #[test]
+    fn gpu_veil_around_a_lamp_follows_cie_146() {
+        let Some(ctx) = test_context("gpu_veil_around_a_lamp_follows_cie_146") else {
+            return;
+        };
+        // A 2·10⁴ cd/m² lamp of 0.3° radius in a black scene, the gaze on
+        // it, 6 ppd over 160×160 (26.7°). The veil in the GPU's retinal image
+        // at θ from the lamp must follow CIE 146:2002's General Disability
+        // Glare equation, L_veil = E_glare · (10/θ³ + (5/θ² + 0.1 p/θ)(1 +
+        // (A/62.5)⁴) + 0.0025 p) (θ in degrees, sr⁻¹), E_glare = L_lamp × the
+        // lamp's solid angle, within a factor 2 from 1.5° to 12°.
+        let (w, h, ppd) = (160usize, 160usize, 6.0f64);
+        let dpp = 1.0 / ppd;
+        let lamp_cd_m2 = 2e4f32;
+        let c = 80.0f64;
+        let mut img = RgbImage::new(w, h);
+        let mut lamp_px = 0usize;
+        for y in 0..h {
+            for x in 0..w {
+                let d_deg = (x as f64 + 0.5 - c).hypot(y as f64 + 0.5 - c) * dpp;
+                if d_deg <= 0.3 {
+                    img.pixels[y * w + x] = [lamp_cd_m2; 3];
+                    lamp_px += 1;
+                }
+            }
+        }
+        let config = PipelineConfig {
+            acuity: AcuityModel::None,
+            ..PipelineConfig::default()
+        };
+        let (age, p) = (config.glare.psf.age_years, config.glare.psf.pigmentation);
+        let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+        let input = FrameInput {
+            gaze_uv: [0.5, 0.5],
+            pupil_mm: 4.0,
+            dt_secs: 1.0 / 90.0,
+        };
+        gpu.process(&img, &input).unwrap();
+        let mut retinal = RgbImage::new(w, h);
+        gpu.read_retinal(&mut retinal).unwrap();
+        let omega_px = dpp.to_radians().powi(2);
+        let e_glare = f64::from(lamp_cd_m2) * lamp_px as f64 * omega_px;
+        // CIE 146:2002 General Disability Glare equation
+        let cie = |t: f64| {
+            10.0 / t.powi(3)
+                + (5.0 / (t * t) + 0.1 * p / t) * (1.0 + (age / 62.5).powi(4))
+                + 0.0025 * p
+        };
+        for theta in [1.5, 2.0, 3.0, 5.0, 8.0, 12.0] {
+            // Mean luminance of the pixels within ±0.25° of θ.
+            let (mut sum, mut n) = (0.0f64, 0usize);
+            for y in 0..h {
+                for x in 0..w {
+                    let d = (x as f64 + 0.5 - c).hypot(y as f64 + 0.5 - c) * dpp;
+                    if (d - theta).abs() <= 0.25 {
+                        sum += f64::from(gazelight_vision::image::luminance(
+                            retinal.pixels[y * w + x],
+                        ));
+                        n += 1;
+                    }
+                }
+            }
+            let veil = sum / n as f64;
+            let want = e_glare * cie(theta);
+            let ratio = veil / want;
+            println!(
+                "θ {theta}°: veil {veil:.4e} cd/m², CIE 146 {want:.4e} cd/m², ratio {ratio:.3}"
+            );
+            assert!((0.5..=2.0).contains(&ratio), "θ {theta}°: ratio {ratio}");
+        }
+    }
+
+    #[test]
     fn whole_frame_matches_the_cpu_within_one_code() {
         let Some(ctx) = test_context("whole_frame_matches_the_cpu_within_one_code") else {
             return;
