@@ -14,6 +14,7 @@ mod demo;
 mod devices;
 mod hub;
 mod inspect;
+mod observer;
 mod output;
 mod psf_cmd;
 mod record_cmd;

@@ -73,6 +73,8 @@ pub struct RenderArgs {
     /// and named in the summary.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
     pub backend: BackendChoice,
+    #[command(flatten)]
+    pub observer: crate::observer::ObserverArgs,
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
@@ -86,10 +88,11 @@ pub(crate) struct Setup {
 
 /// Loads the configuration and scene and renders the panorama view.
 pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
-    let config = match &args.config {
+    let mut config = match &args.config {
         Some(p) => RenderConfig::load(p)?,
         None => RenderConfig::default(),
     };
+    crate::observer::apply(&mut config.pipeline.glare.psf, &args.observer, None, None)?;
     crate::bounds::fps("--fps", args.fps)?;
 
     // Scene.

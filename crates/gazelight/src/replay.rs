@@ -99,7 +99,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     );
 
     // Pass 2: render, feeding the samples just ahead of the frame clock.
-    let setup = render::prepare(&args.render)?;
+    let mut setup = render::prepare(&args.render)?;
+    // The profile's observer where no flag names one.
+    crate::observer::apply(
+        &mut setup.config.pipeline.glare.psf,
+        &args.render.observer,
+        None,
+        calibration.as_ref().map(|c| &c.observer),
+    )?;
     let importer = import::open(&args.recording)?;
     let mut feeder = SampleFeeder::new(importer);
     if let Some(c) = calibration {

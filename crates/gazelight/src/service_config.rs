@@ -117,6 +117,8 @@ pub struct ServiceConfig {
     pub relay: EndpointSettings,
     /// Lab Streaming Layer: outlets, discovery scope, inlet mapping.
     pub lsl: gazelight_tracker::lsl::LslConfig,
+    /// The observer (CIE 146 age and pigmentation of the glare kernel).
+    pub observer: crate::observer::ObserverSettings,
 }
 
 /// Largest display rate accepted, Hz.
@@ -255,6 +257,7 @@ impl ServiceConfig {
         self.pipeline
             .validate()
             .map_err(|e| format!("pipeline: {e}"))?;
+        self.observer.validate()?;
         self.filter.validate().map_err(|e| format!("filter.{e}"))?;
         for (name, ep) in [("http", &self.http), ("relay", &self.relay)] {
             if let Some(a) = &ep.addr {
@@ -315,5 +318,18 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("scene.head"), "{e}");
+        let e = load_str("[observer]\nage_years = 300.0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("observer.age_years"), "{e}");
+        let e = load_str("[observer]\npigmentation = -0.1\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("observer.pigmentation"), "{e}");
+        let e = load_str("[observer]\niris = 1\n").unwrap_err().to_string();
+        assert!(e.contains("iris"), "{e}");
+        let c = load_str("[observer]\nage_years = 70\npigmentation = 1.0\n").unwrap();
+        assert_eq!(c.observer.age_years, Some(70.0));
+        assert_eq!(c.observer.pigmentation, Some(1.0));
     }
 }

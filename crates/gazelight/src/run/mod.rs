@@ -105,6 +105,8 @@ pub struct RunArgs {
     /// tracker's raw pupil units onto millimetres.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    #[command(flatten)]
+    pub observer: crate::observer::ObserverArgs,
     /// Use the mouse as gaze (development without a tracker; needs a
     /// window).
     #[arg(long)]
@@ -276,6 +278,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             .with_context(|| format!("calibration profile {}", p.display()))?,
         None => PupilCalibration::identity(),
     };
+    // The observer: flags, else [observer], else the profile's.
+    let observed = {
+        let mut c = cfg.clone();
+        crate::observer::apply(
+            &mut c.pipeline.glare.psf,
+            &args.observer,
+            Some(&cfg.observer),
+            r.calibration.as_ref().map(|_| &calibration.observer),
+        )?;
+        c
+    };
+    let cfg = &observed;
     let chain = FilterChain::new(cfg.filter, calibration)
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
 
