@@ -314,7 +314,21 @@ fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, String> {
     decoder
         .read_image(&mut buf)
         .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
-    let k = corr.map(|c| (RADIANCE_EFFICACY_LM_PER_W / (exposure * c)) as f32);
+    let k64 = corr.map(|c| RADIANCE_EFFICACY_LM_PER_W / (exposure * c));
+    let brightest = buf
+        .chunks_exact(4)
+        .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
+        .filter(|v| v.is_finite())
+        .fold(0.0f32, f32::max);
+    let k_max = k64.iter().copied().fold(0.0, f64::max);
+    if f64::from(brightest) * k_max > f64::from(f32::MAX) {
+        return Err(format!(
+            "Radiance HDR values overflow single precision in cd/m²: the brightest, \
+             {brightest:e} W/sr/m², is {:e} cd/m² after Radiance's 179 lm/W / EXPOSURE",
+            f64::from(brightest) * k_max
+        ));
+    }
+    let k = k64.map(|k| k as f32);
     let pixels = buf
         .chunks_exact(12)
         .map(|p| {

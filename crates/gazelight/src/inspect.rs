@@ -48,9 +48,22 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         ))?
     } else {
         let mut importer = import::open(&args.path)?;
-        summarize_importer(importer.as_mut(), FilterChain::with_defaults())
-            .with_context(|| format!("while reading {}", args.path.display()))?
+        let summary = summarize_importer(importer.as_mut(), FilterChain::with_defaults())
+            .with_context(|| format!("while reading {}", args.path.display()))?;
+        let c = &summary.samples;
+        if c.pupil == [0, 0] && c.gaze == 0 && c.blink_events == 0 {
+            return Err(crate::input_report::no_samples(
+                &args.path,
+                importer.warnings(),
+            ));
+        }
+        summary
     };
+    let mut summary = summary;
+    if let Some(warning) = crate::input_report::pupil_rejection(&summary.chain) {
+        eprintln!("warning: {}: {warning}", args.path.display());
+        summary.warnings.push(warning);
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {

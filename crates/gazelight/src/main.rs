@@ -13,6 +13,7 @@ mod config;
 mod demo;
 mod devices;
 mod hub;
+mod input_report;
 mod inspect;
 mod observer;
 mod output;

@@ -20,6 +20,7 @@ use gazelight_tracker::import::{self, Importer};
 use gazelight_tracker::{PupilUnit, Sample};
 use gazelight_vision::pipeline::FrameInput;
 
+use crate::input_report;
 use crate::render::{self, EyeFeed, RenderArgs};
 
 /// Arguments of `gazelight replay`.
@@ -63,13 +64,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     };
 
     // Pass 1: the time range (streamed).
-    let range = scan(&args.recording)?;
-    let Some((t_first, t_last, pupil_units)) = range else {
-        bail!(
-            "{}: the recording holds no readable samples",
-            args.recording.display()
-        );
-    };
+    let Scan {
+        t_first,
+        t_last,
+        pupil_units,
+    } = scan(&args.recording, args.secs.is_some())?;
     if calibration.is_none() && pupil_units.iter().any(|u| *u != PupilUnit::Mm) {
         tracing::warn!(
             recording = %args.recording.display(),
@@ -116,21 +115,45 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let w = feeder.importer.warnings();
     if w.skipped_records > 0 {
         println!(
-            "{}: skipped {} malformed records (see the log)",
+            "{}: skipped {} malformed records (see the log); the first: {}",
             args.recording.display(),
-            w.skipped_records
+            w.skipped_records,
+            w.messages.first().map_or("-", String::as_str)
         );
+    }
+    if let Some(warning) = input_report::pupil_rejection(feeder.chain.stats()) {
+        tracing::warn!(recording = %args.recording.display(), "{warning}");
+        eprintln!("warning: {}: {warning}", args.recording.display());
     }
     Ok(())
 }
 
-/// Reads the recording once for its time range and pupil units.
-fn scan(path: &std::path::Path) -> anyhow::Result<Option<(f64, f64, Vec<PupilUnit>)>> {
-    let importer = import::open(path)?;
+/// What the first pass found.
+struct Scan {
+    t_first: f64,
+    t_last: f64,
+    pupil_units: Vec<PupilUnit>,
+}
+
+/// Reads the recording once for its time range and pupil units. Fails
+/// naming the cause when nothing is readable, when the importer refuses
+/// the file, and (unless `part` — the user chose a part with `--secs`) when
+/// the samples cover a sliver of the time range they claim.
+fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
+    let mut importer = import::open(path)?;
     let mut range: Option<(f64, f64)> = None;
     let mut units: Vec<PupilUnit> = Vec::new();
-    for item in importer {
-        let Ok(sample) = item else { continue };
+    for item in importer.by_ref() {
+        let sample = match item {
+            Ok(s) => s,
+            Err(e) if range.is_none() => {
+                return Err(anyhow::anyhow!(
+                    "{}: the recording holds no readable samples: {e}",
+                    path.display()
+                ));
+            }
+            Err(e) => return Err(anyhow::Error::new(e)),
+        };
         let t = sample.t_secs();
         if !t.is_finite() {
             continue;
@@ -145,7 +168,20 @@ fn scan(path: &std::path::Path) -> anyhow::Result<Option<(f64, f64, Vec<PupilUni
             units.push(p.unit);
         }
     }
-    Ok(range.map(|(a, b)| (a, b, units)))
+    let Some((t_first, t_last)) = range else {
+        return Err(input_report::no_samples(path, importer.warnings()));
+    };
+    if !part
+        && let Some(stats) = importer.time_stats()
+        && let Some(e) = input_report::sliver_span(path, stats)
+    {
+        return Err(e);
+    }
+    Ok(Scan {
+        t_first,
+        t_last,
+        pupil_units: units,
+    })
 }
 
 /// Feeds an importer's samples through the filter chain up to each frame's

@@ -392,6 +392,7 @@ pub struct NeonImporter {
     peek_eye: Option<(f64, [PupilSample; 2])>,
     peek_gaze: Option<GazeSample>,
     peek_blink: Option<BlinkEvent>,
+    duration_secs: Option<f64>,
     pending: Pending<2>,
     warnings: ImportWarnings,
     failed: bool,
@@ -415,6 +416,10 @@ impl NeonImporter {
                 reason: format!("not valid JSON: {e}"),
             })?;
         let start_ns = info.get("start_time").and_then(|v| v.as_u64());
+        // The recording's length, when info.json gives it with its start.
+        let duration_secs = start_ns
+            .and(info.get("duration").and_then(|v| v.as_u64()))
+            .map(|ns| ns as f64 * 1e-9);
 
         let eye_dtype_path = dir.join("eye_state.dtype");
         let eye_dtype = Dtype::load(&eye_dtype_path)?;
@@ -480,6 +485,7 @@ impl NeonImporter {
             peek_eye: None,
             peek_gaze: None,
             peek_blink: None,
+            duration_secs,
             pending: Pending::new(),
             warnings: ImportWarnings::default(),
             failed: false,
@@ -612,6 +618,56 @@ impl NeonImporter {
     }
 }
 
+impl NeonImporter {
+    /// Skips (and counts) peeked records whose time lies outside the
+    /// recording that `info.json` describes (start_time + duration, with
+    /// [`RANGE_SLACK_SECS`] either side): a flipped bit in a `.time` file
+    /// would otherwise hold back its whole stream in the time merge.
+    /// Returns whether anything was skipped.
+    fn drop_out_of_range(&mut self) -> bool {
+        let Some(d) = self.duration_secs else {
+            return false;
+        };
+        let bad = |t: f64| !(t >= -RANGE_SLACK_SECS && t <= d + RANGE_SLACK_SECS);
+        let why = |t: f64| {
+            format!(
+                "timestamp {t:.6e} s is outside the recording (0 to {d:.3} s after \
+                 info.json's start_time)"
+            )
+        };
+        let mut dropped = false;
+        if let Some((t, _)) = self.peek_eye
+            && bad(t)
+        {
+            self.peek_eye = None;
+            let p = self.dir.join("eye_state ps1.time");
+            self.warnings.skip(&p, Position::File, why(t));
+            dropped = true;
+        }
+        if let Some(g) = self.peek_gaze
+            && bad(g.t_secs)
+        {
+            self.peek_gaze = None;
+            let p = self.dir.join("gaze ps1.time");
+            self.warnings.skip(&p, Position::File, why(g.t_secs));
+            dropped = true;
+        }
+        if let Some(b) = self.peek_blink
+            && (bad(b.start_t_secs) || bad(b.end_t_secs))
+        {
+            self.peek_blink = None;
+            let p = self.dir.join("blinks ps1.raw");
+            self.warnings.skip(&p, Position::File, why(b.start_t_secs));
+            dropped = true;
+        }
+        dropped
+    }
+}
+
+/// Slack around info.json's recording span within which record times are
+/// believed, s.
+pub const RANGE_SLACK_SECS: f64 = 1.0;
+
 impl Iterator for NeonImporter {
     type Item = Result<Sample, ImportError>;
 
@@ -622,13 +678,18 @@ impl Iterator for NeonImporter {
         if self.failed {
             return None;
         }
-        let filled = self
-            .fill_eye()
-            .and_then(|_| self.fill_gaze())
-            .and_then(|_| self.fill_blink());
-        if let Err(e) = filled {
-            self.failed = true;
-            return Some(Err(e));
+        loop {
+            let filled = self
+                .fill_eye()
+                .and_then(|_| self.fill_gaze())
+                .and_then(|_| self.fill_blink());
+            if let Err(e) = filled {
+                self.failed = true;
+                return Some(Err(e));
+            }
+            if !self.drop_out_of_range() {
+                break;
+            }
         }
         let te = self.peek_eye.as_ref().map_or(f64::INFINITY, |e| e.0);
         let tg = self.peek_gaze.as_ref().map_or(f64::INFINITY, |g| g.t_secs);

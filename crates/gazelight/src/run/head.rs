@@ -16,7 +16,7 @@ impl HeadTrace {
     /// Loads a CSV with an optional header line; errors name the file and
     /// the line.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = std::fs::read_to_string(path)
+        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES)
             .with_context(|| format!("cannot read head trace {}", path.display()))?;
         Self::parse(&text).map_err(|e| anyhow::anyhow!("head trace {}: {e}", path.display()))
     }
