@@ -202,9 +202,10 @@ fn absurd_luminance_is_refused_or_warned_never_silently_black() {
         &render(&["--scene", huge.to_str().unwrap()]),
         &["huge.hdr", "cd/m²"],
     );
-    // 0.5 · 2^100 ≈ 6.3e29 cd/m²: rendered, with a loud warning.
+    // 0.5 · 2^93 ≈ 5e27 file units (≈ 9e29 cd/m² with Radiance's
+    // 179 lm/W): rendered, with a loud warning.
     let bright = dir.join("bright.hdr");
-    uniform_hdr(&bright, 64, 32, 128, 228);
+    uniform_hdr(&bright, 64, 32, 128, 221);
     let o = render(&["--scene", bright.to_str().unwrap()]);
     let (stdout, stderr) = text(&o);
     assert!(o.status.success(), "{stdout}\n{stderr}");
@@ -213,7 +214,7 @@ fn absurd_luminance_is_refused_or_warned_never_silently_black() {
         "no warning for a 6e29 cd/m² scene: {stderr}"
     );
     // A factor in range that overflows single precision on this scene
-    // (6.3e29 × 1e20 > 3.4e38): refused, naming the scale.
+    // (5e27 × 1e20 > 3.4e38): refused, naming the scale.
     refused(
         &render(&[
             "--scene",
@@ -328,6 +329,9 @@ fn sigterm_and_sighup_during_run_out_leave_complete_files() {
 #[test]
 fn sigterm_during_render_writes_what_was_rendered() {
     let dir = tmp_path("render-TERM");
+    // Glare off, so frames come quickly whatever the kernel build costs.
+    let config = tmp("render-TERM-config").join("render.toml");
+    std::fs::write(&config, "[pipeline]\nglare = { enabled = false }\n").expect("config");
     let child = spawn(&[
         "render",
         "--size",
@@ -335,10 +339,12 @@ fn sigterm_during_render_writes_what_was_rendered() {
         "--frames",
         "100000",
         "--no-frames",
+        "--config",
+        config.to_str().unwrap(),
         "--out",
         dir.to_str().unwrap(),
     ]);
-    std::thread::sleep(Duration::from_millis(3000));
+    std::thread::sleep(Duration::from_millis(4000));
     kill(&child, "TERM");
     let out = wait_bounded(child, Duration::from_secs(15));
     let (stdout, stderr) = text(&out);
