@@ -267,8 +267,11 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
     let b = coarse_at(j0, i0 + 1);
     let c = coarse_at(j0 + 1, i0);
     let d = coarse_at(j0 + 1, i0 + 1);
-    let add = ((a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy)
-        * (1.0 / (bf * bf));
+    // Separable as on the CPU: along x (with 1/b²), then along y.
+    let inv_b2 = 1.0 / (bf * bf);
+    let lo = (a * (1.0 - fx) + b * fx) * inv_b2;
+    let hi = (c * (1.0 - fx) + d * fx) * inv_b2;
+    let add = lo * (1.0 - fy) + hi * fy;
     let f = frame_index(x, y);
     var p = work[f].xyz;
     let fi = x - params.ofx;

@@ -77,7 +77,8 @@ impl GlareGeometry {
         let ppd = 1.0 / deg_per_px;
         let r_kernel = kernel_size / 2;
         let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
-        let half_b = (COARSE_PX_DEG * ppd / 2.0).floor() as usize;
+        // The smallest odd block of at least COARSE_PX_DEG.
+        let half_b = ((COARSE_PX_DEG * ppd - 1.0) / 2.0).ceil().max(0.0) as usize;
         let block = 2 * half_b + 1;
         let r_coarse = (r_kernel + half_b).div_ceil(block);
         let d_full = window.full_weight_deg * ppd;
@@ -276,5 +277,42 @@ impl GlarePass {
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
         &self.layout
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gazelight_vision::glare::GlareConvolver;
+    use gazelight_vision::psf::PsfKernel;
+
+    #[test]
+    fn geometry_is_the_cpu_convolvers_at_every_ppd() {
+        // The ±20° kernel's size at each ppd; values do not matter here.
+        for ppd in [1.5f64, 4.0, 4.9, 6.4, 12.0, 20.0] {
+            let size = 2 * (20.0 * ppd).round() as usize + 1;
+            let kernel = PsfKernel {
+                size,
+                deg_per_px: 1.0 / ppd,
+                pupil_mm: 4.0,
+                wavelengths_nm: vec![575.0],
+                rgb: vec![[0.0; 3]; size * size],
+            };
+            let window = GlareWindow::default();
+            let cpu = GlareConvolver::new(&kernel, window).unwrap();
+            let gpu = GlareGeometry::new(size, 1.0 / ppd, window).unwrap();
+            assert_eq!(gpu.r_fine, cpu.fine_radius_px(), "{ppd} ppd");
+            assert_eq!(gpu.block, cpu.block_px(), "{ppd} ppd");
+            assert_eq!(gpu.r_src, cpu.source_radius_px(), "{ppd} ppd");
+            assert!(gpu.wf >= cpu.fine_window_px() && gpu.wf.is_power_of_two());
+            assert!(gpu.wc >= cpu.coarse_window_blocks() && gpu.wc.is_power_of_two());
+        }
+        // A weight region too wide for the GPU's 2048-sample FFT is an error.
+        let far = GlareWindow {
+            full_weight_deg: 60.0,
+            fade_sigma_deg: 10.0,
+        };
+        let err = GlareGeometry::new(2001, 1.0 / 20.0, far).unwrap_err();
+        assert!(err.to_string().contains("glare.full_weight_deg"), "{err}");
     }
 }
