@@ -283,6 +283,23 @@ impl Renderer {
         }
     }
 
+    /// Copies the last frame's retinal image (linear RGB in cd/m² after
+    /// glare and acuity, before tone mapping) into `out`; read back
+    /// (blocking) on the GPU.
+    pub fn retinal(&mut self, out: &mut RgbImage) -> anyhow::Result<()> {
+        match self {
+            Renderer::Cpu(p, _) => {
+                let img = p.retinal();
+                if out.width != img.width || out.height != img.height {
+                    *out = RgbImage::new(img.width, img.height);
+                }
+                out.pixels.copy_from_slice(&img.pixels);
+                Ok(())
+            }
+            Renderer::Gpu(g, _) => Ok(g.pipeline.read_retinal(out)?),
+        }
+    }
+
     /// The current PSF kernel at display pixels (`None` with glare off). On
     /// the GPU it is read back (blocking) the first time after a rebuild and
     /// cached: call it on rebuilds, not every frame.

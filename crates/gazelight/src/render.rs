@@ -75,6 +75,10 @@ pub struct RenderArgs {
     pub backend: BackendChoice,
     #[command(flatten)]
     pub observer: crate::observer::ObserverArgs,
+    /// Also write each frame's retinal image — linear RGB in cd/m² after
+    /// glare and acuity, before tone mapping — as frames/frame_NNNNN.exr.
+    #[arg(long, conflicts_with = "no_frames")]
+    pub exr: bool,
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
@@ -219,6 +223,7 @@ pub(crate) fn render_sequence(
         view.deg_per_px(),
     )?;
     let mut out = DisplayFrame::new(width, height);
+    let mut retinal = RgbImage::new(if args.exr { width } else { 0 }, height);
     let mut last_adaptation = None;
     let mut timeline = Vec::with_capacity(frames.min(4096));
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
@@ -246,6 +251,12 @@ pub(crate) fn render_sequence(
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
             output::write_png(&path, &out)?;
+        }
+        if args.exr {
+            pipeline.retinal(&mut retinal)?;
+            let path = frames_dir.join(format!("frame_{i:05}.exr"));
+            gazelight_vision::scene::write_exr(&path, &retinal)
+                .with_context(|| format!("cannot write {}", path.display()))?;
         }
         if i % sheet_every == 0 {
             sheet.add(&out, t_secs - t0);
@@ -395,4 +406,105 @@ pub(crate) fn frame_input(state: &EyeState, dt_secs: f32) -> (FrameInput, bool) 
         },
         held,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        render: RenderArgs,
+    }
+
+    /// Renders two frames of a uniform coloured panorama with `--exr`
+    /// (and `--config` when given) and returns each frame's EXR read back.
+    fn render_uniform(dir: &std::path::Path, rgb: [f32; 3], config: Option<&str>) -> Vec<RgbImage> {
+        std::fs::create_dir_all(dir).unwrap();
+        let scene_path = dir.join("uniform.exr");
+        let scene = RgbImage::from_pixels(128, 64, vec![rgb; 128 * 64]).unwrap();
+        gazelight_vision::scene::write_exr(&scene_path, &scene).unwrap();
+        let out = dir.join("out");
+        let mut argv: Vec<String> = [
+            "render",
+            "--scene",
+            scene_path.to_str().unwrap(),
+            "--luminance-scale",
+            "1",
+            "--size",
+            "64x48",
+            "--hfov-deg",
+            "8",
+            "--frames",
+            "2",
+            "--backend",
+            "cpu",
+            "--exr",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .map(String::from)
+        .to_vec();
+        if let Some(text) = config {
+            let path = dir.join("config.toml");
+            std::fs::write(&path, text).unwrap();
+            argv.extend(["--config".to_owned(), path.to_str().unwrap().to_owned()]);
+        }
+        run(Cli::try_parse_from(argv).unwrap().render).unwrap();
+        (0..2)
+            .map(|i| {
+                let frames = out.join("frames");
+                assert!(frames.join(format!("frame_{i:05}.png")).exists());
+                let path = frames.join(format!("frame_{i:05}.exr"));
+                let back = Scene::load(&path, LuminanceScale::CdM2PerUnit { factor: 1.0 }).unwrap();
+                assert_eq!((back.image.width, back.image.height), (64, 48));
+                back.image
+            })
+            .collect()
+    }
+
+    #[test]
+    fn exr_frames_are_the_retinal_image_in_cd_m2() {
+        let dir = std::env::temp_dir().join(format!("gazelight-exr-{}", std::process::id()));
+        let rgb = [6.0f32, 5.0, 4.0];
+        // Glare off: acuity leaves L* ≈ 27 alone (σ = 0 above L* = 1), so
+        // the retinal image is the scene in cd/m², channel by channel.
+        let off = render_uniform(
+            &dir.join("off"),
+            rgb,
+            Some("[pipeline.glare]\nenabled = false\n"),
+        );
+        for img in &off {
+            for p in &img.pixels {
+                for c in 0..3 {
+                    assert!((p[c] / rgb[c] - 1.0).abs() < 1e-3, "{p:?}");
+                }
+            }
+        }
+        // Glare on: energy is moved, not rescaled. The kernel (±20°) is
+        // wider than this 8° frame, so light scattered past the edges is
+        // lost; the frame's mean stays within 15 % of the scene and the
+        // centre brighter than the corners.
+        let on = render_uniform(&dir.join("on"), rgb, None);
+        for (i, img) in on.iter().enumerate() {
+            let n = img.pixels.len() as f64;
+            for c in 0..3 {
+                let mean = img.pixels.iter().map(|p| f64::from(p[c])).sum::<f64>() / n;
+                eprintln!(
+                    "exr frame {i} channel {c}: mean {mean:.4} cd/m² (scene {}), centre {:.4}, corner {:.4}",
+                    rgb[c],
+                    img.get(32, 24)[c],
+                    img.get(0, 0)[c]
+                );
+                assert!((mean / f64::from(rgb[c]) - 1.0).abs() < 0.15, "{c}: {mean}");
+                assert!(img.get(32, 24)[c] > img.get(0, 0)[c]);
+            }
+        }
+        // --exr needs the frames.
+        assert!(Cli::try_parse_from(["render", "--exr", "--no-frames"]).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
