@@ -173,6 +173,27 @@ pub struct Hub {
     latest_frame: Mutex<FrameSnapshot>,
     psf: Mutex<PsfSnapshot>,
     shutdown: watch::Sender<bool>,
+    /// Per-frame figures for the LSL frame outlet (set once when
+    /// `--lsl` is on): a bounded queue, filled without blocking.
+    frame_tap: std::sync::OnceLock<FrameTap>,
+}
+
+/// A frame's figures with the host time it was published at.
+pub type TappedFrame = (f64, FrameStatus);
+
+/// The sending end of the frame tap: `try_send` only (a full queue drops
+/// the frame and counts it).
+#[derive(Debug)]
+pub struct FrameTap {
+    tx: std::sync::mpsc::SyncSender<TappedFrame>,
+    dropped: std::sync::atomic::AtomicU64,
+}
+
+impl FrameTap {
+    /// Frames dropped because the queue was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -197,6 +218,7 @@ impl Hub {
             latest_frame: Mutex::new(FrameSnapshot::default()),
             psf: Mutex::new(PsfSnapshot::default()),
             shutdown,
+            frame_tap: std::sync::OnceLock::new(),
         })
     }
 
@@ -212,6 +234,15 @@ impl Hub {
 
     /// Publishes the newest frame's figures and appends a history point.
     pub fn publish_frame(&self, status: FrameStatus) {
+        if let Some(tap) = self.frame_tap.get()
+            && tap
+                .tx
+                .try_send((gazelight_tracker::pupil::clock::host_now_secs(), status))
+                .is_err()
+        {
+            tap.dropped
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
         *lock(&self.frame) = status;
         lock(&self.history).push(HistoryPoint {
             t_secs: status.t_secs,
@@ -220,6 +251,28 @@ impl Hub {
             eye_state_age_ms: status.eye_state_age_ms,
             frame_ms: status.frame_ms,
         });
+    }
+
+    /// Opens the frame tap (once): every published frame is also queued
+    /// (bounded by `capacity`; a full queue drops and counts). `None` when
+    /// a tap is already open.
+    pub fn open_frame_tap(
+        &self,
+        capacity: usize,
+    ) -> Option<std::sync::mpsc::Receiver<TappedFrame>> {
+        let (tx, rx) = std::sync::mpsc::sync_channel(capacity.max(1));
+        self.frame_tap
+            .set(FrameTap {
+                tx,
+                dropped: std::sync::atomic::AtomicU64::new(0),
+            })
+            .ok()?;
+        Some(rx)
+    }
+
+    /// The frame tap, when open.
+    pub fn frame_tap(&self) -> Option<&FrameTap> {
+        self.frame_tap.get()
     }
 
     /// The newest frame's figures.

@@ -27,9 +27,43 @@ pub struct InspectArgs {
     pub json: bool,
 }
 
+/// `inspect lsl://?name=…`: reads the stream for `--secs` (from its first
+/// sample) with the machine-only LSL configuration (or `LSLAPICFG`).
+fn inspect_lsl(uri: &str, args: &InspectArgs) -> anyhow::Result<()> {
+    if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
+        anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
+    }
+    let query = gazelight_tracker::lsl::LslQuery::parse(uri).map_err(|e| anyhow::anyhow!(e))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+    let (summary, facts) = runtime.block_on(gazelight_tracker::lsl::summarize_lsl(
+        query,
+        gazelight_tracker::lsl::LslConfig::default(),
+        Duration::from_secs_f64(args.secs),
+        FilterChain::with_defaults(),
+    ))?;
+    if args.json {
+        let mut v = serde_json::to_value(&summary)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("lsl_stream".into(), serde_json::to_value(&facts)?);
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("{uri}: {summary}");
+    }
+    Ok(())
+}
+
 /// Runs `gazelight inspect`.
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let uri = args.path.to_string_lossy();
+    if uri.starts_with("lsl://") {
+        return inspect_lsl(&uri, &args);
+    }
     let summary = if uri.starts_with("pupil://") {
         if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
             anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);

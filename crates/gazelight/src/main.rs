@@ -15,6 +15,7 @@ mod devices;
 mod hub;
 mod input_report;
 mod inspect;
+mod lsl_outlets;
 mod observer;
 mod output;
 mod psf_cmd;

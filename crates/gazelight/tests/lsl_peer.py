@@ -97,11 +97,16 @@ def read(args):
     clock_pairs = []
     end = time.monotonic() + args.secs
     quiet_since = None
+    lost = set()
     while time.monotonic() < end:
         got = False
         for n, inlet in inlets.items():
-            while True:
-                s, ts = inlet.pull_sample(timeout=0.0)
+            while n not in lost:
+                try:
+                    s, ts = inlet.pull_sample(timeout=0.0)
+                except pylsl.util.LostError:
+                    lost.add(n)  # the outlet closed (end of the session)
+                    break
                 if s is None:
                     break
                 got = True

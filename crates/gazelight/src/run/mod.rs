@@ -41,7 +41,7 @@ use crate::service_config::{self, HeadSpec, ServiceConfig};
 use crate::window::{self, Content, DisplaySlot, MouseGaze, WindowOptions};
 use frame_loop::{FrameLoop, FrameLoopSetup, MouseControl, RunSummary};
 use head::{Head, HeadTrace};
-use source_task::{DemoContext, open_source};
+use source_task::DemoContext;
 use writer::OutputWriter;
 
 /// The default source: Pupil Capture's Pupil Remote on this machine.
@@ -128,6 +128,11 @@ pub struct RunArgs {
     /// Service configuration (TOML); flags override it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
+    /// Publish the session on the Lab Streaming Layer: gazelight-eye
+    /// (Gaze), gazelight-frame and gazelight-markers (see `[lsl]` in the
+    /// configuration; discovery stays on this machine by default).
+    #[arg(long)]
+    pub lsl: bool,
 }
 
 /// The settings of a run after merging the file and the flags.
@@ -322,13 +327,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         // half-written outputs).
         let signals = crate::shutdown::Signals::new()
             .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
-        let source = open_source(
+        let source = source_task::open_source_with(
             &r.uri,
             chain,
             &DemoContext {
                 view: &view,
                 view_img: &view_img,
             },
+            &cfg.lsl,
         )?;
         let hub = source.hub.clone();
         tracing::info!(
@@ -371,6 +377,24 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 hub.request_shutdown();
                 return Err(e);
             }
+        };
+        // LSL outlets (eye, frame, markers), fed without blocking.
+        let lsl = if args.lsl || cfg.lsl.outlets {
+            match crate::lsl_outlets::LslOutlets::start(
+                &cfg.lsl,
+                hub.clone(),
+                source.age_clock,
+                r.fps,
+                0.0,
+            ) {
+                Ok(o) => Some(o),
+                Err(e) => {
+                    hub.request_shutdown();
+                    return Err(e);
+                }
+            }
+        } else {
+            None
         };
 
         // A signal, --secs and closing the window end the run the same way.
@@ -454,6 +478,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             let stats = h.stats();
             tracing::info!(?stats, "status server stopped");
             let _ = tokio::time::timeout(Duration::from_secs(2), h.join()).await;
+        }
+        if let Some(o) = lsl {
+            o.finish().await;
         }
         let status = hub.source();
         result.map(|s| (s, status))

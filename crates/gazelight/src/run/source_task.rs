@@ -101,10 +101,21 @@ pub struct DemoContext<'a> {
 
 /// Opens the source named by `uri` and starts its task(s). Must be called
 /// inside a tokio runtime. The one place URI schemes are dispatched.
+#[allow(dead_code)] // `run` calls open_source_with (for [lsl]); kept for other callers
 pub fn open_source(
     uri: &str,
     chain: FilterChain,
     demo_ctx: &DemoContext<'_>,
+) -> anyhow::Result<SourceHandle> {
+    open_source_with(uri, chain, demo_ctx, &gazelight_tracker::lsl::LslConfig::default())
+}
+
+/// [`open_source`] with the session's `[lsl]` settings (used by `lsl://`).
+pub fn open_source_with(
+    uri: &str,
+    chain: FilterChain,
+    demo_ctx: &DemoContext<'_>,
+    lsl: &gazelight_tracker::lsl::LslConfig,
 ) -> anyhow::Result<SourceHandle> {
     let adaptation = Arc::new(AdaptationCell::default());
     let (scheme, rest) = uri
@@ -192,9 +203,27 @@ pub fn open_source(
                 describe,
             })
         }
+        // An LSL stream (`lsl://?name=…`, `lsl://?type=…`): its timestamps
+        // are mapped onto the host clock (time correction), so the age is
+        // measured from the sample time.
+        "lsl" => {
+            let query = gazelight_tracker::lsl::LslQuery::parse(uri)
+                .map_err(|e| anyhow::anyhow!("source {e}"))?;
+            let source = gazelight_tracker::lsl::LslSource::new(query, lsl.clone())
+                .with_context(|| format!("source `{uri}`"))?;
+            let describe = source.describe();
+            let (hub, task) = start_generic(uri, source, chain, adaptation.clone());
+            Ok(SourceHandle {
+                hub,
+                age_clock: AgeClock::SampleTime,
+                adaptation,
+                tasks: vec![task],
+                describe,
+            })
+        }
         other => bail!(
             "source `{uri}`: unknown scheme `{other}` (expected pupil://, replay://, synthetic://, \
-             hid://, usb://, serial:// or gazepoint://)"
+             hid://, usb://, serial://, gazepoint:// or lsl://)"
         ),
     }
 }
