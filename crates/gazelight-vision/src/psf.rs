@@ -79,7 +79,7 @@
 //! `N` is the next power of two of `W/Δx` (the GPU Stockham FFT needs it),
 //! at most [`MAX_GRID_SIZE`]; a request that needs more is an error naming
 //! the ppd and pupil range. The near region has radius
-//! [`NEAR_FIELD_RADIUS_DEG`] (0.5°) in display pixels, at least 2 and at
+//! [`NEAR_FIELD_RADIUS_DEG`] (0.5°) in display pixels, at least 2 (fewer, down to the centre pixel alone, where that would reach past [`NEAR_FIELD_MAX_DEG`]) and at
 //! most [`NEAR_FIELD_MAX_PX`] pixels. At the defaults (13.85 ppd, pupils
 //! 1.5–9 mm) that is N = 1024 over an 18.2 mm plane; at 6000 ppd and a 2 mm
 //! pupil, N = 4096 over a 341 mm plane.
@@ -176,7 +176,12 @@ pub const MAX_GRID_SIZE: usize = 4096;
 pub const MAX_KERNEL_PX: usize = 4097;
 /// Target radius of the wave-optics near-field region, degrees.
 pub const NEAR_FIELD_RADIUS_DEG: f64 = 0.5;
-/// Fewest and most display pixels of the near-field radius.
+/// Largest angle the near-field region (radius plus the pixel margin)
+/// reaches, degrees: below ~4 ppd the pixel minimum gives way to it, so the
+/// FFT stays at N = 1024 for the default pupil range down to 1 ppd.
+pub const NEAR_FIELD_MAX_DEG: f64 = 0.6;
+/// Fewest and most display pixels of the near-field radius (the fewest
+/// yields to [`NEAR_FIELD_MAX_DEG`] at low ppd).
 pub const NEAR_FIELD_MIN_PX: usize = 2;
 /// See [`NEAR_FIELD_MIN_PX`].
 pub const NEAR_FIELD_MAX_PX: usize = 512;
@@ -368,13 +373,21 @@ impl PsfParams {
             }
             return Ok(s);
         }
-        let near_radius_px = ((NEAR_FIELD_RADIUS_DEG * self.ppd).round() as usize)
+        let mut near_radius_px = ((NEAR_FIELD_RADIUS_DEG * self.ppd).round() as usize)
             .clamp(NEAR_FIELD_MIN_PX, NEAR_FIELD_MAX_PX)
             .min(kernel_radius_px);
+        // At low ppd the pixel minimum would make the region degrees wide and
+        // the FFT needlessly large (1 ppd: > 4096 samples): cap its angle. At
+        // 0 px the region is the centre pixel, covered on its axes.
+        while near_radius_px > 0 && (near_radius_px as f64 + 0.75) * deg_per_px > NEAR_FIELD_MAX_DEG
+        {
+            near_radius_px -= 1;
+        }
+        let margin_px = if near_radius_px == 0 { 0.5 } else { 0.75 };
         let lambda_mm = REFERENCE_WAVELENGTH_NM * 1e-6;
         // The 380 nm PSF at the region's edge (plus the pixel's corner
         // margin) reads M at 575/380 times the angle.
-        let near_rad = (near_radius_px as f64 + 0.75) * rad_px;
+        let near_rad = (near_radius_px as f64 + margin_px) * rad_px;
         let dx_field = lambda_mm / (2.0 * near_rad * REFERENCE_WAVELENGTH_NM / SPECTRUM_MIN_NM);
         let dx_pupil = self.min_pupil_mm() / MIN_PUPIL_SAMPLES;
         let dx = dx_field.min(dx_pupil);
