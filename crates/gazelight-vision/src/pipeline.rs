@@ -10,7 +10,7 @@
 //! | – | 1 pooling | [`PoolingModel::pool`] on the small luminance plane, centred on the gaze |
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
-//! | B | 4 glare | [`GlareConvolver::apply`]: FFT convolution in a window at the gaze, Gaussian falloff blend |
+//! | B | 4 glare | [`GlareConvolver::apply`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond |
 //! | D | 5 acuity | [`AcuityBlur::apply`]: separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13) |
 //! | C | 6 tone + 7 colour + 8 encode | per pixel, fused: tone reproduction, colour, sRGB encoding |
 //!
@@ -33,7 +33,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::acuity::{AcuityBlur, AcuityModel};
 use crate::colour::{ColourFrame, ColourModel};
-use crate::glare::GlareConvolver;
+use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
 use crate::pooling::PoolingModel;
 use crate::psf::{PsfBuilder, PsfParams};
@@ -52,22 +52,33 @@ pub const PUPIL_MM_RANGE: (f32, f32) = (1.5, 9.0);
 pub struct GlareConfig {
     /// Whether glare is simulated at all.
     pub enabled: bool,
-    /// FFT window centred on the gaze, display pixels (power of two).
-    pub window_px: usize,
-    /// σ of the Gaussian falloff blend, as a fraction of the window size.
-    pub falloff_sigma_frac: f64,
-    /// PSF parameters; `ppd` is replaced by the display's.
+    /// Sources within this angle of the gaze glare with full weight, degrees.
+    pub full_weight_deg: f64,
+    /// σ of the Gaussian fade beyond `full_weight_deg`, degrees.
+    pub fade_sigma_deg: f64,
+    /// PSF parameters (`field_deg` is the kernel's field, ±20° by default;
+    /// `glare_scale` physical or seed); `ppd` is replaced by the display's.
     pub psf: PsfParams,
     /// The PSF is rebuilt when the pupil moved more than this, mm.
     pub psf_rebuild_threshold_mm: f64,
+}
+
+impl GlareConfig {
+    /// The weight settings of the convolver.
+    pub fn window(&self) -> GlareWindow {
+        GlareWindow {
+            full_weight_deg: self.full_weight_deg,
+            fade_sigma_deg: self.fade_sigma_deg,
+        }
+    }
 }
 
 impl Default for GlareConfig {
     fn default() -> Self {
         Self {
             enabled: true,
-            window_px: 256,
-            falloff_sigma_frac: 0.25,
+            full_weight_deg: GlareWindow::default().full_weight_deg,
+            fade_sigma_deg: GlareWindow::default().fade_sigma_deg,
             psf: PsfParams::default(),
             psf_rebuild_threshold_mm: 0.1,
         }
@@ -102,20 +113,7 @@ impl PipelineConfig {
         self.colour.validate()?;
         self.acuity.validate()?;
         let g = &self.glare;
-        if !g.window_px.is_power_of_two() || !(16..=2048).contains(&g.window_px) {
-            return Err(VisionError::invalid(
-                "glare.window_px",
-                g.window_px,
-                "a power of two in 16..=2048",
-            ));
-        }
-        if !(g.falloff_sigma_frac > 0.0 && g.falloff_sigma_frac <= 4.0) {
-            return Err(VisionError::invalid(
-                "glare.falloff_sigma_frac",
-                g.falloff_sigma_frac,
-                "0 < falloff_sigma_frac ≤ 4",
-            ));
-        }
+        g.window().validate()?;
         if !(g.psf_rebuild_threshold_mm >= 0.0 && g.psf_rebuild_threshold_mm.is_finite()) {
             return Err(VisionError::invalid(
                 "glare.psf_rebuild_threshold_mm",
@@ -278,9 +276,8 @@ impl FramePipeline {
             params.ppd = 1.0 / deg_per_px;
             params.pupil_mm = psf_pupil_mm;
             params.validate()?;
-            let mut builder = PsfBuilder::new(params)?;
-            let mut conv = GlareConvolver::new(config.glare.window_px);
-            conv.set_kernel(builder.rebuild(psf_pupil_mm));
+            let builder = PsfBuilder::new(params)?;
+            let conv = GlareConvolver::new(builder.kernel(), config.glare.window())?;
             Some((builder, conv))
         } else {
             None
@@ -436,15 +433,18 @@ impl FramePipeline {
             if (f64::from(pupil_mm) - self.psf_pupil_mm).abs()
                 > self.config.glare.psf_rebuild_threshold_mm
             {
-                conv.set_kernel(builder.rebuild(f64::from(pupil_mm)));
-                self.psf_pupil_mm = f64::from(pupil_mm);
-                psf_rebuilt = true;
+                // Same size and pixel size as at construction: cannot fail.
+                if conv
+                    .set_kernel(builder.rebuild(f64::from(pupil_mm)))
+                    .is_ok()
+                {
+                    self.psf_pupil_mm = builder.kernel().pupil_mm;
+                    psf_rebuilt = true;
+                }
             }
             let t_psf = Instant::now();
             timings.psf_ms = ms(t_temporal, t_psf);
-            let sigma_px =
-                self.config.glare.falloff_sigma_frac * self.config.glare.window_px as f64;
-            conv.apply(&mut self.work, gaze_px, sigma_px);
+            conv.apply(&mut self.work, gaze_px);
             timings.glare_ms = ms(t_psf, Instant::now());
         }
         let t_glare = Instant::now();
