@@ -56,6 +56,7 @@ use bytemuck::{Pod, Zeroable};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FrameStats, PUPIL_MM_RANGE, PipelineConfig, StageTimings, srgb_encode,
 };
+use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::temporal::AdaptationState;
 use gazelight_vision::{RgbImage, VisionError};
 
@@ -160,6 +161,12 @@ pub struct GpuFramePipeline {
     partial_count: u32,
     has_state: bool,
     psf_pupil_mm: f64,
+    /// Rebuild the PSF in the frame when the pupil moves (off: the host
+    /// installs kernels with [`GpuFramePipeline::set_kernel`]).
+    psf_auto_rebuild: bool,
+    /// A kernel was uploaded by [`GpuFramePipeline::set_kernel`]; the next
+    /// frame recomputes its split spectra.
+    kernel_pending: bool,
     pooling: PoolingPass,
     temporal: TemporalPass,
     tone: TonePass,
@@ -448,6 +455,8 @@ impl GpuFramePipeline {
             partial_count,
             has_state: false,
             psf_pupil_mm: INITIAL_PUPIL_MM,
+            psf_auto_rebuild: true,
+            kernel_pending: false,
             pooling,
             temporal,
             tone,
@@ -624,6 +633,31 @@ impl GpuFramePipeline {
         Ok(())
     }
 
+    /// Whether a frame rebuilds the PSF itself when the pupil moves more
+    /// than `psf_rebuild_threshold_mm` (the default). A live session turns
+    /// it off and installs kernels built on another thread with
+    /// [`GpuFramePipeline::set_kernel`].
+    pub fn set_psf_auto_rebuild(&mut self, on: bool) {
+        self.psf_auto_rebuild = on;
+    }
+
+    /// Uploads a kernel built elsewhere (a `PsfBuilder` with the pipeline's
+    /// PSF parameters); the next frame computes its split spectra and
+    /// convolves with it. Its size must match; an error with glare off.
+    pub fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), GpuError> {
+        let Some(g) = self.glare.as_mut() else {
+            return Err(invalid(VisionError::invalid(
+                "glare kernel",
+                "a kernel",
+                "glare enabled in the pipeline",
+            )));
+        };
+        g.psf.upload(kernel)?;
+        self.psf_pupil_mm = kernel.pupil_mm;
+        self.kernel_pending = true;
+        Ok(())
+    }
+
     /// Sets the adaptation state (e.g. to start a replay adapted): the next
     /// frame steps from it instead of starting adapted to its target.
     pub fn set_adaptation(&mut self, state: AdaptationState) {
@@ -788,13 +822,17 @@ impl GpuFramePipeline {
         // Stages 3 + 4: PSF (cached) and glare at the gaze.
         let mut psf_rebuilt = false;
         if let Some(g) = self.glare.as_mut() {
-            if (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
+            if self.psf_auto_rebuild && (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
                 let built_mm =
                     g.psf
                         .encode_rebuild_timed(encoder, pupil_mm, timestamps.map(|t| t.psf));
                 Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
                 self.psf_pupil_mm = built_mm;
+                self.kernel_pending = false;
                 psf_rebuilt = true;
+            } else if self.kernel_pending {
+                Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
+                self.kernel_pending = false;
             }
             if g.params.place(&g.geometry, gaze_px) {
                 queue.write_buffer(&g.uniform, 0, bytemuck::bytes_of(&g.params));

@@ -236,6 +236,12 @@ pub struct FramePipeline {
     small_h: usize,
     glare: Option<(PsfBuilder, GlareConvolver)>,
     psf_pupil_mm: f64,
+    /// Rebuild the PSF in [`FramePipeline::process`] when the pupil moves
+    /// (off: the caller installs kernels with [`FramePipeline::set_kernel`]).
+    psf_auto_rebuild: bool,
+    /// The kernel last installed by [`FramePipeline::set_kernel`] (its
+    /// buffer is reused by later installs of the same size).
+    installed: Option<crate::psf::PsfKernel>,
     acuity: AcuityBlur,
     srgb_lut: Box<[u8; SRGB_LUT_SIZE]>,
     /// Run the pre-optimisation per-pixel passes (the tests' reference).
@@ -300,6 +306,8 @@ impl FramePipeline {
             small_h,
             glare,
             psf_pupil_mm,
+            psf_auto_rebuild: true,
+            installed: None,
             acuity,
             srgb_lut,
             #[cfg(test)]
@@ -340,9 +348,49 @@ impl FramePipeline {
         &self.work
     }
 
-    /// The current PSF kernel (at display pixels), if glare is enabled.
+    /// The current PSF kernel (at display pixels), if glare is enabled:
+    /// the one last installed by [`FramePipeline::set_kernel`], else the
+    /// builder's.
     pub fn psf_kernel(&self) -> Option<&crate::psf::PsfKernel> {
-        self.glare.as_ref().map(|(b, _)| b.kernel())
+        let (builder, _) = self.glare.as_ref()?;
+        Some(self.installed.as_ref().unwrap_or(builder.kernel()))
+    }
+
+    /// Whether [`FramePipeline::process`] rebuilds the PSF itself when the
+    /// pupil moves more than `psf_rebuild_threshold_mm` (the default). A
+    /// live session turns it off and builds kernels on another thread,
+    /// installing each with [`FramePipeline::set_kernel`].
+    pub fn set_psf_auto_rebuild(&mut self, on: bool) {
+        self.psf_auto_rebuild = on;
+    }
+
+    /// Installs a kernel built elsewhere (e.g. by a [`PsfBuilder`] with the
+    /// same parameters on another thread): later frames convolve with it.
+    /// Its size and pixel size must be the ones this pipeline was built
+    /// for. Reuses the previous installed kernel's buffers (no allocation
+    /// once one kernel of this size has been installed). An error with
+    /// glare off.
+    pub fn set_kernel(&mut self, kernel: &crate::psf::PsfKernel) -> Result<(), VisionError> {
+        let Some((_, conv)) = self.glare.as_mut() else {
+            return Err(VisionError::invalid(
+                "glare kernel",
+                "a kernel",
+                "glare enabled in the pipeline",
+            ));
+        };
+        conv.set_kernel(kernel)?;
+        match &mut self.installed {
+            Some(k) if k.rgb.len() == kernel.rgb.len() => {
+                k.rgb.copy_from_slice(&kernel.rgb);
+                k.size = kernel.size;
+                k.deg_per_px = kernel.deg_per_px;
+                k.pupil_mm = kernel.pupil_mm;
+                k.wavelengths_nm.clone_from(&kernel.wavelengths_nm);
+            }
+            slot => *slot = Some(kernel.clone()),
+        }
+        self.psf_pupil_mm = kernel.pupil_mm;
+        Ok(())
     }
 
     /// Processes one frame. `scene` is linear RGB in cd/m², the pipeline's
@@ -430,8 +478,9 @@ impl FramePipeline {
         // Stages 3 + 4: PSF (cached) and glare at the gaze.
         let mut psf_rebuilt = false;
         if let Some((builder, conv)) = self.glare.as_mut() {
-            if (f64::from(pupil_mm) - self.psf_pupil_mm).abs()
-                > self.config.glare.psf_rebuild_threshold_mm
+            if self.psf_auto_rebuild
+                && (f64::from(pupil_mm) - self.psf_pupil_mm).abs()
+                    > self.config.glare.psf_rebuild_threshold_mm
             {
                 // Same size and pixel size as at construction: cannot fail.
                 if conv
@@ -439,6 +488,7 @@ impl FramePipeline {
                     .is_ok()
                 {
                     self.psf_pupil_mm = builder.kernel().pupil_mm;
+                    self.installed = None;
                     psf_rebuilt = true;
                 }
             }

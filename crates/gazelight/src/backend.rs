@@ -319,6 +319,31 @@ impl Renderer {
         }
     }
 
+    /// Whether a frame rebuilds the PSF itself when the pupil moves (the
+    /// default; `render` and `replay` rely on it). `run` turns it off and
+    /// installs kernels built off the frame thread with
+    /// [`Renderer::set_kernel`].
+    pub fn set_psf_auto_rebuild(&mut self, on: bool) {
+        match self {
+            Renderer::Cpu(p, _) => p.set_psf_auto_rebuild(on),
+            Renderer::Gpu(g, _) => g.pipeline.set_psf_auto_rebuild(on),
+        }
+    }
+
+    /// Installs a kernel built elsewhere with the pipeline's PSF parameters
+    /// (same size and pixel size): later frames convolve with it. On the
+    /// GPU it is uploaded and the next frame computes its spectra.
+    pub fn set_kernel(&mut self, kernel: &PsfKernel) -> anyhow::Result<()> {
+        match self {
+            Renderer::Cpu(p, _) => Ok(p.set_kernel(kernel)?),
+            Renderer::Gpu(g, _) => {
+                g.pipeline.set_kernel(kernel)?;
+                g.kernel_stale = true;
+                Ok(())
+            }
+        }
+    }
+
     /// Sets the adaptation state (e.g. to start a replay adapted).
     #[allow(dead_code)] // for `run`, being wired
     pub fn set_adaptation(&mut self, state: AdaptationState) {

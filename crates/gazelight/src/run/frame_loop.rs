@@ -14,8 +14,12 @@
 //!    and limits the output's rate ([`SlewLimiter`]), so glare neither
 //!    freezes on a lost tracker nor jumps when it returns;
 //! 3. follows the head orientation (a head trace re-renders the view);
-//! 4. runs [`FramePipeline::process`] and feeds the adaptation luminance
-//!    back to the source's filter chain;
+//! 4. asks the PSF worker ([`super::psf_worker`]) for a kernel when the
+//!    pupil moved more than `psf_rebuild_threshold_mm` since the last
+//!    request, installs a finished kernel if one is ready (frames keep the
+//!    previous kernel until then: a rebuild never stalls a frame), runs
+//!    [`FramePipeline::process`] and feeds the adaptation luminance back to
+//!    the source's filter chain;
 //! 5. publishes the frame's figures (and history) to the hub, the display
 //!    frame at most every 100 ms, the glare kernel after each rebuild, and
 //!    hands a row (and the frame) to the output writer.
@@ -33,10 +37,12 @@ use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil_model::PupilModel;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, PipelineConfig};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, PUPIL_MM_RANGE, PipelineConfig};
+use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::scene::{PanoramaView, ViewParams};
 
 use super::head::Head;
+use super::psf_worker::PsfWorker;
 use super::source_task::{AdaptationCell, AgeClock};
 use super::writer::{OutputWriter, PsfEvent, Row, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
@@ -125,6 +131,11 @@ pub struct FrameLoop {
     psf_rebuilds: u64,
     last_display_secs: f64,
     psf_scratch: Vec<f32>,
+    /// Builds kernels off the frame thread (`None` with glare off).
+    psf_worker: Option<PsfWorker>,
+    /// The pupil of the last kernel requested (or installed), mm.
+    psf_target_mm: f64,
+    psf_threshold_mm: f64,
     ages_ms: Vec<f32>,
     age_next: usize,
     frame_ms_sum: f64,
@@ -155,13 +166,9 @@ impl FrameLoop {
             display,
             mouse,
         } = setup;
-        let mut pipeline = Renderer::new(
-            backend,
-            &pipeline,
-            view.width,
-            view.height,
-            view.deg_per_px(),
-        )?;
+        let config = pipeline;
+        let mut pipeline =
+            Renderer::new(backend, &config, view.width, view.height, view.deg_per_px())?;
         tracing::info!(backend = %pipeline.describe(), reason = pipeline.reason(), "frame pipeline");
         let mut view = view;
         if let Some((yaw, pitch)) = head.orientation(0.0) {
@@ -173,6 +180,22 @@ impl FrameLoop {
         let model = filter.pupil_model;
         let model_mm = model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
         let kernel_len = pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size);
+        // The PSF is rebuilt on a worker thread from here on.
+        let mut psf_target_mm = f64::NAN;
+        let psf_worker = match pipeline.psf_kernel()? {
+            Some(initial) => {
+                let mut params = config.glare.psf.clone();
+                // As the pipeline's own builder: same size and pixel size.
+                params.ppd = 1.0 / view.deg_per_px();
+                params.pupil_mm = initial.pupil_mm;
+                psf_target_mm = initial.pupil_mm;
+                let worker = PsfWorker::start(params, initial)
+                    .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
+                pipeline.set_psf_auto_rebuild(false);
+                Some(worker)
+            }
+            None => None,
+        };
         let mut this = Self {
             hub,
             age_clock,
@@ -193,6 +216,9 @@ impl FrameLoop {
             psf_rebuilds: 0,
             last_display_secs: f64::NEG_INFINITY,
             psf_scratch: Vec::with_capacity(kernel_len),
+            psf_worker,
+            psf_target_mm,
+            psf_threshold_mm: config.glare.psf_rebuild_threshold_mm,
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
             frame_ms_sum: 0.0,
@@ -216,22 +242,51 @@ impl FrameLoop {
             }
         };
         if let Some(k) = kernel {
-            self.psf_scratch.clear();
-            // Rec. 709 luminance of the linear-sRGB kernel.
-            self.psf_scratch.extend(
-                k.rgb
-                    .iter()
-                    .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]),
+            publish_psf(
+                &self.hub,
+                &mut self.writer,
+                &mut self.psf_scratch,
+                k,
+                generation,
+                t_secs,
             );
-            self.hub
-                .publish_psf(generation, k.pupil_mm, k.size, &self.psf_scratch);
-            if let Some(w) = &mut self.writer {
-                w.psf(PsfEvent {
-                    generation,
-                    t_secs,
-                    pupil_mm: k.pupil_mm,
-                });
+        }
+    }
+
+    /// Requests a kernel for this frame's pupil when it moved more than the
+    /// threshold since the last request, and installs a finished one if it
+    /// is ready. Returns whether a kernel was installed. Never blocks.
+    fn follow_psf(&mut self, pupil_mm: f32, t_secs: f64) -> anyhow::Result<bool> {
+        let Some(worker) = &self.psf_worker else {
+            return Ok(false);
+        };
+        if pupil_mm.is_finite() {
+            // As the pipeline clamps the pupil it would rebuild for.
+            let p = f64::from(pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1));
+            if !((p - self.psf_target_mm).abs() <= self.psf_threshold_mm) {
+                worker.request(p);
+                self.psf_target_mm = p;
             }
+        }
+        let generation = self.psf_rebuilds + 1;
+        let (pipeline, hub, writer, scratch) = (
+            &mut self.pipeline,
+            &self.hub,
+            &mut self.writer,
+            &mut self.psf_scratch,
+        );
+        let installed = worker.take(|k| -> anyhow::Result<()> {
+            pipeline.set_kernel(k)?;
+            publish_psf(hub, writer, scratch, k, generation, t_secs);
+            Ok(())
+        });
+        match installed {
+            Some(r) => {
+                r?;
+                self.psf_rebuilds += 1;
+                Ok(true)
+            }
+            None => Ok(false),
         }
     }
 
@@ -305,15 +360,18 @@ impl FrameLoop {
             PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
         }
 
-        let stats = self
+        let installed = self.follow_psf(input.pupil_mm, t_secs)?;
+        let mut stats = self
             .pipeline
             .process(&self.view_img, &input, &mut self.out)?;
         self.adaptation_cd_m2 = Some(stats.adaptation_cd_m2);
         self.adaptation_cell.set(stats.adaptation_cd_m2);
         if stats.psf_rebuilt {
+            // Only without a worker (the pipeline rebuilt synchronously).
             self.psf_rebuilds += 1;
             self.publish_kernel(t_secs);
         }
+        stats.psf_rebuilt |= installed;
         self.frames += 1;
         let age_ms = age_secs * 1e3;
         if self.ages_ms.len() < self.ages_ms.capacity() {
@@ -460,6 +518,32 @@ impl FrameLoop {
     }
 }
 
+/// Publishes a kernel to the hub (its luminance) and to psf.csv.
+fn publish_psf(
+    hub: &Hub,
+    writer: &mut Option<OutputWriter>,
+    scratch: &mut Vec<f32>,
+    k: &PsfKernel,
+    generation: u64,
+    t_secs: f64,
+) {
+    scratch.clear();
+    // Rec. 709 luminance of the linear-sRGB kernel.
+    scratch.extend(
+        k.rgb
+            .iter()
+            .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]),
+    );
+    hub.publish_psf(generation, k.pupil_mm, k.size, scratch);
+    if let Some(w) = writer {
+        w.psf(PsfEvent {
+            generation,
+            t_secs,
+            pupil_mm: k.pupil_mm,
+        });
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use std::alloc::{GlobalAlloc, Layout, System};
@@ -578,13 +662,45 @@ mod tests {
             .expect("pool");
         let dt = 1.0 / 90.0;
         let mut t = 0.0;
-        pool.install(|| {
+        let warm_frames = pool.install(|| {
             // Warm-up: first frames, PSF rebuild to 5 mm, first display copy.
             for i in 0..10u64 {
                 tx.send_replace(live_state(t, 5.0, 0.3, i + 2));
                 fl.step(t, t, dt as f32).expect("frame");
                 t += dt;
             }
+            // The 5 mm kernel is built off the frame thread: keep stepping
+            // (frames keep the 4 mm kernel meanwhile) until it is installed.
+            let waited = Instant::now();
+            let mut i = 10u64;
+            // Done when the pupil has slewed to 5 mm and the kernel for the
+            // last request (within the threshold of 5 mm) is installed.
+            let kernel_mm = |fl: &mut FrameLoop| {
+                fl.pipeline
+                    .psf_kernel()
+                    .ok()
+                    .flatten()
+                    .map_or(f64::NAN, |k| k.pupil_mm)
+            };
+            let mut last_pupil = 0.0f32;
+            while fl.psf_rebuilds == 0
+                || last_pupil != 5.0
+                || kernel_mm(&mut fl) != fl.psf_target_mm
+            {
+                assert!(
+                    waited.elapsed() < Duration::from_secs(120),
+                    "the 5 mm kernel never arrived"
+                );
+                std::thread::sleep(Duration::from_millis(20));
+                tx.send_replace(live_state(t, 5.0, 0.3, i + 2));
+                last_pupil = fl.step(t, t, dt as f32).expect("frame").frame_pupil_mm;
+                t += dt;
+                i += 1;
+            }
+            let base_mm = kernel_mm(&mut fl);
+            assert!((base_mm - 5.0).abs() <= 0.1, "kernel at {base_mm} mm");
+            let warm_frames = fl.frames;
+            let rebuilds = fl.psf_rebuilds;
             COUNT_HERE.with(|c| c.set(true));
             ALLOCS.store(0, Ordering::SeqCst);
             for i in 0..60u64 {
@@ -593,7 +709,7 @@ mod tests {
                 let u = 0.2 + 0.6 * (i % 10) as f32 / 10.0;
                 tx.send_replace(live_state(
                     t - 0.004,
-                    5.0 + 0.01 * (i % 3) as f32,
+                    base_mm as f32 + 0.01 * (i % 3) as f32,
                     u,
                     20 + i,
                 ));
@@ -601,12 +717,17 @@ mod tests {
                 t += dt;
             }
             COUNT_HERE.with(|c| c.set(false));
+            assert_eq!(
+                fl.psf_rebuilds, rebuilds,
+                "a kernel was installed in steady state"
+            );
+            warm_frames
         });
         let n = ALLOCS.load(Ordering::SeqCst);
         let summary = fl.run_summary_for_test();
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!(n, 0, "steady-state frames allocated {n} times");
-        assert_eq!(summary.frames, 70);
+        assert_eq!(summary.frames, warm_frames + 60);
         assert!(
             (summary.eye_state_age_median_ms - 4.0).abs() < 0.5,
             "{summary:?}"

@@ -19,6 +19,7 @@
 
 pub mod frame_loop;
 pub mod head;
+pub mod psf_worker;
 pub mod source_task;
 pub mod writer;
 
