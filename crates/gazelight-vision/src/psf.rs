@@ -566,17 +566,22 @@ impl MonoPsf {
     /// the axis profile, refined by a parabola through the three samples
     /// around it. `None` when the profile has no minimum.
     pub fn first_minimum_rad(&self) -> Option<f64> {
-        let p = self.axis_profile(self.size / 2);
-        let i = (1..p.len().saturating_sub(1)).find(|&i| p[i] <= p[i - 1] && p[i] < p[i + 1])?;
-        let (a, b, c) = (p[i - 1], p[i], p[i + 1]);
-        let denom = a - 2.0 * b + c;
-        let offset = if denom.abs() > 0.0 {
-            0.5 * (a - c) / denom
-        } else {
-            0.0
-        };
-        Some((i as f64 + offset) * self.rad_per_px)
+        first_minimum_of(&self.axis_profile(self.size / 2)).map(|r| r * self.rad_per_px)
     }
+}
+
+/// The first local minimum of a radial profile, in samples, refined by a
+/// parabola through the three samples around it.
+fn first_minimum_of(p: &[f64]) -> Option<f64> {
+    let i = (1..p.len().saturating_sub(1)).find(|&i| p[i] <= p[i - 1] && p[i] < p[i + 1])?;
+    let (a, b, c) = (p[i - 1], p[i], p[i + 1]);
+    let denom = a - 2.0 * b + c;
+    let offset = if denom.abs() > 0.0 {
+        0.5 * (a - c) / denom
+    } else {
+        0.0
+    };
+    Some(i as f64 + offset)
 }
 
 /// The glare kernel at display resolution: the full-resolution composite
@@ -1031,6 +1036,24 @@ impl PsfBuilder {
     /// The most recently built kernel.
     pub fn kernel(&self) -> &PsfKernel {
         &self.kernel
+    }
+
+    /// Radius of the first dark ring, radians, measured on the 575 nm
+    /// monochromatic field of the last build (the field the kernel was made
+    /// from), as [`MonoPsf::first_minimum_rad`]. Allocates the axis profile
+    /// (`grid_size / 2` values). `None` when the profile has no minimum.
+    pub fn first_ring_rad(&self) -> Option<f64> {
+        let n = self.sampling.grid_size;
+        let c = n / 2;
+        let v = &self.mono;
+        let profile: Vec<f64> = (0..c)
+            .map(|r| {
+                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
+                    / 4.0
+            })
+            .collect();
+        let rad_per_sample = REFERENCE_WAVELENGTH_NM * 1e-6 / self.sampling.pupil_plane_mm;
+        first_minimum_of(&profile).map(|r| r * rad_per_sample)
     }
 
     /// Energy of the CIE 146 term over the kernel field (0 without stray

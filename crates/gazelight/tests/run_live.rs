@@ -213,6 +213,24 @@ fn live_pupil_changes_rebuild_the_psf_and_its_ring_follows() {
             kr[i]
         );
     }
+    // psf.csv's rings are measured on the field each installed kernel was
+    // built from: every pair of kernels ≥ 0.5 mm apart is in the inverse
+    // order of its pupils (a kernel that never changed would repeat one
+    // ring for every logged pupil).
+    for i in 0..kp.len() {
+        for j in 0..kp.len() {
+            if kp[i] > kp[j] + 0.5 {
+                assert!(
+                    kr[i] < kr[j],
+                    "kernel {i} ({} mm) ring {} not inside kernel {j} ({} mm) ring {}",
+                    kp[i],
+                    kr[i],
+                    kp[j],
+                    kr[j]
+                );
+            }
+        }
+    }
     let ratio = kr[i24] / kr[i6];
     let expected = kp[i6] / kp[i24];
     assert!(

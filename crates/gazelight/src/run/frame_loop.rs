@@ -242,11 +242,14 @@ impl FrameLoop {
             }
         };
         if let Some(k) = kernel {
+            // The pipeline built this one: psf.csv computes its ring from
+            // its parameters.
             publish_psf(
                 &self.hub,
                 &mut self.writer,
                 &mut self.psf_scratch,
                 k,
+                None,
                 generation,
                 t_secs,
             );
@@ -263,7 +266,8 @@ impl FrameLoop {
         if pupil_mm.is_finite() {
             // As the pipeline clamps the pupil it would rebuild for.
             let p = f64::from(pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1));
-            if !((p - self.psf_target_mm).abs() <= self.psf_threshold_mm) {
+            if self.psf_target_mm.is_nan() || (p - self.psf_target_mm).abs() > self.psf_threshold_mm
+            {
                 worker.request(p);
                 self.psf_target_mm = p;
             }
@@ -275,9 +279,9 @@ impl FrameLoop {
             &mut self.writer,
             &mut self.psf_scratch,
         );
-        let installed = worker.take(|k| -> anyhow::Result<()> {
+        let installed = worker.take(|k, ring_rad| -> anyhow::Result<()> {
             pipeline.set_kernel(k)?;
-            publish_psf(hub, writer, scratch, k, generation, t_secs);
+            publish_psf(hub, writer, scratch, k, Some(ring_rad), generation, t_secs);
             Ok(())
         });
         match installed {
@@ -524,6 +528,7 @@ fn publish_psf(
     writer: &mut Option<OutputWriter>,
     scratch: &mut Vec<f32>,
     k: &PsfKernel,
+    first_ring_rad: Option<f64>,
     generation: u64,
     t_secs: f64,
 ) {
@@ -540,6 +545,7 @@ fn publish_psf(
             generation,
             t_secs,
             pupil_mm: k.pupil_mm,
+            first_ring_rad,
         });
     }
 }

@@ -10,7 +10,9 @@
 //! * the ready slot holds at most one finished kernel, in a buffer
 //!   allocated once at start: the worker copies its builder's kernel into
 //!   it, the frame loop takes it with `try_lock` (never waits) and installs
-//!   it ([`crate::backend::Renderer::set_kernel`]).
+//!   it ([`crate::backend::Renderer::set_kernel`]), with the first dark
+//!   ring the worker measured on its builder's 575 nm field for that build
+//!   ([`PsfBuilder::first_ring_rad`]; `psf.csv`).
 //!
 //! Frames keep the previous kernel until the new one is ready. Neither side
 //! allocates per request (the builder reuses its buffers; the ready buffer
@@ -31,7 +33,9 @@ const IDLE_POLL: Duration = Duration::from_millis(100);
 
 struct Shared {
     request_bits: AtomicU64,
-    ready: Mutex<PsfKernel>,
+    /// The finished kernel and its measured first ring, radians (NaN:
+    /// no minimum found).
+    ready: Mutex<(PsfKernel, f64)>,
     ready_flag: AtomicBool,
     stop: AtomicBool,
 }
@@ -52,7 +56,7 @@ impl PsfWorker {
     pub fn start(params: PsfParams, initial: &PsfKernel) -> std::io::Result<Self> {
         let shared = Arc::new(Shared {
             request_bits: AtomicU64::new(NO_REQUEST),
-            ready: Mutex::new(initial.clone()),
+            ready: Mutex::new((initial.clone(), f64::NAN)),
             ready_flag: AtomicBool::new(false),
             stop: AtomicBool::new(false),
         });
@@ -79,15 +83,15 @@ impl PsfWorker {
     }
 
     /// If a finished kernel is waiting and its slot is free right now,
-    /// passes it to `install` and empties the slot; returns what `install`
-    /// returned. Never blocks.
-    pub fn take<R>(&self, install: impl FnOnce(&PsfKernel) -> R) -> Option<R> {
+    /// passes it and its measured first ring (radians) to `install` and
+    /// empties the slot; returns what `install` returned. Never blocks.
+    pub fn take<R>(&self, install: impl FnOnce(&PsfKernel, f64) -> R) -> Option<R> {
         if !self.shared.ready_flag.load(Ordering::Acquire) {
             return None;
         }
         let guard = self.shared.ready.try_lock().ok()?;
         self.shared.ready_flag.store(false, Ordering::Release);
-        Some(install(&guard))
+        Some(install(&guard.0, guard.1))
     }
 
     /// Whether a request is waiting to be picked up by the worker.
@@ -123,8 +127,12 @@ fn work(shared: &Shared, params: PsfParams) {
             std::thread::park_timeout(IDLE_POLL);
             continue;
         }
-        let kernel = builder.rebuild(f64::from_bits(bits));
-        let mut ready = shared.ready.lock().unwrap_or_else(PoisonError::into_inner);
+        builder.rebuild(f64::from_bits(bits));
+        let ring_rad = builder.first_ring_rad().unwrap_or(f64::NAN);
+        let kernel = builder.kernel();
+        let mut guard = shared.ready.lock().unwrap_or_else(PoisonError::into_inner);
+        guard.1 = ring_rad;
+        let ready = &mut guard.0;
         if ready.rgb.len() == kernel.rgb.len() {
             ready.rgb.copy_from_slice(&kernel.rgb);
             ready.size = kernel.size;
@@ -135,7 +143,7 @@ fn work(shared: &Shared, params: PsfParams) {
             // Cannot happen with the pipeline's own parameters.
             ready.clone_from(kernel);
         }
-        drop(ready);
+        drop(guard);
         shared.ready_flag.store(true, Ordering::Release);
     }
 }
@@ -166,7 +174,7 @@ mod tests {
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         let mut got: Option<PsfKernel> = None;
         while std::time::Instant::now() < deadline {
-            if let Some(k) = worker.take(PsfKernel::clone) {
+            if let Some(k) = worker.take(|k, _| k.clone()) {
                 let done = k.pupil_mm == 6.0;
                 got = Some(k);
                 if done && !worker.request_pending() {
@@ -181,5 +189,48 @@ mod tests {
         assert_eq!(got.size, expected.size);
         assert_eq!(got.rgb, expected.rgb);
         assert_ne!(got.rgb, initial.rgb, "the kernel did not change");
+    }
+
+    /// The ring the worker reports is measured on the field it built: with
+    /// no particles it is the Airy pattern's first zero, 1.22 λ / D
+    /// (λ = 575 nm), for the pupil actually built: within 12 % (the ring
+    /// lies a few FFT samples out, as in `tests/run_live.rs`), and the two
+    /// rings scale as 1/D within 15 % (the same limits as `run_live`).
+    #[test]
+    fn the_reported_ring_is_the_airy_zero_of_the_built_pupil() {
+        let params = PsfParams {
+            particles: 0,
+            stray_light: false,
+            ..small_params()
+        };
+        let initial = PsfBuilder::new(params.clone())
+            .expect("builder")
+            .kernel()
+            .clone();
+        let worker = PsfWorker::start(params, &initial).expect("worker");
+        let mut rings = Vec::new();
+        for pupil_mm in [6.0, 2.5] {
+            worker.request(pupil_mm);
+            let deadline = std::time::Instant::now() + Duration::from_secs(120);
+            let (got_mm, ring) = loop {
+                assert!(std::time::Instant::now() < deadline, "no kernel");
+                if let Some(r) = worker.take(|k, ring| (k.pupil_mm, ring)) {
+                    break r;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            };
+            assert_eq!(got_mm, pupil_mm);
+            let airy = 1.22 * 575e-9 / (pupil_mm * 1e-3);
+            assert!(
+                (ring - airy).abs() < 0.12 * airy,
+                "{pupil_mm} mm: ring {ring} rad vs 1.22 λ/D = {airy} rad"
+            );
+            rings.push(ring);
+        }
+        let ratio = rings[1] / rings[0];
+        assert!(
+            (ratio / (6.0 / 2.5) - 1.0).abs() < 0.15,
+            "ring ratio {ratio} vs pupil ratio 2.4 ({rings:?})"
+        );
     }
 }

@@ -5,11 +5,15 @@
 //! - `frames/frame_NNNNNN.png`: the display frames, through a fixed pool of
 //!   frame buffers — when the encoder falls behind, a frame's image is
 //!   skipped (counted), never queued without bound;
-//! - `psf.csv`: one row per glare kernel built (the initial one and every
-//!   rebuild): the pupil it was built for and the radius of the first dark
-//!   ring of its monochromatic PSF at the reference wavelength
-//!   ([`MonoPsf::first_minimum_rad`], 001 eq 8), which for a clear circular
-//!   pupil is 1.22 λ / D — it follows the live pupil.
+//! - `psf.csv`: one row per glare kernel installed (the initial one and
+//!   every rebuild): the pupil it was built for and the radius of the first
+//!   dark ring of its monochromatic PSF at the reference wavelength (001
+//!   eq 8), which for a clear circular pupil is 1.22 λ / D — it follows the
+//!   live pupil. For rebuilds the ring is the one the PSF worker measured
+//!   on the 575 nm field its builder made that kernel from
+//!   (`PsfBuilder::first_ring_rad`); for the initial kernel (built by the
+//!   pipeline) it is computed from the kernel's parameters
+//!   ([`MonoPsf::first_minimum_rad`]).
 //!
 //! The frame loop hands rows, frames and kernel events over bounded
 //! `sync_channel`s (preallocated ring buffers: sending does not allocate).
@@ -69,12 +73,15 @@ fn health_name(h: SourceHealth) -> &'static str {
     }
 }
 
-/// A kernel build: generation (1 = the initial kernel), time, pupil.
+/// A kernel installed: generation (1 = the initial kernel), time, pupil,
+/// and the first dark ring measured on the field it was built from (`None`:
+/// compute it from the parameters; NaN: no minimum found).
 #[derive(Clone, Copy, Debug)]
 pub struct PsfEvent {
     pub generation: u64,
     pub t_secs: f64,
     pub pupil_mm: f64,
+    pub first_ring_rad: Option<f64>,
 }
 
 enum Msg {
@@ -186,13 +193,15 @@ impl OutputWriter {
                             report.frames_written += 1;
                         }
                         Msg::Psf(ev) => {
-                            let mut params = psf.clone();
-                            params.pupil_mm = ev.pupil_mm;
-                            let ring = monochromatic_psf(&params, REFERENCE_WAVELENGTH_NM)
-                                .ok()
-                                .as_ref()
-                                .and_then(MonoPsf::first_minimum_rad)
-                                .unwrap_or(f64::NAN);
+                            let ring = ev.first_ring_rad.unwrap_or_else(|| {
+                                let mut params = psf.clone();
+                                params.pupil_mm = ev.pupil_mm;
+                                monochromatic_psf(&params, REFERENCE_WAVELENGTH_NM)
+                                    .ok()
+                                    .as_ref()
+                                    .and_then(MonoPsf::first_minimum_rad)
+                                    .unwrap_or(f64::NAN)
+                            });
                             line.clear();
                             let _ = writeln!(
                                 line,
