@@ -88,7 +88,7 @@ fn human_secs(s: f64) -> String {
 pub fn pupil_rejection(stats: &ChainStats) -> Option<String> {
     let eyes = ["right (0)", "left (1)"];
     let mut lines = Vec::new();
-    for e in 0..2 {
+    for (e, eye) in eyes.iter().enumerate() {
         let n = stats.pupil_samples[e];
         if n < MIN_PUPIL_SAMPLES {
             continue;
@@ -135,7 +135,7 @@ pub fn pupil_rejection(stats: &ChainStats) -> Option<String> {
             .unwrap_or((0, ""));
         lines.push(format!(
             "eye {}: only {measured} of {n} pupil samples were accepted; {count} of them {why}",
-            eyes[e]
+            eye
         ));
     }
     if lines.is_empty() {
@@ -154,10 +154,12 @@ mod tests {
 
     #[test]
     fn rejection_warning_names_units_and_the_fix() {
-        let mut s = ChainStats::default();
-        s.pupil_samples = [1000, 1000];
-        s.measured = [0, 3];
-        s.rejected_range = [1000, 997];
+        let mut s = ChainStats {
+            pupil_samples: [1000, 1000],
+            measured: [0, 3],
+            rejected_range: [1000, 997],
+            ..ChainStats::default()
+        };
         let w = pupil_rejection(&s).unwrap();
         assert!(
             w.contains("not in millimetres") && w.contains("--calibration"),

@@ -107,7 +107,12 @@ pub fn open_source(
     chain: FilterChain,
     demo_ctx: &DemoContext<'_>,
 ) -> anyhow::Result<SourceHandle> {
-    open_source_with(uri, chain, demo_ctx, &gazelight_tracker::lsl::LslConfig::default())
+    open_source_with(
+        uri,
+        chain,
+        demo_ctx,
+        &gazelight_tracker::lsl::LslConfig::default(),
+    )
 }
 
 /// [`open_source`] with the session's `[lsl]` settings (used by `lsl://`).
