@@ -186,6 +186,11 @@ fn live_pupil_changes_rebuild_the_psf_and_its_ring_follows() {
     let kt = psf.f64s("t_secs");
     let kp = psf.f64s("pupil_mm");
     let kr = psf.f64s("first_ring_rad");
+    // One row per kernel, generations 1, 2, 3, … (1 = the initial kernel).
+    let gens = psf.f64s("generation");
+    for (i, g) in gens.iter().enumerate() {
+        assert_eq!(*g, (i + 1) as f64, "generations {gens:?}");
+    }
     assert!(kp.len() >= 4, "only {} kernels: {kp:?}", kp.len());
     // The peer's resting pupil is (3.75 + 4.25) / 2 = 4.0 mm, 1.5× under
     // black (6.0 mm) and 0.6× under white (2.4 mm).

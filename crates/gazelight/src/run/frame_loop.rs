@@ -272,7 +272,8 @@ impl FrameLoop {
                 self.psf_target_mm = p;
             }
         }
-        let generation = self.psf_rebuilds + 1;
+        // Generation 1 is the initial kernel; this is rebuild `psf_rebuilds + 1`.
+        let generation = self.psf_rebuilds + 2;
         let (pipeline, hub, writer, scratch) = (
             &mut self.pipeline,
             &self.hub,
