@@ -193,7 +193,7 @@ def main():
     r = sp.add_parser("read")
     r.add_argument("--names", required=True)
     r.add_argument("--secs", type=float, default=5.0)
-    r.add_argument("--resolve-secs", type=float, default=10.0)
+    r.add_argument("--resolve-secs", type=float, default=20.0)
     r.add_argument("--until-quiet", type=float, default=0.0, help="stop after this long without samples")
     r.add_argument("--pupil-remote", type=int, default=0)
     p = sp.add_parser("relay")
