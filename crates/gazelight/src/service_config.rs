@@ -275,11 +275,84 @@ mod tests {
     fn load_str(text: &str) -> anyhow::Result<ServiceConfig> {
         let dir = std::env::temp_dir().join(format!("gazelight-svc-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join(format!("c{}.toml", text.len()));
+        static SEQ: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = dir.join(format!("c{n}.toml"));
         std::fs::write(&path, text).unwrap();
         let r = ServiceConfig::load(&path);
         let _ = std::fs::remove_file(&path);
         r
+    }
+
+    /// A valid file whose values the property below replaces one at a time.
+    const FULL: &str = "[source]\nuri = \"pupil://127.0.0.1:50020\"\ncalibration = \"p.json\"\n\
+         [display]\nfps = 90.0\nsize = \"720x800\"\nheadless = true\n\
+         [scene]\nhead = \"trace:h.csv\"\nyaw_deg = 10.0\n\
+         [http]\naddr = \"127.0.0.1:8080\"\n[relay]\naddr = \"127.0.0.1:50030\"\n\
+         [observer]\nage_years = 25.0\npigmentation = 0.5\n";
+
+    /// Values no field should accept silently or panic on.
+    const HOSTILE: [&str; 16] = [
+        "1e308",
+        "-1e308",
+        "nan",
+        "inf",
+        "-inf",
+        "-1",
+        "0",
+        "1e-300",
+        "\"\"",
+        "\"99999999999x99999999999\"",
+        "\"127.0.0.1:99999\"",
+        "[]",
+        "{}",
+        "true",
+        "\"pupil://[::1\"",
+        "18446744073709551616",
+    ];
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(
+            std::env::var("GAZELIGHT_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+        ))]
+
+        /// Any file — random bytes, or the full file with one value replaced
+        /// by a hostile one — gives Ok or an error naming the config file;
+        /// never a panic. A loaded config has finite, in-range values.
+        #[test]
+        fn any_config_text_is_ok_or_a_named_error(
+            bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..512),
+            line in 0usize..32,
+            hostile in 0usize..HOSTILE.len(),
+            random in proptest::prelude::any::<bool>(),
+        ) {
+            let text = if random {
+                String::from_utf8_lossy(&bytes).into_owned()
+            } else {
+                let lines: Vec<&str> = FULL.lines().collect();
+                let i = line % lines.len();
+                lines
+                    .iter()
+                    .enumerate()
+                    .map(|(j, l)| match l.split_once(" = ") {
+                        Some((k, _)) if j == i => format!("{k} = {}", HOSTILE[hostile]),
+                        _ => (*l).to_string(),
+                    })
+                    .collect::<Vec<_>>()
+                    .join("\n")
+            };
+            match load_str(&text) {
+                Ok(c) => {
+                    if let Some(fps) = c.display.fps {
+                        proptest::prop_assert!(fps.is_finite() && fps > 0.0, "fps {fps}");
+                    }
+                }
+                Err(e) => {
+                    let msg = format!("{e:#}");
+                    proptest::prop_assert!(msg.contains("config"), "{msg}");
+                }
+            }
+        }
     }
 
     #[test]
