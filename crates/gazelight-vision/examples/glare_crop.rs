@@ -8,28 +8,9 @@
 use std::path::Path;
 
 use gazelight_vision::RgbImage;
-use gazelight_vision::image::luminance;
+use gazelight_vision::image::{luminance, ring_mean_luminance as ring_mean};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline, PipelineConfig};
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
-
-fn ring_mean(img: &RgbImage, cx: usize, cy: usize, d: usize) -> f64 {
-    let r = d as isize + 1;
-    let (mut sum, mut n) = (0.0, 0usize);
-    for dy in -r..=r {
-        for dx in -r..=r {
-            if ((dx * dx + dy * dy) as f64).sqrt().round() as usize != d {
-                continue;
-            }
-            let (x, y) = (cx as isize + dx, cy as isize + dy);
-            if x < 0 || y < 0 || x >= img.width as isize || y >= img.height as isize {
-                continue;
-            }
-            sum += f64::from(luminance(img.get(x as usize, y as usize)));
-            n += 1;
-        }
-    }
-    sum / n.max(1) as f64
-}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = std::env::args()

@@ -710,26 +710,7 @@ mod tests {
             + 0.0025 * p
     }
 
-    /// Mean luminance of the pixels whose centre is `d` (rounded) pixels
-    /// from `(cx, cy)`.
-    fn ring_luminance(img: &RgbImage, cx: usize, cy: usize, d: usize) -> f64 {
-        let r = d as isize + 1;
-        let (mut sum, mut n) = (0.0, 0usize);
-        for dy in -r..=r {
-            for dx in -r..=r {
-                if ((dx * dx + dy * dy) as f64).sqrt().round() as usize != d {
-                    continue;
-                }
-                let (x, y) = (cx as isize + dx, cy as isize + dy);
-                if x < 0 || y < 0 || x >= img.width as isize || y >= img.height as isize {
-                    continue;
-                }
-                sum += f64::from(crate::image::luminance(img.get(x as usize, y as usize)));
-                n += 1;
-            }
-        }
-        sum / n as f64
-    }
+    use crate::image::ring_mean_luminance as ring_luminance;
 
     #[test]
     fn point_source_at_the_gaze_becomes_the_kernel() {

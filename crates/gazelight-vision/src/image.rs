@@ -12,6 +12,28 @@ pub fn luminance(rgb: [f32; 3]) -> f32 {
     LUMINANCE_WEIGHTS[0] * rgb[0] + LUMINANCE_WEIGHTS[1] * rgb[1] + LUMINANCE_WEIGHTS[2] * rgb[2]
 }
 
+/// Mean luminance of the pixels of `img` whose centre lies `d` pixels
+/// (rounded) from pixel `(cx, cy)`; 0 when none is inside the image. For
+/// measuring radial profiles (glare veils) in tests and examples.
+pub fn ring_mean_luminance(img: &RgbImage, cx: usize, cy: usize, d: usize) -> f64 {
+    let r = d as isize + 1;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for dy in -r..=r {
+        for dx in -r..=r {
+            if ((dx * dx + dy * dy) as f64).sqrt().round() as usize != d {
+                continue;
+            }
+            let (x, y) = (cx as isize + dx, cy as isize + dy);
+            if x < 0 || y < 0 || x >= img.width as isize || y >= img.height as isize {
+                continue;
+            }
+            sum += f64::from(luminance(img.get(x as usize, y as usize)));
+            n += 1;
+        }
+    }
+    if n == 0 { 0.0 } else { sum / n as f64 }
+}
+
 /// A linear RGB image, row-major, top row first.
 ///
 /// For scene images the unit is cd/m² (after the scene's luminance scale is

@@ -354,6 +354,13 @@ fn lost(query: &LslQuery, reason: impl Into<String>) -> ThreadItem {
     })
 }
 
+fn fatal(source_name: String, reason: String) -> ThreadItem {
+    Err(SourceError::Fatal {
+        source_name,
+        reason,
+    })
+}
+
 /// The reader thread: resolve → inlet → layout → pull until lost or stopped.
 fn read_stream(
     query: &LslQuery,
@@ -371,14 +378,7 @@ fn read_stream(
             Ok(Some(i)) => break i,
             Ok(None) => {}
             Err(e) => {
-                let _ = send_blocking(
-                    tx,
-                    stop,
-                    Err(SourceError::Fatal {
-                        source_name: query.to_string(),
-                        reason: e.to_string(),
-                    }),
-                );
+                let _ = send_blocking(tx, stop, fatal(query.to_string(), e.to_string()));
                 return;
             }
         }
@@ -386,14 +386,7 @@ fn read_stream(
     let mut inlet = match Inlet::new(&info) {
         Ok(i) => i,
         Err(e) => {
-            let _ = send_blocking(
-                tx,
-                stop,
-                Err(SourceError::Fatal {
-                    source_name: query.to_string(),
-                    reason: e.to_string(),
-                }),
-            );
+            let _ = send_blocking(tx, stop, fatal(query.to_string(), e.to_string()));
             return;
         }
     };
@@ -412,14 +405,8 @@ fn read_stream(
     let layout = match Layout::detect(&labels, &config.inlet) {
         Ok(l) => l,
         Err(reason) => {
-            let _ = send_blocking(
-                tx,
-                stop,
-                Err(SourceError::Fatal {
-                    source_name: format!("{query} (`{}`)", full.name()),
-                    reason,
-                }),
-            );
+            let source_name = format!("{query} (`{}`)", full.name());
+            let _ = send_blocking(tx, stop, fatal(source_name, reason));
             return;
         }
     };
