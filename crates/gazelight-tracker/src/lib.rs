@@ -1,36 +1,55 @@
 //! # gazelight-tracker
 //!
-//! The device side of gazelight: eye-tracker samples, the sources that
-//! produce them (the Pupil Core network API, recorded logs, synthetic
-//! traces), the filter chain that cleans them, and the black/white pupil
-//! calibration (001 §5) that maps raw pupil units onto millimetres.
+//! The one door to gazelight's eye side. It parses source URIs (the only
+//! parser: [`uri`]), opens the source a URI names ([`open`]), replays
+//! recordings on a virtual clock ([`source::ReplaySource`]), and re-exports
+//! the crates that do the work, so `gazelight_tracker::…` paths cover all of
+//! them:
 //!
-//! What the rest of the system reads is [`EyeState`]: the latest filtered,
-//! calibrated state of both eyes, with its time and validity. Eye indices
-//! follow Pupil Core: index 0 is the right eye, index 1 the left eye.
+//! - `gazelight-eye`: samples, [`EyeState`], the [`filter`] chain,
+//!   [`calibration`], the [`pupil_model`], traces and the host clock;
+//! - `gazelight-pupil`: the Pupil Core client ([`pupil`]) and `.pldata`
+//!   ([`recording`]);
+//! - `gazelight-devices`: HID, USB, serial, Gazepoint ([`transport`]) and
+//!   Lab Streaming Layer ([`lsl`]);
+//! - `gazelight-import`: recorded logs ([`import`]) and [`summary`].
+//!
+//! Eye indices follow Pupil Core: index 0 is the right eye, index 1 the
+//! left eye.
 
-pub mod sample;
-pub mod state;
-pub mod trace;
-
-pub use sample::{
-    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
-};
-pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
-pub use trace::{GazeTrace, TraceError, TraceSample};
-pub mod calibration;
-pub mod filter;
-pub mod import;
 pub mod lsl;
-pub mod pupil;
-pub mod pupil_model;
-pub mod recording;
+pub mod open;
 pub mod source;
-pub use pupil::{
+pub mod uri;
+
+pub use gazelight_eye::{
+    BlinkEvent, DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, GazeEyes, GazeSample,
+    GazeTrace, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
+};
+pub use gazelight_eye::{calibration, filter, pupil_model, sample, state, synthetic, trace};
+pub use gazelight_import as import;
+pub use gazelight_import::summary;
+pub use gazelight_pupil::recording;
+pub use gazelight_pupil::recording::{PldataReader, PldataWriter, RecordingError};
+pub use gazelight_pupil::{
     PupilClient, PupilConfig, PupilError, PupilNotifier, PupilSource, PupilStats, RemoteSink,
 };
-pub use recording::{PldataReader, PldataWriter, RecordingError};
 pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
-pub mod summary;
-pub mod synthetic;
-pub mod transport;
+
+/// The Pupil Core network client (`gazelight-pupil`) and the host clock.
+pub mod pupil {
+    pub use gazelight_eye::clock;
+    pub use gazelight_pupil::client::*;
+    pub use gazelight_pupil::{msg, stimulus};
+}
+
+/// Hardware transports (`gazelight-devices`), the source URIs that name
+/// them and [`open`](crate::open::open).
+pub mod transport {
+    pub use crate::open::{AnySource, open};
+    pub use crate::uri;
+    pub use crate::uri::{SourceUri, UriError};
+    pub use gazelight_devices::{
+        ClockAligner, SerialFormat, discover, framing, gazepoint, hid, serial, target, usb,
+    };
+}

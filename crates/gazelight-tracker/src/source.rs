@@ -17,38 +17,12 @@ use std::future::Future;
 
 use tokio::time::Instant;
 
-use crate::sample::Sample;
+use gazelight_eye::Sample;
+pub use gazelight_eye::source::{SampleSource, SourceError};
 
 /// Longest wall-clock offset from the first sample a paced replay waits
 /// for, s (one day): an absurd timestamp cannot overflow the clock.
 const MAX_PACING_GAP_SECS: f64 = 86_400.0;
-
-/// Why a source could not deliver a sample.
-#[derive(Debug, thiserror::Error)]
-pub enum SourceError {
-    /// One item of a replay could not be read; the source can go on.
-    #[error("{source_name}: item {index}: {error}")]
-    Item {
-        source_name: String,
-        index: u64,
-        #[source]
-        error: Box<dyn std::error::Error + Send + Sync>,
-    },
-    /// A live source lost its device or peer; it may recover.
-    #[error("{source_name}: {reason}")]
-    Disconnected { source_name: String, reason: String },
-    /// The source cannot continue.
-    #[error("{source_name}: {reason}")]
-    Fatal { source_name: String, reason: String },
-}
-
-/// Something that produces samples: a live tracker client or a replay.
-pub trait SampleSource: Send {
-    /// The next sample; `Ok(None)` at the end of the stream.
-    fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send;
-    /// A one-line human-readable description (kind and location).
-    fn describe(&self) -> String;
-}
 
 /// How a replay advances its virtual clock.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -193,7 +167,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sample::{DetectorMethod, PupilSample, PupilUnit};
+    use gazelight_eye::sample::{DetectorMethod, PupilSample, PupilUnit};
 
     #[derive(Debug, thiserror::Error)]
     #[error("bad line {0}")]

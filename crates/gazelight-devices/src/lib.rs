@@ -1,0 +1,223 @@
+//! # gazelight-devices
+//!
+//! Hardware transports: eye trackers on HID, raw USB, serial lines and the
+//! Gazepoint Open Gaze API over TCP, all behind [`gazelight_eye::SampleSource`].
+//!
+//! - [`hid`]: HID trackers. The report descriptor is parsed
+//!   ([`hid::descriptor`]); trackers that use the standard usage page 0x12
+//!   "Eye and Head Trackers" are decoded from the descriptor alone
+//!   ([`hid::page12`]); trackers with a vendor layout that carries pupil size
+//!   use a vendor profile ([`hid::livetrack`]: CRS LiveTrack).
+//! - [`usb`]: a vendor bulk-IN endpoint carrying [`framing`] frames.
+//! - [`serial`]: a serial line carrying CSV-ish lines, [`framing`] frames,
+//!   or Gazepoint Open Gaze API records.
+//! - [`gazepoint`]: the Open Gaze API over TCP (and its record parser, shared
+//!   with the serial transport).
+//! - [`discover`]: what is connected (`gazelight devices`).
+//! - [`lsl`]: Lab Streaming Layer inlets (liblsl, loaded at run time).
+//! - [`target`]: what to open (HID target, serial format); the source URI
+//!   parser in `gazelight-tracker` produces these.
+//!
+//! Times: every sample these sources deliver is on the host clock
+//! ([`gazelight_eye::clock::host_now_secs`]). Where the device stamps its
+//! samples, the device clock is mapped onto the host clock by a
+//! [`ClockAligner`] (the offset with the smallest apparent transport delay
+//! seen so far); where it does not, the host time of arrival is used.
+//!
+//! Blocking device APIs (hidapi, serialport) run on one reader thread per
+//! open device that decodes into a bounded channel of ready [`Sample`]s
+//! ([`ThreadedSource`]); nothing allocates per sample in steady state.
+//! Errors never panic: a missing device, a permission problem or a lost
+//! device is a [`SourceError`] naming the device, and a live source reopens
+//! its device on the next call after a [`SourceError::Disconnected`].
+
+pub mod discover;
+pub mod framing;
+pub mod gazepoint;
+pub mod hid;
+pub mod lsl;
+pub mod serial;
+pub mod target;
+pub mod usb;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+use tokio::sync::mpsc;
+
+use gazelight_eye::clock::host_now_secs;
+use gazelight_eye::sample::Sample;
+use gazelight_eye::source::SourceError;
+
+pub use target::{DEFAULT_BAUD, GAZEPOINT_DEFAULT_PORT, HidTarget, SerialFormat};
+
+/// Maps a device clock onto the host clock.
+///
+/// Each device-stamped sample arriving at host time `h` with device time
+/// `d` bounds the offset from above: `offset ≤ h − d` (the sample cannot
+/// arrive before it was taken). The aligner keeps the smallest `h − d`
+/// seen, i.e. the sample with the least transport delay, which is the
+/// lower-envelope estimate used by one-way clock synchronisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ClockAligner {
+    offset_secs: Option<f64>,
+}
+
+impl ClockAligner {
+    /// A fresh aligner (no offset yet).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Host time of a sample stamped `device_secs` that arrived at
+    /// `arrival_host_secs`. A non-finite device time yields the arrival time.
+    pub fn to_host(&mut self, device_secs: f64, arrival_host_secs: f64) -> f64 {
+        if !device_secs.is_finite() {
+            return arrival_host_secs;
+        }
+        let candidate = arrival_host_secs - device_secs;
+        let offset = match self.offset_secs {
+            Some(o) if o <= candidate => o,
+            _ => candidate,
+        };
+        self.offset_secs = Some(offset);
+        device_secs + offset
+    }
+
+    /// The current offset `host − device`, seconds.
+    pub fn offset_secs(&self) -> Option<f64> {
+        self.offset_secs
+    }
+
+    /// Forget the offset (after a reconnect the device clock may restart).
+    pub fn reset(&mut self) {
+        self.offset_secs = None;
+    }
+}
+
+/// What a reader thread delivers.
+pub(crate) type ThreadItem = Result<Sample, SourceError>;
+
+/// Capacity of the channel between a reader thread and its source.
+pub(crate) const THREAD_CHANNEL_CAPACITY: usize = 1024;
+
+/// A source fed by a blocking reader thread.
+///
+/// The thread owns the device; it pushes decoded samples (or per-item
+/// errors) into a bounded channel and stops when the source is dropped
+/// (the stop flag is set and the channel closes) or when the device is
+/// lost (it sends one [`SourceError::Disconnected`] and exits).
+pub(crate) struct ThreadedSource {
+    rx: mpsc::Receiver<ThreadItem>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ThreadedSource {
+    /// Start `body` on a named thread. `body` gets the sender and the stop
+    /// flag and must return when the flag is set or a send fails.
+    pub(crate) fn spawn<F>(name: &str, body: F) -> Result<Self, std::io::Error>
+    where
+        F: FnOnce(mpsc::Sender<ThreadItem>, Arc<AtomicBool>) + Send + 'static,
+    {
+        let (tx, rx) = mpsc::channel(THREAD_CHANNEL_CAPACITY);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name(name.chars().take(15).collect())
+            .spawn(move || body(tx, stop2))?;
+        Ok(Self {
+            rx,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The next item; `None` once the thread has ended and the channel is
+    /// drained.
+    pub(crate) async fn recv(&mut self) -> Option<ThreadItem> {
+        self.rx.recv().await
+    }
+}
+
+/// The next sample of a source that reopens its device: reads from the open
+/// reader thread; a lost device (or a thread that ended) closes the reader,
+/// so the caller's next call reopens it. `Ok(None)` when no reader is open.
+pub(crate) async fn recv_reopenable(
+    reader: &mut Option<ThreadedSource>,
+    source_name: &str,
+) -> Result<Option<Sample>, SourceError> {
+    let Some(r) = reader.as_mut() else {
+        return Ok(None);
+    };
+    match r.recv().await {
+        Some(Ok(s)) => Ok(Some(s)),
+        Some(Err(e)) => {
+            if matches!(e, SourceError::Disconnected { .. }) {
+                *reader = None;
+            }
+            Err(e)
+        }
+        None => {
+            *reader = None;
+            Err(SourceError::Disconnected {
+                source_name: source_name.to_owned(),
+                reason: "reader stopped".to_owned(),
+            })
+        }
+    }
+}
+
+impl Drop for ThreadedSource {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        self.rx.close();
+        // The reader threads poll the stop flag at least every
+        // `READ_POLL_MS`; joining keeps the device closed before a reopen.
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// How long a blocking read waits before a reader thread re-checks its
+/// stop flag, milliseconds.
+pub(crate) const READ_POLL_MS: u64 = 50;
+
+/// Send from a reader thread; `false` when the source is gone (stop).
+pub(crate) fn send_blocking(
+    tx: &mpsc::Sender<ThreadItem>,
+    stop: &AtomicBool,
+    item: ThreadItem,
+) -> bool {
+    if stop.load(Ordering::Relaxed) {
+        return false;
+    }
+    tx.blocking_send(item).is_ok()
+}
+
+/// Host time now, seconds (re-exported for the transports).
+pub(crate) fn now_secs() -> f64 {
+    host_now_secs()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn aligner_keeps_the_least_delayed_offset() {
+        let mut a = ClockAligner::new();
+        // Device time 10 s arrives at host 100.05 s (50 ms late).
+        assert!((a.to_host(10.0, 100.05) - 100.05).abs() < 1e-12);
+        // Next sample only 10 ms late: offset tightens to 90.01.
+        assert!((a.to_host(10.1, 100.11) - 100.11).abs() < 1e-12);
+        // A late arrival does not move the offset back.
+        assert!((a.to_host(10.2, 100.5) - 100.21).abs() < 1e-12);
+        assert!((a.offset_secs().unwrap() - 90.01).abs() < 1e-12);
+        assert_eq!(a.to_host(f64::NAN, 7.0), 7.0);
+        a.reset();
+        assert_eq!(a.offset_secs(), None);
+    }
+}

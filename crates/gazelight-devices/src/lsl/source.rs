@@ -1,0 +1,614 @@
+//! `lsl://?name=…` / `lsl://?type=…`: an LSL stream as a [`SampleSource`].
+//!
+//! A reader thread resolves the stream, opens an inlet, reads the
+//! channel labels from the stream's description and picks a [`Layout`]:
+//! Pupil Capture's LSL relay (`pupil_capture`: `confidence`,
+//! `norm_pos_x`, `norm_pos_y`, …, `diameter0_2d`, `diameter1_2d`,
+//! `diameter0_3d`, `diameter1_3d`), Neon's stream (`x`, `y` in scene
+//! camera pixels, `pupil_diameter_left`, `pupil_diameter_right` in mm), or
+//! the mapping in `[lsl.inlet]`. Every sample becomes gaze and per-eye
+//! pupil samples on the host clock: its timestamp plus the inlet's
+//! `time_correction()` (refreshed every few seconds) gives this machine's
+//! LSL clock, and [`LslClock`] the host clock.
+//!
+//! A stream that vanishes (liblsl reports it lost) ends the reader with
+//! [`SourceError::Disconnected`]; the next [`SampleSource::next`] resolves
+//! it again, so it resumes when it comes back.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use tokio::sync::mpsc;
+
+use super::{Inlet, InletMapping, LslClock, LslConfig, LslError, Pulled, resolve};
+use crate::{ThreadItem, ThreadedSource, recv_reopenable, send_blocking};
+use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
+use gazelight_eye::source::{SampleSource, SourceError};
+
+/// How often the time correction is refreshed, seconds.
+const TIME_CORRECTION_PERIOD_SECS: f64 = 5.0;
+/// How long one pull waits before the stop flag is checked, seconds.
+const PULL_TIMEOUT_SECS: f64 = 0.05;
+/// How long one resolve waits before the stop flag is checked, seconds.
+const RESOLVE_STEP_SECS: f64 = 0.5;
+/// Neon's scene camera, pixels (1600 × 1200; Pupil Labs Neon
+/// specifications): its gaze x/y are in these pixels.
+const NEON_SCENE_PX: [f64; 2] = [1600.0, 1200.0];
+
+/// Which stream an `lsl://` URI asks for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LslQuery {
+    /// `name`, `type` or `source_id`.
+    pub prop: &'static str,
+    pub value: String,
+}
+
+impl LslQuery {
+    /// Parses the query part of `lsl://?name=…` (one of name, type,
+    /// source_id).
+    pub fn parse(uri: &str) -> Result<Self, String> {
+        let rest = uri
+            .strip_prefix("lsl://")
+            .ok_or_else(|| format!("`{uri}`: expected lsl://?name=NAME or lsl://?type=TYPE"))?;
+        let q = rest.trim_start_matches('/');
+        let q = q.strip_prefix('?').ok_or_else(|| {
+            format!("`{uri}`: expected lsl://?name=NAME, lsl://?type=TYPE or lsl://?source_id=ID")
+        })?;
+        let mut found = None;
+        for pair in q.split('&').filter(|p| !p.is_empty()) {
+            let (k, v) = pair
+                .split_once('=')
+                .ok_or_else(|| format!("`{uri}`: `{pair}` is not KEY=VALUE"))?;
+            let prop = match k {
+                "name" => "name",
+                "type" => "type",
+                "source_id" => "source_id",
+                other => {
+                    return Err(format!(
+                        "`{uri}`: unknown parameter `{other}` (expected name, type or source_id)"
+                    ));
+                }
+            };
+            if v.is_empty() || v.contains('\0') {
+                return Err(format!("`{uri}`: empty {k}"));
+            }
+            if found.is_some() {
+                return Err(format!("`{uri}`: give one of name, type or source_id"));
+            }
+            found = Some(Self {
+                prop,
+                value: percent_decode(v),
+            });
+        }
+        found.ok_or_else(|| format!("`{uri}`: expected ?name=NAME or ?type=TYPE"))
+    }
+}
+
+impl std::fmt::Display for LslQuery {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "lsl://?{}={}", self.prop, self.value)
+    }
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && i + 2 < b.len()
+            && let Some(Ok(v)) = s.get(i + 1..i + 3).map(|h| u8::from_str_radix(h, 16))
+        {
+            out.push(v);
+            i += 3;
+            continue;
+        }
+        out.push(if b[i] == b'+' { b' ' } else { b[i] });
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// How a stream's channels are read.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Layout {
+    /// `pupil-capture-relay`, `neon` or `mapped`.
+    pub kind: &'static str,
+    /// Channel indices.
+    pub gaze_x: Option<usize>,
+    pub gaze_y: Option<usize>,
+    /// Gaze value range (divided by it → normalised).
+    pub gaze_range: [f64; 2],
+    /// Whether gaze y = 0 is the bottom (Pupil's `norm_pos`).
+    pub gaze_y_up: bool,
+    pub confidence: Option<usize>,
+    /// [right, left]: (channel, unit) in order of preference.
+    pub pupil: [Vec<(usize, PupilUnit)>; 2],
+}
+
+impl Layout {
+    /// Picks the layout from the channel labels (or `mapping` when set).
+    pub fn detect(labels: &[String], mapping: &InletMapping) -> Result<Self, String> {
+        let idx = |l: &str| labels.iter().position(|x| x == l);
+        let need = |l: &str| idx(l).ok_or_else(|| format!("no channel labelled `{l}`"));
+        if mapping.is_set() {
+            let unit = match mapping.pupil_unit.as_deref() {
+                None | Some("mm") => PupilUnit::Mm,
+                Some("px") => PupilUnit::Px,
+                _ => PupilUnit::Arbitrary,
+            };
+            let opt = |l: &Option<String>| l.as_deref().map(need).transpose();
+            let eye = |l: &Option<String>| -> Result<Vec<(usize, PupilUnit)>, String> {
+                Ok(opt(l)?.map(|i| vec![(i, unit)]).unwrap_or_default())
+            };
+            return Ok(Self {
+                kind: "mapped",
+                gaze_x: opt(&mapping.gaze_x)?,
+                gaze_y: opt(&mapping.gaze_y)?,
+                gaze_range: mapping.gaze_range.unwrap_or([1.0, 1.0]),
+                gaze_y_up: mapping.gaze_origin.as_deref() == Some("bottom"),
+                confidence: opt(&mapping.confidence)?,
+                pupil: [eye(&mapping.pupil_right)?, eye(&mapping.pupil_left)?],
+            });
+        }
+        if idx("norm_pos_x").is_some() && idx("norm_pos_y").is_some() {
+            // Pupil Capture LSL relay: eye 0 = right, eye 1 = left; the 3D
+            // diameter (mm) is preferred, the 2D one (px) is the fallback.
+            let eye = |e: u8| {
+                let mut v = Vec::new();
+                if let Some(i) = idx(&format!("diameter{e}_3d")) {
+                    v.push((i, PupilUnit::Mm));
+                }
+                if let Some(i) = idx(&format!("diameter{e}_2d")) {
+                    v.push((i, PupilUnit::Px));
+                }
+                v
+            };
+            return Ok(Self {
+                kind: "pupil-capture-relay",
+                gaze_x: idx("norm_pos_x"),
+                gaze_y: idx("norm_pos_y"),
+                gaze_range: [1.0, 1.0],
+                gaze_y_up: true,
+                confidence: idx("confidence"),
+                pupil: [eye(0), eye(1)],
+            });
+        }
+        if idx("x").is_some() && idx("y").is_some() {
+            let eye = |side: &str| {
+                idx(&format!("pupil_diameter_{side}"))
+                    .map(|i| vec![(i, PupilUnit::Mm)])
+                    .unwrap_or_default()
+            };
+            return Ok(Self {
+                kind: "neon",
+                gaze_x: idx("x"),
+                gaze_y: idx("y"),
+                gaze_range: mapping.scene_camera_px.unwrap_or(NEON_SCENE_PX),
+                gaze_y_up: false,
+                confidence: None,
+                pupil: [eye("right"), eye("left")],
+            });
+        }
+        Err(format!(
+            "channel labels [{}] are neither Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, \
+             diameter0_3d, …) nor Neon's (x, y, pupil_diameter_left, …): map them in [lsl.inlet] \
+             (gaze_x, gaze_y, gaze_range, pupil_right, pupil_left, pupil_unit, confidence)",
+            labels.join(", ")
+        ))
+    }
+
+    /// The samples of one LSL sample at host time `t_secs`, appended to `out`.
+    pub fn decode(&self, values: &[f64], t_secs: f64, out: &mut Vec<Sample>) {
+        let get = |i: Option<usize>| i.and_then(|i| values.get(i).copied());
+        let confidence = get(self.confidence)
+            .filter(|c| c.is_finite())
+            .map_or(1.0, |c| c.clamp(0.0, 1.0)) as f32;
+        let mut valid = [false; 2];
+        for (e, prefs) in self.pupil.iter().enumerate() {
+            let Some((d, unit)) = prefs.iter().find_map(|&(i, u)| {
+                values
+                    .get(i)
+                    .copied()
+                    .filter(|v| v.is_finite() && *v > 0.0)
+                    .map(|v| (v, u))
+            }) else {
+                continue;
+            };
+            valid[e] = true;
+            out.push(Sample::Pupil(PupilSample {
+                t_secs,
+                eye: e as u8,
+                diameter_raw: d as f32,
+                unit,
+                diameter_mm: (unit == PupilUnit::Mm).then_some(d as f32),
+                confidence,
+                norm_pos: [f32::NAN; 2],
+                method: if unit == PupilUnit::Mm && self.kind == "pupil-capture-relay" {
+                    DetectorMethod::Pupil3d
+                } else if self.kind == "pupil-capture-relay" {
+                    DetectorMethod::Pupil2d
+                } else {
+                    DetectorMethod::Other
+                },
+            }));
+        }
+        if let (Some(x), Some(y)) = (get(self.gaze_x), get(self.gaze_y))
+            && x.is_finite()
+            && y.is_finite()
+        {
+            let u = x / self.gaze_range[0];
+            let v = y / self.gaze_range[1];
+            let v = if self.gaze_y_up { 1.0 - v } else { v };
+            out.push(Sample::Gaze(GazeSample {
+                t_secs,
+                gaze_uv: [u as f32, v as f32],
+                confidence,
+                eyes: match valid {
+                    [true, false] => GazeEyes::Right,
+                    [false, true] => GazeEyes::Left,
+                    _ => GazeEyes::Binocular,
+                },
+            }));
+        }
+    }
+}
+
+/// What the reader thread learnt about the stream it opened.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StreamFacts {
+    pub name: String,
+    pub kind: String,
+    pub source_id: String,
+    pub channels: usize,
+    pub nominal_srate_hz: f64,
+    pub layout: Option<String>,
+    /// Newest `time_correction()`, seconds.
+    pub time_correction_s: Option<f64>,
+    pub opened: u64,
+}
+
+/// An LSL stream as a sample source (reopens after a loss).
+pub struct LslSource {
+    query: LslQuery,
+    config: LslConfig,
+    clock: LslClock,
+    reader: Option<ThreadedSource>,
+    facts: Arc<std::sync::Mutex<StreamFacts>>,
+}
+
+impl LslSource {
+    /// Loads liblsl and measures the clock; the stream is resolved on the
+    /// first [`SampleSource::next`] (it may not exist yet).
+    pub fn new(query: LslQuery, config: LslConfig) -> Result<Self, LslError> {
+        let clock = LslClock::measure(&config)?;
+        Ok(Self {
+            query,
+            config,
+            clock,
+            reader: None,
+            facts: Arc::default(),
+        })
+    }
+
+    /// What is known about the stream now.
+    pub fn facts(&self) -> StreamFacts {
+        self.facts.lock().map(|f| f.clone()).unwrap_or_default()
+    }
+
+    fn start(&mut self) -> Result<(), SourceError> {
+        let query = self.query.clone();
+        let config = self.config.clone();
+        let clock = self.clock;
+        let facts = self.facts.clone();
+        let reader = ThreadedSource::spawn("gazelight-lsl", move |tx, stop| {
+            read_stream(&query, &config, clock, &facts, &tx, &stop);
+        })
+        .map_err(|e| SourceError::Fatal {
+            source_name: self.query.to_string(),
+            reason: format!("cannot start the LSL reader thread: {e}"),
+        })?;
+        self.reader = Some(reader);
+        Ok(())
+    }
+}
+
+impl SampleSource for LslSource {
+    async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+        loop {
+            if self.reader.is_none() {
+                self.start()?;
+            }
+            if let Some(s) = recv_reopenable(&mut self.reader, &self.query.to_string()).await? {
+                return Ok(Some(s));
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        let f = self.facts();
+        if f.name.is_empty() {
+            format!("LSL stream {} (not found yet)", self.query)
+        } else {
+            format!(
+                "LSL stream `{}` (type {}, {} channels, {} Hz, layout {})",
+                f.name,
+                f.kind,
+                f.channels,
+                f.nominal_srate_hz,
+                f.layout.as_deref().unwrap_or("?")
+            )
+        }
+    }
+}
+
+fn lost(query: &LslQuery, reason: impl Into<String>) -> ThreadItem {
+    Err(SourceError::Disconnected {
+        source_name: query.to_string(),
+        reason: reason.into(),
+    })
+}
+
+fn fatal(source_name: String, reason: String) -> ThreadItem {
+    Err(SourceError::Fatal {
+        source_name,
+        reason,
+    })
+}
+
+/// The reader thread: resolve → inlet → layout → pull until lost or stopped.
+fn read_stream(
+    query: &LslQuery,
+    config: &LslConfig,
+    clock: LslClock,
+    facts: &std::sync::Mutex<StreamFacts>,
+    tx: &mpsc::Sender<ThreadItem>,
+    stop: &AtomicBool,
+) {
+    let info = loop {
+        if stop.load(Ordering::Relaxed) {
+            return;
+        }
+        match resolve(config, query.prop, &query.value, RESOLVE_STEP_SECS) {
+            Ok(Some(i)) => break i,
+            Ok(None) => {}
+            Err(e) => {
+                let _ = send_blocking(tx, stop, fatal(query.to_string(), e.to_string()));
+                return;
+            }
+        }
+    };
+    let mut inlet = match Inlet::new(&info) {
+        Ok(i) => i,
+        Err(e) => {
+            let _ = send_blocking(tx, stop, fatal(query.to_string(), e.to_string()));
+            return;
+        }
+    };
+    let full = match inlet.full_info(2.0) {
+        Ok(Some(f)) => f,
+        Ok(None) => {
+            let _ = send_blocking(tx, stop, lost(query, "no stream description within 2 s"));
+            return;
+        }
+        Err(e) => {
+            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+            return;
+        }
+    };
+    let labels = full.channel_labels();
+    let layout = match Layout::detect(&labels, &config.inlet) {
+        Ok(l) => l,
+        Err(reason) => {
+            let source_name = format!("{query} (`{}`)", full.name());
+            let _ = send_blocking(tx, stop, fatal(source_name, reason));
+            return;
+        }
+    };
+    if let Ok(mut f) = facts.lock() {
+        f.name = full.name();
+        f.kind = full.kind();
+        f.source_id = full.source_id();
+        f.channels = full.channel_count();
+        f.nominal_srate_hz = full.nominal_srate_hz();
+        f.layout = Some(layout.kind.to_owned());
+        f.opened += 1;
+    }
+    tracing::info!(stream = %full.name(), layout = layout.kind, channels = inlet.channels(), "LSL inlet open");
+    drop(full);
+    drop(info);
+    match inlet.open(2.0) {
+        Ok(true) => {}
+        Ok(false) => {
+            let _ = send_blocking(tx, stop, lost(query, "could not subscribe within 2 s"));
+            return;
+        }
+        Err(e) => {
+            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+            return;
+        }
+    }
+    let mut correction = match inlet.time_correction(2.0) {
+        Ok(c) => c.unwrap_or(0.0),
+        Err(e) => {
+            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+            return;
+        }
+    };
+    if let Ok(mut f) = facts.lock() {
+        f.time_correction_s = Some(correction);
+    }
+    let mut last_correction = Instant::now();
+    let mut buf = vec![0.0f64; inlet.channels()];
+    let mut out = Vec::with_capacity(4);
+    while !stop.load(Ordering::Relaxed) {
+        if last_correction.elapsed() >= Duration::from_secs_f64(TIME_CORRECTION_PERIOD_SECS) {
+            last_correction = Instant::now();
+            match inlet.time_correction(0.2) {
+                Ok(Some(c)) => {
+                    correction = c;
+                    if let Ok(mut f) = facts.lock() {
+                        f.time_correction_s = Some(c);
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+                    return;
+                }
+            }
+        }
+        match inlet.pull(&mut buf, PULL_TIMEOUT_SECS) {
+            Ok(Pulled::Sample(ts)) => {
+                let host = clock.to_host(ts + correction);
+                out.clear();
+                layout.decode(&buf, host, &mut out);
+                for s in out.drain(..) {
+                    if !send_blocking(tx, stop, Ok(s)) {
+                        return;
+                    }
+                }
+            }
+            Ok(Pulled::Nothing) => {}
+            Err(e) => {
+                let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+                return;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn labels(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| (*s).to_owned()).collect()
+    }
+
+    // Channel order of the Pupil Capture LSL relay (App-PupilLabs,
+    // pupil_capture/README.md "Data Format").
+    const RELAY: [&str; 22] = [
+        "confidence",
+        "norm_pos_x",
+        "norm_pos_y",
+        "gaze_point_3d_x",
+        "gaze_point_3d_y",
+        "gaze_point_3d_z",
+        "eye_center0_3d_x",
+        "eye_center0_3d_y",
+        "eye_center0_3d_z",
+        "eye_center1_3d_x",
+        "eye_center1_3d_y",
+        "eye_center1_3d_z",
+        "gaze_normal0_x",
+        "gaze_normal0_y",
+        "gaze_normal0_z",
+        "gaze_normal1_x",
+        "gaze_normal1_y",
+        "gaze_normal1_z",
+        "diameter0_2d",
+        "diameter1_2d",
+        "diameter0_3d",
+        "diameter1_3d",
+    ];
+
+    #[test]
+    fn queries_parse() {
+        assert_eq!(
+            LslQuery::parse("lsl://?name=pupil_capture").unwrap(),
+            LslQuery {
+                prop: "name",
+                value: "pupil_capture".into()
+            }
+        );
+        assert_eq!(LslQuery::parse("lsl://?type=Gaze").unwrap().prop, "type");
+        assert_eq!(
+            LslQuery::parse("lsl://?name=Neon%20Gaze").unwrap().value,
+            "Neon Gaze"
+        );
+        for bad in [
+            "lsl://",
+            "lsl://?",
+            "lsl://?name=",
+            "lsl://?host=x",
+            "lsl://?name=a&type=b",
+            "pupil://?name=a",
+        ] {
+            assert!(LslQuery::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn relay_layout_reads_gaze_and_prefers_3d_diameters() {
+        let l = Layout::detect(&labels(&RELAY), &InletMapping::default()).unwrap();
+        assert_eq!(l.kind, "pupil-capture-relay");
+        let mut v = vec![f64::NAN; 22];
+        v[0] = 0.9;
+        v[1] = 0.25;
+        v[2] = 0.75;
+        v[18] = 30.0;
+        v[19] = 33.0;
+        v[20] = 3.5;
+        let mut out = Vec::new();
+        l.decode(&v, 10.0, &mut out);
+        // Right eye: 3D mm; left eye: no 3D (NaN) → 2D px.
+        let Sample::Pupil(r) = out[0] else { panic!() };
+        assert_eq!(
+            (r.eye, r.diameter_mm, r.unit),
+            (0, Some(3.5), PupilUnit::Mm)
+        );
+        let Sample::Pupil(le) = out[1] else { panic!() };
+        assert_eq!((le.eye, le.diameter_raw, le.unit), (1, 33.0, PupilUnit::Px));
+        let Sample::Gaze(g) = out[2] else { panic!() };
+        // norm_pos has its origin bottom-left: v = 1 − y.
+        assert_eq!(g.gaze_uv, [0.25, 0.25]);
+        assert!((g.confidence - 0.9).abs() < 1e-6);
+        assert_eq!(g.t_secs, 10.0);
+    }
+
+    #[test]
+    fn neon_and_mapped_layouts() {
+        let l = Layout::detect(
+            &labels(&["x", "y", "pupil_diameter_left", "pupil_diameter_right"]),
+            &InletMapping::default(),
+        )
+        .unwrap();
+        assert_eq!(l.kind, "neon");
+        let mut out = Vec::new();
+        l.decode(&[800.0, 300.0, 4.0, 3.0], 1.0, &mut out);
+        let Sample::Pupil(r) = out[0] else { panic!() };
+        assert_eq!((r.eye, r.diameter_mm), (0, Some(3.0)));
+        let Sample::Gaze(g) = out[2] else { panic!() };
+        assert_eq!(g.gaze_uv, [0.5, 0.25]);
+
+        let err = Layout::detect(&labels(&["a", "b"]), &InletMapping::default()).unwrap_err();
+        assert!(err.contains("[lsl.inlet]") && err.contains("a, b"), "{err}");
+        let m = InletMapping {
+            gaze_x: Some("b".into()),
+            gaze_y: Some("a".into()),
+            gaze_range: Some([1920.0, 1080.0]),
+            pupil_left: Some("a".into()),
+            pupil_unit: Some("px".into()),
+            ..InletMapping::default()
+        };
+        let l = Layout::detect(&labels(&["a", "b"]), &m).unwrap();
+        out.clear();
+        l.decode(&[540.0, 960.0], 2.0, &mut out);
+        let Sample::Pupil(p) = out[0] else { panic!() };
+        assert_eq!((p.eye, p.unit, p.diameter_raw), (1, PupilUnit::Px, 540.0));
+        let Sample::Gaze(g) = out[1] else { panic!() };
+        assert_eq!(g.gaze_uv, [0.5, 0.5]);
+        let bad = InletMapping {
+            gaze_x: Some("zz".into()),
+            ..InletMapping::default()
+        };
+        assert!(
+            Layout::detect(&labels(&["a"]), &bad)
+                .unwrap_err()
+                .contains("zz")
+        );
+    }
+}

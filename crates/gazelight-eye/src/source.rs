@@ -1,0 +1,41 @@
+//! The one interface every sample source implements: a live tracker
+//! client, a hardware transport or a replay.
+//!
+//! A [`SampleSource`] yields [`Sample`]s one at a time, asynchronously,
+//! with times on the host clock (live sources align the tracker's clock
+//! first, see [`crate::clock`]) or on the recording's clock (replays).
+//! `Ok(None)` is the end of the stream; an `Err` is one bad item or a lost
+//! connection and the caller may keep calling `next` (a replay skips to the
+//! following item). The trait names no runtime: implementations bring their
+//! own I/O.
+
+use std::future::Future;
+
+use crate::sample::Sample;
+
+/// Why a source could not deliver a sample.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// One item of a replay could not be read; the source can go on.
+    #[error("{source_name}: item {index}: {error}")]
+    Item {
+        source_name: String,
+        index: u64,
+        #[source]
+        error: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A live source lost its device or peer; it may recover.
+    #[error("{source_name}: {reason}")]
+    Disconnected { source_name: String, reason: String },
+    /// The source cannot continue.
+    #[error("{source_name}: {reason}")]
+    Fatal { source_name: String, reason: String },
+}
+
+/// Something that produces samples: a live tracker client or a replay.
+pub trait SampleSource: Send {
+    /// The next sample; `Ok(None)` at the end of the stream.
+    fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send;
+    /// A one-line human-readable description (kind and location).
+    fn describe(&self) -> String;
+}

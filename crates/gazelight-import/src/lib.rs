@@ -1,0 +1,216 @@
+//! # gazelight-import
+//!
+//! Importers for recorded eye-tracking logs, replayed through the filter
+//! chain as a stream of [`Sample`]s.
+//!
+//! Every importer is a streaming iterator: it reads its files through
+//! buffered readers record by record and never loads a whole recording into
+//! memory. Items are `Result<Sample, ImportError>`:
+//!
+//! - a malformed record (an unparsable ASC sample line, a CSV row with a
+//!   non-numeric field, a truncated trailing binary record) is **skipped** and
+//!   counted in [`ImportWarnings`] (with the first few messages kept, naming
+//!   file and line or byte offset);
+//! - an unrecoverable structure error (a missing `.dtype` field, an I/O
+//!   failure) is yielded once as `Err` and the iterator then ends.
+//!
+//! Formats:
+//!
+//! - [`neon`]: Pupil Labs Neon native recordings (a directory with
+//!   `info.json`, `*.dtype`, `* ps1.raw`, `* ps1.time`);
+//! - [`eyelink`]: SR Research EyeLink ASC exports;
+//! - [`csv`]: pupil-diameter CSV traces (`time,left,right` in mm, as the
+//!   piprkit PLR recordings);
+//! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
+//!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them.
+//!
+//! [`open`] picks the importer from the path; [`summary`] condenses a
+//! recording (or a stretch of a live Pupil stream) into counts, rates,
+//! pupil ranges and blinks.
+
+pub mod csv;
+pub mod eyelink;
+pub mod neon;
+pub mod pupil_core;
+pub mod summary;
+pub mod time_guard;
+
+use std::path::{Path, PathBuf};
+
+use gazelight_eye::sample::Sample;
+
+/// How many warning messages an importer keeps verbatim (all are counted).
+pub const KEPT_WARNING_MESSAGES: usize = 16;
+
+/// A recording that cannot be imported (or a part of it that cannot).
+#[derive(Debug, thiserror::Error)]
+pub enum ImportError {
+    /// The file cannot be opened or read.
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file's structure is unusable (missing field, wrong layout); the
+    /// import stops. `position` names the line or byte offset.
+    #[error("{path} ({position}): {reason}")]
+    Structure {
+        path: PathBuf,
+        position: Position,
+        reason: String,
+    },
+    /// The path is not a recording any importer knows.
+    #[error("{path}: unknown recording format ({reason})")]
+    UnknownFormat { path: PathBuf, reason: String },
+}
+
+/// Where in a file something happened.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Position {
+    /// 1-based line number of a text file.
+    Line(u64),
+    /// Byte offset into a binary file.
+    Byte(u64),
+    /// The file as a whole.
+    File,
+}
+
+impl std::fmt::Display for Position {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Position::Line(l) => write!(f, "line {l}"),
+            Position::Byte(b) => write!(f, "byte offset {b}"),
+            Position::File => write!(f, "whole file"),
+        }
+    }
+}
+
+/// Counted warnings of an import: skipped malformed records.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ImportWarnings {
+    /// Number of records skipped.
+    pub skipped_records: u64,
+    /// The first [`KEPT_WARNING_MESSAGES`] messages, each naming file and
+    /// position.
+    pub messages: Vec<String>,
+}
+
+impl ImportWarnings {
+    /// Counts a skipped record and keeps its message if there is room.
+    pub fn skip(&mut self, path: &Path, position: Position, reason: impl std::fmt::Display) {
+        self.skipped_records += 1;
+        if self.messages.len() < KEPT_WARNING_MESSAGES {
+            self.messages
+                .push(format!("{} ({position}): {reason}", path.display()));
+        }
+        tracing::warn!(path = %path.display(), %position, %reason, "skipped malformed record");
+    }
+}
+
+/// A streaming importer of a recording.
+pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
+    /// Warnings counted so far (complete once the iterator has ended).
+    fn warnings(&self) -> &ImportWarnings;
+    /// A short name of the format ("neon", "eyelink-asc", "csv").
+    fn format(&self) -> &'static str;
+    /// Where the most recently returned sample came from (a text
+    /// importer's line); [`Position::File`] when the format cannot say.
+    fn position(&self) -> Position {
+        Position::File
+    }
+    /// Clock statistics of the accepted samples, when the importer keeps
+    /// them (every importer [`open`] returns does: it is wrapped in a
+    /// [`time_guard::TimeGuard`]).
+    fn time_stats(&self) -> Option<&time_guard::TimeStats> {
+        None
+    }
+}
+
+/// Opens a recording, picking the importer from the path: a directory with
+/// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
+/// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
+/// EyeLink ASC export, `*.csv` a pupil CSV trace.
+///
+/// Every importer comes wrapped in a [`time_guard::TimeGuard`]: samples
+/// with absurd or isolated out-of-line timestamps are skipped and counted,
+/// and a file of which (nearly) nothing is readable ends in an error.
+pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
+    use time_guard::TimeGuard;
+    if path.is_dir() {
+        if path.join("info.json").is_file() && path.join("eye_state.dtype").is_file() {
+            return Ok(Box::new(TimeGuard::new(
+                neon::NeonImporter::open(path)?,
+                path,
+            )));
+        }
+        if pupil_core::PupilCoreImporter::detect(path) {
+            return Ok(Box::new(TimeGuard::new(
+                pupil_core::PupilCoreImporter::open(path)?,
+                path,
+            )));
+        }
+        return Err(ImportError::UnknownFormat {
+            path: path.to_owned(),
+            reason: "a directory with neither info.json + eye_state.dtype (Neon) nor \
+                     pupil.pldata / gaze.pldata (Pupil Core)"
+                .into(),
+        });
+    }
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("asc") => Ok(Box::new(TimeGuard::new(
+            eyelink::AscImporter::open(path)?,
+            path,
+        ))),
+        Some("csv") => Ok(Box::new(TimeGuard::new(
+            csv::CsvPupilImporter::open(path)?,
+            path,
+        ))),
+        _ => Err(ImportError::UnknownFormat {
+            path: path.to_owned(),
+            reason: "expected a Neon or Pupil Core directory, an .asc or a .csv file".into(),
+        }),
+    }
+}
+
+/// A small fixed-capacity FIFO of pending samples (an importer record can
+/// expand to several samples); no heap allocation.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Pending<const N: usize> {
+    buf: [Option<Sample>; N],
+    head: usize,
+    len: usize,
+}
+
+impl<const N: usize> Pending<N> {
+    pub(crate) fn new() -> Self {
+        Self {
+            buf: [None; N],
+            head: 0,
+            len: 0,
+        }
+    }
+
+    /// Appends; silently ignored when full (callers size N to their maximum
+    /// expansion, so it never is).
+    pub(crate) fn push(&mut self, s: Sample) {
+        if self.len < N {
+            self.buf[(self.head + self.len) % N] = Some(s);
+            self.len += 1;
+        }
+    }
+
+    pub(crate) fn pop(&mut self) -> Option<Sample> {
+        if self.len == 0 {
+            return None;
+        }
+        let s = self.buf[self.head].take();
+        self.head = (self.head + 1) % N;
+        self.len -= 1;
+        s
+    }
+}

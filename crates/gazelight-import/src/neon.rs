@@ -1,0 +1,784 @@
+//! Pupil Labs Neon native recordings.
+//!
+//! A Neon recording is a directory. Each stream `<name>` has a layout file
+//! `<name>.dtype` (a NumPy structured dtype written as a Python list of
+//! `("field", "type")` tuples, packed, little-endian), one or more parts
+//! `<name> psN.raw` of fixed-size records in that layout, and beside each
+//! part `<name> psN.time`, one little-endian `u64` Unix timestamp in
+//! nanoseconds per record. `info.json` holds `start_time` (ns).
+//!
+//! What this importer reads:
+//!
+//! - `eye_state`: `pupil_diameter_left_mm` / `pupil_diameter_right_mm`
+//!   become one [`PupilSample`] per eye (unit mm; eye 1 = left, 0 = right).
+//!   Neon reports no pupil confidence and keeps estimating a diameter while
+//!   the lid is closed (the demo recording reads 1–2.5 mm during its
+//!   blinks), so the **confidence is derived from the eyelid aperture**
+//!   (`eyelid_aperture_left_mm` / `_right_mm`) when the layout has it:
+//!   0 at or below [`APERTURE_CLOSED_MM`], 1 at or above
+//!   [`APERTURE_OPEN_MM`], linear in between. Without eyelid fields the
+//!   confidence is 1 for a finite positive diameter.
+//! - `gaze` (else `gaze_200hz`): `x`, `y` in scene-camera pixels, divided by
+//!   the 1600×1200 scene camera ([`SCENE_CAMERA_PX`]) into top-left-origin
+//!   normalised coordinates; binocular, confidence 1 when finite.
+//! - `blinks` (optional): `start_timestamp_ns`, `end_timestamp_ns` become
+//!   [`BlinkEvent`]s covering both eyes.
+//!
+//! Times are seconds since `info.json`'s `start_time` (or since the first
+//! eye-state record when that is missing). The three streams are merged in
+//! time order.
+
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
+
+use super::{ImportError, ImportWarnings, Importer, Pending, Position};
+use gazelight_eye::sample::{
+    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
+};
+
+/// Neon scene camera resolution (px), for gaze normalisation.
+pub const SCENE_CAMERA_PX: [f32; 2] = [1600.0, 1200.0];
+/// Eyelid aperture at or below which the eye counts as closed (confidence 0).
+/// Open eyes in the demo recording measure 5–9 mm, closed ones 0–0.5 mm.
+pub const APERTURE_CLOSED_MM: f32 = 1.0;
+/// Eyelid aperture at or above which the eye counts as fully open
+/// (confidence 1).
+pub const APERTURE_OPEN_MM: f32 = 3.0;
+
+/// Scalar field types a `.dtype` file may use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldType {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    I64,
+    U64,
+    F32,
+    F64,
+}
+
+impl FieldType {
+    fn parse(s: &str) -> Option<Self> {
+        let s = s.trim_start_matches(['<', '=', '|']);
+        Some(match s {
+            "int8" | "i1" => Self::I8,
+            "uint8" | "u1" => Self::U8,
+            "int16" | "i2" => Self::I16,
+            "uint16" | "u2" => Self::U16,
+            "int32" | "i4" => Self::I32,
+            "uint32" | "u4" => Self::U32,
+            "int64" | "i8" => Self::I64,
+            "uint64" | "u8" => Self::U64,
+            "float32" | "f4" => Self::F32,
+            "float64" | "f8" => Self::F64,
+            _ => return None,
+        })
+    }
+
+    /// Size in bytes.
+    pub fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::I64 | Self::U64 | Self::F64 => 8,
+        }
+    }
+
+    /// Reads the value at the start of `b` (little-endian) as f64.
+    fn read_f64(self, b: &[u8]) -> f64 {
+        let mut a8 = [0u8; 8];
+        let n = self.size().min(b.len());
+        a8[..n].copy_from_slice(&b[..n]);
+        match self {
+            Self::I8 => a8[0] as i8 as f64,
+            Self::U8 => a8[0] as f64,
+            Self::I16 => i16::from_le_bytes([a8[0], a8[1]]) as f64,
+            Self::U16 => u16::from_le_bytes([a8[0], a8[1]]) as f64,
+            Self::I32 => i32::from_le_bytes([a8[0], a8[1], a8[2], a8[3]]) as f64,
+            Self::U32 => u32::from_le_bytes([a8[0], a8[1], a8[2], a8[3]]) as f64,
+            Self::F32 => f32::from_le_bytes([a8[0], a8[1], a8[2], a8[3]]) as f64,
+            Self::I64 => i64::from_le_bytes(a8) as f64,
+            Self::U64 => u64::from_le_bytes(a8) as f64,
+            Self::F64 => f64::from_le_bytes(a8),
+        }
+    }
+
+    fn read_i64(self, b: &[u8]) -> i64 {
+        match self {
+            Self::I64 => {
+                let mut a8 = [0u8; 8];
+                a8.copy_from_slice(&b[..8]);
+                i64::from_le_bytes(a8)
+            }
+            Self::U64 => {
+                let mut a8 = [0u8; 8];
+                a8.copy_from_slice(&b[..8]);
+                u64::from_le_bytes(a8) as i64
+            }
+            other => other.read_f64(b) as i64,
+        }
+    }
+}
+
+/// A packed record layout read from a `.dtype` file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dtype {
+    /// `(name, type, byte offset)` per field.
+    pub fields: Vec<(String, FieldType, usize)>,
+    /// Record size in bytes.
+    pub record_size: usize,
+}
+
+impl Dtype {
+    /// Parses the text of a `.dtype` file; `path` is used in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ImportError> {
+        let mut fields = Vec::new();
+        let mut offset = 0usize;
+        let mut rest = text;
+        let line_of = |pos: usize| text[..pos].matches('\n').count() as u64 + 1;
+        while let Some(open) = rest.find('(') {
+            let abs = text.len() - rest.len() + open;
+            let Some(close) = rest[open..].find(')') else {
+                return Err(ImportError::Structure {
+                    path: path.to_owned(),
+                    position: Position::Line(line_of(abs)),
+                    reason: "unclosed `(` in dtype".into(),
+                });
+            };
+            let tuple = &rest[open + 1..open + close];
+            let quoted: Vec<&str> = tuple.split('"').skip(1).step_by(2).collect();
+            let quoted = if quoted.len() == 2 {
+                quoted
+            } else {
+                tuple.split('\'').skip(1).step_by(2).collect()
+            };
+            if quoted.len() != 2 {
+                return Err(ImportError::Structure {
+                    path: path.to_owned(),
+                    position: Position::Line(line_of(abs)),
+                    reason: format!("expected (\"name\", \"type\"), found `({tuple})`"),
+                });
+            }
+            let Some(ty) = FieldType::parse(quoted[1]) else {
+                return Err(ImportError::Structure {
+                    path: path.to_owned(),
+                    position: Position::Line(line_of(abs)),
+                    reason: format!("field `{}`: unsupported type `{}`", quoted[0], quoted[1]),
+                });
+            };
+            fields.push((quoted[0].to_owned(), ty, offset));
+            offset += ty.size();
+            rest = &rest[open + close + 1..];
+        }
+        if fields.is_empty() {
+            return Err(ImportError::Structure {
+                path: path.to_owned(),
+                position: Position::File,
+                reason: "no fields in dtype".into(),
+            });
+        }
+        Ok(Self {
+            fields,
+            record_size: offset,
+        })
+    }
+
+    /// Reads and parses a `.dtype` file.
+    pub fn load(path: &Path) -> Result<Self, ImportError> {
+        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES).map_err(
+            |source| ImportError::Io {
+                path: path.to_owned(),
+                source,
+            },
+        )?;
+        Self::parse(&text, path)
+    }
+
+    /// The field named `name`: its type and offset.
+    pub fn field(&self, name: &str) -> Option<(FieldType, usize)> {
+        self.fields
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .map(|&(_, t, o)| (t, o))
+    }
+
+    fn require(&self, name: &str, path: &Path) -> Result<(FieldType, usize), ImportError> {
+        self.field(name).ok_or_else(|| ImportError::Structure {
+            path: path.to_owned(),
+            position: Position::File,
+            reason: format!("missing field `{name}`"),
+        })
+    }
+}
+
+/// One stream's parts (`<name> psN.raw` + `.time`), read record by record.
+struct BinStream {
+    parts: Vec<(PathBuf, PathBuf)>,
+    part: usize,
+    readers: Option<(BufReader<File>, BufReader<File>)>,
+    record_size: usize,
+    /// Byte offset of the next record in the current raw part.
+    offset: u64,
+    buf: Vec<u8>,
+}
+
+impl BinStream {
+    /// Finds the parts of stream `name` in `dir`, in part order.
+    fn find(dir: &Path, name: &str, record_size: usize) -> Result<Option<Self>, ImportError> {
+        let mut parts = Vec::new();
+        for n in 1..=999u32 {
+            let raw = dir.join(format!("{name} ps{n}.raw"));
+            if !raw.is_file() {
+                break;
+            }
+            let time = dir.join(format!("{name} ps{n}.time"));
+            if !time.is_file() {
+                return Err(ImportError::Structure {
+                    path: time,
+                    position: Position::File,
+                    reason: format!("missing timestamps for {}", raw.display()),
+                });
+            }
+            parts.push((raw, time));
+        }
+        if parts.is_empty() {
+            // Neon also writes some streams without a part suffix (`gaze_200hz.raw`).
+            let raw = dir.join(format!("{name}.raw"));
+            let time = dir.join(format!("{name}.time"));
+            if raw.is_file() && time.is_file() {
+                parts.push((raw, time));
+            }
+        }
+        if parts.is_empty() {
+            return Ok(None);
+        }
+        Ok(Some(Self {
+            parts,
+            part: 0,
+            readers: None,
+            record_size,
+            offset: 0,
+            buf: vec![0; record_size],
+        }))
+    }
+
+    /// Next `(timestamp_ns, record)`; `None` at the end. Truncated trailing
+    /// records and timestamp/record count mismatches are counted warnings.
+    fn next_record(
+        &mut self,
+        warnings: &mut ImportWarnings,
+    ) -> Option<Result<(u64, &[u8]), ImportError>> {
+        loop {
+            if self.part >= self.parts.len() {
+                return None;
+            }
+            if self.readers.is_none() {
+                let (raw, time) = &self.parts[self.part];
+                let open = |p: &PathBuf| {
+                    gazelight_input::open(p)
+                        .map(BufReader::new)
+                        .map_err(|source| ImportError::Io {
+                            path: p.clone(),
+                            source,
+                        })
+                };
+                let r = match open(raw) {
+                    Ok(r) => r,
+                    Err(e) => {
+                        self.part = self.parts.len();
+                        return Some(Err(e));
+                    }
+                };
+                let t = match open(time) {
+                    Ok(t) => t,
+                    Err(e) => {
+                        self.part = self.parts.len();
+                        return Some(Err(e));
+                    }
+                };
+                self.readers = Some((r, t));
+                self.offset = 0;
+            }
+            let (raw_path, time_path) = &self.parts[self.part];
+            let (raw, time) = self.readers.as_mut()?;
+            let raw_n = read_full(raw, &mut self.buf);
+            let mut tb = [0u8; 8];
+            let time_n = read_full(time, &mut tb);
+            let (raw_n, time_n) = match (raw_n, time_n) {
+                (Ok(a), Ok(b)) => (a, b),
+                (Err(source), _) => {
+                    self.part = self.parts.len();
+                    return Some(Err(ImportError::Io {
+                        path: raw_path.clone(),
+                        source,
+                    }));
+                }
+                (_, Err(source)) => {
+                    self.part = self.parts.len();
+                    return Some(Err(ImportError::Io {
+                        path: time_path.clone(),
+                        source,
+                    }));
+                }
+            };
+            let full_raw = raw_n == self.record_size;
+            let full_time = time_n == 8;
+            if full_raw && full_time {
+                self.offset += self.record_size as u64;
+                return Some(Ok((u64::from_le_bytes(tb), &self.buf[..])));
+            }
+            // End of this part: report anything left over.
+            if raw_n > 0 && !full_raw {
+                warnings.skip(
+                    raw_path,
+                    Position::Byte(self.offset),
+                    format!("truncated record: {raw_n} of {} bytes", self.record_size),
+                );
+            } else if full_raw && !full_time {
+                warnings.skip(
+                    raw_path,
+                    Position::Byte(self.offset),
+                    format!("record without a timestamp in {}", time_path.display()),
+                );
+            } else if !full_raw && full_time {
+                warnings.skip(
+                    time_path,
+                    Position::Byte(self.offset / self.record_size as u64 * 8),
+                    format!("timestamp without a record in {}", raw_path.display()),
+                );
+            }
+            self.readers = None;
+            self.part += 1;
+        }
+    }
+}
+
+/// Reads until `buf` is full or EOF; returns the bytes read.
+fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
+/// Offsets of the fields the importer reads from `eye_state`.
+#[derive(Clone, Copy, Debug)]
+struct EyeLayout {
+    pupil: [(FieldType, usize); 2],
+    aperture: Option<[(FieldType, usize); 2]>,
+}
+
+/// Streaming importer of a Neon native recording directory.
+pub struct NeonImporter {
+    dir: PathBuf,
+    start_ns: Option<u64>,
+    eye: Option<BinStream>,
+    eye_layout: EyeLayout,
+    gaze: Option<BinStream>,
+    gaze_xy: [(FieldType, usize); 2],
+    blinks: Option<BinStream>,
+    blink_fields: [(FieldType, usize); 2],
+    peek_eye: Option<(f64, [PupilSample; 2])>,
+    peek_gaze: Option<GazeSample>,
+    peek_blink: Option<BlinkEvent>,
+    duration_secs: Option<f64>,
+    pending: Pending<2>,
+    warnings: ImportWarnings,
+    failed: bool,
+}
+
+impl NeonImporter {
+    /// Opens a Neon recording directory: reads `info.json` and the layouts.
+    pub fn open(dir: &Path) -> Result<Self, ImportError> {
+        let info_path = dir.join("info.json");
+        let info_text =
+            gazelight_input::read_to_string(&info_path, gazelight_input::MAX_TEXT_BYTES).map_err(
+                |source| ImportError::Io {
+                    path: info_path.clone(),
+                    source,
+                },
+            )?;
+        let info: serde_json::Value =
+            serde_json::from_str(&info_text).map_err(|e| ImportError::Structure {
+                path: info_path.clone(),
+                position: Position::Line(e.line() as u64),
+                reason: format!("not valid JSON: {e}"),
+            })?;
+        let start_ns = info.get("start_time").and_then(|v| v.as_u64());
+        // The recording's length, when info.json gives it with its start.
+        let duration_secs = start_ns
+            .and(info.get("duration").and_then(|v| v.as_u64()))
+            .map(|ns| ns as f64 * 1e-9);
+
+        let eye_dtype_path = dir.join("eye_state.dtype");
+        let eye_dtype = Dtype::load(&eye_dtype_path)?;
+        let eye_layout = EyeLayout {
+            pupil: [
+                eye_dtype.require("pupil_diameter_right_mm", &eye_dtype_path)?,
+                eye_dtype.require("pupil_diameter_left_mm", &eye_dtype_path)?,
+            ],
+            aperture: match (
+                eye_dtype.field("eyelid_aperture_right_mm"),
+                eye_dtype.field("eyelid_aperture_left_mm"),
+            ) {
+                (Some(r), Some(l)) => Some([r, l]),
+                _ => None,
+            },
+        };
+        let eye = BinStream::find(dir, "eye_state", eye_dtype.record_size)?;
+        if eye.is_none() {
+            return Err(ImportError::Structure {
+                path: dir.join("eye_state ps1.raw"),
+                position: Position::File,
+                reason: "no eye_state data in the recording".into(),
+            });
+        }
+
+        let gaze_dtype_path = dir.join("gaze.dtype");
+        let (gaze, gaze_xy) = if gaze_dtype_path.is_file() {
+            let d = Dtype::load(&gaze_dtype_path)?;
+            let xy = [
+                d.require("x", &gaze_dtype_path)?,
+                d.require("y", &gaze_dtype_path)?,
+            ];
+            let mut s = BinStream::find(dir, "gaze", d.record_size)?;
+            if s.is_none() {
+                s = BinStream::find(dir, "gaze_200hz", d.record_size)?;
+            }
+            (s, xy)
+        } else {
+            (None, [(FieldType::F32, 0), (FieldType::F32, 4)])
+        };
+
+        let blinks_dtype_path = dir.join("blinks.dtype");
+        let (blinks, blink_fields) = if blinks_dtype_path.is_file() {
+            let d = Dtype::load(&blinks_dtype_path)?;
+            let f = [
+                d.require("start_timestamp_ns", &blinks_dtype_path)?,
+                d.require("end_timestamp_ns", &blinks_dtype_path)?,
+            ];
+            (BinStream::find(dir, "blinks", d.record_size)?, f)
+        } else {
+            (None, [(FieldType::I64, 0), (FieldType::I64, 8)])
+        };
+
+        Ok(Self {
+            dir: dir.to_owned(),
+            start_ns,
+            eye,
+            eye_layout,
+            gaze,
+            gaze_xy,
+            blinks,
+            blink_fields,
+            peek_eye: None,
+            peek_gaze: None,
+            peek_blink: None,
+            duration_secs,
+            pending: Pending::new(),
+            warnings: ImportWarnings::default(),
+            failed: false,
+        })
+    }
+
+    /// The recording directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    fn secs(&mut self, ns: u64) -> f64 {
+        let start = *self.start_ns.get_or_insert(ns);
+        (ns as i128 - start as i128) as f64 * 1e-9
+    }
+
+    fn secs_i64(&mut self, ns: i64) -> f64 {
+        let start = *self.start_ns.get_or_insert(ns.max(0) as u64);
+        (ns as i128 - start as i128) as f64 * 1e-9
+    }
+
+    fn fill_eye(&mut self) -> Result<(), ImportError> {
+        if self.peek_eye.is_some() {
+            return Ok(());
+        }
+        let Some(stream) = self.eye.as_mut() else {
+            return Ok(());
+        };
+        let layout = self.eye_layout;
+        let rec = match stream.next_record(&mut self.warnings) {
+            None => {
+                self.eye = None;
+                return Ok(());
+            }
+            Some(Err(e)) => return Err(e),
+            Some(Ok((ns, rec))) => {
+                let mut vals = [(0.0f32, None::<f32>); 2];
+                for (eye, v) in vals.iter_mut().enumerate() {
+                    let (ty, off) = layout.pupil[eye];
+                    v.0 = ty.read_f64(&rec[off..]) as f32;
+                    v.1 = layout
+                        .aperture
+                        .map(|a| a[eye].0.read_f64(&rec[a[eye].1..]) as f32);
+                }
+                (ns, vals)
+            }
+        };
+        let (ns, vals) = rec;
+        let t = self.secs(ns);
+        let mk = |eye: u8, (d, aperture): (f32, Option<f32>)| {
+            let valid = d.is_finite() && d > 0.0;
+            let confidence = match aperture {
+                _ if !valid => 0.0,
+                Some(a) if a.is_finite() => ((a - APERTURE_CLOSED_MM)
+                    / (APERTURE_OPEN_MM - APERTURE_CLOSED_MM))
+                    .clamp(0.0, 1.0),
+                Some(_) => 0.0,
+                None => 1.0,
+            };
+            PupilSample {
+                t_secs: t,
+                eye,
+                diameter_raw: d,
+                unit: PupilUnit::Mm,
+                diameter_mm: valid.then_some(d),
+                confidence,
+                norm_pos: [f32::NAN, f32::NAN],
+                method: DetectorMethod::Other,
+            }
+        };
+        self.peek_eye = Some((t, [mk(0, vals[0]), mk(1, vals[1])]));
+        Ok(())
+    }
+
+    fn fill_gaze(&mut self) -> Result<(), ImportError> {
+        if self.peek_gaze.is_some() {
+            return Ok(());
+        }
+        let Some(stream) = self.gaze.as_mut() else {
+            return Ok(());
+        };
+        let [(tx, ox), (ty, oy)] = self.gaze_xy;
+        let (ns, x, y) = match stream.next_record(&mut self.warnings) {
+            None => {
+                self.gaze = None;
+                return Ok(());
+            }
+            Some(Err(e)) => return Err(e),
+            Some(Ok((ns, rec))) => (ns, tx.read_f64(&rec[ox..]), ty.read_f64(&rec[oy..])),
+        };
+        let t = self.secs(ns);
+        let uv = [
+            (x as f32) / SCENE_CAMERA_PX[0],
+            (y as f32) / SCENE_CAMERA_PX[1],
+        ];
+        let ok = uv[0].is_finite() && uv[1].is_finite();
+        self.peek_gaze = Some(GazeSample {
+            t_secs: t,
+            gaze_uv: uv,
+            confidence: if ok { 1.0 } else { 0.0 },
+            eyes: GazeEyes::Binocular,
+        });
+        Ok(())
+    }
+
+    fn fill_blink(&mut self) -> Result<(), ImportError> {
+        if self.peek_blink.is_some() {
+            return Ok(());
+        }
+        let Some(stream) = self.blinks.as_mut() else {
+            return Ok(());
+        };
+        let [(ts, os), (te, oe)] = self.blink_fields;
+        let (s, e) = match stream.next_record(&mut self.warnings) {
+            None => {
+                self.blinks = None;
+                return Ok(());
+            }
+            Some(Err(e)) => return Err(e),
+            Some(Ok((_, rec))) => (ts.read_i64(&rec[os..]), te.read_i64(&rec[oe..])),
+        };
+        let start = self.secs_i64(s);
+        let end = self.secs_i64(e);
+        self.peek_blink = Some(BlinkEvent {
+            start_t_secs: start,
+            end_t_secs: end,
+            eye: None,
+        });
+        Ok(())
+    }
+}
+
+impl NeonImporter {
+    /// Skips (and counts) peeked records whose time lies outside the
+    /// recording that `info.json` describes (start_time + duration, with
+    /// [`RANGE_SLACK_SECS`] either side): a flipped bit in a `.time` file
+    /// would otherwise hold back its whole stream in the time merge.
+    /// Returns whether anything was skipped.
+    fn drop_out_of_range(&mut self) -> bool {
+        let Some(d) = self.duration_secs else {
+            return false;
+        };
+        let bad = |t: f64| !(t >= -RANGE_SLACK_SECS && t <= d + RANGE_SLACK_SECS);
+        let why = |t: f64| {
+            format!(
+                "timestamp {t:.6e} s is outside the recording (0 to {d:.3} s after \
+                 info.json's start_time)"
+            )
+        };
+        let mut dropped = false;
+        if let Some((t, _)) = self.peek_eye
+            && bad(t)
+        {
+            self.peek_eye = None;
+            let p = self.dir.join("eye_state ps1.time");
+            self.warnings.skip(&p, Position::File, why(t));
+            dropped = true;
+        }
+        if let Some(g) = self.peek_gaze
+            && bad(g.t_secs)
+        {
+            self.peek_gaze = None;
+            let p = self.dir.join("gaze ps1.time");
+            self.warnings.skip(&p, Position::File, why(g.t_secs));
+            dropped = true;
+        }
+        if let Some(b) = self.peek_blink
+            && (bad(b.start_t_secs) || bad(b.end_t_secs))
+        {
+            self.peek_blink = None;
+            let p = self.dir.join("blinks ps1.raw");
+            self.warnings.skip(&p, Position::File, why(b.start_t_secs));
+            dropped = true;
+        }
+        dropped
+    }
+}
+
+/// Slack around info.json's recording span within which record times are
+/// believed, s.
+pub const RANGE_SLACK_SECS: f64 = 1.0;
+
+impl Iterator for NeonImporter {
+    type Item = Result<Sample, ImportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if let Some(s) = self.pending.pop() {
+            return Some(Ok(s));
+        }
+        if self.failed {
+            return None;
+        }
+        loop {
+            let filled = self
+                .fill_eye()
+                .and_then(|_| self.fill_gaze())
+                .and_then(|_| self.fill_blink());
+            if let Err(e) = filled {
+                self.failed = true;
+                return Some(Err(e));
+            }
+            if !self.drop_out_of_range() {
+                break;
+            }
+        }
+        let te = self.peek_eye.as_ref().map_or(f64::INFINITY, |e| e.0);
+        let tg = self.peek_gaze.as_ref().map_or(f64::INFINITY, |g| g.t_secs);
+        let tb = self
+            .peek_blink
+            .as_ref()
+            .map_or(f64::INFINITY, |b| b.start_t_secs);
+        if te.is_infinite() && tg.is_infinite() && tb.is_infinite() {
+            return None;
+        }
+        if tb <= te && tb <= tg {
+            return self.peek_blink.take().map(|b| Ok(Sample::Blink(b)));
+        }
+        if te <= tg {
+            let (_, [r, l]) = self.peek_eye.take()?;
+            self.pending.push(Sample::Pupil(l));
+            return Some(Ok(Sample::Pupil(r)));
+        }
+        self.peek_gaze.take().map(|g| Ok(Sample::Gaze(g)))
+    }
+}
+
+impl Importer for NeonImporter {
+    fn warnings(&self) -> &ImportWarnings {
+        &self.warnings
+    }
+    fn format(&self) -> &'static str {
+        "neon"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dtype_parses_neon_layout_with_offsets() {
+        let text = "[\n(\"event_type\",         \"int32\"),\n(\"start_timestamp_ns\", \"int64\"),\n(\"end_timestamp_ns\",   \"int64\"),\n]\n";
+        let d = Dtype::parse(text, Path::new("blinks.dtype")).unwrap();
+        assert_eq!(d.record_size, 20);
+        assert_eq!(d.field("start_timestamp_ns"), Some((FieldType::I64, 4)));
+        assert_eq!(d.field("end_timestamp_ns"), Some((FieldType::I64, 12)));
+        assert!(d.field("nope").is_none());
+    }
+
+    #[test]
+    fn dtype_rejects_unknown_type_naming_field_and_line() {
+        let text = "[\n(\"x\", \"float32\"),\n(\"y\", \"complex128\"),\n]";
+        let e = Dtype::parse(text, Path::new("gaze.dtype")).unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.contains("gaze.dtype"), "{msg}");
+        assert!(msg.contains("line 3"), "{msg}");
+        assert!(msg.contains("`y`"), "{msg}");
+    }
+
+    #[test]
+    fn truncated_record_is_a_counted_warning() {
+        let dir = std::env::temp_dir().join(format!("gazelight-neon-trunc-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("info.json"), r#"{"start_time": 1000000000}"#).unwrap();
+        std::fs::write(
+            dir.join("eye_state.dtype"),
+            "[(\"pupil_diameter_left_mm\", \"float32\"), (\"pupil_diameter_right_mm\", \"float32\")]",
+        )
+        .unwrap();
+        let mut raw = Vec::new();
+        let mut time = Vec::new();
+        for i in 0..3u64 {
+            raw.extend_from_slice(&4.0f32.to_le_bytes());
+            raw.extend_from_slice(&3.5f32.to_le_bytes());
+            time.extend_from_slice(&(1_000_000_000 + i * 5_000_000).to_le_bytes());
+        }
+        raw.extend_from_slice(&[1, 2, 3]); // a truncated fourth record
+        std::fs::write(dir.join("eye_state ps1.raw"), &raw).unwrap();
+        std::fs::write(dir.join("eye_state ps1.time"), &time).unwrap();
+        let mut imp = NeonImporter::open(&dir).unwrap();
+        let samples: Vec<Sample> = imp.by_ref().map(|s| s.unwrap()).collect();
+        assert_eq!(samples.len(), 6);
+        assert_eq!(imp.warnings().skipped_records, 1);
+        assert!(imp.warnings().messages[0].contains("byte offset 24"));
+        match samples[0] {
+            Sample::Pupil(p) => {
+                assert_eq!(p.eye, 0);
+                assert_eq!(p.diameter_raw, 3.5);
+                assert_eq!(p.confidence, 1.0);
+                assert_eq!(p.t_secs, 0.0);
+            }
+            other => panic!("{other:?}"),
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
