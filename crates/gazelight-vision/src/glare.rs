@@ -48,10 +48,23 @@
 //! `B = (K̂_R − K̂_G)/2`, the product `Y(k) = Z(k) A(k) + conj(Z(−k)) B(k)`
 //! inverts to `R ∗ K_R + i G ∗ K_G`. B runs on its own FFT. Rows without
 //! sources are skipped in the first forward pass and rows outside the image
-//! in the last inverse pass. The four transforms (fine RG, fine B, coarse RG,
-//! coarse B) run on two rayon tasks. Spectra are f32; `apply` allocates
-//! nothing.
+//! in the last inverse pass, and rows and columns the glare cannot reach
+//! (farther from every source than the kernel's radius) are neither
+//! inverted nor blended. The four transforms (fine RG, fine B, coarse RG,
+//! coarse B) run on two rayon tasks; the 2-D transforms transpose out of
+//! place into a second buffer, so only the source rows need clearing.
+//! Spectra are f32; `apply` allocates nothing.
+//!
+//! # Spectra made elsewhere
+//!
+//! [`GlareConvolver::set_kernel`] computes a kernel's spectra in place
+//! (a few milliseconds at 720×800). A live loop instead gives a
+//! [`GlarePreparer`] (from [`GlareConvolver::preparer`]) to the thread that
+//! builds kernels: it fills a [`GlareSpectra`] there, and the frame thread
+//! installs it with [`GlareConvolver::install`], which swaps buffers (no
+//! copy, no FFT, no allocation) and hands the old spectra back for reuse.
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -69,6 +82,14 @@ pub const FINE_RADIUS_DEG: f64 = 2.0;
 pub const COARSE_PX_DEG: f64 = 0.4;
 /// Largest FFT window, samples per side.
 const MAX_WINDOW: usize = 4096;
+/// Samples of the source weight's fade (between `d_full` and `r_src`),
+/// linearly interpolated: the table's error is < 1e-6 of the weight.
+const FADE_TABLE: usize = 2048;
+/// Side of the blocks of the out-of-place transposes.
+const TILE: usize = 16;
+
+type C32 = Complex<f32>;
+const ZERO: C32 = Complex::new(0.0, 0.0);
 
 /// Where the glare applies around the gaze.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -130,19 +151,18 @@ pub fn good_fft_size(n: usize) -> usize {
         .unwrap_or(n)
 }
 
-/// One FFT size: plans, the packed RG and B work buffers and the kernel
-/// spectra (transposed 2-D layout, 1/W² folded in).
+/// One FFT size: plans and the packed RG and B work buffers (spatial,
+/// row-major, and their transposed spectra).
 struct Plane {
     w: usize,
     fwd: Arc<dyn Fft<f32>>,
     inv: Arc<dyn Fft<f32>>,
-    rg: Vec<Complex<f32>>,
-    b: Vec<Complex<f32>>,
-    scratch_rg: Vec<Complex<f32>>,
-    scratch_b: Vec<Complex<f32>>,
-    spec_a: Vec<Complex<f32>>,
-    spec_b: Vec<Complex<f32>>,
-    spec_blue: Vec<Complex<f32>>,
+    rg: Vec<C32>,
+    b: Vec<C32>,
+    t_rg: Vec<C32>,
+    t_b: Vec<C32>,
+    scratch_rg: Vec<C32>,
+    scratch_b: Vec<C32>,
 }
 
 impl Plane {
@@ -153,29 +173,41 @@ impl Plane {
         let s = fwd
             .get_inplace_scratch_len()
             .max(inv.get_inplace_scratch_len());
-        let z = Complex::new(0.0f32, 0.0);
         Self {
             w,
             fwd,
             inv,
-            rg: vec![z; w * w],
-            b: vec![z; w * w],
-            scratch_rg: vec![z; s],
-            scratch_b: vec![z; s],
-            spec_a: vec![z; w * w],
-            spec_b: vec![z; w * w],
-            spec_blue: vec![z; w * w],
+            rg: vec![ZERO; w * w],
+            b: vec![ZERO; w * w],
+            t_rg: vec![ZERO; w * w],
+            t_b: vec![ZERO; w * w],
+            scratch_rg: vec![ZERO; s],
+            scratch_b: vec![ZERO; s],
         }
     }
 
     /// Spectra of a kernel already written into `rg` (R + iG) and `b` (B),
     /// wrapped so that offset 0 is index 0.
-    fn kernel_spectra(&mut self) {
+    fn kernel_spectra(&mut self, out: &mut PlaneSpectra) {
         let w = self.w;
-        let (fwd, rg, b) = (&self.fwd, &mut self.rg, &mut self.b);
-        fft2(fwd, rg, &mut self.scratch_rg, w, 0..w);
-        fft2(fwd, b, &mut self.scratch_b, w, 0..w);
+        fft2(
+            &self.fwd,
+            &mut self.rg,
+            &mut self.t_rg,
+            &mut self.scratch_rg,
+            w,
+            0..w,
+        );
+        fft2(
+            &self.fwd,
+            &mut self.b,
+            &mut self.t_b,
+            &mut self.scratch_b,
+            w,
+            0..w,
+        );
         let inv_area = 1.0 / (w * w) as f32;
+        let (rg, b) = (&self.t_rg, &self.t_b);
         for kx in 0..w {
             for ky in 0..w {
                 let i = kx * w + ky;
@@ -185,64 +217,277 @@ impl Plane {
                 // K̂_R = (Z + Z*₋)/2, K̂_G = (Z − Z*₋)/(2i)
                 let kr = (z + zc) * 0.5;
                 let kg = (z - zc) * Complex::new(0.0, -0.5);
-                self.spec_a[i] = (kr + kg) * (0.5 * inv_area);
-                self.spec_b[i] = (kr - kg) * (0.5 * inv_area);
-                self.spec_blue[i] = b[i] * inv_area;
+                out.a[i] = (kr + kg) * (0.5 * inv_area);
+                out.b[i] = (kr - kg) * (0.5 * inv_area);
+                out.blue[i] = b[i] * inv_area;
             }
         }
     }
 }
 
-/// Forward 2-D FFT into the transposed layout; rows outside `rows` must be 0.
+/// The kernel spectra of one plane (transposed 2-D layout, index
+/// `kx·w + ky`, 1/W² folded in): `A`, `B` for the packed R + iG, and B's.
+struct PlaneSpectra {
+    a: Vec<C32>,
+    b: Vec<C32>,
+    blue: Vec<C32>,
+}
+
+impl PlaneSpectra {
+    fn new(w: usize) -> Self {
+        Self {
+            a: vec![ZERO; w * w],
+            b: vec![ZERO; w * w],
+            blue: vec![ZERO; w * w],
+        }
+    }
+}
+
+/// What a set of spectra was made for: the kernel's size and pixel size
+/// and the convolver's windows, radius and block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct SpectraKey {
+    kernel_size: usize,
+    deg_per_px: f64,
+    wf: usize,
+    wc: usize,
+    r_fine: usize,
+    block: usize,
+}
+
+/// A kernel's fine and coarse spectra for one [`GlareConvolver`]
+/// geometry, made by a [`GlarePreparer`] (on any thread) and installed
+/// with [`GlareConvolver::install`].
+pub struct GlareSpectra {
+    key: SpectraKey,
+    fine: PlaneSpectra,
+    coarse: PlaneSpectra,
+    /// Pupil of the kernel these spectra were made from, mm (NaN: none yet).
+    pupil_mm: f64,
+}
+
+impl GlareSpectra {
+    fn new(key: SpectraKey) -> Self {
+        Self {
+            key,
+            fine: PlaneSpectra::new(key.wf),
+            coarse: PlaneSpectra::new(key.wc),
+            pupil_mm: f64::NAN,
+        }
+    }
+
+    /// Pupil diameter of the kernel these spectra were made from, mm (NaN
+    /// before the first [`GlarePreparer::prepare`]).
+    pub fn pupil_mm(&self) -> f64 {
+        self.pupil_mm
+    }
+}
+
+/// Makes [`GlareSpectra`] for the convolver it came from
+/// ([`GlareConvolver::preparer`]), with its own FFT plans and buffers, so a
+/// kernel's spectra are computed off the frame thread. `Send`.
+pub struct GlarePreparer {
+    key: SpectraKey,
+    fine: Plane,
+    coarse: Plane,
+}
+
+impl GlarePreparer {
+    /// A spectra buffer of this geometry (allocates; make it once).
+    pub fn new_spectra(&self) -> GlareSpectra {
+        GlareSpectra::new(self.key)
+    }
+
+    /// Computes `kernel`'s spectra into `out` (no allocation). The kernel
+    /// must have the convolver's size and pixel size, and `out` its
+    /// geometry.
+    pub fn prepare(
+        &mut self,
+        kernel: &PsfKernel,
+        out: &mut GlareSpectra,
+    ) -> Result<(), VisionError> {
+        compute_spectra(&self.key, &mut self.fine, &mut self.coarse, kernel, out)
+    }
+}
+
+/// A kernel and, for the CPU convolver, its spectra: what a PSF worker
+/// hands the frame thread, installed by swapping buffers
+/// (`FramePipeline::install_prepared`).
+pub struct PreparedKernel {
+    /// The kernel itself (kept by the pipeline, read back by callers).
+    pub kernel: PsfKernel,
+    /// Its spectra for the CPU convolver (`None`: the installer computes
+    /// them itself, or has no CPU convolver).
+    pub spectra: Option<GlareSpectra>,
+}
+
+fn check_kernel(key: &SpectraKey, kernel: &PsfKernel) -> Result<(), VisionError> {
+    if kernel.size != key.kernel_size
+        || kernel.deg_per_px != key.deg_per_px
+        || kernel.rgb.len() != kernel.size * kernel.size
+    {
+        return Err(VisionError::invalid(
+            "glare kernel",
+            format!(
+                "{}x{} at {} deg/px",
+                kernel.size, kernel.size, kernel.deg_per_px
+            ),
+            "the size and pixel size the convolver was built for",
+        ));
+    }
+    Ok(())
+}
+
+/// Splits `kernel` into its fine and coarse parts (module docs) and
+/// computes their spectra into `out`, using `fine` and `coarse` as work.
+fn compute_spectra(
+    key: &SpectraKey,
+    fine: &mut Plane,
+    coarse: &mut Plane,
+    kernel: &PsfKernel,
+    out: &mut GlareSpectra,
+) -> Result<(), VisionError> {
+    check_kernel(key, kernel)?;
+    if out.key != *key {
+        return Err(VisionError::invalid(
+            "glare spectra",
+            format!("windows {}/{}", out.key.wf, out.key.wc),
+            "spectra made for this convolver",
+        ));
+    }
+    let rk = (kernel.size / 2) as isize;
+    let rf = key.r_fine as isize;
+    // Fine part: (1 − g) K.
+    let wf = fine.w as isize;
+    fine.rg.fill(ZERO);
+    fine.b.fill(ZERO);
+    for dy in -rf..=rf {
+        for dx in -rf..=rf {
+            let keep = 1.0 - split_weight((dx as f64).hypot(dy as f64), rf as f64);
+            if keep <= 0.0 {
+                continue;
+            }
+            let k = kernel.at(dx, dy);
+            let i = (dy.rem_euclid(wf) * wf + dx.rem_euclid(wf)) as usize;
+            let keep = keep as f32;
+            fine.rg[i] = Complex::new(k[0] * keep, k[1] * keep);
+            fine.b[i] = Complex::new(k[2] * keep, 0.0);
+        }
+    }
+    fine.kernel_spectra(&mut out.fine);
+    // Coarse part: g K summed over b × b blocks.
+    let wc = coarse.w as isize;
+    let b = key.block as isize;
+    let hb = b / 2;
+    coarse.rg.fill(ZERO);
+    coarse.b.fill(ZERO);
+    for dy in -rk..=rk {
+        let by = (dy + hb).div_euclid(b);
+        for dx in -rk..=rk {
+            let g = split_weight((dx as f64).hypot(dy as f64), rf as f64) as f32;
+            if g <= 0.0 {
+                continue;
+            }
+            let bx = (dx + hb).div_euclid(b);
+            let k = kernel.at(dx, dy);
+            let i = (by.rem_euclid(wc) * wc + bx.rem_euclid(wc)) as usize;
+            coarse.rg[i] += Complex::new(k[0] * g, k[1] * g);
+            coarse.b[i].re += k[2] * g;
+        }
+    }
+    coarse.kernel_spectra(&mut out.coarse);
+    out.pupil_mm = kernel.pupil_mm;
+    Ok(())
+}
+
+/// Forward 2-D FFT of `buf` into `t` (transposed layout, `kx·w + ky`);
+/// rows of `buf` outside `rows` are taken as 0 (they are not read).
+/// `buf`'s rows in `rows` are transformed in place.
 fn fft2(
     fft: &Arc<dyn Fft<f32>>,
-    buf: &mut [Complex<f32>],
-    scratch: &mut [Complex<f32>],
+    buf: &mut [C32],
+    t: &mut [C32],
+    scratch: &mut [C32],
     w: usize,
-    rows: std::ops::Range<usize>,
+    rows: Range<usize>,
 ) {
     if !rows.is_empty() {
         fft.process_with_scratch(&mut buf[rows.start * w..rows.end * w], scratch);
     }
-    transpose_square_blocked(buf, w);
-    fft.process_with_scratch(buf, scratch);
+    // t[c][r] = buf[r][c] for r in rows, 0 elsewhere.
+    for c in 0..w {
+        let d = &mut t[c * w..(c + 1) * w];
+        d[..rows.start].fill(ZERO);
+        d[rows.end..].fill(ZERO);
+    }
+    transpose_rect(buf, t, w, rows, 0..w);
+    fft.process_with_scratch(t, scratch);
 }
 
-/// Inverse of [`fft2`]; only `rows` of the result are computed.
+/// Inverse of [`fft2`] from `t` into `buf`; only `rows` of `buf` are
+/// computed (the rest is left as it was). `t` is overwritten.
 fn ifft2(
     fft: &Arc<dyn Fft<f32>>,
-    buf: &mut [Complex<f32>],
-    scratch: &mut [Complex<f32>],
+    t: &mut [C32],
+    buf: &mut [C32],
+    scratch: &mut [C32],
     w: usize,
-    rows: std::ops::Range<usize>,
+    rows: Range<usize>,
 ) {
-    fft.process_with_scratch(buf, scratch);
-    transpose_square_blocked(buf, w);
-    if !rows.is_empty() {
-        fft.process_with_scratch(&mut buf[rows.start * w..rows.end * w], scratch);
+    fft.process_with_scratch(t, scratch);
+    if rows.is_empty() {
+        return;
+    }
+    // buf[r][c] = t[c][r] for r in rows.
+    transpose_rect(t, buf, w, 0..w, rows.clone());
+    fft.process_with_scratch(&mut buf[rows.start * w..rows.end * w], scratch);
+}
+
+/// `dst[c·w + r] = src[r·w + c]` for `r` in `rows`, `c` in `cols`, in
+/// cache-sized tiles.
+fn transpose_rect(src: &[C32], dst: &mut [C32], w: usize, rows: Range<usize>, cols: Range<usize>) {
+    assert!(rows.end <= w && cols.end <= w && src.len() >= w * w && dst.len() >= w * w);
+    for r0 in rows.clone().step_by(TILE) {
+        let r1 = (r0 + TILE).min(rows.end);
+        for c0 in cols.clone().step_by(TILE) {
+            let c1 = (c0 + TILE).min(cols.end);
+            // Contiguous writes along each destination row of the tile.
+            for c in c0..c1 {
+                let d = &mut dst[c * w + r0..c * w + r1];
+                for (k, v) in d.iter_mut().enumerate() {
+                    // SAFETY: r0 + k < rows.end ≤ w and c < cols.end ≤ w, so
+                    // the index is < w² ≤ src.len() (asserted above).
+                    *v = unsafe { *src.get_unchecked((r0 + k) * w + c) };
+                }
+            }
+        }
     }
 }
 
 /// FFT convolution of a frame with the glare kernel in a window at the gaze.
 pub struct GlareConvolver {
     window: GlareWindow,
-    deg_per_px: f64,
-    kernel_size: usize,
-    /// Fine kernel radius, display pixels.
-    r_fine: usize,
-    /// Coarse block, display pixels (odd).
-    block: usize,
+    key: SpectraKey,
+    /// Coarse kernel radius, blocks.
+    r_coarse: usize,
     /// Weight reaches 0 here, display pixels.
     r_src: f64,
     d_full: f64,
     sigma: f64,
     fine: Plane,
     coarse: Plane,
+    spectra: GlareSpectra,
     /// Source weight over the fine window, W_f².
     weight: Vec<f32>,
-    /// The coarse result interpolated along x to display columns, `/ b²`:
-    /// `(W_c + 2) × (W_c · b)`, a zero row above and below.
-    hrows: Vec<[f32; 3]>,
+    /// The weight's fade at `FADE_TABLE + 1` steps from `d_full` to `r_src`.
+    fade: Vec<f32>,
+    /// Per pixel offset in the coarse window (`W_c · b`): the coarse block
+    /// left of (above) its centre and the bilinear weight of the next one.
+    hat: Vec<(i32, f32)>,
+    /// The coarse result interpolated along x to display columns, `/ b²`,
+    /// 3 floats per column: `(W_c + 2)` rows of `W_c · b` columns (row
+    /// `j + 1` holds block row `j`, `j` from −1 to `W_c`).
+    hrows: Vec<f32>,
 }
 
 impl GlareConvolver {
@@ -283,19 +528,43 @@ impl GlareConvolver {
                 "a weight region (full_weight_deg + 3 fade_sigma_deg) whose FFT window at this ppd is ≤ 4096 px",
             ));
         }
-        let mut conv = Self {
-            window,
-            deg_per_px: dpp,
+        let key = SpectraKey {
             kernel_size: kernel.size,
+            deg_per_px: dpp,
+            wf,
+            wc,
             r_fine,
             block,
+        };
+        let fade = (0..=FADE_TABLE)
+            .map(|i| {
+                let d = d_full + 3.0 * sigma * i as f64 / FADE_TABLE as f64;
+                source_weight(d, d_full, sigma) as f32
+            })
+            .collect();
+        let (b, hb) = (block as i64, half_b as i64);
+        let hat = (0..(wc * block) as i64)
+            .map(|xl| {
+                // (xl + ½)/b − ½ = (xl − hb)/b for an odd b.
+                let i0 = (xl - hb).div_euclid(b);
+                let fx = (xl - hb).rem_euclid(b) as f32 / b as f32;
+                (i0 as i32, fx)
+            })
+            .collect();
+        let mut conv = Self {
+            window,
+            key,
+            r_coarse,
             r_src,
             d_full,
             sigma,
             fine: Plane::new(wf),
             coarse: Plane::new(wc),
+            spectra: GlareSpectra::new(key),
             weight: vec![0.0; wf * wf],
-            hrows: vec![[0.0; 3]; (wc + 2) * wc * block],
+            fade,
+            hat,
+            hrows: vec![0.0; (wc + 2) * wc * block * 3],
         };
         conv.set_kernel(kernel)?;
         Ok(conv)
@@ -308,22 +577,22 @@ impl GlareConvolver {
 
     /// Fine (full-resolution) FFT window, pixels per side.
     pub fn fine_window_px(&self) -> usize {
-        self.fine.w
+        self.key.wf
     }
 
     /// Coarse FFT window, blocks per side.
     pub fn coarse_window_blocks(&self) -> usize {
-        self.coarse.w
+        self.key.wc
     }
 
     /// Coarse block size, display pixels (odd).
     pub fn block_px(&self) -> usize {
-        self.block
+        self.key.block
     }
 
     /// Radius of the full-resolution part of the kernel, pixels.
     pub fn fine_radius_px(&self) -> usize {
-        self.r_fine
+        self.key.r_fine
     }
 
     /// Source distance from the gaze where the weight reaches 0, pixels.
@@ -338,68 +607,61 @@ impl GlareConvolver {
 
     /// The fine/coarse split weight `g` at `d_px` pixels from the source.
     pub fn split_at(&self, d_px: f64) -> f64 {
-        split_weight(d_px, self.r_fine as f64)
+        split_weight(d_px, self.key.r_fine as f64)
+    }
+
+    /// Pupil diameter of the kernel whose spectra are installed, mm.
+    pub fn kernel_pupil_mm(&self) -> f64 {
+        self.spectra.pupil_mm
     }
 
     /// Caches the spectra of `kernel` (same size and pixel size as the one
     /// given to [`GlareConvolver::new`]; a PSF rebuild for a new pupil).
-    /// Allocates nothing.
+    /// Computes them here (a few ms at 720×800; see [`GlareConvolver::install`]
+    /// for spectra made elsewhere). Allocates nothing.
     pub fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), VisionError> {
-        if kernel.size != self.kernel_size
-            || kernel.deg_per_px != self.deg_per_px
-            || kernel.rgb.len() != kernel.size * kernel.size
-        {
+        compute_spectra(
+            &self.key,
+            &mut self.fine,
+            &mut self.coarse,
+            kernel,
+            &mut self.spectra,
+        )
+    }
+
+    /// A preparer of spectra for this convolver's geometry, to run on
+    /// another thread (allocates its own plans and buffers).
+    pub fn preparer(&self) -> GlarePreparer {
+        GlarePreparer {
+            key: self.key,
+            fine: Plane::new(self.key.wf),
+            coarse: Plane::new(self.key.wc),
+        }
+    }
+
+    /// Installs spectra made by a [`GlarePreparer`] of this geometry by
+    /// swapping buffers: `spectra` gets the previous ones back (to be
+    /// reused). No FFT, no copy, no allocation. An error (nothing changed)
+    /// for spectra of another geometry.
+    pub fn install(&mut self, spectra: &mut GlareSpectra) -> Result<(), VisionError> {
+        if spectra.key != self.key {
             return Err(VisionError::invalid(
-                "glare kernel",
+                "glare spectra",
                 format!(
-                    "{}x{} at {} deg/px",
-                    kernel.size, kernel.size, kernel.deg_per_px
+                    "kernel {} px, windows {}/{}",
+                    spectra.key.kernel_size, spectra.key.wf, spectra.key.wc
                 ),
-                "the size and pixel size the convolver was built for",
+                "spectra made for this convolver (its preparer)",
             ));
         }
-        let z = Complex::new(0.0f32, 0.0);
-        let rk = (kernel.size / 2) as isize;
-        let rf = self.r_fine as isize;
-        // Fine part: (1 − g) K.
-        let wf = self.fine.w as isize;
-        self.fine.rg.fill(z);
-        self.fine.b.fill(z);
-        for dy in -rf..=rf {
-            for dx in -rf..=rf {
-                let keep = 1.0 - split_weight((dx as f64).hypot(dy as f64), rf as f64);
-                if keep <= 0.0 {
-                    continue;
-                }
-                let k = kernel.at(dx, dy);
-                let i = (dy.rem_euclid(wf) * wf + dx.rem_euclid(wf)) as usize;
-                let keep = keep as f32;
-                self.fine.rg[i] = Complex::new(k[0] * keep, k[1] * keep);
-                self.fine.b[i] = Complex::new(k[2] * keep, 0.0);
-            }
+        if spectra.pupil_mm.is_nan() {
+            return Err(VisionError::invalid(
+                "glare spectra",
+                "empty spectra",
+                "spectra filled by GlarePreparer::prepare",
+            ));
         }
-        self.fine.kernel_spectra();
-        // Coarse part: g K summed over b × b blocks.
-        let wc = self.coarse.w as isize;
-        let b = self.block as isize;
-        let hb = b / 2;
-        self.coarse.rg.fill(z);
-        self.coarse.b.fill(z);
-        for dy in -rk..=rk {
-            let by = (dy + hb).div_euclid(b);
-            for dx in -rk..=rk {
-                let g = split_weight((dx as f64).hypot(dy as f64), rf as f64) as f32;
-                if g <= 0.0 {
-                    continue;
-                }
-                let bx = (dx + hb).div_euclid(b);
-                let k = kernel.at(dx, dy);
-                let i = (by.rem_euclid(wc) * wc + bx.rem_euclid(wc)) as usize;
-                self.coarse.rg[i] += Complex::new(k[0] * g, k[1] * g);
-                self.coarse.b[i].re += k[2] * g;
-            }
-        }
-        self.coarse.kernel_spectra();
+        std::mem::swap(&mut self.spectra, spectra);
         Ok(())
     }
 
@@ -416,12 +678,14 @@ impl GlareConvolver {
             return;
         }
         let (iw, ih) = (img.width as i64, img.height as i64);
-        let wf = self.fine.w;
-        let wc = self.coarse.w;
-        let b = self.block as i64;
+        let wf = self.key.wf;
+        let wc = self.key.wc;
+        let b = self.key.block as i64;
         let hb = b / 2;
+        let rf = self.key.r_fine as i64;
+        let rcb = self.r_coarse as i64;
         // Far outside the image: clamp so the i64 arithmetic stays exact.
-        let limit = (img.width.max(img.height) + 2 * wf * self.block) as f64;
+        let limit = (img.width.max(img.height) + 2 * wf * self.key.block) as f64;
         let gx = gaze_px[0].clamp(-limit, limit);
         let gy = gaze_px[1].clamp(-limit, limit);
         let (gxi, gyi) = (gx.floor() as i64, gy.floor() as i64);
@@ -440,45 +704,89 @@ impl GlareConvolver {
         if sx0 >= sx1 || sy0 >= sy1 {
             return;
         }
-        let z = Complex::new(0.0f32, 0.0);
-        self.fine.rg.fill(z);
-        self.fine.b.fill(z);
-        self.coarse.rg.fill(z);
-        self.coarse.b.fill(z);
-        self.weight.fill(0.0);
-        let (d_full, sigma) = (self.d_full, self.sigma);
+        // Fine output (sources ± r_fine) in the image, image coordinates.
+        let (fox0, fox1) = ((sx0 - rf).max(0), (sx1 + rf).min(iw));
+        let (foy0, foy1) = ((sy0 - rf).max(0), (sy1 + rf).min(ih));
+        // Source blocks and coarse output blocks (sources ± r_coarse).
+        let c_src_x = (sx0 - ocx) / b..(sx1 - 1 - ocx) / b + 1;
+        let c_src_y = (sy0 - ocy) / b..(sy1 - 1 - ocy) / b + 1;
+        let cbx = (c_src_x.start - rcb).max(0)..(c_src_x.end + rcb).min(wc as i64);
+        let cby = (c_src_y.start - rcb).max(0)..(c_src_y.end + rcb).min(wc as i64);
+
+        // Weighted sources into the fine window (every column of the source
+        // rows written) and their block sums into the coarse one.
+        self.weight[(foy0 - ofy) as usize * wf..(foy1 - ofy) as usize * wf].fill(0.0);
+        for cj in c_src_y.clone() {
+            let row = cj as usize * wc..(cj as usize + 1) * wc;
+            self.coarse.rg[row.clone()].fill(ZERO);
+            self.coarse.b[row].fill(ZERO);
+        }
+        let d_full2 = (self.d_full * self.d_full) as f32;
+        let r_src2 = (self.r_src * self.r_src) as f32;
+        let fade_d0 = self.d_full as f32;
+        let fade_step = (FADE_TABLE as f64 / (3.0 * self.sigma)) as f32;
+        let fade = &self.fade;
+        let (fx0, fx1) = ((sx0 - ofx) as usize, (sx1 - ofx) as usize);
+        let off_x = (0.5 - (gx - gxi as f64)) as f32;
+        let off_y = (0.5 - (gy - gyi as f64)) as f32;
         for y in sy0..sy1 {
             let fj = (y - ofy) as usize;
             let cj = ((y - ocy) / b) as usize;
-            let dy = y as f64 + 0.5 - gy;
-            let row = &img.pixels[y as usize * img.width..(y as usize + 1) * img.width];
+            let dy = (y - gyi) as f32 + off_y;
+            let dy2 = dy * dy;
+            let src = &img.pixels[y as usize * img.width..(y as usize + 1) * img.width];
+            let frg = &mut self.fine.rg[fj * wf..(fj + 1) * wf];
+            let fb = &mut self.fine.b[fj * wf..(fj + 1) * wf];
+            let fw = &mut self.weight[fj * wf..(fj + 1) * wf];
+            frg[..fx0].fill(ZERO);
+            frg[fx1..].fill(ZERO);
+            fb[..fx0].fill(ZERO);
+            fb[fx1..].fill(ZERO);
+            let crg = &mut self.coarse.rg[cj * wc..(cj + 1) * wc];
+            let cb = &mut self.coarse.b[cj * wc..(cj + 1) * wc];
+            let mut ci = ((sx0 - ocx) / b) as usize;
+            let mut cr = (sx0 - ocx) % b;
             for x in sx0..sx1 {
-                let dx = x as f64 + 0.5 - gx;
-                let wgt = source_weight(dx.hypot(dy), d_full, sigma) as f32;
-                if wgt <= 0.0 {
-                    continue;
-                }
-                let p = row[x as usize];
                 let fi = (x - ofx) as usize;
-                let ci = ((x - ocx) / b) as usize;
-                self.weight[fj * wf + fi] = wgt;
-                let (r, g, bl) = (p[0] * wgt, p[1] * wgt, p[2] * wgt);
-                self.fine.rg[fj * wf + fi] = Complex::new(r, g);
-                self.fine.b[fj * wf + fi].re = bl;
-                let c = cj * wc + ci;
-                self.coarse.rg[c] += Complex::new(r, g);
-                self.coarse.b[c].re += bl;
+                let dx = (x - gxi) as f32 + off_x;
+                let d2 = dx * dx + dy2;
+                let wgt = if d2 <= d_full2 {
+                    1.0
+                } else if d2 >= r_src2 {
+                    0.0
+                } else {
+                    let u = ((d2.sqrt() - fade_d0) * fade_step).max(0.0);
+                    let i = (u as usize).min(FADE_TABLE - 1);
+                    let t = u - i as f32;
+                    fade[i] + (fade[i + 1] - fade[i]) * t
+                };
+                if wgt > 0.0 {
+                    let p = src[x as usize];
+                    let (r, g, bl) = (p[0] * wgt, p[1] * wgt, p[2] * wgt);
+                    frg[fi] = Complex::new(r, g);
+                    fb[fi] = Complex::new(bl, 0.0);
+                    fw[fi] = wgt;
+                    crg[ci] += Complex::new(r, g);
+                    cb[ci].re += bl;
+                } else {
+                    frg[fi] = ZERO;
+                    fb[fi] = ZERO;
+                }
+                cr += 1;
+                if cr == b {
+                    cr = 0;
+                    ci += 1;
+                }
             }
         }
-        // Rows with sources, rows inside the image (window coordinates).
+        // Rows with sources, rows with output (window coordinates).
         let f_src = (sy0 - ofy) as usize..(sy1 - ofy) as usize;
-        let f_out = ((-ofy).max(0) as usize)..((ih - ofy).min(wf as i64).max(0) as usize);
-        let c_src = ((sy0 - ocy) / b) as usize..((sy1 - 1 - ocy) / b + 1) as usize;
-        let c_out = 0..wc;
-        let (fine, coarse) = (&mut self.fine, &mut self.coarse);
+        let f_out = (foy0 - ofy) as usize..(foy1 - ofy) as usize;
+        let c_src = c_src_y.start as usize..c_src_y.end as usize;
+        let c_out = cby.start as usize..cby.end as usize;
         // Two tasks: (fine RG, coarse B) and (fine B, coarse RG).
-        let (fine_rg, fine_b) = split_plane(fine);
-        let (coarse_rg, coarse_b) = split_plane(coarse);
+        let (fine_rg, fine_b) = split_plane(&mut self.fine, &self.spectra.fine);
+        let (coarse_rg, coarse_b) = split_plane(&mut self.coarse, &self.spectra.coarse);
         rayon::join(
             || {
                 fine_rg.run_rg(f_src.clone(), f_out.clone());
@@ -491,152 +799,198 @@ impl GlareConvolver {
         );
 
         // Blend: out = (1 − w) img + fine + bilinear(coarse / b²).
+        let span = wc * self.key.block;
+        // Coarse output pixels (offsets in the coarse window): those whose
+        // two bilinear blocks lie in cby − 1 ..= cby.end.
+        let pix = |blocks: &Range<i64>, o: i64, n: i64| {
+            let lo = ((blocks.start - 1) * b + hb).max(0).max(-o);
+            let hi = (blocks.end * b + hb).min(span as i64).min(n - o);
+            lo..hi.max(lo)
+        };
+        let cxl = pix(&cbx, ocx, iw);
+        let cyl = pix(&cby, ocy, ih);
         let inv_b2 = 1.0 / (b * b) as f32;
-        let bf = b as f32;
-        let cw = wc as i64;
-        // Output region: the coarse window ∩ image (it contains the fine one).
-        let x0 = ocx.max(0);
-        let x1 = (ocx + cw * b).min(iw);
-        let y0 = ocy.max(0);
-        let y1 = (ocy + cw * b).min(ih);
-        if x0 >= x1 || y0 >= y1 {
+        let row3 = span * 3;
+        // hrows rows cby.start .. cby.end + 2 (blocks cby − 1 ..= cby.end),
+        // columns cxl.
+        let (xs, xe) = (cxl.start as usize, cxl.end as usize);
+        if !cxl.is_empty() && !cyl.is_empty() {
+            let h0 = cby.start as usize;
+            let h1 = cby.end as usize + 2;
+            let hat = &self.hat;
+            let coarse = &self.coarse;
+            let cbx = cbx.clone();
+            self.hrows[h0 * row3..h1 * row3]
+                .par_chunks_mut(row3)
+                .enumerate()
+                .for_each(|(k, hrow)| {
+                    let hrow = &mut hrow[xs * 3..xe * 3];
+                    // hrows row h holds block row h − 1.
+                    let j = (h0 + k) as i64 - 1;
+                    if !cby.contains(&j) {
+                        hrow.fill(0.0);
+                        return;
+                    }
+                    let base = j as usize * wc;
+                    let at = |i: i32| -> [f32; 3] {
+                        if !cbx.contains(&i64::from(i)) {
+                            return [0.0; 3];
+                        }
+                        let idx = base + i as usize;
+                        let rg = coarse.rg[idx];
+                        [rg.re, rg.im, coarse.b[idx].re]
+                    };
+                    for (h, &(i0, fx)) in hrow.chunks_exact_mut(3).zip(&hat[xs..xe]) {
+                        let (a, c) = (at(i0), at(i0 + 1));
+                        for ch in 0..3 {
+                            h[ch] = (a[ch] * (1.0 - fx) + c[ch] * fx) * inv_b2;
+                        }
+                    }
+                });
+        }
+        // Rows with output: the fine rows ∪ the coarse rows.
+        let (cy0, cy1) = (ocy + cyl.start, ocy + cyl.end);
+        let (y0, y1) = if cyl.is_empty() {
+            (foy0, foy1)
+        } else {
+            (foy0.min(cy0), foy1.max(cy1))
+        };
+        if y0 >= y1 {
             return;
         }
         let width = img.width;
-        // Bilinear, separable: the coarse rows interpolated along x once.
-        let span = wc * self.block;
-        let (cx0, cx1) = ((x0 - ocx) as usize, (x1 - ocx) as usize);
-        let coarse = &self.coarse;
-        self.hrows[..span].fill([0.0; 3]);
-        self.hrows[(wc + 1) * span..].fill([0.0; 3]);
-        self.hrows[span..(wc + 1) * span]
-            .par_chunks_mut(span)
-            .enumerate()
-            .for_each(|(j, hrow)| {
-                let at = |i: i64| -> [f32; 3] {
-                    if i < 0 || i >= cw {
-                        return [0.0; 3];
-                    }
-                    let idx = j * wc + i as usize;
-                    let rg = coarse.rg[idx];
-                    [rg.re, rg.im, coarse.b[idx].re]
-                };
-                for (xl, h) in hrow.iter_mut().enumerate().take(cx1).skip(cx0) {
-                    let u = (xl as f32 + 0.5) / bf - 0.5;
-                    let i0f = u.floor();
-                    let fx = u - i0f;
-                    let i0 = i0f as i64;
-                    let (a, c) = (at(i0), at(i0 + 1));
-                    for ch in 0..3 {
-                        h[ch] = (a[ch] * (1.0 - fx) + c[ch] * fx) * inv_b2;
-                    }
-                }
-            });
         let fine = &self.fine;
         let weight = &self.weight;
         let hrows = &self.hrows;
+        let hat = &self.hat;
+        let (cx0, cx1) = ((ocx + cxl.start) as usize, (ocx + cxl.end) as usize);
+        let coarse_on = !cxl.is_empty();
         img.pixels[y0 as usize * width..y1 as usize * width]
             .par_chunks_mut(width)
             .enumerate()
             .for_each(|(k, row)| {
                 let y = y0 + k as i64;
-                let v = ((y - ocy) as f32 + 0.5) / bf - 0.5;
-                let j0f = v.floor();
-                let fy = v - j0f;
-                // hrows row j + 1 holds coarse row j; j0 ≥ −1.
-                let j0 = (j0f as i64 + 1).clamp(0, cw) as usize;
-                let lo = &hrows[j0 * span..(j0 + 1) * span];
-                let hi = &hrows[(j0 + 1) * span..(j0 + 2) * span];
-                let fj = y - ofy;
-                let row = &mut row[x0 as usize..x1 as usize];
-                if fj >= 0 && fj < wf as i64 {
-                    // The fine window's columns inside the image:
+                if (foy0..foy1).contains(&y) {
                     // (1 − w)·img + fine.
-                    let fx0 = (x0 - ofx).max(0);
-                    let fx1 = (x1 - ofx).min(wf as i64);
-                    let base = fj as usize * wf;
-                    for fi in fx0..fx1 {
-                        let idx = base + fi as usize;
-                        let keep = 1.0 - weight[idx];
-                        let rg = fine.rg[idx];
-                        let p = &mut row[(ofx + fi - x0) as usize];
+                    let base = (y - ofy) as usize * wf;
+                    let f0 = base + (fox0 - ofx) as usize;
+                    let f1 = base + (fox1 - ofx) as usize;
+                    let px = &mut row[fox0 as usize..fox1 as usize];
+                    for (((p, &w), rg), bl) in px
+                        .iter_mut()
+                        .zip(&weight[f0..f1])
+                        .zip(&fine.rg[f0..f1])
+                        .zip(&fine.b[f0..f1])
+                    {
+                        let keep = 1.0 - w;
                         p[0] = p[0] * keep + rg.re;
                         p[1] = p[1] * keep + rg.im;
-                        p[2] = p[2] * keep + fine.b[idx].re;
+                        p[2] = p[2] * keep + bl.re;
                     }
                 }
-                // + the coarse wide field.
-                let (lo, hi) = (&lo[cx0..cx1], &hi[cx0..cx1]);
-                for ((p, a), c) in row.iter_mut().zip(lo).zip(hi) {
-                    for ch in 0..3 {
-                        p[ch] += a[ch] * (1.0 - fy) + c[ch] * fy;
+                if coarse_on && (cy0..cy1).contains(&y) {
+                    // + the coarse wide field.
+                    let (j0, fy) = hat[(y - ocy) as usize];
+                    let lo = (j0 + 1) as usize * row3;
+                    let hi = lo + row3;
+                    let lo = &hrows[lo + xs * 3..lo + xe * 3];
+                    let hi = &hrows[hi + xs * 3..hi + xe * 3];
+                    let px = row[cx0..cx1].as_flattened_mut();
+                    for ((p, &a), &c) in px.iter_mut().zip(lo).zip(hi) {
+                        *p += a * (1.0 - fy) + c * fy;
                     }
                 }
             });
     }
 }
 
-/// The RG or B half of a [`Plane`], borrowed separately so the two run on
-/// different rayon tasks.
+/// The RG or B half of a [`Plane`] with its kernel spectra, borrowed
+/// separately so the two run on different rayon tasks.
 struct Half<'a> {
     w: usize,
     fwd: &'a Arc<dyn Fft<f32>>,
     inv: &'a Arc<dyn Fft<f32>>,
-    buf: &'a mut Vec<Complex<f32>>,
-    scratch: &'a mut Vec<Complex<f32>>,
-    spec: [&'a Vec<Complex<f32>>; 2],
+    buf: &'a mut [C32],
+    t: &'a mut [C32],
+    scratch: &'a mut [C32],
+    spec: [&'a [C32]; 2],
 }
 
-fn split_plane(p: &mut Plane) -> (Half<'_>, Half<'_>) {
+fn split_plane<'a>(p: &'a mut Plane, s: &'a PlaneSpectra) -> (Half<'a>, Half<'a>) {
     (
         Half {
             w: p.w,
             fwd: &p.fwd,
             inv: &p.inv,
             buf: &mut p.rg,
+            t: &mut p.t_rg,
             scratch: &mut p.scratch_rg,
-            spec: [&p.spec_a, &p.spec_b],
+            spec: [&s.a, &s.b],
         },
         Half {
             w: p.w,
             fwd: &p.fwd,
             inv: &p.inv,
             buf: &mut p.b,
+            t: &mut p.t_b,
             scratch: &mut p.scratch_b,
-            spec: [&p.spec_blue, &p.spec_blue],
+            spec: [&s.blue, &s.blue],
         },
     )
 }
 
 impl Half<'_> {
-    fn run_rg(self, src: std::ops::Range<usize>, out: std::ops::Range<usize>) {
+    fn run_rg(self, src: Range<usize>, out: Range<usize>) {
         let w = self.w;
-        fft2(self.fwd, self.buf, self.scratch, w, src);
-        let (a, bs) = (self.spec[0], self.spec[1]);
-        let buf = &mut *self.buf;
-        for kx in 0..w {
-            let nkx = (w - kx) % w;
-            for ky in 0..w {
-                let i = kx * w + ky;
-                let j = nkx * w + (w - ky) % w;
-                if j < i {
-                    continue;
-                }
-                let (zi, zj) = (buf[i], buf[j]);
-                buf[i] = zi * a[i] + zj.conj() * bs[i];
-                buf[j] = zj * a[j] + zi.conj() * bs[j];
-            }
-        }
-        ifft2(self.inv, buf, self.scratch, w, out);
+        fft2(self.fwd, self.buf, self.t, self.scratch, w, src);
+        multiply_packed(self.t, self.spec[0], self.spec[1], w);
+        ifft2(self.inv, self.t, self.buf, self.scratch, w, out);
     }
 
-    fn run_b(self, src: std::ops::Range<usize>, out: std::ops::Range<usize>) {
+    fn run_b(self, src: Range<usize>, out: Range<usize>) {
         let w = self.w;
-        fft2(self.fwd, self.buf, self.scratch, w, src);
-        for (v, k) in self.buf.iter_mut().zip(self.spec[0].iter()) {
+        fft2(self.fwd, self.buf, self.t, self.scratch, w, src);
+        for (v, k) in self.t.iter_mut().zip(self.spec[0]) {
             *v *= *k;
         }
-        ifft2(self.inv, self.buf, self.scratch, w, out);
+        ifft2(self.inv, self.t, self.buf, self.scratch, w, out);
+    }
+}
+
+/// `Y(k) = Z(k) A(k) + conj(Z(−k)) B(k)` in place over the transposed
+/// spectrum `t` (index `kx·w + ky`), each pair `k`, `−k` once.
+fn multiply_packed(t: &mut [C32], a: &[C32], bs: &[C32], w: usize) {
+    for kx in 0..=w / 2 {
+        let nkx = (w - kx) % w;
+        if nkx == kx {
+            // The row pairs with itself, reversed.
+            let row = &mut t[kx * w..(kx + 1) * w];
+            let (ra, rb) = (&a[kx * w..(kx + 1) * w], &bs[kx * w..(kx + 1) * w]);
+            for ky in 0..=w / 2 {
+                let nky = (w - ky) % w;
+                let (zi, zj) = (row[ky], row[nky]);
+                row[ky] = zi * ra[ky] + zj.conj() * rb[ky];
+                if nky != ky {
+                    row[nky] = zj * ra[nky] + zi.conj() * rb[nky];
+                }
+            }
+        } else {
+            // kx < w/2 < nkx: rows kx and nkx pair, ky with w − ky.
+            let (lo, hi) = t.split_at_mut(nkx * w);
+            let r1 = &mut lo[kx * w..(kx + 1) * w];
+            let r2 = &mut hi[..w];
+            let (a1, b1) = (&a[kx * w..(kx + 1) * w], &bs[kx * w..(kx + 1) * w]);
+            let (a2, b2) = (&a[nkx * w..(nkx + 1) * w], &bs[nkx * w..(nkx + 1) * w]);
+            let (zi, zj) = (r1[0], r2[0]);
+            r1[0] = zi * a1[0] + zj.conj() * b1[0];
+            r2[0] = zj * a2[0] + zi.conj() * b2[0];
+            for ky in 1..w {
+                let nky = w - ky;
+                let (zi, zj) = (r1[ky], r2[nky]);
+                r1[ky] = zi * a1[ky] + zj.conj() * b1[ky];
+                r2[nky] = zj * a2[nky] + zi.conj() * b2[nky];
+            }
+        }
     }
 }
 
@@ -659,21 +1013,6 @@ fn source_weight(d: f64, d_full: f64, sigma: f64) -> f64 {
 fn split_weight(d: f64, r_fine: f64) -> f64 {
     let s = ((d - 0.5 * r_fine) / (0.5 * r_fine)).clamp(0.0, 1.0);
     s * s * (3.0 - 2.0 * s)
-}
-
-/// In-place transpose of a square row-major matrix, in cache-sized blocks.
-fn transpose_square_blocked<T: Copy>(m: &mut [T], n: usize) {
-    const B: usize = 16;
-    for bj in (0..n).step_by(B) {
-        for bi in (bj..n).step_by(B) {
-            for j in bj..(bj + B).min(n) {
-                let start = if bi == bj { j + 1 } else { bi };
-                for i in start..(bi + B).min(n) {
-                    m.swap(j * n + i, i * n + j);
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]
