@@ -175,17 +175,29 @@ impl ClockTracker {
     }
 }
 
+/// Why a reply to `t` is not a Pupil time.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum TimeReplyError {
+    #[error("reply to `t` is not UTF-8")]
+    NotUtf8,
+    /// The reply's first 40 characters.
+    #[error("reply to `t` is not a number: {0:?}")]
+    NotANumber(String),
+    #[error("reply to `t` is not finite: {0}")]
+    NotFinite(f64),
+}
+
 /// Parses the reply to `t`: Pupil time as decimal text.
-pub fn parse_time_reply(reply: &[u8]) -> Result<f64, String> {
-    let text = std::str::from_utf8(reply).map_err(|_| "reply to `t` is not UTF-8".to_owned())?;
+pub fn parse_time_reply(reply: &[u8]) -> Result<f64, TimeReplyError> {
+    let text = std::str::from_utf8(reply).map_err(|_| TimeReplyError::NotUtf8)?;
     let t: f64 = text
         .trim()
         .parse()
-        .map_err(|_| format!("reply to `t` is not a number: {:?}", truncate(text)))?;
+        .map_err(|_| TimeReplyError::NotANumber(truncate(text).to_owned()))?;
     if t.is_finite() {
         Ok(t)
     } else {
-        Err(format!("reply to `t` is not finite: {t}"))
+        Err(TimeReplyError::NotFinite(t))
     }
 }
 
@@ -260,6 +272,7 @@ mod tests {
         assert!(
             parse_time_reply(b"Unknown command.")
                 .unwrap_err()
+                .to_string()
                 .contains("not a number")
         );
         assert!(parse_time_reply(b"nan").is_err());

@@ -17,6 +17,7 @@
 //! [`PupilModel::pupil_mm`] at the current adaptation luminance, which the
 //! service feeds back from the vision pipeline.
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// Stanley & Davies' flux normalisation constant, cd·deg²/m² (Stanley & Davies 1995, as W&Y 2012 restate it).
@@ -96,17 +97,17 @@ impl PupilModel {
     }
 
     /// Checks the parameters; names the offending field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(self.field_area_deg2.is_finite() && self.field_area_deg2 > 0.0) {
-            return Err(format!(
-                "field_area_deg2 must be > 0, got {}",
-                self.field_area_deg2
+            return Err(SettingError::new(
+                "field_area_deg2",
+                format!("must be > 0, got {}", self.field_area_deg2),
             ));
         }
         if !(1.0..=100.0).contains(&self.age_years) {
-            return Err(format!(
-                "age_years must be within 1..=100, got {}",
-                self.age_years
+            return Err(SettingError::new(
+                "age_years",
+                format!("must be within 1..=100, got {}", self.age_years),
             ));
         }
         Ok(())
@@ -172,6 +173,11 @@ mod tests {
             field_area_deg2: 0.0,
             ..m
         };
-        assert!(bad.validate().unwrap_err().contains("field_area_deg2"));
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("field_area_deg2")
+        );
     }
 }

@@ -613,7 +613,7 @@ impl Worker {
             let received = host_now_secs();
             let pupil = parse_time_reply(&reply).map_err(|reason| PupilError::BadReply {
                 request: "t".to_owned(),
-                reply: reason,
+                reply: reason.to_string(),
             })?;
             self.probes.push(ClockProbe {
                 sent_host_secs: sent,

@@ -40,7 +40,7 @@ pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod pupil {
     pub use gazelight_eye::clock;
     pub use gazelight_pupil::client::*;
-    pub use gazelight_pupil::{msg, stimulus};
+    pub use gazelight_pupil::{msg, relay, stimulus};
 }
 
 /// Hardware transports (`gazelight-devices`), the source URIs that name

@@ -2,7 +2,7 @@
 //! Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) re-published
 //! as a Pupil Network API, read by
 //! - Pupil Labs' official Python client `pupil-core-network-client`
-//!   (tests/relay_client.py), and
+//!   (crates/gazelight-pupil/tests/relay_client.py), and
 //! - gazelight's own `PupilClient`, which must decode the relay's stream
 //!   as if it were Pupil Capture.
 //!
@@ -49,7 +49,7 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
 
     // 1. The official Python client.
     let out = Command::new("python3")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/relay_client.py"))
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-pupil/tests/relay_client.py"))
         .args(["--port", &relay_port.to_string()])
         .args(["--pupil", "400", "--gaze", "100", "--timeout", "20"])
         .output()

@@ -18,7 +18,7 @@ mod source;
 use std::ffi::c_char;
 
 pub use config::{InletMapping, LslConfig, ResolveScope};
-pub use source::{Layout, LslQuery, LslSource, StreamFacts};
+pub use source::{Layout, LayoutError, LslQuery, LslQueryError, LslSource, StreamFacts};
 
 use ffi::{Api, Ptr};
 

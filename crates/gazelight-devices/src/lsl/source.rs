@@ -37,6 +37,41 @@ const RESOLVE_STEP_SECS: f64 = 0.5;
 /// specifications): its gaze x/y are in these pixels.
 const NEON_SCENE_PX: [f64; 2] = [1600.0, 1200.0];
 
+/// Why an `lsl://` URI names no stream; the message quotes the URI.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("`{uri}`: {reason}")]
+pub struct LslQueryError {
+    /// The URI as given.
+    pub uri: String,
+    /// What is wrong and what was expected.
+    pub reason: String,
+}
+
+impl LslQueryError {
+    fn new(uri: &str, reason: impl Into<String>) -> Self {
+        Self {
+            uri: uri.to_owned(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// Why a stream's channels match no known layout.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum LayoutError {
+    /// The inlet mapping names a channel the stream does not have.
+    #[error("no channel labelled `{0}`")]
+    MissingChannel(String),
+    /// Neither a known layout nor a mapping.
+    #[error(
+        "channel labels [{}] are neither Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, \
+         diameter0_3d, …) nor Neon's (x, y, pupil_diameter_left, …): map them in [lsl.inlet] \
+         (gaze_x, gaze_y, gaze_range, pupil_right, pupil_left, pupil_unit, confidence)",
+        .labels.join(", ")
+    )]
+    Unknown { labels: Vec<String> },
+}
+
 /// Which stream an `lsl://` URI asks for.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct LslQuery {
@@ -48,41 +83,48 @@ pub struct LslQuery {
 impl LslQuery {
     /// Parses the query part of `lsl://?name=…` (one of name, type,
     /// source_id).
-    pub fn parse(uri: &str) -> Result<Self, String> {
-        let rest = uri
-            .strip_prefix("lsl://")
-            .ok_or_else(|| format!("`{uri}`: expected lsl://?name=NAME or lsl://?type=TYPE"))?;
+    pub fn parse(uri: &str) -> Result<Self, LslQueryError> {
+        let rest = uri.strip_prefix("lsl://").ok_or_else(|| {
+            LslQueryError::new(uri, "expected lsl://?name=NAME or lsl://?type=TYPE")
+        })?;
         let q = rest.trim_start_matches('/');
         let q = q.strip_prefix('?').ok_or_else(|| {
-            format!("`{uri}`: expected lsl://?name=NAME, lsl://?type=TYPE or lsl://?source_id=ID")
+            LslQueryError::new(
+                uri,
+                "expected lsl://?name=NAME, lsl://?type=TYPE or lsl://?source_id=ID",
+            )
         })?;
         let mut found = None;
         for pair in q.split('&').filter(|p| !p.is_empty()) {
             let (k, v) = pair
                 .split_once('=')
-                .ok_or_else(|| format!("`{uri}`: `{pair}` is not KEY=VALUE"))?;
+                .ok_or_else(|| LslQueryError::new(uri, format!("`{pair}` is not KEY=VALUE")))?;
             let prop = match k {
                 "name" => "name",
                 "type" => "type",
                 "source_id" => "source_id",
                 other => {
-                    return Err(format!(
-                        "`{uri}`: unknown parameter `{other}` (expected name, type or source_id)"
+                    return Err(LslQueryError::new(
+                        uri,
+                        format!("unknown parameter `{other}` (expected name, type or source_id)"),
                     ));
                 }
             };
             if v.is_empty() || v.contains('\0') {
-                return Err(format!("`{uri}`: empty {k}"));
+                return Err(LslQueryError::new(uri, format!("empty {k}")));
             }
             if found.is_some() {
-                return Err(format!("`{uri}`: give one of name, type or source_id"));
+                return Err(LslQueryError::new(
+                    uri,
+                    "give one of name, type or source_id",
+                ));
             }
             found = Some(Self {
                 prop,
                 value: percent_decode(v),
             });
         }
-        found.ok_or_else(|| format!("`{uri}`: expected ?name=NAME or ?type=TYPE"))
+        found.ok_or_else(|| LslQueryError::new(uri, "expected ?name=NAME or ?type=TYPE"))
     }
 }
 
@@ -130,9 +172,9 @@ pub struct Layout {
 
 impl Layout {
     /// Picks the layout from the channel labels (or `mapping` when set).
-    pub fn detect(labels: &[String], mapping: &InletMapping) -> Result<Self, String> {
+    pub fn detect(labels: &[String], mapping: &InletMapping) -> Result<Self, LayoutError> {
         let idx = |l: &str| labels.iter().position(|x| x == l);
-        let need = |l: &str| idx(l).ok_or_else(|| format!("no channel labelled `{l}`"));
+        let need = |l: &str| idx(l).ok_or_else(|| LayoutError::MissingChannel(l.to_owned()));
         if mapping.is_set() {
             let unit = match mapping.pupil_unit.as_deref() {
                 None | Some("mm") => PupilUnit::Mm,
@@ -140,7 +182,7 @@ impl Layout {
                 _ => PupilUnit::Arbitrary,
             };
             let opt = |l: &Option<String>| l.as_deref().map(need).transpose();
-            let eye = |l: &Option<String>| -> Result<Vec<(usize, PupilUnit)>, String> {
+            let eye = |l: &Option<String>| -> Result<Vec<(usize, PupilUnit)>, LayoutError> {
                 Ok(opt(l)?.map(|i| vec![(i, unit)]).unwrap_or_default())
             };
             return Ok(Self {
@@ -192,12 +234,9 @@ impl Layout {
                 pupil: [eye("right"), eye("left")],
             });
         }
-        Err(format!(
-            "channel labels [{}] are neither Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, \
-             diameter0_3d, …) nor Neon's (x, y, pupil_diameter_left, …): map them in [lsl.inlet] \
-             (gaze_x, gaze_y, gaze_range, pupil_right, pupil_left, pupil_unit, confidence)",
-            labels.join(", ")
-        ))
+        Err(LayoutError::Unknown {
+            labels: labels.to_vec(),
+        })
     }
 
     /// The samples of one LSL sample at host time `t_secs`, appended to `out`.
@@ -403,7 +442,7 @@ fn read_stream(
         Ok(l) => l,
         Err(reason) => {
             let source_name = format!("{query} (`{}`)", full.name());
-            let _ = send_blocking(tx, stop, fatal(source_name, reason));
+            let _ = send_blocking(tx, stop, fatal(source_name, reason.to_string()));
             return;
         }
     };
@@ -584,7 +623,9 @@ mod tests {
         let Sample::Gaze(g) = out[2] else { panic!() };
         assert_eq!(g.gaze_uv, [0.5, 0.25]);
 
-        let err = Layout::detect(&labels(&["a", "b"]), &InletMapping::default()).unwrap_err();
+        let err = Layout::detect(&labels(&["a", "b"]), &InletMapping::default())
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("[lsl.inlet]") && err.contains("a, b"), "{err}");
         let m = InletMapping {
             gaze_x: Some("b".into()),
@@ -608,6 +649,7 @@ mod tests {
         assert!(
             Layout::detect(&labels(&["a"]), &bad)
                 .unwrap_err()
+                .to_string()
                 .contains("zz")
         );
     }

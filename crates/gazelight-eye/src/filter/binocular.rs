@@ -13,6 +13,7 @@
 //! [`crate::state::EyeState::pupil_mm`] (mean of measured or held eyes);
 //! the fused blink flag is "every eye that reports is closed".
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// Pairing configuration.
@@ -33,11 +34,11 @@ impl Default for BinocularConfig {
 
 impl BinocularConfig {
     /// Checks the value; names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(self.pair_window_s.is_finite() && self.pair_window_s > 0.0) {
-            return Err(format!(
-                "binocular.pair_window_s must be > 0, got {}",
-                self.pair_window_s
+            return Err(SettingError::new(
+                "binocular.pair_window_s",
+                format!("must be > 0, got {}", self.pair_window_s),
             ));
         }
         Ok(())

@@ -21,6 +21,7 @@
 //!   upper bound above slow, voluntary blinks (the same recording has a
 //!   696 ms one).
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// Blink detector configuration.
@@ -47,23 +48,23 @@ impl Default for BlinkConfig {
 
 impl BlinkConfig {
     /// Checks the durations are positive and ordered; names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(self.debounce_gap_s.is_finite() && self.debounce_gap_s >= 0.0) {
-            return Err(format!(
-                "blink.debounce_gap_s must be ≥ 0, got {}",
-                self.debounce_gap_s
+            return Err(SettingError::new(
+                "blink.debounce_gap_s",
+                format!("must be ≥ 0, got {}", self.debounce_gap_s),
             ));
         }
         if !(self.min_duration_s.is_finite() && self.min_duration_s >= 0.0) {
-            return Err(format!(
-                "blink.min_duration_s must be ≥ 0, got {}",
-                self.min_duration_s
+            return Err(SettingError::new(
+                "blink.min_duration_s",
+                format!("must be ≥ 0, got {}", self.min_duration_s),
             ));
         }
         if !(self.max_duration_s.is_finite() && self.max_duration_s > self.min_duration_s) {
-            return Err(format!(
-                "blink.max_duration_s must be > min_duration_s, got {}",
-                self.max_duration_s
+            return Err(SettingError::new(
+                "blink.max_duration_s",
+                format!("must be > min_duration_s, got {}", self.max_duration_s),
             ));
         }
         Ok(())

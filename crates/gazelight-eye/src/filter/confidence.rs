@@ -3,6 +3,7 @@
 //! Capture's own threshold (below it Pupil switches a binocular gaze mapper
 //! to monocular).
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// Pupil Capture's confidence threshold for usable data.
@@ -33,11 +34,11 @@ impl ConfidenceGate {
     }
 
     /// Checks the threshold lies in 0..=1.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(0.0..=1.0).contains(&self.min_confidence) {
-            return Err(format!(
-                "confidence.min_confidence must be within 0..=1, got {}",
-                self.min_confidence
+            return Err(SettingError::new(
+                "confidence.min_confidence",
+                format!("must be within 0..=1, got {}", self.min_confidence),
             ));
         }
         Ok(())

@@ -12,6 +12,7 @@
 //! - before any measurement the model's pupil is used
 //!   ([`PupilOrigin::Default`]).
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 use crate::state::PupilOrigin;
@@ -38,14 +39,17 @@ impl Default for DropoutConfig {
 
 impl DropoutConfig {
     /// Checks the values; names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(self.hold_s.is_finite() && self.hold_s >= 0.0) {
-            return Err(format!("dropout.hold_s must be ≥ 0, got {}", self.hold_s));
+            return Err(SettingError::new(
+                "dropout.hold_s",
+                format!("must be ≥ 0, got {}", self.hold_s),
+            ));
         }
         if !(self.ease_rate_mm_per_s.is_finite() && self.ease_rate_mm_per_s > 0.0) {
-            return Err(format!(
-                "dropout.ease_rate_mm_per_s must be > 0, got {}",
-                self.ease_rate_mm_per_s
+            return Err(SettingError::new(
+                "dropout.ease_rate_mm_per_s",
+                format!("must be > 0, got {}", self.ease_rate_mm_per_s),
             ));
         }
         Ok(())

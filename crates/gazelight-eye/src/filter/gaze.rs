@@ -18,6 +18,7 @@
 //! saccade (several uv/s) opens the cutoff to tens of Hz so the lag stays a
 //! few ms.
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// One Euro filter parameters (Casiez et al. 2012).
@@ -130,18 +131,21 @@ impl Default for GazeConfig {
 
 impl GazeConfig {
     /// Checks the values; names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         let pos = |v: f32, name: &str| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(format!("gaze.{name} must be > 0, got {v}"))
+                Err(SettingError::new(
+                    format!("gaze.{name}"),
+                    format!("must be > 0, got {v}"),
+                ))
             }
         };
         if !(0.0..=1.0).contains(&self.min_confidence) {
-            return Err(format!(
-                "gaze.min_confidence must be within 0..=1, got {}",
-                self.min_confidence
+            return Err(SettingError::new(
+                "gaze.min_confidence",
+                format!("must be within 0..=1, got {}", self.min_confidence),
             ));
         }
         pos(self.margin_uv, "margin_uv")?;
@@ -150,15 +154,15 @@ impl GazeConfig {
         pos(self.one_euro.min_cutoff_hz, "one_euro.min_cutoff_hz")?;
         pos(self.one_euro.d_cutoff_hz, "one_euro.d_cutoff_hz")?;
         if !(self.one_euro.beta.is_finite() && self.one_euro.beta >= 0.0) {
-            return Err(format!(
-                "gaze.one_euro.beta must be ≥ 0, got {}",
-                self.one_euro.beta
+            return Err(SettingError::new(
+                "gaze.one_euro.beta",
+                format!("must be ≥ 0, got {}", self.one_euro.beta),
             ));
         }
         if !(self.reset_after_s.is_finite() && self.reset_after_s > 0.0) {
-            return Err(format!(
-                "gaze.reset_after_s must be > 0, got {}",
-                self.reset_after_s
+            return Err(SettingError::new(
+                "gaze.reset_after_s",
+                format!("must be > 0, got {}", self.reset_after_s),
             ));
         }
         Ok(())

@@ -6,7 +6,7 @@
 //!    confidence gate or its raw diameter is ≤ 0 / NaN — units-agnostic, so
 //!    blinks are found before (and without) calibration;
 //! 2. **confidence** ([`confidence`]): gate at 0.6 (Pupil's threshold);
-//! 3. **calibration** ([`crate::calibration::PupilCalibration`]): raw units
+//! 3. **calibration** ([`crate::profile::PupilCalibration`]): raw units
 //!    → mm for this eye (identity for sources already in mm);
 //! 4. **physiology** ([`physio`]): reject ≤ 0, NaN, outside 1.5–9 mm, or
 //!    changing faster than 6 mm/s (+ noise tolerance);
@@ -37,9 +37,10 @@ pub mod dropout;
 pub mod gaze;
 pub mod physio;
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
-use crate::calibration::{BadRawPupil, PupilCalibration};
+use crate::profile::{BadRawPupil, PupilCalibration};
 use crate::pupil_model::PupilModel;
 use crate::sample::{PupilSample, Sample};
 use crate::state::{EyeState, PupilOrigin};
@@ -73,7 +74,7 @@ pub struct FilterConfig {
 
 impl FilterConfig {
     /// Checks every stage; the error names the offending field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         self.confidence.validate()?;
         self.physio.validate()?;
         self.blink.validate()?;
@@ -82,11 +83,14 @@ impl FilterConfig {
         self.binocular.validate()?;
         self.pupil_model
             .validate()
-            .map_err(|e| format!("pupil_model.{e}"))?;
+            .map_err(|e| e.within("pupil_model"))?;
         if self.dropout.ease_rate_mm_per_s > self.physio.max_rate_mm_per_s {
-            return Err(format!(
-                "dropout.ease_rate_mm_per_s ({}) must not exceed physio.max_rate_mm_per_s ({})",
-                self.dropout.ease_rate_mm_per_s, self.physio.max_rate_mm_per_s
+            return Err(SettingError::new(
+                "dropout.ease_rate_mm_per_s",
+                format!(
+                    "({}) must not exceed physio.max_rate_mm_per_s ({})",
+                    self.dropout.ease_rate_mm_per_s, self.physio.max_rate_mm_per_s
+                ),
             ));
         }
         Ok(())
@@ -156,7 +160,7 @@ pub struct FilterChain {
 
 impl FilterChain {
     /// Builds a chain; the configuration is validated.
-    pub fn new(cfg: FilterConfig, calibration: PupilCalibration) -> Result<Self, String> {
+    pub fn new(cfg: FilterConfig, calibration: PupilCalibration) -> Result<Self, SettingError> {
         cfg.validate()?;
         let model_mm = cfg.pupil_model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
         let mut state = EyeState::default();
@@ -583,9 +587,19 @@ mod tests {
         assert!(serde_json::from_str::<FilterConfig>(r#"{"confidense": {}}"#).is_err());
         let mut bad = cfg;
         bad.physio.max_pupil_mm = 1.0;
-        assert!(bad.validate().unwrap_err().contains("physio.max_pupil_mm"));
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("physio.max_pupil_mm")
+        );
         let mut bad = cfg;
         bad.dropout.ease_rate_mm_per_s = 10.0;
-        assert!(bad.validate().unwrap_err().contains("ease_rate"));
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("ease_rate")
+        );
     }
 }

@@ -25,6 +25,7 @@
 //! it do (hold, model easing, a new eye after a dropout), its output never
 //! changes faster than `max_rate`.
 
+use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
 /// Smallest plausible pupil, mm.
@@ -65,29 +66,32 @@ impl Default for PhysioConfig {
 
 impl PhysioConfig {
     /// Checks the bounds are ordered and positive; names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingError> {
         if !(self.min_pupil_mm.is_finite() && self.min_pupil_mm > 0.0) {
-            return Err(format!(
-                "physio.min_pupil_mm must be > 0, got {}",
-                self.min_pupil_mm
+            return Err(SettingError::new(
+                "physio.min_pupil_mm",
+                format!("must be > 0, got {}", self.min_pupil_mm),
             ));
         }
         if !(self.max_pupil_mm.is_finite() && self.max_pupil_mm > self.min_pupil_mm) {
-            return Err(format!(
-                "physio.max_pupil_mm must be > min_pupil_mm ({}), got {}",
-                self.min_pupil_mm, self.max_pupil_mm
+            return Err(SettingError::new(
+                "physio.max_pupil_mm",
+                format!(
+                    "must be > min_pupil_mm ({}), got {}",
+                    self.min_pupil_mm, self.max_pupil_mm
+                ),
             ));
         }
         if !(self.max_rate_mm_per_s.is_finite() && self.max_rate_mm_per_s > 0.0) {
-            return Err(format!(
-                "physio.max_rate_mm_per_s must be > 0, got {}",
-                self.max_rate_mm_per_s
+            return Err(SettingError::new(
+                "physio.max_rate_mm_per_s",
+                format!("must be > 0, got {}", self.max_rate_mm_per_s),
             ));
         }
         if !(self.jump_tolerance_mm.is_finite() && self.jump_tolerance_mm >= 0.0) {
-            return Err(format!(
-                "physio.jump_tolerance_mm must be ≥ 0, got {}",
-                self.jump_tolerance_mm
+            return Err(SettingError::new(
+                "physio.jump_tolerance_mm",
+                format!("must be ≥ 0, got {}", self.jump_tolerance_mm),
             ));
         }
         Ok(())

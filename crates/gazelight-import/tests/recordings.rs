@@ -3,10 +3,10 @@
 
 use std::path::PathBuf;
 
-use gazelight_tracker::calibration::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
-use gazelight_tracker::filter::{FilterChain, FilterConfig};
-use gazelight_tracker::import::{self, Importer};
-use gazelight_tracker::{PupilUnit, Sample};
+use gazelight_eye::calibration::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
+use gazelight_eye::filter::{FilterChain, FilterConfig};
+use gazelight_import::{self as import, Importer};
+use gazelight_eye::{PupilUnit, Sample};
 
 fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -218,7 +218,7 @@ fn piprkit_flash_constrictions_are_preserved() {
 
 #[test]
 fn inspect_summaries_of_the_three_recordings() {
-    use gazelight_tracker::summary::summarize_importer;
+    use gazelight_import::summary::summarize_importer;
     for (rel, rate_hz) in [
         ("neon-demo", 200.0),
         ("eyelink-psa/both_eyes.asc", 500.0),

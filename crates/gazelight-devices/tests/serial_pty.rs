@@ -6,9 +6,9 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Duration;
 
-use gazelight_tracker::transport::framing;
-use gazelight_tracker::transport::serial::{SerialFormat, SerialSource};
-use gazelight_tracker::{
+use gazelight_devices::framing;
+use gazelight_devices::serial::{SerialFormat, SerialSource};
+use gazelight_eye::{
     DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample, SampleSource, SourceError,
 };
 use serialport::{SerialPort, TTYPort};

@@ -5,9 +5,9 @@
 
 use std::time::Duration;
 
-use gazelight_tracker::transport::gazepoint::sim::{self, Session};
-use gazelight_tracker::transport::gazepoint::{ENABLE_FIELDS, GazepointSource, GazepointTimeouts};
-use gazelight_tracker::{PupilUnit, Sample, SampleSource, SourceError};
+use gazelight_devices::gazepoint::sim::{self, Session};
+use gazelight_devices::gazepoint::{ENABLE_FIELDS, GazepointSource, GazepointTimeouts};
+use gazelight_eye::{PupilUnit, Sample, SampleSource, SourceError};
 
 fn timeouts() -> GazepointTimeouts {
     GazepointTimeouts {

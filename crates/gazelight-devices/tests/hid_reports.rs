@@ -4,11 +4,11 @@
 //! physical extents, and CRS LiveTrack packets laid out as CRS's MATLAB
 //! driver reads them.
 
-use gazelight_tracker::PupilUnit;
-use gazelight_tracker::transport::hid::descriptor::{Descriptor, ReportKind};
-use gazelight_tracker::transport::hid::livetrack::{self, LiveTrackError, LiveTrackMode};
-use gazelight_tracker::transport::hid::page12::{self, Page12Error, Page12Layout};
-use gazelight_tracker::transport::hid::{HidOptions, HidProfile, source::choose_profile, testdata};
+use gazelight_devices::hid::descriptor::{Descriptor, ReportKind};
+use gazelight_devices::hid::livetrack::{self, LiveTrackError, LiveTrackMode};
+use gazelight_devices::hid::page12::{self, Page12Error, Page12Layout};
+use gazelight_devices::hid::{HidOptions, HidProfile, source::choose_profile, testdata};
+use gazelight_eye::PupilUnit;
 
 const EYE_TRACKER: &[u8] = testdata::PAGE12_EYE_TRACKER;
 const SCREEN_W_UM: i32 = testdata::SCREEN_UM[0];
