@@ -19,7 +19,8 @@ use gazelight_vision::acuity::{AcuityBlur, AcuityModel, VIVE_PRO_PPD};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::frame::FrameState;
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Uniforms of `acuity.wgsl` (`struct AcuityParams`), field by field.
@@ -79,13 +80,27 @@ pub fn max_radius(model: &AcuityModel, deg_per_px: f64) -> u32 {
     AcuityBlur::new(model, 1, 1, deg_per_px).max_radius() as u32
 }
 
-/// The twin of `shaders/acuity.wgsl`. Bindings: 0 [`AcuityParams`],
-/// 1 [`crate::frame::FrameState`], 2 the working frame (RGBA f32, cd/m²,
-/// blurred in place), 3 lightness (f32 per pixel), 4 horizontal pass (f32
-/// per pixel).
+/// `shaders/acuity.wgsl`: the frame's σ (one thread), lightness, the
+/// horizontal and the vertical pass.
+pub const ACUITY_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::ACUITY,
+    entry_points: &["prepare_acuity", "lightness", "blur_h", "blur_v"],
+    bindings: &[
+        Binding::uniform::<AcuityParams>("params"),
+        Binding::read_write::<FrameState>("state"),
+        Binding::read_write::<[f32; 4]>("work"),
+        Binding::read_write::<f32>("lightness_buf"),
+        Binding::read_write::<f32>("horizontal"),
+    ],
+};
+
+/// The twin of `shaders/acuity.wgsl` ([`ACUITY_PASS`]). Bindings:
+/// 0 [`AcuityParams`], 1 [`crate::frame::FrameState`], 2 the working frame
+/// (RGBA f32, cd/m², blurred in place), 3 lightness (f32 per pixel),
+/// 4 horizontal pass (f32 per pixel).
 #[derive(Debug, Clone)]
 pub struct AcuityPass {
-    layout: wgpu::BindGroupLayout,
+    pub(crate) layout: PassLayout,
     pub(crate) prepare: wgpu::ComputePipeline,
     pub(crate) lightness: wgpu::ComputePipeline,
     pub(crate) blur_h: wgpu::ComputePipeline,
@@ -95,29 +110,18 @@ pub struct AcuityPass {
 impl AcuityPass {
     /// Checks the shader against the device limits and builds the pipelines.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = layout(
-            ctx,
-            "acuity.wgsl",
-            &[
-                uniform_entry::<AcuityParams>(0),
-                storage_entry(1, false),
-                storage_entry(2, false),
-                storage_entry(3, false),
-                storage_entry(4, false),
-            ],
-        )?;
-        let s = &shaders::ACUITY;
+        let (layout, [prepare, lightness, blur_h, blur_v]) = ACUITY_PASS.build(ctx)?;
         Ok(Self {
-            prepare: ctx.create_compute_pipeline(s, "prepare_acuity", &[&layout])?,
-            lightness: ctx.create_compute_pipeline(s, "lightness", &[&layout])?,
-            blur_h: ctx.create_compute_pipeline(s, "blur_h", &[&layout])?,
-            blur_v: ctx.create_compute_pipeline(s, "blur_v", &[&layout])?,
             layout,
+            prepare,
+            lightness,
+            blur_h,
+            blur_v,
         })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 }

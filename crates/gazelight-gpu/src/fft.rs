@@ -29,6 +29,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::context::GpuContext;
 use crate::cpu::{check_len, radix_plan};
 use crate::error::GpuError;
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Threads per workgroup of `fft_stage` (`FFT_WORKGROUP_SIZE` in fft.wgsl).
@@ -74,59 +75,39 @@ pub enum FftDirection {
     Inverse,
 }
 
-/// The twin of `shaders/fft.wgsl`: its bind group layout and pipeline.
+/// `shaders/fft.wgsl`: one Stockham stage per dispatch.
+pub const FFT_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::FFT,
+    entry_points: &["fft_stage"],
+    bindings: &[
+        Binding::uniform::<FftParams>("params"),
+        Binding::read::<[f32; 2]>("src"),
+        Binding::read_write::<[f32; 2]>("dst"),
+        Binding::read::<[f32; 2]>("twiddles"),
+    ],
+};
+
+/// The twin of `shaders/fft.wgsl` ([`FFT_PASS`]): its bind group layout and
+/// pipeline.
 ///
 /// Bindings: 0 `FftParams` uniform, 1 source (read-only storage),
 /// 2 destination (read-write storage), 3 twiddle table (read-only storage).
 #[derive(Debug, Clone)]
 pub struct FftPass {
-    layout: wgpu::BindGroupLayout,
+    layout: PassLayout,
     pipeline: wgpu::ComputePipeline,
-}
-
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: NonZeroU64::new(8),
-        },
-        count: None,
-    }
 }
 
 impl FftPass {
     /// Checks `fft.wgsl` against the device limits and builds the pipeline.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = ctx.scoped("fft.wgsl bind group layout", |device| {
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("fft.wgsl"),
-                entries: &[
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 0,
-                        visibility: wgpu::ShaderStages::COMPUTE,
-                        ty: wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Uniform,
-                            has_dynamic_offset: false,
-                            min_binding_size: NonZeroU64::new(size_of::<FftParams>() as u64),
-                        },
-                        count: None,
-                    },
-                    storage_entry(1, true),
-                    storage_entry(2, false),
-                    storage_entry(3, true),
-                ],
-            })
-        })?;
-        let pipeline = ctx.create_compute_pipeline(&shaders::FFT, "fft_stage", &[&layout])?;
+        let (layout, [pipeline]) = FFT_PASS.build(ctx)?;
         Ok(Self { layout, pipeline })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 
     /// The compute pipeline.
@@ -156,6 +137,111 @@ pub struct GpuFft2d {
     inverse: Vec<Stage>,
 }
 
+/// The buffers of one plan.
+struct PlanBuffers {
+    data: wgpu::Buffer,
+    scratch: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    uniforms: wgpu::Buffer,
+    twiddles: wgpu::Buffer,
+}
+
+/// e^(−2πi·m/n), m < n, computed in f64.
+fn twiddle_table(n: u32) -> Vec<[f32; 2]> {
+    (0..n)
+        .map(|m| {
+            let angle = -2.0 * std::f64::consts::PI * f64::from(m) / f64::from(n);
+            [angle.cos() as f32, angle.sin() as f32]
+        })
+        .collect()
+}
+
+/// The uniforms of every stage: rows then columns, forward then inverse.
+fn stage_params(width: u32, height: u32, channels: u32) -> Vec<FftParams> {
+    let n_max = width.max(height);
+    let axes = [
+        // (n, elem_stride, lines_per_plane, line_step)
+        (width, 1, height, width),
+        (height, width, width, 1),
+    ];
+    let mut params = Vec::new();
+    for inverse in [false, true] {
+        for (n, elem_stride, lines_per_plane, line_step) in axes {
+            let plan = radix_plan(n);
+            let mut ns = 1;
+            for (i, &radix) in plan.iter().enumerate() {
+                let last = i + 1 == plan.len();
+                params.push(FftParams {
+                    n,
+                    ns,
+                    radix,
+                    elem_stride,
+                    lines_per_plane,
+                    line_step,
+                    plane_size: width * height,
+                    total_threads: lines_per_plane * channels * (n / radix),
+                    twiddle_step: n_max / (ns * radix),
+                    inverse: u32::from(inverse),
+                    scale: if inverse && last { 1.0 / n as f32 } else { 1.0 },
+                    _pad: 0,
+                });
+                ns *= radix;
+            }
+        }
+    }
+    params
+}
+
+/// The stage uniforms packed at `align`-byte offsets.
+fn pack_uniforms(params: &[FftParams], align: u64) -> Vec<u8> {
+    let mut bytes = vec![0u8; (align as usize) * params.len().max(1)];
+    for (i, p) in params.iter().enumerate() {
+        let offset = i * align as usize;
+        bytes[offset..offset + size_of::<FftParams>()].copy_from_slice(bytemuck::bytes_of(p));
+    }
+    bytes
+}
+
+fn plan_buffers(
+    ctx: &GpuContext,
+    bytes: u64,
+    uniform_bytes: u64,
+    twiddle_bytes: u64,
+) -> Result<PlanBuffers, GpuError> {
+    ctx.scoped("FFT buffers", |device| {
+        let buffer = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC;
+        PlanBuffers {
+            data: buffer("fft data", bytes, storage),
+            scratch: buffer("fft scratch", bytes, storage),
+            staging: buffer(
+                "fft staging",
+                bytes,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            uniforms: buffer(
+                "fft stage params",
+                uniform_bytes,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            ),
+            twiddles: buffer(
+                "fft twiddles",
+                twiddle_bytes,
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            ),
+        }
+    })
+}
+
 impl GpuFft2d {
     /// Plans a transform of `channels` planes of `width`×`height` complex
     /// values. Sizes must be powers of two in 1..=2048 and the planes must fit
@@ -173,17 +259,68 @@ impl GpuFft2d {
         height: u32,
         channels: u32,
     ) -> Result<Self, GpuError> {
-        let pass = pass.clone();
-        let size_error = |reason: String| GpuError::FftSize {
+        let bytes = Self::checked_bytes(ctx, width, height, channels)?;
+        let twiddles = twiddle_table(width.max(height));
+        let params = stage_params(width, height, channels);
+        let align = u64::from(ctx.limits().min_uniform_buffer_offset_alignment)
+            .max(size_of::<FftParams>() as u64);
+        let uniform_bytes = pack_uniforms(&params, align);
+        let buffers = plan_buffers(
+            ctx,
+            bytes,
+            uniform_bytes.len() as u64,
+            (twiddles.len() * 8) as u64,
+        )?;
+        ctx.queue()
+            .write_buffer(&buffers.uniforms, 0, &uniform_bytes);
+        ctx.queue()
+            .write_buffer(&buffers.twiddles, 0, bytemuck::cast_slice(&twiddles));
+        let mut forward = Vec::with_capacity(params.len());
+        let per_direction = (params.len() / 2).max(1);
+        for (i, p) in params.iter().enumerate() {
+            let even = (i % per_direction) % 2 == 0;
+            let offset = i as u64 * align;
+            let groups = Self::stage_groups(ctx, p, [width, height, channels])?;
+            forward.push(Stage {
+                bind_group: Self::stage_bind_group(ctx, pass, &buffers, even, offset)?,
+                groups,
+            });
+        }
+        let inverse = forward.split_off(params.len() / 2);
+        Ok(Self {
             width,
             height,
             channels,
+            pass: pass.clone(),
+            data: buffers.data,
+            scratch: buffers.scratch,
+            staging: buffers.staging,
+            forward,
+            inverse,
+        })
+    }
+
+    fn size_error(size: [u32; 3], reason: String) -> GpuError {
+        GpuError::FftSize {
+            width: size[0],
+            height: size[1],
+            channels: size[2],
             reason,
-        };
-        check_len(width as usize).map_err(|r| size_error(format!("width: {r}")))?;
-        check_len(height as usize).map_err(|r| size_error(format!("height: {r}")))?;
+        }
+    }
+
+    /// The bytes of the data buffer, after checking the sizes.
+    fn checked_bytes(
+        ctx: &GpuContext,
+        width: u32,
+        height: u32,
+        channels: u32,
+    ) -> Result<u64, GpuError> {
+        let size = [width, height, channels];
+        check_len(width as usize).map_err(|r| Self::size_error(size, format!("width: {r}")))?;
+        check_len(height as usize).map_err(|r| Self::size_error(size, format!("height: {r}")))?;
         if channels == 0 {
-            return Err(size_error("no channels".to_owned()));
+            return Err(Self::size_error(size, "no channels".to_owned()));
         }
         let limits = ctx.limits();
         let elements = u64::from(width) * u64::from(height) * u64::from(channels);
@@ -192,161 +329,60 @@ impl GpuFft2d {
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
         if bytes > max_binding || elements > u64::from(u32::MAX) {
-            return Err(size_error(format!(
-                "{bytes} bytes exceed the device's storage binding limit of {max_binding} bytes"
-            )));
+            return Err(Self::size_error(
+                size,
+                format!(
+                    "{bytes} bytes exceed the device's storage binding limit of {max_binding} bytes"
+                ),
+            ));
         }
+        Ok(bytes)
+    }
 
-        let n_max = width.max(height);
-        let twiddle_table: Vec<[f32; 2]> = (0..n_max)
-            .map(|m| {
-                let angle = -2.0 * std::f64::consts::PI * f64::from(m) / f64::from(n_max);
-                [angle.cos() as f32, angle.sin() as f32]
-            })
-            .collect();
-
-        // Stage parameters: rows then columns, forward and inverse.
-        let axes = [
-            // (n, elem_stride, lines_per_plane, line_step)
-            (width, 1, height, width),
-            (height, width, width, 1),
-        ];
-        let mut params = Vec::new();
-        for inverse in [false, true] {
-            for (n, elem_stride, lines_per_plane, line_step) in axes {
-                let plan = radix_plan(n);
-                let mut ns = 1;
-                for (i, &radix) in plan.iter().enumerate() {
-                    let last = i + 1 == plan.len();
-                    params.push(FftParams {
-                        n,
-                        ns,
-                        radix,
-                        elem_stride,
-                        lines_per_plane,
-                        line_step,
-                        plane_size: width * height,
-                        total_threads: lines_per_plane * channels * (n / radix),
-                        twiddle_step: n_max / (ns * radix),
-                        inverse: u32::from(inverse),
-                        scale: if inverse && last { 1.0 / n as f32 } else { 1.0 },
-                        _pad: 0,
-                    });
-                    ns *= radix;
-                }
-            }
-        }
-        let stages_per_direction = params.len() / 2;
-
-        let align = u64::from(limits.min_uniform_buffer_offset_alignment)
-            .max(size_of::<FftParams>() as u64);
-        let mut uniform_bytes = vec![0u8; (align as usize) * params.len().max(1)];
-        for (i, p) in params.iter().enumerate() {
-            let offset = i * align as usize;
-            uniform_bytes[offset..offset + size_of::<FftParams>()]
-                .copy_from_slice(bytemuck::bytes_of(p));
-        }
-
-        let device = ctx.device();
-        let (data, scratch, staging, uniforms, twiddles) = ctx.scoped("FFT buffers", |device| {
-            let storage = |label| {
-                device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size: bytes,
-                    usage: wgpu::BufferUsages::STORAGE
-                        | wgpu::BufferUsages::COPY_DST
-                        | wgpu::BufferUsages::COPY_SRC,
-                    mapped_at_creation: false,
-                })
-            };
-            let data = storage("fft data");
-            let scratch = storage("fft scratch");
-            let staging = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("fft staging"),
-                size: bytes,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("fft stage params"),
-                size: uniform_bytes.len() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let twiddles = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("fft twiddles"),
-                size: (twiddle_table.len() * 8) as u64,
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            (data, scratch, staging, uniforms, twiddles)
-        })?;
-        ctx.queue().write_buffer(&uniforms, 0, &uniform_bytes);
-        ctx.queue()
-            .write_buffer(&twiddles, 0, bytemuck::cast_slice(&twiddle_table));
-
-        let max_groups = limits.max_compute_workgroups_per_dimension;
-        let mut stages = Vec::with_capacity(params.len());
-        for (i, p) in params.iter().enumerate() {
-            let index_in_direction = i % stages_per_direction.max(1);
-            let (src, dst) = if index_in_direction % 2 == 0 {
-                (&data, &scratch)
-            } else {
-                (&scratch, &data)
-            };
-            let total_groups = p.total_threads.div_ceil(WORKGROUP_SIZE);
-            let groups_x = total_groups.min(max_groups);
-            let groups_y = total_groups.div_ceil(groups_x);
-            if groups_y > max_groups {
-                return Err(size_error(format!(
+    /// The workgroup grid of one stage (x first, then y when x is full).
+    fn stage_groups(ctx: &GpuContext, p: &FftParams, size: [u32; 3]) -> Result<[u32; 2], GpuError> {
+        let max_groups = ctx.limits().max_compute_workgroups_per_dimension;
+        let total_groups = p.total_threads.div_ceil(WORKGROUP_SIZE);
+        let groups_x = total_groups.min(max_groups);
+        let groups_y = total_groups.div_ceil(groups_x);
+        if groups_y > max_groups {
+            return Err(Self::size_error(
+                size,
+                format!(
                     "{total_groups} workgroups exceed {max_groups}² (max_compute_workgroups_per_dimension)"
-                )));
-            }
-            let bind_group = ctx.scoped("FFT bind group", |_| {
-                device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("fft stage"),
-                    layout: &pass.layout,
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                                buffer: &uniforms,
-                                offset: i as u64 * align,
-                                size: NonZeroU64::new(size_of::<FftParams>() as u64),
-                            }),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: src.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 2,
-                            resource: dst.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 3,
-                            resource: twiddles.as_entire_binding(),
-                        },
-                    ],
-                })
-            })?;
-            stages.push(Stage {
-                bind_group,
-                groups: [groups_x, groups_y],
-            });
+                ),
+            ));
         }
-        let inverse = stages.split_off(stages_per_direction);
-        Ok(Self {
-            width,
-            height,
-            channels,
-            pass,
-            data,
-            scratch,
-            staging,
-            forward: stages,
-            inverse,
-        })
+        Ok([groups_x, groups_y])
+    }
+
+    /// A stage's bind group: its uniforms at `offset`, data → scratch on
+    /// even stages, scratch → data on odd ones.
+    fn stage_bind_group(
+        ctx: &GpuContext,
+        pass: &FftPass,
+        buffers: &PlanBuffers,
+        even: bool,
+        offset: u64,
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let (src, dst) = if even {
+            (&buffers.data, &buffers.scratch)
+        } else {
+            (&buffers.scratch, &buffers.data)
+        };
+        pass.layout.bind(
+            ctx,
+            &[
+                wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &buffers.uniforms,
+                    offset,
+                    size: NonZeroU64::new(size_of::<FftParams>() as u64),
+                }),
+                src.as_entire_binding(),
+                dst.as_entire_binding(),
+                buffers.twiddles.as_entire_binding(),
+            ],
+        )
     }
 
     /// Width (row length).

@@ -148,31 +148,62 @@ struct GlareStage {
     threshold_mm: f64,
 }
 
-/// The frame pipeline on the GPU. Build once per display size; see the
-/// module docs for the two ways to drive it.
-pub struct GpuFramePipeline {
-    ctx: GpuContext,
-    config: PipelineConfig,
+/// The sizes fixed by the frame and the pooling downsample.
+#[derive(Debug, Clone, Copy)]
+struct FrameSizes {
     width: u32,
     height: u32,
-    deg_per_px: f64,
+    /// Block plane, blocks.
     small: [u32; 2],
+    /// Block size, pixels.
     ds: u32,
+    /// Workgroups of the first pooling reduction.
     partial_count: u32,
-    has_state: bool,
-    psf_pupil_mm: f64,
-    /// Rebuild the PSF in the frame when the pupil moves (off: the host
-    /// installs kernels with [`GpuFramePipeline::set_kernel`]).
-    psf_auto_rebuild: bool,
-    /// A kernel was uploaded by [`GpuFramePipeline::set_kernel`]; the next
-    /// frame recomputes its split spectra.
-    kernel_pending: bool,
+}
+
+impl FrameSizes {
+    fn new(config: &PipelineConfig, width: u32, height: u32) -> Self {
+        let ds = config.pooling_downsample.unwrap_or(8) as u32;
+        let small = [width.div_ceil(ds), height.div_ceil(ds)];
+        let partial_count = (small[0] * small[1])
+            .div_ceil(POOL_THREADS)
+            .clamp(1, POOL_THREADS);
+        Self {
+            width,
+            height,
+            small,
+            ds,
+            partial_count,
+        }
+    }
+
+    fn pixels(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height)
+    }
+}
+
+/// The frame passes (glare apart: it exists only with glare on).
+struct FramePasses {
     pooling: PoolingPass,
     temporal: TemporalPass,
     tone: TonePass,
     acuity: AcuityPass,
-    pool_params: PoolParams,
-    temporal_params: TemporalParams,
+}
+
+impl FramePasses {
+    fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        Ok(Self {
+            pooling: PoolingPass::new(ctx)?,
+            temporal: TemporalPass::new(ctx)?,
+            tone: TonePass::new(ctx)?,
+            acuity: AcuityPass::new(ctx)?,
+        })
+    }
+}
+
+/// The pipeline's buffers (`scene` and `output` may be a host's, see
+/// [`GpuFramePipeline::bind_io`]).
+struct FrameBuffers {
     pool_uniform: wgpu::Buffer,
     temporal_uniform: wgpu::Buffer,
     tone_uniform: wgpu::Buffer,
@@ -190,10 +221,327 @@ pub struct GpuFramePipeline {
     state_staging: wgpu::Buffer,
     frame_staging: wgpu::Buffer,
     image_staging: wgpu::Buffer,
-    pool_group: wgpu::BindGroup,
-    temporal_group: wgpu::BindGroup,
-    tone_group: wgpu::BindGroup,
-    acuity_group: wgpu::BindGroup,
+}
+
+const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+    .union(wgpu::BufferUsages::COPY_DST)
+    .union(wgpu::BufferUsages::COPY_SRC);
+const UNIFORM: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM.union(wgpu::BufferUsages::COPY_DST);
+const STAGING: wgpu::BufferUsages =
+    wgpu::BufferUsages::MAP_READ.union(wgpu::BufferUsages::COPY_DST);
+
+/// A buffer of at least 16 bytes, wgpu errors captured.
+fn create_buffer(
+    ctx: &GpuContext,
+    label: &'static str,
+    size: u64,
+    usage: wgpu::BufferUsages,
+) -> Result<wgpu::Buffer, GpuError> {
+    ctx.scoped(&format!("buffer '{label}'"), |device| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(16),
+            usage,
+            mapped_at_creation: false,
+        })
+    })
+}
+
+impl FrameBuffers {
+    fn new(ctx: &GpuContext, sizes: &FrameSizes, keep_linear: bool) -> Result<Self, GpuError> {
+        let pixels = sizes.pixels();
+        let small_n = u64::from(sizes.small[0] * sizes.small[1]);
+        let state_bytes = size_of::<FrameState>() as u64;
+        let b = |label, size, usage| create_buffer(ctx, label, size, usage);
+        Ok(Self {
+            pool_uniform: b("pooling params", size_of::<PoolParams>() as u64, UNIFORM)?,
+            temporal_uniform: b(
+                "temporal params",
+                size_of::<TemporalParams>() as u64,
+                UNIFORM,
+            )?,
+            tone_uniform: b("tone params", size_of::<ToneParams>() as u64, UNIFORM)?,
+            acuity_uniform: b("acuity params", size_of::<AcuityParams>() as u64, UNIFORM)?,
+            scene: b("frame scene", pixels * 16, STORAGE)?,
+            work: b("frame work", pixels * 16, STORAGE)?,
+            small_lum: b("frame block luminance", small_n * 4, STORAGE)?,
+            partials: b(
+                "frame pooling partials",
+                u64::from(sizes.partial_count) * 8,
+                STORAGE,
+            )?,
+            state: b("frame state", state_bytes, STORAGE)?,
+            lightness: b("frame acuity lightness", pixels * 4, STORAGE)?,
+            horizontal: b("frame acuity rows", pixels * 4, STORAGE)?,
+            linear: b(
+                "frame display linear",
+                if keep_linear { pixels * 16 } else { 16 },
+                STORAGE,
+            )?,
+            lut: b("srgb table", (SRGB_LUT_SIZE * 4) as u64, STORAGE)?,
+            output: b("frame rgba8", pixels * 4, STORAGE)?,
+            state_staging: b("frame state staging", state_bytes, STAGING)?,
+            frame_staging: b("frame rgba8 staging", pixels * 4, STAGING)?,
+            image_staging: b("frame image staging", pixels * 16, STAGING)?,
+        })
+    }
+}
+
+/// The bind groups of the frame passes.
+struct FrameGroups {
+    pool: wgpu::BindGroup,
+    temporal: wgpu::BindGroup,
+    tone: wgpu::BindGroup,
+    acuity: wgpu::BindGroup,
+}
+
+impl FrameGroups {
+    fn new(ctx: &GpuContext, passes: &FramePasses, b: &FrameBuffers) -> Result<Self, GpuError> {
+        Ok(Self {
+            pool: passes.pooling.layout.bind_buffers(
+                ctx,
+                &[
+                    &b.pool_uniform,
+                    &b.scene,
+                    &b.work,
+                    &b.small_lum,
+                    &b.partials,
+                    &b.state,
+                ],
+            )?,
+            temporal: passes
+                .temporal
+                .layout
+                .bind_buffers(ctx, &[&b.temporal_uniform, &b.state])?,
+            tone: passes.tone.layout.bind_buffers(
+                ctx,
+                &[
+                    &b.tone_uniform,
+                    &b.state,
+                    &b.work,
+                    &b.linear,
+                    &b.lut,
+                    &b.output,
+                ],
+            )?,
+            acuity: passes.acuity.layout.bind_buffers(
+                ctx,
+                &[
+                    &b.acuity_uniform,
+                    &b.state,
+                    &b.work,
+                    &b.lightness,
+                    &b.horizontal,
+                ],
+            )?,
+        })
+    }
+}
+
+/// Timestamp writes at `begin` and/or `end` of a pass into `query_set`.
+fn timestamp_writes(
+    query_set: Option<&wgpu::QuerySet>,
+    begin: Option<u32>,
+    end: Option<u32>,
+) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+    query_set.map(|query_set| wgpu::ComputePassTimestampWrites {
+        query_set,
+        beginning_of_pass_write_index: begin,
+        end_of_pass_write_index: end,
+    })
+}
+
+/// Workgroups of the 8×8 per-pixel passes over `x × y`.
+fn tiles(x: u32, y: u32) -> (u32, u32) {
+    (x.div_ceil(TILE), y.div_ceil(TILE))
+}
+
+impl GlareStage {
+    /// The glare stage of `config` for the frame: the first PSF (4 mm),
+    /// the split geometry, both FFT plans, the kernel spectra buffers and
+    /// the bind group on the working frame `work`.
+    fn new(
+        ctx: &GpuContext,
+        config: &PipelineConfig,
+        deg_per_px: f64,
+        sizes: &FrameSizes,
+        work: &wgpu::Buffer,
+    ) -> Result<Self, GpuError> {
+        let mut params = config.glare.psf.clone();
+        params.ppd = 1.0 / deg_per_px;
+        params.pupil_mm = INITIAL_PUPIL_MM;
+        params.validate().map_err(invalid)?;
+        let psf = GpuPsfBuilder::new(ctx, &params)?;
+        let geometry = GlareGeometry::new(psf.kernel_size(), deg_per_px, config.glare.window())?;
+        let (wf, wc) = (geometry.wf as u32, geometry.wc as u32);
+        let fine = GpuFft2d::new(ctx, wf, wf, 3)?;
+        let coarse = GpuFft2d::new(ctx, wc, wc, 3)?;
+        let pass = GlarePass::new(ctx)?;
+        let glare_params = GlareParams::new(
+            &geometry,
+            psf.kernel_size() as u32,
+            sizes.width,
+            sizes.height,
+        );
+        let uniform = create_buffer(
+            ctx,
+            "glare params",
+            size_of::<GlareParams>() as u64,
+            UNIFORM,
+        )?;
+        let spectrum = |label, n: u32| create_buffer(ctx, label, u64::from(n * n) * 3 * 8, STORAGE);
+        let fine_spectrum = spectrum("glare fine kernel spectrum", wf)?;
+        let coarse_spectrum = spectrum("glare coarse kernel spectrum", wc)?;
+        let group = pass.layout.bind_buffers(
+            ctx,
+            &[
+                &uniform,
+                psf.kernel_buffer(),
+                fine.data_buffer(),
+                &fine_spectrum,
+                coarse.data_buffer(),
+                &coarse_spectrum,
+                work,
+            ],
+        )?;
+        ctx.queue()
+            .write_buffer(&uniform, 0, bytemuck::bytes_of(&glare_params));
+        Ok(Self {
+            psf,
+            geometry,
+            fine,
+            coarse,
+            pass,
+            params: glare_params,
+            uniform,
+            fine_spectrum,
+            coarse_spectrum,
+            group,
+            threshold_mm: config.glare.psf_rebuild_threshold_mm,
+        })
+    }
+
+    /// Records the split of the kernel in the PSF buffer into its fine and
+    /// coarse parts and their spectra (timestamps 4–5 of `timestamps`).
+    fn encode_kernel_spectrum(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        let (wf, wc) = (self.params.wf, self.params.wc);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("glare kernel split: fine core, coarse wide field"),
+                timestamp_writes: timestamp_writes(timestamps, Some(4), None),
+            });
+            pass.set_bind_group(0, &self.group, &[]);
+            pass.set_pipeline(&self.pass.kernel_fine);
+            pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
+            pass.set_pipeline(&self.pass.kernel_coarse);
+            pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
+        }
+        self.fine.encode(encoder, FftDirection::Forward, None);
+        self.coarse.encode(
+            encoder,
+            FftDirection::Forward,
+            timestamp_writes(timestamps, None, Some(5)),
+        );
+        let copy = |encoder: &mut wgpu::CommandEncoder, from: &GpuFft2d, to: &wgpu::Buffer| {
+            encoder.copy_buffer_to_buffer(from.data_buffer(), 0, to, 0, to.size());
+        };
+        copy(encoder, &self.fine, &self.fine_spectrum);
+        copy(encoder, &self.coarse, &self.coarse_spectrum);
+    }
+
+    /// Records the glare of the windows placed at `gaze_px` (timestamps
+    /// 6–7); nothing when that applies no glare.
+    fn encode_window(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        gaze_px: [f64; 2],
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        if !self.params.place(&self.geometry, gaze_px) {
+            return;
+        }
+        ctx.queue()
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
+        let (wf, wc) = (self.params.wf, self.params.wc);
+        let max = ctx.limits().max_compute_workgroups_per_dimension;
+        let linear = |n: u32| {
+            let groups = n.div_ceil(64);
+            let gx = groups.min(max);
+            (gx, groups.div_ceil(gx))
+        };
+        let steps: [(&str, Option<u32>, _); 2] = [
+            (
+                "stage 4: glare sources",
+                Some(6),
+                [
+                    (&self.pass.gather_fine, tiles(wf, wf)),
+                    (&self.pass.gather_coarse, tiles(wc, wc)),
+                ],
+            ),
+            (
+                "stage 4: glare spectrum products",
+                None,
+                [
+                    (&self.pass.multiply_fine, linear(3 * wf * wf)),
+                    (&self.pass.multiply_coarse, linear(3 * wc * wc)),
+                ],
+            ),
+        ];
+        for (direction, (label, begin, dispatches)) in
+            [FftDirection::Forward, FftDirection::Inverse]
+                .into_iter()
+                .zip(steps)
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes: timestamp_writes(timestamps, begin, None),
+            });
+            pass.set_bind_group(0, &self.group, &[]);
+            for (pipeline, (gx, gy)) in dispatches {
+                pass.set_pipeline(pipeline);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            drop(pass);
+            self.fine.encode(encoder, direction, None);
+            self.coarse.encode(encoder, direction, None);
+        }
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("stage 4: glare blend"),
+            timestamp_writes: timestamp_writes(timestamps, None, Some(7)),
+        });
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(&self.pass.blend);
+        let (ow, oh) = self.params.output_size();
+        let (gx, gy) = tiles(ow, oh);
+        pass.dispatch_workgroups(gx, gy, 1);
+    }
+}
+
+/// The frame pipeline on the GPU. Build once per display size; see the
+/// module docs for the two ways to drive it.
+pub struct GpuFramePipeline {
+    ctx: GpuContext,
+    config: PipelineConfig,
+    sizes: FrameSizes,
+    deg_per_px: f64,
+    has_state: bool,
+    psf_pupil_mm: f64,
+    /// Rebuild the PSF in the frame when the pupil moves (off: the host
+    /// installs kernels with [`GpuFramePipeline::set_kernel`]).
+    psf_auto_rebuild: bool,
+    /// A kernel was uploaded by [`GpuFramePipeline::set_kernel`]; the next
+    /// frame recomputes its split spectra.
+    kernel_pending: bool,
+    passes: FramePasses,
+    pool_params: PoolParams,
+    temporal_params: TemporalParams,
+    buffers: FrameBuffers,
+    groups: FrameGroups,
     acuity_radius: u32,
     glare: Option<GlareStage>,
     host_scene: Vec<[f32; 4]>,
@@ -204,8 +552,8 @@ impl std::fmt::Debug for GpuFramePipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GpuFramePipeline")
             .field("adapter", &self.ctx.describe())
-            .field("width", &self.width)
-            .field("height", &self.height)
+            .field("width", &self.sizes.width)
+            .field("height", &self.sizes.height)
             .field("deg_per_px", &self.deg_per_px)
             .field("glare", &self.glare.is_some())
             .finish_non_exhaustive()
@@ -219,31 +567,70 @@ fn invalid(source: VisionError) -> GpuError {
     }
 }
 
-fn entries<'a>(buffers: &[&'a wgpu::Buffer]) -> Vec<wgpu::BindGroupEntry<'a>> {
-    buffers
-        .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: b.as_entire_binding(),
-        })
-        .collect()
+/// Checks the configuration (as the CPU's), the frame size and the pixel
+/// size, and that an RGBA f32 frame fits one storage binding.
+fn check_frame(
+    ctx: &GpuContext,
+    config: &PipelineConfig,
+    width: usize,
+    height: usize,
+    deg_per_px: f64,
+) -> Result<(), GpuError> {
+    config.validate().map_err(invalid)?;
+    if width == 0 || height == 0 || width > 16384 || height > 16384 {
+        return Err(invalid(VisionError::invalid(
+            "frame size",
+            format!("{width}x{height}"),
+            "1..=16384 pixels per side",
+        )));
+    }
+    if !(deg_per_px.is_finite() && deg_per_px > 0.0) {
+        return Err(invalid(VisionError::invalid(
+            "deg_per_px",
+            deg_per_px,
+            "a finite number > 0",
+        )));
+    }
+    let bytes = (width * height) as u64 * 16;
+    let max_binding = ctx
+        .limits()
+        .max_storage_buffer_binding_size
+        .min(ctx.limits().max_buffer_size);
+    if bytes > max_binding {
+        return Err(GpuError::Wgpu {
+            what: "GPU frame pipeline".to_owned(),
+            message: format!(
+                "a {width}x{height} RGBA f32 frame ({bytes} bytes) exceeds the device's storage \
+                 binding limit of {max_binding} bytes"
+            ),
+        });
+    }
+    Ok(())
 }
 
-fn make_group(
+/// Writes the uniforms and tables that do not change per frame (sRGB
+/// table, tone, acuity, an empty frame state); returns the acuity
+/// uniforms.
+fn write_static_uniforms(
     ctx: &GpuContext,
-    label: &'static str,
-    layout: &wgpu::BindGroupLayout,
-    buffers: &[&wgpu::Buffer],
-) -> Result<wgpu::BindGroup, GpuError> {
-    let entries = entries(buffers);
-    ctx.scoped(&format!("{label} bind group"), |device| {
-        device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(label),
-            layout,
-            entries: &entries,
-        })
-    })
+    config: &PipelineConfig,
+    sizes: &FrameSizes,
+    deg_per_px: f64,
+    b: &FrameBuffers,
+) -> AcuityParams {
+    let queue = ctx.queue();
+    let table: Vec<u32> = (0..SRGB_LUT_SIZE)
+        .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u32)
+        .collect();
+    queue.write_buffer(&b.lut, 0, bytemuck::cast_slice(&table));
+    let (w, h) = (sizes.width, sizes.height);
+    let keep = config.keep_display_linear;
+    let tone_params = ToneParams::new(&config.tone, &config.colour, w, h, keep);
+    queue.write_buffer(&b.tone_uniform, 0, bytemuck::bytes_of(&tone_params));
+    let acuity_params = AcuityParams::new(&config.acuity, deg_per_px, w, h);
+    queue.write_buffer(&b.acuity_uniform, 0, bytemuck::bytes_of(&acuity_params));
+    queue.write_buffer(&b.state, 0, bytemuck::bytes_of(&FrameState::default()));
+    acuity_params
 }
 
 impl GpuFramePipeline {
@@ -262,254 +649,53 @@ impl GpuFramePipeline {
         height: usize,
         deg_per_px: f64,
     ) -> Result<Self, GpuError> {
-        config.validate().map_err(invalid)?;
-        if width == 0 || height == 0 || width > 16384 || height > 16384 {
-            return Err(invalid(VisionError::invalid(
-                "frame size",
-                format!("{width}x{height}"),
-                "1..=16384 pixels per side",
-            )));
-        }
-        if !(deg_per_px.is_finite() && deg_per_px > 0.0) {
-            return Err(invalid(VisionError::invalid(
-                "deg_per_px",
-                deg_per_px,
-                "a finite number > 0",
-            )));
-        }
-        let pixels = (width * height) as u64;
-        let max_binding = ctx
-            .limits()
-            .max_storage_buffer_binding_size
-            .min(ctx.limits().max_buffer_size);
-        if pixels * 16 > max_binding {
-            return Err(GpuError::Wgpu {
-                what: "GPU frame pipeline".to_owned(),
-                message: format!(
-                    "a {width}x{height} RGBA f32 frame ({} bytes) exceeds the device's storage \
-                     binding limit of {max_binding} bytes",
-                    pixels * 16
-                ),
-            });
-        }
-        let (w32, h32) = (width as u32, height as u32);
-        let ds = config.pooling_downsample.unwrap_or(8) as u32;
-        let small = [w32.div_ceil(ds), h32.div_ceil(ds)];
-        let small_n = small[0] * small[1];
-        let partial_count = small_n.div_ceil(POOL_THREADS).clamp(1, POOL_THREADS);
-        let keep = config.keep_display_linear;
-
-        let pooling = PoolingPass::new(ctx)?;
-        let temporal = TemporalPass::new(ctx)?;
-        let tone = TonePass::new(ctx)?;
-        let acuity = AcuityPass::new(ctx)?;
-
-        let storage = wgpu::BufferUsages::STORAGE
-            | wgpu::BufferUsages::COPY_DST
-            | wgpu::BufferUsages::COPY_SRC;
-        let uniform = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
-        let staging = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        let buffer = |label: &'static str, size: u64, usage| {
-            ctx.scoped(&format!("buffer '{label}'"), |device| {
-                device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size: size.max(16),
-                    usage,
-                    mapped_at_creation: false,
-                })
-            })
-        };
-        let scene = buffer("frame scene", pixels * 16, storage)?;
-        let work = buffer("frame work", pixels * 16, storage)?;
-        let small_lum = buffer("frame block luminance", u64::from(small_n) * 4, storage)?;
-        let partials = buffer(
-            "frame pooling partials",
-            u64::from(partial_count) * 8,
-            storage,
-        )?;
-        let state = buffer("frame state", size_of::<FrameState>() as u64, storage)?;
-        let lightness = buffer("frame acuity lightness", pixels * 4, storage)?;
-        let horizontal = buffer("frame acuity rows", pixels * 4, storage)?;
-        let linear = buffer(
-            "frame display linear",
-            if keep { pixels * 16 } else { 16 },
-            storage,
-        )?;
-        let lut = buffer("srgb table", (SRGB_LUT_SIZE * 4) as u64, storage)?;
-        let output = buffer("frame rgba8", pixels * 4, storage)?;
-        let state_staging = buffer(
-            "frame state staging",
-            size_of::<FrameState>() as u64,
-            staging,
-        )?;
-        let frame_staging = buffer("frame rgba8 staging", pixels * 4, staging)?;
-        let image_staging = buffer("frame image staging", pixels * 16, staging)?;
-        let pool_uniform = buffer("pooling params", size_of::<PoolParams>() as u64, uniform)?;
-        let temporal_uniform = buffer(
-            "temporal params",
-            size_of::<TemporalParams>() as u64,
-            uniform,
-        )?;
-        let tone_uniform = buffer("tone params", size_of::<ToneParams>() as u64, uniform)?;
-        let acuity_uniform = buffer("acuity params", size_of::<AcuityParams>() as u64, uniform)?;
-
-        let queue = ctx.queue();
-        let table: Vec<u32> = (0..SRGB_LUT_SIZE)
-            .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u32)
-            .collect();
-        queue.write_buffer(&lut, 0, bytemuck::cast_slice(&table));
-        let tone_params = ToneParams::new(&config.tone, &config.colour, w32, h32, keep);
-        queue.write_buffer(&tone_uniform, 0, bytemuck::bytes_of(&tone_params));
-        let acuity_params = AcuityParams::new(&config.acuity, deg_per_px, w32, h32);
-        queue.write_buffer(&acuity_uniform, 0, bytemuck::bytes_of(&acuity_params));
-        queue.write_buffer(&state, 0, bytemuck::bytes_of(&FrameState::default()));
-
-        let pool_group = make_group(
-            ctx,
-            "pooling.wgsl",
-            pooling.bind_group_layout(),
-            &[&pool_uniform, &scene, &work, &small_lum, &partials, &state],
-        )?;
-        let temporal_group = make_group(
-            ctx,
-            "temporal.wgsl",
-            temporal.bind_group_layout(),
-            &[&temporal_uniform, &state],
-        )?;
-        let tone_group = make_group(
-            ctx,
-            "tone.wgsl",
-            tone.bind_group_layout(),
-            &[&tone_uniform, &state, &work, &linear, &lut, &output],
-        )?;
-        let acuity_group = make_group(
-            ctx,
-            "acuity.wgsl",
-            acuity.bind_group_layout(),
-            &[&acuity_uniform, &state, &work, &lightness, &horizontal],
-        )?;
-
+        check_frame(ctx, &config, width, height, deg_per_px)?;
+        let sizes = FrameSizes::new(&config, width as u32, height as u32);
+        let passes = FramePasses::new(ctx)?;
+        let buffers = FrameBuffers::new(ctx, &sizes, config.keep_display_linear)?;
+        let acuity_params = write_static_uniforms(ctx, &config, &sizes, deg_per_px, &buffers);
+        let groups = FrameGroups::new(ctx, &passes, &buffers)?;
         let glare = if config.glare.enabled {
-            let mut params = config.glare.psf.clone();
-            params.ppd = 1.0 / deg_per_px;
-            params.pupil_mm = INITIAL_PUPIL_MM;
-            params.validate().map_err(invalid)?;
-            let psf = GpuPsfBuilder::new(ctx, &params)?;
-            let geometry =
-                GlareGeometry::new(psf.kernel_size(), deg_per_px, config.glare.window())?;
-            let (wf, wc) = (geometry.wf as u32, geometry.wc as u32);
-            let fine = GpuFft2d::new(ctx, wf, wf, 3)?;
-            let coarse = GpuFft2d::new(ctx, wc, wc, 3)?;
-            let pass = GlarePass::new(ctx)?;
-            let glare_params = GlareParams::new(&geometry, psf.kernel_size() as u32, w32, h32);
-            let uniform_buf = buffer("glare params", size_of::<GlareParams>() as u64, uniform)?;
-            let fine_spectrum = buffer(
-                "glare fine kernel spectrum",
-                u64::from(wf) * u64::from(wf) * 3 * 8,
-                storage,
-            )?;
-            let coarse_spectrum = buffer(
-                "glare coarse kernel spectrum",
-                u64::from(wc) * u64::from(wc) * 3 * 8,
-                storage,
-            )?;
-            let group = make_group(
-                ctx,
-                "glare.wgsl",
-                pass.bind_group_layout(),
-                &[
-                    &uniform_buf,
-                    psf.kernel_buffer(),
-                    fine.data_buffer(),
-                    &fine_spectrum,
-                    coarse.data_buffer(),
-                    &coarse_spectrum,
-                    &work,
-                ],
-            )?;
-            queue.write_buffer(&uniform_buf, 0, bytemuck::bytes_of(&glare_params));
-            Some(GlareStage {
-                psf,
-                geometry,
-                fine,
-                coarse,
-                pass,
-                params: glare_params,
-                uniform: uniform_buf,
-                fine_spectrum,
-                coarse_spectrum,
-                group,
-                threshold_mm: config.glare.psf_rebuild_threshold_mm,
-            })
-        } else {
-            None
-        };
-
-        let mut pipeline = Self {
-            ctx: ctx.clone(),
-            width: w32,
-            height: h32,
-            deg_per_px,
-            small,
-            ds,
-            partial_count,
-            has_state: false,
-            psf_pupil_mm: INITIAL_PUPIL_MM,
-            psf_auto_rebuild: true,
-            kernel_pending: false,
-            pooling,
-            temporal,
-            tone,
-            acuity,
-            pool_params: PoolParams::for_frame(
-                &config.pooling,
-                [w32, h32],
-                small,
-                ds,
-                partial_count,
-                [0.0, 0.0],
-                deg_per_px * f64::from(ds),
-            ),
-            temporal_params: TemporalParams::new(&config.temporal),
-            pool_uniform,
-            temporal_uniform,
-            tone_uniform,
-            acuity_uniform,
-            scene,
-            work,
-            small_lum,
-            partials,
-            state,
-            lightness,
-            horizontal,
-            acuity_radius: acuity_params.max_radius,
-            linear,
-            lut,
-            output,
-            state_staging,
-            frame_staging,
-            image_staging,
-            pool_group,
-            temporal_group,
-            tone_group,
-            acuity_group,
-            glare,
-            host_scene: vec![[0.0; 4]; width * height],
-            display: DisplayFrame::new(width, height),
-            config,
-        };
-        // The first kernel's spectrum.
-        if let Some(g) = pipeline.glare.as_ref() {
+            let g = GlareStage::new(ctx, &config, deg_per_px, &sizes, &buffers.work)?;
+            // The first kernel's spectrum.
             let mut encoder =
                 ctx.device()
                     .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                         label: Some("glare kernel spectrum"),
                     });
-            Self::encode_kernel_spectrum(g, &mut encoder, None);
+            g.encode_kernel_spectrum(&mut encoder, None);
             ctx.queue().submit([encoder.finish()]);
-        }
-        pipeline.has_state = false;
-        Ok(pipeline)
+            Some(g)
+        } else {
+            None
+        };
+        Ok(Self {
+            ctx: ctx.clone(),
+            sizes,
+            deg_per_px,
+            has_state: false,
+            psf_pupil_mm: INITIAL_PUPIL_MM,
+            psf_auto_rebuild: true,
+            kernel_pending: false,
+            passes,
+            pool_params: PoolParams::for_frame(
+                &config.pooling,
+                [sizes.width, sizes.height],
+                sizes.small,
+                sizes.ds,
+                sizes.partial_count,
+                [0.0, 0.0],
+                deg_per_px * f64::from(sizes.ds),
+            ),
+            temporal_params: TemporalParams::new(&config.temporal),
+            buffers,
+            groups,
+            acuity_radius: acuity_params.max_radius,
+            glare,
+            host_scene: vec![[0.0; 4]; width * height],
+            display: DisplayFrame::new(width, height),
+            config,
+        })
     }
 
     /// The configuration.
@@ -524,12 +710,12 @@ impl GpuFramePipeline {
 
     /// Frame width, pixels.
     pub fn width(&self) -> usize {
-        self.width as usize
+        self.sizes.width as usize
     }
 
     /// Frame height, pixels.
     pub fn height(&self) -> usize {
-        self.height as usize
+        self.sizes.height as usize
     }
 
     /// Angular size of a display pixel, degrees.
@@ -540,12 +726,12 @@ impl GpuFramePipeline {
     /// The scene input buffer: `width·height` RGBA f32 texels, cd/m²
     /// (the one bound by default, or the host's after [`Self::bind_io`]).
     pub fn scene_buffer(&self) -> &wgpu::Buffer {
-        &self.scene
+        &self.buffers.scene
     }
 
     /// The RGBA8 output buffer: `width·height` packed `u32` (bytes r g b a).
     pub fn output_buffer(&self) -> &wgpu::Buffer {
-        &self.output
+        &self.buffers.output
     }
 
     /// The PSF builder (glare enabled only), e.g. to read its kernel.
@@ -564,7 +750,7 @@ impl GpuFramePipeline {
         scene: Option<&wgpu::Buffer>,
         output: Option<&wgpu::Buffer>,
     ) -> Result<(), GpuError> {
-        let pixels = u64::from(self.width) * u64::from(self.height);
+        let pixels = self.sizes.pixels();
         for (buffer, what, bytes) in [
             (scene, "host scene buffer", pixels * 16),
             (output, "host output buffer", pixels * 4),
@@ -586,50 +772,12 @@ impl GpuFramePipeline {
             }
         }
         if let Some(s) = scene {
-            self.scene = s.clone();
+            self.buffers.scene = s.clone();
         }
         if let Some(o) = output {
-            self.output = o.clone();
+            self.buffers.output = o.clone();
         }
-        let ctx = &self.ctx;
-        self.pool_group = make_group(
-            ctx,
-            "pooling.wgsl",
-            self.pooling.bind_group_layout(),
-            &[
-                &self.pool_uniform,
-                &self.scene,
-                &self.work,
-                &self.small_lum,
-                &self.partials,
-                &self.state,
-            ],
-        )?;
-        self.tone_group = make_group(
-            ctx,
-            "tone.wgsl",
-            self.tone.bind_group_layout(),
-            &[
-                &self.tone_uniform,
-                &self.state,
-                &self.work,
-                &self.linear,
-                &self.lut,
-                &self.output,
-            ],
-        )?;
-        self.acuity_group = make_group(
-            ctx,
-            "acuity.wgsl",
-            self.acuity.bind_group_layout(),
-            &[
-                &self.acuity_uniform,
-                &self.state,
-                &self.work,
-                &self.lightness,
-                &self.horizontal,
-            ],
-        )?;
+        self.groups = FrameGroups::new(&self.ctx, &self.passes, &self.buffers)?;
         Ok(())
     }
 
@@ -668,55 +816,8 @@ impl GpuFramePipeline {
         // adaptation_cd_m2 and light_target_cd_m2 are at bytes 4..12.
         self.ctx
             .queue()
-            .write_buffer(&self.state, 4, bytemuck::cast_slice(&values));
+            .write_buffer(&self.buffers.state, 4, bytemuck::cast_slice(&values));
         self.has_state = true;
-    }
-
-    fn encode_kernel_spectrum(
-        g: &GlareStage,
-        encoder: &mut wgpu::CommandEncoder,
-        timestamps: Option<&wgpu::QuerySet>,
-    ) {
-        let (wf, wc) = (g.params.wf, g.params.wc);
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("glare kernel split: fine core, coarse wide field"),
-                timestamp_writes: timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
-                    query_set,
-                    beginning_of_pass_write_index: Some(4),
-                    end_of_pass_write_index: None,
-                }),
-            });
-            pass.set_bind_group(0, &g.group, &[]);
-            pass.set_pipeline(&g.pass.kernel_fine);
-            pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
-            pass.set_pipeline(&g.pass.kernel_coarse);
-            pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
-        }
-        g.fine.encode(encoder, FftDirection::Forward, None);
-        g.coarse.encode(
-            encoder,
-            FftDirection::Forward,
-            timestamps.map(|query_set| wgpu::ComputePassTimestampWrites {
-                query_set,
-                beginning_of_pass_write_index: None,
-                end_of_pass_write_index: Some(5),
-            }),
-        );
-        encoder.copy_buffer_to_buffer(
-            g.fine.data_buffer(),
-            0,
-            &g.fine_spectrum,
-            0,
-            g.fine_spectrum.size(),
-        );
-        encoder.copy_buffer_to_buffer(
-            g.coarse.data_buffer(),
-            0,
-            &g.coarse_spectrum,
-            0,
-            g.coarse_spectrum.size(),
-        );
     }
 
     /// Records one frame into `encoder` (the caller submits): all stages, on
@@ -740,7 +841,23 @@ impl GpuFramePipeline {
         input: &FrameInput,
         timestamps: Option<FrameTimestamps<'_>>,
     ) -> EncodedFrame {
-        let (w, h) = (f64::from(self.width), f64::from(self.height));
+        let (gaze_px, dt_secs, pupil_mm) = self.sanitise(input);
+        self.write_frame_uniforms(gaze_px, dt_secs);
+        let frame_queries = timestamps.map(|t| t.frame);
+        self.encode_pooling(encoder, frame_queries);
+        self.encode_temporal(encoder, frame_queries);
+        let psf_rebuilt = self.encode_glare(encoder, gaze_px, pupil_mm, timestamps);
+        self.encode_acuity_tone(encoder, frame_queries);
+        EncodedFrame {
+            psf_pupil_mm: self.psf_pupil_mm,
+            psf_rebuilt,
+        }
+    }
+
+    /// The CPU's input handling: gaze in frame pixels (clamped, non-finite
+    /// → centre), `dt` ≥ 0, the pupil clamped (non-finite → the PSF's).
+    fn sanitise(&self, input: &FrameInput) -> ([f64; 2], f32, f64) {
+        let (w, h) = (f64::from(self.sizes.width), f64::from(self.sizes.height));
         let coord = |v: f32| {
             if v.is_finite() {
                 v.clamp(0.0, 1.0)
@@ -762,13 +879,19 @@ impl GpuFramePipeline {
         } else {
             self.psf_pupil_mm
         };
-        let ds = f64::from(self.ds);
+        (gaze_px, dt_secs, pupil_mm)
+    }
+
+    /// Pooling (at the gaze) and temporal (dt, reset) uniforms of a frame.
+    fn write_frame_uniforms(&mut self, gaze_px: [f64; 2], dt_secs: f32) {
+        let s = self.sizes;
+        let ds = f64::from(s.ds);
         self.pool_params = PoolParams::for_frame(
             &self.config.pooling,
-            [self.width, self.height],
-            self.small,
-            self.ds,
-            self.partial_count,
+            [s.width, s.height],
+            s.small,
+            s.ds,
+            s.partial_count,
             [gaze_px[0] / ds, gaze_px[1] / ds],
             self.deg_per_px * ds,
         );
@@ -776,149 +899,99 @@ impl GpuFramePipeline {
         self.temporal_params.reset = u32::from(!self.has_state);
         self.has_state = true;
         let queue = self.ctx.queue();
-        queue.write_buffer(&self.pool_uniform, 0, bytemuck::bytes_of(&self.pool_params));
+        let b = &self.buffers;
+        queue.write_buffer(&b.pool_uniform, 0, bytemuck::bytes_of(&self.pool_params));
         queue.write_buffer(
-            &self.temporal_uniform,
+            &b.temporal_uniform,
             0,
             bytemuck::bytes_of(&self.temporal_params),
         );
-        let pair = |first: u32| {
-            timestamps.map(|t| wgpu::ComputePassTimestampWrites {
-                query_set: t.frame,
-                beginning_of_pass_write_index: Some(first),
-                end_of_pass_write_index: Some(first + 1),
-            })
-        };
-        let tiles = |x: u32, y: u32| (x.div_ceil(TILE), y.div_ceil(TILE));
+    }
 
-        // Stage 1: import, block luminance, pooling reductions.
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("stage 1: pooling"),
-                timestamp_writes: pair(0),
-            });
-            pass.set_bind_group(0, &self.pool_group, &[]);
-            let (gx, gy) = tiles(self.width, self.height);
-            pass.set_pipeline(&self.pooling.import_scene);
-            pass.dispatch_workgroups(gx, gy, 1);
-            let (sx, sy) = tiles(self.small[0], self.small[1]);
-            pass.set_pipeline(&self.pooling.block_luminance);
-            pass.dispatch_workgroups(sx, sy, 1);
-            pass.set_pipeline(&self.pooling.pool_partial);
-            pass.dispatch_workgroups(self.partial_count, 1, 1);
-            pass.set_pipeline(&self.pooling.pool_final);
-            pass.dispatch_workgroups(1, 1, 1);
-        }
-        // Stage 2: adaptation.
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("stage 2: temporal adaptation"),
-                timestamp_writes: pair(2),
-            });
-            pass.set_bind_group(0, &self.temporal_group, &[]);
-            pass.set_pipeline(&self.temporal.adapt);
-            pass.dispatch_workgroups(1, 1, 1);
-        }
-        // Stages 3 + 4: PSF (cached) and glare at the gaze.
+    /// Stage 1: import, block luminance, pooling reductions (timestamps 0–1).
+    fn encode_pooling(&self, encoder: &mut wgpu::CommandEncoder, ts: Option<&wgpu::QuerySet>) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("stage 1: pooling"),
+            timestamp_writes: timestamp_writes(ts, Some(0), Some(1)),
+        });
+        let p = &self.passes.pooling;
+        let s = &self.sizes;
+        pass.set_bind_group(0, &self.groups.pool, &[]);
+        let (gx, gy) = tiles(s.width, s.height);
+        pass.set_pipeline(&p.import_scene);
+        pass.dispatch_workgroups(gx, gy, 1);
+        let (sx, sy) = tiles(s.small[0], s.small[1]);
+        pass.set_pipeline(&p.block_luminance);
+        pass.dispatch_workgroups(sx, sy, 1);
+        pass.set_pipeline(&p.pool_partial);
+        pass.dispatch_workgroups(s.partial_count, 1, 1);
+        pass.set_pipeline(&p.pool_final);
+        pass.dispatch_workgroups(1, 1, 1);
+    }
+
+    /// Stage 2: the adaptation step (timestamps 2–3).
+    fn encode_temporal(&self, encoder: &mut wgpu::CommandEncoder, ts: Option<&wgpu::QuerySet>) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("stage 2: temporal adaptation"),
+            timestamp_writes: timestamp_writes(ts, Some(2), Some(3)),
+        });
+        pass.set_bind_group(0, &self.groups.temporal, &[]);
+        pass.set_pipeline(&self.passes.temporal.adapt);
+        pass.dispatch_workgroups(1, 1, 1);
+    }
+
+    /// Stages 3 + 4: the PSF (rebuilt when the pupil moved past the
+    /// threshold, or an installed kernel's spectra), then the glare at the
+    /// gaze. Returns whether the PSF was rebuilt.
+    fn encode_glare(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        gaze_px: [f64; 2],
+        pupil_mm: f64,
+        timestamps: Option<FrameTimestamps<'_>>,
+    ) -> bool {
+        let Some(g) = self.glare.as_mut() else {
+            return false;
+        };
+        let frame_queries = timestamps.map(|t| t.frame);
         let mut psf_rebuilt = false;
-        if let Some(g) = self.glare.as_mut() {
-            if self.psf_auto_rebuild && (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
-                let built_mm =
-                    g.psf
-                        .encode_rebuild_timed(encoder, pupil_mm, timestamps.map(|t| t.psf));
-                Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
-                self.psf_pupil_mm = built_mm;
-                self.kernel_pending = false;
-                psf_rebuilt = true;
-            } else if self.kernel_pending {
-                Self::encode_kernel_spectrum(g, encoder, timestamps.map(|t| t.frame));
-                self.kernel_pending = false;
-            }
-            if g.params.place(&g.geometry, gaze_px) {
-                queue.write_buffer(&g.uniform, 0, bytemuck::bytes_of(&g.params));
-                let (wf, wc) = (g.params.wf, g.params.wc);
-                let max = self.ctx.limits().max_compute_workgroups_per_dimension;
-                let linear = |n: u32| {
-                    let groups = n.div_ceil(64);
-                    let gx = groups.min(max);
-                    (gx, groups.div_ceil(gx))
-                };
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("stage 4: glare sources"),
-                        timestamp_writes: timestamps.map(|t| wgpu::ComputePassTimestampWrites {
-                            query_set: t.frame,
-                            beginning_of_pass_write_index: Some(6),
-                            end_of_pass_write_index: None,
-                        }),
-                    });
-                    pass.set_bind_group(0, &g.group, &[]);
-                    pass.set_pipeline(&g.pass.gather_fine);
-                    pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
-                    pass.set_pipeline(&g.pass.gather_coarse);
-                    pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
-                }
-                g.fine.encode(encoder, FftDirection::Forward, None);
-                g.coarse.encode(encoder, FftDirection::Forward, None);
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("stage 4: glare spectrum products"),
-                        timestamp_writes: None,
-                    });
-                    pass.set_bind_group(0, &g.group, &[]);
-                    pass.set_pipeline(&g.pass.multiply_fine);
-                    let (gx, gy) = linear(3 * wf * wf);
-                    pass.dispatch_workgroups(gx, gy, 1);
-                    pass.set_pipeline(&g.pass.multiply_coarse);
-                    let (gx, gy) = linear(3 * wc * wc);
-                    pass.dispatch_workgroups(gx, gy, 1);
-                }
-                g.fine.encode(encoder, FftDirection::Inverse, None);
-                g.coarse.encode(encoder, FftDirection::Inverse, None);
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("stage 4: glare blend"),
-                        timestamp_writes: timestamps.map(|t| wgpu::ComputePassTimestampWrites {
-                            query_set: t.frame,
-                            beginning_of_pass_write_index: None,
-                            end_of_pass_write_index: Some(7),
-                        }),
-                    });
-                    pass.set_bind_group(0, &g.group, &[]);
-                    pass.set_pipeline(&g.pass.blend);
-                    let (ow, oh) = g.params.output_size();
-                    pass.dispatch_workgroups(ow.div_ceil(TILE), oh.div_ceil(TILE), 1);
-                }
-            }
+        if self.psf_auto_rebuild && (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
+            let psf_queries = timestamps.map(|t| t.psf);
+            self.psf_pupil_mm = g.psf.encode_rebuild_timed(encoder, pupil_mm, psf_queries);
+            g.encode_kernel_spectrum(encoder, frame_queries);
+            self.kernel_pending = false;
+            psf_rebuilt = true;
+        } else if self.kernel_pending {
+            g.encode_kernel_spectrum(encoder, frame_queries);
+            self.kernel_pending = false;
         }
-        // Stage 5 (per-pixel acuity on the HDR frame), stages 6–8.
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("stages 5-8: acuity, tone, colour, encode"),
-                timestamp_writes: pair(8),
-            });
-            let (gx, gy) = tiles(self.width, self.height);
-            pass.set_bind_group(0, &self.acuity_group, &[]);
-            pass.set_pipeline(&self.acuity.prepare);
-            pass.dispatch_workgroups(1, 1, 1);
-            if self.acuity_radius > 0 {
-                pass.set_pipeline(&self.acuity.lightness);
-                pass.dispatch_workgroups(gx, gy, 1);
-                pass.set_pipeline(&self.acuity.blur_h);
-                pass.dispatch_workgroups(gx, gy, 1);
-                pass.set_pipeline(&self.acuity.blur_v);
+        g.encode_window(&self.ctx, encoder, gaze_px, frame_queries);
+        psf_rebuilt
+    }
+
+    /// Stage 5 (per-pixel acuity on the HDR frame), stages 6–8
+    /// (timestamps 8–9).
+    fn encode_acuity_tone(&self, encoder: &mut wgpu::CommandEncoder, ts: Option<&wgpu::QuerySet>) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("stages 5-8: acuity, tone, colour, encode"),
+            timestamp_writes: timestamp_writes(ts, Some(8), Some(9)),
+        });
+        let (acuity, tone) = (&self.passes.acuity, &self.passes.tone);
+        let (gx, gy) = tiles(self.sizes.width, self.sizes.height);
+        pass.set_bind_group(0, &self.groups.acuity, &[]);
+        pass.set_pipeline(&acuity.prepare);
+        pass.dispatch_workgroups(1, 1, 1);
+        if self.acuity_radius > 0 {
+            for pipeline in [&acuity.lightness, &acuity.blur_h, &acuity.blur_v] {
+                pass.set_pipeline(pipeline);
                 pass.dispatch_workgroups(gx, gy, 1);
             }
-            pass.set_bind_group(0, &self.tone_group, &[]);
-            pass.set_pipeline(&self.tone.prepare);
-            pass.dispatch_workgroups(1, 1, 1);
-            pass.set_pipeline(&self.tone.tone_map);
-            pass.dispatch_workgroups(gx, gy, 1);
         }
-        EncodedFrame {
-            psf_pupil_mm: self.psf_pupil_mm,
-            psf_rebuilt,
-        }
+        pass.set_bind_group(0, &self.groups.tone, &[]);
+        pass.set_pipeline(&tone.prepare);
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(&tone.tone_map);
+        pass.dispatch_workgroups(gx, gy, 1);
     }
 
     /// Uploads `scene` (linear RGB, cd/m², the pipeline's size) into the
@@ -933,14 +1006,14 @@ impl GpuFramePipeline {
     ) -> Result<FrameStats, GpuError> {
         let start = Instant::now();
         let expected = self.host_scene.len();
-        if scene.width != self.width as usize
-            || scene.height != self.height as usize
+        if scene.width != self.sizes.width as usize
+            || scene.height != self.sizes.height as usize
             || scene.pixels.len() != expected
         {
             return Err(invalid(VisionError::SizeMismatch {
                 what: "scene frame",
-                expected_w: self.width as usize,
-                expected_h: self.height as usize,
+                expected_w: self.sizes.width as usize,
+                expected_h: self.sizes.height as usize,
                 got_w: scene.width,
                 got_h: scene.height,
             }));
@@ -948,9 +1021,11 @@ impl GpuFramePipeline {
         for (d, s) in self.host_scene.iter_mut().zip(&scene.pixels) {
             *d = [s[0], s[1], s[2], 0.0];
         }
-        self.ctx
-            .queue()
-            .write_buffer(&self.scene, 0, bytemuck::cast_slice(&self.host_scene));
+        self.ctx.queue().write_buffer(
+            &self.buffers.scene,
+            0,
+            bytemuck::cast_slice(&self.host_scene),
+        );
         let mut encoder =
             self.ctx
                 .device()
@@ -982,36 +1057,52 @@ impl GpuFramePipeline {
                     label: Some("frame state read-back"),
                 });
         encoder.copy_buffer_to_buffer(
-            &self.state,
+            &self.buffers.state,
             0,
-            &self.state_staging,
+            &self.buffers.state_staging,
             0,
             size_of::<FrameState>() as u64,
         );
         self.ctx.queue().submit([encoder.finish()]);
         let mut state = FrameState::default();
-        read_mapped(&self.ctx, &self.state_staging, "frame state", |bytes| {
-            state = bytemuck::pod_read_unaligned(&bytes[..size_of::<FrameState>()]);
-        })?;
+        read_mapped(
+            &self.ctx,
+            &self.buffers.state_staging,
+            "frame state",
+            |bytes| {
+                state = bytemuck::pod_read_unaligned(&bytes[..size_of::<FrameState>()]);
+            },
+        )?;
         Ok(state)
     }
 
     /// Reads the display frame of the last frame back (blocking).
     pub fn display(&mut self) -> Result<&DisplayFrame, GpuError> {
-        let bytes = u64::from(self.width) * u64::from(self.height) * 4;
+        let bytes = u64::from(self.sizes.width) * u64::from(self.sizes.height) * 4;
         let mut encoder =
             self.ctx
                 .device()
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("display read-back"),
                 });
-        encoder.copy_buffer_to_buffer(&self.output, 0, &self.frame_staging, 0, bytes);
+        encoder.copy_buffer_to_buffer(
+            &self.buffers.output,
+            0,
+            &self.buffers.frame_staging,
+            0,
+            bytes,
+        );
         self.ctx.queue().submit([encoder.finish()]);
         let out = &mut self.display.rgba8;
-        read_mapped(&self.ctx, &self.frame_staging, "display frame", |b| {
-            let n = out.len();
-            out.copy_from_slice(&b[..n]);
-        })?;
+        read_mapped(
+            &self.ctx,
+            &self.buffers.frame_staging,
+            "display frame",
+            |b| {
+                let n = out.len();
+                out.copy_from_slice(&b[..n]);
+            },
+        )?;
         Ok(&self.display)
     }
 
@@ -1021,9 +1112,9 @@ impl GpuFramePipeline {
         what: &'static str,
         out: &mut RgbImage,
     ) -> Result<(), GpuError> {
-        let pixels = self.width as usize * self.height as usize;
-        if out.width != self.width as usize || out.height != self.height as usize {
-            *out = RgbImage::new(self.width as usize, self.height as usize);
+        let pixels = self.sizes.width as usize * self.sizes.height as usize;
+        if out.width != self.sizes.width as usize || out.height != self.sizes.height as usize {
+            *out = RgbImage::new(self.sizes.width as usize, self.sizes.height as usize);
         }
         if source.size() < (pixels * 16) as u64 {
             return Err(GpuError::Length {
@@ -1036,9 +1127,15 @@ impl GpuFramePipeline {
             .ctx
             .device()
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(what) });
-        encoder.copy_buffer_to_buffer(source, 0, &self.image_staging, 0, (pixels * 16) as u64);
+        encoder.copy_buffer_to_buffer(
+            source,
+            0,
+            &self.buffers.image_staging,
+            0,
+            (pixels * 16) as u64,
+        );
         self.ctx.queue().submit([encoder.finish()]);
-        read_mapped(&self.ctx, &self.image_staging, what, |bytes| {
+        read_mapped(&self.ctx, &self.buffers.image_staging, what, |bytes| {
             let texels: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..pixels * 16]);
             for (d, s) in out.pixels.iter_mut().zip(texels) {
                 *d = [s[0], s[1], s[2]];
@@ -1050,7 +1147,7 @@ impl GpuFramePipeline {
     /// after glare (stage 4) and acuity (stage 5), linear RGB in cd/m²,
     /// sanitised — the twin of `FramePipeline::retinal`. For tests and tools.
     pub fn read_retinal(&self, out: &mut RgbImage) -> Result<(), GpuError> {
-        self.read_image(&self.work, "retinal image", out)
+        self.read_image(&self.buffers.work, "retinal image", out)
     }
 
     /// Reads back the display-linear frame (after acuity; needs
@@ -1063,7 +1160,7 @@ impl GpuFramePipeline {
                 "true to read the display-linear frame",
             )));
         }
-        self.read_image(&self.linear, "display-linear frame", out)
+        self.read_image(&self.buffers.linear, "display-linear frame", out)
     }
 }
 

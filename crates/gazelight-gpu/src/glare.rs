@@ -27,7 +27,7 @@ use gazelight_vision::glare::{COARSE_PX_DEG, FINE_RADIUS_DEG, GlareWindow};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Largest GPU FFT window, samples per side ([`crate::fft`]).
@@ -227,14 +227,38 @@ impl GlareParams {
     }
 }
 
-/// The twin of `shaders/glare.wgsl`. Bindings: 0 [`GlareParams`], 1 PSF
-/// kernel (`vec4<f32>`, read-only), 2 the fine FFT's data buffer, 3 the
-/// cached fine kernel spectrum (read-only), 4 the coarse FFT's data buffer,
-/// 5 the cached coarse kernel spectrum (read-only), 6 the working frame
-/// (RGBA f32).
+/// `shaders/glare.wgsl`: the kernel split (fine core, coarse wide field),
+/// the weighted sources, the spectrum products and the blend.
+pub const GLARE_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::GLARE,
+    entry_points: &[
+        "kernel_fine",
+        "kernel_coarse",
+        "gather_fine",
+        "gather_coarse",
+        "multiply_fine",
+        "multiply_coarse",
+        "blend",
+    ],
+    bindings: &[
+        Binding::uniform::<GlareParams>("params"),
+        Binding::read::<[f32; 4]>("kernel"),
+        Binding::read_write::<[f32; 2]>("fine"),
+        Binding::read::<[f32; 2]>("fine_spectrum"),
+        Binding::read_write::<[f32; 2]>("coarse"),
+        Binding::read::<[f32; 2]>("coarse_spectrum"),
+        Binding::read_write::<[f32; 4]>("work"),
+    ],
+};
+
+/// The twin of `shaders/glare.wgsl` ([`GLARE_PASS`]). Bindings:
+/// 0 [`GlareParams`], 1 PSF kernel (`vec4<f32>`, read-only), 2 the fine
+/// FFT's data buffer, 3 the cached fine kernel spectrum (read-only), 4 the
+/// coarse FFT's data buffer, 5 the cached coarse kernel spectrum
+/// (read-only), 6 the working frame (RGBA f32).
 #[derive(Debug, Clone)]
 pub struct GlarePass {
-    layout: wgpu::BindGroupLayout,
+    pub(crate) layout: PassLayout,
     pub(crate) kernel_fine: wgpu::ComputePipeline,
     pub(crate) kernel_coarse: wgpu::ComputePipeline,
     pub(crate) gather_fine: wgpu::ComputePipeline,
@@ -247,36 +271,31 @@ pub struct GlarePass {
 impl GlarePass {
     /// Checks the shader against the device limits and builds the pipelines.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = layout(
-            ctx,
-            "glare.wgsl",
-            &[
-                uniform_entry::<GlareParams>(0),
-                storage_entry(1, true),
-                storage_entry(2, false),
-                storage_entry(3, true),
-                storage_entry(4, false),
-                storage_entry(5, true),
-                storage_entry(6, false),
-            ],
-        )?;
-        let s = &shaders::GLARE;
-        let p = |entry| ctx.create_compute_pipeline(s, entry, &[&layout]);
+        let (layout, pipelines) = GLARE_PASS.build(ctx)?;
+        let [
+            kernel_fine,
+            kernel_coarse,
+            gather_fine,
+            gather_coarse,
+            multiply_fine,
+            multiply_coarse,
+            blend,
+        ] = pipelines;
         Ok(Self {
-            kernel_fine: p("kernel_fine")?,
-            kernel_coarse: p("kernel_coarse")?,
-            gather_fine: p("gather_fine")?,
-            gather_coarse: p("gather_coarse")?,
-            multiply_fine: p("multiply_fine")?,
-            multiply_coarse: p("multiply_coarse")?,
-            blend: p("blend")?,
             layout,
+            kernel_fine,
+            kernel_coarse,
+            gather_fine,
+            gather_coarse,
+            multiply_fine,
+            multiply_coarse,
+            blend,
         })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 }
 

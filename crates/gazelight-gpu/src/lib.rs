@@ -45,6 +45,7 @@ pub mod error;
 pub mod fft;
 pub mod frame;
 pub mod glare;
+pub mod pass;
 pub mod pooling;
 pub mod psf;
 pub mod shaders;

@@ -14,7 +14,8 @@ use gazelight_vision::pooling::PoolingModel;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::frame::FrameState;
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Threads per workgroup of the reductions (`POOL_THREADS`).
@@ -152,12 +153,32 @@ impl PoolParams {
     }
 }
 
-/// The twin of `shaders/pooling.wgsl`. Bindings: 0 [`PoolParams`], 1 scene
-/// (RGBA f32, read-only), 2 working frame (RGBA f32), 3 block luminance
-/// (f32), 4 partial sums (`vec2<f32>`), 5 [`crate::frame::FrameState`].
+/// `shaders/pooling.wgsl`: import, block luminance, the two reductions.
+pub const POOLING_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::POOLING,
+    entry_points: &[
+        "import_scene",
+        "block_luminance",
+        "pool_partial",
+        "pool_final",
+    ],
+    bindings: &[
+        Binding::uniform::<PoolParams>("params"),
+        Binding::read::<[f32; 4]>("scene"),
+        Binding::read_write::<[f32; 4]>("work"),
+        Binding::read_write::<f32>("small_lum"),
+        Binding::read_write::<[f32; 2]>("partials"),
+        Binding::read_write::<FrameState>("state"),
+    ],
+};
+
+/// The twin of `shaders/pooling.wgsl` ([`POOLING_PASS`]). Bindings:
+/// 0 [`PoolParams`], 1 scene (RGBA f32, read-only), 2 working frame (RGBA
+/// f32), 3 block luminance (f32), 4 partial sums (`vec2<f32>`),
+/// 5 [`crate::frame::FrameState`].
 #[derive(Debug, Clone)]
 pub struct PoolingPass {
-    layout: wgpu::BindGroupLayout,
+    pub(crate) layout: PassLayout,
     pub(crate) import_scene: wgpu::ComputePipeline,
     pub(crate) block_luminance: wgpu::ComputePipeline,
     pub(crate) pool_partial: wgpu::ComputePipeline,
@@ -167,30 +188,19 @@ pub struct PoolingPass {
 impl PoolingPass {
     /// Checks the shader against the device limits and builds the pipelines.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = layout(
-            ctx,
-            "pooling.wgsl",
-            &[
-                uniform_entry::<PoolParams>(0),
-                storage_entry(1, true),
-                storage_entry(2, false),
-                storage_entry(3, false),
-                storage_entry(4, false),
-                storage_entry(5, false),
-            ],
-        )?;
-        let s = &shaders::POOLING;
+        let (layout, [import_scene, block_luminance, pool_partial, pool_final]) =
+            POOLING_PASS.build(ctx)?;
         Ok(Self {
-            import_scene: ctx.create_compute_pipeline(s, "import_scene", &[&layout])?,
-            block_luminance: ctx.create_compute_pipeline(s, "block_luminance", &[&layout])?,
-            pool_partial: ctx.create_compute_pipeline(s, "pool_partial", &[&layout])?,
-            pool_final: ctx.create_compute_pipeline(s, "pool_final", &[&layout])?,
             layout,
+            import_scene,
+            block_luminance,
+            pool_partial,
+            pool_final,
         })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 }

@@ -21,8 +21,6 @@
 //! [`GpuPsfBuilder::upload`] takes a kernel built elsewhere (e.g. off the
 //! frame thread) instead.
 
-use std::num::NonZeroU64;
-
 use gazelight_vision::psf::{PsfBuilder, PsfKernel, PsfParams};
 
 use crate::context::GpuContext;
@@ -34,45 +32,6 @@ use crate::fft::read_mapped;
 /// the command buffer. The GPU does no work for a rebuild (the kernel is
 /// built on the CPU and uploaded), so the pair measures ~0.
 pub const REBUILD_TIMESTAMPS: u32 = 2;
-
-pub(crate) fn uniform_entry<T>(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: NonZeroU64::new(size_of::<T>() as u64),
-        },
-        count: None,
-    }
-}
-
-pub(crate) fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-pub(crate) fn layout(
-    ctx: &GpuContext,
-    label: &'static str,
-    entries: &[wgpu::BindGroupLayoutEntry],
-) -> Result<wgpu::BindGroupLayout, GpuError> {
-    ctx.scoped(&format!("{label} bind group layout"), |device| {
-        device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some(label),
-            entries,
-        })
-    })
-}
 
 fn invalid(source: gazelight_vision::VisionError) -> GpuError {
     GpuError::InvalidParams {

@@ -9,7 +9,8 @@ use gazelight_vision::temporal::TemporalModel;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::frame::FrameState;
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Uniforms of `temporal.wgsl` (`struct TemporalParams`), field by field.
@@ -69,30 +70,33 @@ impl TemporalParams {
     }
 }
 
-/// The twin of `shaders/temporal.wgsl`. Bindings: 0 [`TemporalParams`],
-/// 1 [`crate::frame::FrameState`].
+/// `shaders/temporal.wgsl`: the one-thread adaptation step.
+pub const TEMPORAL_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::TEMPORAL,
+    entry_points: &["adapt"],
+    bindings: &[
+        Binding::uniform::<TemporalParams>("params"),
+        Binding::read_write::<FrameState>("state"),
+    ],
+};
+
+/// The twin of `shaders/temporal.wgsl` ([`TEMPORAL_PASS`]). Bindings:
+/// 0 [`TemporalParams`], 1 [`crate::frame::FrameState`].
 #[derive(Debug, Clone)]
 pub struct TemporalPass {
-    layout: wgpu::BindGroupLayout,
+    pub(crate) layout: PassLayout,
     pub(crate) adapt: wgpu::ComputePipeline,
 }
 
 impl TemporalPass {
     /// Checks the shader against the device limits and builds the pipeline.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = layout(
-            ctx,
-            "temporal.wgsl",
-            &[uniform_entry::<TemporalParams>(0), storage_entry(1, false)],
-        )?;
-        Ok(Self {
-            adapt: ctx.create_compute_pipeline(&shaders::TEMPORAL, "adapt", &[&layout])?,
-            layout,
-        })
+        let (layout, [adapt]) = TEMPORAL_PASS.build(ctx)?;
+        Ok(Self { layout, adapt })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 }

@@ -16,7 +16,8 @@ use gazelight_vision::tvi;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::psf::{layout, storage_entry, uniform_entry};
+use crate::frame::FrameState;
+use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::shaders;
 
 /// Uniforms of `tone.wgsl` (`struct ToneParams`), field by field.
@@ -119,12 +120,28 @@ impl ToneParams {
     }
 }
 
-/// The twin of `shaders/tone.wgsl`. Bindings: 0 [`ToneParams`],
-/// 1 [`crate::frame::FrameState`], 2 working frame (read-only),
-/// 3 display-linear frame, 4 sRGB table (read-only), 5 RGBA8 output.
+/// `shaders/tone.wgsl`: the frame's tone and colour scalars (one thread),
+/// then tone, colour and encoding per pixel.
+pub const TONE_PASS: PassDescriptor = PassDescriptor {
+    shader: shaders::TONE,
+    entry_points: &["prepare_tone", "tone_map"],
+    bindings: &[
+        Binding::uniform::<ToneParams>("params"),
+        Binding::read_write::<FrameState>("state"),
+        Binding::read::<[f32; 4]>("work"),
+        Binding::read_write::<[f32; 4]>("linear_out"),
+        Binding::read::<u32>("lut"),
+        Binding::read_write::<u32>("output"),
+    ],
+};
+
+/// The twin of `shaders/tone.wgsl` ([`TONE_PASS`]). Bindings:
+/// 0 [`ToneParams`], 1 [`crate::frame::FrameState`], 2 working frame
+/// (read-only), 3 display-linear frame, 4 sRGB table (read-only), 5 RGBA8
+/// output.
 #[derive(Debug, Clone)]
 pub struct TonePass {
-    layout: wgpu::BindGroupLayout,
+    pub(crate) layout: PassLayout,
     pub(crate) prepare: wgpu::ComputePipeline,
     pub(crate) tone_map: wgpu::ComputePipeline,
 }
@@ -132,28 +149,16 @@ pub struct TonePass {
 impl TonePass {
     /// Checks the shader against the device limits and builds the pipelines.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let layout = layout(
-            ctx,
-            "tone.wgsl",
-            &[
-                uniform_entry::<ToneParams>(0),
-                storage_entry(1, false),
-                storage_entry(2, true),
-                storage_entry(3, false),
-                storage_entry(4, true),
-                storage_entry(5, false),
-            ],
-        )?;
-        let s = &shaders::TONE;
+        let (layout, [prepare, tone_map]) = TONE_PASS.build(ctx)?;
         Ok(Self {
-            prepare: ctx.create_compute_pipeline(s, "prepare_tone", &[&layout])?,
-            tone_map: ctx.create_compute_pipeline(s, "tone_map", &[&layout])?,
             layout,
+            prepare,
+            tone_map,
         })
     }
 
     /// The bind group layout (group 0).
     pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
-        &self.layout
+        self.layout.layout()
     }
 }
