@@ -1,6 +1,6 @@
 //! Test data, not used by the library: the HID report descriptors shared
 //! by the crate's HID tests (`tests/hid_reports.rs`) and the QEMU stage's
-//! guest program (`examples/guest_probe.rs`, which hands them to the Linux
+//! guest program (`.ci/qemu/probe`, which hands them to the Linux
 //! kernel through `/dev/uhid` and a configfs HID gadget), so both exercise
 //! the same bytes.
 //!
