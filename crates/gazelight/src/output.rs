@@ -180,8 +180,8 @@ pub(crate) fn register_font() -> anyhow::Result<()> {
 /// Writes the plot of adaptation luminance (log) and pupil over time.
 pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
     register_font()?;
-    let draw = || -> Result<(), Box<dyn std::error::Error>> {
-        let root = BitMapBackend::new(path, (1000, 640)).into_drawing_area();
+    let draw = |buf: &mut [u8], size: (u32, u32)| -> Result<(), Box<dyn std::error::Error>> {
+        let root = BitMapBackend::with_buffer(buf, size).into_drawing_area();
         root.fill(&WHITE)?;
         let (top, bottom) = root.split_vertically(340);
         let t_max = rows.last().map_or(1.0, |r| r.t_secs).max(1e-3);
@@ -258,5 +258,21 @@ pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
         root.present()?;
         Ok(())
     };
-    draw().map_err(|e| anyhow::anyhow!("cannot draw {}: {e}", path.display()))
+    write_chart_png(path, (1000, 640), draw)
+        .map_err(|e| anyhow::anyhow!("cannot draw {}: {e}", path.display()))
+}
+
+/// Draws a `size` RGB chart into memory with `draw` and writes it as PNG
+/// through `image` 0.25 (plotters' own file encoder would compile a second,
+/// older `image` into the build).
+pub(crate) fn write_chart_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&mut [u8], (u32, u32)) -> Result<(), Box<dyn std::error::Error>>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let (w, h) = size;
+    let mut buf = vec![0u8; w as usize * h as usize * 3];
+    draw(&mut buf, size)?;
+    image::save_buffer(path, &buf, w, h, image::ColorType::Rgb8)?;
+    Ok(())
 }

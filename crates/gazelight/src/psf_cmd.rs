@@ -229,8 +229,8 @@ fn write_profile_plot(path: &Path, kernel: &PsfKernel, params: &PsfParams) -> an
     } else {
         (-4.0, 6.0)
     };
-    let draw = || -> Result<(), Box<dyn std::error::Error>> {
-        let root = BitMapBackend::new(path, (900, 600)).into_drawing_area();
+    let draw = |buf: &mut [u8], size: (u32, u32)| -> Result<(), Box<dyn std::error::Error>> {
+        let root = BitMapBackend::with_buffer(buf, size).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(
@@ -271,5 +271,6 @@ fn write_profile_plot(path: &Path, kernel: &PsfKernel, params: &PsfParams) -> an
         root.present()?;
         Ok(())
     };
-    draw().map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))
+    crate::output::write_chart_png(path, (900, 600), draw)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {e}", path.display()))
 }
