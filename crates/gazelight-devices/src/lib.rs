@@ -30,6 +30,32 @@
 //! Errors never panic: a missing device, a permission problem or a lost
 //! device is a [`SourceError`] naming the device, and a live source reopens
 //! its device on the next call after a [`SourceError::Disconnected`].
+//!
+//! # Example
+//!
+//! The binary frames a serial line or a USB bulk endpoint carries
+//! ([`framing`]): a gaze sample stamped 1 s on the device clock, encoded
+//! and found again in the byte stream.
+//!
+//! ```
+//! use gazelight_devices::framing::{self, FrameDecoder};
+//! use gazelight_eye::{GazeEyes, GazeSample, Sample};
+//!
+//! let gaze = Sample::Gaze(GazeSample {
+//!     t_secs: 1.0,
+//!     gaze_uv: [0.25, 0.75],
+//!     confidence: 1.0,
+//!     eyes: GazeEyes::Binocular,
+//! });
+//! let mut bytes = vec![0x00, 0x13]; // line noise before the frame
+//! framing::encode(&gaze, 1_000_000, &mut bytes);
+//! let mut decoder = FrameDecoder::new();
+//! decoder.push(&bytes);
+//! let frame = decoder.next_frame().expect("one frame")?;
+//! assert_eq!(frame.t_us, 1_000_000);
+//! assert_eq!(frame.sample, gaze);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod discover;
 pub mod framing;

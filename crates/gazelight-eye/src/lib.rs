@@ -10,6 +10,33 @@
 //! This crate depends on no network, USB, serial or async-runtime crate, so
 //! anything that only wants an `EyeState` or a filter stays small. Eye
 //! indices follow Pupil Core: index 0 is the right eye, index 1 the left.
+//!
+//! # Example
+//!
+//! A second of a steady 4 mm right pupil at 100 Hz through the default
+//! filter chain: the state holds the measured pupil.
+//!
+//! ```
+//! use gazelight_eye::filter::FilterChain;
+//! use gazelight_eye::{DetectorMethod, EYE_RIGHT, PupilOrigin, PupilSample, PupilUnit, Sample};
+//!
+//! let mut chain = FilterChain::with_defaults();
+//! for k in 0..100 {
+//!     chain.push(&Sample::Pupil(PupilSample {
+//!         t_secs: f64::from(k) * 0.01,
+//!         eye: 0,
+//!         diameter_raw: 4.0,
+//!         unit: PupilUnit::Mm,
+//!         diameter_mm: Some(4.0),
+//!         confidence: 0.95,
+//!         norm_pos: [0.5, 0.5],
+//!         method: DetectorMethod::Pupil3d,
+//!     }));
+//! }
+//! let right = chain.state().eyes[EYE_RIGHT];
+//! assert_eq!(right.pupil_origin, PupilOrigin::Measured);
+//! assert!((right.pupil_mm - 4.0).abs() < 0.05, "{}", right.pupil_mm);
+//! ```
 
 pub mod calibration;
 pub mod clock;

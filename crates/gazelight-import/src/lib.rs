@@ -27,6 +27,28 @@
 //! [`open`] picks the importer from the path; [`summary`] condenses a
 //! recording (or a stretch of a live Pupil stream) into counts, rates,
 //! pupil ranges and blinks.
+//!
+//! # Example
+//!
+//! A two-row pupil CSV (the piprkit layout): one sample per eye and row;
+//! the empty right pupil of the second row is a lost pupil (confidence 0).
+//!
+//! ```
+//! use gazelight_eye::{PupilUnit, Sample};
+//!
+//! let dir = std::env::temp_dir().join(format!("gazelight-import-doc-{}", std::process::id()));
+//! std::fs::create_dir_all(&dir)?;
+//! let path = dir.join("trace.csv");
+//! std::fs::write(&path, "time,left,right\n0.00,6.40,5.62\n0.01,6.38,\n")?;
+//! let samples: Vec<Sample> = gazelight_import::open(&path)?.collect::<Result<_, _>>()?;
+//! assert_eq!(samples.len(), 4);
+//! let Sample::Pupil(p) = samples[0] else { panic!("a pupil sample") };
+//! assert_eq!(p.unit, PupilUnit::Mm);
+//! let lost = samples.iter().filter(|s| matches!(s, Sample::Pupil(p) if p.confidence == 0.0));
+//! assert_eq!(lost.count(), 1);
+//! std::fs::remove_dir_all(&dir)?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod csv;
 pub mod eyelink;
