@@ -1,18 +1,35 @@
-//! Criterion benchmarks of the CPU frame pipeline at the default display
-//! size (720×800 per eye, half the Vive Pro) and at the Vive Pro's
-//! 1440×1600 per eye: the whole frame on a night view (scotopic, so the
-//! acuity blur runs) and a day view (the fused tone + colour + encode
-//! pass), with the PSF cached and with a PSF rebuild, and per-stage medians
-//! from the pipeline's own stage timers.
+//! Criterion benchmarks of the CPU frame pipeline, every stage on (pooling,
+//! temporal adaptation, glare with the cached ±20° PSF, per-pixel acuity,
+//! tone + colour + encoding), against the memory floor measured in the same
+//! run: an f32 RGBA copy of the same frame(s) (`copy_from_slice` of
+//! `w·h` `[f32; 4]`, one thread).
+//!
+//! * Views: the default demo's (`render`: night.exr towards the street
+//!   lamp, 90° field, default luminance scale) with the gaze on the dark
+//!   ground, adapted there (**night**: most pixels are below L\* = 1, so
+//!   the acuity blur runs on them), and city.exr at the same field
+//!   (**day**).
+//! * Sizes: 720×800 (half the Vive Pro, the default) and 1440×1600 per eye.
+//! * One eye (one pipeline) and two eyes (two pipelines, the views 3° apart
+//!   in yaw, processed one after the other per frame, as a stereo loop
+//!   would until stereo exists); the two-eye floor copies both frames.
+//! * `psf_rebuild`: one eye, a PSF rebuild every frame (pupil 3 ↔ 6 mm).
+//!
+//! After each group the bench prints medians of 31 interleaved samples of
+//! the frame(s) and of the copy, their ratio, and the per-stage medians
+//! from the pipeline's own timers.
 //!
 //! Run: `cargo bench -p gazelight-vision --bench frame` (filter with e.g.
-//! `-- 720x800`).
+//! `-- 720x800`; `GAZELIGHT_BENCH_SIZES=720x800` skips the other size's
+//! setup and printed figures too).
 
 use std::hint::black_box;
 use std::path::Path;
+use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use gazelight_vision::RgbImage;
+use gazelight_vision::acuity::{AcuityBlur, AcuityModel};
 use gazelight_vision::glare::{GlareConvolver, GlareWindow};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, PipelineConfig, StageTimings,
@@ -20,15 +37,24 @@ use gazelight_vision::pipeline::{
 use gazelight_vision::psf::{PsfParams, build_kernel};
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
-fn view_of(name: &str, yaw_deg: f64, width: usize, height: usize) -> (RgbImage, ViewParams) {
+/// The default demo's view (`gazelight::demo::default_view`): towards the
+/// lamp, 6° down, 90° field.
+const DEMO_YAW_DEG: f64 = -78.4;
+const DEMO_PITCH_DEG: f64 = -6.0;
+const DEMO_HFOV_DEG: f64 = 90.0;
+
+fn load(name: &str) -> Scene {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../../shared/data/hdr/blender-world")
         .join(name);
-    let scene = Scene::load(&path, LuminanceScale::default()).expect("shared panorama");
+    Scene::load(&path, LuminanceScale::default()).expect("shared panorama")
+}
+
+fn view_of(scene: &Scene, yaw_deg: f64, width: usize, height: usize) -> (RgbImage, ViewParams) {
     let view = ViewParams {
         yaw_deg,
-        pitch_deg: -6.0,
-        hfov_deg: 104.0,
+        pitch_deg: DEMO_PITCH_DEG,
+        hfov_deg: DEMO_HFOV_DEG,
         width,
         height,
     };
@@ -39,82 +65,171 @@ fn view_of(name: &str, yaw_deg: f64, width: usize, height: usize) -> (RgbImage, 
     (img, view)
 }
 
-fn bench_size(c: &mut Criterion, scene: &str, yaw_deg: f64, w: usize, h: usize) {
-    let (img, view) = view_of(scene, yaw_deg, w, h);
-    let mut pipeline =
-        FramePipeline::new(PipelineConfig::default(), w, h, view.deg_per_px()).expect("pipeline");
-    let mut out = DisplayFrame::new(w, h);
-    let mut input = FrameInput {
-        gaze_uv: [0.5, 0.45],
+/// One eye: its view, pipeline and output.
+struct Eye {
+    img: RgbImage,
+    pipeline: FramePipeline,
+    out: DisplayFrame,
+}
+
+impl Eye {
+    fn frame(&mut self, input: &FrameInput) -> StageTimings {
+        self.pipeline
+            .process(black_box(&self.img), input, &mut self.out)
+            .expect("frame")
+            .timings
+    }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+#[allow(clippy::too_many_arguments)]
+fn bench_view(
+    c: &mut Criterion,
+    scene: &Scene,
+    label: &str,
+    yaw_deg: f64,
+    gaze_uv: [f32; 2],
+    w: usize,
+    h: usize,
+) {
+    let input = FrameInput {
+        gaze_uv,
         pupil_mm: 4.0,
         dt_secs: 1.0 / 90.0,
     };
-    pipeline.process(&img, &input, &mut out).expect("frame");
-    let label = scene.trim_end_matches(".exr");
+    // Left and right eye 3° apart.
+    let mut eyes: Vec<Eye> = [yaw_deg - 1.5, yaw_deg + 1.5]
+        .into_iter()
+        .map(|yaw| {
+            let (img, view) = view_of(scene, yaw, w, h);
+            let pipeline = FramePipeline::new(PipelineConfig::default(), w, h, view.deg_per_px())
+                .expect("pipeline");
+            Eye {
+                img,
+                pipeline,
+                out: DisplayFrame::new(w, h),
+            }
+        })
+        .collect();
+    let dpp = eyes[0].pipeline.deg_per_px();
+    // What the night view holds: how many pixels the acuity stage blurs.
+    let mut probe = eyes[0].img.clone();
+    let blurred = AcuityBlur::new(&AcuityModel::default(), w, h, dpp).apply(&mut probe);
+    // Adapt to the view at the gaze (the first frame starts adapted).
+    let mut first = None;
+    for eye in &mut eyes {
+        let s = eye
+            .pipeline
+            .process(&eye.img, &input, &mut eye.out)
+            .expect("frame");
+        first.get_or_insert(s);
+    }
+    let first = first.expect("two eyes");
+    eprintln!(
+        "{label} {w}x{h}: {:.2} px/deg, adapted to {:.3} cd/m², acuity blurs {blurred} of {} px \
+         (σ at the adaptation {:.2} px, largest tap radius {} px)",
+        1.0 / dpp,
+        first.adaptation_cd_m2,
+        w * h,
+        first.acuity_sigma_px,
+        AcuityBlur::new(&AcuityModel::default(), 1, 1, dpp).max_radius(),
+    );
+    // The floor: an f32 RGBA copy of one frame (two for two eyes).
+    let src: Vec<[f32; 4]> = eyes[0]
+        .img
+        .pixels
+        .iter()
+        .map(|p| [p[0], p[1], p[2], 1.0])
+        .collect();
+    let mut dst = vec![[0.0f32; 4]; w * h];
+    let mut copy = |n: usize| {
+        for _ in 0..n {
+            dst.copy_from_slice(black_box(&src));
+            black_box(&dst);
+        }
+    };
 
     let mut group = c.benchmark_group(format!("cpu_frame_{w}x{h}"));
     group.sample_size(20);
-    group.bench_function(format!("{label}_psf_cached"), |b| {
+    group.bench_function(format!("{label}_one_eye"), |b| {
+        b.iter(|| black_box(eyes[0].frame(&input)))
+    });
+    group.bench_function(format!("{label}_copy_floor_one_frame"), |b| {
+        b.iter(|| copy(1))
+    });
+    group.bench_function(format!("{label}_two_eyes"), |b| {
         b.iter(|| {
-            let s = pipeline
-                .process(black_box(&img), &input, &mut out)
-                .expect("frame");
-            black_box(s)
+            for eye in &mut eyes {
+                black_box(eye.frame(&input));
+            }
         })
     });
-    let mut flip = false;
-    group.bench_function(format!("{label}_psf_rebuild"), |b| {
-        b.iter(|| {
-            flip = !flip;
-            input.pupil_mm = if flip { 3.0 } else { 6.0 };
-            let s = pipeline
-                .process(black_box(&img), &input, &mut out)
-                .expect("frame");
-            black_box(s)
-        })
+    group.bench_function(format!("{label}_copy_floor_two_frames"), |b| {
+        b.iter(|| copy(2))
     });
+    if label == "night" && w == 720 {
+        let mut flip = false;
+        let mut rebuild = input;
+        group.bench_function(format!("{label}_one_eye_psf_rebuild"), |b| {
+            b.iter(|| {
+                flip = !flip;
+                rebuild.pupil_mm = if flip { 3.0 } else { 6.0 };
+                black_box(eyes[0].frame(&rebuild))
+            })
+        });
+        // Back to the cached 4 mm kernel.
+        eyes[0].frame(&input);
+    }
     group.finish();
 
-    // Per-stage medians from the pipeline's own timers, PSF cached.
-    input.pupil_mm = 6.0;
-    let mut runs: Vec<StageTimings> = (0..30)
-        .map(|_| {
-            pipeline
-                .process(&img, &input, &mut out)
-                .expect("frame")
-                .timings
-        })
-        .collect();
-    // "median (min)": the minimum is the steadiest figure on a shared,
-    // loaded machine.
-    let median = |f: fn(&StageTimings) -> f64, runs: &mut Vec<StageTimings>| {
-        runs.sort_by(|a, b| f(a).total_cmp(&f(b)));
-        format!("{:.2} ({:.2})", f(&runs[runs.len() / 2]), f(&runs[0]))
+    // Interleaved samples: frame(s) and copy alternate, so load on the
+    // shared machine hits both alike.
+    let (mut one, mut two, mut floor1, mut floor2) = (vec![], vec![], vec![], vec![]);
+    let mut stages: Vec<StageTimings> = vec![];
+    for _ in 0..31 {
+        let t = Instant::now();
+        stages.push(eyes[0].frame(&input));
+        one.push(ms_since(t));
+        let t = Instant::now();
+        copy(1);
+        floor1.push(ms_since(t));
+        let t = Instant::now();
+        for eye in &mut eyes {
+            eye.frame(&input);
+        }
+        two.push(ms_since(t));
+        let t = Instant::now();
+        copy(2);
+        floor2.push(ms_since(t));
+    }
+    let (one, two) = (median(&mut one), median(&mut two));
+    let (floor1, floor2) = (median(&mut floor1), median(&mut floor2));
+    eprintln!(
+        "{label} {w}x{h} medians of 31 interleaved: one eye {one:.2} ms = {:.2}× copy floor \
+         {floor1:.2} ms; two eyes {two:.2} ms = {:.2}× copy floor {floor2:.2} ms",
+        one / floor1,
+        two / floor2,
+    );
+    let stage = |f: fn(&StageTimings) -> f64| -> f64 {
+        let mut v: Vec<f64> = stages.iter().map(f).collect();
+        median(&mut v)
     };
-    eprintln!("per-stage medians, {label} view {w}x{h}, PSF cached, ms, median (min):");
     eprintln!(
-        "  pooling (copy + luminance + pool) {}",
-        median(|t| t.pooling_ms, &mut runs)
-    );
-    eprintln!(
-        "  temporal                          {}",
-        median(|t| t.temporal_ms, &mut runs)
-    );
-    eprintln!(
-        "  glare (FFT window)                {}",
-        median(|t| t.glare_ms, &mut runs)
-    );
-    eprintln!(
-        "  acuity blur                       {}",
-        median(|t| t.acuity_ms, &mut runs)
-    );
-    eprintln!(
-        "  tone + colour + encode            {}",
-        median(|t| t.tone_colour_encode_ms, &mut runs)
-    );
-    eprintln!(
-        "  total                             {}",
-        median(|t| t.total_ms, &mut runs)
+        "  stages (one eye, ms): pass A + pooling {:.2}, temporal {:.2}, glare {:.2}, \
+         acuity + tone + colour + encode (fused) {:.2}, total {:.2}",
+        stage(|t| t.pooling_ms),
+        stage(|t| t.temporal_ms),
+        stage(|t| t.glare_ms),
+        stage(|t| t.acuity_ms + t.tone_colour_encode_ms),
+        stage(|t| t.total_ms),
     );
 }
 
@@ -123,7 +238,8 @@ fn bench_size(c: &mut Criterion, scene: &str, yaw_deg: f64, w: usize, h: usize) 
 /// RGBA copy of the same frame measured in the same run (the floor).
 fn glare_stage(c: &mut Criterion) {
     let (w, h) = (720, 800);
-    let (img, view) = view_of("night.exr", -78.4, w, h);
+    let scene = load("night.exr");
+    let (img, view) = view_of(&scene, DEMO_YAW_DEG, w, h);
     let params = PsfParams {
         ppd: 1.0 / view.deg_per_px(),
         ..PsfParams::default()
@@ -162,21 +278,21 @@ fn glare_stage(c: &mut Criterion) {
 }
 
 fn frame(c: &mut Criterion) {
-    // GAZELIGHT_BENCH_SIZES=720x800 restricts the sizes (the per-stage
-    // figures are not covered by criterion's filter).
     let only = std::env::var("GAZELIGHT_BENCH_SIZES").ok();
+    let night = load("night.exr");
+    let city = load("city.exr");
     for (w, h) in [(720, 800), (1440, 1600)] {
         if let Some(only) = &only
             && !only.split(',').any(|s| s == format!("{w}x{h}"))
         {
             continue;
         }
-        // Night: scotopic, so the acuity blur runs.
-        bench_size(c, "night.exr", -78.4, w, h);
-        // Day: no blur, the fused tone + colour + encode pass.
-        bench_size(c, "city.exr", 40.0, w, h);
+        // Night: the demo's view, the gaze on the dark ground below the lamp.
+        bench_view(c, &night, "night", DEMO_YAW_DEG, [0.5, 0.8], w, h);
+        // Day: the city at the same field.
+        bench_view(c, &city, "day", 40.0, [0.5, 0.45], w, h);
     }
 }
 
-criterion_group!(benches, glare_stage, frame);
+criterion_group!(benches, frame, glare_stage);
 criterion_main!(benches);

@@ -76,16 +76,33 @@
 //! taps). Cost follows σ: a pixel costs 2r + 1 taps, i.e. nothing for bright
 //! pixels, 3 taps at σ ≤ 1/3 px, and at most 2·64 + 1.
 //!
-//! Cheap when little is dark: a first pass computes only each pixel's Y
-//! (no cube root) and marks the rows holding a pixel with σ > 0.3 (the
-//! models' σ falls monotonically with Y, so one threshold
-//! luminance per frame decides). A frame with no such row is left as it
-//! is after that one read. Otherwise L\* is computed for the marked rows
-//! and the rows within the largest radius of them (the vertical taps), and
-//! only marked rows are blurred and converted back: an unmarked row's
-//! pixels all have σ(L) ≤ 0.3, its h equals L, so step 3 leaves it too.
-//! Rows run in parallel (rayon) in each pass; nothing is allocated once
-//! the scratch buffers have the image's size.
+//! ## How it runs: streaming, banded, vectorised
+//!
+//! The frame is split into bands of rows (at most 8, each at least 8r
+//! rows for the frame's largest radius r), which run in parallel on the
+//! rayon pool; each band first copies the r rows on either side of its
+//! neighbours' edges (their original values) so that no band reads a row
+//! another has already blurred. Within a band, rows stream through two
+//! rings of 2r + 1 rows: row t + 2r's Y/Yn (no cube root) and whether it
+//! holds a pixel darker than the blur threshold (the models' σ falls
+//! monotonically with Y, so one threshold luminance per frame decides,
+//! with a 1 % margin); row t + r's L\* and horizontal pass, computed only
+//! when a dark row lies within r of it; then output row t: its vertical
+//! pass and the conversion back to RGB only if it is dark (a row without a
+//! dark pixel has σ ≤ 0.3 everywhere, its h equals L, so step 3 leaves it
+//! too), and the row goes straight to the caller's sink (the pipeline's
+//! tone + colour + encode, [`crate::encode`]) while it is in cache. The
+//! frame is read from memory once for stages 5–8.
+//!
+//! Pixels are processed 8 at a time as channel planes with fixed trip
+//! counts, which the compiler turns into vector code (AVX2 + FMA when the
+//! CPU has it, chosen at run time; the code and the results are the same
+//! either way). The cube root and `exp` are vector polynomials (within
+//! 3e-7 of the standard library's); a block of 8 runs its tap loop to the
+//! largest radius of its 8 pixels, and each pixel's taps beyond its own
+//! radius get weight exactly 0, so its sum is the one of its own taps. A
+//! bright frame costs one Y per pixel; a dark pixel of small σ costs a few
+//! taps. Nothing is allocated once the scratch has the image's size.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -251,8 +268,9 @@ fn lab_f_inv(f: f32) -> f32 {
 }
 
 /// CIE lightness scale of a relative tristimulus `t`: `116·f(t) − 16`
-/// (L\* for t = Y/Yn): κ·t up to ε, then `116·∛t − 16`.
-#[inline]
+/// (L\* for t = Y/Yn): κ·t up to ε, then `116·∛t − 16`. The blur uses
+/// its vectorised twin [`lab_g_v`]; the tests compare the two.
+#[cfg(test)]
 fn lab_g(t: f32) -> f32 {
     if t > 216.0 / 24389.0 {
         116.0 * t.cbrt() - 16.0
@@ -264,7 +282,7 @@ fn lab_g(t: f32) -> f32 {
 /// Inverse of [`lab_g`]: `v/κ` up to 8, then `((v + 16)/116)³`. In this
 /// form a dark pixel's value is never the difference of two numbers
 /// near 16 (f32 would lose it).
-#[inline]
+#[inline(always)]
 fn lab_g_inv(v: f32) -> f32 {
     if v > 8.0 {
         let f = (v + 16.0) / 116.0;
@@ -348,18 +366,70 @@ pub struct AcuityBlur {
     blur_below_cd_m2: f32,
     /// Largest tap radius any pixel gets.
     max_radius: usize,
-    /// L\* of every pixel of the rows that need it.
-    lightness: Vec<f32>,
-    /// L\* after the horizontal pass.
-    horizontal: Vec<f32>,
-    /// Per row: 1 = holds a pixel to blur; 2 = needs L\* (within the
-    /// largest radius of such a row); 0 = neither.
-    rows: Vec<u8>,
+    /// Rows per band (the last band may be shorter).
+    band_rows: usize,
+    /// Per band: its ring buffers.
+    bands: Vec<Band>,
+    /// Per band: the original pixels of its first and last `max_radius`
+    /// rows, taken before any band writes (the neighbours' halo).
+    stash: Vec<Vec<[f32; 3]>>,
 }
 
-const ROW_IDLE: u8 = 0;
-const ROW_NEEDED: u8 = 1;
-const ROW_BLURRED: u8 = 2;
+/// The scratch of one band of rows.
+#[derive(Clone, Debug, Default)]
+struct Band {
+    /// Ring of 2r + 1 rows: Y/Yn of the newest rows, L\* of the older ones,
+    /// each padded by r + lane-rounding values either side (edge repeated).
+    lum: Vec<f32>,
+    /// Ring of 2r + 1 rows of L\* after the horizontal pass.
+    hor: Vec<f32>,
+    /// Per frame row: holds a pixel below the blur threshold.
+    dark: Vec<bool>,
+}
+
+/// Lanes of the vectorised blocks (one AVX2 register of f32).
+pub(crate) const LANES: usize = 8;
+type V = [f32; LANES];
+
+/// Where the rows of the blurred frame go, one row at a time, while they
+/// are still in cache (the pipeline fuses tone reproduction, colour and
+/// encoding here).
+pub(crate) trait RowSink: Sync {
+    /// What the sink writes.
+    type Out: Send;
+    /// Items of `Out` per image row.
+    fn per_row(&self) -> usize;
+    /// Consumes one finished row (linear RGB, cd/m²).
+    fn row(&self, px: &[[f32; 3]], out: &mut [Self::Out]);
+}
+
+/// A sink that keeps nothing ([`AcuityBlur::apply`]).
+struct NoSink;
+
+impl RowSink for NoSink {
+    type Out = ();
+    fn per_row(&self) -> usize {
+        1
+    }
+    #[inline(always)]
+    fn row(&self, _: &[[f32; 3]], _: &mut [()]) {}
+}
+
+/// The per-frame constants of the blur.
+#[derive(Clone, Copy)]
+struct Ctx {
+    w: usize,
+    h: usize,
+    r: usize,
+    rule: SigmaRule,
+    white: f32,
+    /// Y/Yn below which a pixel may blur (with the 1 % margin).
+    dark_below: f32,
+    /// Lightness-ring row stride: r + w rounded up to lanes + r.
+    stride_l: usize,
+    /// Horizontal-ring row stride: w rounded up to lanes.
+    stride_h: usize,
+}
 
 impl AcuityBlur {
     /// Pixels whose σ is at or below this many pixels are not blurred.
@@ -369,6 +439,9 @@ impl AcuityBlur {
     /// is truncated at this radius: only Larson/Krawczyk in the deepest
     /// dark above ~39 px/deg, or eq 12 above ~295 px/deg).
     pub const MAX_RADIUS_PX: usize = 64;
+
+    /// At most this many bands of rows run in parallel.
+    const MAX_BANDS: usize = 8;
 
     /// Scratch buffers for `width × height` frames of pixels `deg_per_px`
     /// degrees wide, blurred with `model`.
@@ -421,20 +494,21 @@ impl AcuityBlur {
         } else {
             0
         };
-        let n = width * height;
-        Self {
-            width,
-            height,
+        let mut blur = Self {
+            width: 0,
+            height: 0,
             rule,
             white_cd_m2: white as f32,
             // a 1 % margin: rows are marked conservatively, the per-pixel
             // σ decides exactly
             blur_below_cd_m2: (blur_below * 1.01) as f32,
             max_radius,
-            lightness: vec![0.0; n],
-            horizontal: vec![0.0; n],
-            rows: vec![ROW_IDLE; height],
-        }
+            band_rows: 1,
+            bands: Vec::new(),
+            stash: Vec::new(),
+        };
+        blur.resize(width, height);
+        blur
     }
 
     /// The largest tap radius of this blur, pixels (0: never blurs).
@@ -442,155 +516,506 @@ impl AcuityBlur {
         self.max_radius
     }
 
+    /// Sizes the bands and their scratch for `w × h` frames.
+    fn resize(&mut self, w: usize, h: usize) {
+        self.width = w;
+        self.height = h;
+        let r = self.max_radius;
+        // Bands at least 8r (and 16) rows tall: their halo of 2r rows is
+        // small against the rows they output.
+        let wanted = (h / (8 * r).max(16)).clamp(1, Self::MAX_BANDS);
+        self.band_rows = h.div_ceil(wanted).max(1);
+        let n = h.div_ceil(self.band_rows);
+        if r == 0 {
+            self.bands.clear();
+            self.stash.clear();
+            return;
+        }
+        let stride_l = 2 * r + w.next_multiple_of(LANES);
+        let stride_h = w.next_multiple_of(LANES);
+        self.bands = (0..n)
+            .map(|_| Band {
+                lum: vec![0.0; (2 * r + 1) * stride_l],
+                hor: vec![0.0; (2 * r + 1) * stride_h],
+                dark: vec![false; h],
+            })
+            .collect();
+        self.stash = (0..n).map(|_| vec![[0.0; 3]; 2 * r * w]).collect();
+    }
+
     /// Blurs the lightness of `img` (linear RGB, cd/m²) in place, each
     /// pixel with its own σ, keeping a\* and b\* of every pixel. Returns the
     /// number of pixels whose lightness changed. Resizes the scratch
     /// buffers (allocating) only when the image size changed.
     pub fn apply(&mut self, img: &mut RgbImage) -> usize {
+        let mut none = vec![(); img.height];
+        self.apply_into(img, &NoSink, &mut none)
+    }
+
+    /// [`apply`](Self::apply), then `sink` on every row of the result
+    /// right after the row is final (while it is in cache); `out` holds
+    /// `sink.per_row()` items per row. Rows run in bands, in parallel.
+    pub(crate) fn apply_into<S: RowSink>(
+        &mut self,
+        img: &mut RgbImage,
+        sink: &S,
+        out: &mut [S::Out],
+    ) -> usize {
         let (w, h) = (img.width, img.height);
-        if self.max_radius == 0 || w == 0 || h == 0 || img.pixels.len() != w * h {
+        let per_row = sink.per_row();
+        if w == 0 || h == 0 || img.pixels.len() != w * h || out.len() != h * per_row {
             return 0;
         }
         if (w, h) != (self.width, self.height) {
-            self.width = w;
-            self.height = h;
-            self.lightness.resize(w * h, 0.0);
-            self.horizontal.resize(w * h, 0.0);
-            self.rows.resize(h, ROW_IDLE);
+            self.resize(w, h);
         }
-        let (rule, white) = (self.rule, self.white_cd_m2);
-        let threshold = self.blur_below_cd_m2;
-        let y_row = RGB_TO_XYZ[1];
-
-        // Which rows hold a pixel to blur: Y only, no cube root.
-        self.rows
-            .par_iter_mut()
-            .zip(img.pixels.par_chunks(w))
-            .for_each(|(flag, row)| {
-                let mut dark = false;
-                for p in row {
-                    let y = y_row[0] * p[0] + y_row[1] * p[1] + y_row[2] * p[2];
-                    dark |= y < threshold;
-                }
-                *flag = if dark { ROW_BLURRED } else { ROW_IDLE };
-            });
-        if !self.rows.contains(&ROW_BLURRED) {
+        let band_rows = self.band_rows;
+        let r = self.max_radius;
+        if r == 0 || matches!(self.rule, SigmaRule::None) {
+            img.pixels
+                .par_chunks(band_rows * w)
+                .zip(out.par_chunks_mut(band_rows * per_row))
+                .for_each(|(px, out)| {
+                    for (row, o) in px.chunks_exact(w).zip(out.chunks_exact_mut(per_row)) {
+                        sink.row(row, o);
+                    }
+                });
             return 0;
         }
-        // Rows within the largest radius of a blurred row need L*.
-        let r_max = self.max_radius;
-        let mut last_blurred: Option<usize> = None;
-        for y in 0..h {
-            if self.rows[y] == ROW_BLURRED {
-                last_blurred = Some(y);
-            } else if last_blurred.is_some_and(|b| y - b <= r_max) {
-                self.rows[y] = ROW_NEEDED;
-            }
-        }
-        let mut next_blurred: Option<usize> = None;
-        for y in (0..h).rev() {
-            if self.rows[y] == ROW_BLURRED {
-                next_blurred = Some(y);
-            } else if next_blurred.is_some_and(|b| b - y <= r_max) {
-                self.rows[y] = ROW_NEEDED;
-            }
-        }
-
-        // Steps 1 + 2: L* of the rows that need it; horizontal pass.
-        let rows = &self.rows[..];
-        let inv_white = 1.0 / white;
-        self.lightness
-            .par_chunks_mut(w)
-            .zip(self.horizontal.par_chunks_mut(w))
-            .zip(img.pixels.par_chunks(w))
-            .zip(rows.par_iter())
-            .for_each(|(((l_row, h_row), px), &flag)| {
-                if flag == ROW_IDLE {
-                    return;
-                }
-                for (l, p) in l_row.iter_mut().zip(px) {
-                    let y = y_row[0] * p[0] + y_row[1] * p[1] + y_row[2] * p[2];
-                    *l = lab_g(y * inv_white);
-                }
-                if flag == ROW_NEEDED {
-                    h_row.copy_from_slice(l_row);
-                    return;
-                }
-                for (x, hv) in h_row.iter_mut().enumerate() {
-                    let centre = l_row[x];
-                    let sigma = rule.sigma(centre, white);
-                    *hv = if sigma > Self::MIN_SIGMA_PX {
-                        gather(sigma, r_max, centre, |k| {
-                            (l_row[x.saturating_sub(k)], l_row[(x + k).min(w - 1)])
-                        })
-                    } else {
-                        centre
-                    };
-                }
+        let ctx = Ctx {
+            w,
+            h,
+            r,
+            rule: self.rule,
+            white: self.white_cd_m2,
+            dark_below: self.blur_below_cd_m2 / self.white_cd_m2,
+            stride_l: 2 * r + w.next_multiple_of(LANES),
+            stride_h: w.next_multiple_of(LANES),
+        };
+        // The halo rows of every band, before any band writes.
+        self.stash
+            .par_iter_mut()
+            .zip(img.pixels.par_chunks(band_rows * w))
+            .for_each(|(stash, px)| {
+                let rows = px.len() / w;
+                let k = r.min(rows);
+                stash[..k * w].copy_from_slice(&px[..k * w]);
+                stash[r * w..(r + k) * w].copy_from_slice(&px[(rows - k) * w..]);
             });
-
-        // Steps 3 + 4: vertical pass with σ of the new lightness; back to
-        // RGB with each pixel's a*, b*.
-        let lightness = &self.lightness[..];
-        let horizontal = &self.horizontal[..];
-        let wx = WHITE_XYZ.map(|c| c * white);
-        img.pixels
-            .par_chunks_mut(w)
+        let stash = &self.stash[..];
+        self.bands
+            .par_iter_mut()
+            .zip(img.pixels.par_chunks_mut(band_rows * w))
+            .zip(out.par_chunks_mut(band_rows * per_row))
             .enumerate()
-            .filter(|(y, _)| rows[*y] == ROW_BLURRED)
-            .map(|(y, out)| {
-                let mut changed = 0usize;
-                for (x, o) in out.iter_mut().enumerate() {
-                    let hv = horizontal[y * w + x];
-                    let sigma = rule.sigma(hv, white);
-                    let l_new = if sigma > Self::MIN_SIGMA_PX {
-                        gather(sigma, r_max, hv, |k| {
-                            (
-                                horizontal[y.saturating_sub(k) * w + x],
-                                horizontal[(y + k).min(h - 1) * w + x],
-                            )
-                        })
-                    } else {
-                        hv
-                    };
-                    let l_old = lightness[y * w + x];
-                    if l_new == l_old {
-                        continue;
-                    }
-                    changed += 1;
-                    let xyz = mat3(&RGB_TO_XYZ, *o);
-                    let d = l_new - l_old;
-                    let xyz_new = [
-                        lab_g_inv(lab_g(xyz[0] / wx[0]) + d) * wx[0],
-                        lab_g_inv(l_old + d) * wx[1],
-                        lab_g_inv(lab_g(xyz[2] / wx[2]) + d) * wx[2],
-                    ];
-                    *o = mat3(&XYZ_TO_RGB, xyz_new);
-                }
-                changed
+            .map(|(b, ((band, px), out))| {
+                let halo = Halo {
+                    above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
+                    below: stash.get(b + 1).map(|s| &s[..r * w]),
+                };
+                run_band_dispatch(&ctx, band, px, b * band_rows, halo, sink, out)
             })
             .sum()
     }
 }
 
-/// `Σₖ g(k)·v(k) / Σₖ g(k)` over k = −r..=r, `g(k) = exp(−k²/(2σ²))`,
-/// r = min(⌈3σ⌉, `r_max`), `centre` = v(0), `pair(k)` = (v(−k), v(k)).
-/// The weights come from one `exp` and the recurrence of the module docs.
-#[inline(always)]
-fn gather(sigma: f32, r_max: usize, centre: f32, pair: impl Fn(usize) -> (f32, f32)) -> f32 {
-    let r = ((3.0 * sigma).ceil() as usize).min(r_max);
-    let e = (-0.5 / (sigma * sigma)).exp();
-    let e2 = e * e;
-    let (mut g, mut q) = (1.0f32, e);
-    let (mut acc, mut norm) = (centre, 1.0f32);
-    for k in 1..=r {
-        g *= q;
-        q *= e2;
-        let (a, b) = pair(k);
-        acc += g * (a + b);
-        norm += 2.0 * g;
+/// The rows next to a band that belong to its neighbours: the last r rows
+/// of the band above, the first r rows of the band below (original values).
+#[derive(Clone, Copy)]
+struct Halo<'a> {
+    above: Option<&'a [[f32; 3]]>,
+    below: Option<&'a [[f32; 3]]>,
+}
+
+/// Whether the CPU runs the AVX2 + FMA build of the band pass.
+#[cfg(target_arch = "x86_64")]
+fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// [`run_band`] compiled for AVX2 + FMA. The code and so the results are
+/// the same as the portable build (no fused multiply-adds are requested;
+/// only the instruction set differs).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn run_band_avx2<S: RowSink>(
+    ctx: &Ctx,
+    band: &mut Band,
+    px: &mut [[f32; 3]],
+    y0: usize,
+    halo: Halo<'_>,
+    sink: &S,
+    out: &mut [S::Out],
+) -> usize {
+    run_band(ctx, band, px, y0, halo, sink, out)
+}
+
+fn run_band_dispatch<S: RowSink>(
+    ctx: &Ctx,
+    band: &mut Band,
+    px: &mut [[f32; 3]],
+    y0: usize,
+    halo: Halo<'_>,
+    sink: &S,
+    out: &mut [S::Out],
+) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU has AVX2 and FMA (checked just above), the only
+        // requirement of a `target_feature` function.
+        return unsafe { run_band_avx2(ctx, band, px, y0, halo, sink, out) };
     }
-    acc / norm
+    run_band(ctx, band, px, y0, halo, sink, out)
+}
+
+/// One band of rows `y0..y0 + px.len()/w`, streaming: each row's Y/Yn and
+/// darkness is read r rows ahead of its L\*, whose horizontal pass is r rows
+/// ahead of the output row's vertical pass, back-conversion and sink. Rows
+/// of the neighbouring bands come from `halo`. Returns the number of
+/// pixels whose lightness changed.
+#[inline(always)]
+fn run_band<S: RowSink>(
+    ctx: &Ctx,
+    band: &mut Band,
+    px: &mut [[f32; 3]],
+    y0: usize,
+    halo: Halo<'_>,
+    sink: &S,
+    out: &mut [S::Out],
+) -> usize {
+    let Ctx { w, h, r, .. } = *ctx;
+    let per_row = sink.per_row();
+    let y1 = y0 + px.len() / w;
+    let t0 = y0.saturating_sub(r);
+    let t_end = (y1 + r).min(h);
+    let ring = 2 * r + 1;
+    let (mut next_y, mut next_l) = (t0, t0);
+    let mut changed = 0;
+    for y in y0..y1 {
+        // L* and the horizontal pass of every row up to y + r.
+        let l_to = (y + r + 1).min(t_end);
+        while next_l < l_to {
+            let j = next_l;
+            // Whether an output row of this band within r of row j is dark
+            // needs those rows' flags: read Y up to there (and row j).
+            let last = (j + r).min(y1 - 1).max(j);
+            while next_y <= last {
+                let t = next_y;
+                let src: &[[f32; 3]] = if t < y0 {
+                    let a = halo.above.unwrap_or(&[]);
+                    &a[(t + r - y0) * w..(t + r - y0 + 1) * w]
+                } else if t >= y1 {
+                    let b = halo.below.unwrap_or(&[]);
+                    &b[(t - y1) * w..(t - y1 + 1) * w]
+                } else {
+                    &px[(t - y0) * w..(t - y0 + 1) * w]
+                };
+                let slot = t % ring;
+                band.dark[t] = load_y(
+                    ctx,
+                    src,
+                    &mut band.lum[slot * ctx.stride_l..(slot + 1) * ctx.stride_l],
+                );
+                next_y += 1;
+            }
+            let lo = j.saturating_sub(r).max(y0);
+            let hi = (j + r).min(y1 - 1);
+            if lo <= hi && band.dark[lo..=hi].contains(&true) {
+                let slot = j % ring;
+                let lrow = &mut band.lum[slot * ctx.stride_l..(slot + 1) * ctx.stride_l];
+                to_lightness(ctx, lrow);
+                let hrow = &mut band.hor[slot * ctx.stride_h..(slot + 1) * ctx.stride_h];
+                if band.dark[j] {
+                    horizontal(ctx, lrow, hrow);
+                } else {
+                    hrow.copy_from_slice(&lrow[r..r + ctx.stride_h]);
+                }
+            }
+            next_l += 1;
+        }
+        let row = &mut px[(y - y0) * w..(y - y0 + 1) * w];
+        if band.dark[y] {
+            changed += vertical(ctx, band, y, row);
+        }
+        sink.row(row, &mut out[(y - y0) * per_row..(y - y0 + 1) * per_row]);
+    }
+    changed
+}
+
+#[inline(always)]
+fn load_v(s: &[f32], at: usize) -> V {
+    let mut v = [0.0; LANES];
+    v.copy_from_slice(&s[at..at + LANES]);
+    v
+}
+
+/// Channel planes of `n ≤ LANES` pixels (the rest black).
+#[inline(always)]
+fn planes(px: &[[f32; 3]]) -> [V; 3] {
+    let mut p = [[0.0; LANES]; 3];
+    for (i, q) in px.iter().enumerate().take(LANES) {
+        p[0][i] = q[0];
+        p[1][i] = q[1];
+        p[2][i] = q[2];
+    }
+    p
+}
+
+#[inline(always)]
+fn mat3_v(m: &[[f32; 3]; 3], p: &[V; 3]) -> [V; 3] {
+    let mut o = [[0.0; LANES]; 3];
+    for c in 0..3 {
+        for i in 0..LANES {
+            o[c][i] = m[c][0] * p[0][i] + m[c][1] * p[1][i] + m[c][2] * p[2][i];
+        }
+    }
+    o
+}
+
+/// Y/Yn of every pixel of `src` into the ring row `lrow` (at offset r);
+/// whether any is below the blur threshold.
+#[inline(always)]
+fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32]) -> bool {
+    let y_row = RGB_TO_XYZ[1];
+    let inv_white = 1.0 / ctx.white;
+    let mut dark = false;
+    let dst = &mut lrow[ctx.r..ctx.r + ctx.stride_h];
+    for (s, d) in src.chunks(LANES).zip(dst.chunks_exact_mut(LANES)) {
+        let p = planes(s);
+        let mut any = false;
+        for i in 0..LANES {
+            let y = y_row[0] * p[0][i] + y_row[1] * p[1][i] + y_row[2] * p[2][i];
+            let t = y * inv_white;
+            d[i] = t;
+            any |= (i < s.len()) & (t < ctx.dark_below);
+        }
+        dark |= any;
+    }
+    dark
+}
+
+/// The ring row from Y/Yn to L\* in place, and its padding: the edge
+/// pixels repeated r + lane-rounding places out.
+#[inline(always)]
+fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
+    let (r, w) = (ctx.r, ctx.w);
+    for d in lrow[r..r + ctx.stride_h].chunks_exact_mut(LANES) {
+        let mut t = [0.0; LANES];
+        t.copy_from_slice(d);
+        d.copy_from_slice(&lab_g_v(t));
+    }
+    let (first, last) = (lrow[r], lrow[r + w - 1]);
+    lrow[..r].fill(first);
+    lrow[r + w..].fill(last);
+}
+
+/// Horizontal pass of a dark row: `hrow[x]` = the blur of `lrow` around x
+/// with x's own σ.
+#[inline(always)]
+fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32]) {
+    let r = ctx.r;
+    for (bx, hv) in hrow.chunks_exact_mut(LANES).enumerate() {
+        let x = r + bx * LANES;
+        let centre = load_v(lrow, x);
+        let v = gather_v(ctx, centre, |k| (load_v(lrow, x - k), load_v(lrow, x + k)));
+        hv.copy_from_slice(&v);
+    }
+}
+
+/// Vertical pass of dark row `y` (σ from its horizontally blurred
+/// lightness) and back to RGB with each pixel's a\*, b\*; a pixel whose L\*
+/// did not change keeps its bits. Returns how many changed.
+#[inline(always)]
+fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
+    let Ctx { r, h, .. } = *ctx;
+    let ring = 2 * r + 1;
+    let sh = ctx.stride_h;
+    let hor = &band.hor[..];
+    let at = |row: usize, x: usize| load_v(hor, (row % ring) * sh + x);
+    let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
+    let wx = WHITE_XYZ.map(|c| c * ctx.white);
+    let mut changed = 0;
+    for (bx, out) in row.chunks_mut(LANES).enumerate() {
+        let x = bx * LANES;
+        let hv = at(y, x);
+        let l_new = gather_v(ctx, hv, |k| {
+            (at(y.saturating_sub(k), x), at((y + k).min(h - 1), x))
+        });
+        let l_old = load_v(lrow, x);
+        let mut moved = [false; LANES];
+        let mut any = false;
+        for i in 0..out.len() {
+            moved[i] = l_new[i] != l_old[i];
+            any |= moved[i];
+        }
+        if !any {
+            continue;
+        }
+        let p = planes(out);
+        let xyz = mat3_v(&RGB_TO_XYZ, &p);
+        let mut tx = [0.0; LANES];
+        let mut tz = [0.0; LANES];
+        for i in 0..LANES {
+            tx[i] = xyz[0][i] / wx[0];
+            tz[i] = xyz[2][i] / wx[2];
+        }
+        let (gx, gz) = (lab_g_v(tx), lab_g_v(tz));
+        let mut new = [[0.0; LANES]; 3];
+        for i in 0..LANES {
+            let d = l_new[i] - l_old[i];
+            new[0][i] = lab_g_inv(gx[i] + d) * wx[0];
+            new[1][i] = lab_g_inv(l_old[i] + d) * wx[1];
+            new[2][i] = lab_g_inv(gz[i] + d) * wx[2];
+        }
+        let rgb = mat3_v(&XYZ_TO_RGB, &new);
+        for (i, o) in out.iter_mut().enumerate() {
+            if moved[i] {
+                *o = [rgb[0][i], rgb[1][i], rgb[2][i]];
+                changed += 1;
+            }
+        }
+    }
+    changed
+}
+
+/// σ of `LANES` pixels of lightness `l`, pixels.
+#[inline(always)]
+fn sigma_v(rule: SigmaRule, l: V, white: f32) -> V {
+    let mut s = [0.0; LANES];
+    match rule {
+        SigmaRule::Linear { scale } => {
+            for i in 0..LANES {
+                // 001 eq 12
+                s[i] = (1.0 - l[i]).clamp(0.0, 1.0) * scale;
+            }
+        }
+        SigmaRule::Larson { .. } => {
+            for i in 0..LANES {
+                s[i] = rule.sigma(l[i], white);
+            }
+        }
+        SigmaRule::None => {}
+    }
+    s
+}
+
+/// `Σₖ g(k)·v(k) / Σₖ g(k)` over k = −r..=r for `LANES` pixels at once,
+/// `g(k) = exp(−k²/(2σ²))` with each lane's own σ (from `centre`, its
+/// v(0)) and r = min(⌈3σ⌉, r_max); `pair(k)` = (v(−k), v(k)). Lanes with
+/// σ ≤ 0.3 keep `centre`. The tap loop runs to the largest r of the block
+/// and masks each lane's taps beyond its own r (they add exact zeros, so
+/// each lane's sum is the one of its own taps).
+#[inline(always)]
+fn gather_v(ctx: &Ctx, centre: V, pair: impl Fn(usize) -> (V, V)) -> V {
+    let sigma = sigma_v(ctx.rule, centre, ctx.white);
+    let r_max = ctx.r as f32;
+    let mut active = [false; LANES];
+    let mut e = [0.0; LANES];
+    let mut radius = [0.0; LANES];
+    let mut block_r = 0.0f32;
+    for i in 0..LANES {
+        active[i] = sigma[i] > AcuityBlur::MIN_SIGMA_PX;
+        let s = if active[i] { sigma[i] } else { 1.0 };
+        e[i] = -0.5 / (s * s);
+        radius[i] = if active[i] {
+            (3.0 * s).ceil().min(r_max)
+        } else {
+            0.0
+        };
+        block_r = block_r.max(radius[i]);
+    }
+    if block_r == 0.0 {
+        return centre;
+    }
+    let e = exp_v(e);
+    let mut e2 = [0.0; LANES];
+    for i in 0..LANES {
+        e2[i] = e[i] * e[i];
+    }
+    let (mut g, mut q) = ([1.0f32; LANES], e);
+    let (mut acc, mut norm) = (centre, [1.0f32; LANES]);
+    for k in 1..=block_r as usize {
+        let (a, b) = pair(k);
+        let kf = k as f32;
+        for i in 0..LANES {
+            g[i] *= q[i];
+            q[i] *= e2[i];
+            let gk = if kf <= radius[i] { g[i] } else { 0.0 };
+            acc[i] += gk * (a[i] + b[i]);
+            norm[i] += 2.0 * gk;
+        }
+    }
+    let mut out = centre;
+    for i in 0..LANES {
+        if active[i] {
+            out[i] = acc[i] / norm[i];
+        }
+    }
+    out
+}
+
+/// [`lab_g`] of `LANES` values with [`cbrt_v`].
+#[inline(always)]
+fn lab_g_v(t: V) -> V {
+    let mut c = [0.0; LANES];
+    for i in 0..LANES {
+        c[i] = t[i].max(216.0 / 24389.0);
+    }
+    let c = cbrt_v(c);
+    let mut o = [0.0; LANES];
+    for i in 0..LANES {
+        o[i] = if t[i] > 216.0 / 24389.0 {
+            116.0 * c[i] - 16.0
+        } else {
+            24389.0 / 27.0 * t[i]
+        };
+    }
+    o
+}
+
+/// Cube root of finite `t ≥ 2⁻¹²⁶`, within 2 ulp of `f32::cbrt`: a first
+/// guess from the exponent bits (one third of the bit pattern, FreeBSD
+/// `s_cbrtf`'s bias), then three Newton steps `y ← (2y + t/y²)/3`
+/// (quadratic: 3 % → 1e-3 → 1e-6 → rounding).
+#[inline(always)]
+fn cbrt_v(t: V) -> V {
+    // (127 − 127/3 − 0.0331)·2²³, FreeBSD s_cbrtf.c B1
+    const B1: f32 = 709_958_130.0;
+    let mut y = [0.0; LANES];
+    for i in 0..LANES {
+        let bits = t[i].to_bits() as i32 as f32;
+        y[i] = f32::from_bits((bits * (1.0 / 3.0) + B1) as i32 as u32);
+    }
+    for _ in 0..3 {
+        for i in 0..LANES {
+            y[i] = (2.0 / 3.0) * y[i] + (t[i] * (1.0 / 3.0)) / (y[i] * y[i]);
+        }
+    }
+    y
+}
+
+/// `exp(x)` of `LANES` values in [−87, 0] (relative error < 3e-7):
+/// `2ⁿ·p(x − n·ln 2)`, `n = round(x/ln 2)`, p the degree-6 Taylor
+/// polynomial on |x − n ln 2| ≤ ln 2 / 2.
+#[inline(always)]
+fn exp_v(x: V) -> V {
+    const LN2_HI: f32 = 0.693_145_75;
+    const LN2_LO: f32 = 1.428_606_8e-6;
+    // 1.5·2²³: adding and subtracting it rounds to the nearest integer
+    const ROUND: f32 = 12_582_912.0;
+    let mut o = [0.0; LANES];
+    for i in 0..LANES {
+        let x = x[i].max(-87.0);
+        let n = (x * std::f32::consts::LOG2_E + ROUND) - ROUND;
+        let r = (x - n * LN2_HI) - n * LN2_LO;
+        let p = 1.0
+            + r * (1.0
+                + r * (0.5
+                    + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+        let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+        o[i] = p * scale;
+    }
+    o
 }
 
 #[cfg(test)]
@@ -737,55 +1162,83 @@ mod tests {
     fn matches_a_direct_evaluation_of_eq12() {
         // Dark and bright patches, edges, colour, single hot pixels: every
         // pixel gets its own σ.
-        let (w, h) = (97, 61);
-        let img = image(w, h, |x, y| {
-            let base = 0.002 + 0.1 * ((x / 9 + y / 7) % 5) as f32 / 4.0;
-            let tint = [
-                1.0 + 0.3 * ((x * 3 + y) % 4) as f32 / 3.0,
-                1.0,
-                1.0 + 0.5 * ((x + 2 * y) % 3) as f32 / 2.0,
-            ];
-            let mut p = tint.map(|t| t * base);
-            if x > 70 {
-                p = [0.3, 0.25, 0.2]; // L* ≈ 2.5: σ = 0 by eq 12
-            }
-            if (x * 7 + y * 13) % 97 == 0 {
-                p = [50.0, 40.0, 30.0];
-            }
-            p
-        });
-        for ppd in [13.85 * 3.0, 13.85 * 0.4, 50.0] {
-            let mut blur = AcuityBlur::new(&AcuityModel::default(), w, h, 1.0 / ppd);
-            let mut got = img.clone();
-            let changed = blur.apply(&mut got);
-            let want = brute_force_eq12(&img, ppd, 100.0);
-            let mut worst_l = 0.0f64;
-            let mut worst_rel = 0.0f64;
-            let mut moved = 0;
-            for (i, (g, e)) in got.pixels.iter().zip(&want).enumerate() {
-                let gl = f64::from(rgb_to_lab(g.map(|v| v / 100.0))[0]);
-                let el = f64::from(rgb_to_lab(e.map(|v| (v / 100.0) as f32))[0]);
-                worst_l = worst_l.max((gl - el).abs());
-                let orig_l = f64::from(rgb_to_lab(img.pixels[i].map(|v| v / 100.0))[0]);
-                moved += usize::from((el - orig_l).abs() > 1e-3);
-                for c in 0..3 {
-                    let d = (f64::from(g[c]) - e[c]).abs();
-                    worst_rel = worst_rel.max(d / e[c].abs().max(1e-3));
+        // The second size is tall enough for several bands of rows (each
+        // with a halo from its neighbours).
+        for (w, h) in [(97, 61), (41, 230)] {
+            let img = image(w, h, |x, y| {
+                let base = 0.002 + 0.1 * ((x / 9 + y / 7) % 5) as f32 / 4.0;
+                let tint = [
+                    1.0 + 0.3 * ((x * 3 + y) % 4) as f32 / 3.0,
+                    1.0,
+                    1.0 + 0.5 * ((x + 2 * y) % 3) as f32 / 2.0,
+                ];
+                let mut p = tint.map(|t| t * base);
+                if x > 70 {
+                    p = [0.3, 0.25, 0.2]; // L* ≈ 2.5: σ = 0 by eq 12
+                }
+                if (x * 7 + y * 13) % 97 == 0 {
+                    p = [50.0, 40.0, 30.0];
+                }
+                p
+            });
+            for ppd in [13.85 * 3.0, 13.85 * 0.4, 50.0] {
+                let mut blur = AcuityBlur::new(&AcuityModel::default(), w, h, 1.0 / ppd);
+                let mut got = img.clone();
+                let changed = blur.apply(&mut got);
+                let want = brute_force_eq12(&img, ppd, 100.0);
+                let mut worst_l = 0.0f64;
+                let mut worst_rel = 0.0f64;
+                let mut moved = 0;
+                for (i, (g, e)) in got.pixels.iter().zip(&want).enumerate() {
+                    let gl = f64::from(rgb_to_lab(g.map(|v| v / 100.0))[0]);
+                    let el = f64::from(rgb_to_lab(e.map(|v| (v / 100.0) as f32))[0]);
+                    worst_l = worst_l.max((gl - el).abs());
+                    let orig_l = f64::from(rgb_to_lab(img.pixels[i].map(|v| v / 100.0))[0]);
+                    moved += usize::from((el - orig_l).abs() > 1e-3);
+                    for c in 0..3 {
+                        let d = (f64::from(g[c]) - e[c]).abs();
+                        worst_rel = worst_rel.max(d / e[c].abs().max(1e-3));
+                    }
+                }
+                eprintln!(
+                    "acuity vs direct eq 12 at {ppd:.2} ppd: {changed} px changed, {moved} expected to move, \
+                 worst |ΔL*| {worst_l:.2e}, worst relative RGB {worst_rel:.2e}"
+                );
+                assert!(worst_l < 2e-3, "{ppd}: ΔL* {worst_l}");
+                assert!(worst_rel < 1e-3, "{ppd}: relative {worst_rel}");
+                if ppd > 13.85 {
+                    assert!(moved > w * h / 3, "{ppd}: only {moved} pixels blurred");
+                } else {
+                    // σ ≤ 0.4·1 = 0.4 px: only the darkest pixels blur.
+                    assert!(moved < w * h / 2, "{ppd}: {moved}");
                 }
             }
-            eprintln!(
-                "acuity vs direct eq 12 at {ppd:.2} ppd: {changed} px changed, {moved} expected to move, \
-                 worst |ΔL*| {worst_l:.2e}, worst relative RGB {worst_rel:.2e}"
-            );
-            assert!(worst_l < 2e-3, "{ppd}: ΔL* {worst_l}");
-            assert!(worst_rel < 1e-3, "{ppd}: relative {worst_rel}");
-            if ppd > 13.85 {
-                assert!(moved > w * h / 3, "{ppd}: only {moved} pixels blurred");
-            } else {
-                // σ ≤ 0.4·1 = 0.4 px: only the darkest pixels blur.
-                assert!(moved < w * h / 2, "{ppd}: {moved}");
-            }
         }
+    }
+
+    #[test]
+    fn vector_cbrt_and_exp_match_std() {
+        // Against the standard library over the ranges the blur uses:
+        // cbrt above Lab's ε (up to 10⁶·ε), exp of −1/(2σ²) for σ > 0.3.
+        let mut worst_cbrt = 0.0f64;
+        let mut worst_lab = 0.0f32;
+        let mut worst_exp = 0.0f64;
+        for i in 0..200_000u32 {
+            let t = (216.0f32 / 24389.0) * (1.0 + i as f32 * 5.0);
+            let got = cbrt_v([t; LANES])[0];
+            worst_cbrt = worst_cbrt.max((f64::from(got) / f64::from(t).cbrt() - 1.0).abs());
+            let l = lab_g_v([t; LANES])[0];
+            worst_lab = worst_lab.max((l - lab_g(t)).abs() / lab_g(t).max(1.0));
+            let x = -(i as f32) * (87.0 / 200_000.0);
+            let e = exp_v([x; LANES])[0];
+            worst_exp = worst_exp.max((f64::from(e) / f64::from(x).exp() - 1.0).abs());
+        }
+        eprintln!("cbrt_v {worst_cbrt:.2e}, lab_g_v {worst_lab:.2e}, exp_v {worst_exp:.2e}");
+        assert!(worst_cbrt < 3e-7, "{worst_cbrt}");
+        assert!(worst_lab < 3e-7, "{worst_lab}");
+        assert!(worst_exp < 5e-7, "{worst_exp}");
+        // Lab's linear part below ε.
+        assert_eq!(lab_g_v([1e-3; LANES])[0], lab_g(1e-3));
     }
 
     /// Standard deviation of the derivative of `l` over `range` (the edge

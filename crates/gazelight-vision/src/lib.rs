@@ -27,6 +27,7 @@
 
 pub mod acuity;
 pub mod colour;
+mod encode;
 pub mod error;
 pub mod glare;
 pub mod image;

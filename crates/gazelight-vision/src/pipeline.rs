@@ -11,8 +11,7 @@
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
 //! | B | 4 glare | [`GlareConvolver::apply`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond |
-//! | D | 5 acuity | [`AcuityBlur::apply`]: separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13) |
-//! | C | 6 tone + 7 colour + 8 encode | per pixel, fused: tone reproduction, colour, sRGB encoding |
+//! | C | 5 acuity + 6 tone + 7 colour + 8 encode | one streaming pass in bands of rows on the rayon pool: separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13, [`AcuityBlur`]); each row, as soon as its blur is final and while it is in cache, goes through tone reproduction and colour (one affine map per frame for the linear operators) and sRGB encoding ([`crate::encode`]) |
 //!
 //! Acuity loss (stage 5) runs on the HDR frame in cd/m², after glare and
 //! before tone reproduction, as in 001 §4.3.1 ("the linear HDR values (i.e.,
@@ -32,13 +31,20 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::acuity::{AcuityBlur, AcuityModel};
-use crate::colour::{ColourFrame, ColourModel};
+#[cfg(test)]
+use crate::colour::ColourFrame;
+use crate::colour::ColourModel;
+#[cfg(test)]
+use crate::encode::SRGB_LUT_SIZE;
+use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
 use crate::pooling::PoolingModel;
 use crate::psf::{PsfBuilder, PsfParams};
 use crate::temporal::{AdaptationState, TemporalModel};
-use crate::tone::{self, Op as ToneOp, ToneFrame, ToneModel};
+#[cfg(test)]
+use crate::tone::ToneFrame;
+use crate::tone::ToneModel;
 use crate::{RgbImage, VisionError};
 
 /// Smallest and largest pupil the PSF is ever built for, mm. Real pupils
@@ -157,9 +163,10 @@ pub struct StageTimings {
     pub psf_ms: f64,
     /// Stage 4.
     pub glare_ms: f64,
-    /// Stage 5 (0 when no blur was needed).
+    /// Stage 5 on its own: 0 in the optimised pipeline, where stage 5 runs
+    /// fused with stages 6–8 and its time is in `tone_colour_encode_ms`.
     pub acuity_ms: f64,
-    /// Stages 6–8 fused.
+    /// Stages 6–8, fused (with stage 5 fused into them: stages 5–8).
     pub tone_colour_encode_ms: f64,
     /// Whole frame.
     pub total_ms: f64,
@@ -206,11 +213,6 @@ impl DisplayFrame {
     }
 }
 
-/// Size of the sRGB encoding table over linear [0, 1] (a power of two:
-/// [`lut_index`] masks with `N − 1`).
-const SRGB_LUT_SIZE: usize = 16384;
-const _: () = assert!(SRGB_LUT_SIZE.is_power_of_two());
-
 /// sRGB transfer function (IEC 61966-2-1), linear [0, 1] → encoded [0, 1].
 pub fn srgb_encode(linear: f32) -> f32 {
     let l = linear.clamp(0.0, 1.0);
@@ -243,7 +245,7 @@ pub struct FramePipeline {
     /// buffer is reused by later installs of the same size).
     installed: Option<crate::psf::PsfKernel>,
     acuity: AcuityBlur,
-    srgb_lut: Box<[u8; SRGB_LUT_SIZE]>,
+    srgb_lut: Box<SrgbLut>,
     /// Run the pre-optimisation per-pixel passes (the tests' reference).
     #[cfg(test)]
     reference: bool,
@@ -289,10 +291,7 @@ impl FramePipeline {
             None
         };
         let acuity = AcuityBlur::new(&config.acuity, width, height, deg_per_px);
-        let mut srgb_lut = Box::new([0u8; SRGB_LUT_SIZE]);
-        for (i, v) in srgb_lut.iter_mut().enumerate() {
-            *v = (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u8;
-        }
+        let srgb_lut = encode::srgb_lut();
         Ok(Self {
             config,
             width,
@@ -390,6 +389,60 @@ impl FramePipeline {
             slot => *slot = Some(kernel.clone()),
         }
         self.psf_pupil_mm = kernel.pupil_mm;
+        Ok(())
+    }
+
+    /// A preparer of glare spectra for this pipeline's convolver (`None`
+    /// with glare off), for the thread that builds kernels: see
+    /// [`FramePipeline::install_prepared`].
+    pub fn kernel_preparer(&self) -> Option<crate::glare::GlarePreparer> {
+        self.glare.as_ref().map(|(_, conv)| conv.preparer())
+    }
+
+    /// Installs a kernel prepared elsewhere (built, and its spectra made by
+    /// [`FramePipeline::kernel_preparer`]'s preparer) by swapping buffers:
+    /// no FFT, no copy, no allocation; `prepared` gets the previous kernel
+    /// and spectra back for reuse. Without spectra the convolver computes
+    /// them here (as [`FramePipeline::set_kernel`]). An error (nothing
+    /// changed) with glare off or for a kernel of another size.
+    pub fn install_prepared(
+        &mut self,
+        prepared: &mut crate::glare::PreparedKernel,
+    ) -> Result<(), VisionError> {
+        let Some((builder, conv)) = self.glare.as_mut() else {
+            return Err(VisionError::invalid(
+                "glare kernel",
+                "a kernel",
+                "glare enabled in the pipeline",
+            ));
+        };
+        let k = &prepared.kernel;
+        if k.size != builder.kernel().size
+            || k.deg_per_px != builder.kernel().deg_per_px
+            || k.rgb.len() != k.size * k.size
+        {
+            return Err(VisionError::invalid(
+                "glare kernel",
+                format!("{}x{} at {} deg/px", k.size, k.size, k.deg_per_px),
+                "the size and pixel size the pipeline was built for",
+            ));
+        }
+        match prepared.spectra.as_mut() {
+            Some(s) if s.pupil_mm() == k.pupil_mm => conv.install(s)?,
+            _ => conv.set_kernel(k)?,
+        }
+        self.psf_pupil_mm = k.pupil_mm;
+        let empty = crate::psf::PsfKernel {
+            size: 0,
+            deg_per_px: k.deg_per_px,
+            pupil_mm: f64::NAN,
+            wavelengths_nm: Vec::new(),
+            rgb: Vec::new(),
+        };
+        match &mut self.installed {
+            Some(old) => std::mem::swap(old, &mut prepared.kernel),
+            slot => *slot = Some(std::mem::replace(&mut prepared.kernel, empty)),
+        }
         Ok(())
     }
 
@@ -499,67 +552,58 @@ impl FramePipeline {
         }
         let t_glare = Instant::now();
 
-        // Stage 5: acuity loss on the HDR frame, σ per pixel.
-        if reference {
-            #[cfg(test)]
-            reference_acuity(&self.config.acuity, self.deg_per_px, &mut self.work);
-        } else {
-            self.acuity.apply(&mut self.work);
-        }
+        // Stage 5: acuity loss on the HDR frame, σ per pixel, fused with
+        // stages 6 + 7 + 8 (tone reproduction, colour, encoding): each row
+        // is mapped and encoded as soon as its blur is final.
         let acuity_sigma_px = self
             .config
             .acuity
             .sigma_px(adaptation_cd_m2, self.deg_per_px);
-        let t_acuity = Instant::now();
-        timings.acuity_ms = ms(t_glare, t_acuity);
-
-        // Stages 6 + 7 + 8: tone reproduction, colour and encoding, fused.
         let tone = self
             .config
             .tone
             .prepare_adapting(adaptation_cd_m2, state.light_target_cd_m2);
         let colour = self.config.colour.prepare(adaptation_cd_m2);
-        let lut: &[u8; SRGB_LUT_SIZE] = &self.srgb_lut;
-        let map = PixelMap::new(&tone, &colour);
+        let lut: &SrgbLut = &self.srgb_lut;
         let to_display = self.config.keep_display_linear;
         if reference {
             #[cfg(test)]
-            reference_pass_c(
-                &tone,
-                &colour,
-                &self.work,
-                &mut self.display,
+            {
+                reference_acuity(&self.config.acuity, self.deg_per_px, &mut self.work);
+                timings.acuity_ms = ms(t_glare, Instant::now());
+                reference_pass_c(
+                    &tone,
+                    &colour,
+                    &self.work,
+                    &mut self.display,
+                    out,
+                    lut,
+                    to_display,
+                );
+            }
+        } else {
+            let stages = Stages5To8 {
+                acuity: &mut self.acuity,
+                work: &mut self.work,
+                display: &mut self.display,
                 out,
                 lut,
                 to_display,
-            );
-        } else if to_display {
-            map.run(
-                &self.work.pixels,
-                w,
-                DisplayLinear(&mut self.display.pixels),
-            );
-        } else {
-            map.run(
-                &self.work.pixels,
-                w,
-                Encode {
-                    lut,
-                    rgba8: &mut out.rgba8,
-                },
-            );
+            };
+            match PixelMap::new(&tone, &colour) {
+                PixelMap::Affine(m) => stages.run(m),
+                PixelMap::NakaRushton(m) => stages.run(m),
+                PixelMap::Window(m) => stages.run(m),
+            }
         }
         if to_display {
-            affine_encode_rows(
-                &self.display.pixels,
-                w,
-                lut,
-                &mut out.rgba8,
-                &IDENTITY,
-                &[0.0; 3],
-            );
+            let display = &self.display.pixels;
+            out.rgba8
+                .par_chunks_mut(4 * w)
+                .zip(display.par_chunks(w))
+                .for_each(|(o, d)| encode::encode_row(&encode::IDENTITY, lut, d, o));
         }
-        timings.tone_colour_encode_ms = ms(t_acuity, Instant::now());
+        timings.tone_colour_encode_ms = ms(t_glare, Instant::now()) - timings.acuity_ms;
         timings.total_ms = ms(t_start, Instant::now());
         Ok(FrameStats {
             target_cd_m2,
@@ -620,276 +664,35 @@ fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usiz
         });
 }
 
-/// Rows per parallel task in the per-pixel passes.
-const ROWS_PER_TASK: usize = 8;
-
-/// Stages 6 + 7 specialised once per frame: tone reproduction followed by
-/// the colour model, which is linear in the colour
-/// ([`crate::colour::ColourFrame::matrix`]).
-#[derive(Clone, Copy, Debug)]
-enum PixelMap {
-    /// A linear tone operator (Ward/Ferwerda) folded with the colour
-    /// matrix: `M·(scale·c + offset) = (scale·M)·c + M·offset`.
-    Affine { m: [[f32; 3]; 3], b: [f32; 3] },
-    /// Naka–Rushton, then the colour matrix.
-    NakaRushton {
-        s: f32,
-        saturation: f32,
-        m: [[f32; 3]; 3],
-    },
-    /// The gaze exposure window, then the colour matrix.
-    Window {
-        lo: f32,
-        inv_range: f32,
-        gamma: f32,
-        m: [[f32; 3]; 3],
-    },
+/// Stages 5–8 of one frame: the acuity blur of `work` in place, with the
+/// tone + colour map and the encoding as its row sink.
+struct Stages5To8<'a> {
+    acuity: &'a mut AcuityBlur,
+    work: &'a mut RgbImage,
+    display: &'a mut RgbImage,
+    out: &'a mut DisplayFrame,
+    lut: &'a SrgbLut,
+    to_display: bool,
 }
 
-/// Where the fused pass writes.
-enum Sink<'a> {
-    /// Display-linear, clamped to [0, 1].
-    DisplayLinear(&'a mut [[f32; 3]]),
-    /// sRGB-encoded RGBA8.
-    Encode {
-        lut: &'a [u8; SRGB_LUT_SIZE],
-        rgba8: &'a mut [u8],
-    },
-}
-use Sink::{DisplayLinear, Encode};
-
-impl PixelMap {
-    fn new(tone: &ToneFrame, colour: &ColourFrame) -> Self {
-        let m = colour.matrix();
-        match tone.op() {
-            ToneOp::Linear { scale, offset } => {
-                let mut ms = m;
-                let mut b = [0.0f32; 3];
-                for (row, bi) in ms.iter_mut().zip(&mut b) {
-                    *bi = (row[0] + row[1] + row[2]) * offset;
-                    for v in row.iter_mut() {
-                        *v *= scale;
-                    }
-                }
-                Self::Affine { m: ms, b }
-            }
-            ToneOp::NakaRushton { s, saturation } => Self::NakaRushton { s, saturation, m },
-            ToneOp::Window {
-                lo,
-                inv_range,
-                gamma,
-            } => Self::Window {
-                lo,
-                inv_range,
-                gamma,
-                m,
-            },
+impl Stages5To8<'_> {
+    /// One monomorphic pass per operator.
+    fn run<M: Map>(self, map: M) {
+        let width = self.work.width;
+        if self.to_display {
+            let sink = DisplayLinear { map, width };
+            self.acuity
+                .apply_into(self.work, &sink, &mut self.display.pixels);
+        } else {
+            let sink = EncodeRgba8 {
+                map,
+                lut: self.lut,
+                width,
+            };
+            self.acuity
+                .apply_into(self.work, &sink, &mut self.out.rgba8);
         }
     }
-
-    /// Maps every pixel of `src` (rows of `w`) into `sink`; one
-    /// monomorphic loop per operator.
-    fn run(&self, src: &[[f32; 3]], w: usize, sink: Sink<'_>) {
-        match *self {
-            Self::Affine { m, b } => match sink {
-                Encode { lut, rgba8 } => affine_encode_rows(src, w, lut, rgba8, &m, &b),
-                DisplayLinear(dst) => affine_display_rows(src, w, dst, &m, &b),
-            },
-            Self::NakaRushton { s, saturation, m } => run_sink(src, w, sink, move |c| {
-                mat_mul(&m, tone::naka_rushton(c.map(tone::clean), s, saturation))
-            }),
-            Self::Window {
-                lo,
-                inv_range,
-                gamma,
-                m,
-            } => run_sink(src, w, sink, move |c| {
-                mat_mul(&m, tone::window(c.map(tone::clean), lo, inv_range, gamma))
-            }),
-        }
-    }
-}
-
-#[inline(always)]
-fn mat_mul(m: &[[f32; 3]; 3], c: [f32; 3]) -> [f32; 3] {
-    [
-        m[0][0] * c[0] + m[0][1] * c[1] + m[0][2] * c[2],
-        m[1][0] * c[0] + m[1][1] * c[1] + m[1][2] * c[2],
-        m[2][0] * c[0] + m[2][1] * c[1] + m[2][2] * c[2],
-    ]
-}
-
-#[inline(always)]
-fn run_sink<F>(src: &[[f32; 3]], w: usize, sink: Sink<'_>, f: F)
-where
-    F: Fn([f32; 3]) -> [f32; 3] + Sync + Send,
-{
-    match sink {
-        DisplayLinear(dst) => dst
-            .par_chunks_mut(w * ROWS_PER_TASK)
-            .zip(src.par_chunks(w * ROWS_PER_TASK))
-            .for_each(|(dst, src)| {
-                for (d, s) in dst.iter_mut().zip(src) {
-                    *d = f(*s).map(|v| v.clamp(0.0, 1.0));
-                }
-            }),
-        Encode { lut, rgba8 } => encode_rows(src, w, lut, rgba8, f),
-    }
-}
-
-/// Pixels per block of the affine passes: each block is split into
-/// channel planes so the arithmetic compiles to vector instructions.
-const LANES: usize = 8;
-
-const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-
-/// `m·max(p, 0) + b` for `LANES` pixels, as channel planes. Fixed trip
-/// counts and selects instead of branches, so that the compiler can
-/// vectorise every loop.
-#[inline(always)]
-fn affine_block(src: &[[f32; 3]; LANES], m: &[[f32; 3]; 3], b: &[f32; 3]) -> [[f32; LANES]; 3] {
-    let mut planes = [[0.0f32; LANES]; 3];
-    for i in 0..LANES {
-        for c in 0..3 {
-            // Pass A already replaced NaN, ±∞, negatives and
-            // subnormals; what glare adds is finite but may be slightly
-            // negative (FFT round-off). Plain selects vectorise; the
-            // class tests of `sanitize` would not.
-            let v = src[i][c];
-            planes[c][i] = (if v > 0.0 { v } else { 0.0 }).min(f32::MAX);
-        }
-    }
-    let mut out = [[0.0f32; LANES]; 3];
-    for c in 0..3 {
-        let row = m[c];
-        for i in 0..LANES {
-            out[c][i] =
-                row[0] * planes[0][i] + row[1] * planes[1][i] + row[2] * planes[2][i] + b[c];
-        }
-    }
-    out
-}
-
-/// Runs `f` over `LANES` pixels of `src` at a time; a short tail is
-/// padded with black and only its own outputs are written.
-#[inline(always)]
-fn for_blocks<T, const K: usize>(
-    src: &[[f32; 3]],
-    dst: &mut [T],
-    f: impl Fn(&[[f32; 3]; LANES], &mut [T; K]),
-) where
-    T: Copy + Default,
-{
-    let mut s_blocks = src.chunks_exact(LANES);
-    let mut d_blocks = dst.chunks_exact_mut(K);
-    for (s, d) in (&mut s_blocks).zip(&mut d_blocks) {
-        if let (Ok(s), Ok(d)) = (
-            <&[[f32; 3]; LANES]>::try_from(s),
-            <&mut [T; K]>::try_from(d),
-        ) {
-            f(s, d);
-        }
-    }
-    let tail = s_blocks.remainder();
-    if !tail.is_empty() {
-        let mut s = [[0.0f32; 3]; LANES];
-        s[..tail.len()].copy_from_slice(tail);
-        let mut d = [T::default(); K];
-        f(&s, &mut d);
-        let out = d_blocks.into_remainder();
-        let n = out.len();
-        out.copy_from_slice(&d[..n]);
-    }
-}
-
-/// `rgba8` = sRGB encoding of `m·clean(p) + b` for every pixel `p` of
-/// `src` (rows of `w`), `LANES` pixels at a time.
-fn affine_encode_rows(
-    src: &[[f32; 3]],
-    w: usize,
-    lut: &[u8; SRGB_LUT_SIZE],
-    rgba8: &mut [u8],
-    m: &[[f32; 3]; 3],
-    b: &[f32; 3],
-) {
-    let encode = |src: &[[f32; 3]; LANES], dst: &mut [u8; 4 * LANES]| {
-        let planes = affine_block(src, m, b);
-        let mut idx = [[0usize; LANES]; 3];
-        for c in 0..3 {
-            for i in 0..LANES {
-                idx[c][i] = lut_index(planes[c][i]);
-            }
-        }
-        for i in 0..LANES {
-            let word = u32::from(lut[idx[0][i]])
-                | u32::from(lut[idx[1][i]]) << 8
-                | u32::from(lut[idx[2][i]]) << 16
-                | 0xff00_0000;
-            dst[4 * i..4 * i + 4].copy_from_slice(&word.to_le_bytes());
-        }
-    };
-    rgba8
-        .par_chunks_mut(w * 4 * ROWS_PER_TASK)
-        .zip(src.par_chunks(w * ROWS_PER_TASK))
-        .for_each(|(dst, src)| for_blocks(src, dst, encode));
-}
-
-/// `dst` = `m·clean(p) + b` clamped to [0, 1] for every pixel `p` of `src`.
-fn affine_display_rows(
-    src: &[[f32; 3]],
-    w: usize,
-    dst: &mut [[f32; 3]],
-    m: &[[f32; 3]; 3],
-    b: &[f32; 3],
-) {
-    let map = |src: &[[f32; 3]; LANES], dst: &mut [[f32; 3]; LANES]| {
-        let planes = affine_block(src, m, b);
-        for (i, d) in dst.iter_mut().enumerate() {
-            *d = [planes[0][i], planes[1][i], planes[2][i]].map(|v| v.clamp(0.0, 1.0));
-        }
-    };
-    dst.par_chunks_mut(w * ROWS_PER_TASK)
-        .zip(src.par_chunks(w * ROWS_PER_TASK))
-        .for_each(|(dst, src)| for_blocks(src, dst, map));
-}
-
-/// `rgba8` = sRGB encoding of `f(p)` for every pixel `p` of `src`.
-#[inline(always)]
-fn encode_rows<F>(src: &[[f32; 3]], w: usize, lut: &[u8; SRGB_LUT_SIZE], rgba8: &mut [u8], f: F)
-where
-    F: Fn([f32; 3]) -> [f32; 3] + Sync + Send,
-{
-    rgba8
-        .par_chunks_mut(w * 4 * ROWS_PER_TASK)
-        .zip(src.par_chunks(w * ROWS_PER_TASK))
-        .for_each(|(dst, src)| {
-            for (d, s) in dst.chunks_exact_mut(4).zip(src) {
-                let [r, g, b] = f(*s);
-                d.copy_from_slice(&[lut[lut_index(r)], lut[lut_index(g)], lut[lut_index(b)], 255]);
-            }
-        });
-}
-
-/// Index of display-linear `v` in the sRGB table: clamped to [0, 1] (NaN
-/// → 0), then `⌊v·(N−1) + 0.5⌋`,
-/// the nearest entry.
-///
-/// The floor is taken without a float → int conversion (whose saturating
-/// semantics keep the loop scalar): for `0 ≤ x < 2²²`, adding 2²³ leaves
-/// `round(x)` (ties to even) in the low mantissa bits, exactly; one
-/// comparison turns that into `⌊x⌋`. Bit-identical to `x as usize`.
-#[inline(always)]
-fn lut_index(v: f32) -> usize {
-    const MAGIC: f32 = 8_388_608.0; // 2^23: one unit in the last place is 1
-    // Selects: `v > 0` is false for NaN.
-    let v = if v > 0.0 { v } else { 0.0 };
-    let v = if v < 1.0 { v } else { 1.0 };
-    let x = v * (SRGB_LUT_SIZE - 1) as f32 + 0.5;
-    let y = x + MAGIC;
-    let rounded = y.to_bits() & 0x007f_ffff;
-    let floor = rounded - u32::from(y - MAGIC > x);
-    // A no-op (floor ≤ N − 1 here) that proves the index in range.
-    floor as usize & (SRGB_LUT_SIZE - 1)
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {
@@ -1251,44 +1054,5 @@ mod tests {
         eprintln!("bytes differing by 1: {total} of {bytes}");
         assert!(total * 1000 < bytes, "{total} of {bytes} bytes differ");
         assert!(light_adapting_frames > 0, "no frame used 000 eq 10");
-    }
-
-    #[test]
-    fn lut_index_matches_the_clamped_rounding() {
-        for v in [
-            f32::NAN,
-            -1.0,
-            0.0,
-            1e-9,
-            0.5,
-            0.999_99,
-            1.0,
-            7.0,
-            f32::INFINITY,
-        ] {
-            let want = ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) })
-                * (SRGB_LUT_SIZE - 1) as f32
-                + 0.5) as usize;
-            assert_eq!(lut_index(v), want, "{v}");
-        }
-        assert_eq!(lut_index(f32::NEG_INFINITY), 0);
-        // Every f32 in [0, 1] step 2^-24 around each table entry's
-        // rounding edge, and a dense sweep: identical to the cast.
-        let cast = |v: f32| (v.clamp(0.0, 1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize;
-        for k in 0..SRGB_LUT_SIZE {
-            let edge = (k as f32 + 0.5) / (SRGB_LUT_SIZE - 1) as f32;
-            let mut v = edge;
-            for _ in 0..8 {
-                v = f32::from_bits(v.to_bits().saturating_sub(1));
-            }
-            for _ in 0..16 {
-                assert_eq!(lut_index(v), cast(v), "{v:e}");
-                v = f32::from_bits(v.to_bits() + 1);
-            }
-        }
-        for i in 0..=1_000_000u32 {
-            let v = i as f32 / 1e6;
-            assert_eq!(lut_index(v), cast(v), "{v:e}");
-        }
     }
 }
