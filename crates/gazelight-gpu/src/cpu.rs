@@ -30,12 +30,15 @@ pub fn radix_plan(n: u32) -> Vec<u32> {
 /// Longest transform per axis supported by the GPU plan.
 pub const MAX_FFT_LEN: u32 = 2048;
 
+/// A transform length the GPU plan does not support.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("length {0} is not a power of two in 1..={MAX_FFT_LEN}")]
+pub struct FftLenError(pub usize);
+
 /// Checks that `n` is a power of two in 1..=[`MAX_FFT_LEN`].
-pub fn check_len(n: usize) -> Result<(), String> {
+pub fn check_len(n: usize) -> Result<(), FftLenError> {
     if n == 0 || !n.is_power_of_two() || n > MAX_FFT_LEN as usize {
-        return Err(format!(
-            "length {n} is not a power of two in 1..={MAX_FFT_LEN}"
-        ));
+        return Err(FftLenError(n));
     }
     Ok(())
 }
@@ -80,7 +83,7 @@ pub fn stockham_fft(
         width: n as u32,
         height: 1,
         channels: 1,
-        reason,
+        reason: reason.to_string(),
     })?;
     if scratch.len() != n {
         return Err(GpuError::Length {
@@ -163,11 +166,11 @@ pub fn fft2d(
     channels: usize,
     inverse: bool,
 ) -> Result<(), GpuError> {
-    let size_error = |reason: String| GpuError::FftSize {
+    let size_error = |reason: FftLenError| GpuError::FftSize {
         width: width as u32,
         height: height as u32,
         channels: channels as u32,
-        reason,
+        reason: reason.to_string(),
     };
     check_len(width).map_err(size_error)?;
     check_len(height).map_err(size_error)?;

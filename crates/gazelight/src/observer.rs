@@ -43,12 +43,12 @@ fn check(what: &str, v: f64, (lo, hi): (f64, f64)) -> anyhow::Result<f64> {
 
 impl ObserverSettings {
     /// Checks both fields; the error names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> anyhow::Result<()> {
         if let Some(a) = self.age_years {
-            check("observer.age_years =", a, AGE_YEARS_RANGE).map_err(|e| e.to_string())?;
+            check("observer.age_years =", a, AGE_YEARS_RANGE)?;
         }
         if let Some(p) = self.pigmentation {
-            check("observer.pigmentation =", p, PIGMENTATION_RANGE).map_err(|e| e.to_string())?;
+            check("observer.pigmentation =", p, PIGMENTATION_RANGE)?;
         }
         Ok(())
     }
@@ -151,6 +151,7 @@ mod tests {
         assert!(
             bad.validate()
                 .unwrap_err()
+                .to_string()
                 .contains("observer.pigmentation")
         );
         let e = apply(&mut psf, &ObserverArgs::default(), Some(&bad), None)

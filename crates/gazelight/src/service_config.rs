@@ -125,12 +125,12 @@ pub struct ServiceConfig {
 pub const MAX_FPS: f64 = crate::bounds::MAX_FPS;
 
 /// Checks a display rate.
-pub fn check_fps(fps: f64) -> Result<f64, String> {
+pub fn check_fps(fps: f64) -> anyhow::Result<f64> {
     let min = crate::bounds::MIN_FPS;
     if fps.is_finite() && fps >= min && fps <= MAX_FPS {
         Ok(fps)
     } else {
-        Err(format!(
+        Err(anyhow::anyhow!(
             "{}: expected a rate {min} ≤ Hz ≤ {MAX_FPS}",
             crate::bounds::Num(fps)
         ))
@@ -138,28 +138,28 @@ pub fn check_fps(fps: f64) -> Result<f64, String> {
 }
 
 /// Parses `WIDTHxHEIGHT` (each side 8..=8192 pixels).
-pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
+pub fn parse_size(s: &str) -> anyhow::Result<(usize, usize)> {
     let (w, h) = s
         .split_once(['x', 'X'])
-        .ok_or_else(|| format!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
+        .ok_or_else(|| anyhow::anyhow!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
     let w: usize = w
         .trim()
         .parse()
-        .map_err(|_| format!("`{s}`: width is not a number"))?;
+        .map_err(|_| anyhow::anyhow!("`{s}`: width is not a number"))?;
     let h: usize = h
         .trim()
         .parse()
-        .map_err(|_| format!("`{s}`: height is not a number"))?;
+        .map_err(|_| anyhow::anyhow!("`{s}`: height is not a number"))?;
     if !(8..=8192).contains(&w) || !(8..=8192).contains(&h) {
-        return Err(format!("`{s}`: each side must be 8..=8192 pixels"));
+        return Err(anyhow::anyhow!("`{s}`: each side must be 8..=8192 pixels"));
     }
     Ok((w, h))
 }
 
 /// Parses a listening address; only a literal `IP:PORT` is accepted.
-pub fn parse_addr(s: &str) -> Result<SocketAddr, String> {
+pub fn parse_addr(s: &str) -> anyhow::Result<SocketAddr> {
     s.parse::<SocketAddr>()
-        .map_err(|_| format!("`{s}`: expected IP:PORT, e.g. 127.0.0.1:8080"))
+        .map_err(|_| anyhow::anyhow!("`{s}`: expected IP:PORT, e.g. 127.0.0.1:8080"))
 }
 
 /// Head orientation source.
@@ -174,13 +174,13 @@ pub enum HeadSpec {
 }
 
 /// Parses `fixed`, `trace:FILE` or `mouse`.
-pub fn parse_head(s: &str) -> Result<HeadSpec, String> {
+pub fn parse_head(s: &str) -> anyhow::Result<HeadSpec> {
     match s {
         "fixed" => Ok(HeadSpec::Fixed),
         "mouse" => Ok(HeadSpec::Mouse),
         _ => match s.strip_prefix("trace:") {
             Some(p) if !p.is_empty() => Ok(HeadSpec::Trace(PathBuf::from(p))),
-            _ => Err(format!(
+            _ => Err(anyhow::anyhow!(
                 "`{s}`: expected fixed, mouse or trace:FILE (a CSV t_secs,yaw_deg,pitch_deg)"
             )),
         },
@@ -219,49 +219,57 @@ impl ServiceConfig {
     }
 
     /// Checks every field; the error names it (`display.fps = …: …`).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> anyhow::Result<()> {
         if let Some(uri) = &self.source.uri
             && uri.trim().is_empty()
         {
-            return Err("source.uri is empty".to_owned());
+            return Err(anyhow::anyhow!("source.uri is empty"));
         }
         if let Some(fps) = self.display.fps {
-            check_fps(fps).map_err(|e| format!("display.fps = {e}"))?;
+            check_fps(fps).map_err(|e| anyhow::anyhow!("display.fps = {e}"))?;
         }
         if let Some(size) = &self.display.size {
-            parse_size(size).map_err(|e| format!("display.size = {e}"))?;
+            parse_size(size).map_err(|e| anyhow::anyhow!("display.size = {e}"))?;
         }
         if let Some(scale) = &self.scene.luminance_scale {
             scale
                 .validate()
-                .map_err(|e| format!("scene.luminance_scale: {e}"))?;
+                .map_err(|e| anyhow::anyhow!("scene.luminance_scale: {e}"))?;
         }
         if let Some(head) = &self.scene.head {
-            parse_head(head).map_err(|e| format!("scene.head = {e}"))?;
+            parse_head(head).map_err(|e| anyhow::anyhow!("scene.head = {e}"))?;
         }
         if let Some(y) = self.scene.yaw_deg
             && !y.is_finite()
         {
-            return Err(format!("scene.yaw_deg = {y}: expected a finite angle"));
+            return Err(anyhow::anyhow!(
+                "scene.yaw_deg = {y}: expected a finite angle"
+            ));
         }
         if let Some(p) = self.scene.pitch_deg
             && !(p.is_finite() && p.abs() <= 90.0)
         {
-            return Err(format!("scene.pitch_deg = {p}: expected −90 ≤ pitch ≤ 90"));
+            return Err(anyhow::anyhow!(
+                "scene.pitch_deg = {p}: expected −90 ≤ pitch ≤ 90"
+            ));
         }
         if let Some(f) = self.scene.hfov_deg
             && !(f > 0.0 && f < 179.0)
         {
-            return Err(format!("scene.hfov_deg = {f}: expected 0 < hfov < 179"));
+            return Err(anyhow::anyhow!(
+                "scene.hfov_deg = {f}: expected 0 < hfov < 179"
+            ));
         }
         self.pipeline
             .validate()
-            .map_err(|e| format!("pipeline: {e}"))?;
+            .map_err(|e| anyhow::anyhow!("pipeline: {e}"))?;
         self.observer.validate()?;
-        self.filter.validate().map_err(|e| format!("filter.{e}"))?;
+        self.filter
+            .validate()
+            .map_err(|e| anyhow::anyhow!("filter.{e}"))?;
         for (name, ep) in [("http", &self.http), ("relay", &self.relay)] {
             if let Some(a) = &ep.addr {
-                parse_addr(a).map_err(|e| format!("{name}.addr = {e}"))?;
+                parse_addr(a).map_err(|e| anyhow::anyhow!("{name}.addr = {e}"))?;
             }
         }
         Ok(())

@@ -22,7 +22,7 @@ impl HeadTrace {
     }
 
     /// Parses the CSV text.
-    pub fn parse(text: &str) -> Result<Self, String> {
+    pub fn parse(text: &str) -> anyhow::Result<Self> {
         let mut points: Vec<(f64, f64, f64)> = Vec::new();
         for (i, line) in text.lines().enumerate() {
             let n = i + 1;
@@ -35,7 +35,7 @@ impl HeadTrace {
                 continue; // header
             }
             if fields.len() != 3 {
-                return Err(format!(
+                return Err(anyhow::anyhow!(
                     "line {n}: expected 3 fields t_secs,yaw_deg,pitch_deg, got {}",
                     fields.len()
                 ));
@@ -50,15 +50,15 @@ impl HeadTrace {
                     .parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite())
-                    .ok_or_else(|| format!("line {n}: {name} `{f}` is not a finite number"))?;
+                    .ok_or_else(|| anyhow::anyhow!("line {n}: {name} `{f}` is not a finite number"))?;
             }
             if v[2].abs() > 90.0 {
-                return Err(format!("line {n}: pitch_deg {} outside −90..=90", v[2]));
+                return Err(anyhow::anyhow!("line {n}: pitch_deg {} outside −90..=90", v[2]));
             }
             if let Some(last) = points.last()
                 && v[0] <= last.0
             {
-                return Err(format!(
+                return Err(anyhow::anyhow!(
                     "line {n}: t_secs {} does not increase (previous {})",
                     v[0], last.0
                 ));
@@ -66,7 +66,7 @@ impl HeadTrace {
             points.push((v[0], v[1], v[2]));
         }
         if points.is_empty() {
-            return Err("no samples".to_owned());
+            return Err(anyhow::anyhow!("no samples"));
         }
         Ok(Self { points })
     }
@@ -125,11 +125,11 @@ mod tests {
 
     #[test]
     fn bad_lines_are_named() {
-        let e = HeadTrace::parse("0,0,0\n1,x,0\n").unwrap_err();
+        let e = HeadTrace::parse("0,0,0\n1,x,0\n").unwrap_err().to_string();
         assert!(e.contains("line 2") && e.contains("yaw_deg"), "{e}");
-        let e = HeadTrace::parse("0,0,0\n0,1,0\n").unwrap_err();
+        let e = HeadTrace::parse("0,0,0\n0,1,0\n").unwrap_err().to_string();
         assert!(e.contains("does not increase"), "{e}");
-        let e = HeadTrace::parse("0,0,95\n").unwrap_err();
+        let e = HeadTrace::parse("0,0,95\n").unwrap_err().to_string();
         assert!(e.contains("pitch_deg"), "{e}");
         assert!(HeadTrace::parse("").is_err());
     }
