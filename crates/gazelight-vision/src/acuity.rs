@@ -817,7 +817,12 @@ fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32]) {
     for (bx, hv) in hrow.chunks_exact_mut(LANES).enumerate() {
         let x = r + bx * LANES;
         let centre = load_v(lrow, x);
-        let v = gather_v(ctx, centre, |k| (load_v(lrow, x - k), load_v(lrow, x + k)));
+        let v = gather_v(
+            ctx,
+            centre,
+            #[inline(always)]
+            |k| (load_v(lrow, x - k), load_v(lrow, x + k)),
+        );
         hv.copy_from_slice(&v);
     }
 }
@@ -831,16 +836,25 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
     let ring = 2 * r + 1;
     let sh = ctx.stride_h;
     let hor = &band.hor[..];
-    let at = |row: usize, x: usize| load_v(hor, (row % ring) * sh + x);
+    // Ring offsets of rows y − k and y + k (edge rows repeated), once per row.
+    let mut up = [0usize; AcuityBlur::MAX_RADIUS_PX + 1];
+    let mut down = [0usize; AcuityBlur::MAX_RADIUS_PX + 1];
+    for k in 0..=r {
+        up[k] = (y.saturating_sub(k) % ring) * sh;
+        down[k] = ((y + k).min(h - 1) % ring) * sh;
+    }
     let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
     let wx = WHITE_XYZ.map(|c| c * ctx.white);
     let mut changed = 0;
     for (bx, out) in row.chunks_mut(LANES).enumerate() {
         let x = bx * LANES;
-        let hv = at(y, x);
-        let l_new = gather_v(ctx, hv, |k| {
-            (at(y.saturating_sub(k), x), at((y + k).min(h - 1), x))
-        });
+        let hv = load_v(hor, up[0] + x);
+        let l_new = gather_v(
+            ctx,
+            hv,
+            #[inline(always)]
+            |k| (load_v(hor, up[k] + x), load_v(hor, down[k] + x)),
+        );
         let l_old = load_v(lrow, x);
         let mut moved = [false; LANES];
         let mut any = false;

@@ -169,24 +169,32 @@ fn per_pixel(src: &[[f32; 3]; LANES], f: impl Fn([f32; 3]) -> [f32; 3]) -> Plane
 impl Map for NakaRushton {
     #[inline(always)]
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes {
-        per_pixel(src, |c| {
-            mat_mul(
-                &self.m,
-                tone::naka_rushton(c.map(tone::clean), self.s, self.saturation),
-            )
-        })
+        per_pixel(
+            src,
+            #[inline(always)]
+            |c| {
+                mat_mul(
+                    &self.m,
+                    tone::naka_rushton(c.map(tone::clean), self.s, self.saturation),
+                )
+            },
+        )
     }
 }
 
 impl Map for Window {
     #[inline(always)]
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes {
-        per_pixel(src, |c| {
-            mat_mul(
-                &self.m,
-                tone::window(c.map(tone::clean), self.lo, self.inv_range, self.gamma),
-            )
-        })
+        per_pixel(
+            src,
+            #[inline(always)]
+            |c| {
+                mat_mul(
+                    &self.m,
+                    tone::window(c.map(tone::clean), self.lo, self.inv_range, self.gamma),
+                )
+            },
+        )
     }
 }
 
@@ -243,22 +251,27 @@ impl<M: Map> RowSink for EncodeRgba8<'_, M> {
 /// `rgba8` = sRGB encoding of `map` of every pixel of `src`.
 #[inline(always)]
 pub(crate) fn encode_row<M: Map>(map: &M, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) {
-    for_blocks(src, rgba8, |s, d: &mut [u8; 4 * LANES]| {
-        let planes = map.block(s);
-        let mut idx = [[0usize; LANES]; 3];
-        for c in 0..3 {
-            for i in 0..LANES {
-                idx[c][i] = lut_index(planes[c][i]);
+    for_blocks(
+        src,
+        rgba8,
+        #[inline(always)]
+        |s, d: &mut [u8; 4 * LANES]| {
+            let planes = map.block(s);
+            let mut idx = [[0usize; LANES]; 3];
+            for c in 0..3 {
+                for i in 0..LANES {
+                    idx[c][i] = lut_index(planes[c][i]);
+                }
             }
-        }
-        for i in 0..LANES {
-            let word = u32::from(lut[idx[0][i]])
-                | u32::from(lut[idx[1][i]]) << 8
-                | u32::from(lut[idx[2][i]]) << 16
-                | 0xff00_0000;
-            d[4 * i..4 * i + 4].copy_from_slice(&word.to_le_bytes());
-        }
-    });
+            for i in 0..LANES {
+                let word = u32::from(lut[idx[0][i]])
+                    | u32::from(lut[idx[1][i]]) << 8
+                    | u32::from(lut[idx[2][i]]) << 16
+                    | 0xff00_0000;
+                d[4 * i..4 * i + 4].copy_from_slice(&word.to_le_bytes());
+            }
+        },
+    );
 }
 
 /// Sink: the display-linear row of `map`, clamped to [0, 1].
@@ -274,12 +287,17 @@ impl<M: Map> RowSink for DisplayLinear<M> {
     }
     #[inline(always)]
     fn row(&self, px: &[[f32; 3]], out: &mut [[f32; 3]]) {
-        for_blocks(px, out, |s, d: &mut [[f32; 3]; LANES]| {
-            let planes = self.map.block(s);
-            for (i, d) in d.iter_mut().enumerate() {
-                *d = [planes[0][i], planes[1][i], planes[2][i]].map(|v| v.clamp(0.0, 1.0));
-            }
-        });
+        for_blocks(
+            px,
+            out,
+            #[inline(always)]
+            |s, d: &mut [[f32; 3]; LANES]| {
+                let planes = self.map.block(s);
+                for (i, d) in d.iter_mut().enumerate() {
+                    *d = [planes[0][i], planes[1][i], planes[2][i]].map(|v| v.clamp(0.0, 1.0));
+                }
+            },
+        );
     }
 }
 

@@ -978,6 +978,88 @@ mod tests {
         }
     }
 
+    /// Pooling runs on the `pooling_downsample`² block means of pass A
+    /// (8 × 8 by default), not on the full-resolution luminance. Against
+    /// the full-resolution reference (`pooling_downsample = 1`, the same
+    /// [`PoolingModel::pool`] on every pixel) on real views at the default
+    /// display size, gaze on dark ground, on a lamp, on the sky, in a
+    /// corner: the block mean is a box prefilter one block wide (1° at 8
+    /// px/deg), which widens the default Gaussian (σ = 2°) by b²/12 in
+    /// variance (≈ 1 %) and moves the gaze window's edges by at most half
+    /// a block, so the pooled luminance may differ where it changes within
+    /// a degree of the gaze. Asserted for the default Gaussian away from
+    /// point sources (gaze on the ground, sky, corners; measured ≤ 3.5e-3,
+    /// tolerance 1e-2); printed for the other models. **Known gap**: with
+    /// the gaze 2–3σ from the street lamp (a source a few pixels wide) the
+    /// 8 × 8 blocks put the lamp at its block's centre, where the Gaussian
+    /// weight differs by up to ~50 % (measured 47 %, printed); block means
+    /// that keep their light's centroid would fix it, in the GPU twin too.
+    #[test]
+    fn reduced_resolution_pooling_matches_full_resolution() {
+        let (w, h) = (720, 800);
+        let night = view("night.exr", 1.0, -78.4, 90.0, w, h);
+        let city = view("city.exr", 1.0, 40.0, 90.0, w, h);
+        let models = [
+            PoolingModel::default(),
+            PoolingModel::Eccentricity { e2_deg: 3.118 },
+            PoolingModel::CentreWeight { follow_gaze: true },
+            PoolingModel::GazeWindow {
+                size_deg: 40.0 / 13.85,
+            },
+        ];
+        for model in models {
+            let mut worst = 0.0f64;
+            for ((img, dpp), name) in [(&night, "night"), (&city, "city")] {
+                let pooled = |ds: usize, gaze_uv: [f32; 2]| {
+                    let config = PipelineConfig {
+                        pooling: model,
+                        pooling_downsample: Some(ds),
+                        glare: GlareConfig {
+                            enabled: false,
+                            ..GlareConfig::default()
+                        },
+                        acuity: AcuityModel::None,
+                        ..PipelineConfig::default()
+                    };
+                    let mut p = FramePipeline::new(config, w, h, *dpp).unwrap();
+                    let input = FrameInput {
+                        gaze_uv,
+                        pupil_mm: 4.0,
+                        dt_secs: 0.0,
+                    };
+                    p.process(img, &input, &mut DisplayFrame::new(w, h))
+                        .unwrap()
+                        .target_cd_m2
+                };
+                for gaze_uv in [
+                    [0.5, 0.8],
+                    [0.5, 0.45],
+                    [0.3, 0.2],
+                    [0.02, 0.97],
+                    [0.71, 0.52],
+                ] {
+                    let full = pooled(1, gaze_uv);
+                    let reduced = pooled(8, gaze_uv);
+                    let rel = (reduced / full - 1.0).abs();
+                    // The night view's lamp is near the centre of the frame.
+                    let near_lamp = name == "night" && gaze_uv == [0.5, 0.45];
+                    eprintln!(
+                        "{model:?} {name} gaze {gaze_uv:?}: full {full:.4e}, 8x8 blocks {reduced:.4e} cd/m², \
+                         {rel:.2e}{}",
+                        if near_lamp { " (near the lamp)" } else { "" }
+                    );
+                    if !near_lamp {
+                        worst = worst.max(rel);
+                    }
+                }
+            }
+            eprintln!("{model:?}: worst relative difference away from the lamp {worst:.2e}");
+            if model == PoolingModel::default() {
+                assert!(worst < 1e-2, "{model:?}: {worst}");
+            }
+        }
+    }
+
     #[test]
     fn optimised_passes_match_the_reference_on_real_views() {
         // A dim night (scotopic: acuity blur, full scotopic shift) seen
