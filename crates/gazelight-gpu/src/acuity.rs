@@ -125,3 +125,81 @@ impl AcuityPass {
         self.layout.layout()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::pass_harness::{
+        panorama_view, read, run_pass, storage, texels, tiles, uniform,
+    };
+    use crate::testing::test_context;
+
+    /// The acuity pass alone on a night view (street lamps, dark facades)
+    /// at 30 ppd, against `AcuityBlur::apply`: each pixel blurs with its own
+    /// σ; a pixel the CPU leaves as it is must stay bit-identical.
+    #[test]
+    fn per_pixel_blur_matches_the_cpu_blur() {
+        let Some(ctx) = test_context("per_pixel_blur_matches_the_cpu_blur") else {
+            return;
+        };
+        let (w, h) = (64usize, 48usize);
+        let (img, dpp) = panorama_view("night.exr", -78.4, -6.0, 64.0 / 30.0, [w, h]);
+        let pass = AcuityPass::new(ctx).unwrap();
+        for model in [AcuityModel::default(), AcuityModel::LarsonKrawczyk] {
+            let params = AcuityParams::new(&model, dpp, w as u32, h as u32);
+            let params_buf = uniform(ctx, &params);
+            let state = storage(
+                ctx,
+                &[FrameState {
+                    adaptation_cd_m2: 0.05,
+                    ..FrameState::default()
+                }],
+            );
+            let work = storage(ctx, &texels(&img));
+            let lightness = storage(ctx, &vec![0.0f32; w * h]);
+            let horizontal = storage(ctx, &vec![0.0f32; w * h]);
+            run_pass(
+                ctx,
+                &pass.layout,
+                &[&params_buf, &state, &work, &lightness, &horizontal],
+                &[
+                    (&pass.prepare, [1, 1, 1]),
+                    (&pass.lightness, tiles(w, h)),
+                    (&pass.blur_h, tiles(w, h)),
+                    (&pass.blur_v, tiles(w, h)),
+                ],
+            );
+            let gpu: Vec<[f32; 4]> = read(ctx, &work);
+            let mut cpu = img.clone();
+            let blurred = AcuityBlur::new(&model, w, h, dpp).apply(&mut cpu);
+            let (mut max_rel, mut changed, mut same) = (0.0f64, 0usize, 0usize);
+            for ((g, c), s) in gpu.iter().zip(&cpu.pixels).zip(&img.pixels) {
+                let moved = c != s;
+                changed += usize::from(moved);
+                same += usize::from(!moved && [g[0], g[1], g[2]] == *c);
+                for k in 0..3 {
+                    let e = f64::from((g[k] - c[k]).abs()) / f64::from(c[k].abs().max(1e-4));
+                    max_rel = max_rel.max(e);
+                }
+            }
+            let state: FrameState = read(ctx, &state)[0];
+            let sigma = model.sigma_px(0.05, dpp);
+            println!(
+                "{model:?}: {changed} of {} px blurred on the CPU ({blurred} rows), {same} \
+                 untouched on both, max relative |GPU − CPU| {max_rel:.2e}; frame σ {} (CPU {sigma})",
+                w * h,
+                state.acuity_sigma_px
+            );
+            // The blur must run (this dark view blurs every pixel on the CPU).
+            assert!(changed > w * h / 10, "{changed}");
+            assert_eq!(
+                changed + same,
+                w * h,
+                "a pixel the CPU keeps moved on the GPU"
+            );
+            assert!(max_rel < 1e-3, "{model:?}: {max_rel:e}");
+            assert_eq!(state.blur_radius, params.max_radius);
+            assert!((state.acuity_sigma_px - sigma).abs() <= 1e-4 * sigma.max(1.0));
+        }
+    }
+}

@@ -322,12 +322,9 @@ impl GpuFft2d {
         if channels == 0 {
             return Err(Self::size_error(size, "no channels".to_owned()));
         }
-        let limits = ctx.limits();
         let elements = u64::from(width) * u64::from(height) * u64::from(channels);
         let bytes = elements * 8;
-        let max_binding = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+        let max_binding = crate::pass::max_storage_binding_bytes(ctx);
         if bytes > max_binding || elements > u64::from(u32::MAX) {
             return Err(Self::size_error(
                 size,

@@ -71,7 +71,7 @@ use crate::temporal::{TemporalParams, TemporalPass};
 use crate::tone::{ToneParams, TonePass};
 
 /// Entries of the sRGB table (`SRGB_LUT_SIZE` in frame_state.wgsl and the CPU).
-const SRGB_LUT_SIZE: usize = 16384;
+pub(crate) const SRGB_LUT_SIZE: usize = 16384;
 /// Threads per side of the 8×8 per-pixel workgroups.
 const TILE: u32 = 8;
 /// The pupil of the first PSF, mm (as the CPU pipeline).
@@ -134,7 +134,7 @@ pub struct FrameTimestamps<'a> {
     pub psf: &'a wgpu::QuerySet,
 }
 
-struct GlareStage {
+pub(crate) struct GlareStage {
     psf: GpuPsfBuilder,
     geometry: GlareGeometry,
     fine: GpuFft2d,
@@ -150,7 +150,7 @@ struct GlareStage {
 
 /// The sizes fixed by the frame and the pooling downsample.
 #[derive(Debug, Clone, Copy)]
-struct FrameSizes {
+pub(crate) struct FrameSizes {
     width: u32,
     height: u32,
     /// Block plane, blocks.
@@ -162,7 +162,7 @@ struct FrameSizes {
 }
 
 impl FrameSizes {
-    fn new(config: &PipelineConfig, width: u32, height: u32) -> Self {
+    pub(crate) fn new(config: &PipelineConfig, width: u32, height: u32) -> Self {
         let ds = config.pooling_downsample.unwrap_or(8) as u32;
         let small = [width.div_ceil(ds), height.div_ceil(ds)];
         let partial_count = (small[0] * small[1])
@@ -360,7 +360,7 @@ impl GlareStage {
     /// The glare stage of `config` for the frame: the first PSF (4 mm),
     /// the split geometry, both FFT plans, the kernel spectra buffers and
     /// the bind group on the working frame `work`.
-    fn new(
+    pub(crate) fn new(
         ctx: &GpuContext,
         config: &PipelineConfig,
         deg_per_px: f64,
@@ -423,7 +423,7 @@ impl GlareStage {
 
     /// Records the split of the kernel in the PSF buffer into its fine and
     /// coarse parts and their spectra (timestamps 4–5 of `timestamps`).
-    fn encode_kernel_spectrum(
+    pub(crate) fn encode_kernel_spectrum(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         timestamps: Option<&wgpu::QuerySet>,
@@ -455,7 +455,7 @@ impl GlareStage {
 
     /// Records the glare of the windows placed at `gaze_px` (timestamps
     /// 6–7); nothing when that applies no glare.
-    fn encode_window(
+    pub(crate) fn encode_window(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
@@ -592,10 +592,7 @@ fn check_frame(
         )));
     }
     let bytes = (width * height) as u64 * 16;
-    let max_binding = ctx
-        .limits()
-        .max_storage_buffer_binding_size
-        .min(ctx.limits().max_buffer_size);
+    let max_binding = crate::pass::max_storage_binding_bytes(ctx);
     if bytes > max_binding {
         return Err(GpuError::Wgpu {
             what: "GPU frame pipeline".to_owned(),
@@ -606,6 +603,14 @@ fn check_frame(
         });
     }
     Ok(())
+}
+
+/// The 8-bit sRGB codes of `SRGB_LUT_SIZE` evenly spaced linear values:
+/// the CPU's own encoding table, so equal inputs give equal bytes.
+pub(crate) fn srgb_table() -> Vec<u32> {
+    (0..SRGB_LUT_SIZE)
+        .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u32)
+        .collect()
 }
 
 /// Writes the uniforms and tables that do not change per frame (sRGB
@@ -619,10 +624,7 @@ fn write_static_uniforms(
     b: &FrameBuffers,
 ) -> AcuityParams {
     let queue = ctx.queue();
-    let table: Vec<u32> = (0..SRGB_LUT_SIZE)
-        .map(|i| (srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round() as u32)
-        .collect();
-    queue.write_buffer(&b.lut, 0, bytemuck::cast_slice(&table));
+    queue.write_buffer(&b.lut, 0, bytemuck::cast_slice(&srgb_table()));
     let (w, h) = (sizes.width, sizes.height);
     let keep = config.keep_display_linear;
     let tone_params = ToneParams::new(&config.tone, &config.colour, w, h, keep);
@@ -1166,15 +1168,11 @@ impl GpuFramePipeline {
 
 #[cfg(test)]
 mod tests {
-    use std::path::PathBuf;
-
     use gazelight_vision::acuity::AcuityModel;
     use gazelight_vision::colour::ColourModel;
     use gazelight_vision::glare::GlareConvolver;
     use gazelight_vision::pipeline::FramePipeline;
-    use gazelight_vision::pooling::{DEFAULT_E2_DEG, DEFAULT_GAZE_WINDOW_DEG, PoolingModel};
     use gazelight_vision::psf::PsfBuilder;
-    use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
     use gazelight_vision::temporal::TemporalModel;
     use gazelight_vision::tone::ToneModel;
 
@@ -1191,22 +1189,13 @@ mod tests {
         width: usize,
         height: usize,
     ) -> (RgbImage, f64) {
-        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world")
-            .join(name);
-        let scene = Scene::load(&path, LuminanceScale::default()).unwrap();
-        let params = ViewParams {
+        crate::testing::pass_harness::panorama_view(
+            name,
             yaw_deg,
             pitch_deg,
             hfov_deg,
-            width,
-            height,
-        };
-        let mut img = RgbImage::new(width, height);
-        PanoramaView::new(params)
-            .unwrap()
-            .render(&scene.image, &mut img);
-        (img, params.deg_per_px())
+            [width, height],
+        )
     }
 
     /// A view 104° wide (the Vive Pro's field).
@@ -1275,18 +1264,7 @@ mod tests {
             return;
         };
         let (img, dpp) = view("studio.exr", 30.0, -5.0, 96, 80);
-        let poolings = [
-            PoolingModel::default(),
-            PoolingModel::CentreWeight { follow_gaze: true },
-            PoolingModel::CentreWeight { follow_gaze: false },
-            PoolingModel::Eccentricity {
-                e2_deg: DEFAULT_E2_DEG,
-            },
-            PoolingModel::GazeWindow {
-                size_deg: DEFAULT_GAZE_WINDOW_DEG,
-            },
-            PoolingModel::PanoramaMean,
-        ];
+        let poolings = crate::testing::pass_harness::every_pooling_model();
         let temporals = [
             TemporalModel::krawczyk(),
             TemporalModel::power_dt(),
@@ -1334,6 +1312,45 @@ mod tests {
             "worst relative error: pooled target {:.2e}, adaptation {:.2e}",
             worst.0, worst.1
         );
+    }
+
+    /// The CPU convolver's glare on the sanitised `img` at `gaze_px`
+    /// against the GPU's retinal image: (max |GPU − CPU|, the largest
+    /// change the glare made, the peak), cd/m².
+    fn cpu_glare_error(
+        img: &RgbImage,
+        gpu_img: &RgbImage,
+        conv: &mut GlareConvolver,
+        gaze_px: [f64; 2],
+    ) -> (f64, f64, f32) {
+        let mut cpu_img = img.clone();
+        for p in &mut cpu_img.pixels {
+            for c in p.iter_mut() {
+                if !(c.is_finite() && *c >= f32::MIN_POSITIVE) {
+                    *c = 0.0;
+                }
+            }
+        }
+        let before = cpu_img.clone();
+        conv.apply(&mut cpu_img, gaze_px);
+        let peak = cpu_img
+            .pixels
+            .iter()
+            .flatten()
+            .fold(0.0f32, |m, &v| m.max(v));
+        let (mut max_err, mut changed) = (0.0f64, 0.0f64);
+        for ((g, c), b) in gpu_img
+            .pixels
+            .iter()
+            .zip(&cpu_img.pixels)
+            .zip(&before.pixels)
+        {
+            for k in 0..3 {
+                max_err = max_err.max(f64::from((g[k] - c[k]).abs()));
+                changed = changed.max(f64::from((c[k] - b[k]).abs()));
+            }
+        }
+        (max_err, changed, peak)
     }
 
     #[test]
@@ -1388,34 +1405,8 @@ mod tests {
             };
             gpu.process(&img, &input).unwrap();
             gpu.read_retinal(&mut gpu_img).unwrap();
-            let mut cpu_img = img.clone();
-            for p in &mut cpu_img.pixels {
-                for c in p.iter_mut() {
-                    if !(c.is_finite() && *c >= f32::MIN_POSITIVE) {
-                        *c = 0.0;
-                    }
-                }
-            }
-            let before = cpu_img.clone();
             let gaze_px = [f64::from(gaze_uv[0]) * 120.0, f64::from(gaze_uv[1]) * 96.0];
-            conv.apply(&mut cpu_img, gaze_px);
-            let peak = cpu_img
-                .pixels
-                .iter()
-                .flatten()
-                .fold(0.0f32, |m, &v| m.max(v));
-            let (mut max_err, mut changed) = (0.0f64, 0.0f64);
-            for ((g, c), b) in gpu_img
-                .pixels
-                .iter()
-                .zip(&cpu_img.pixels)
-                .zip(&before.pixels)
-            {
-                for k in 0..3 {
-                    max_err = max_err.max(f64::from((g[k] - c[k]).abs()));
-                    changed = changed.max(f64::from((c[k] - b[k]).abs()));
-                }
-            }
+            let (max_err, changed, peak) = cpu_glare_error(&img, &gpu_img, &mut conv, gaze_px);
             let e = max_err / f64::from(peak);
             println!(
                 "gaze {gaze_uv:?}: max |GPU − CPU| {max_err:.3e} cd/m² = {e:.2e} of the peak \
@@ -1431,13 +1422,10 @@ mod tests {
         println!("worst glare error {worst:.2e} of the peak");
     }
 
-    #[test]
-    fn tone_colour_and_acuity_match_the_cpu() {
-        let Some(ctx) = test_context("tone_colour_and_acuity_match_the_cpu") else {
-            return;
-        };
-        let mut worst = 0.0f32;
-        let cases = [
+    /// (panorama, pitch, tone, colour, acuity) of the tone/colour/acuity
+    /// parity test.
+    fn tone_cases() -> [(&'static str, f64, ToneModel, ColourModel, AcuityModel); 4] {
+        [
             // Night at 9.6 ppd: scotopic shift and the acuity blur (σ > 0.3 px).
             (
                 "night.exr",
@@ -1467,7 +1455,16 @@ mod tests {
                 ColourModel::Both,
                 AcuityModel::None,
             ),
-        ];
+        ]
+    }
+
+    #[test]
+    fn tone_colour_and_acuity_match_the_cpu() {
+        let Some(ctx) = test_context("tone_colour_and_acuity_match_the_cpu") else {
+            return;
+        };
+        let mut worst = 0.0f32;
+        let cases = tone_cases();
         for (name, pitch, tone, colour, acuity) in cases {
             let (img, dpp) = view_fov(name, -78.4, pitch, 10.0, 96, 96);
             let config = no_glare(PipelineConfig {

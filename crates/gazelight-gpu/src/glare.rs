@@ -271,24 +271,15 @@ pub struct GlarePass {
 impl GlarePass {
     /// Checks the shader against the device limits and builds the pipelines.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
-        let (layout, pipelines) = GLARE_PASS.build(ctx)?;
-        let [
-            kernel_fine,
-            kernel_coarse,
-            gather_fine,
-            gather_coarse,
-            multiply_fine,
-            multiply_coarse,
-            blend,
-        ] = pipelines;
+        let (layout, [kf, kc, gf, gc, mf, mc, blend]) = GLARE_PASS.build(ctx)?;
         Ok(Self {
             layout,
-            kernel_fine,
-            kernel_coarse,
-            gather_fine,
-            gather_coarse,
-            multiply_fine,
-            multiply_coarse,
+            kernel_fine: kf,
+            kernel_coarse: kc,
+            gather_fine: gf,
+            gather_coarse: gc,
+            multiply_fine: mf,
+            multiply_coarse: mc,
             blend,
         })
     }
@@ -333,5 +324,66 @@ mod tests {
         };
         let err = GlareGeometry::new(2001, 1.0 / 20.0, far).unwrap_err();
         assert!(err.to_string().contains("glare.full_weight_deg"), "{err}");
+    }
+
+    /// The glare pass alone (kernel split, both FFT windows, blend) on a
+    /// night view at 14 ppd with a ±2° kernel, against
+    /// `GlareConvolver::apply` on the same kernel, gaze on the brightest
+    /// lamp and near a corner.
+    #[test]
+    fn glare_pass_matches_the_cpu_convolver() {
+        use crate::frame::{FrameSizes, GlareStage};
+        use crate::testing::pass_harness::{panorama_view, read, storage, texels};
+        use gazelight_vision::pipeline::PipelineConfig;
+        use gazelight_vision::psf::PsfBuilder;
+        let Some(ctx) = crate::testing::test_context("glare_pass_matches_the_cpu_convolver") else {
+            return;
+        };
+        let (w, h) = (80usize, 64usize);
+        let (img, dpp) = panorama_view("night.exr", -78.4, -6.0, 80.0 / 14.0, [w, h]);
+        let mut config = PipelineConfig::default();
+        config.glare.psf.field_deg = 4.0;
+        let mut params = config.glare.psf.clone();
+        params.ppd = 1.0 / dpp;
+        params.pupil_mm = 4.0;
+        let builder = PsfBuilder::new(params).unwrap();
+        let mut conv = GlareConvolver::new(builder.kernel(), config.glare.window()).unwrap();
+        let sizes = FrameSizes::new(&config, w as u32, h as u32);
+        let (mut at, mut best) = (0usize, f32::MIN);
+        for (i, p) in img.pixels.iter().enumerate() {
+            let l = gazelight_vision::image::luminance(*p);
+            if l > best {
+                (best, at) = (l, i);
+            }
+        }
+        let lamp = [(at % w) as f64 + 0.5, (at / w) as f64 + 0.5];
+        for gaze_px in [lamp, [6.0, 58.0]] {
+            let work = storage(ctx, &texels(&img));
+            let mut stage = GlareStage::new(ctx, &config, dpp, &sizes, &work).unwrap();
+            let mut encoder = ctx.device().create_command_encoder(&Default::default());
+            stage.encode_kernel_spectrum(&mut encoder, None);
+            stage.encode_window(ctx, &mut encoder, gaze_px, None);
+            ctx.queue().submit([encoder.finish()]);
+            let gpu: Vec<[f32; 4]> = read(ctx, &work);
+            let mut cpu = img.clone();
+            conv.apply(&mut cpu, gaze_px);
+            let peak = cpu.pixels.iter().flatten().fold(0.0f32, |m, &v| m.max(v));
+            let (mut max_err, mut changed) = (0.0f32, 0.0f32);
+            for ((g, c), s) in gpu.iter().zip(&cpu.pixels).zip(&img.pixels) {
+                for k in 0..3 {
+                    max_err = max_err.max((g[k] - c[k]).abs());
+                    changed = changed.max((c[k] - s[k]).abs());
+                }
+            }
+            let e = max_err / peak;
+            println!(
+                "gaze {gaze_px:?}: max |GPU − CPU| {max_err:.3e} = {e:.2e} of the peak \
+                 {peak:.3e} cd/m²; the glare moved pixels by up to {changed:.3e}"
+            );
+            if gaze_px == lamp {
+                assert!(changed > 1e3 * max_err, "glare too weak to test: {changed}");
+            }
+            assert!(e < 1e-4, "{e:e}");
+        }
     }
 }

@@ -221,6 +221,15 @@ impl PassLayout {
     }
 }
 
+/// The largest storage binding the device takes, bytes (the binding limit,
+/// capped by the buffer size limit).
+pub(crate) fn max_storage_binding_bytes(ctx: &GpuContext) -> u64 {
+    let limits = ctx.limits();
+    limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+}
+
 /// Every compute pass of the crate.
 pub const ALL: &[&PassDescriptor] = &[
     &crate::fft::FFT_PASS,

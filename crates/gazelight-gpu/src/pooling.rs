@@ -204,3 +204,62 @@ impl PoolingPass {
         self.layout.layout()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::pass_harness::{
+        every_pooling_model, panorama_view, read, run_pass, storage, texels, tiles, uniform,
+    };
+    use crate::testing::test_context;
+
+    /// The pooling pass alone at 1-pixel blocks: the block plane is then
+    /// each pixel's luminance, and the pooled target must be what
+    /// `PoolingModel::pool` gives on that plane, for every model and gaze.
+    #[test]
+    fn pooled_target_matches_the_cpu_pool_for_every_model() {
+        let Some(ctx) = test_context("pooled_target_matches_the_cpu_pool_for_every_model") else {
+            return;
+        };
+        let (w, h) = (96u32, 64u32);
+        let (img, dpp) = panorama_view("studio.exr", 30.0, -5.0, 60.0, [96, 64]);
+        let lum: Vec<f32> = img
+            .pixels
+            .iter()
+            .map(|p| gazelight_vision::image::luminance(*p))
+            .collect();
+        let pass = PoolingPass::new(ctx).unwrap();
+        let partial_count = (w * h).div_ceil(POOL_THREADS).clamp(1, POOL_THREADS);
+        let scene = storage(ctx, &texels(&img));
+        let work = storage(ctx, &texels(&img));
+        let small = storage(ctx, &vec![0.0f32; (w * h) as usize]);
+        let partials = storage(ctx, &vec![[0.0f32; 2]; partial_count as usize]);
+        let state = storage(ctx, &[FrameState::default()]);
+        let mut worst = 0.0f64;
+        for model in every_pooling_model() {
+            for gaze_px in [[48.0, 32.0], [10.5, 55.25], [90.0, 3.0]] {
+                let params =
+                    PoolParams::for_frame(&model, [w, h], [w, h], 1, partial_count, gaze_px, dpp);
+                let params_buf = uniform(ctx, &params);
+                run_pass(
+                    ctx,
+                    &pass.layout,
+                    &[&params_buf, &scene, &work, &small, &partials, &state],
+                    &[
+                        (&pass.import_scene, tiles(96, 64)),
+                        (&pass.block_luminance, tiles(96, 64)),
+                        (&pass.pool_partial, [partial_count, 1, 1]),
+                        (&pass.pool_final, [1, 1, 1]),
+                    ],
+                );
+                let gpu = f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2);
+                let cpu = model.pool(&lum, w as usize, h as usize, gaze_px, dpp);
+                let e = (gpu - cpu).abs() / cpu.abs().max(1e-9);
+                println!("{model:?} at {gaze_px:?}: GPU {gpu:.5} cd/m², CPU {cpu:.5}, rel {e:.1e}");
+                assert!(e < 1e-4, "{model:?} at {gaze_px:?}: GPU {gpu}, CPU {cpu}");
+                worst = worst.max(e);
+            }
+        }
+        println!("worst relative |GPU − CPU| pooled target {worst:.2e}");
+    }
+}

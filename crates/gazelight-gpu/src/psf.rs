@@ -69,10 +69,7 @@ impl GpuPsfBuilder {
         let cpu = PsfBuilder::new(params.clone()).map_err(invalid)?;
         let size = cpu.kernel().size;
         let bytes = (size * size * 16) as u64;
-        let max = ctx
-            .limits()
-            .max_storage_buffer_binding_size
-            .min(ctx.limits().max_buffer_size);
+        let max = crate::pass::max_storage_binding_bytes(ctx);
         if bytes > max {
             return Err(GpuError::Wgpu {
                 what: "GPU glare PSF".to_owned(),

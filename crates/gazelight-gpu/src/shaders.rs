@@ -158,75 +158,93 @@ pub fn check_shader(shader: &WgslShader, limits: &wgpu::Limits) -> Result<Shader
             shader: shader.name,
             message: format!("type layout: {e}"),
         })?;
-
     let mut entry_points = Vec::new();
     for (index, entry) in module.entry_points.iter().enumerate() {
         if entry.stage != naga::ShaderStage::Compute {
             continue;
         }
-        let function_info = info.get_entry_point(index);
-        let mut bytes: u64 = 0;
-        for (handle, global) in module.global_variables.iter() {
-            if global.space != naga::AddressSpace::WorkGroup || function_info[handle].is_empty() {
-                continue;
-            }
-            let layout = layouter[global.ty];
-            bytes = u64::from(layout.alignment.round_up(bytes as u32)) + u64::from(layout.size);
-        }
-        if bytes > u64::from(limits.max_compute_workgroup_storage_size) {
-            return Err(GpuError::WorkgroupStorage {
-                shader: shader.name,
-                entry_point: entry.name.clone(),
-                bytes,
-                limit: limits.max_compute_workgroup_storage_size,
-            });
-        }
-        let size = entry.workgroup_size;
-        let per_axis = [
-            (
-                "max_compute_workgroup_size_x",
-                limits.max_compute_workgroup_size_x,
-            ),
-            (
-                "max_compute_workgroup_size_y",
-                limits.max_compute_workgroup_size_y,
-            ),
-            (
-                "max_compute_workgroup_size_z",
-                limits.max_compute_workgroup_size_z,
-            ),
-        ];
-        for (axis, (limit_name, limit)) in per_axis.into_iter().enumerate() {
-            if size[axis] > limit {
-                return Err(GpuError::WorkgroupSize {
-                    shader: shader.name,
-                    entry_point: entry.name.clone(),
-                    size,
-                    limit_name,
-                    limit,
-                });
-            }
-        }
-        let invocations = u64::from(size[0]) * u64::from(size[1]) * u64::from(size[2]);
-        if invocations > u64::from(limits.max_compute_invocations_per_workgroup) {
-            return Err(GpuError::WorkgroupSize {
-                shader: shader.name,
-                entry_point: entry.name.clone(),
-                size,
-                limit_name: "max_compute_invocations_per_workgroup",
-                limit: limits.max_compute_invocations_per_workgroup,
-            });
-        }
-        entry_points.push(EntryPointResources {
+        let bytes = workgroup_storage_bytes(&module, &layouter, info.get_entry_point(index));
+        let resources = EntryPointResources {
             name: entry.name.clone(),
-            workgroup_size: size,
+            workgroup_size: entry.workgroup_size,
             workgroup_storage_bytes: bytes,
-        });
+        };
+        check_entry_point(shader, &resources, limits)?;
+        entry_points.push(resources);
     }
     Ok(ShaderReport {
         shader: shader.name,
         entry_points,
     })
+}
+
+/// Bytes of the `var<workgroup>` globals an entry point uses, each rounded
+/// up to its alignment as a driver lays them out.
+fn workgroup_storage_bytes(
+    module: &naga::Module,
+    layouter: &naga::proc::Layouter,
+    function_info: &naga::valid::FunctionInfo,
+) -> u64 {
+    let mut bytes: u64 = 0;
+    for (handle, global) in module.global_variables.iter() {
+        if global.space != naga::AddressSpace::WorkGroup || function_info[handle].is_empty() {
+            continue;
+        }
+        let layout = layouter[global.ty];
+        bytes = u64::from(layout.alignment.round_up(bytes as u32)) + u64::from(layout.size);
+    }
+    bytes
+}
+
+/// An entry point's workgroup storage and size against the device limits.
+fn check_entry_point(
+    shader: &WgslShader,
+    entry: &EntryPointResources,
+    limits: &wgpu::Limits,
+) -> Result<(), GpuError> {
+    if entry.workgroup_storage_bytes > u64::from(limits.max_compute_workgroup_storage_size) {
+        return Err(GpuError::WorkgroupStorage {
+            shader: shader.name,
+            entry_point: entry.name.clone(),
+            bytes: entry.workgroup_storage_bytes,
+            limit: limits.max_compute_workgroup_storage_size,
+        });
+    }
+    let size = entry.workgroup_size;
+    let too_big = |limit_name, limit| GpuError::WorkgroupSize {
+        shader: shader.name,
+        entry_point: entry.name.clone(),
+        size,
+        limit_name,
+        limit,
+    };
+    let per_axis = [
+        (
+            "max_compute_workgroup_size_x",
+            limits.max_compute_workgroup_size_x,
+        ),
+        (
+            "max_compute_workgroup_size_y",
+            limits.max_compute_workgroup_size_y,
+        ),
+        (
+            "max_compute_workgroup_size_z",
+            limits.max_compute_workgroup_size_z,
+        ),
+    ];
+    for (axis, (limit_name, limit)) in per_axis.into_iter().enumerate() {
+        if size[axis] > limit {
+            return Err(too_big(limit_name, limit));
+        }
+    }
+    let invocations = u64::from(size[0]) * u64::from(size[1]) * u64::from(size[2]);
+    if invocations > u64::from(limits.max_compute_invocations_per_workgroup) {
+        return Err(too_big(
+            "max_compute_invocations_per_workgroup",
+            limits.max_compute_invocations_per_workgroup,
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

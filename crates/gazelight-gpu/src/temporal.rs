@@ -100,3 +100,67 @@ impl TemporalPass {
         self.layout.layout()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use gazelight_vision::temporal::AdaptationState;
+
+    use super::*;
+    use crate::testing::pass_harness::{read, run_pass, storage, uniform};
+    use crate::testing::test_context;
+
+    /// The `adapt` pass alone, one frame at a time, against
+    /// `TemporalModel::step` for every model: a dark start, a jump up by
+    /// four decades, then down, with frame times from 1/90 s to 0.5 s.
+    #[test]
+    fn adapt_steps_like_the_cpu_model() {
+        let Some(ctx) = test_context("adapt_steps_like_the_cpu_model") else {
+            return;
+        };
+        let pass = TemporalPass::new(ctx).unwrap();
+        let targets = [(100.0, 1.0 / 90.0), (100.0, 0.05), (0.01, 0.5), (3.0, 0.2)];
+        let mut worst = 0.0f64;
+        for model in [
+            TemporalModel::krawczyk(),
+            TemporalModel::power_dt(),
+            TemporalModel::log_exponential(),
+            TemporalModel::linear(),
+        ] {
+            let mut params = TemporalParams::new(&model);
+            params.reset = 0;
+            let mut cpu = AdaptationState::new(0.01);
+            let state = storage(
+                ctx,
+                &[FrameState {
+                    adaptation_cd_m2: 0.01,
+                    light_target_cd_m2: 0.01,
+                    ..FrameState::default()
+                }],
+            );
+            for (target_cd_m2, dt_secs) in targets.into_iter().cycle().take(12) {
+                params.dt_secs = dt_secs as f32;
+                let params_buf = uniform(ctx, &params);
+                // The pooled target of the frame, as pooling leaves it.
+                ctx.queue()
+                    .write_buffer(&state, 0, bytemuck::bytes_of(&(target_cd_m2 as f32)));
+                let dispatch = [(&pass.adapt, [1, 1, 1])];
+                run_pass(ctx, &pass.layout, &[&params_buf, &state], &dispatch);
+                let gpu: FrameState = read(ctx, &state)[0];
+                cpu = model.step(cpu, target_cd_m2, dt_secs);
+                let rel = |g: f32, c: f64| (f64::from(g) - c).abs() / c.abs().max(1e-9);
+                let e = rel(gpu.adaptation_cd_m2, cpu.luminance_cd_m2)
+                    .max(rel(gpu.light_target_cd_m2, cpu.light_target_cd_m2));
+                assert!(
+                    e < 1e-4,
+                    "{model:?} → {target_cd_m2} cd/m² over {dt_secs} s: GPU {} / {}, CPU {} / {}",
+                    gpu.adaptation_cd_m2,
+                    gpu.light_target_cd_m2,
+                    cpu.luminance_cd_m2,
+                    cpu.light_target_cd_m2
+                );
+                worst = worst.max(e);
+            }
+        }
+        println!("worst relative |GPU − CPU| adaptation {worst:.2e}");
+    }
+}

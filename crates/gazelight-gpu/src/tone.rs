@@ -162,3 +162,83 @@ impl TonePass {
         self.layout.layout()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::{SRGB_LUT_SIZE, srgb_table};
+    use crate::testing::pass_harness::{
+        panorama_view, read, run_pass, storage, texels, tiles, uniform,
+    };
+    use crate::testing::test_context;
+
+    /// The tone pass alone, against `colour.apply(tone.apply(p))` clamped
+    /// to the display (the CPU's stages 6–7) and its sRGB codes, for every
+    /// tone model, with and without the overshoot of 000 eq 8.
+    #[test]
+    fn tone_and_colour_match_the_cpu_operators() {
+        let Some(ctx) = test_context("tone_and_colour_match_the_cpu_operators") else {
+            return;
+        };
+        let (w, h) = (48usize, 32usize);
+        let (img, _) = panorama_view("night.exr", -78.4, -6.0, 30.0, [w, h]);
+        let pass = TonePass::new(ctx).unwrap();
+        let table = srgb_table();
+        let lut = storage(ctx, &table);
+        let code = |v: f32| {
+            let i = ((v.clamp(0.0, 1.0) * (SRGB_LUT_SIZE - 1) as f32 + 0.5) as usize)
+                .min(SRGB_LUT_SIZE - 1);
+            table[i] as u8
+        };
+        let mut worst = 0.0f32;
+        for (tone, colour) in [
+            (ToneModel::default(), ColourModel::ScotopicShift),
+            (ToneModel::naka_rushton(), ColourModel::Discrimination),
+            (ToneModel::gaze_exposure(), ColourModel::Both),
+        ] {
+            for (adaptation, light_target) in [(0.05f32, 0.05f32), (0.05, 2.0)] {
+                let params = ToneParams::new(&tone, &colour, w as u32, h as u32, true);
+                let params_buf = uniform(ctx, &params);
+                let state = storage(
+                    ctx,
+                    &[FrameState {
+                        adaptation_cd_m2: adaptation,
+                        light_target_cd_m2: light_target,
+                        ..FrameState::default()
+                    }],
+                );
+                let work = storage(ctx, &texels(&img));
+                let linear = storage(ctx, &vec![[0.0f32; 4]; w * h]);
+                let output = storage(ctx, &vec![0u32; w * h]);
+                run_pass(
+                    ctx,
+                    &pass.layout,
+                    &[&params_buf, &state, &work, &linear, &lut, &output],
+                    &[(&pass.prepare, [1, 1, 1]), (&pass.tone_map, tiles(w, h))],
+                );
+                let tone_frame =
+                    tone.prepare_adapting(f64::from(adaptation), f64::from(light_target));
+                let colour_frame = colour.prepare(f64::from(adaptation));
+                let gpu_linear: Vec<[f32; 4]> = read(ctx, &linear);
+                let gpu_codes: Vec<u32> = read(ctx, &output);
+                let (mut max_err, mut max_code) = (0.0f32, 0u8);
+                for ((s, g), packed) in img.pixels.iter().zip(&gpu_linear).zip(&gpu_codes) {
+                    let c = colour_frame.apply(tone_frame.apply(*s));
+                    let bytes = packed.to_le_bytes();
+                    for k in 0..3 {
+                        max_err = max_err.max((g[k] - c[k].clamp(0.0, 1.0)).abs());
+                        max_code = max_code.max(bytes[k].abs_diff(code(c[k])));
+                    }
+                }
+                println!(
+                    "{tone:?} {colour:?} L {adaptation} L̄ {light_target}: display-linear max \
+                     |GPU − CPU| {max_err:.2e}, codes ≤ {max_code}"
+                );
+                assert!(max_err < 2e-4, "{tone:?} {colour:?}: {max_err}");
+                assert!(max_code <= 1, "{tone:?} {colour:?}: {max_code}/255");
+                worst = worst.max(max_err);
+            }
+        }
+        println!("worst display-linear difference {worst:.2e}");
+    }
+}

@@ -57,7 +57,48 @@ macro_rules! twin {
     };
 }
 
+/// The `TemporalParams` twin, resolved where it is used (the real struct,
+/// or a drifted local one in the negative test).
+macro_rules! temporal_twin {
+    () => {
+        twin!(TemporalParams {
+            model,
+            reset,
+            overshoot,
+            _pad0,
+            dt_secs,
+            a,
+            b,
+            _pad1,
+        })
+    };
+}
+
+/// The `AcuityParams` twin, resolved where it is used.
+macro_rules! acuity_twin {
+    () => {
+        twin!(AcuityParams {
+            width,
+            height,
+            model,
+            max_radius,
+            white_cd_m2,
+            sigma_scale,
+            _pad0,
+            _pad1,
+        })
+    };
+}
+
 fn twins() -> Vec<(WgslShader, RustTwin)> {
+    let mut twins = stage_1_2_twins();
+    twins.extend(stage_4_8_twins());
+    twins.push((shaders::FRAME_STATE, frame_state()));
+    twins
+}
+
+/// The FFT's and stages 1–2's uniforms.
+fn stage_1_2_twins() -> Vec<(WgslShader, RustTwin)> {
     vec![
         (
             shaders::FFT,
@@ -101,19 +142,13 @@ fn twins() -> Vec<(WgslShader, RustTwin)> {
                 _pad2,
             }),
         ),
-        (
-            shaders::TEMPORAL,
-            twin!(TemporalParams {
-                model,
-                reset,
-                overshoot,
-                _pad0,
-                dt_secs,
-                a,
-                b,
-                _pad1,
-            }),
-        ),
+        (shaders::TEMPORAL, temporal_twin!()),
+    ]
+}
+
+/// Stages 4–8's uniforms.
+fn stage_4_8_twins() -> Vec<(WgslShader, RustTwin)> {
+    vec![
         (
             shaders::GLARE,
             twin!(GlareParams {
@@ -143,19 +178,7 @@ fn twins() -> Vec<(WgslShader, RustTwin)> {
                 sigma,
             }),
         ),
-        (
-            shaders::ACUITY,
-            twin!(AcuityParams {
-                width,
-                height,
-                model,
-                max_radius,
-                white_cd_m2,
-                sigma_scale,
-                _pad0,
-                _pad1,
-            }),
-        ),
+        (shaders::ACUITY, acuity_twin!()),
         (
             shaders::TONE,
             twin!(ToneParams {
@@ -177,7 +200,6 @@ fn twins() -> Vec<(WgslShader, RustTwin)> {
                 _pad3,
             }),
         ),
-        (shaders::FRAME_STATE, frame_state()),
     ]
 }
 
@@ -414,4 +436,104 @@ fn every_pass_descriptor_declares_its_shaders_bindings_and_entry_points() {
             shader.name
         );
     }
+}
+
+/// `shader` with `from` replaced by `to` (which must occur).
+fn edited(shader: WgslShader, from: &str, to: &str) -> WgslShader {
+    assert!(
+        shader.source.contains(from),
+        "{from:?} not in {}",
+        shader.name
+    );
+    WgslShader {
+        name: shader.name,
+        source: Box::leak(shader.source.replacen(from, to, 1).into_boxed_str()),
+    }
+}
+
+/// The check itself fails on each kind of drift: two WGSL members swapped,
+/// a member added in WGSL only, two Rust fields swapped, a Rust field the
+/// WGSL lacks.
+/// Asserts that `diffs` (printed under `what`) has a line with each of
+/// `needles`.
+fn expect_caught(what: &str, diffs: &[String], needles: &[&str]) {
+    println!("{what}:\n{}", diffs.join("\n"));
+    for needle in needles {
+        assert!(
+            diffs.iter().any(|d| d.contains(needle)),
+            "{what}: {needle} not in {diffs:?}"
+        );
+    }
+}
+
+#[test]
+fn the_twin_check_catches_reordered_and_one_sided_fields() {
+    let rust = temporal_twin!();
+    assert!(struct_differences(&shaders::TEMPORAL, &rust).is_empty());
+    let swapped = edited(
+        shaders::TEMPORAL,
+        "    model: u32,\n    reset: u32,",
+        "    reset: u32,\n    model: u32,",
+    );
+    expect_caught(
+        "WGSL members swapped",
+        &struct_differences(&swapped, &rust),
+        &["member 0: WGSL reset"],
+    );
+    let added = edited(
+        shaders::TEMPORAL,
+        "    _pad1: f32,\n}",
+        "    _pad1: f32,\n    extra: f32,\n}",
+    );
+    expect_caught(
+        "WGSL member added",
+        &struct_differences(&added, &rust),
+        &["WGSL size 36 B, Rust 32 B", "9 members, Rust 8"],
+    );
+    expect_caught(
+        "Rust fields swapped",
+        &struct_differences(&shaders::TEMPORAL, &reordered_temporal_twin()),
+        &["Rust model: u32 at 4"],
+    );
+    expect_caught(
+        "Rust field added",
+        &struct_differences(&shaders::ACUITY, &one_sided_acuity_twin()),
+        &["cover 32 of 36 B"],
+    );
+}
+
+/// A Rust `TemporalParams` with `model` and `reset` swapped.
+fn reordered_temporal_twin() -> RustTwin {
+    #[allow(dead_code)]
+    #[repr(C)]
+    struct TemporalParams {
+        reset: u32,
+        model: u32,
+        overshoot: u32,
+        _pad0: u32,
+        dt_secs: f32,
+        a: f32,
+        b: f32,
+        _pad1: f32,
+    }
+    temporal_twin!()
+}
+
+/// A Rust `AcuityParams` with a field the WGSL struct lacks (and the list
+/// in this test not updated).
+fn one_sided_acuity_twin() -> RustTwin {
+    #[allow(dead_code)]
+    #[repr(C)]
+    struct AcuityParams {
+        width: u32,
+        height: u32,
+        model: u32,
+        max_radius: u32,
+        white_cd_m2: f32,
+        sigma_scale: f32,
+        _pad0: f32,
+        _pad1: f32,
+        extra: f32,
+    }
+    acuity_twin!()
 }
