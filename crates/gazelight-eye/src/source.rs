@@ -38,4 +38,9 @@ pub trait SampleSource: Send {
     fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send;
     /// A one-line human-readable description (kind and location).
     fn describe(&self) -> String;
+    /// Samples the source itself dropped so far (a full internal queue);
+    /// 0 for sources without one.
+    fn dropped(&self) -> u64 {
+        0
+    }
 }

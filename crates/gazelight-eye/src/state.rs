@@ -103,6 +103,20 @@ impl EyeState {
     }
 }
 
+/// The newest filtered state as the live eye task publishes it (on a
+/// `watch` channel: readers take the latest value and never wait).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LiveEyeState {
+    /// The state after the newest sample (or the newest stale-fallback
+    /// step).
+    pub state: EyeState,
+    /// Host time (s, [`crate::clock::host_now_secs`]) when the task wrote
+    /// this state.
+    pub updated_host_secs: f64,
+    /// Samples the chain has consumed so far (0: none yet).
+    pub updates: u64,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

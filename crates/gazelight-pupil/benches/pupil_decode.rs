@@ -247,7 +247,7 @@ fn datum_with_time_slot() -> (Vec<u8>, usize) {
 /// channel into a [`FilterChain`] and takes the time after the chain has
 /// updated the [`gazelight_eye::EyeState`]. Returns the latencies
 /// (s), the number sent and the clock offset the client used.
-async fn latency_run(n: usize, inline: bool) -> (Vec<f64>, Vec<f64>, usize) {
+async fn latency_run(n: usize) -> (Vec<f64>, Vec<f64>, usize) {
     let mut rep = RepSocket::new();
     let rep_ep = rep.bind("tcp://127.0.0.1:0").await.expect("bind REP");
     let listener = TcpListener::bind("127.0.0.1:0").expect("bind bus");
@@ -281,34 +281,9 @@ async fn latency_run(n: usize, inline: bool) -> (Vec<f64>, Vec<f64>, usize) {
         ..PupilConfig::default()
     };
     let deadline = tokio::time::Instant::now() + Duration::from_secs(5 + n as u64 / 1000);
-    let (client, receiver) = if inline {
-        // The client task filters; an observer task waits on the watch.
-        let (client, streams, mut rx) =
-            PupilClient::spawn_filtered(config, FilterChain::with_defaults());
-        drop(streams.samples);
-        client
-            .wait_connected(Duration::from_secs(5))
-            .await
-            .expect("client connects");
-        let offset = client.stats().clock.expect("clock estimate").offset_secs;
-        let receiver = tokio::spawn(async move {
-            let (mut updated, mut observed) = (Vec::with_capacity(n), Vec::with_capacity(n));
-            while let Ok(Ok(())) = tokio::time::timeout_at(deadline, rx.changed()).await {
-                let now = host_now_secs();
-                let live = *rx.borrow_and_update();
-                // The datum's own stamp: t_secs = timestamp − offset.
-                let sent = live.state.t_secs + offset;
-                updated.push(live.updated_host_secs - sent);
-                observed.push(now - sent);
-                if live.updates >= n as u64 {
-                    break;
-                }
-            }
-            (updated, observed)
-        });
-        (client, receiver)
-    } else {
-        // The client task decodes; a consumer task filters.
+    let (client, receiver) = {
+        // The client task decodes; a consumer task filters (as the live
+        // eye task of gazelight-tracker does).
         let (client, streams) = PupilClient::spawn(config);
         client
             .wait_connected(Duration::from_secs(5))
@@ -399,7 +374,7 @@ fn percentiles(l: &mut [f64]) -> String {
     )
 }
 
-fn latency_bench(flavor: Flavor, inline: bool) {
+fn latency_bench(flavor: Flavor) {
     let rt = match flavor {
         Flavor::MultiThread => tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
@@ -411,16 +386,12 @@ fn latency_bench(flavor: Flavor, inline: bool) {
     }
     .expect("runtime");
     let n = 3000;
-    let (mut updated, mut observed, sent) = rt.block_on(latency_run(n, inline));
+    let (mut updated, mut observed, sent) = rt.block_on(latency_run(n));
     if updated.is_empty() {
-        println!("latency ({flavor:?}, inline {inline}): no samples delivered");
+        println!("latency ({flavor:?}): no samples delivered");
         return;
     }
-    let mode = if inline {
-        "inline filter in the client task"
-    } else {
-        "client task -> channel -> consumer task with the filter"
-    };
+    let mode = "client task -> channel -> consumer task with the filter";
     println!(
         "latency {flavor:?}, {mode}: socket send -> EyeState updated, 1 kHz, {} of {sent} measured: {}",
         updated.len(),
@@ -445,8 +416,6 @@ fn main() {
         floor.len(),
         percentiles(&mut floor)
     );
-    for inline in [false, true] {
-        latency_bench(Flavor::MultiThread, inline);
-        latency_bench(Flavor::CurrentThread, inline);
-    }
+    latency_bench(Flavor::MultiThread);
+    latency_bench(Flavor::CurrentThread);
 }

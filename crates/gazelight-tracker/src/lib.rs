@@ -17,14 +17,16 @@
 //! Eye indices follow Pupil Core: index 0 is the right eye, index 1 the
 //! left eye.
 
+pub mod live;
 pub mod lsl;
 pub mod open;
 pub mod source;
+pub mod trace_source;
 pub mod uri;
 
 pub use gazelight_eye::{
     BlinkEvent, DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, GazeEyes, GazeSample,
-    GazeTrace, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
+    GazeTrace, LiveEyeState, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
 };
 pub use gazelight_eye::{calibration, filter, pupil_model, sample, state, synthetic, trace};
 pub use gazelight_import as import;
@@ -46,7 +48,7 @@ pub mod pupil {
 /// Hardware transports (`gazelight-devices`), the source URIs that name
 /// them and [`open`](crate::open::open).
 pub mod transport {
-    pub use crate::open::{AnySource, open};
+    pub use crate::open::{AnySource, OpenOptions, open, open_with};
     pub use crate::uri;
     pub use crate::uri::{SourceUri, UriError};
     pub use gazelight_devices::{

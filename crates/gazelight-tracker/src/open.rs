@@ -1,14 +1,45 @@
-//! Opening a source a URI names: the hardware transports of
-//! `gazelight-devices` behind one [`AnySource`].
+//! Opening the source a URI names — every scheme, behind one
+//! [`AnySource`]: the Pupil client, a replay of any recording, the
+//! synthetic demo, an LSL stream and the hardware transports of
+//! `gazelight-devices`.
 
+use gazelight_devices::lsl::{LslConfig, LslSource};
 use gazelight_devices::{gazepoint, hid, serial, usb};
-use gazelight_eye::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
+use gazelight_eye::{Sample, TraceSample};
+use gazelight_import::Importer;
+use gazelight_pupil::PupilSource;
 
+use crate::live::AgeClock;
+use crate::source::{Pacing, ReplaySource};
+use crate::trace_source::LoopedTrace;
 use crate::uri::SourceUri;
 
-/// Any hardware source, as opened from a [`SourceUri`].
+/// What opening needs beyond the URI.
+#[derive(Clone, Debug, Default)]
+pub struct OpenOptions {
+    /// Settings of `lsl://` inlets.
+    pub lsl: LslConfig,
+    /// The trace `synthetic://demo` loops, with its lap length in seconds
+    /// (the binary builds it for its scene and view); without one,
+    /// `synthetic://demo` is refused.
+    pub synthetic: Option<(Vec<TraceSample>, f64)>,
+}
+
+/// Any source, as opened from a [`SourceUri`].
 pub enum AnySource {
+    /// Pupil Capture / Service (`pupil://`): decoded, clock-aligned samples.
+    Pupil(PupilSource),
+    /// A recording (`replay://`), paced on tokio's clock.
+    Replay {
+        source: ReplaySource<Box<dyn Importer + Send>>,
+        /// The importer's format name.
+        format: &'static str,
+    },
+    /// The looped demo trace (`synthetic://demo`), paced in real time.
+    Synthetic(ReplaySource<LoopedTrace>),
+    /// A Lab Streaming Layer stream (`lsl://`).
+    Lsl(Box<LslSource>),
     /// A HID tracker (`hid://`).
     Hid(hid::HidSource),
     /// A vendor bulk endpoint (`usb://`).
@@ -19,9 +50,25 @@ pub enum AnySource {
     Gazepoint(gazepoint::GazepointSource),
 }
 
+impl AnySource {
+    /// Which clock the source's sample times are on: host time for the
+    /// sources that align their clock to the host's (Pupil, LSL), the
+    /// recording's or device's own for the rest.
+    pub fn age_clock(&self) -> AgeClock {
+        match self {
+            AnySource::Pupil(_) | AnySource::Lsl(_) => AgeClock::SampleTime,
+            _ => AgeClock::PublishTime,
+        }
+    }
+}
+
 impl SampleSource for AnySource {
     async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
         match self {
+            AnySource::Pupil(s) => s.next().await,
+            AnySource::Replay { source, .. } => source.next().await,
+            AnySource::Synthetic(s) => s.next().await,
+            AnySource::Lsl(s) => s.next().await,
             AnySource::Hid(s) => s.next().await,
             AnySource::Usb(s) => s.next().await,
             AnySource::Serial(s) => s.next().await,
@@ -31,24 +78,80 @@ impl SampleSource for AnySource {
 
     fn describe(&self) -> String {
         match self {
+            AnySource::Pupil(s) => {
+                let c = s.client().config();
+                format!("Pupil Capture at {}:{}", c.host, c.remote_port)
+            }
+            AnySource::Replay { source, format } => format!("{} ({format})", source.describe()),
+            AnySource::Synthetic(s) => s.describe(),
+            AnySource::Lsl(s) => s.describe(),
             AnySource::Hid(s) => s.describe(),
             AnySource::Usb(s) => s.describe(),
             AnySource::Serial(s) => s.describe(),
             AnySource::Gazepoint(s) => s.describe(),
         }
     }
+
+    fn dropped(&self) -> u64 {
+        match self {
+            AnySource::Pupil(s) => s.dropped(),
+            _ => 0,
+        }
+    }
 }
 
-/// Open the hardware source a URI names.
-///
-/// `pupil://` and `replay://` are not hardware transports: the service opens
-/// them itself ([`crate::PupilSource`], [`crate::import`]), so for those this
-/// returns [`SourceError::Fatal`] saying so. Opening does not wait for data:
-/// a HID or serial device is opened (so a missing device or a permission
-/// problem is reported here), a Gazepoint connection is made on the first
-/// [`SampleSource::next`].
+/// Opens the source a URI names with default [`OpenOptions`] (no
+/// synthetic trace).
 pub fn open(uri: &SourceUri) -> Result<AnySource, SourceError> {
+    open_with(uri, &OpenOptions::default())
+}
+
+/// Opens the source a URI names. Must be called inside a tokio runtime
+/// (the Pupil client and the LSL inlet start tasks). Opening does not wait
+/// for data: a HID or serial device or a recording is opened (so a missing
+/// file, device or permission is reported here), a Pupil or Gazepoint
+/// connection is made in the background / on the first
+/// [`SampleSource::next`].
+pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, SourceError> {
+    let fatal = |reason: String| SourceError::Fatal {
+        source_name: uri.to_string(),
+        reason,
+    };
     match uri {
+        SourceUri::Pupil { .. } => {
+            let config = uri
+                .pupil_config()
+                .ok_or_else(|| fatal("not a Pupil URI".to_owned()))?;
+            let (source, _raw) = PupilSource::spawn(config);
+            Ok(AnySource::Pupil(source))
+        }
+        SourceUri::Replay { path, speed } => {
+            let importer = gazelight_import::open(path)
+                .map_err(|e| fatal(format!("cannot open the recording: {e}")))?;
+            let format = importer.format();
+            Ok(AnySource::Replay {
+                source: ReplaySource::new(
+                    path.display().to_string(),
+                    importer,
+                    Pacing::Scaled { speed: *speed },
+                ),
+                format,
+            })
+        }
+        SourceUri::Synthetic { .. } => {
+            let (trace, lap_secs) = options
+                .synthetic
+                .clone()
+                .ok_or_else(|| fatal("no synthetic trace was prepared".to_owned()))?;
+            Ok(AnySource::Synthetic(ReplaySource::new(
+                "synthetic demo (looped)",
+                LoopedTrace::new(trace, lap_secs),
+                Pacing::Scaled { speed: 1.0 },
+            )))
+        }
+        SourceUri::Lsl(query) => Ok(AnySource::Lsl(Box::new(
+            LslSource::new(query.clone(), options.lsl.clone()).map_err(|e| fatal(e.to_string()))?,
+        ))),
         SourceUri::Hid(target) => Ok(AnySource::Hid(hid::HidSource::open(
             target.clone(),
             hid::HidOptions::default(),
@@ -68,12 +171,6 @@ pub fn open(uri: &SourceUri) -> Result<AnySource, SourceError> {
         SourceUri::Gazepoint { host, port } => Ok(AnySource::Gazepoint(
             gazepoint::GazepointSource::new(host.clone(), *port),
         )),
-        SourceUri::Pupil { .. } | SourceUri::Replay { .. } => Err(SourceError::Fatal {
-            source_name: uri.to_string(),
-            reason: "not a hardware transport: open pupil:// with the Pupil client and \
-                     replay:// with the recording importers"
-                .to_owned(),
-        }),
     }
 }
 
@@ -82,13 +179,43 @@ mod tests {
     use super::*;
 
     #[test]
-    fn pupil_and_replay_uris_are_not_opened_here() {
-        for s in ["pupil://127.0.0.1:50020", "replay:///tmp/x.pldata"] {
-            let uri: SourceUri = s.parse().unwrap();
-            let Err(SourceError::Fatal { reason, .. }) = open(&uri) else {
-                panic!("{s} should be refused");
-            };
-            assert!(reason.contains("not a hardware transport"), "{reason}");
-        }
+    fn a_missing_recording_is_a_fatal_error_naming_it() {
+        let uri: SourceUri = "replay:///nonexistent/gazelight/rec.csv".parse().unwrap();
+        let Err(SourceError::Fatal {
+            source_name,
+            reason,
+        }) = open(&uri)
+        else {
+            panic!("a missing recording must be refused");
+        };
+        assert!(source_name.contains("/nonexistent/gazelight/rec.csv"));
+        assert!(reason.contains("cannot open the recording"), "{reason}");
+    }
+
+    #[test]
+    fn synthetic_needs_its_trace() {
+        let uri: SourceUri = "synthetic://demo".parse().unwrap();
+        assert!(matches!(open(&uri), Err(SourceError::Fatal { .. })));
+        let trace = vec![TraceSample {
+            t_secs: 0.0,
+            gaze_uv: [0.5, 0.5],
+            pupil_mm: Some(4.0),
+            confidence: 1.0,
+        }];
+        let options = OpenOptions {
+            synthetic: Some((trace, 1.0)),
+            ..OpenOptions::default()
+        };
+        let s = open_with(&uri, &options).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.age_clock(), AgeClock::PublishTime);
+        assert!(s.describe().contains("synthetic demo"));
+    }
+
+    #[tokio::test]
+    async fn pupil_is_opened_with_the_client_and_ages_on_sample_time() {
+        let uri: SourceUri = "pupil://127.0.0.1:9".parse().unwrap();
+        let s = open(&uri).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(s.age_clock(), AgeClock::SampleTime);
+        assert_eq!(s.describe(), "Pupil Capture at 127.0.0.1:9");
     }
 }

@@ -2,29 +2,36 @@
 //!
 //! | URI | source |
 //! | --- | --- |
-//! | `pupil://HOST:PORT` | Pupil Core network API (Pupil Remote port) |
+//! | `pupil://HOST[:PORT]` (or `tcp://HOST[:PORT]`) | Pupil Core network API (Pupil Remote port, 50020 by default) |
 //! | `hid://VVVV:PPPP` | first HID device with that vendor/product id (hex) |
 //! | `hid:///dev/hidrawN` | a HID device by its hidraw node |
 //! | `usb://VVVV:PPPP[?interface=N]` | vendor bulk-IN endpoint of a USB device |
 //! | `serial:///dev/ttyACM0?baud=115200&format=gazepoint\|csv\|framed` | serial line |
 //! | `gazepoint://HOST[:PORT]` | Gazepoint Open Gaze API over TCP (port 4242 by default) |
-//! | `replay://PATH` | a recording, replayed |
+//! | `replay://PATH[?speed=S]` | a recording any importer reads, replayed at S × real time (0 < S ≤ 1000, default 1) |
+//! | `synthetic://demo` | the demo's keyframed trace, looped |
+//! | `lsl://?name=NAME`, `lsl://?type=TYPE`, `lsl://?source_id=ID` | a Lab Streaming Layer stream |
 //!
-//! Parsing never panics; an error names the part of the URI that is wrong
-//! and what was expected.
+//! This is the one parser of source URIs: `run`, `record`, `calibrate` and
+//! `inspect` all go through [`SourceUri::parse`]. Parsing never panics; an
+//! error names the part of the URI that is wrong and what was expected. A
+//! new scheme is one entry in [`SCHEMES`], one variant and one arm.
 
 use std::fmt;
 use std::path::PathBuf;
 use std::str::FromStr;
+
+use gazelight_devices::lsl::LslQuery;
+use gazelight_pupil::{DEFAULT_REMOTE_PORT, PupilConfig};
 
 pub use gazelight_devices::target::{
     DEFAULT_BAUD, GAZEPOINT_DEFAULT_PORT, HidTarget, SerialFormat,
 };
 
 /// A parsed source URI.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum SourceUri {
-    /// Pupil Core network API.
+    /// Pupil Core network API (`pupil://`, `tcp://`).
     Pupil { host: String, port: u16 },
     /// A HID tracker.
     Hid(HidTarget),
@@ -44,9 +51,31 @@ pub enum SourceUri {
     },
     /// Gazepoint Open Gaze API over TCP.
     Gazepoint { host: String, port: u16 },
-    /// A recording.
-    Replay { path: PathBuf },
+    /// A recording, replayed at `speed` × real time.
+    Replay { path: PathBuf, speed: f64 },
+    /// A synthetic session (`synthetic://demo`).
+    Synthetic { name: String },
+    /// A Lab Streaming Layer stream.
+    Lsl(LslQuery),
 }
+
+/// The schemes [`SourceUri::parse`] knows, as named in its errors.
+pub const SCHEMES: &[&str] = &[
+    "pupil",
+    "tcp",
+    "hid",
+    "usb",
+    "serial",
+    "gazepoint",
+    "replay",
+    "synthetic",
+    "lsl",
+];
+
+/// The only synthetic source.
+pub const SYNTHETIC_DEMO: &str = "demo";
+/// Fastest replay speed `replay://…?speed=S` accepts (× real time).
+pub const MAX_REPLAY_SPEED: f64 = 1000.0;
 
 /// Why a URI could not be parsed.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -71,8 +100,11 @@ impl SourceUri {
         let Some((scheme, rest)) = uri.split_once("://") else {
             return Err(err(
                 "scheme",
-                "expected SCHEME://… with SCHEME one of pupil, hid, usb, serial, gazepoint, replay"
-                    .to_owned(),
+                format!(
+                    "expected SCHEME://… with SCHEME one of {} (e.g. pupil://127.0.0.1:50020, \
+                     replay://PATH, synthetic://demo)",
+                    SCHEMES.join(", ")
+                ),
             ));
         };
         let (body, query) = match rest.split_once('?') {
@@ -99,10 +131,27 @@ impl SourceUri {
             Ok(())
         };
         match scheme.to_ascii_lowercase().as_str() {
-            "pupil" => {
+            "pupil" | "tcp" => {
                 allow(&[])?;
-                let (host, port) = host_port(body, None).map_err(|(p, r)| err(p, r))?;
+                let (host, port) =
+                    host_port(body, Some(DEFAULT_REMOTE_PORT)).map_err(|(p, r)| err(p, r))?;
                 Ok(SourceUri::Pupil { host, port })
+            }
+            "lsl" => LslQuery::parse(uri)
+                .map(SourceUri::Lsl)
+                .map_err(|e| err("query", e.reason)),
+            "synthetic" => {
+                allow(&[])?;
+                let name = body.trim_end_matches('/');
+                if name != SYNTHETIC_DEMO {
+                    return Err(err(
+                        "name",
+                        format!("`{name}`: the only synthetic source is synthetic://demo"),
+                    ));
+                }
+                Ok(SourceUri::Synthetic {
+                    name: name.to_owned(),
+                })
             }
             "gazepoint" => {
                 allow(&[])?;
@@ -182,18 +231,33 @@ impl SourceUri {
                 })
             }
             "replay" => {
-                allow(&[])?;
+                allow(&["speed"])?;
                 if body.is_empty() {
-                    return Err(err("path", "expected replay://PATH".to_owned()));
+                    return Err(err("path", "expected replay://PATH[?speed=S]".to_owned()));
                 }
+                let speed = match params.iter().find(|(k, _)| *k == "speed") {
+                    None => 1.0,
+                    Some((_, v)) => v
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|s| s.is_finite() && *s > 0.0 && *s <= MAX_REPLAY_SPEED)
+                        .ok_or_else(|| {
+                            err(
+                                "speed",
+                                format!("`{v}`: expected a number 0 < speed ≤ {MAX_REPLAY_SPEED}"),
+                            )
+                        })?,
+                };
                 Ok(SourceUri::Replay {
                     path: PathBuf::from(body),
+                    speed,
                 })
             }
             other => Err(err(
                 "scheme",
                 format!(
-                    "unknown scheme `{other}` (expected pupil, hid, usb, serial, gazepoint or replay)"
+                    "unknown scheme `{other}` (expected {}://)",
+                    SCHEMES.join("://, ")
                 ),
             )),
         }
@@ -236,9 +300,44 @@ impl fmt::Display for SourceUri {
                 path.display(),
                 format.as_str()
             ),
-            SourceUri::Replay { path } => write!(f, "replay://{}", path.display()),
+            SourceUri::Replay { path, speed } => {
+                write!(f, "replay://{}", path.display())?;
+                if *speed != 1.0 {
+                    write!(f, "?speed={speed}")?;
+                }
+                Ok(())
+            }
+            SourceUri::Synthetic { name } => write!(f, "synthetic://{name}"),
+            SourceUri::Lsl(q) => write!(f, "{q}"),
         }
     }
+}
+
+impl SourceUri {
+    /// The Pupil client settings for a `pupil://` URI (other settings
+    /// default); `None` for every other scheme.
+    pub fn pupil_config(&self) -> Option<PupilConfig> {
+        match self {
+            SourceUri::Pupil { host, port } => Some(PupilConfig {
+                host: host.clone(),
+                remote_port: *port,
+                ..PupilConfig::default()
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// Parses a URI that must name a Pupil Core endpoint (`record`,
+/// `calibrate`, `inspect pupil://…`): the client settings, or an error
+/// naming the wrong part (another scheme is the `scheme` part).
+pub fn pupil_config(uri: &str) -> Result<PupilConfig, UriError> {
+    let parsed = SourceUri::parse(uri)?;
+    parsed.pupil_config().ok_or_else(|| UriError {
+        uri: uri.to_owned(),
+        part: "scheme",
+        reason: "expected pupil://HOST[:PORT] or tcp://HOST[:PORT] (Pupil Remote)".to_owned(),
+    })
 }
 
 fn bracket(host: &str) -> String {
@@ -345,6 +444,10 @@ mod tests {
             "gazepoint://127.0.0.1:4242",
             "gazepoint://[::1]:4242",
             "replay:///data/rec/pupil.pldata",
+            "replay:///data/rec?speed=2.5",
+            "synthetic://demo",
+            "lsl://?name=gazelight-eye",
+            "lsl://?type=Gaze",
         ];
         for c in cases {
             let u = SourceUri::parse(c).unwrap_or_else(|e| panic!("{c}: {e}"));
@@ -388,12 +491,54 @@ mod tests {
     }
 
     #[test]
+    fn the_spellings_the_binary_accepted_still_parse() {
+        // PupilConfig::from_uri's defaults: no port = Pupil Remote's 50020,
+        // tcp:// as an alias of pupil://.
+        for (uri, host, port) in [
+            ("pupil://localhost", "localhost", 50020),
+            ("pupil://10.0.0.2:50021", "10.0.0.2", 50021),
+            ("tcp://127.0.0.1:50020", "127.0.0.1", 50020),
+            ("pupil://127.0.0.1:50020/", "127.0.0.1", 50020),
+        ] {
+            let c = pupil_config(uri).unwrap_or_else(|e| panic!("{uri}: {e}"));
+            assert_eq!((c.host.as_str(), c.remote_port), (host, port), "{uri}");
+        }
+        let e = pupil_config("replay:///x").unwrap_err();
+        assert_eq!(e.part, "scheme");
+        // parse_replay's: a relative path and a speed.
+        assert_eq!(
+            SourceUri::parse("replay://a/b?speed=2").unwrap(),
+            SourceUri::Replay {
+                path: "a/b".into(),
+                speed: 2.0
+            }
+        );
+        assert_eq!(
+            SourceUri::parse("replay://a/b").unwrap(),
+            SourceUri::Replay {
+                path: "a/b".into(),
+                speed: 1.0
+            }
+        );
+        let e = SourceUri::parse("replay://a?speed=0").unwrap_err();
+        assert!(e.to_string().contains("0 < speed ≤ 1000"), "{e}");
+        let e = SourceUri::parse("synthetic://x").unwrap_err();
+        assert!(e.to_string().contains("synthetic://demo"), "{e}");
+        let e = SourceUri::parse("nope://x").unwrap_err();
+        for s in SCHEMES {
+            assert!(e.to_string().contains(&format!("{s}://")), "{e}");
+        }
+    }
+
+    #[test]
     fn errors_name_the_wrong_part() {
         let cases = [
             ("127.0.0.1:4242", "scheme"),
             ("tcp://127.0.0.1:4242", "scheme"),
-            ("pupil://127.0.0.1", "port"),
             ("pupil://127.0.0.1:99999", "port"),
+            ("pupil://h:0", "port"),
+            ("pupil://h:x", "port"),
+            ("tcp://:5", "host"),
             ("pupil://:50020", "host"),
             ("hid://zz61:3437", "vendor id"),
             ("hid://0861:34370", "product id"),
@@ -408,6 +553,13 @@ mod tests {
             ("serial:///dev/ttyACM0?baud=1&baud=2", "query"),
             ("gazepoint://[::1", "host"),
             ("replay://", "path"),
+            ("replay://a?speed=0", "speed"),
+            ("replay://a?speed=1001", "speed"),
+            ("replay://a?speed=fast", "speed"),
+            ("replay://a?x=1", "query"),
+            ("synthetic://other", "name"),
+            ("lsl://", "query"),
+            ("http://x:1", "scheme"),
         ];
         for (uri, part) in cases {
             let e = SourceUri::parse(uri).expect_err(uri);

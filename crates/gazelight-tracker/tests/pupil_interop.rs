@@ -568,12 +568,20 @@ async fn live_summary() {
     let json = serde_json::to_value(&s).unwrap();
     assert!(json["clock_offset_s"]["offset_s"].is_f64());
 
-    // The same stream filtered inside the client task (spawn_filtered):
-    // the published EyeState follows the peer's 3D pupils.
-    let (client, streams, mut rx) =
-        PupilClient::spawn_filtered(local_config(peer.ports.0), FilterChain::with_defaults());
-    drop(streams.samples);
-    client.set_adaptation_luminance(50.0).unwrap();
+    // The same stream through the live eye task (the one place it is
+    // filtered): the published EyeState follows the peer's 3D pupils.
+    let (source, _raw) = PupilSource::spawn(local_config(peer.ports.0));
+    let (stop, shutdown) = tokio::sync::watch::channel(false);
+    let live = gazelight_tracker::live::spawn(
+        "pupil://test",
+        source,
+        FilterChain::with_defaults(),
+        gazelight_tracker::live::AgeClock::SampleTime,
+        shutdown,
+        gazelight_tracker::live::LiveConfig::default(),
+    );
+    live.adaptation.set(50.0);
+    let mut rx = live.eye.clone();
     let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
     while rx.borrow().updates < 600 {
         timeout(
@@ -581,21 +589,26 @@ async fn live_summary() {
             rx.changed(),
         )
         .await
-        .expect("600 inline filter updates within 5 s")
-        .expect("client alive");
+        .expect("600 live filter updates within 5 s")
+        .expect("task alive");
     }
-    let live = *rx.borrow();
-    let age = live.updated_host_secs - live.state.t_secs;
-    assert!((0.0..0.25).contains(&age), "{live:?}");
+    let state = *rx.borrow();
+    let age = state.updated_host_secs - state.state.t_secs;
+    assert!((0.0..0.25).contains(&age), "{state:?}");
     for (e, want) in [(0, 3.75), (1, 4.25)] {
-        let ch = live.state.eyes[e];
-        assert!((ch.pupil_mm - want).abs() < 0.01, "eye {e}: {live:?}");
+        let ch = state.state.eyes[e];
+        assert!((ch.pupil_mm - want).abs() < 0.01, "eye {e}: {state:?}");
         assert_eq!(ch.pupil_origin, gazelight_tracker::PupilOrigin::Measured);
     }
-    assert!(live.state.gaze_valid, "{live:?}");
-    // Nobody reads the sample channel: that is not counted as a loss.
-    assert_eq!(client.stats().dropped, 0);
-    client.shutdown().await;
+    assert!(state.state.gaze_valid, "{state:?}");
+    let status = gazelight_tracker::live::lock_status(&live.status).clone();
+    assert_eq!(status.health, gazelight_tracker::live::SourceHealth::Live);
+    assert_eq!(status.samples_dropped, 0, "{status:?}");
+    stop.send_replace(true);
+    timeout(Duration::from_secs(5), live.task)
+        .await
+        .expect("the live task stops")
+        .expect("no panic");
     drop(peer);
 
     // Nothing listening: a clear error, bounded in time.

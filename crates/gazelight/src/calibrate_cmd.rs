@@ -151,8 +151,8 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             parent.display()
         );
     }
-    let pupil =
-        PupilConfig::from_uri(&args.source).with_context(|| format!("--source {}", args.source))?;
+    let pupil = gazelight_tracker::uri::pupil_config(&args.source)
+        .with_context(|| format!("--source {}", args.source))?;
 
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

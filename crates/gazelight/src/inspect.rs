@@ -6,7 +6,6 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use gazelight_tracker::PupilConfig;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::summary::{summarize_importer, summarize_live};
@@ -68,7 +67,7 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
             anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
         }
-        let config = PupilConfig::from_uri(&uri)?;
+        let config = gazelight_tracker::uri::pupil_config(&uri)?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()

@@ -53,8 +53,8 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
     if args.topics.iter().any(|t| t.trim().is_empty()) {
         bail!("--topics: empty topic prefix");
     }
-    let mut pupil =
-        PupilConfig::from_uri(&args.source).with_context(|| format!("--source {}", args.source))?;
+    let mut pupil = gazelight_tracker::uri::pupil_config(&args.source)
+        .with_context(|| format!("--source {}", args.source))?;
     pupil.topics = args.topics.clone();
     pupil.raw_capacity = RAW_QUEUE;
     if args.out.join("info.player.json").exists() {

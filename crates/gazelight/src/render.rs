@@ -6,14 +6,13 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use gazelight_tracker::filter::FilterChain;
-use gazelight_tracker::{
-    DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeState, GazeEyes, GazeSample, GazeTrace, PupilOrigin,
-    PupilSample, PupilUnit, Sample, TraceSample,
-};
+use gazelight_tracker::filter::{ChainStats, FilterChain};
+use gazelight_tracker::live::LiveChain;
+use gazelight_tracker::trace_source;
+use gazelight_tracker::{EyeState, GazeTrace, PupilOrigin, Sample, TraceSample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput};
-use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
@@ -44,21 +43,8 @@ pub struct RenderArgs {
     /// Pro's 1440x1600).
     #[arg(long, value_name = "WxH", value_parser = crate::service_config::parse_size)]
     pub size: Option<(usize, usize)>,
-    /// Head yaw, degrees (positive right).
-    #[arg(long, allow_hyphen_values = true)]
-    pub yaw_deg: Option<f64>,
-    /// Head pitch, degrees (positive up).
-    #[arg(long, allow_hyphen_values = true)]
-    pub pitch_deg: Option<f64>,
-    /// Horizontal field of view, degrees.
-    #[arg(long)]
-    pub hfov_deg: Option<f64>,
-    /// cd/m² per scene-file unit (the shared panoramas are relative).
-    #[arg(long, conflicts_with = "scene_key_cd_m2")]
-    pub luminance_scale: Option<f64>,
-    /// Scale the scene so its median luminance is this many cd/m².
-    #[arg(long)]
-    pub scene_key_cd_m2: Option<f64>,
+    #[command(flatten)]
+    pub view: crate::view_args::ViewArgs,
     /// TOML configuration (models and parameters); flags override it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
@@ -100,12 +86,7 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
     crate::bounds::fps("--fps", args.fps)?;
 
     // Scene.
-    let scale = match (args.luminance_scale, args.scene_key_cd_m2) {
-        (Some(factor), _) => LuminanceScale::CdM2PerUnit { factor },
-        (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
-        (None, None) => config.scene.luminance_scale.unwrap_or_default(),
-    };
-    crate::bounds::luminance_scale(scale)?;
+    let scale = args.view.scale(config.scene.luminance_scale)?;
     let scene = match &args.scene {
         Some(path) => Scene::load(path, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
@@ -126,13 +107,9 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
         .scene
         .view
         .unwrap_or_else(|| demo::default_view(width, height));
-    let view = ViewParams {
-        yaw_deg: args.yaw_deg.unwrap_or(base_view.yaw_deg),
-        pitch_deg: args.pitch_deg.unwrap_or(base_view.pitch_deg),
-        hfov_deg: args.hfov_deg.unwrap_or(base_view.hfov_deg),
-        width,
-        height,
-    };
+    let view = args
+        .view
+        .view(crate::view_args::ViewDefaults::default(), base_view, (width, height));
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(width, height);
     projection.render(&scene.image, &mut view_img);
@@ -155,27 +132,87 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
     let duration = trace.duration_secs();
-    let mut feeder = TraceFeeder::new(trace);
+    let samples = trace
+        .samples
+        .into_iter()
+        .flat_map(|s| trace_source::expand(&s, s.t_secs));
+    let mut feeder = SampleFeed::new(samples, FilterChain::with_defaults());
     render_sequence(&args, &setup, &mut feeder, t0, duration, started)
 }
 
-/// Something that feeds the frame loop: pushes every sample up to a time
-/// through the tracker's filter chain and maps the resulting `EyeState`
-/// onto the pipeline's per-frame input.
-pub(crate) trait EyeFeed {
+/// Feeds samples (in time order) through the tracker's one chain
+/// ([`LiveChain`]: the filter chain, then the stale → model fallback) on
+/// the recording's clock — every sample up to each frame's time, one
+/// sample of look-ahead, nothing else buffered — and maps the resulting
+/// `EyeState` onto the pipeline's per-frame input, so the PSF never sees a
+/// pupil of 0 (the failure of 001 §7.1). Deterministic: no wall clock.
+pub(crate) struct SampleFeed<I> {
+    samples: I,
+    pending: Option<Sample>,
+    live: LiveChain,
+    updates: u64,
+    held: bool,
+}
+
+impl<I: Iterator<Item = Sample>> SampleFeed<I> {
+    pub(crate) fn new(samples: I, chain: FilterChain) -> Self {
+        Self {
+            samples,
+            pending: None,
+            live: LiveChain::new(chain),
+            updates: 0,
+            held: false,
+        }
+    }
+
     /// The frame input at `t_secs` (feeding the adaptation luminance of the
     /// previous frame back to the pupil model first).
-    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput;
+    pub(crate) fn input(
+        &mut self,
+        t_secs: f64,
+        dt_secs: f32,
+        adaptation_cd_m2: Option<f64>,
+    ) -> FrameInput {
+        if let Some(l) = adaptation_cd_m2 {
+            self.live.set_adaptation_luminance(l);
+        }
+        while let Some(s) = self.pending.take().or_else(|| self.samples.next()) {
+            if s.t_secs() > t_secs {
+                self.pending = Some(s);
+                break;
+            }
+            self.live.push(&s);
+            self.updates += 1;
+        }
+        let age_secs = (t_secs - self.live.chain().state().t_secs).max(0.0);
+        let state = self.live.state_at(t_secs, age_secs, self.updates);
+        let (input, held) = frame_input(&state, dt_secs);
+        self.held = held;
+        input
+    }
+
     /// Whether either pupil is held or modelled rather than measured.
-    fn held(&self) -> bool;
+    pub(crate) fn held(&self) -> bool {
+        self.held
+    }
+
+    /// The chain's counters.
+    pub(crate) fn stats(&self) -> &ChainStats {
+        self.live.stats()
+    }
+
+    /// The sample iterator (for what it counted).
+    pub(crate) fn samples(&self) -> &I {
+        &self.samples
+    }
 }
 
 /// Renders frames from `t0` over `duration_secs` (or `--frames`) and writes
 /// the outputs.
-pub(crate) fn render_sequence(
+pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     args: &RenderArgs,
     setup: &Setup,
-    eye: &mut dyn EyeFeed,
+    eye: &mut SampleFeed<I>,
     t0: f64,
     duration_secs: f64,
     started: Instant,
@@ -330,67 +367,6 @@ fn sweep_trace() -> GazeTrace {
     }
 }
 
-/// Feeds trace samples through the tracker's filter chain (confidence gate,
-/// physiological bounds, blink detection, dropout hold → pupil model) and
-/// maps the resulting `EyeState` onto the pipeline's per-frame input, so the
-/// PSF never sees a pupil of 0 (the failure of 001 §7.1).
-struct TraceFeeder {
-    trace: GazeTrace,
-    chain: FilterChain,
-    next: usize,
-    held: bool,
-}
-
-impl TraceFeeder {
-    fn new(trace: GazeTrace) -> Self {
-        Self {
-            trace,
-            chain: FilterChain::with_defaults(),
-            next: 0,
-            held: false,
-        }
-    }
-}
-
-impl EyeFeed for TraceFeeder {
-    fn held(&self) -> bool {
-        self.held
-    }
-
-    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput {
-        if let Some(l) = adaptation_cd_m2 {
-            self.chain.set_adaptation_luminance(l);
-        }
-        while let Some(s) = self.trace.samples.get(self.next) {
-            if s.t_secs > t_secs {
-                break;
-            }
-            for eye in [EYE_RIGHT as u8, EYE_LEFT as u8] {
-                self.chain.push(&Sample::Pupil(PupilSample {
-                    t_secs: s.t_secs,
-                    eye,
-                    diameter_raw: s.pupil_mm.unwrap_or(0.0),
-                    unit: PupilUnit::Mm,
-                    diameter_mm: s.pupil_mm,
-                    confidence: s.confidence,
-                    norm_pos: [f32::NAN; 2],
-                    method: DetectorMethod::Other,
-                }));
-            }
-            self.chain.push(&Sample::Gaze(GazeSample {
-                t_secs: s.t_secs,
-                gaze_uv: s.gaze_uv,
-                confidence: s.confidence,
-                eyes: GazeEyes::Binocular,
-            }));
-            self.next += 1;
-        }
-        let (input, held) = frame_input(self.chain.state(), dt_secs);
-        self.held = held;
-        input
-    }
-}
-
 /// Maps a filtered `EyeState` onto the pipeline's per-frame input; also says
 /// whether either pupil is held or modelled rather than measured.
 pub(crate) fn frame_input(state: &EyeState, dt_secs: f32) -> (FrameInput, bool) {
@@ -411,6 +387,7 @@ pub(crate) fn frame_input(state: &EyeState, dt_secs: f32) -> (FrameInput, bool) 
 #[cfg(test)]
 mod tests {
     use clap::Parser;
+    use gazelight_vision::scene::LuminanceScale;
 
     use super::*;
 

@@ -5,8 +5,8 @@
 //!
 //! The recording is streamed, never loaded whole: one pass reads only the
 //! time range (for the frame count and the progress bar), a second pass
-//! feeds the samples through the tracker's filter chain just ahead of the
-//! frame clock. Frames are placed on the recording's own clock at `--fps`,
+//! feeds the samples through the tracker's one chain (the live eye task's,
+//! on the recording's clock) just ahead of the frame clock. Frames are placed on the recording's own clock at `--fps`,
 //! so a replay is deterministic and runs as fast as the pipeline allows.
 
 use std::path::PathBuf;
@@ -18,10 +18,9 @@ use gazelight_tracker::calibration::PupilCalibration;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import::{self, Importer};
 use gazelight_tracker::{PupilUnit, Sample};
-use gazelight_vision::pipeline::FrameInput;
 
 use crate::input_report;
-use crate::render::{self, EyeFeed, RenderArgs};
+use crate::render::{self, RenderArgs, SampleFeed};
 
 /// Arguments of `gazelight replay`.
 #[derive(Args, Debug)]
@@ -107,12 +106,13 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         calibration.as_ref().map(|c| &c.observer),
     )?;
     let importer = import::open(&args.recording)?;
-    let mut feeder = SampleFeeder::new(importer);
+    let mut chain = FilterChain::with_defaults();
     if let Some(c) = calibration {
-        feeder.chain.set_calibration(c);
+        chain.set_calibration(c);
     }
+    let mut feeder = SampleFeed::new(ImporterSamples::new(importer), chain);
     render::render_sequence(&args.render, &setup, &mut feeder, t0, duration, started)?;
-    let w = feeder.importer.warnings();
+    let w = feeder.samples().importer.warnings();
     if w.skipped_records > 0 {
         println!(
             "{}: skipped {} malformed records (see the log); the first: {}",
@@ -121,7 +121,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             w.messages.first().map_or("-", String::as_str)
         );
     }
-    if let Some(warning) = input_report::pupil_rejection(feeder.chain.stats()) {
+    if let Some(warning) = input_report::pupil_rejection(feeder.stats()) {
         tracing::warn!(recording = %args.recording.display(), "{warning}");
         eprintln!("warning: {}: {warning}", args.recording.display());
     }
@@ -184,63 +184,39 @@ fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
     })
 }
 
-/// Feeds an importer's samples through the filter chain up to each frame's
-/// time (one sample of look-ahead; nothing else is buffered).
-struct SampleFeeder {
+/// An importer's samples; a read error ends them (logged).
+struct ImporterSamples {
     importer: Box<dyn Importer + Send>,
-    chain: FilterChain,
-    pending: Option<Sample>,
     ended: bool,
-    held: bool,
 }
 
-impl SampleFeeder {
+impl ImporterSamples {
     fn new(importer: Box<dyn Importer + Send>) -> Self {
         Self {
             importer,
-            chain: FilterChain::with_defaults(),
-            pending: None,
             ended: false,
-            held: false,
         }
-    }
-
-    fn next_sample(&mut self) -> Option<Sample> {
-        if let Some(s) = self.pending.take() {
-            return Some(s);
-        }
-        while !self.ended {
-            match self.importer.next() {
-                Some(Ok(s)) => return Some(s),
-                Some(Err(e)) => {
-                    tracing::warn!(error = %e, "recording ended early");
-                    self.ended = true;
-                }
-                None => self.ended = true,
-            }
-        }
-        None
     }
 }
 
-impl EyeFeed for SampleFeeder {
-    fn input(&mut self, t_secs: f64, dt_secs: f32, adaptation_cd_m2: Option<f64>) -> FrameInput {
-        if let Some(l) = adaptation_cd_m2 {
-            self.chain.set_adaptation_luminance(l);
-        }
-        while let Some(s) = self.next_sample() {
-            if s.t_secs() > t_secs {
-                self.pending = Some(s);
-                break;
-            }
-            self.chain.push(&s);
-        }
-        let (input, held) = render::frame_input(self.chain.state(), dt_secs);
-        self.held = held;
-        input
-    }
+impl Iterator for ImporterSamples {
+    type Item = Sample;
 
-    fn held(&self) -> bool {
-        self.held
+    fn next(&mut self) -> Option<Sample> {
+        if self.ended {
+            return None;
+        }
+        match self.importer.next() {
+            Some(Ok(s)) => Some(s),
+            Some(Err(e)) => {
+                tracing::warn!(error = %e, "recording ended early");
+                self.ended = true;
+                None
+            }
+            None => {
+                self.ended = true;
+                None
+            }
+        }
     }
 }

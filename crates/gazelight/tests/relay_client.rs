@@ -19,7 +19,7 @@ use std::time::Duration;
 
 use common::{Proc, free_port, spawn_peer, wait_listening};
 
-use gazelight_tracker::pupil::{PupilClient, PupilConfig};
+use gazelight_tracker::pupil::PupilClient;
 use gazelight_tracker::{PupilUnit, Sample};
 
 /// The peer's published values (pupil_peer.py PUPIL_2D / PUPIL_3D).
@@ -144,7 +144,8 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
         .build()
         .unwrap();
     rt.block_on(async {
-        let config = PupilConfig::from_uri(&format!("pupil://127.0.0.1:{relay_port}")).unwrap();
+        let config = gazelight_tracker::uri::pupil_config(&format!("pupil://127.0.0.1:{relay_port}"))
+            .unwrap();
         let (client, mut streams) = PupilClient::spawn(config);
         client.wait_connected(Duration::from_secs(5)).await.unwrap();
         let mut pupils = [0usize; 2];

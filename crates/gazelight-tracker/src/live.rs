@@ -1,0 +1,776 @@
+//! The live eye task: the one place an `EyeState` is filtered.
+//!
+//! [`spawn`] runs any [`SampleSource`] (what [`crate::open::open_with`]
+//! returns for every URI, Pupil included) through a [`LiveChain`] — the
+//! filter chain of `gazelight-eye` followed by the stale → model fallback —
+//! and publishes:
+//! - the latest [`LiveEyeState`] on a `watch` channel (readers `borrow()`
+//!   it and never wait: the frame loop reads it every frame);
+//! - every sample the chain consumed on a bounded `broadcast` (recorders,
+//!   the relay, LSL, telemetry): a receiver that lags loses the oldest
+//!   samples and learns how many (`RecvError::Lagged`), the sender never
+//!   waits;
+//! - the source's [`SourceStatus`] (health, rate, confidence, dropout rate
+//!   by the chain's own rule, counters).
+//!
+//! The stale → model fallback: when no sample has made the state fresh for
+//! [`STALE_AFTER_SECS`] (the tracker vanished), the pupil is filled the
+//! way the chain fills a dropout — the last pupil is held for
+//! `dropout.hold_s`, then eases towards the Watson–Yellott pupil at the
+//! adaptation luminance the frame loop feeds back ([`AdaptationCell`]) —
+//! and the output's rate is limited at `physio.max_rate_mm_per_s`, so
+//! glare neither freezes on a lost tracker nor jumps when it returns. The
+//! task steps it every [`LiveConfig::tick`] while no samples arrive.
+//!
+//! Offline (`render`, `replay`) the same [`LiveChain`] runs on the
+//! recording's clock: [`LiveChain::state_at`] with the frame's time, so a
+//! replay is deterministic.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use gazelight_eye::clock::host_now_secs;
+use gazelight_eye::filter::{
+    ChainStats, ChainUpdate, DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterChain,
+    SlewLimiter,
+};
+use gazelight_eye::pupil_model::PupilModel;
+use gazelight_eye::source::{SampleSource, SourceError};
+use gazelight_eye::{EYE_LEFT, EYE_RIGHT, EyeState, LiveEyeState, PupilOrigin, Sample};
+use serde::Serialize;
+use tokio::sync::{broadcast, watch};
+use tokio::task::JoinHandle;
+
+/// An `EyeState` older than this is stale: the tracker is not delivering.
+pub const STALE_AFTER_SECS: f64 = 0.25;
+/// Capacity of the sample broadcast (≈ 4 s at 1 kHz).
+pub const SAMPLE_BROADCAST_CAPACITY: usize = 4096;
+
+/// Which clock the `EyeState`'s age is measured on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AgeClock {
+    /// `EyeState::t_secs` is host time (live sources that align clocks):
+    /// age = now − time of the newest sample, transport included.
+    SampleTime,
+    /// The state's times are on a recording's or device's clock: age =
+    /// now − when the task published the newest sample's state.
+    PublishTime,
+}
+
+impl AgeClock {
+    /// Age of `live` at host time `now_host_secs`, s (never negative).
+    pub fn age_secs(self, live: &LiveEyeState, now_host_secs: f64) -> f64 {
+        match self {
+            AgeClock::SampleTime => now_host_secs - live.state.t_secs,
+            AgeClock::PublishTime => now_host_secs - live.updated_host_secs,
+        }
+        .max(0.0)
+    }
+}
+
+/// The adaptation luminance the frame loop feeds back to the pupil
+/// fallback (cd/m², stored as `f64` bits; NaN = none yet). Lock-free, no
+/// allocation.
+#[derive(Debug)]
+pub struct AdaptationCell(AtomicU64);
+
+impl Default for AdaptationCell {
+    fn default() -> Self {
+        Self(AtomicU64::new(f64::NAN.to_bits()))
+    }
+}
+
+impl AdaptationCell {
+    /// Stores the newest adaptation luminance.
+    pub fn set(&self, luminance_cd_m2: f64) {
+        self.0.store(luminance_cd_m2.to_bits(), Ordering::Relaxed);
+    }
+
+    /// The newest value, if any.
+    pub fn get(&self) -> Option<f64> {
+        let v = f64::from_bits(self.0.load(Ordering::Relaxed));
+        v.is_finite().then_some(v)
+    }
+}
+
+/// Health of the tracker source.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceHealth {
+    /// Not connected yet.
+    #[default]
+    Connecting,
+    /// Samples are arriving.
+    Live,
+    /// The source was connected and is gone (the service keeps running).
+    Lost,
+    /// A finite source (a replay) has ended.
+    Ended,
+}
+
+/// Source-side counters, written by the live task.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SourceStatus {
+    /// The source URI (`pupil://127.0.0.1:50020`, `replay://…`).
+    pub uri: String,
+    pub health: SourceHealth,
+    /// Samples per second over the last second.
+    pub sample_rate_hz: f64,
+    /// Mean confidence of the samples over the last second.
+    pub confidence: f64,
+    /// Fraction of pupil samples over the last second that the filter
+    /// rejected or held (blink, low confidence, dropout).
+    pub dropout_rate: f64,
+    /// Samples received since start.
+    pub samples_total: u64,
+    /// Samples dropped by bounded queues since start.
+    pub samples_dropped: u64,
+    /// Re-connections since start.
+    pub reconnects: u64,
+    /// Why the source was last lost, if it was.
+    pub last_error: Option<String>,
+}
+
+/// The source status, shared between the live task and its readers.
+pub type SharedStatus = Arc<Mutex<SourceStatus>>;
+
+/// Locks a shared status (a poisoned lock only means a panic elsewhere;
+/// the data is plain values).
+pub fn lock_status(s: &Mutex<SourceStatus>) -> MutexGuard<'_, SourceStatus> {
+    s.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// The filter chain followed by the stale → model fallback: the one chain
+/// every `EyeState` goes through, live and offline.
+#[derive(Clone, Debug)]
+pub struct LiveChain {
+    chain: FilterChain,
+    model: PupilModel,
+    fill: [DropoutFill; 2],
+    slew: [SlewLimiter; 2],
+    luminance_cd_m2: Option<f64>,
+    stale_after_secs: f64,
+}
+
+impl LiveChain {
+    /// Wraps `chain`; the fallback uses its dropout, physiology and pupil
+    /// model settings.
+    pub fn new(chain: FilterChain) -> Self {
+        let cfg = *chain.config();
+        let model_mm = cfg.pupil_model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
+        Self {
+            model: cfg.pupil_model,
+            fill: [DropoutFill::new(cfg.dropout, model_mm); 2],
+            slew: [SlewLimiter::new(cfg.physio.max_rate_mm_per_s, model_mm); 2],
+            luminance_cd_m2: None,
+            stale_after_secs: STALE_AFTER_SECS,
+            chain,
+        }
+    }
+
+    /// The adaptation luminance (cd/m²) the vision pipeline uses now: the
+    /// chain's dropout stage and the fallback ease towards the model pupil
+    /// at it.
+    pub fn set_adaptation_luminance(&mut self, luminance_cd_m2: f64) {
+        if luminance_cd_m2.is_finite()
+            && luminance_cd_m2 >= 0.0
+            && self.luminance_cd_m2 != Some(luminance_cd_m2)
+        {
+            self.chain.set_adaptation_luminance(luminance_cd_m2);
+            self.luminance_cd_m2 = Some(luminance_cd_m2);
+        }
+    }
+
+    /// Feeds one sample to the filter chain.
+    pub fn push(&mut self, sample: &Sample) -> ChainUpdate {
+        self.chain.push(sample)
+    }
+
+    /// The chain's counters.
+    pub fn stats(&self) -> &ChainStats {
+        self.chain.stats()
+    }
+
+    /// The filter chain.
+    pub fn chain(&self) -> &FilterChain {
+        &self.chain
+    }
+
+    /// The state at `now_secs` (the clock the fallback runs on: host time
+    /// live, the recording's offline) when the chain's state is `age_secs`
+    /// old after `updates` samples: the chain's state, with each pupil
+    /// passed through the fallback (held, then eased to the model while
+    /// stale) and rate-limited.
+    pub fn state_at(&mut self, now_secs: f64, age_secs: f64, updates: u64) -> EyeState {
+        let mut state = *self.chain.state();
+        let fresh = updates > 0 && age_secs <= self.stale_after_secs;
+        let model_mm = self.model.pupil_mm(
+            self.luminance_cd_m2
+                .unwrap_or(DEFAULT_ADAPTATION_LUMINANCE_CD_M2),
+        );
+        for e in [EYE_RIGHT, EYE_LEFT] {
+            let ch = &mut state.eyes[e];
+            let measured =
+                (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
+            let (filled, origin) = self.fill[e].update(now_secs, measured, model_mm);
+            let target = if fresh { ch.pupil_mm } else { filled };
+            ch.pupil_mm = self.slew[e].step(now_secs, target);
+            if !fresh {
+                ch.pupil_origin = origin;
+            }
+        }
+        state
+    }
+}
+
+/// Settings of the live task.
+#[derive(Clone, Copy, Debug)]
+pub struct LiveConfig {
+    /// How often the source status is published.
+    pub status_period: Duration,
+    /// How often the fallback is stepped while no samples arrive.
+    pub tick: Duration,
+    /// A source silent this long is reported Lost, s.
+    pub silent_lost_secs: f64,
+    /// Capacity of the sample broadcast.
+    pub broadcast_capacity: usize,
+}
+
+impl Default for LiveConfig {
+    fn default() -> Self {
+        Self {
+            status_period: Duration::from_millis(250),
+            tick: Duration::from_millis(10),
+            silent_lost_secs: 1.0,
+            broadcast_capacity: SAMPLE_BROADCAST_CAPACITY,
+        }
+    }
+}
+
+/// A running live eye task: what it publishes, and the task.
+pub struct LiveEye {
+    /// The latest state (`borrow()` it; never waits).
+    pub eye: watch::Receiver<LiveEyeState>,
+    /// The samples the chain consumed (`subscribe()`).
+    pub samples: broadcast::Sender<Sample>,
+    /// The source status.
+    pub status: SharedStatus,
+    /// Where the frame loop stores the adaptation luminance.
+    pub adaptation: Arc<AdaptationCell>,
+    /// Which clock the state's age is measured on.
+    pub age_clock: AgeClock,
+    /// The source, in one line.
+    pub describe: String,
+    /// The task; it ends at the end of the stream, on a fatal error or
+    /// when `shutdown` turns true.
+    pub task: JoinHandle<()>,
+}
+
+/// Starts the live eye task for `source` (named `uri` in the status).
+/// Must be called inside a tokio runtime.
+pub fn spawn<S: SampleSource + 'static>(
+    uri: &str,
+    source: S,
+    chain: FilterChain,
+    age_clock: AgeClock,
+    shutdown: watch::Receiver<bool>,
+    config: LiveConfig,
+) -> LiveEye {
+    let initial = LiveEyeState {
+        state: *chain.state(),
+        updated_host_secs: host_now_secs(),
+        updates: 0,
+    };
+    let (eye_tx, eye) = watch::channel(initial);
+    let (samples, _) = broadcast::channel(config.broadcast_capacity.max(1));
+    let status = Arc::new(Mutex::new(SourceStatus {
+        uri: uri.to_owned(),
+        ..SourceStatus::default()
+    }));
+    let adaptation = Arc::new(AdaptationCell::default());
+    let describe = source.describe();
+    let task = tokio::spawn(
+        Task {
+            source,
+            chain: LiveChain::new(chain),
+            age_clock,
+            config,
+            eye_tx,
+            samples: samples.clone(),
+            status: status.clone(),
+            adaptation: adaptation.clone(),
+            shutdown,
+        }
+        .run(),
+    );
+    LiveEye {
+        eye,
+        samples,
+        status,
+        adaptation,
+        age_clock,
+        describe,
+        task,
+    }
+}
+
+/// Rate, confidence and dropout over a window of about a second.
+#[derive(Debug, Default)]
+struct RateWindow {
+    start_secs: f64,
+    samples: u64,
+    confidence_sum: f64,
+    pupil: u64,
+    pupil_dropped: u64,
+    last_sample_secs: Option<f64>,
+}
+
+impl RateWindow {
+    fn new(now: f64) -> Self {
+        Self {
+            start_secs: now,
+            ..Self::default()
+        }
+    }
+
+    fn add(&mut self, now: f64, confidence: f32, pupil_dropped: Option<bool>) {
+        self.samples += 1;
+        if confidence.is_finite() {
+            self.confidence_sum += f64::from(confidence.clamp(0.0, 1.0));
+        }
+        if let Some(d) = pupil_dropped {
+            self.pupil += 1;
+            self.pupil_dropped += u64::from(d);
+        }
+        self.last_sample_secs = Some(now);
+    }
+
+    /// Publishes the window into `s` when it has run ≥ 1 s (then restarts
+    /// it); always updates the running total.
+    fn publish(&mut self, now: f64, s: &mut SourceStatus, total: u64) {
+        let elapsed = now - self.start_secs;
+        s.samples_total = total;
+        if elapsed < 1.0 {
+            return;
+        }
+        let n = self.samples;
+        s.sample_rate_hz = n as f64 / elapsed;
+        s.confidence = if n > 0 {
+            self.confidence_sum / n as f64
+        } else {
+            0.0
+        };
+        s.dropout_rate = if self.pupil > 0 {
+            self.pupil_dropped as f64 / self.pupil as f64
+        } else if n == 0 {
+            1.0
+        } else {
+            0.0
+        };
+        let last = self.last_sample_secs;
+        *self = Self::new(now);
+        self.last_sample_secs = last;
+    }
+
+    fn silent_for(&self, now: f64) -> Option<f64> {
+        self.last_sample_secs.map(|t| now - t)
+    }
+}
+
+fn sample_confidence(s: &Sample) -> f32 {
+    match s {
+        Sample::Pupil(p) => p.confidence,
+        Sample::Gaze(g) => g.confidence,
+        Sample::Blink(_) => f32::NAN,
+    }
+}
+
+struct Task<S> {
+    source: S,
+    chain: LiveChain,
+    age_clock: AgeClock,
+    config: LiveConfig,
+    eye_tx: watch::Sender<LiveEyeState>,
+    samples: broadcast::Sender<Sample>,
+    status: SharedStatus,
+    adaptation: Arc<AdaptationCell>,
+    shutdown: watch::Receiver<bool>,
+}
+
+/// Publishes `chain`'s state at host time `now` after `updates` samples;
+/// `published_host_secs` is when the newest sample's state was published.
+fn publish(
+    chain: &mut LiveChain,
+    eye_tx: &watch::Sender<LiveEyeState>,
+    age_clock: AgeClock,
+    now: f64,
+    updates: u64,
+    published_host_secs: f64,
+) {
+    let last = LiveEyeState {
+        state: *chain.chain().state(),
+        updated_host_secs: published_host_secs,
+        updates,
+    };
+    let age = age_clock.age_secs(&last, now);
+    let state = chain.state_at(now, age, updates);
+    let next = LiveEyeState { state, ..last };
+    // A fallback step that changes nothing wakes no reader.
+    eye_tx.send_if_modified(|cur| {
+        let changed = *cur != next;
+        *cur = next;
+        changed
+    });
+}
+
+impl<S: SampleSource> Task<S> {
+    async fn run(self) {
+        let Task {
+            mut source,
+            mut chain,
+            age_clock,
+            config,
+            eye_tx,
+            samples,
+            status,
+            adaptation,
+            mut shutdown,
+        } = self;
+        let update = |f: &mut dyn FnMut(&mut SourceStatus)| f(&mut lock_status(&status));
+        let mut status_tick = tokio::time::interval(config.status_period);
+        status_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut fallback_tick = tokio::time::interval(config.tick);
+        fallback_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let tick_secs = config.tick.as_secs_f64();
+        let mut window = RateWindow::new(host_now_secs());
+        let mut updates = 0u64;
+        let mut published_host_secs = host_now_secs();
+        let mut last_sample_host_secs = f64::NEG_INFINITY;
+        let mut item_errors = 0u64;
+        let mut dropped = 0u64;
+        let mut live = false;
+        let mut was_lost = false;
+        let mut ended = false;
+        let describe = source.describe();
+        tracing::info!(source = %describe, "source started");
+        loop {
+            if *shutdown.borrow() {
+                break;
+            }
+            // The pending `next` survives the ticks (a replay's pacing
+            // sleep or a half-read line is never lost).
+            let result = {
+                let next = source.next();
+                tokio::pin!(next);
+                loop {
+                    tokio::select! {
+                        r = &mut next => break Some(r),
+                        _ = shutdown.changed() => break None,
+                        _ = fallback_tick.tick() => {
+                            let now = host_now_secs();
+                            if now - last_sample_host_secs >= tick_secs {
+                                if let Some(l) = adaptation.get() {
+                                    chain.set_adaptation_luminance(l);
+                                }
+                                publish(&mut chain, &eye_tx, age_clock, now, updates, published_host_secs);
+                            }
+                        }
+                        _ = status_tick.tick() => {
+                            let now = host_now_secs();
+                            update(&mut |s| {
+                                window.publish(now, s, updates);
+                                s.samples_dropped = dropped;
+                            });
+                            if let Some(silent) = window.silent_for(now)
+                                && silent > config.silent_lost_secs
+                                && live
+                            {
+                                live = false;
+                                was_lost = true;
+                                tracing::warn!(source = %describe, "no samples for {silent:.1} s: source lost; frames continue");
+                                update(&mut |s| {
+                                    s.health = SourceHealth::Lost;
+                                    s.last_error = Some(format!("no samples for {silent:.1} s"));
+                                });
+                            }
+                        }
+                    }
+                }
+            };
+            let Some(result) = result else { break };
+            dropped = source.dropped();
+            match result {
+                Ok(Some(sample)) => {
+                    if let Some(l) = adaptation.get() {
+                        chain.set_adaptation_luminance(l);
+                    }
+                    let up = chain.push(&sample);
+                    updates += 1;
+                    let now = host_now_secs();
+                    published_host_secs = now;
+                    last_sample_host_secs = now;
+                    publish(&mut chain, &eye_tx, age_clock, now, updates, now);
+                    window.add(
+                        now,
+                        sample_confidence(&sample),
+                        up.pupil_eye.map(|_| !up.measured),
+                    );
+                    // No receiver is fine; a full ring drops its oldest.
+                    let _ = samples.send(sample);
+                    if !live {
+                        live = true;
+                        if was_lost {
+                            tracing::info!(source = %describe, "source is back: live again");
+                        } else {
+                            tracing::info!(source = %describe, "source live");
+                        }
+                        update(&mut |s| s.health = SourceHealth::Live);
+                    }
+                }
+                Ok(None) => {
+                    let now = host_now_secs();
+                    update(&mut |s| {
+                        window.publish(now, s, updates);
+                        s.health = SourceHealth::Ended;
+                    });
+                    tracing::info!(source = %describe, samples = updates, "source ended; frames continue with the last state");
+                    ended = true;
+                    break;
+                }
+                Err(e @ SourceError::Item { .. }) => {
+                    item_errors += 1;
+                    if item_errors <= 10 {
+                        tracing::warn!(error = %e, "skipped a bad item");
+                    }
+                }
+                Err(SourceError::Disconnected { reason, .. }) => {
+                    let was_live = std::mem::replace(&mut live, false);
+                    was_lost |= was_live;
+                    update(&mut |s| {
+                        if was_live {
+                            s.reconnects += 1;
+                        }
+                        s.health = SourceHealth::Lost;
+                        s.last_error = Some(reason.clone());
+                    });
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                }
+                Err(SourceError::Fatal { reason, .. }) => {
+                    tracing::error!(source = %describe, "source failed: {reason}; frames continue");
+                    update(&mut |s| {
+                        s.health = SourceHealth::Lost;
+                        s.last_error = Some(reason.clone());
+                    });
+                    ended = true;
+                    break;
+                }
+            }
+        }
+        // A source that ended or failed leaves the state to the fallback
+        // (held, then the model) until the session ends.
+        while ended && !*shutdown.borrow() {
+            tokio::select! {
+                _ = shutdown.changed() => break,
+                _ = fallback_tick.tick() => {
+                    if let Some(l) = adaptation.get() {
+                        chain.set_adaptation_luminance(l);
+                    }
+                    publish(&mut chain, &eye_tx, age_clock, host_now_secs(), updates, published_host_secs);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gazelight_eye::{DetectorMethod, PupilSample, PupilUnit};
+
+    use crate::source::{Pacing, ReplaySource};
+
+    fn pupil(t: f64, eye: u8, mm: f32) -> Sample {
+        Sample::Pupil(PupilSample {
+            t_secs: t,
+            eye,
+            diameter_raw: mm,
+            unit: PupilUnit::Mm,
+            diameter_mm: Some(mm),
+            confidence: 0.95,
+            norm_pos: [0.5, 0.5],
+            method: DetectorMethod::Other,
+        })
+    }
+
+    /// Moved from the frame loop (which filtered on top of the chain until
+    /// the fallback became this stage of the one chain): the frames' clock
+    /// is the fallback's.
+    #[test]
+    fn a_lost_tracker_holds_then_eases_to_the_model_and_recovers() {
+        let mut live = LiveChain::new(FilterChain::with_defaults());
+        // A dark scene: the model pupil is wide.
+        let luminance = 0.05;
+        live.set_adaptation_luminance(luminance);
+        let dt = 1.0 / 90.0;
+        let mut t = 0.0;
+        let mut updates = 0;
+        let mut last_t = 0.0;
+        let frame = |live: &mut LiveChain, t: f64, last_t: f64, updates: u64| {
+            live.state_at(t, t - last_t, updates).pupil_mm()
+        };
+        // 1 s live at 3 mm.
+        let mut last = 0.0;
+        while t < 1.0 {
+            for eye in [0, 1] {
+                live.push(&pupil(t, eye, 3.0));
+            }
+            updates += 2;
+            last_t = t;
+            last = frame(&mut live, t, last_t, updates);
+            t += dt;
+        }
+        assert!((last - 3.0).abs() < 1e-3, "live: {last}");
+        let lost_at = t;
+        // Lost: fresh for 0.25 s, then held for 0.5 s.
+        while t < lost_at + 0.65 {
+            last = frame(&mut live, t, last_t, updates);
+            t += dt;
+        }
+        assert!((last - 3.0).abs() < 1e-3, "held: {last}");
+        while t < lost_at + 4.0 {
+            last = frame(&mut live, t, last_t, updates);
+            t += dt;
+        }
+        // Eased towards the model pupil at 0.5 mm/s (dropout default) for
+        // the ≈ 3.25 s after the hold.
+        let model = PupilModel::default().pupil_mm(luminance);
+        assert!(model > 4.0, "the dark scene's model pupil: {model}");
+        let expected = (model - 3.0).min(0.5 * (4.0 - STALE_AFTER_SECS - 0.5) as f32);
+        let eased = last - 3.0;
+        assert!(
+            (eased - expected).abs() < 0.15,
+            "eased {eased} mm, expected {expected}"
+        );
+        let state = live.state_at(t, t - last_t, updates);
+        assert!(
+            state
+                .eyes
+                .iter()
+                .all(|e| e.pupil_origin == PupilOrigin::Model)
+        );
+        // The tracker comes back at 6 mm: the pupil returns at ≤ 6 mm/s.
+        let before = last;
+        for eye in [0, 1] {
+            live.push(&pupil(t, eye, 6.0));
+        }
+        updates += 2;
+        last_t = t;
+        let back = frame(&mut live, t, last_t, updates);
+        assert!((back - before).abs() <= 6.0 * dt as f32 + 1e-3);
+        for _ in 0..90 {
+            t += dt;
+            for eye in [0, 1] {
+                live.push(&pupil(t, eye, 6.0));
+            }
+            updates += 2;
+            last_t = t;
+            last = frame(&mut live, t, last_t, updates);
+        }
+        assert!((last - 6.0).abs() < 1e-3, "{last}");
+    }
+
+    #[test]
+    fn before_any_sample_the_pupil_follows_the_model() {
+        let mut live = LiveChain::new(FilterChain::with_defaults());
+        live.set_adaptation_luminance(1000.0);
+        let model = PupilModel::default().pupil_mm(1000.0);
+        let start = live.state_at(0.0, 0.0, 0).pupil_mm();
+        let mut t = 0.0;
+        let mut p = start;
+        while t < 20.0 {
+            p = live.state_at(t, t, 0).pupil_mm();
+            t += 0.1;
+        }
+        assert!(start > model + 0.5, "{start} vs {model}");
+        assert!((p - model).abs() < 1e-3, "{p} vs {model}");
+    }
+
+    #[tokio::test]
+    async fn the_task_filters_publishes_and_ends() {
+        let samples =
+            (0..50).map(|i| Ok::<_, std::convert::Infallible>(pupil(i as f64 * 0.01, 0, 5.0)));
+        let source = ReplaySource::new("t", samples, Pacing::AsFastAsPossible);
+        let (_stop, shutdown) = watch::channel(false);
+        let live = spawn(
+            "test://",
+            source,
+            FilterChain::with_defaults(),
+            AgeClock::PublishTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let mut rx = live.samples.subscribe();
+        let mut eye = live.eye.clone();
+        tokio::time::timeout(Duration::from_secs(5), async {
+            while lock_status(&live.status).health != SourceHealth::Ended {
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        })
+        .await
+        .expect("the replay ends");
+        let state = *eye.borrow_and_update();
+        assert_eq!(state.updates, 50);
+        assert!(
+            (state.state.eyes[0].pupil_mm - 5.0).abs() < 0.5,
+            "{state:?}"
+        );
+        let status = lock_status(&live.status).clone();
+        assert_eq!(status.samples_total, 50);
+        assert!(rx.try_recv().is_ok());
+        // Ended, the task keeps stepping the fallback until shut down.
+        assert!(!live.task.is_finished());
+        drop(_stop);
+        tokio::time::timeout(Duration::from_secs(5), live.task)
+            .await
+            .expect("stops on shutdown")
+            .expect("no panic");
+    }
+
+    #[tokio::test]
+    async fn a_slow_sample_reader_loses_the_oldest_and_learns_how_many() {
+        let samples =
+            (0..100).map(|i| Ok::<_, std::convert::Infallible>(pupil(i as f64 * 0.01, 0, 5.0)));
+        let source = ReplaySource::new("t", samples, Pacing::AsFastAsPossible);
+        let (_stop, shutdown) = watch::channel(false);
+        let config = LiveConfig {
+            broadcast_capacity: 16,
+            ..LiveConfig::default()
+        };
+        let live = spawn(
+            "test://",
+            source,
+            FilterChain::with_defaults(),
+            AgeClock::PublishTime,
+            shutdown,
+            config,
+        );
+        let mut rx = live.samples.subscribe();
+        tokio::time::timeout(Duration::from_secs(5), async {
+            while lock_status(&live.status).health != SourceHealth::Ended {
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        })
+        .await
+        .expect("the replay ends");
+        match rx.try_recv() {
+            Err(broadcast::error::TryRecvError::Lagged(n)) => assert_eq!(n, 100 - 16),
+            other => panic!("expected a lag, got {other:?}"),
+        }
+        assert_eq!(
+            live.eye.borrow().updates,
+            100,
+            "the state never waits for a reader"
+        );
+    }
+}

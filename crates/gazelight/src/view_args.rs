@@ -1,0 +1,117 @@
+//! The view and scene-scale flags `render`, `replay` and `run` share, and
+//! how they override a configuration.
+
+use clap::Args;
+use gazelight_vision::scene::{LuminanceScale, ViewParams};
+
+/// Head orientation, field of view and the scene's luminance scale.
+#[derive(Args, Clone, Copy, Debug, Default)]
+pub struct ViewArgs {
+    /// Head yaw, degrees (positive right).
+    #[arg(long, allow_hyphen_values = true)]
+    pub yaw_deg: Option<f64>,
+    /// Head pitch, degrees (positive up).
+    #[arg(long, allow_hyphen_values = true)]
+    pub pitch_deg: Option<f64>,
+    /// Horizontal field of view, degrees.
+    #[arg(long)]
+    pub hfov_deg: Option<f64>,
+    /// cd/m² per scene-file unit (the shared panoramas are relative).
+    #[arg(long, conflicts_with = "scene_key_cd_m2")]
+    pub luminance_scale: Option<f64>,
+    /// Scale the scene so its median luminance is this many cd/m².
+    #[arg(long)]
+    pub scene_key_cd_m2: Option<f64>,
+}
+
+/// What a configuration file says about the view (each `None` = unset).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ViewDefaults {
+    pub yaw_deg: Option<f64>,
+    pub pitch_deg: Option<f64>,
+    pub hfov_deg: Option<f64>,
+}
+
+impl ViewArgs {
+    /// The luminance scale: a flag, else the configuration's, else the
+    /// default; bounded ([`crate::bounds::luminance_scale`]).
+    pub fn scale(&self, configured: Option<LuminanceScale>) -> anyhow::Result<LuminanceScale> {
+        let scale = match (self.luminance_scale, self.scene_key_cd_m2) {
+            (Some(factor), _) => LuminanceScale::CdM2PerUnit { factor },
+            (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
+            (None, None) => configured.unwrap_or_default(),
+        };
+        crate::bounds::luminance_scale(scale)
+    }
+
+    /// The view: each angle from a flag, else the configuration, else
+    /// `base`; the size is `(width, height)`.
+    pub fn view(
+        &self,
+        configured: ViewDefaults,
+        base: ViewParams,
+        (width, height): (usize, usize),
+    ) -> ViewParams {
+        ViewParams {
+            yaw_deg: self
+                .yaw_deg
+                .or(configured.yaw_deg)
+                .unwrap_or(base.yaw_deg),
+            pitch_deg: self
+                .pitch_deg
+                .or(configured.pitch_deg)
+                .unwrap_or(base.pitch_deg),
+            hfov_deg: self
+                .hfov_deg
+                .or(configured.hfov_deg)
+                .unwrap_or(base.hfov_deg),
+            width,
+            height,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_override_the_configuration_which_overrides_the_base() {
+        let base = ViewParams {
+            yaw_deg: 1.0,
+            pitch_deg: 2.0,
+            hfov_deg: 3.0,
+            width: 8,
+            height: 6,
+        };
+        let flags = ViewArgs {
+            yaw_deg: Some(10.0),
+            ..ViewArgs::default()
+        };
+        let cfg = ViewDefaults {
+            yaw_deg: Some(20.0),
+            pitch_deg: Some(30.0),
+            hfov_deg: None,
+        };
+        let v = flags.view(cfg, base, (4, 2));
+        assert_eq!(
+            (v.yaw_deg, v.pitch_deg, v.hfov_deg, v.width, v.height),
+            (10.0, 30.0, 3.0, 4, 2)
+        );
+        let s = ViewArgs {
+            scene_key_cd_m2: Some(20.0),
+            ..ViewArgs::default()
+        }
+        .scale(Some(LuminanceScale::CdM2PerUnit { factor: 5.0 }))
+        .unwrap();
+        assert_eq!(s, LuminanceScale::MedianKey { key_cd_m2: 20.0 });
+        assert!(
+            ViewArgs {
+                luminance_scale: Some(1e308),
+                ..ViewArgs::default()
+            }
+            .scale(None)
+            .is_err()
+        );
+    }
+}
