@@ -344,6 +344,30 @@ impl Renderer {
         }
     }
 
+    /// A preparer of the CPU convolver's spectra, for the thread that
+    /// builds kernels (`None` on the GPU, which makes its spectra itself,
+    /// and with glare off).
+    pub fn kernel_preparer(&self) -> Option<gazelight_vision::glare::GlarePreparer> {
+        match self {
+            Renderer::Cpu(p, _) => p.kernel_preparer(),
+            Renderer::Gpu(..) => None,
+        }
+    }
+
+    /// Installs a kernel prepared off the frame thread: on the CPU by
+    /// swapping buffers (`FramePipeline::install_prepared`: no FFT, no
+    /// allocation; `prepared` gets the previous kernel back); on the GPU it
+    /// is uploaded as by [`Renderer::set_kernel`].
+    pub fn install_prepared(
+        &mut self,
+        prepared: &mut gazelight_vision::glare::PreparedKernel,
+    ) -> anyhow::Result<()> {
+        if let Renderer::Cpu(p, _) = self {
+            return Ok(p.install_prepared(prepared)?);
+        }
+        self.set_kernel(&prepared.kernel)
+    }
+
     /// Sets the adaptation state (e.g. to start a replay adapted).
     #[allow(dead_code)] // for `run`, being wired
     pub fn set_adaptation(&mut self, state: AdaptationState) {

@@ -182,6 +182,8 @@ impl FrameLoop {
         let kernel_len = pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size);
         // The PSF is rebuilt on a worker thread from here on.
         let mut psf_target_mm = f64::NAN;
+        // The CPU convolver's spectra are made on the worker too.
+        let preparer = pipeline.kernel_preparer();
         let psf_worker = match pipeline.psf_kernel()? {
             Some(initial) => {
                 let mut params = config.glare.psf.clone();
@@ -189,7 +191,7 @@ impl FrameLoop {
                 params.ppd = 1.0 / view.deg_per_px();
                 params.pupil_mm = initial.pupil_mm;
                 psf_target_mm = initial.pupil_mm;
-                let worker = PsfWorker::start(params, initial)
+                let worker = PsfWorker::start(params, initial, preparer)
                     .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
                 pipeline.set_psf_auto_rebuild(false);
                 Some(worker)
@@ -280,9 +282,11 @@ impl FrameLoop {
             &mut self.writer,
             &mut self.psf_scratch,
         );
-        let installed = worker.take(|k, ring_rad| -> anyhow::Result<()> {
-            pipeline.set_kernel(k)?;
+        let installed = worker.take(|prepared, ring_rad| -> anyhow::Result<()> {
+            // Kernel and spectra were made on the worker: this swaps them in.
+            let k = &prepared.kernel;
             publish_psf(hub, writer, scratch, k, Some(ring_rad), generation, t_secs);
+            pipeline.install_prepared(prepared)?;
             Ok(())
         });
         match installed {

@@ -2,27 +2,34 @@
 //! not stall a frame).
 //!
 //! A worker thread owns a [`PsfBuilder`] with the frame pipeline's PSF
-//! parameters. Two bounded slots connect it to the frame loop:
+//! parameters and, on the CPU backend, a [`GlarePreparer`] for the
+//! pipeline's convolver. Two bounded slots connect it to the frame loop:
 //!
 //! * the request slot holds at most one pupil diameter (an `f64` in an
 //!   atomic): a newer request overwrites an unserved one (the newest pupil
 //!   wins) and posting never blocks the frame loop;
-//! * the ready slot holds at most one finished kernel, in a buffer
-//!   allocated once at start: the worker copies its builder's kernel into
-//!   it, the frame loop takes it with `try_lock` (never waits) and installs
-//!   it ([`crate::backend::Renderer::set_kernel`]), with the first dark
-//!   ring the worker measured on its builder's 575 nm field for that build
-//!   ([`PsfBuilder::first_ring_rad`]; `psf.csv`).
+//! * the ready slot holds at most one [`PreparedKernel`]: the kernel and
+//!   its convolver spectra (the FFTs of its fine core and coarse wide
+//!   field), both made on the worker. The worker fills a staging copy
+//!   allocated once at start and swaps it into the slot; the frame loop
+//!   takes the slot with `try_lock` (never waits) and installs it
+//!   ([`crate::backend::Renderer::install_prepared`]), which on the CPU
+//!   swaps buffers: no FFT, no copy, no allocation on the frame thread.
+//!   With it comes the first dark ring the worker measured on its
+//!   builder's 575 nm field for that build ([`PsfBuilder::first_ring_rad`];
+//!   `psf.csv`).
 //!
 //! Frames keep the previous kernel until the new one is ready. Neither side
-//! allocates per request (the builder reuses its buffers; the ready buffer
-//! is copied into in place).
+//! allocates per request once both buffers have held a kernel (the builder
+//! reuses its buffers; kernels and spectra circulate between the staging
+//! copy, the slot and the pipeline by swapping).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::{JoinHandle, Thread};
 use std::time::Duration;
 
+use gazelight_vision::glare::{GlarePreparer, PreparedKernel};
 use gazelight_vision::psf::{PsfBuilder, PsfKernel, PsfParams};
 
 /// The request slot's "empty" value (a NaN bit pattern no request uses:
@@ -33,9 +40,9 @@ const IDLE_POLL: Duration = Duration::from_millis(100);
 
 struct Shared {
     request_bits: AtomicU64,
-    /// The finished kernel and its measured first ring, radians (NaN:
-    /// no minimum found).
-    ready: Mutex<(PsfKernel, f64)>,
+    /// The finished kernel (with its spectra) and its measured first ring,
+    /// radians (NaN: no minimum found).
+    ready: Mutex<(PreparedKernel, f64)>,
     ready_flag: AtomicBool,
     stop: AtomicBool,
 }
@@ -50,20 +57,35 @@ pub struct PsfWorker {
 impl PsfWorker {
     /// Starts the worker. `params` are the pipeline's PSF parameters (with
     /// its `ppd`); `initial` is the kernel the pipeline holds now, which
-    /// sizes the ready buffer. The builder is made on the worker thread (it
-    /// costs as much as a rebuild); if that fails the worker logs it and
-    /// ends, and frames keep the initial kernel.
-    pub fn start(params: PsfParams, initial: &PsfKernel) -> std::io::Result<Self> {
+    /// sizes the kernel buffers; `preparer` (the CPU pipeline's
+    /// [`gazelight_vision::pipeline::FramePipeline::kernel_preparer`]; `None`
+    /// on the GPU, which makes its spectra itself) also makes each kernel's
+    /// convolver spectra on the worker. The builder is made on the worker
+    /// thread (it costs as much as a rebuild); if that fails the worker logs
+    /// it and ends, and frames keep the initial kernel.
+    pub fn start(
+        params: PsfParams,
+        initial: &PsfKernel,
+        preparer: Option<GlarePreparer>,
+    ) -> std::io::Result<Self> {
+        let slot = PreparedKernel {
+            kernel: initial.clone(),
+            spectra: preparer.as_ref().map(GlarePreparer::new_spectra),
+        };
         let shared = Arc::new(Shared {
             request_bits: AtomicU64::new(NO_REQUEST),
-            ready: Mutex::new((initial.clone(), f64::NAN)),
+            ready: Mutex::new((slot, f64::NAN)),
             ready_flag: AtomicBool::new(false),
             stop: AtomicBool::new(false),
         });
+        let staging = PreparedKernel {
+            kernel: initial.clone(),
+            spectra: preparer.as_ref().map(GlarePreparer::new_spectra),
+        };
         let worker = Arc::clone(&shared);
         let handle = std::thread::Builder::new()
             .name("gazelight-psf".into())
-            .spawn(move || work(&worker, params))?;
+            .spawn(move || work(&worker, params, preparer, staging))?;
         Ok(Self {
             shared,
             thread: handle.thread().clone(),
@@ -83,15 +105,18 @@ impl PsfWorker {
     }
 
     /// If a finished kernel is waiting and its slot is free right now,
-    /// passes it and its measured first ring (radians) to `install` and
-    /// empties the slot; returns what `install` returned. Never blocks.
-    pub fn take<R>(&self, install: impl FnOnce(&PsfKernel, f64) -> R) -> Option<R> {
+    /// passes it (to be installed by swapping: what `install` leaves in it
+    /// goes back to the worker for reuse) and its measured first ring
+    /// (radians) to `install` and empties the slot; returns what `install`
+    /// returned. Never blocks.
+    pub fn take<R>(&self, install: impl FnOnce(&mut PreparedKernel, f64) -> R) -> Option<R> {
         if !self.shared.ready_flag.load(Ordering::Acquire) {
             return None;
         }
-        let guard = self.shared.ready.try_lock().ok()?;
+        let mut guard = self.shared.ready.try_lock().ok()?;
         self.shared.ready_flag.store(false, Ordering::Release);
-        Some(install(&guard.0, guard.1))
+        let ring_rad = guard.1;
+        Some(install(&mut guard.0, ring_rad))
     }
 
     /// Whether a request is waiting to be picked up by the worker.
@@ -113,7 +138,25 @@ impl Drop for PsfWorker {
     }
 }
 
-fn work(shared: &Shared, params: PsfParams) {
+/// Copies `src` into `dst`, reusing `dst`'s buffers when the sizes match.
+fn copy_kernel(dst: &mut PsfKernel, src: &PsfKernel) {
+    if dst.rgb.len() == src.rgb.len() {
+        dst.rgb.copy_from_slice(&src.rgb);
+    } else {
+        dst.rgb.clone_from(&src.rgb);
+    }
+    dst.size = src.size;
+    dst.deg_per_px = src.deg_per_px;
+    dst.pupil_mm = src.pupil_mm;
+    dst.wavelengths_nm.clone_from(&src.wavelengths_nm);
+}
+
+fn work(
+    shared: &Shared,
+    params: PsfParams,
+    mut preparer: Option<GlarePreparer>,
+    mut staging: PreparedKernel,
+) {
     let mut builder = match PsfBuilder::new(params) {
         Ok(b) => b,
         Err(e) => {
@@ -129,20 +172,17 @@ fn work(shared: &Shared, params: PsfParams) {
         }
         builder.rebuild(f64::from_bits(bits));
         let ring_rad = builder.first_ring_rad().unwrap_or(f64::NAN);
-        let kernel = builder.kernel();
-        let mut guard = shared.ready.lock().unwrap_or_else(PoisonError::into_inner);
-        guard.1 = ring_rad;
-        let ready = &mut guard.0;
-        if ready.rgb.len() == kernel.rgb.len() {
-            ready.rgb.copy_from_slice(&kernel.rgb);
-            ready.size = kernel.size;
-            ready.deg_per_px = kernel.deg_per_px;
-            ready.pupil_mm = kernel.pupil_mm;
-            ready.wavelengths_nm.clone_from(&kernel.wavelengths_nm);
-        } else {
-            // Cannot happen with the pipeline's own parameters.
-            ready.clone_from(kernel);
+        copy_kernel(&mut staging.kernel, builder.kernel());
+        if let (Some(p), Some(s)) = (preparer.as_mut(), staging.spectra.as_mut())
+            && let Err(e) = p.prepare(&staging.kernel, s)
+        {
+            // Cannot happen with the pipeline's own parameters; the frame
+            // thread then computes the spectra itself.
+            tracing::warn!(error = %e, "PSF worker: cannot prepare the glare spectra");
         }
+        let mut guard = shared.ready.lock().unwrap_or_else(PoisonError::into_inner);
+        std::mem::swap(&mut guard.0, &mut staging);
+        guard.1 = ring_rad;
         drop(guard);
         shared.ready_flag.store(true, Ordering::Release);
     }
@@ -168,13 +208,13 @@ mod tests {
         let params = small_params();
         let mut reference = PsfBuilder::new(params.clone()).expect("builder");
         let initial = reference.kernel().clone();
-        let worker = PsfWorker::start(params, &initial).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None).expect("worker");
         worker.request(3.0);
         worker.request(6.0);
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         let mut got: Option<PsfKernel> = None;
         while std::time::Instant::now() < deadline {
-            if let Some(k) = worker.take(|k, _| k.clone()) {
+            if let Some(k) = worker.take(|k, _| k.kernel.clone()) {
                 let done = k.pupil_mm == 6.0;
                 got = Some(k);
                 if done && !worker.request_pending() {
@@ -207,14 +247,14 @@ mod tests {
             .expect("builder")
             .kernel()
             .clone();
-        let worker = PsfWorker::start(params, &initial).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None).expect("worker");
         let mut rings = Vec::new();
         for pupil_mm in [6.0, 2.5] {
             worker.request(pupil_mm);
             let deadline = std::time::Instant::now() + Duration::from_secs(120);
             let (got_mm, ring) = loop {
                 assert!(std::time::Instant::now() < deadline, "no kernel");
-                if let Some(r) = worker.take(|k, ring| (k.pupil_mm, ring)) {
+                if let Some(r) = worker.take(|k, ring| (k.kernel.pupil_mm, ring)) {
                     break r;
                 }
                 std::thread::sleep(Duration::from_millis(5));
@@ -231,6 +271,73 @@ mod tests {
         assert!(
             (ratio / (6.0 / 2.5) - 1.0).abs() < 0.15,
             "ring ratio {ratio} vs pupil ratio 2.4 ({rings:?})"
+        );
+    }
+
+    /// With a preparer, the worker also makes the convolver spectra: a
+    /// convolver that installs them (a buffer swap) glares a frame exactly
+    /// as one that computed them itself from the same kernel
+    /// (`GlareConvolver::set_kernel`), and the spectra it gives back are
+    /// the previous kernel's.
+    #[test]
+    fn prepared_spectra_convolve_as_the_kernel_they_came_from() {
+        use gazelight_vision::RgbImage;
+        use gazelight_vision::glare::{GlareConvolver, GlareWindow};
+
+        let params = small_params();
+        let mut reference = PsfBuilder::new(params.clone()).expect("builder");
+        let initial = reference.kernel().clone();
+        let window = GlareWindow {
+            full_weight_deg: 1.0,
+            fade_sigma_deg: 0.5,
+        };
+        let mut conv = GlareConvolver::new(&initial, window).expect("convolver");
+        let worker = PsfWorker::start(params, &initial, Some(conv.preparer())).expect("worker");
+        worker.request(6.5);
+        let deadline = std::time::Instant::now() + Duration::from_secs(120);
+        let (got_mm, spectra_mm) = loop {
+            assert!(std::time::Instant::now() < deadline, "no kernel");
+            let taken = worker.take(|p, _| {
+                let spectra = p.spectra.as_mut().expect("spectra made on the worker");
+                let mm = (p.kernel.pupil_mm, spectra.pupil_mm());
+                conv.install(spectra).expect("install");
+                // The slot now holds the spectra installed before (4 mm).
+                (mm, spectra.pupil_mm())
+            });
+            if let Some((mm, previous_mm)) = taken {
+                assert_eq!(previous_mm, initial.pupil_mm);
+                break mm;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!((got_mm, spectra_mm), (6.5, 6.5));
+        assert_eq!(conv.kernel_pupil_mm(), 6.5);
+        let mut own = GlareConvolver::new(&initial, window).expect("convolver");
+        own.set_kernel(reference.rebuild(6.5)).expect("kernel");
+        let (w, h) = (48, 40);
+        let mut img = RgbImage::new(w, h);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            let v = if i % 97 == 0 {
+                1e4
+            } else {
+                0.1 * (i % 7) as f32
+            };
+            *p = [v, 0.5 * v, 0.25 * v];
+        }
+        let (mut a, mut b) = (img.clone(), img.clone());
+        conv.apply(&mut a, [20.5, 18.0]);
+        own.apply(&mut b, [20.5, 18.0]);
+        assert_ne!(a, img, "the glare did nothing");
+        let peak = b.pixels.iter().flatten().fold(0.0f32, |m, &v| m.max(v));
+        let err = a
+            .pixels
+            .iter()
+            .flatten()
+            .zip(b.pixels.iter().flatten())
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(
+            err <= 1e-6 * peak,
+            "installed vs own spectra: {err} of peak {peak}"
         );
     }
 }
