@@ -1,19 +1,27 @@
-// Present pass: draws the display-encoded frame (RGBA8, already sRGB
-// encoded by stage 8) into the window's surface, letterboxed to keep the
-// frame's aspect ratio. The surface is a non-sRGB format, so the encoded
-// values pass through unchanged. Twin: crates/gazelight/src/window.rs.
+// Present pass: draws the display frame into a window's surface,
+// letterboxed to keep the frame's aspect ratio, or a solid colour filling
+// the whole surface (the calibration stimulus).
+//
+// The frame is read straight from the frame pipeline's RGBA8 output buffer
+// (tone.wgsl's `out_rgba8`: one u32 per pixel, bytes r g b a, already sRGB
+// encoded by stage 8), so a GPU frame reaches the screen with no copy and
+// no read-back; a CPU frame is uploaded into a buffer of the same layout.
+// It is filtered bilinearly with clamp-to-edge, as a linear sampler would:
+// at 1:1 scale each fragment lands on its pixel's centre and gets that
+// pixel's code exactly. The surface is a non-sRGB format, so the encoded
+// values pass through unchanged. Twin: crates/gazelight-gpu/src/present.rs.
 
 struct PresentParams {
     // Scale of the frame quad in clip space (≤ 1 on each axis).
     scale: vec2<f32>,
+    // Frame size, pixels (width, height).
+    frame_size: vec2<u32>,
     // Solid colour mode for calibration stimuli: rgb + 1 in w, else 0.
-    _pad: vec2<f32>,
     solid: vec4<f32>,
 };
 
-@group(0) @binding(0) var frame_tex: texture_2d<f32>;
-@group(0) @binding(1) var frame_sampler: sampler;
-@group(0) @binding(2) var<uniform> params: PresentParams;
+@group(0) @binding(0) var<storage, read> frame_rgba8: array<u32>;
+@group(0) @binding(1) var<uniform> params: PresentParams;
 
 struct VsOut {
     @builtin(position) pos: vec4<f32>,
@@ -31,10 +39,24 @@ fn vs_main(@builtin(vertex_index) i: u32) -> VsOut {
     return out;
 }
 
+fn texel(x: i32, y: i32) -> vec4<f32> {
+    let size = vec2<i32>(params.frame_size);
+    let cx = clamp(x, 0, size.x - 1);
+    let cy = clamp(y, 0, size.y - 1);
+    return unpack4x8unorm(frame_rgba8[u32(cy * size.x + cx)]);
+}
+
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     if (params.solid.w > 0.5) {
         return vec4<f32>(params.solid.rgb, 1.0);
     }
-    return vec4<f32>(textureSample(frame_tex, frame_sampler, in.uv).rgb, 1.0);
+    // Texel space: pixel centres at integer + 0.5, as a sampler's.
+    let t = in.uv * vec2<f32>(params.frame_size) - vec2<f32>(0.5);
+    let base = floor(t);
+    let f = t - base;
+    let i = vec2<i32>(base);
+    let top = mix(texel(i.x, i.y), texel(i.x + 1, i.y), f.x);
+    let bottom = mix(texel(i.x, i.y + 1), texel(i.x + 1, i.y + 1), f.x);
+    return vec4<f32>(mix(top, bottom, f.y).rgb, 1.0);
 }

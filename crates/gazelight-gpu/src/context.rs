@@ -18,6 +18,9 @@
 use crate::error::GpuError;
 use crate::shaders::{WgslShader, check_shader};
 
+/// What is known about an adapter (name, backend, device type, driver).
+pub use wgpu::AdapterInfo;
+
 /// Which kind of adapter to accept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum AdapterChoice {
@@ -69,6 +72,10 @@ pub struct GpuContext {
     queue: wgpu::Queue,
     adapter_info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
+    /// The instance and adapter of an own device (`None` for a caller's):
+    /// what a window surface on this device is created from and checked
+    /// against ([`crate::present`]).
+    surface_source: Option<(wgpu::Instance, wgpu::Adapter)>,
 }
 
 /// Preference order of adapter types: hardware first, software last.
@@ -98,6 +105,28 @@ pub fn describe_adapter(info: &wgpu::AdapterInfo) -> String {
     )
 }
 
+/// Every adapter the searched backends (`WGPU_BACKEND`, or all native ones)
+/// list, without creating a device: for a caller's choice between the GPU
+/// and the CPU pipeline.
+pub fn probe_adapters() -> Vec<wgpu::AdapterInfo> {
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all().with_env()))
+        .iter()
+        .map(wgpu::Adapter::get_info)
+        .collect()
+}
+
+/// Whether an adapter is a software (CPU) one: lavapipe/llvmpipe, WARP, …
+pub fn is_software_adapter(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
+}
+
+/// The backends an own device is searched on, for messages ("VULKAN").
+pub fn searched_backends() -> String {
+    format!("{:?}", wgpu::Backends::all().with_env())
+}
+
 impl GpuContext {
     /// Wraps a caller's device and queue (a host renderer's). The caller keeps
     /// its limits and its uncaptured-error handler.
@@ -110,6 +139,7 @@ impl GpuContext {
             queue,
             adapter_info,
             limits,
+            surface_source: None,
         }
     }
 
@@ -174,6 +204,7 @@ impl GpuContext {
                         queue,
                         adapter_info: info,
                         limits,
+                        surface_source: Some((instance.clone(), adapter)),
                     });
                 }
                 Err(e) => failures.push(format!("{}: {e}", describe_adapter(&info))),
@@ -203,6 +234,12 @@ impl GpuContext {
     /// The adapter behind the device.
     pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
         &self.adapter_info
+    }
+
+    /// The instance and adapter behind an own device, for creating and
+    /// checking window surfaces on it; `None` for a caller's device.
+    pub fn surface_source(&self) -> Option<(&wgpu::Instance, &wgpu::Adapter)> {
+        self.surface_source.as_ref().map(|(i, a)| (i, a))
     }
 
     /// The device's limits (what the shaders are checked against).

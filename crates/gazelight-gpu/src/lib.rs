@@ -22,6 +22,9 @@
 //! - [`acuity`] (stage 5): per-pixel σ from each pixel's own lightness
 //!   (001 eq 11–13), separable Lab-lightness blur of the HDR frame;
 //! - [`tone`] (stages 6–8): tone reproduction, colour, sRGB encoding;
+//! - [`present`]: the display frame into a window surface on the
+//!   pipeline's own device (the output buffer drawn directly, no read-back),
+//!   or a host frame / solid colour on a device of its own;
 //! - [`context`]: the device — a caller's `wgpu::Device` + `Queue` (library
 //!   use inside a host renderer) or an own one, hardware adapter first,
 //!   software (lavapipe) second, a clear [`GpuError::NoAdapter`] otherwise so
@@ -47,6 +50,7 @@ pub mod frame;
 pub mod glare;
 pub mod pass;
 pub mod pooling;
+pub mod present;
 pub mod psf;
 pub mod shaders;
 pub mod temporal;

@@ -102,6 +102,13 @@ pub const TONE: WgslShader = WgslShader {
     source: with_frame_state!("tone.wgsl"),
 };
 
+/// Presentation: the display frame (or a solid colour) into a window's
+/// surface (vertex + fragment; see [`crate::present`]).
+pub const PRESENT: WgslShader = WgslShader {
+    name: "present.wgsl",
+    source: include_str!("../../../shaders/present.wgsl"),
+};
+
 /// Every shader of the crate (for the limits test and tooling).
 pub const ALL: &[WgslShader] = &[
     COMMON,
@@ -112,6 +119,7 @@ pub const ALL: &[WgslShader] = &[
     GLARE,
     ACUITY,
     TONE,
+    PRESENT,
 ];
 
 /// What one compute entry point needs from the device.

@@ -21,8 +21,22 @@
 //!
 //! The choice and its reason are logged (`tracing::info!`) and printed as one
 //! line on stderr.
+//!
+//! # Frames stay where they are rendered
+//!
+//! [`Renderer::render`] renders a frame and reads nothing back: on the GPU
+//! the display frame stays in the pipeline's output buffer, which the window
+//! draws directly ([`Renderer::show`] hands it over once as a
+//! [`FrameSource`]). Only a consumer on the host — the file writer of
+//! `--out`, every frame; the status page, at its own rate — calls
+//! [`Renderer::read_frame`], and each GPU read-back is counted
+//! ([`Renderer::frames_read_back`], in the status JSON and the run summary).
+//! On the CPU the frame is on the host already (0 read-backs); the window
+//! uploads it.
 
 use anyhow::{Context, bail};
+use gazelight_gpu::context::{is_software_adapter, probe_adapters, searched_backends};
+use gazelight_gpu::present::FrameSource;
 use gazelight_gpu::{AdapterChoice, ContextOptions, GpuContext, GpuFramePipeline};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{
@@ -30,6 +44,8 @@ use gazelight_vision::pipeline::{
 };
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::temporal::AdaptationState;
+
+use crate::window::DisplaySlot;
 
 /// The `--backend` flag.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -64,6 +80,8 @@ pub struct GpuRenderer {
     /// Host copy of the PSF kernel, read back on demand after a rebuild.
     kernel: Option<PsfKernel>,
     kernel_stale: bool,
+    /// Display frames copied back to the host.
+    read_backs: u64,
 }
 
 /// The frame pipeline that renders: GPU or CPU.
@@ -74,28 +92,13 @@ pub enum Renderer {
     Gpu(Box<GpuRenderer>, String),
 }
 
-/// One line per adapter that the (env-filtered) wgpu backends list.
-fn probe_adapters() -> Vec<wgpu::AdapterInfo> {
-    let instance =
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-    let backends = wgpu::Backends::all().with_env();
-    pollster::block_on(instance.enumerate_adapters(backends))
-        .iter()
-        .map(wgpu::Adapter::get_info)
-        .collect()
-}
-
-fn is_software(info: &wgpu::AdapterInfo) -> bool {
-    info.device_type == wgpu::DeviceType::Cpu
-}
-
 /// "llvmpipe (LLVM 19.1.7, 256 bits) (Vulkan, software)".
-fn adapter_label(info: &wgpu::AdapterInfo) -> String {
+fn adapter_label(info: &gazelight_gpu::context::AdapterInfo) -> String {
     format!(
         "{} ({}, {})",
         info.name,
         info.backend,
-        if is_software(info) {
+        if is_software_adapter(info) {
             "software"
         } else {
             "hardware"
@@ -166,6 +169,7 @@ impl Renderer {
                 adapter,
                 kernel: None,
                 kernel_stale: true,
+                read_backs: 0,
             }),
             why.to_owned(),
         ))
@@ -178,7 +182,7 @@ impl Renderer {
         deg_per_px: f64,
     ) -> anyhow::Result<Renderer> {
         let adapters = probe_adapters();
-        if adapters.iter().any(|a| !is_software(a)) {
+        if adapters.iter().any(|a| !is_software_adapter(a)) {
             let options = ContextOptions {
                 adapter: AdapterChoice::Hardware,
                 ..ContextOptions::default()
@@ -209,15 +213,15 @@ impl Renderer {
                 }
             };
         }
-        let why = match adapters.iter().find(|a| is_software(a)) {
+        let why = match adapters.iter().find(|a| is_software_adapter(a)) {
             Some(soft) => format!(
                 "auto: no hardware GPU; the software adapter {} is slower than the CPU pipeline \
                  (--backend gpu uses it anyway)",
                 adapter_label(soft)
             ),
             None => format!(
-                "auto: no GPU adapter found on backends {:?}",
-                wgpu::Backends::all().with_env()
+                "auto: no GPU adapter found on backends {}",
+                searched_backends()
             ),
         };
         Self::cpu(config, width, height, deg_per_px, why)
@@ -244,12 +248,14 @@ impl Renderer {
         matches!(self, Renderer::Gpu(..))
     }
 
-    /// Processes one frame: `view` is linear RGB in cd/m² at the renderer's
-    /// size; `out` receives the display frame (resized only if its size
-    /// differs). On the GPU: submit, read back the frame's scalars and the
-    /// RGBA8 frame, copy it into `out` (no allocation in steady state).
-    /// `timings.total_ms` covers the whole call, read-back included.
-    pub fn process(
+    /// Renders one frame and reads nothing back: `view` is linear RGB in
+    /// cd/m² at the renderer's size. On the CPU the display frame is written
+    /// into `out` (resized only if its size differs); on the GPU it stays in
+    /// the pipeline's output buffer and `out` is left as it is — call
+    /// [`Self::read_frame`] when the host needs it. Only the frame's 48-byte
+    /// scalars are read back (for the stats). `timings.total_ms` covers the
+    /// whole call.
+    pub fn render(
         &mut self,
         view: &RgbImage,
         input: &FrameInput,
@@ -260,26 +266,71 @@ impl Renderer {
             Renderer::Gpu(g, _) => {
                 let start = std::time::Instant::now();
                 let mut stats = g.pipeline.process(view, input)?;
-                let frame = g.pipeline.display()?;
-                if out.width != frame.width || out.height != frame.height {
-                    *out = DisplayFrame::new(frame.width, frame.height);
-                }
-                if out.rgba8.len() != frame.rgba8.len() {
-                    bail!(
-                        "GPU display frame: {} bytes for {}x{}, expected {}",
-                        frame.rgba8.len(),
-                        frame.width,
-                        frame.height,
-                        out.rgba8.len()
-                    );
-                }
-                out.rgba8.copy_from_slice(&frame.rgba8);
                 if stats.psf_rebuilt {
                     g.kernel_stale = true;
                 }
                 stats.timings.total_ms = start.elapsed().as_secs_f64() * 1e3;
                 Ok(stats)
             }
+        }
+    }
+
+    /// Brings the last rendered frame to the host in `out` (resized only if
+    /// its size differs; no allocation in steady state): on the GPU a
+    /// blocking read-back, counted in [`Self::frames_read_back`]; on the CPU
+    /// nothing to do (the frame is in `out` since [`Self::render`]).
+    pub fn read_frame(&mut self, out: &mut DisplayFrame) -> anyhow::Result<()> {
+        let Renderer::Gpu(g, _) = self else {
+            return Ok(());
+        };
+        let frame = g.pipeline.display()?;
+        g.read_backs += 1;
+        if out.width != frame.width || out.height != frame.height {
+            *out = DisplayFrame::new(frame.width, frame.height);
+        }
+        if out.rgba8.len() != frame.rgba8.len() {
+            bail!(
+                "GPU display frame: {} bytes for {}x{}, expected {}",
+                frame.rgba8.len(),
+                frame.width,
+                frame.height,
+                out.rgba8.len()
+            );
+        }
+        out.rgba8.copy_from_slice(&frame.rgba8);
+        Ok(())
+    }
+
+    /// [`Self::render`] then [`Self::read_frame`]: for `render` and `replay`,
+    /// whose file writer takes every frame.
+    pub fn process(
+        &mut self,
+        view: &RgbImage,
+        input: &FrameInput,
+        out: &mut DisplayFrame,
+    ) -> anyhow::Result<FrameStats> {
+        let stats = self.render(view, input, out)?;
+        self.read_frame(out)?;
+        Ok(stats)
+    }
+
+    /// Offers the last rendered frame to the window: on the CPU a copy of
+    /// `out` into the slot (the window uploads it); on the GPU only a note
+    /// that a new frame is in the output buffer, which the window draws on
+    /// the pipeline's own device (the buffer is handed over once, as a
+    /// [`FrameSource`]). Never blocks; allocates only the first time.
+    pub fn show(&self, slot: &DisplaySlot, out: &DisplayFrame) {
+        match self {
+            Renderer::Cpu(..) => slot.put(&out.rgba8),
+            Renderer::Gpu(g, _) => slot.put_gpu(|| FrameSource::of(&g.pipeline)),
+        }
+    }
+
+    /// Display frames read back to the host so far (always 0 on the CPU).
+    pub fn frames_read_back(&self) -> u64 {
+        match self {
+            Renderer::Cpu(..) => 0,
+            Renderer::Gpu(g, _) => g.read_backs,
         }
     }
 

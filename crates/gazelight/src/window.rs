@@ -1,27 +1,48 @@
-//! The service's display window: winit + a wgpu surface, vsync (FIFO).
+//! The service's display window: winit for the window and its events,
+//! [`gazelight_gpu::present::WindowPresenter`] for the surface (vsync, FIFO).
 //!
 //! The window shows either the frame loop's newest display frame
 //! ([`Content::Frames`], letterboxed to keep its aspect) or a solid colour
 //! filling the whole window ([`Content::Solid`], the black/white stimulus of
 //! `calibrate --stimulus window`). It never drives the frame loop: the loop
-//! runs at the display rate on its own thread and drops its newest frame
-//! into a [`DisplaySlot`]; the window uploads whatever is newest when the
-//! surface is ready, so a slow window drops frames (counted) instead of
-//! slowing the loop. The cursor position over the frame is published as a
-//! normalised gaze for `run --mouse-gaze`.
+//! runs at the display rate on its own thread and offers each frame to a
+//! [`DisplaySlot`]; the window draws whatever is newest when the surface is
+//! ready, so a slow window drops frames (counted) instead of slowing the
+//! loop. The cursor position over the frame is published as a normalised
+//! gaze for `run --mouse-gaze`.
+//!
+//! Where the pixels come from:
+//!
+//! * **GPU pipeline**: the slot carries the pipeline's output buffer
+//!   ([`FrameSource`], handed over once) and a frame counter. The presenter
+//!   is built on the pipeline's own device and its fragment shader reads
+//!   that buffer: a frame goes from the GPU to the screen with no read-back
+//!   and no upload. The window waits (showing nothing) until the first
+//!   frame says which device to use.
+//! * **CPU pipeline** (and the calibration stimulus): the presenter has a
+//!   device of its own; a CPU frame is copied into the slot and uploaded
+//!   (the one copy a CPU-rendered frame cannot avoid).
+//!
+//! Each presented frame's latency — from the moment the frame loop had it
+//! rendered ([`DisplaySlot::put`] / [`DisplaySlot::put_gpu`]) to the
+//! surface's present call that first showed it — is kept for the run
+//! summary ([`WindowStats`]).
+//!
+//! winit stays in the binary (rather than in `gazelight-gpu`): the event
+//! loop, keys and cursor are the application's business, and the GPU crate
+//! also serves host renderers that own their windows — it takes any window
+//! handle.
 //!
 //! winit needs the main thread on Linux; [`run`] blocks it until the window
 //! is closed (Escape or the close button: the session is asked to shut
 //! down) or `stop` turns true.
-//!
-//! The present pass is `shaders/present.wgsl`; its uniform twin is
-//! [`PresentParams`].
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use gazelight_gpu::present::{FrameSource, Presented, WindowPresenter, letterbox_scale};
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
 use winit::event::{ElementState, KeyEvent, WindowEvent};
@@ -29,25 +50,48 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
-/// The present shader (one pass: a textured, letterboxed quad or a solid).
-const PRESENT_WGSL: &str = include_str!("../../../shaders/present.wgsl");
+/// Render→present latencies kept for the summary (≈ 12 min at 90 Hz).
+const LATENCY_SAMPLES: usize = 1 << 16;
+
+/// Where the slot's frames live, fixed by the first frame.
+#[derive(Debug)]
+enum Source {
+    /// Copied into the slot by [`DisplaySlot::put`] (CPU frames).
+    Host,
+    /// In a GPU pipeline's output buffer ([`DisplaySlot::put_gpu`]).
+    Gpu(FrameSource),
+}
 
 /// The newest display frame, handed from the frame loop to the window.
 /// `put` copies into a buffer allocated once, so the frame loop does not
-/// allocate; the window takes a frame only when its sequence number moved.
+/// allocate; `put_gpu` only counts (the frame stays on the GPU). The window
+/// takes a frame only when its sequence number moved.
 #[derive(Debug)]
 pub struct DisplaySlot {
     width: u32,
     height: u32,
+    source: OnceLock<Source>,
     inner: Mutex<SlotInner>,
     /// Frames put but never shown (the window was busy).
     skipped: AtomicU64,
+    /// Surface images the window presented.
+    presented: AtomicU64,
 }
 
 #[derive(Debug)]
 struct SlotInner {
     seq: u64,
+    /// When the newest frame was handed over (rendered).
+    rendered: Option<Instant>,
     rgba8: Vec<u8>,
+}
+
+/// What [`DisplaySlot::take_newer`] hands the window.
+enum Newer<'a> {
+    /// A host frame to upload.
+    Host(&'a [u8]),
+    /// A new frame is in the GPU source's buffer.
+    Gpu,
 }
 
 impl DisplaySlot {
@@ -56,11 +100,14 @@ impl DisplaySlot {
         Arc::new(Self {
             width,
             height,
+            source: OnceLock::new(),
             inner: Mutex::new(SlotInner {
                 seq: 0,
-                rgba8: vec![0; width as usize * height as usize * 4],
+                rendered: None,
+                rgba8: Vec::new(),
             }),
             skipped: AtomicU64::new(0),
+            presented: AtomicU64::new(0),
         })
     }
 
@@ -69,14 +116,40 @@ impl DisplaySlot {
         (self.width, self.height)
     }
 
-    /// Replaces the newest frame (ignored when the size does not match).
+    /// Replaces the newest frame with a host copy of `rgba8` (ignored when
+    /// the size does not match, or when the slot shows a GPU source).
     pub fn put(&self, rgba8: &[u8]) {
-        let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        if g.rgba8.len() != rgba8.len() {
+        if !matches!(self.source.get_or_init(|| Source::Host), Source::Host) {
             return;
+        }
+        let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let n = self.width as usize * self.height as usize * 4;
+        if rgba8.len() != n {
+            return;
+        }
+        if g.rgba8.len() != n {
+            // Once, on the first frame.
+            g.rgba8 = vec![0; n];
         }
         g.rgba8.copy_from_slice(rgba8);
         g.seq += 1;
+        g.rendered = Some(Instant::now());
+    }
+
+    /// Notes that a new frame is in the GPU pipeline's output buffer;
+    /// `source` is called once, on the first frame, to hand the buffer over
+    /// (ignored when the slot already shows host frames or another size).
+    pub fn put_gpu(&self, source: impl FnOnce() -> FrameSource) {
+        let s = self.source.get_or_init(|| Source::Gpu(source()));
+        let Source::Gpu(src) = s else {
+            return;
+        };
+        if src.size() != [self.width, self.height] {
+            return;
+        }
+        let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        g.seq += 1;
+        g.rendered = Some(Instant::now());
     }
 
     /// Frames the window never showed.
@@ -84,19 +157,28 @@ impl DisplaySlot {
         self.skipped.load(Ordering::Relaxed)
     }
 
-    /// Runs `f` on the newest frame if it is newer than `last_seq`.
-    fn take_newer(&self, last_seq: &mut u64, f: impl FnOnce(&[u8])) -> bool {
+    /// Surface images presented so far (the window's redraws).
+    pub fn presented(&self) -> u64 {
+        self.presented.load(Ordering::Relaxed)
+    }
+
+    /// Runs `f` on the newest frame if it is newer than `last_seq`; returns
+    /// when that frame was handed over.
+    fn take_newer(&self, last_seq: &mut u64, f: impl FnOnce(Newer<'_>)) -> Option<Instant> {
         let g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
         if g.seq == *last_seq {
-            return false;
+            return None;
         }
         if g.seq > *last_seq + 1 {
             self.skipped
                 .fetch_add(g.seq - *last_seq - 1, Ordering::Relaxed);
         }
         *last_seq = g.seq;
-        f(&g.rgba8);
-        true
+        match self.source.get() {
+            Some(Source::Gpu(_)) => f(Newer::Gpu),
+            _ => f(Newer::Host(&g.rgba8)),
+        }
+        g.rendered
     }
 }
 
@@ -160,26 +242,38 @@ pub struct WindowOptions {
     pub fullscreen: bool,
 }
 
-/// Uniforms of `present.wgsl` (`PresentParams`, field by field).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct PresentParams {
-    /// Scale of the quad in clip space.
-    pub scale: [f32; 2],
-    pub _pad: [f32; 2],
-    /// Solid colour (linear 0–1 of the encoded value) with w = 1, or w = 0.
-    pub solid: [f32; 4],
-}
-
 /// What a closed or stopped window reports.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct WindowStats {
-    /// Frames presented.
+    /// Surface images presented (every redraw, new frame or not).
     pub presented: u64,
+    /// Distinct frames shown.
+    pub frames_shown: u64,
+    /// Host frames uploaded to the GPU (CPU pipeline; 0 on the GPU one).
+    pub frames_uploaded: u64,
+    /// Whether the presenter drew the frame pipeline's own output buffer
+    /// (GPU pipeline, no read-back) rather than uploaded host frames.
+    pub on_pipeline_device: bool,
     /// Whether the user closed the window (rather than `stop`).
     pub closed_by_user: bool,
     /// The adapter the window ran on.
     pub software_adapter: bool,
+    /// Per shown frame: from the frame loop's hand-over (rendered) to the
+    /// present call that first showed it, ms.
+    pub latency_ms: Vec<f32>,
+}
+
+impl WindowStats {
+    /// The `p` quantile (0–1) of the render→present latency, ms; NaN when
+    /// no frame was shown.
+    pub fn latency_quantile_ms(&self, p: f64) -> f64 {
+        let mut v = self.latency_ms.clone();
+        v.sort_unstable_by(f32::total_cmp);
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        f64::from(v[((v.len() - 1) as f64 * p.clamp(0.0, 1.0)).round() as usize])
+    }
 }
 
 /// Opens the window and runs its event loop on this (the main) thread until
@@ -205,9 +299,13 @@ pub fn run(
         mouse,
         stop: Box::new(stop),
         on_close: Box::new(on_close),
-        gpu: None,
+        window: None,
+        presenter: None,
         error: None,
-        stats: WindowStats::default(),
+        stats: WindowStats {
+            latency_ms: Vec::with_capacity(LATENCY_SAMPLES),
+            ..WindowStats::default()
+        },
         last_seq: 0,
     };
     event_loop
@@ -219,26 +317,14 @@ pub fn run(
     Ok(app.stats)
 }
 
-struct Gpu {
-    window: Arc<Window>,
-    surface: wgpu::Surface<'static>,
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    config: wgpu::SurfaceConfiguration,
-    pipeline: wgpu::RenderPipeline,
-    bind_group: wgpu::BindGroup,
-    params: wgpu::Buffer,
-    frame_tex: wgpu::Texture,
-    frame_size: (u32, u32),
-}
-
 struct App {
     options: WindowOptions,
     content: Content,
     mouse: Option<Arc<MouseGaze>>,
     stop: Box<dyn Fn() -> bool>,
     on_close: Box<dyn Fn()>,
-    gpu: Option<Gpu>,
+    window: Option<Arc<Window>>,
+    presenter: Option<WindowPresenter>,
     error: Option<anyhow::Error>,
     stats: WindowStats,
     last_seq: u64,
@@ -251,314 +337,125 @@ impl App {
         event_loop.exit();
     }
 
-    fn frame_size(&self) -> (u32, u32) {
-        match &self.content {
-            Content::Frames(slot) => slot.size(),
-            Content::Solid(_) => (1, 1),
-        }
-    }
-
-    fn init(&mut self, event_loop: &ActiveEventLoop) -> anyhow::Result<Gpu> {
+    fn create_window(&mut self, event_loop: &ActiveEventLoop) -> anyhow::Result<Arc<Window>> {
         let mut attrs = Window::default_attributes()
             .with_title(self.options.title.clone())
             .with_inner_size(PhysicalSize::new(self.options.width, self.options.height));
         if self.options.fullscreen {
             attrs = attrs.with_fullscreen(Some(winit::window::Fullscreen::Borderless(None)));
         }
-        let window = Arc::new(
+        Ok(Arc::new(
             event_loop
                 .create_window(attrs)
                 .context("cannot create the window")?,
-        );
-        let instance = wgpu::Instance::new(
-            wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(window.clone())),
-        );
-        let surface = instance
-            .create_surface(window.clone())
-            .context("cannot create a GPU surface for the window")?;
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: Some(&surface),
-            apply_limit_buckets: false,
-        }))
-        .context("no GPU adapter can present to this window (Vulkan/lavapipe needed)")?;
-        let info = adapter.get_info();
-        self.stats.software_adapter = info.device_type == wgpu::DeviceType::Cpu;
-        tracing::info!(adapter = %info.name, backend = ?info.backend, "window adapter");
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("gazelight-window"),
-            required_features: wgpu::Features::empty(),
-            required_limits: wgpu::Limits::default(),
-            experimental_features: wgpu::ExperimentalFeatures::disabled(),
-            memory_hints: wgpu::MemoryHints::Performance,
-            trace: wgpu::Trace::Off,
-        }))
-        .context("cannot open the GPU device for the window")?;
-
-        let size = window.inner_size();
-        let mut config = surface
-            .get_default_config(&adapter, size.width.max(1), size.height.max(1))
-            .context("the window surface is not supported by the adapter")?;
-        // The frames are already sRGB-encoded: present them unchanged.
-        let caps = surface.get_capabilities(&adapter);
-        if let Some(f) = caps.formats.iter().find(|f| !f.is_srgb()) {
-            config.format = *f;
-        }
-        config.present_mode = wgpu::PresentMode::Fifo;
-        surface.configure(&device, &config);
-
-        let (fw, fh) = self.frame_size();
-        let frame_tex = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("present-frame"),
-            size: wgpu::Extent3d {
-                width: fw,
-                height: fh,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba8Unorm,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("present-sampler"),
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            ..Default::default()
-        });
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("present-params"),
-            size: std::mem::size_of::<PresentParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("present-layout"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-            ],
-        });
-        let view = frame_tex.create_view(&wgpu::TextureViewDescriptor::default());
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("present-bind-group"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::TextureView(&view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::Sampler(&sampler),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: params.as_entire_binding(),
-                },
-            ],
-        });
-        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("present.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(PRESENT_WGSL.into()),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("present-pipeline-layout"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("present"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleStrip,
-                ..Default::default()
-            },
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: config.format,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
-        window.request_redraw();
-        Ok(Gpu {
-            window,
-            surface,
-            device,
-            queue,
-            config,
-            pipeline,
-            bind_group,
-            params,
-            frame_tex,
-            frame_size: (fw, fh),
-        })
+        ))
     }
 
-    /// Quad scale that letterboxes the frame into the window.
-    fn letterbox(frame: (u32, u32), window: (u32, u32)) -> [f32; 2] {
-        let fa = frame.0 as f32 / frame.1.max(1) as f32;
-        let wa = window.0 as f32 / window.1.max(1) as f32;
-        if fa > wa {
-            [1.0, wa / fa]
-        } else {
-            [fa / wa, 1.0]
+    /// Builds the presenter once it is known where the frames live: for a
+    /// GPU source on the pipeline's device, otherwise on an own one. `None`
+    /// while the frame loop has not offered a frame yet.
+    fn try_presenter(&self, window: &Arc<Window>) -> anyhow::Result<Option<WindowPresenter>> {
+        let size = window.inner_size();
+        let size_px = [size.width, size.height];
+        let presenter = match &self.content {
+            Content::Solid(_) => WindowPresenter::own(window.clone(), size_px, [1, 1])
+                .context("cannot present to the window")?,
+            Content::Frames(slot) => match slot.source.get() {
+                None => return Ok(None),
+                Some(Source::Host) => {
+                    let (w, h) = slot.size();
+                    WindowPresenter::own(window.clone(), size_px, [w, h])
+                        .context("cannot present to the window")?
+                }
+                Some(Source::Gpu(src)) => {
+                    WindowPresenter::on_pipeline(src, window.clone(), size_px)
+                        .context("cannot present to the window on the frame pipeline's device")?
+                }
+            },
+        };
+        let info = presenter.context().adapter_info();
+        tracing::info!(
+            adapter = %info.name,
+            backend = ?info.backend,
+            on_pipeline_device = presenter.on_pipeline_device(),
+            "window adapter"
+        );
+        Ok(Some(presenter))
+    }
+
+    fn init_presenter(&mut self, event_loop: &ActiveEventLoop) {
+        let Some(window) = self.window.clone() else {
+            return;
+        };
+        if self.presenter.is_some() {
+            return;
+        }
+        match self.try_presenter(&window) {
+            Ok(Some(p)) => {
+                self.stats.software_adapter = p.software_adapter();
+                self.stats.on_pipeline_device = p.on_pipeline_device();
+                self.presenter = Some(p);
+                window.request_redraw();
+            }
+            Ok(None) => {}
+            Err(e) => self.fail(event_loop, e),
         }
     }
 
     fn redraw(&mut self) -> anyhow::Result<()> {
-        let Some(gpu) = &mut self.gpu else {
+        let Some(presenter) = &mut self.presenter else {
             return Ok(());
         };
-        let params = match &self.content {
+        let (shown, rendered) = match &self.content {
             Content::Frames(slot) => {
-                let tex = &gpu.frame_tex;
-                let queue = &gpu.queue;
-                let (w, h) = gpu.frame_size;
-                slot.take_newer(&mut self.last_seq, |rgba| {
-                    queue.write_texture(
-                        wgpu::TexelCopyTextureInfo {
-                            texture: tex,
-                            mip_level: 0,
-                            origin: wgpu::Origin3d::ZERO,
-                            aspect: wgpu::TextureAspect::All,
-                        },
-                        rgba,
-                        wgpu::TexelCopyBufferLayout {
-                            offset: 0,
-                            bytes_per_row: Some(4 * w),
-                            rows_per_image: Some(h),
-                        },
-                        wgpu::Extent3d {
-                            width: w,
-                            height: h,
-                            depth_or_array_layers: 1,
-                        },
-                    );
+                let mut upload = Ok(());
+                let mut uploaded = false;
+                let rendered = slot.take_newer(&mut self.last_seq, |frame| {
+                    if let Newer::Host(rgba) = frame {
+                        upload = presenter.upload(rgba);
+                        uploaded = true;
+                    }
                 });
-                PresentParams {
-                    scale: Self::letterbox(gpu.frame_size, (gpu.config.width, gpu.config.height)),
-                    ..PresentParams::default()
+                upload.context("cannot upload the frame to the window")?;
+                self.stats.frames_uploaded += u64::from(uploaded);
+                (presenter.present_frame()?, rendered)
+            }
+            Content::Solid(c) => (presenter.present_solid(c.get())?, None),
+        };
+        if shown == Presented::Shown {
+            self.stats.presented += 1;
+            if let Content::Frames(slot) = &self.content {
+                slot.presented.fetch_add(1, Ordering::Relaxed);
+            }
+            if let Some(t) = rendered {
+                self.stats.frames_shown += 1;
+                if self.stats.latency_ms.len() < LATENCY_SAMPLES {
+                    self.stats
+                        .latency_ms
+                        .push((t.elapsed().as_secs_f64() * 1e3) as f32);
                 }
             }
-            Content::Solid(c) => {
-                let [r, g, b] = c.get();
-                PresentParams {
-                    scale: [1.0, 1.0],
-                    _pad: [0.0; 2],
-                    solid: [
-                        f32::from(r) / 255.0,
-                        f32::from(g) / 255.0,
-                        f32::from(b) / 255.0,
-                        1.0,
-                    ],
-                }
-            }
-        };
-        gpu.queue
-            .write_buffer(&gpu.params, 0, bytemuck::bytes_of(&params));
-        let frame = match gpu.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t)
-            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
-            wgpu::CurrentSurfaceTexture::Outdated | wgpu::CurrentSurfaceTexture::Lost => {
-                gpu.surface.configure(&gpu.device, &gpu.config);
-                return Ok(());
-            }
-            wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => {
-                return Ok(());
-            }
-            wgpu::CurrentSurfaceTexture::Validation => {
-                anyhow::bail!("the window surface reported a validation error");
-            }
-        };
-        let view = frame
-            .texture
-            .create_view(&wgpu::TextureViewDescriptor::default());
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("present"),
-            });
-        {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("present"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_pipeline(&gpu.pipeline);
-            pass.set_bind_group(0, &gpu.bind_group, &[]);
-            pass.draw(0..4, 0..1);
+        } else if rendered.is_some() {
+            // Not shown after all: show it at the next redraw.
+            self.last_seq = self.last_seq.saturating_sub(1);
         }
-        gpu.queue.submit([encoder.finish()]);
-        gpu.window.pre_present_notify();
-        gpu.queue.present(frame);
-        self.stats.presented += 1;
+        if let Some(w) = &self.window {
+            w.pre_present_notify();
+        }
         Ok(())
     }
 }
 
 impl ApplicationHandler for App {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
-        if self.gpu.is_some() {
+        if self.window.is_some() {
             return;
         }
-        match self.init(event_loop) {
-            Ok(gpu) => self.gpu = Some(gpu),
-            Err(e) => self.fail(event_loop, e),
+        match self.create_window(event_loop) {
+            Ok(w) => self.window = Some(w),
+            Err(e) => return self.fail(event_loop, e),
         }
+        self.init_presenter(event_loop);
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
@@ -578,19 +475,19 @@ impl ApplicationHandler for App {
                 event_loop.exit();
             }
             WindowEvent::Resized(size) => {
-                if let Some(gpu) = &mut self.gpu
-                    && size.width > 0
-                    && size.height > 0
-                {
-                    gpu.config.width = size.width;
-                    gpu.config.height = size.height;
-                    gpu.surface.configure(&gpu.device, &gpu.config);
+                if let Some(p) = &mut self.presenter {
+                    p.resize([size.width, size.height]);
                 }
             }
             WindowEvent::CursorMoved { position, .. } => {
-                if let (Some(mouse), Some(gpu)) = (&self.mouse, &self.gpu) {
-                    let (ww, wh) = (gpu.config.width as f64, gpu.config.height as f64);
-                    let s = Self::letterbox(gpu.frame_size, (gpu.config.width, gpu.config.height));
+                if let (Some(mouse), Some(window)) = (&self.mouse, &self.window) {
+                    let size = window.inner_size();
+                    let (ww, wh) = (f64::from(size.width), f64::from(size.height));
+                    let frame = match &self.content {
+                        Content::Frames(slot) => [slot.width, slot.height],
+                        Content::Solid(_) => [1, 1],
+                    };
+                    let s = letterbox_scale(frame, [size.width, size.height]);
                     // Window pixel → clip → frame uv.
                     let cx = (position.x / ww * 2.0 - 1.0) / f64::from(s[0]);
                     let cy = (1.0 - position.y / wh * 2.0) / f64::from(s[1]);
@@ -607,8 +504,8 @@ impl ApplicationHandler for App {
                     self.fail(event_loop, e);
                     return;
                 }
-                if let Some(gpu) = &self.gpu {
-                    gpu.window.request_redraw();
+                if let Some(w) = &self.window {
+                    w.request_redraw();
                 }
             }
             _ => {}
@@ -620,11 +517,15 @@ impl ApplicationHandler for App {
             event_loop.exit();
             return;
         }
-        // FIFO present paces the redraws; without a surface yet, poll gently.
-        if self.gpu.is_none() {
+        // FIFO present paces the redraws; until the first frame says which
+        // device to present on, poll gently.
+        if self.presenter.is_none() {
+            self.init_presenter(event_loop);
             event_loop.set_control_flow(ControlFlow::WaitUntil(
                 Instant::now() + Duration::from_millis(5),
             ));
+        } else {
+            event_loop.set_control_flow(ControlFlow::Poll);
         }
     }
 }
@@ -634,23 +535,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn present_params_match_the_wgsl_struct() {
-        // vec2 scale + vec2 pad + vec4 solid = 32 bytes, 16-byte aligned.
-        assert_eq!(std::mem::size_of::<PresentParams>(), 32);
-        assert!(PRESENT_WGSL.contains("scale: vec2<f32>"));
-        assert!(PRESENT_WGSL.contains("solid: vec4<f32>"));
-    }
-
-    #[test]
-    fn letterbox_keeps_the_aspect() {
-        assert_eq!(App::letterbox((720, 800), (720, 800)), [1.0, 1.0]);
-        let s = App::letterbox((100, 100), (200, 100));
-        assert_eq!(s, [0.5, 1.0]);
-        let s = App::letterbox((200, 100), (100, 100));
-        assert_eq!(s, [1.0, 0.5]);
-    }
-
-    #[test]
     fn slot_counts_frames_the_window_never_showed() {
         let slot = DisplaySlot::new(2, 1);
         let mut last = 0;
@@ -658,13 +542,39 @@ mod tests {
         slot.put(&[2; 8]);
         slot.put(&[3; 8]);
         let mut got = Vec::new();
-        assert!(slot.take_newer(&mut last, |px| got.extend_from_slice(px)));
+        let t = slot.take_newer(&mut last, |f| {
+            if let Newer::Host(px) = f {
+                got.extend_from_slice(px);
+            }
+        });
+        assert!(t.is_some());
         assert_eq!(got, vec![3; 8]);
         assert_eq!(slot.skipped(), 2);
-        assert!(!slot.take_newer(&mut last, |_| {}));
+        assert!(slot.take_newer(&mut last, |_| {}).is_none());
         // A frame of the wrong size is ignored, never a panic.
         slot.put(&[9; 4]);
-        assert!(!slot.take_newer(&mut last, |_| {}));
+        assert!(slot.take_newer(&mut last, |_| {}).is_none());
+    }
+
+    #[test]
+    fn a_host_slot_ignores_gpu_frames() {
+        let slot = DisplaySlot::new(2, 1);
+        slot.put(&[1; 8]);
+        slot.put_gpu(|| unreachable!("a host slot never asks for a GPU source"));
+        let mut last = 0;
+        assert!(slot.take_newer(&mut last, |_| {}).is_some());
+        assert!(slot.take_newer(&mut last, |_| {}).is_none());
+    }
+
+    #[test]
+    fn latency_quantiles_of_the_shown_frames() {
+        let stats = WindowStats {
+            latency_ms: vec![5.0, 1.0, 3.0, 2.0, 4.0],
+            ..WindowStats::default()
+        };
+        assert_eq!(stats.latency_quantile_ms(0.5), 3.0);
+        assert_eq!(stats.latency_quantile_ms(1.0), 5.0);
+        assert!(WindowStats::default().latency_quantile_ms(0.5).is_nan());
     }
 
     #[test]

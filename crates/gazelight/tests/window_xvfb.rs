@@ -233,16 +233,91 @@ fn png_rgb(path: &Path) -> (usize, usize, Vec<u8>) {
     (img.width() as usize, img.height() as usize, img.into_raw())
 }
 
-#[test]
-fn run_window_shows_the_replayed_session() {
-    let Some(x) = xvfb() else { return };
-    let dir = tmp("run");
+/// The `display:` line of a run's summary: (presented, shown, uploaded,
+/// read back, drawn from the GPU pipeline's buffer).
+#[derive(Debug)]
+struct DisplayLine {
+    presented: u64,
+    shown: u64,
+    uploaded: u64,
+    read_back: u64,
+    on_gpu_buffer: bool,
+    latency_median_ms: f64,
+    latency_p99_ms: f64,
+}
+
+fn number_before(line: &str, word: &str) -> Option<f64> {
+    let i = line.find(word)?;
+    line[..i].split_whitespace().last()?.parse().ok()
+}
+
+fn display_line(stdout: &str) -> DisplayLine {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("display: window presented"))
+        .unwrap_or_else(|| panic!("no window `display:` line in\n{stdout}"));
+    let n = |word: &str| {
+        number_before(line, word).unwrap_or_else(|| panic!("no `{word}` in {line}")) as u64
+    };
+    let after = |word: &str| -> f64 {
+        let i = line
+            .find(word)
+            .unwrap_or_else(|| panic!("no `{word}` in {line}"))
+            + word.len();
+        line[i..]
+            .split_whitespace()
+            .next()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no number after `{word}` in {line}"))
+    };
+    DisplayLine {
+        presented: n(" images"),
+        shown: n(" frames shown"),
+        uploaded: n(" uploaded"),
+        read_back: n(" frames read back"),
+        on_gpu_buffer: line.contains("drawn from the GPU pipeline's output buffer"),
+        latency_median_ms: after("median"),
+        latency_p99_ms: after("p99"),
+    }
+}
+
+/// The frame count of the run summary (`run: N frames in …`).
+fn run_frames(stdout: &str) -> u64 {
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("run: "))
+        .unwrap_or_else(|| panic!("no run summary in\n{stdout}"));
+    number_before(line, " frames in").unwrap_or_else(|| panic!("no frame count: {line}")) as u64
+}
+
+/// Whether `--backend gpu` can run here: an adapter exists, or the test is
+/// skipped (a failure with GAZELIGHT_REQUIRE_GPU=1, as the GPU tests).
+fn gpu_backend_ready(stderr: &str) -> bool {
+    if stderr.contains("--backend gpu: no GPU adapter") {
+        assert!(
+            std::env::var("GAZELIGHT_REQUIRE_GPU").as_deref() != Ok("1"),
+            "GAZELIGHT_REQUIRE_GPU=1 but no GPU adapter:\n{stderr}"
+        );
+        eprintln!("SKIP: no GPU adapter for --backend gpu");
+        return false;
+    }
+    true
+}
+
+/// Runs a replayed session in a window on `backend` at 160×120 with
+/// `--out`, screenshots the window, and checks its pixels are one of the
+/// frames the session wrote. Returns the run's stdout.
+fn window_shows_the_written_frames(backend: &str, name: &str) -> Option<String> {
+    let x = xvfb()?;
+    let dir = tmp(name);
     let (w, h) = (160usize, 120usize);
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
         .args([
             "run",
             "--source",
             &format!("replay://{}", shared_str("eye/neon-demo")),
+            "--backend",
+            backend,
             "--size",
             &format!("{w}x{h}"),
             "--fps",
@@ -261,7 +336,22 @@ fn run_window_shows_the_replayed_session() {
         .expect("spawn run");
     let rx = lines_of(&mut child);
     let mut log = String::new();
-    wait_for(&rx, "window adapter", Duration::from_secs(30), &mut log);
+    let start = Instant::now();
+    // The window appears once the first frame says which device to use.
+    while start.elapsed() < Duration::from_secs(60) {
+        if let Ok(line) = rx.recv_timeout(Duration::from_millis(100)) {
+            log.push_str(&line);
+            log.push('\n');
+            if line.contains("window adapter") || line.contains("no GPU adapter") {
+                break;
+            }
+        }
+    }
+    if !gpu_backend_ready(&log) {
+        let _ = child.kill();
+        return None;
+    }
+    assert!(log.contains("window adapter"), "no window came up:\n{log}");
     std::thread::sleep(Duration::from_secs(3));
     let shot = Shot::take(&x.display);
     let out = child.wait_with_output().expect("run");
@@ -269,7 +359,8 @@ fn run_window_shows_the_replayed_session() {
         log.push_str(&line);
         log.push('\n');
     }
-    assert!(out.status.success(), "run failed:\n{log}");
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "run failed:\n{log}\n{stdout}");
     assert!(!log.contains("running headless"), "{log}");
     // No window manager: the window sits at the root's origin. Its pixels
     // are one of the frames the session wrote (the window shows the newest
@@ -300,13 +391,96 @@ fn run_window_shows_the_replayed_session() {
             best_name = path.display().to_string();
         }
     }
-    eprintln!("window vs nearest written frame ({best_name}): mean |Δ| = {best:.2} codes");
+    eprintln!(
+        "{backend}: window vs nearest written frame ({best_name}): mean |Δ| = {best:.2} codes"
+    );
     assert!(
         best < 3.0,
         "the window does not show the session's frames: {best:.2}"
     );
     // Outside the window: the X root (black).
     assert_eq!(shot.at(w + 50, h + 50), [0, 0, 0]);
+    Some(stdout)
+}
+
+#[test]
+fn run_window_shows_the_replayed_session() {
+    let Some(stdout) = window_shows_the_written_frames("cpu", "run") else {
+        return;
+    };
+    // CPU frames are on the host: uploaded to the window, never read back.
+    let d = display_line(&stdout);
+    eprintln!("{d:?}");
+    assert!(!d.on_gpu_buffer, "{d:?}");
+    assert!(d.shown > 0 && d.uploaded == d.shown, "{d:?}");
+    assert_eq!(d.read_back, 0, "{d:?}");
+}
+
+/// On the GPU pipeline the window draws the pipeline's own output buffer
+/// (no upload) and shows the frames `--out` wrote; the writer's frames are
+/// the only read-backs (one per frame).
+#[test]
+fn gpu_window_draws_the_pipeline_buffer_and_shows_the_written_frames() {
+    let Some(stdout) = window_shows_the_written_frames("gpu", "run-gpu") else {
+        return;
+    };
+    let d = display_line(&stdout);
+    eprintln!("{d:?}");
+    assert!(d.on_gpu_buffer, "{d:?}");
+    assert!(d.shown > 0 && d.presented >= d.shown, "{d:?}");
+    assert_eq!(d.uploaded, 0, "{d:?}");
+    assert_eq!(
+        d.read_back,
+        run_frames(&stdout),
+        "one read-back per written frame"
+    );
+}
+
+/// With a window and no host consumer (no `--out`, no `--http`), a GPU
+/// frame reaches the surface without a single read-back.
+#[test]
+fn gpu_window_reads_nothing_back_when_nothing_consumes_the_frames() {
+    let Some(x) = xvfb() else { return };
+    let out = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            "--source",
+            "synthetic://demo",
+            "--backend",
+            "gpu",
+            "--size",
+            "96x80",
+            "--fps",
+            "10",
+            "--secs",
+            "6",
+        ])
+        .env("DISPLAY", &x.display)
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .output()
+        .expect("run");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    if !gpu_backend_ready(&stderr) {
+        return;
+    }
+    assert!(out.status.success(), "run failed:\n{stderr}\n{stdout}");
+    assert!(!stderr.contains("running headless"), "{stderr}");
+    let d = display_line(&stdout);
+    eprintln!(
+        "{d:?} over {} frames (render to present median {:.2} ms, p99 {:.2} ms)",
+        run_frames(&stdout),
+        d.latency_median_ms,
+        d.latency_p99_ms
+    );
+    assert!(d.on_gpu_buffer, "{d:?}");
+    assert!(d.shown > 0, "no frame reached the window: {d:?}");
+    assert_eq!(d.uploaded, 0, "{d:?}");
+    assert_eq!(
+        d.read_back, 0,
+        "a frame was read back with no consumer: {d:?}"
+    );
 }
 
 #[test]

@@ -260,6 +260,11 @@ impl OutputWriter {
         let _ = self.send(Msg::Psf(ev));
     }
 
+    /// Whether the writer takes frame images (`--out` without `--no-frames`).
+    pub fn wants_frames(&self) -> bool {
+        self.write_frames
+    }
+
     /// Copies the frame into a free pool buffer and queues it; skips it
     /// when none is free (never blocks, never allocates).
     pub fn frame(&mut self, index: u64, frame: &DisplayFrame) {

@@ -177,6 +177,9 @@ pub async fn spawn_with(
     let addr = listener
         .local_addr()
         .with_context(|| format!("status server: address of the socket bound to {addr}"))?;
+    // The page shows the display frame: the frame loop publishes (and on
+    // the GPU reads back) one at its low rate from now on.
+    hub.want_display();
     let counters = Arc::new(Counters::default());
     let (push_tx, push_rx) = watch::channel(Utf8Bytes::from_static("{}"));
     let state = AppState {
