@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The frame loop allocates nothing in steady state: a counting global
 //! allocator watches `FramePipeline::process` over many frames, with the
 //! gaze moving and the PSF cached, on a real panorama view.

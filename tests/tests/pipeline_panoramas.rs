@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The whole CPU frame pipeline on all six shared panoramas: finite output
 //! in [0, 1] at several gaze points, and glare energy around the sun of
 //! `city.exr` only near the gaze window.

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The Gazepoint Open Gaze API client against the simulator on 127.0.0.1:
 //! handshake (every ENABLE_SEND field acknowledged), records → samples with
 //! the right gaze and pupil values, a malformed record, a dropped

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! HID decoding from report-descriptor bytes and report bytes: a page-0x12
 //! eye tracker written per HUTRR74 (usage IDs in
 //! `transport::hid::page12`), a 12-bit tracker whose units come from

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Serial sources over a pseudo-terminal pair (the kernel's pty driver in
 //! raw mode, as `serialport::TTYPort::pair()` sets it up): all three
 //! encodings, a corrupt frame, a garbled line, and a hang-up.

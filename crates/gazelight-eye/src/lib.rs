@@ -55,5 +55,5 @@ pub use sample::{
 };
 pub use setting::SettingError;
 pub use source::{SampleSource, SourceError};
-pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, PupilOrigin};
+pub use state::{EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, LiveEyeState, PupilOrigin};
 pub use trace::{GazeTrace, TraceError, TraceSample};

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! GPU FFT throughput: 512² and 1024² × 3 channels (RGB), forward transform.
 //!
 //! Times come from GPU timestamp queries written at the beginning and end of

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The GPU frame pipeline ([`GpuFramePipeline`]), both eyes, at the Vive
 //! Pro's 1440×1600 per eye (override with `GAZELIGHT_BENCH_SIZE=WxH`, e.g.
 //! on a software adapter), on a night view of the shared `night.exr`

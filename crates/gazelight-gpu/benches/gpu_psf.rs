@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Glare kernel rebuild of [`GpuPsfBuilder`] at the default parameters for
 //! a pupil alternating between 3 and 6 mm. Interim (see `gazelight_gpu::psf`):
 //! the kernel is built by the CPU model and uploaded, so the figure is the

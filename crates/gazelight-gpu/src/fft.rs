@@ -278,7 +278,7 @@ impl GpuFft2d {
         let mut forward = Vec::with_capacity(params.len());
         let per_direction = (params.len() / 2).max(1);
         for (i, p) in params.iter().enumerate() {
-            let even = (i % per_direction) % 2 == 0;
+            let even = (i % per_direction).is_multiple_of(2);
             let offset = i as u64 * align;
             let groups = Self::stage_groups(ctx, p, [width, height, channels])?;
             forward.push(Stage {

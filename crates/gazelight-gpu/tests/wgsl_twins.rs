@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The WGSL side of every pass, read by naga (the version wgpu compiles
 //! them with), against its Rust side:
 //!

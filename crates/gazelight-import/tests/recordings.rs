@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Replays of the three real recordings in `shared/data/eye` through the
 //! importers and the filter chain.
 
@@ -5,8 +6,8 @@ use std::path::PathBuf;
 
 use gazelight_eye::calibration::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
 use gazelight_eye::filter::{FilterChain, FilterConfig};
-use gazelight_import::{self as import, Importer};
 use gazelight_eye::{PupilUnit, Sample};
+use gazelight_import::{self as import, Importer};
 
 fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

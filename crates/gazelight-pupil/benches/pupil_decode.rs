@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Pupil Core message decoding throughput and socket-to-sample latency.
 //!
 //! 1. `decode/*`: decoding realistic msgpack datums as Pupil Capture v3

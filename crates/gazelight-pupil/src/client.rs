@@ -23,11 +23,9 @@
 //!
 //! Samples leave through a bounded channel with their times converted to
 //! host time; when the consumer lags, new samples are dropped and counted,
-//! the channel never grows. With [`PupilClient::spawn_filtered`] the task
-//! also runs each sample through a [`FilterChain`] right after decoding it
-//! and publishes the [`EyeState`] on a `watch` channel, so the state is
-//! current without a second task's wake-up (the socket-to-state latency is
-//! one wake-up of this task plus decoding and filtering).
+//! the channel never grows. The client only decodes and aligns clocks: the
+//! samples are filtered once, by the live eye task of `gazelight-tracker`,
+//! which reads them through [`PupilSource`] like any other source.
 
 pub use crate::stimulus::{RemoteSink, STIMULUS_SUBJECT};
 
@@ -36,19 +34,19 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use bytes::Bytes;
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{mpsc, oneshot};
 use tokio::time::{Instant, timeout};
 use zeromq::{ReqSocket, Socket, SocketOptions, SocketRecv, SocketSend, SubSocket, ZmqMessage};
 
 use crate::msg;
-use gazelight_eye::calibration::PupilCalibration;
 use gazelight_eye::clock::{
     ClockEstimate, ClockProbe, ClockTracker, host_now_secs, parse_time_reply,
 };
-use gazelight_eye::filter::FilterChain;
 use gazelight_eye::sample::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
-use gazelight_eye::state::EyeState;
+/// The state the live eye task publishes (in `gazelight-eye`; re-exported
+/// here for the relay and the old `pupil::LiveEyeState` path).
+pub use gazelight_eye::state::LiveEyeState;
 
 /// Default Pupil Remote port.
 pub const DEFAULT_REMOTE_PORT: u16 = 50020;
@@ -56,9 +54,6 @@ pub const DEFAULT_REMOTE_PORT: u16 = 50020;
 /// Errors of the Pupil client.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PupilError {
-    /// A URI that is not `pupil://HOST[:PORT]` or `tcp://HOST:PORT`.
-    #[error("bad Pupil endpoint `{uri}`: {reason}")]
-    BadEndpoint { uri: String, reason: String },
     /// Connecting a socket failed.
     #[error("connecting to {endpoint}: {reason}")]
     Connect { endpoint: String, reason: String },
@@ -132,36 +127,6 @@ impl Default for PupilConfig {
 }
 
 impl PupilConfig {
-    /// Settings for `pupil://HOST[:PORT]` or `tcp://HOST:PORT`, other
-    /// settings default.
-    pub fn from_uri(uri: &str) -> Result<Self, PupilError> {
-        let bad = |reason: &str| PupilError::BadEndpoint {
-            uri: uri.to_owned(),
-            reason: reason.to_owned(),
-        };
-        let rest = uri
-            .strip_prefix("pupil://")
-            .or_else(|| uri.strip_prefix("tcp://"))
-            .ok_or_else(|| bad("expected pupil://HOST[:PORT] or tcp://HOST:PORT"))?;
-        let rest = rest.trim_end_matches('/');
-        let (host, port) = match rest.rsplit_once(':') {
-            Some((h, p)) => (
-                h,
-                p.parse::<u16>()
-                    .map_err(|_| bad("port is not a number 1-65535"))?,
-            ),
-            None => (rest, DEFAULT_REMOTE_PORT),
-        };
-        if host.is_empty() || port == 0 {
-            return Err(bad("empty host or port 0"));
-        }
-        Ok(Self {
-            host: host.to_owned(),
-            remote_port: port,
-            ..Self::default()
-        })
-    }
-
     fn remote_endpoint(&self) -> String {
         format!("tcp://{}:{}", self.host, self.remote_port)
     }
@@ -245,8 +210,6 @@ pub(crate) enum Command {
         payload: Vec<u8>,
         reply: oneshot::Sender<Result<(), PupilError>>,
     },
-    SetCalibration(Box<PupilCalibration>),
-    SetLuminance(f64),
     Shutdown,
 }
 
@@ -313,58 +276,10 @@ impl PupilClient {
     /// Starts the client task (it connects, and keeps reconnecting, in the
     /// background). Must be called within a tokio runtime.
     pub fn spawn(config: PupilConfig) -> (Self, PupilStreams) {
-        Self::spawn_inner(config, None)
+        Self::spawn_inner(config)
     }
 
-    /// Like [`PupilClient::spawn`], but the client task also runs every
-    /// decoded sample through `chain` as soon as it has decoded it and
-    /// publishes the resulting [`EyeState`] on a `watch` channel: the state
-    /// is updated without any task hop after the socket read (the render
-    /// loop reads it with `borrow()`, no wake-up needed). The sample
-    /// channel is still filled (for recorders); dropping its receiver is
-    /// fine. Change the chain's calibration and adaptation luminance with
-    /// [`PupilClient::set_calibration`] and
-    /// [`PupilClient::set_adaptation_luminance`].
-    pub fn spawn_filtered(
-        config: PupilConfig,
-        chain: FilterChain,
-    ) -> (Self, PupilStreams, watch::Receiver<LiveEyeState>) {
-        let initial = LiveEyeState {
-            state: *chain.state(),
-            updated_host_secs: host_now_secs(),
-            updates: 0,
-        };
-        let (tx, rx) = watch::channel(initial);
-        let (client, streams) = Self::spawn_inner(
-            config,
-            Some(InlineFilter {
-                chain,
-                tx,
-                updates: 0,
-            }),
-        );
-        (client, streams, rx)
-    }
-
-    /// Replaces the calibration of the inline chain (see
-    /// [`PupilClient::spawn_filtered`]); never waits. Errors when the
-    /// command queue is full or the client has stopped.
-    pub fn set_calibration(&self, calibration: PupilCalibration) -> Result<(), PupilError> {
-        self.cmd
-            .try_send(Command::SetCalibration(Box::new(calibration)))
-            .map_err(|_| PupilError::Stopped)
-    }
-
-    /// Sets the adaptation luminance (cd/m²) of the inline chain; never
-    /// waits. Errors when the command queue is full or the client has
-    /// stopped.
-    pub fn set_adaptation_luminance(&self, luminance_cd_m2: f64) -> Result<(), PupilError> {
-        self.cmd
-            .try_send(Command::SetLuminance(luminance_cd_m2))
-            .map_err(|_| PupilError::Stopped)
-    }
-
-    fn spawn_inner(config: PupilConfig, filter: Option<InlineFilter>) -> (Self, PupilStreams) {
+    fn spawn_inner(config: PupilConfig) -> (Self, PupilStreams) {
         let (sample_tx, samples) = mpsc::channel(config.channel_capacity.max(1));
         let (raw_tx, raw) = if config.raw_capacity > 0 {
             let (t, r) = mpsc::channel(config.raw_capacity);
@@ -383,7 +298,6 @@ impl PupilClient {
             tracker: ClockTracker::new(32),
             offset_secs: 0.0,
             probes: Vec::with_capacity(config.clock_probes.max(1)),
-            filter,
         };
         let task = tokio::spawn(worker.run());
         (
@@ -481,25 +395,6 @@ enum End {
     Shutdown,
 }
 
-/// The filter chain run inside the client task ([`PupilClient::spawn_filtered`]).
-struct InlineFilter {
-    chain: FilterChain,
-    tx: watch::Sender<LiveEyeState>,
-    updates: u64,
-}
-
-/// The newest filtered state published by a client that filters inline.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LiveEyeState {
-    /// The chain's state after the newest sample (host time).
-    pub state: EyeState,
-    /// Host time (s, [`gazelight_eye::clock::host_now_secs`]) when the client task wrote
-    /// this state.
-    pub updated_host_secs: f64,
-    /// Samples the chain has consumed so far.
-    pub updates: u64,
-}
-
 struct Worker {
     config: PupilConfig,
     counters: Arc<Counters>,
@@ -509,7 +404,6 @@ struct Worker {
     tracker: ClockTracker,
     offset_secs: f64,
     probes: Vec<ClockProbe>,
-    filter: Option<InlineFilter>,
 }
 
 impl Worker {
@@ -540,7 +434,6 @@ impl Worker {
                         Some(Command::Notify { reply, .. }) => {
                             let _ = reply.send(Err(PupilError::NotConnected));
                         }
-                        Some(c) => self.configure(c),
                     },
                 }
             }
@@ -724,7 +617,6 @@ impl Worker {
                             return Err(e);
                         }
                     }
-                    Some(c) => self.configure(c),
                 },
                 r = timeout(self.config.idle_timeout, sub.recv()) => match r {
                     Ok(Ok(m)) => self.handle(m),
@@ -741,16 +633,6 @@ impl Worker {
                     next_clock = Instant::now() + self.config.clock_interval;
                 }
             }
-        }
-    }
-
-    /// Applies a settings command to the inline chain.
-    fn configure(&mut self, c: Command) {
-        let Some(f) = &mut self.filter else { return };
-        match c {
-            Command::SetCalibration(cal) => f.chain.set_calibration(*cal),
-            Command::SetLuminance(l) => f.chain.set_adaptation_luminance(l),
-            Command::Notify { .. } | Command::Shutdown => {}
         }
     }
 
@@ -777,20 +659,8 @@ impl Worker {
                         .fetch_add(u64::from(unknown), Ordering::Relaxed);
                 }
                 let sample = datum.to_sample(self.offset_secs);
-                if let Some(f) = &mut self.filter {
-                    let state = f.chain.push(&sample).state;
-                    f.updates += 1;
-                    f.tx.send_replace(LiveEyeState {
-                        state,
-                        updated_host_secs: host_now_secs(),
-                        updates: f.updates,
-                    });
-                }
                 match self.sample_tx.try_send(sample) {
                     Ok(()) => {}
-                    // Nobody reads samples (an inline-filtering client
-                    // whose caller dropped the receiver): not a loss.
-                    Err(mpsc::error::TrySendError::Closed(_)) if self.filter.is_some() => {}
                     Err(_) => {
                         c.dropped.fetch_add(1, Ordering::Relaxed);
                     }
@@ -827,20 +697,40 @@ fn should_log(count: u64) -> bool {
     count <= 10 || count.is_multiple_of(1000)
 }
 
-/// The Pupil client as a [`SampleSource`].
+/// With no Pupil Capture answering within this time, [`PupilSource`]
+/// says so (once).
+pub const NO_TRACKER_AFTER: Duration = Duration::from_millis(1500);
+/// How often [`PupilSource`] looks at the client's connection.
+const HEALTH_POLL: Duration = Duration::from_millis(250);
+
+/// The Pupil client as a [`SampleSource`]: decoded samples on the host
+/// clock. A lost connection (or none within [`NO_TRACKER_AFTER`]) is
+/// reported once as [`SourceError::Disconnected`] while the client keeps
+/// reconnecting; the next sample after it means the connection is back.
 pub struct PupilSource {
     client: PupilClient,
     samples: mpsc::Receiver<Sample>,
+    started: Instant,
+    next_poll: Instant,
+    ever_connected: bool,
+    was_connected: bool,
+    said_absent: bool,
 }
 
 impl PupilSource {
     /// Starts a client for `config` and reads its sample channel.
     pub fn spawn(config: PupilConfig) -> (Self, Option<mpsc::Receiver<RawDatum>>) {
         let (client, streams) = PupilClient::spawn(config);
+        let now = Instant::now();
         (
             Self {
                 client,
                 samples: streams.samples,
+                started: now,
+                next_poll: now + HEALTH_POLL,
+                ever_connected: false,
+                was_connected: false,
+                said_absent: false,
             },
             streams.raw,
         )
@@ -850,16 +740,79 @@ impl PupilSource {
     pub fn client(&self) -> &PupilClient {
         &self.client
     }
+
+    fn endpoint(&self) -> String {
+        format!(
+            "{}:{}",
+            self.client.config.host, self.client.config.remote_port
+        )
+    }
+
+    /// Looks at the connection: `Some(reason)` when it was just lost, or
+    /// when no tracker has answered for [`NO_TRACKER_AFTER`].
+    fn poll_health(&mut self) -> Option<String> {
+        let stats = self.client.stats();
+        let endpoint = self.endpoint();
+        let mut lost = None;
+        if stats.connected && !self.was_connected {
+            if self.ever_connected {
+                tracing::info!(endpoint = %endpoint, reconnects = stats.reconnects, "Pupil Capture is back: live again");
+            } else {
+                tracing::info!(endpoint = %endpoint, version = stats.version.as_deref().unwrap_or("?"), "connected to Pupil Capture");
+            }
+        } else if !stats.connected && self.was_connected {
+            let reason = format!(
+                "lost Pupil Capture at {endpoint}: {}; frames continue, the pupil eases to the model",
+                stats.last_error.as_deref().unwrap_or("no answer")
+            );
+            tracing::warn!(endpoint = %endpoint, "{reason}");
+            lost = Some(reason);
+        }
+        if !stats.connected
+            && !self.ever_connected
+            && !self.said_absent
+            && self.started.elapsed() >= NO_TRACKER_AFTER
+        {
+            self.said_absent = true;
+            let reason = format!(
+                "no Pupil Capture at {endpoint}: {}; frames continue with the pupil model (--mouse-gaze needs a window); still trying to connect",
+                stats
+                    .last_error
+                    .as_deref()
+                    .unwrap_or("no answer from Pupil Remote")
+            );
+            tracing::warn!("{reason}");
+            lost = Some(reason);
+        }
+        self.ever_connected |= stats.connected;
+        self.was_connected = stats.connected;
+        lost
+    }
 }
 
 impl SampleSource for PupilSource {
     async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
-        match self.samples.recv().await {
-            Some(s) => Ok(Some(s)),
-            None => Err(SourceError::Fatal {
-                source_name: self.describe(),
-                reason: "client task stopped".to_owned(),
-            }),
+        loop {
+            tokio::select! {
+                s = self.samples.recv() => {
+                    return match s {
+                        Some(s) => Ok(Some(s)),
+                        None => Err(SourceError::Fatal {
+                            source_name: self.describe(),
+                            reason: "client task stopped".to_owned(),
+                        }),
+                    };
+                }
+                _ = tokio::time::sleep_until(self.next_poll) => {
+                    self.next_poll = Instant::now() + HEALTH_POLL;
+                    if let Some(reason) = self.poll_health() {
+                        return Err(SourceError::Disconnected {
+                            source_name: self.describe(),
+                            reason,
+                        });
+                    }
+                }
+            }
         }
     }
 
@@ -869,35 +822,15 @@ impl SampleSource for PupilSource {
             self.client.config.host, self.client.config.remote_port
         )
     }
+
+    fn dropped(&self) -> u64 {
+        self.client.counters.dropped.load(Ordering::Relaxed)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn uris() {
-        let c = PupilConfig::from_uri("pupil://10.0.0.2:50021").unwrap();
-        assert_eq!((c.host.as_str(), c.remote_port), ("10.0.0.2", 50021));
-        let c = PupilConfig::from_uri("pupil://localhost").unwrap();
-        assert_eq!(c.remote_port, DEFAULT_REMOTE_PORT);
-        assert_eq!(c.remote_endpoint(), "tcp://localhost:50020");
-        for bad in [
-            "http://x:1",
-            "pupil://:5",
-            "pupil://h:0",
-            "pupil://h:99999",
-            "pupil://h:x",
-        ] {
-            assert!(
-                matches!(
-                    PupilConfig::from_uri(bad),
-                    Err(PupilError::BadEndpoint { .. })
-                ),
-                "{bad}"
-            );
-        }
-    }
 
     #[tokio::test]
     async fn unreachable_peer_backs_off_and_answers_not_connected() {

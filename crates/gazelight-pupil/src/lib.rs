@@ -38,6 +38,7 @@
 
 pub mod client;
 pub mod msg;
+pub mod neon;
 pub mod recording;
 pub mod relay;
 pub mod stimulus;

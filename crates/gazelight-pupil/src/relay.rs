@@ -681,6 +681,11 @@ impl Publisher {
     }
 
     async fn on_state(&mut self, live: LiveEyeState) {
+        // A state with no new sample (the live eye task stepping its stale
+        // fallback) is no new datum: a relay client sees tracker times only.
+        if self.last.is_some() && live.updates == self.last_updates {
+            return;
+        }
         let missed = live
             .updates
             .saturating_sub(self.last_updates.saturating_add(1));
@@ -968,7 +973,11 @@ mod tests {
         let (tx, rx) = watch::channel(LiveEyeState::default());
         let hub = Hub::new("test://", rx);
         let relay = spawn(hub.clone(), loopback()).await.unwrap();
-        let config = PupilConfig::from_uri(&format!("pupil://{}", relay.local_addr())).unwrap();
+        let config = PupilConfig {
+            host: relay.local_addr().ip().to_string(),
+            remote_port: relay.local_addr().port(),
+            ..PupilConfig::default()
+        };
         let (client, mut streams) = PupilClient::spawn(config);
         client.wait_connected(Duration::from_secs(5)).await.unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;

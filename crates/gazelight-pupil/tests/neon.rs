@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The Neon Real-time API client against `neon_peer.py`, a Neon-like peer
 //! that serves the Neon demo recording (`../shared/data/eye/neon-demo`,
 //! MIT, © Pupil Labs) over HTTP status + RTSP/TCP interleaved + RTP/RTCP.

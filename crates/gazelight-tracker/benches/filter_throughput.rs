@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Decode (import) + filter throughput, samples per second on one core.
 //! Target: ≥ 1 M samples/s.
 //!

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The black/white pupil calibration (001 §5): synthetic sessions with a
 //! known answer, each failure case, a replay of a real flash, and the
 //! profile format.

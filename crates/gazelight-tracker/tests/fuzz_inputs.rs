@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Property suite (issue 14): every importer, the msgpack datum decoder and
 //! the HID descriptor/report parsers, on random bytes and on mutations of
 //! the real files in shared/data. The invariant: any input gives `Ok` or a

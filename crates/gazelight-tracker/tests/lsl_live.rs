@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The LSL wrappers against the real liblsl and pylsl, each test in its own
 //! network namespace (`unshare -n`, loopback up) with the machine-only
 //! configuration, so no discovery packet can leave the machine.

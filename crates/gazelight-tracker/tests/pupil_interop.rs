@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Interop test of the Pupil Core network client against a
 //! Pupil-Capture-like peer written with pyzmq + msgpack
 //! (`tests/pupil_peer.py`): handshake, subscription, decoding of 2D/3D

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Criterion benchmarks of the CPU frame pipeline, every stage on (pooling,
 //! temporal adaptation, glare with the cached ±20° PSF, per-pixel acuity,
 //! tone + colour + encoding), against the memory floor measured in the same

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The README's glare figure: the default night view (assets/night.exr, the
 //! default render's view at 720×800) with the gaze on the brightest street
 //! lamp, through the CPU pipeline with glare on and off; writes a side-by-side

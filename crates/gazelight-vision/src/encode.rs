@@ -131,6 +131,8 @@ impl Map for Affine {
             }
         }
         let mut out = [[0.0f32; LANES]; 3];
+        #[allow(clippy::needless_range_loop)]
+        // c indexes the matrix row, the output and the bias together
         for c in 0..3 {
             let row = self.m[c];
             for i in 0..LANES {

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Property suite (issue 14) for the scene loader: random bytes and
 //! mutations of real OpenEXR (DWAB, from shared/data) and Radiance files
 //! give a scene or a clear error naming the file, never a panic, and never

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Live-session benchmarks of `gazelight run` (a bench binary, not
 //! criterion: each figure is one whole run of the real binary).
 //!

@@ -2,8 +2,8 @@
 //! with its observers — the status page (`serve`), the Pupil-compatible
 //! relay, recorders and tests.
 //!
-//! Writers are the source task (the eye-state `watch` channel, the sample
-//! broadcast, source health) and the frame loop (frame statistics, history,
+//! Writers are the live eye task of `gazelight-tracker` (the eye-state
+//! `watch` channel, the sample broadcast, the source status) and the frame loop (frame statistics, history,
 //! the latest frame and PSF kernel). Readers never block the writers for
 //! more than a copy: every shared value sits behind a short `Mutex` whose
 //! critical sections copy into preallocated storage, so the frame loop does
@@ -14,52 +14,15 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use gazelight_tracker::Sample;
+use gazelight_tracker::live::{LiveEye, SharedStatus};
 use gazelight_tracker::pupil::LiveEyeState;
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 
-/// Capacity of the filtered-sample broadcast (≈ 4 s at 1 kHz).
-pub const SAMPLE_BROADCAST_CAPACITY: usize = 4096;
+/// The source status and health are the live eye task's.
+pub use gazelight_tracker::live::{SAMPLE_BROADCAST_CAPACITY, SourceHealth, SourceStatus};
 /// Points kept in the status history ring (≈ 45 s at 90 Hz).
 pub const HISTORY_CAPACITY: usize = 4096;
-
-/// Health of the tracker source.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SourceHealth {
-    /// Not connected yet.
-    #[default]
-    Connecting,
-    /// Samples are arriving.
-    Live,
-    /// The source was connected and is gone (the service keeps running).
-    Lost,
-    /// A finite source (a replay) has ended.
-    Ended,
-}
-
-/// Source-side counters, written by the source task.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct SourceStatus {
-    /// The source URI (`pupil://127.0.0.1:50020`, `replay://…`).
-    pub uri: String,
-    pub health: SourceHealth,
-    /// Samples per second over the last second.
-    pub sample_rate_hz: f64,
-    /// Mean confidence of the samples over the last second.
-    pub confidence: f64,
-    /// Fraction of pupil samples over the last second that the filter
-    /// rejected or held (blink, low confidence, dropout).
-    pub dropout_rate: f64,
-    /// Samples received since start.
-    pub samples_total: u64,
-    /// Samples dropped by bounded queues since start.
-    pub samples_dropped: u64,
-    /// Re-connections since start.
-    pub reconnects: u64,
-    /// Why the source was last lost, if it was.
-    pub last_error: Option<String>,
-}
 
 /// Frame-loop figures of the newest frame, written by the frame loop.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -88,6 +51,11 @@ pub struct FrameStatus {
     pub timings: gazelight_vision::pipeline::StageTimings,
     /// PSF rebuilds since start.
     pub psf_rebuilds: u64,
+    /// Display frames read back from the GPU since start (only for the
+    /// file writer and the status page; 0 on the CPU pipeline).
+    pub frames_read_back: u64,
+    /// Surface images the window presented since start (0 headless).
+    pub frames_presented: u64,
 }
 
 /// One point of the plotted history.
@@ -163,11 +131,11 @@ pub struct PsfSnapshot {
 /// Everything a session shares. Cheap to clone through `Arc`.
 #[derive(Debug)]
 pub struct Hub {
-    /// Latest filtered, calibrated eye state (the source task writes it).
+    /// Latest filtered, calibrated eye state (the live eye task writes it).
     pub eye: watch::Receiver<LiveEyeState>,
-    /// Filtered samples as they arrive, for recorders and the relay.
+    /// The samples the live eye task consumed, for recorders and the relay.
     pub samples: broadcast::Sender<Sample>,
-    source: Mutex<SourceStatus>,
+    source: SharedStatus,
     frame: Mutex<FrameStatus>,
     history: Mutex<History>,
     latest_frame: Mutex<FrameSnapshot>,
@@ -176,6 +144,9 @@ pub struct Hub {
     /// Per-frame figures for the LSL frame outlet (set once when
     /// `--lsl` is on): a bounded queue, filled without blocking.
     frame_tap: std::sync::OnceLock<FrameTap>,
+    /// Whether a reader of the display frame (the status page) exists:
+    /// without one the frame loop publishes no frame (and reads none back).
+    display_wanted: std::sync::atomic::AtomicBool,
 }
 
 /// A frame's figures with the host time it was published at.
@@ -202,24 +173,60 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl Hub {
-    /// A hub around the source's eye-state channel.
+    /// A hub around an eye-state channel (tests, observers without a
+    /// live task).
+    #[cfg_attr(not(test), allow(dead_code))]
     pub fn new(uri: &str, eye: watch::Receiver<LiveEyeState>) -> Arc<Self> {
         let (samples, _) = broadcast::channel(SAMPLE_BROADCAST_CAPACITY);
         let (shutdown, _) = watch::channel(false);
+        let source = Arc::new(Mutex::new(SourceStatus {
+            uri: uri.to_owned(),
+            ..SourceStatus::default()
+        }));
+        Self::with_parts(eye, samples, source, shutdown)
+    }
+
+    /// The hub of a live eye task; `shutdown` is the sender whose receiver
+    /// the task was started with.
+    pub fn for_live(live: &LiveEye, shutdown: watch::Sender<bool>) -> Arc<Self> {
+        Self::with_parts(
+            live.eye.clone(),
+            live.samples.clone(),
+            live.status.clone(),
+            shutdown,
+        )
+    }
+
+    fn with_parts(
+        eye: watch::Receiver<LiveEyeState>,
+        samples: broadcast::Sender<Sample>,
+        source: SharedStatus,
+        shutdown: watch::Sender<bool>,
+    ) -> Arc<Self> {
         Arc::new(Self {
             eye,
             samples,
-            source: Mutex::new(SourceStatus {
-                uri: uri.to_owned(),
-                ..SourceStatus::default()
-            }),
+            source,
             frame: Mutex::new(FrameStatus::default()),
             history: Mutex::new(History::new(HISTORY_CAPACITY)),
             latest_frame: Mutex::new(FrameSnapshot::default()),
             psf: Mutex::new(PsfSnapshot::default()),
             shutdown,
             frame_tap: std::sync::OnceLock::new(),
+            display_wanted: std::sync::atomic::AtomicBool::new(false),
         })
+    }
+
+    /// Registers a reader of the display frame (the status page).
+    pub fn want_display(&self) {
+        self.display_wanted
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Whether anyone reads the display frame ([`Self::want_display`]).
+    pub fn display_wanted(&self) -> bool {
+        self.display_wanted
+            .load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Updates the source status in place.

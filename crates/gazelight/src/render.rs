@@ -107,9 +107,11 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
         .scene
         .view
         .unwrap_or_else(|| demo::default_view(width, height));
-    let view = args
-        .view
-        .view(crate::view_args::ViewDefaults::default(), base_view, (width, height));
+    let view = args.view.view(
+        crate::view_args::ViewDefaults::default(),
+        base_view,
+        (width, height),
+    );
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(width, height);
     projection.render(&scene.image, &mut view_img);

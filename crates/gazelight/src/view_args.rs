@@ -53,10 +53,7 @@ impl ViewArgs {
         (width, height): (usize, usize),
     ) -> ViewParams {
         ViewParams {
-            yaw_deg: self
-                .yaw_deg
-                .or(configured.yaw_deg)
-                .unwrap_or(base.yaw_deg),
+            yaw_deg: self.yaw_deg.or(configured.yaw_deg).unwrap_or(base.yaw_deg),
             pitch_deg: self
                 .pitch_deg
                 .or(configured.pitch_deg)

@@ -55,6 +55,7 @@ const LATENCY_SAMPLES: usize = 1 << 16;
 
 /// Where the slot's frames live, fixed by the first frame.
 #[derive(Debug)]
+#[allow(clippy::large_enum_variant)] // one per window, fixed by the first frame; never moved in the frame loop
 enum Source {
     /// Copied into the slot by [`DisplaySlot::put`] (CPU frames).
     Host,

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `--backend`: `render --backend gpu` against `--backend cpu` on the
 //! embedded demo (same files, frames within 1/255, same model columns in
 //! timeline.csv), and the behaviour without any GPU adapter (`gpu` fails

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight calibrate --stimulus remote` against the pyzmq Pupil peer
 //! (crates/gazelight-tracker/tests/pupil_peer.py), whose simulated pupil
 //! follows the `gazelight.stimulus` notifications: a real black/white

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The CLI end to end: the default render, `psf`, `inspect`, and bad input
 //! (clear error naming the file and the problem, non-zero exit, no panic).
 

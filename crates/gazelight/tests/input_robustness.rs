@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Hostile input files through the binary (issue 14, the input half): a
 //! tiny EXR claiming a huge image, recordings with an enormous time gap or
 //! absurd timestamps among good ones, FIFOs and endless files given as

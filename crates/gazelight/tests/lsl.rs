@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `run --lsl`, `inspect lsl://…` and `run --source lsl://…` against pylsl,
 //! each test in its own network namespace (`unshare -n`, loopback up) with
 //! the machine-only LSL configuration, so no discovery packet can leave.

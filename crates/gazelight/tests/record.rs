@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight record` against the pyzmq Pupil peer: Ctrl-C and a lost
 //! tracker lose no received datum, and the result is a recording in Pupil's
 //! layout that the reader, the importer and `replay` accept.

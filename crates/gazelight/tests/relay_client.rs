@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight run --relay` end to end: a live session against the pyzmq
 //! Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) re-published
 //! as a Pupil Network API, read by
@@ -144,8 +145,9 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
         .build()
         .unwrap();
     rt.block_on(async {
-        let config = gazelight_tracker::uri::pupil_config(&format!("pupil://127.0.0.1:{relay_port}"))
-            .unwrap();
+        let config =
+            gazelight_tracker::uri::pupil_config(&format!("pupil://127.0.0.1:{relay_port}"))
+                .unwrap();
         let (client, mut streams) = PupilClient::spawn(config);
         client.wait_connected(Duration::from_secs(5)).await.unwrap();
         let mut pupils = [0usize; 2];

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight replay` end to end on the real recordings: the whole stack
 //! (importer → filter chain → frame pipeline → outputs), deterministic, and
 //! bad input refused with a clear error.

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Hostile values and faults against the runtime (issue 14): extreme
 //! durations and rates, negative numbers, absurd luminance scales and
 //! scenes, descriptor exhaustion by idle HTTP clients, and SIGTERM/SIGHUP

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight run` end to end against the pyzmq Pupil peer
 //! (crates/gazelight-tracker/tests/pupil_peer.py), on 127.0.0.1 only, every
 //! wait bounded:

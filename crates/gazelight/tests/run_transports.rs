@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight run` on a hardware transport: the Gazepoint Open Gaze API
 //! over TCP, served by the tracker crate's simulator on 127.0.0.1. The
 //! records reach the frame loop through the same filter chain and hub as a

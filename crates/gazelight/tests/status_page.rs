@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! `gazelight run --http` end to end: a live session against the pyzmq
 //! Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) with the
 //! status server on 127.0.0.1:

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The service's window under Xvfb (a real X server, lavapipe presenting
 //! through Vulkan's X11 WSI): screenshots of the root window taken with
 //! `xwd` while the window shows a known thing.

@@ -369,7 +369,7 @@ async fn session(
             if datum.eye_state.is_none() {
                 no_eye_state_run += 1;
                 stats.no_eye_state.fetch_add(1, Ordering::Relaxed);
-                if no_eye_state_run % NO_EYE_STATE_REPORT_EVERY == 0 {
+                if no_eye_state_run.is_multiple_of(NO_EYE_STATE_REPORT_EVERY) {
                     send(
                         tx,
                         stats,
@@ -509,7 +509,7 @@ pub fn gaze_samples(
         // Payload order is [left, right]; gazelight's eye 1 = left, 0 = right.
         for (i, eye) in [(0usize, 1u8), (1, 0)] {
             let mm = states[i].pupil_diameter_mm;
-            let confidence = if !worn || !(mm.is_finite() && mm > 0.0) {
+            let confidence = if !(worn && mm.is_finite() && mm > 0.0) {
                 0.0
             } else if let Some(lids) = d.eyelid {
                 aperture_confidence(lids[i].aperture_mm)

@@ -6,23 +6,24 @@
 //!
 //! Each frame ([`FrameLoop::step`]):
 //! 1. reads the newest `EyeState` from the hub (`watch::borrow`, never
-//!    waits) and computes its age;
-//! 2. when the state is stale (the tracker vanished), fills the pupil the
-//!    way the filter chain fills a dropout (the tracker crate's
-//!    [`DropoutFill`]: hold the last pupil for `dropout.hold_s`, then ease
-//!    towards the Watson–Yellott pupil at the current adaptation luminance)
-//!    and limits the output's rate ([`SlewLimiter`]), so glare neither
-//!    freezes on a lost tracker nor jumps when it returns;
-//! 3. follows the head orientation (a head trace re-renders the view);
-//! 4. asks the PSF worker ([`super::psf_worker`]) for a kernel when the
+//!    waits) and computes its age. The state is filtered once, by the
+//!    live eye task of `gazelight-tracker` (which also holds the pupil and
+//!    eases it to the model when the tracker vanishes, fed the adaptation
+//!    luminance this loop stores); the loop never filters it again;
+//! 2. follows the head orientation (a head trace re-renders the view);
+//! 3. asks the PSF worker ([`super::psf_worker`]) for a kernel when the
 //!    pupil moved more than `psf_rebuild_threshold_mm` since the last
 //!    request, installs a finished kernel if one is ready (frames keep the
 //!    previous kernel until then: a rebuild never stalls a frame), runs
 //!    [`FramePipeline::process`] and feeds the adaptation luminance back to
-//!    the source's filter chain;
-//! 5. publishes the frame's figures (and history) to the hub, the display
-//!    frame at most every 100 ms, the glare kernel after each rebuild, and
-//!    hands a row (and the frame) to the output writer.
+//!    the live eye task;
+//! 4. offers the frame to the window (on the GPU: a note that the output
+//!    buffer holds a new frame, nothing copied), publishes the frame's
+//!    figures (and history) to the hub, the display frame at most every
+//!    100 ms when the status page serves it, the glare kernel after each
+//!    rebuild, and hands a row (and the frame) to the output writer. A GPU
+//!    frame is read back only for those two host consumers, at their rates
+//!    (`frames_read_back` in the status and the summary).
 //!
 //! Steady state allocates nothing: every buffer is created in
 //! [`FrameLoop::new`] (the test below counts allocations).
@@ -30,11 +31,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use gazelight_tracker::filter::{
-    DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterConfig, SlewLimiter,
-};
 use gazelight_tracker::pupil::clock::host_now_secs;
-use gazelight_tracker::pupil_model::PupilModel;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, PUPIL_MM_RANGE, PipelineConfig};
@@ -49,8 +46,6 @@ use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub, SourceHealth};
 use crate::window::{DisplaySlot, MouseGaze};
 
-/// An `EyeState` older than this is stale: the tracker is not delivering.
-pub const STALE_AFTER_SECS: f64 = 0.25;
 /// Shortest interval between display-frame copies to the hub.
 const DISPLAY_PUBLISH_SECS: f64 = 0.1;
 /// EyeState ages kept for the summary (≈ 3 h at 90 Hz).
@@ -66,7 +61,6 @@ pub struct FrameLoopSetup {
     pub pipeline: PipelineConfig,
     /// Which frame pipeline renders (CPU reference or GPU).
     pub backend: BackendChoice,
-    pub filter: FilterConfig,
     /// The panorama, cd/m².
     pub pano: RgbImage,
     pub view: ViewParams,
@@ -107,6 +101,9 @@ pub struct RunSummary {
     pub writer: Option<WriterReport>,
     pub frames_not_written: u64,
     pub rows_dropped: u64,
+    /// Display frames read back from the GPU (for `--out` and the status
+    /// page only; 0 on the CPU pipeline).
+    pub frames_read_back: u64,
 }
 
 /// The per-frame state; build with [`FrameLoop::new`], drive with
@@ -121,10 +118,6 @@ pub struct FrameLoop {
     view_img: RgbImage,
     head: Head,
     out: DisplayFrame,
-    model: PupilModel,
-    fill: [DropoutFill; 2],
-    slew: [SlewLimiter; 2],
-    adaptation_cd_m2: Option<f64>,
     frames: u64,
     late: u64,
     dropped: u64,
@@ -157,7 +150,6 @@ impl FrameLoop {
             adaptation,
             pipeline,
             backend,
-            filter,
             pano,
             view,
             head,
@@ -177,8 +169,6 @@ impl FrameLoop {
         }
         let mut view_img = RgbImage::new(view.width, view.height);
         PanoramaView::new(view)?.render(&pano, &mut view_img);
-        let model = filter.pupil_model;
-        let model_mm = model.pupil_mm(DEFAULT_ADAPTATION_LUMINANCE_CD_M2);
         let kernel_len = pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size);
         // The PSF is rebuilt on a worker thread from here on.
         let mut psf_target_mm = f64::NAN;
@@ -208,10 +198,6 @@ impl FrameLoop {
             view_img,
             head,
             out: DisplayFrame::new(view.width, view.height),
-            model,
-            fill: [DropoutFill::new(filter.dropout, model_mm); 2],
-            slew: [SlewLimiter::new(filter.physio.max_rate_mm_per_s, model_mm); 2],
-            adaptation_cd_m2: None,
             frames: 0,
             late: 0,
             dropped: 0,
@@ -310,27 +296,7 @@ impl FrameLoop {
         let started = Instant::now();
         let live = *self.hub.eye.borrow();
         let mut state = live.state;
-        let age_secs = match self.age_clock {
-            AgeClock::SampleTime => now_host_secs - state.t_secs,
-            AgeClock::PublishTime => now_host_secs - live.updated_host_secs,
-        }
-        .max(0.0);
-        let fresh = live.updates > 0 && age_secs <= STALE_AFTER_SECS;
-        let model_mm = self.model.pupil_mm(
-            self.adaptation_cd_m2
-                .unwrap_or(DEFAULT_ADAPTATION_LUMINANCE_CD_M2),
-        );
-        for e in [EYE_RIGHT, EYE_LEFT] {
-            let ch = &mut state.eyes[e];
-            let measured =
-                (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
-            let (filled, origin) = self.fill[e].update(now_host_secs, measured, model_mm);
-            let target = if fresh { ch.pupil_mm } else { filled };
-            ch.pupil_mm = self.slew[e].step(now_host_secs, target);
-            if !fresh {
-                ch.pupil_origin = origin;
-            }
-        }
+        let age_secs = self.age_clock.age_secs(&live, now_host_secs);
         let held = state
             .eyes
             .iter()
@@ -372,8 +338,7 @@ impl FrameLoop {
         let installed = self.follow_psf(input.pupil_mm, t_secs)?;
         let mut stats = self
             .pipeline
-            .process(&self.view_img, &input, &mut self.out)?;
-        self.adaptation_cd_m2 = Some(stats.adaptation_cd_m2);
+            .render(&self.view_img, &input, &mut self.out)?;
         self.adaptation_cell.set(stats.adaptation_cd_m2);
         if stats.psf_rebuilt {
             // Only without a worker (the pipeline rebuilt synchronously).
@@ -391,7 +356,7 @@ impl FrameLoop {
         }
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
         self.frame_ms_sum += frame_ms;
-        let status = FrameStatus {
+        let mut status = FrameStatus {
             frames: self.frames,
             frames_late: self.late,
             t_secs,
@@ -407,12 +372,23 @@ impl FrameLoop {
             frame_ms,
             timings: stats.timings,
             psf_rebuilds: self.psf_rebuilds,
+            ..FrameStatus::default()
         };
-        self.hub.publish_frame(status);
         if let Some(slot) = &self.display {
-            slot.put(&self.out.rgba8);
+            self.pipeline.show(slot, &self.out);
         }
-        if t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS {
+        // The host consumers of the frame: the status page (at most every
+        // DISPLAY_PUBLISH_SECS) and the file writer (every frame).
+        let publish =
+            self.hub.display_wanted() && t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS;
+        let write = self.writer.as_ref().is_some_and(OutputWriter::wants_frames);
+        if publish || write {
+            self.pipeline.read_frame(&mut self.out)?;
+        }
+        status.frames_read_back = self.pipeline.frames_read_back();
+        status.frames_presented = self.display.as_ref().map_or(0, |s| s.presented());
+        self.hub.publish_frame(status);
+        if publish {
             self.last_display_secs = t_secs;
             self.hub.publish_display(
                 self.frames,
@@ -441,7 +417,9 @@ impl FrameLoop {
                 psf_rebuilt: stats.psf_rebuilt,
                 frame_ms,
             });
-            w.frame(self.frames, &self.out);
+            if write {
+                w.frame(self.frames, &self.out);
+            }
         }
         Ok(status)
     }
@@ -523,6 +501,7 @@ impl FrameLoop {
             writer: None,
             frames_not_written: 0,
             rows_dropped: 0,
+            frames_read_back: self.pipeline.frames_read_back(),
         }
     }
 }
@@ -648,7 +627,6 @@ mod tests {
             adaptation: Arc::new(AdaptationCell::default()),
             pipeline: config,
             backend: BackendChoice::Cpu,
-            filter: FilterConfig::default(),
             pano: scene.image,
             view,
             head: Head::Fixed,
@@ -743,54 +721,6 @@ mod tests {
             (summary.eye_state_age_median_ms - 4.0).abs() < 0.5,
             "{summary:?}"
         );
-    }
-
-    #[test]
-    fn a_lost_tracker_holds_then_eases_to_the_model_and_recovers() {
-        let (mut fl, tx) = small_loop(live_state(0.0, 3.0, 0.5, 1), None);
-        let dt = 1.0 / 90.0;
-        let mut t = 0.0;
-        // 1 s live at 3 mm.
-        while t < 1.0 {
-            tx.send_replace(live_state(t, 3.0, 0.5, 2));
-            let s = fl.step(t, t, dt as f32).unwrap();
-            assert!(s.eye_state_age_ms < 1.0);
-            t += dt;
-        }
-        let lost_at = t;
-        // Lost: the state stops; fresh for 0.25 s, then held for 0.5 s.
-        let mut last = fl.step(t, t, dt as f32).unwrap();
-        while t < lost_at + 0.65 {
-            last = fl.step(t, t, dt as f32).unwrap();
-            t += dt;
-        }
-        assert!((last.frame_pupil_mm - 3.0).abs() < 1e-3, "held: {last:?}");
-        while t < lost_at + 4.0 {
-            last = fl.step(t, t, dt as f32).unwrap();
-            t += dt;
-        }
-        assert!(last.eye_state_age_ms > 3900.0, "{last:?}");
-        // Eased towards the model pupil at 0.5 mm/s (dropout default) for
-        // the ≈ 3.25 s after the hold.
-        let model = PupilModel::default().pupil_mm(last.adaptation_cd_m2);
-        assert!(model > 4.0, "the night scene's model pupil: {model}");
-        let expected = (model - 3.0).min(0.5 * (4.0 - STALE_AFTER_SECS - 0.5) as f32);
-        let eased = last.frame_pupil_mm - 3.0;
-        assert!(
-            (eased - expected).abs() < 0.15,
-            "eased {eased} mm, expected {expected}: {last:?}"
-        );
-        // The tracker comes back at 6 mm: the pupil returns at ≤ 6 mm/s.
-        tx.send_replace(live_state(t, 6.0, 0.5, 3));
-        let back = fl.step(t, t, dt as f32).unwrap();
-        assert!(back.eye_state_age_ms < 1.0);
-        assert!((back.frame_pupil_mm - last.frame_pupil_mm).abs() <= 6.0 * dt as f32 + 1e-3);
-        for _ in 0..90 {
-            t += dt;
-            tx.send_replace(live_state(t, 6.0, 0.5, 4));
-            last = fl.step(t, t, dt as f32).unwrap();
-        }
-        assert!((last.frame_pupil_mm - 6.0).abs() < 1e-3, "{last:?}");
     }
 
     impl FrameLoop {

@@ -50,17 +50,23 @@ impl HeadTrace {
                     .parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite())
-                    .ok_or_else(|| anyhow::anyhow!("line {n}: {name} `{f}` is not a finite number"))?;
+                    .ok_or_else(|| {
+                        anyhow::anyhow!("line {n}: {name} `{f}` is not a finite number")
+                    })?;
             }
             if v[2].abs() > 90.0 {
-                return Err(anyhow::anyhow!("line {n}: pitch_deg {} outside −90..=90", v[2]));
+                return Err(anyhow::anyhow!(
+                    "line {n}: pitch_deg {} outside −90..=90",
+                    v[2]
+                ));
             }
             if let Some(last) = points.last()
                 && v[0] <= last.0
             {
                 return Err(anyhow::anyhow!(
                     "line {n}: t_secs {} does not increase (previous {})",
-                    v[0], last.0
+                    v[0],
+                    last.0
                 ));
             }
             points.push((v[0], v[1], v[2]));

@@ -1,6 +1,7 @@
 //! `gazelight run`: a live session. A tracker source (default Pupil Core
-//! at `pupil://127.0.0.1:50020`; `replay://PATH`, `synthetic://demo`) runs
-//! through the filter chain on a tokio runtime and publishes the latest
+//! at `pupil://127.0.0.1:50020`; `replay://PATH`, `synthetic://demo`, any
+//! URI `gazelight-tracker` opens) runs through the tracker's live eye task
+//! (the one filter chain) on a tokio runtime, which publishes the latest
 //! `EyeState` on the hub's `watch` channel; the frame loop — a dedicated
 //! thread at the display rate — renders the panorama view for the head
 //! orientation through the perception pipeline, reading the newest state
@@ -11,7 +12,7 @@
 //! frame loop finishes its frame, the outputs are flushed and a summary
 //! (frames, late frames, `EyeState` age median/p99) is printed.
 //!
-//! Frames are shown in the service's window (winit + a wgpu surface, vsync;
+//! Frames are shown in the service's window (winit + gazelight-gpu's presenter, vsync;
 //! see [`crate::window`]) unless `--headless`; the window takes the newest
 //! frame and never slows the loop. With `--mouse-gaze` the cursor is the
 //! gaze, with `--head mouse` it turns the head. Frames also go to `--out`
@@ -34,7 +35,7 @@ use clap::Args;
 use gazelight_tracker::calibration::PupilCalibration;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_vision::RgbImage;
-use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+use gazelight_vision::scene::{PanoramaView, Scene};
 
 use crate::backend::BackendChoice;
 use crate::demo;
@@ -66,15 +67,8 @@ pub struct RunArgs {
     /// or mouse (needs a window).
     #[arg(long, value_name = "MODE", value_parser = service_config::parse_head)]
     pub head: Option<HeadSpec>,
-    /// Head yaw, degrees (positive right).
-    #[arg(long, allow_hyphen_values = true)]
-    pub yaw_deg: Option<f64>,
-    /// Head pitch, degrees (positive up).
-    #[arg(long, allow_hyphen_values = true)]
-    pub pitch_deg: Option<f64>,
-    /// Horizontal field of view, degrees.
-    #[arg(long)]
-    pub hfov_deg: Option<f64>,
+    #[command(flatten)]
+    pub view: crate::view_args::ViewArgs,
     /// Display size per eye, WIDTHxHEIGHT (default 720x800).
     #[arg(long, value_name = "WxH", value_parser = service_config::parse_size)]
     pub size: Option<(usize, usize)>,
@@ -112,12 +106,6 @@ pub struct RunArgs {
     /// window).
     #[arg(long)]
     pub mouse_gaze: bool,
-    /// cd/m² per scene-file unit.
-    #[arg(long, conflicts_with = "scene_key_cd_m2")]
-    pub luminance_scale: Option<f64>,
-    /// Scale the scene so its median luminance is this many cd/m².
-    #[arg(long)]
-    pub scene_key_cd_m2: Option<f64>,
     /// Re-publish the filtered, calibrated stream as a Pupil-compatible
     /// Network API with Pupil Remote at this address (e.g. 127.0.0.1:50030).
     #[arg(long, value_name = "IP:PORT", value_parser = service_config::parse_addr)]
@@ -224,13 +212,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let cfg = &r.config;
 
     // Scene and view.
-    let scale = match (args.luminance_scale, args.scene_key_cd_m2) {
-        (Some(factor), _) => LuminanceScale::CdM2PerUnit { factor },
-        (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
-        (None, None) => cfg.scene.luminance_scale.unwrap_or_default(),
-    };
+    let scale = args.view.scale(cfg.scene.luminance_scale)?;
     scale.validate().context("luminance scale")?;
-    crate::bounds::luminance_scale(scale)?;
     let scene_path = args.scene.clone().or_else(|| cfg.scene.file.clone());
     let scene = match &scene_path {
         Some(p) => Scene::load(p, scale)?,
@@ -238,19 +221,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     crate::bounds::scene_luminance(&scene)?;
     let base = demo::default_view(r.size.0, r.size.1);
-    let view = ViewParams {
-        yaw_deg: args.yaw_deg.or(cfg.scene.yaw_deg).unwrap_or(base.yaw_deg),
-        pitch_deg: args
-            .pitch_deg
-            .or(cfg.scene.pitch_deg)
-            .unwrap_or(base.pitch_deg),
-        hfov_deg: args
-            .hfov_deg
-            .or(cfg.scene.hfov_deg)
-            .unwrap_or(base.hfov_deg),
-        width: r.size.0,
-        height: r.size.1,
-    };
+    let view = args.view.view(
+        crate::view_args::ViewDefaults {
+            yaw_deg: cfg.scene.yaw_deg,
+            pitch_deg: cfg.scene.pitch_deg,
+            hfov_deg: cfg.scene.hfov_deg,
+        },
+        base,
+        r.size,
+    );
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(view.width, view.height);
     projection.render(&scene.image, &mut view_img);
@@ -437,7 +416,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             adaptation: source.adaptation.clone(),
             pipeline: cfg.pipeline.clone(),
             backend: args.backend,
-            filter: cfg.filter,
             pano: scene.image,
             view,
             head,
@@ -487,6 +465,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         result.map(|s| (s, status))
     })
     };
+    let mut window_stats = None;
     let summary = match window {
         None => session(),
         Some((slot, cursor)) => std::thread::scope(|scope| {
@@ -511,11 +490,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 move || closed.store(true, Ordering::Relaxed),
             );
             match shown {
-                Ok(stats) => tracing::info!(
-                    presented = stats.presented,
-                    skipped = slot.skipped(),
-                    "window closed"
-                ),
+                Ok(stats) => {
+                    tracing::info!(
+                        presented = stats.presented,
+                        skipped = slot.skipped(),
+                        "window closed"
+                    );
+                    window_stats = Some(stats);
+                }
                 Err(e) => {
                     eprintln!("no window ({e:#}); running headless");
                 }
@@ -528,7 +510,33 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     runtime.shutdown_timeout(Duration::from_secs(1));
     let (summary, source) = summary?;
     print_summary(&summary, r.fps, &source, r.out.as_deref());
+    print_display(&summary, window_stats.as_ref());
     Ok(())
+}
+
+/// One line on where the frames went: presented by the window (and how
+/// late), uploaded, read back from the GPU.
+fn print_display(s: &RunSummary, w: Option<&window::WindowStats>) {
+    match w {
+        Some(w) => println!(
+            "display: window presented {} images, {} frames shown ({}), {} uploaded, {} frames read back; render to present median {:.2} ms, p99 {:.2} ms",
+            w.presented,
+            w.frames_shown,
+            if w.on_pipeline_device {
+                "drawn from the GPU pipeline's output buffer"
+            } else {
+                "host frames"
+            },
+            w.frames_uploaded,
+            s.frames_read_back,
+            w.latency_quantile_ms(0.5),
+            w.latency_quantile_ms(0.99),
+        ),
+        None => println!(
+            "display: no window, {} frames read back",
+            s.frames_read_back
+        ),
+    }
 }
 
 fn print_summary(

@@ -105,12 +105,22 @@ mod tests {
             ("replay://", "replay://PATH[?speed=S]"),
             ("replay://a?speed=0", "0 < speed ≤ 1000"),
             ("replay://a?x=1", "unknown parameter `x`"),
-            ("synthetic://other", "the only synthetic source is synthetic://demo"),
+            (
+                "synthetic://other",
+                "the only synthetic source is synthetic://demo",
+            ),
             ("pupil://h:x", "port"),
-            ("replay:///nonexistent/gazelight.csv", "cannot open the recording"),
+            (
+                "replay:///nonexistent/gazelight.csv",
+                "cannot open the recording",
+            ),
         ] {
-            let Err(e) = open_source_with(uri, FilterChain::with_defaults(), &ctx, &LslConfig::default())
-            else {
+            let Err(e) = open_source_with(
+                uri,
+                FilterChain::with_defaults(),
+                &ctx,
+                &LslConfig::default(),
+            ) else {
                 panic!("{uri}: expected an error");
             };
             let e = format!("{e:#}");
