@@ -338,12 +338,17 @@ impl FrameGroups {
     }
 }
 
-/// Timestamp writes at `begin` and/or `end` of a pass into `query_set`.
+/// Timestamp writes at `begin` and/or `end` of a pass into `query_set`;
+/// none when neither is asked for (wgpu rejects timestamp writes with no
+/// index).
 fn timestamp_writes(
     query_set: Option<&wgpu::QuerySet>,
     begin: Option<u32>,
     end: Option<u32>,
 ) -> Option<wgpu::ComputePassTimestampWrites<'_>> {
+    if begin.is_none() && end.is_none() {
+        return None;
+    }
     query_set.map(|query_set| wgpu::ComputePassTimestampWrites {
         query_set,
         beginning_of_pass_write_index: begin,

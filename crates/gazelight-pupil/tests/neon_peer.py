@@ -88,6 +88,7 @@ class State:
         self.down_until = 0.0
         self.lock = threading.Lock()
         self.sent = 0
+        self.gaze_plays = 0
 
     def down(self):
         return time.time() < self.down_until
@@ -157,6 +158,14 @@ def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
                 return
         threading.Thread(target=drain, daemon=True).start()
         if camera == "gaze":
+            with st.lock:
+                replayed = st.gaze_plays > 0
+                st.gaze_plays += 1
+            if replayed and args.time == "now":
+                # A device stamps what it streams with its clock now: a
+                # reconnect replays the recording from its start at today's
+                # time, not at the time of the first connection.
+                start_unix_ns = time.time_ns()
             play_gaze(conn, args, recs, st, start_unix_ns)
         else:
             play_events(conn, args, blinks, recs, st, start_unix_ns)

@@ -534,7 +534,6 @@ mod tests {
     fn errors_name_the_wrong_part() {
         let cases = [
             ("127.0.0.1:4242", "scheme"),
-            ("tcp://127.0.0.1:4242", "scheme"),
             ("pupil://127.0.0.1:99999", "port"),
             ("pupil://h:0", "port"),
             ("pupil://h:x", "port"),

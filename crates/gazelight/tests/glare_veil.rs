@@ -66,6 +66,7 @@ fn lamp_panorama() -> RgbImage {
 /// Renders two frames with the gaze on the lamp and returns the retinal
 /// image of the second, read back from its EXR.
 fn render_retinal(dir: &Path, scene: &Path, extra: &[&str]) -> RgbImage {
+    std::fs::create_dir_all(dir).expect("render dir");
     let trace = dir.join("trace.csv");
     std::fs::write(
         &trace,
