@@ -64,12 +64,31 @@ pub struct SerialEntry {
     pub kind: String,
 }
 
+/// A class of devices the system would not list.
+#[derive(Clone, Debug, thiserror::Error)]
+#[error("listing {what}: {reason}")]
+pub struct ListError {
+    /// `HID devices`, `USB devices` or `serial ports`.
+    pub what: &'static str,
+    /// What the system said.
+    pub reason: String,
+}
+
+impl ListError {
+    fn new(what: &'static str, reason: impl std::fmt::Display) -> Self {
+        Self {
+            what,
+            reason: reason.to_string(),
+        }
+    }
+}
+
 /// Everything found.
 #[derive(Debug)]
 pub struct Discovery {
-    pub hid: Result<Vec<HidEntry>, String>,
-    pub usb: Result<Vec<UsbEntry>, String>,
-    pub serial: Result<Vec<SerialEntry>, String>,
+    pub hid: Result<Vec<HidEntry>, ListError>,
+    pub usb: Result<Vec<UsbEntry>, ListError>,
+    pub serial: Result<Vec<SerialEntry>, ListError>,
 }
 
 impl Discovery {
@@ -126,8 +145,8 @@ fn open_note(path: &str) -> Option<String> {
     }
 }
 
-fn list_hid() -> Result<Vec<HidEntry>, String> {
-    let api = hidapi::HidApi::new().map_err(|e| format!("listing HID devices: {e}"))?;
+fn list_hid() -> Result<Vec<HidEntry>, ListError> {
+    let api = hidapi::HidApi::new().map_err(|e| ListError::new("HID devices", e))?;
     let mut out: Vec<HidEntry> = Vec::new();
     for info in api.device_list() {
         let path = info.path().to_string_lossy().into_owned();
@@ -169,11 +188,11 @@ fn list_hid() -> Result<Vec<HidEntry>, String> {
     Ok(out)
 }
 
-fn list_usb() -> Result<Vec<UsbEntry>, String> {
+fn list_usb() -> Result<Vec<UsbEntry>, ListError> {
     use nusb::MaybeFuture;
     let devices = nusb::list_devices()
         .wait()
-        .map_err(|e| format!("listing USB devices: {e}"))?;
+        .map_err(|e| ListError::new("USB devices", e))?;
     let mut out: Vec<UsbEntry> = devices
         .map(|d| UsbEntry {
             bus: d.busnum(),
@@ -193,8 +212,8 @@ fn list_usb() -> Result<Vec<UsbEntry>, String> {
     Ok(out)
 }
 
-fn list_serial() -> Result<Vec<SerialEntry>, String> {
-    let ports = serialport::available_ports().map_err(|e| format!("listing serial ports: {e}"))?;
+fn list_serial() -> Result<Vec<SerialEntry>, ListError> {
+    let ports = serialport::available_ports().map_err(|e| ListError::new("serial ports", e))?;
     let mut out: Vec<SerialEntry> = ports
         .into_iter()
         .map(|p| SerialEntry {

@@ -21,6 +21,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
+use super::lines::{LineRead, open_text, read_text_line};
 use super::{ImportError, ImportWarnings, Importer, Pending, Position};
 use gazelight_eye::sample::{DetectorMethod, PupilSample, PupilUnit, Sample};
 
@@ -40,11 +41,7 @@ pub struct CsvPupilImporter<R: BufRead = BufReader<File>> {
 impl CsvPupilImporter<BufReader<File>> {
     /// Opens a CSV trace.
     pub fn open(path: &Path) -> Result<Self, ImportError> {
-        let f = gazelight_input::open(path).map_err(|source| ImportError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        Ok(Self::from_reader(BufReader::new(f), path))
+        Ok(Self::from_reader(open_text(path)?, path))
     }
 }
 
@@ -159,6 +156,76 @@ fn header_hint(line: &str) -> &'static str {
     }
 }
 
+impl<R: BufRead> CsvPupilImporter<R> {
+    /// Reads one line: the header, a row (its samples go to `pending`) or a
+    /// skipped line. An error ends the import.
+    fn step(&mut self) -> Result<(), ImportError> {
+        let read = read_text_line(
+            &mut self.reader,
+            &mut self.line,
+            &mut self.line_no,
+            &self.path,
+        )?;
+        let at = Position::Line(self.line_no);
+        match (read, self.cols) {
+            (LineRead::Eof, None) => Err(self.structure(Position::File, "empty file: no header")),
+            (LineRead::Eof, Some(_)) => {
+                self.done = true;
+                Ok(())
+            }
+            (LineRead::TooLong(n), None) => Err(self.structure(
+                at,
+                format!(
+                    "the header line is {n} bytes long (limit {}): not a CSV with one record \
+                     per line (CR-only line endings?)",
+                    gazelight_input::MAX_LINE_BYTES
+                ),
+            )),
+            (LineRead::NotUtf8, None) => Err(self.structure(
+                at,
+                "the header line is not UTF-8 text (a UTF-16 file? save it as UTF-8)",
+            )),
+            (LineRead::TooLong(n), Some(_)) => {
+                self.warnings
+                    .skip_long_line(&self.path, self.line_no, n, "a record");
+                Ok(())
+            }
+            (LineRead::NotUtf8, Some(_)) => {
+                self.warnings.skip_not_utf8(&self.path, self.line_no);
+                Ok(())
+            }
+            (LineRead::Text, _) => {
+                let line = std::mem::take(&mut self.line);
+                let result = self.text_line(&line);
+                self.line = line;
+                result
+            }
+        }
+    }
+
+    /// The header (the first line that is neither blank nor a `#` comment)
+    /// or a row.
+    fn text_line(&mut self, line: &str) -> Result<(), ImportError> {
+        let trimmed = line.trim().trim_start_matches('\u{feff}');
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            return Ok(());
+        }
+        match self.cols {
+            None => self.cols = Some(self.header(trimmed)?),
+            Some(c) => self.row(trimmed, c),
+        }
+        Ok(())
+    }
+
+    fn structure(&self, position: Position, reason: impl Into<String>) -> ImportError {
+        ImportError::Structure {
+            path: self.path.clone(),
+            position,
+            reason: reason.into(),
+        }
+    }
+}
+
 impl<R: BufRead> Iterator for CsvPupilImporter<R> {
     type Item = Result<Sample, ImportError>;
 
@@ -170,88 +237,9 @@ impl<R: BufRead> Iterator for CsvPupilImporter<R> {
             if self.done {
                 return None;
             }
-            match gazelight_input::read_line(
-                &mut self.reader,
-                &mut self.line,
-                gazelight_input::MAX_LINE_BYTES,
-            ) {
-                Ok(gazelight_input::Line::TooLong(n)) => {
-                    self.line_no += 1;
-                    if self.cols.is_none() {
-                        self.done = true;
-                        return Some(Err(ImportError::Structure {
-                            path: self.path.clone(),
-                            position: Position::Line(self.line_no),
-                            reason: format!(
-                                "the header line is {n} bytes long (limit {}): not a CSV \
-                                 with one record per line (CR-only line endings?)",
-                                gazelight_input::MAX_LINE_BYTES
-                            ),
-                        }));
-                    }
-                    self.warnings.skip(
-                        &self.path,
-                        Position::Line(self.line_no),
-                        format_args!(
-                            "line of {n} bytes, longer than the {} bytes a record can be",
-                            gazelight_input::MAX_LINE_BYTES
-                        ),
-                    );
-                }
-                Ok(gazelight_input::Line::NotUtf8) => {
-                    self.line_no += 1;
-                    if self.cols.is_none() {
-                        self.done = true;
-                        return Some(Err(ImportError::Structure {
-                            path: self.path.clone(),
-                            position: Position::Line(self.line_no),
-                            reason: "the header line is not UTF-8 text (a UTF-16 file? save \
-                                     it as UTF-8)"
-                                .into(),
-                        }));
-                    }
-                    self.warnings.skip(
-                        &self.path,
-                        Position::Line(self.line_no),
-                        "line is not valid UTF-8",
-                    );
-                }
-                Ok(gazelight_input::Line::Eof) => {
-                    self.done = true;
-                    if self.cols.is_none() {
-                        return Some(Err(ImportError::Structure {
-                            path: self.path.clone(),
-                            position: Position::File,
-                            reason: "empty file: no header".into(),
-                        }));
-                    }
-                }
-                Ok(gazelight_input::Line::Read) => {
-                    self.line_no += 1;
-                    let line = std::mem::take(&mut self.line);
-                    let trimmed = line.trim().trim_start_matches('\u{feff}');
-                    if !trimmed.is_empty() && !trimmed.starts_with('#') {
-                        match self.cols {
-                            None => match self.header(trimmed) {
-                                Ok(c) => self.cols = Some(c),
-                                Err(e) => {
-                                    self.done = true;
-                                    self.line = line;
-                                    return Some(Err(e));
-                                }
-                            },
-                            Some(c) => self.row(trimmed, c),
-                        }
-                    }
-                    self.line = line;
-                }
-                Err(source) => {
-                    self.done = true;
-                    return Some(Err(ImportError::Io {
-                        path: self.path.clone(),
-                        source,
-                    }));
-                }
+            if let Err(e) = self.step() {
+                self.done = true;
+                return Some(Err(e));
             }
         }
     }

@@ -30,6 +30,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
+use super::lines::{LineRead, open_text, read_text_line};
 use super::{ImportError, ImportWarnings, Importer, Pending, Position};
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
@@ -56,11 +57,7 @@ pub struct AscImporter<R: BufRead = BufReader<File>> {
 impl AscImporter<BufReader<File>> {
     /// Opens an ASC file.
     pub fn open(path: &Path) -> Result<Self, ImportError> {
-        let f = gazelight_input::open(path).map_err(|source| ImportError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        Ok(Self::from_reader(BufReader::new(f), path))
+        Ok(Self::from_reader(open_text(path)?, path))
     }
 }
 
@@ -264,46 +261,28 @@ impl<R: BufRead> Iterator for AscImporter<R> {
             if self.done {
                 return None;
             }
-            match gazelight_input::read_line(
+            let read = read_text_line(
                 &mut self.reader,
                 &mut self.line,
-                gazelight_input::MAX_LINE_BYTES,
-            ) {
-                Ok(gazelight_input::Line::Eof) => {
+                &mut self.line_no,
+                &self.path,
+            );
+            match read {
+                Err(e) => {
                     self.done = true;
+                    return Some(Err(e));
                 }
-                Ok(gazelight_input::Line::TooLong(n)) => {
-                    self.line_no += 1;
-                    self.warnings.skip(
-                        &self.path,
-                        Position::Line(self.line_no),
-                        format_args!(
-                            "line of {n} bytes, longer than the {} bytes a line can be",
-                            gazelight_input::MAX_LINE_BYTES
-                        ),
-                    );
+                Ok(LineRead::Eof) => self.done = true,
+                Ok(LineRead::TooLong(n)) => {
+                    self.warnings
+                        .skip_long_line(&self.path, self.line_no, n, "a line");
                 }
-                Ok(gazelight_input::Line::Read) => {
-                    self.line_no += 1;
+                // Not UTF-8: the line was consumed; skip it.
+                Ok(LineRead::NotUtf8) => self.warnings.skip_not_utf8(&self.path, self.line_no),
+                Ok(LineRead::Text) => {
                     let line = std::mem::take(&mut self.line);
                     self.handle_line(&line);
                     self.line = line;
-                }
-                Ok(gazelight_input::Line::NotUtf8) => {
-                    // Not UTF-8: the line was consumed; skip it.
-                    self.line_no += 1;
-                    self.warnings.skip(
-                        &self.path,
-                        Position::Line(self.line_no),
-                        "line is not valid UTF-8",
-                    );
-                }
-                Err(source) => {
-                    self.done = true;
-                    return Some(Err(ImportError::Io {
-                        path: self.path.clone(),
-                        source,
-                    }));
                 }
             }
         }

@@ -52,6 +52,7 @@
 
 pub mod csv;
 pub mod eyelink;
+mod lines;
 pub mod neon;
 pub mod pupil_core;
 pub mod summary;

@@ -626,7 +626,7 @@ pub fn read_npy_f64(path: &Path) -> Result<Vec<f64>, RecordingError> {
 }
 
 /// Parses `.npy` bytes; see [`read_npy_f64`].
-pub fn parse_npy_f64(bytes: &[u8]) -> Result<Vec<f64>, String> {
+pub(crate) fn parse_npy_f64(bytes: &[u8]) -> Result<Vec<f64>, String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("missing \\x93NUMPY magic".to_owned());
     }

@@ -151,7 +151,7 @@ pub async fn get_status(host: &str, port: u16, io_timeout: Duration) -> Result<V
 
 /// The body of a complete HTTP/1.x 200 reply (Content-Length, chunked or
 /// up to the close).
-pub fn parse_http_reply(raw: &[u8]) -> Result<Vec<u8>, String> {
+pub(crate) fn parse_http_reply(raw: &[u8]) -> Result<Vec<u8>, String> {
     let split = raw
         .windows(4)
         .position(|w| w == b"\r\n\r\n")
