@@ -21,6 +21,7 @@ pub mod live;
 pub mod lsl;
 pub mod open;
 pub mod source;
+pub mod summarize;
 pub mod trace_source;
 pub mod uri;
 

@@ -9,6 +9,7 @@ use gazelight_eye::source::{SampleSource, SourceError};
 use gazelight_eye::{Sample, TraceSample};
 use gazelight_import::Importer;
 use gazelight_pupil::PupilSource;
+use gazelight_pupil::neon::{NeonConfig, NeonSource};
 
 use crate::live::AgeClock;
 use crate::source::{Pacing, ReplaySource};
@@ -48,6 +49,9 @@ pub enum AnySource {
     Serial(serial::SerialSource),
     /// The Gazepoint Open Gaze API (`gazepoint://`).
     Gazepoint(gazepoint::GazepointSource),
+    /// A Pupil Labs Neon over its Real-time API (`neon://`): samples on
+    /// the host clock.
+    Neon(Box<NeonSource>),
 }
 
 impl AnySource {
@@ -56,7 +60,7 @@ impl AnySource {
     /// recording's or device's own for the rest.
     pub fn age_clock(&self) -> AgeClock {
         match self {
-            AnySource::Pupil(_) | AnySource::Lsl(_) => AgeClock::SampleTime,
+            AnySource::Pupil(_) | AnySource::Lsl(_) | AnySource::Neon(_) => AgeClock::SampleTime,
             _ => AgeClock::PublishTime,
         }
     }
@@ -73,6 +77,7 @@ impl SampleSource for AnySource {
             AnySource::Usb(s) => s.next().await,
             AnySource::Serial(s) => s.next().await,
             AnySource::Gazepoint(s) => s.next().await,
+            AnySource::Neon(s) => s.next().await,
         }
     }
 
@@ -89,12 +94,14 @@ impl SampleSource for AnySource {
             AnySource::Usb(s) => s.describe(),
             AnySource::Serial(s) => s.describe(),
             AnySource::Gazepoint(s) => s.describe(),
+            AnySource::Neon(s) => s.describe(),
         }
     }
 
     fn dropped(&self) -> u64 {
         match self {
             AnySource::Pupil(s) => s.dropped(),
+            AnySource::Neon(s) => s.dropped(),
             _ => 0,
         }
     }
@@ -171,6 +178,13 @@ pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, So
         SourceUri::Gazepoint { host, port } => Ok(AnySource::Gazepoint(
             gazepoint::GazepointSource::new(host.clone(), *port),
         )),
+        SourceUri::Neon { host, port } => {
+            Ok(AnySource::Neon(Box::new(NeonSource::new(NeonConfig {
+                host: host.clone(),
+                port: *port,
+                ..NeonConfig::default()
+            }))))
+        }
     }
 }
 

@@ -8,6 +8,7 @@
 //! | `usb://VVVV:PPPP[?interface=N]` | vendor bulk-IN endpoint of a USB device |
 //! | `serial:///dev/ttyACM0?baud=115200&format=gazepoint\|csv\|framed` | serial line |
 //! | `gazepoint://HOST[:PORT]` | Gazepoint Open Gaze API over TCP (port 4242 by default) |
+//! | `neon://HOST[:PORT]` | Pupil Labs Neon Real-time API (HTTP port 8080 by default; gaze and eye state over RTSP) |
 //! | `replay://PATH[?speed=S]` | a recording any importer reads, replayed at S × real time (0 < S ≤ 1000, default 1) |
 //! | `synthetic://demo` | the demo's keyframed trace, looped |
 //! | `lsl://?name=NAME`, `lsl://?type=TYPE`, `lsl://?source_id=ID` | a Lab Streaming Layer stream |
@@ -22,6 +23,7 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use gazelight_devices::lsl::LslQuery;
+use gazelight_pupil::neon::DEFAULT_HTTP_PORT as NEON_DEFAULT_HTTP_PORT;
 use gazelight_pupil::{DEFAULT_REMOTE_PORT, PupilConfig};
 
 pub use gazelight_devices::target::{
@@ -51,6 +53,8 @@ pub enum SourceUri {
     },
     /// Gazepoint Open Gaze API over TCP.
     Gazepoint { host: String, port: u16 },
+    /// Pupil Labs Neon's Real-time API (its HTTP port).
+    Neon { host: String, port: u16 },
     /// A recording, replayed at `speed` × real time.
     Replay { path: PathBuf, speed: f64 },
     /// A synthetic session (`synthetic://demo`).
@@ -67,6 +71,7 @@ pub const SCHEMES: &[&str] = &[
     "usb",
     "serial",
     "gazepoint",
+    "neon",
     "replay",
     "synthetic",
     "lsl",
@@ -158,6 +163,12 @@ impl SourceUri {
                 let (host, port) =
                     host_port(body, Some(GAZEPOINT_DEFAULT_PORT)).map_err(|(p, r)| err(p, r))?;
                 Ok(SourceUri::Gazepoint { host, port })
+            }
+            "neon" => {
+                allow(&[])?;
+                let (host, port) =
+                    host_port(body, Some(NEON_DEFAULT_HTTP_PORT)).map_err(|(p, r)| err(p, r))?;
+                Ok(SourceUri::Neon { host, port })
             }
             "hid" => {
                 allow(&[])?;
@@ -278,6 +289,7 @@ impl fmt::Display for SourceUri {
             SourceUri::Gazepoint { host, port } => {
                 write!(f, "gazepoint://{}:{port}", bracket(host))
             }
+            SourceUri::Neon { host, port } => write!(f, "neon://{}:{port}", bracket(host)),
             SourceUri::Hid(HidTarget::VidPid {
                 vendor_id,
                 product_id,
@@ -443,6 +455,8 @@ mod tests {
             "serial:///dev/ttyGS0?baud=9600&format=framed",
             "gazepoint://127.0.0.1:4242",
             "gazepoint://[::1]:4242",
+            "neon://192.168.1.60:8080",
+            "neon://[::1]:9000",
             "replay:///data/rec/pupil.pldata",
             "replay:///data/rec?speed=2.5",
             "synthetic://demo",
@@ -454,6 +468,17 @@ mod tests {
             assert_eq!(u.to_string(), c);
             assert_eq!(SourceUri::parse(&u.to_string()).unwrap(), u);
         }
+    }
+
+    #[test]
+    fn neon_defaults_to_the_realtime_api_port() {
+        assert_eq!(
+            SourceUri::parse("neon://192.168.1.60/").unwrap(),
+            SourceUri::Neon {
+                host: "192.168.1.60".into(),
+                port: 8080
+            }
+        );
     }
 
     #[test]
@@ -551,6 +576,10 @@ mod tests {
             ("serial://dev/ttyACM0", "path"),
             ("serial:///dev/ttyACM0?baud=1&baud=2", "query"),
             ("gazepoint://[::1", "host"),
+            ("neon://", "host"),
+            ("neon://h:x", "port"),
+            ("neon://h/api", "host"),
+            ("neon://h?x=1", "query"),
             ("replay://", "path"),
             ("replay://a?speed=0", "speed"),
             ("replay://a?speed=1001", "speed"),

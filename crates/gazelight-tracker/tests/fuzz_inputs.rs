@@ -329,3 +329,78 @@ fn hid_descriptor_and_report_parsers_never_panic() {
     })
     .unwrap();
 }
+
+/// The live Neon decoders (issue 16): gaze and eye-event payloads, RTP
+/// packets, RTCP sender reports, the SDP and `/api/status`, on random
+/// bytes and on mutations of valid packets. Any input is `Ok` or an error
+/// that says something; the RTP clock stays finite for any timestamps.
+#[test]
+fn neon_packet_decoders_never_panic() {
+    use gazelight_pupil::neon::payload::{decode_eye_event, decode_gaze};
+    use gazelight_pupil::neon::rtp::{RtpClock, RtpPacket, sender_reports};
+    use gazelight_pupil::neon::{http, sdp};
+    let mut r = TestRunner::new(config());
+    r.run(&prop::collection::vec(any::<u8>(), 0..160), |b| {
+        for e in [
+            decode_gaze(&b).err(),
+            decode_eye_event(&b).err(),
+            RtpPacket::parse(&b).err(),
+            sender_reports(&b).err(),
+            http::parse_status(&b).err(),
+            sdp::parse(&String::from_utf8_lossy(&b)).err(),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            prop_assert!(!e.to_string().is_empty());
+        }
+        Ok(())
+    })
+    .unwrap();
+    // Mutations (flips, truncations, extensions) of an RTP packet carrying
+    // an 89-byte eye-state gaze payload, and of a sender report.
+    let mut rtp = vec![0x80, 99, 0, 1, 0, 0, 0x10, 0, 0, 0, 0, 7];
+    rtp.extend((0..89u8).map(|i| i.wrapping_mul(37)));
+    r.run(&mutated(rtp), |b| {
+        if let Ok(p) = RtpPacket::parse(&b) {
+            let _ = decode_gaze(p.payload);
+        }
+        Ok(())
+    })
+    .unwrap();
+    let mut sr = vec![0x80, 200, 0, 6, 0, 0, 0, 7];
+    sr.extend_from_slice(&[0xe9, 0x00, 0x00, 0x00, 0x80, 0, 0, 0]);
+    sr.extend_from_slice(&[0, 0, 0x10, 0, 0, 0, 0, 1, 0, 0, 0, 89]);
+    r.run(&mutated(sr), |b| {
+        let _ = sender_reports(&b);
+        Ok(())
+    })
+    .unwrap();
+    r.run(
+        &(
+            1u32..200_000,
+            prop::collection::vec(any::<u32>(), 1..64),
+            any::<u32>(),
+        ),
+        |(rate, stamps, anchor)| {
+            let mut clock = RtpClock::new(rate);
+            for (i, ts) in stamps.iter().enumerate() {
+                if i == 0 {
+                    let reports = {
+                        let mut p = vec![0x80, 200, 0, 6, 0, 0, 0, 7];
+                        p.extend_from_slice(&0xe900_0000u32.to_be_bytes());
+                        p.extend_from_slice(&0u32.to_be_bytes());
+                        p.extend_from_slice(&anchor.to_be_bytes());
+                        p.extend_from_slice(&[0; 8]);
+                        sender_reports(&p).unwrap()
+                    };
+                    clock.apply(&reports[0]);
+                }
+                let t = clock.unix_secs(*ts).unwrap();
+                prop_assert!(t.is_finite());
+            }
+            Ok(())
+        },
+    )
+    .unwrap();
+}

@@ -15,8 +15,11 @@ use std::time::Duration;
 #[derive(Args, Debug)]
 pub struct InspectArgs {
     /// A recording (a Neon native directory, a Pupil Core recording
-    /// directory, an EyeLink `.asc`, a pupil `.csv` trace) or a live Pupil
-    /// Remote as `pupil://HOST[:PORT]` (default port 50020).
+    /// directory, an EyeLink `.asc`, a pupil `.csv` trace) or a live
+    /// source: a Pupil Remote as `pupil://HOST[:PORT]` (default port 50020),
+    /// a Neon as `neon://HOST[:PORT]` (default port 8080), an LSL stream
+    /// (`lsl://?name=…`) or a hardware URI (`gazepoint://`, `hid://`,
+    /// `usb://`, `serial://`).
     pub path: PathBuf,
     /// For a live source: how long to collect, seconds.
     #[arg(long, default_value_t = 5.0)]
@@ -57,11 +60,67 @@ fn inspect_lsl(uri: &str, args: &InspectArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The format name of a live source summarised through the generic path
+/// (Neon and the hardware transports), or `None`.
+fn live_source_kind(uri: &str) -> Option<&'static str> {
+    ["neon", "gazepoint", "hid", "usb", "serial"]
+        .into_iter()
+        .find(|s| uri.starts_with(&format!("{s}://")))
+        .map(|s| match s {
+            "neon" => "neon-live",
+            "gazepoint" => "gazepoint-live",
+            "hid" => "hid-live",
+            "usb" => "usb-live",
+            _ => "serial-live",
+        })
+}
+
+/// `inspect neon://…` (or a hardware URI): opens the source through the
+/// one URI parser, collects `--secs` from its first sample (waiting up to
+/// 10 s for it) and summarises.
+fn inspect_source(uri: &str, format: &'static str, args: &InspectArgs) -> anyhow::Result<()> {
+    if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
+        anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
+    }
+    let parsed = gazelight_tracker::transport::SourceUri::parse(uri)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+    let mut summary = runtime.block_on(async {
+        let mut source = gazelight_tracker::transport::open(&parsed)?;
+        let summary = gazelight_tracker::summarize::summarize_source(
+            &mut source,
+            Duration::from_secs_f64(args.secs),
+            Duration::from_secs(10),
+            FilterChain::with_defaults(),
+            format,
+        )
+        .await?;
+        anyhow::Ok(summary)
+    })?;
+    if let Some(warning) = crate::input_report::pupil_rejection(&summary.chain) {
+        eprintln!("warning: {uri}: {warning}");
+        summary.warnings.push(warning);
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        println!("{uri}: {summary}");
+    }
+    Ok(())
+}
+
 /// Runs `gazelight inspect`.
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let uri = args.path.to_string_lossy();
     if uri.starts_with("lsl://") {
         return inspect_lsl(&uri, &args);
+    }
+    if let Some(kind) = live_source_kind(&uri) {
+        return inspect_source(&uri, kind, &args);
     }
     let summary = if uri.starts_with("pupil://") {
         if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {

@@ -29,10 +29,10 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use super::NeonError;
 use super::http::{direct_sensor, get_status, parse_status};
 use super::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
 use super::stream::RtpStream;
-use super::{NeonError, split_host_port};
 use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
@@ -85,31 +85,6 @@ impl Default for NeonConfig {
             channel_capacity: 8192,
             scene_camera_px: SCENE_CAMERA_PX,
         }
-    }
-}
-
-impl NeonConfig {
-    /// `neon://HOST[:PORT]` (port 8080 by default).
-    pub fn from_uri(uri: &str) -> Result<Self, NeonError> {
-        let bad = |reason: String| NeonError::Url {
-            url: uri.to_owned(),
-            reason,
-        };
-        let rest = uri
-            .strip_prefix("neon://")
-            .ok_or_else(|| bad("expected neon://HOST[:PORT]".to_owned()))?;
-        let authority = rest.strip_suffix('/').unwrap_or(rest);
-        if authority.contains(['/', '?', '#']) {
-            return Err(bad(
-                "expected neon://HOST[:PORT] with no path or query".to_owned()
-            ));
-        }
-        let (host, port) = split_host_port(authority, DEFAULT_HTTP_PORT).map_err(bad)?;
-        Ok(Self {
-            host,
-            port,
-            ..Self::default()
-        })
     }
 }
 
@@ -261,6 +236,10 @@ impl SampleSource for NeonSource {
 
     fn describe(&self) -> String {
         format!("neon://{}:{}", self.config.host, self.config.port)
+    }
+
+    fn dropped(&self) -> u64 {
+        self.stats.dropped_full.load(Ordering::Relaxed)
     }
 }
 
@@ -534,23 +513,6 @@ pub fn gaze_samples(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn uris() {
-        let c = NeonConfig::from_uri("neon://192.168.1.60").unwrap();
-        assert_eq!((c.host.as_str(), c.port), ("192.168.1.60", 8080));
-        let c = NeonConfig::from_uri("neon://[::1]:9000/").unwrap();
-        assert_eq!((c.host.as_str(), c.port), ("::1", 9000));
-        for bad in [
-            "neon://",
-            "neon://h:0",
-            "neon://h:x",
-            "neon://h/p",
-            "pupil://h",
-        ] {
-            assert!(NeonConfig::from_uri(bad).is_err(), "{bad}");
-        }
-    }
 
     #[test]
     fn closed_eye_and_not_worn_have_zero_confidence() {
