@@ -4,6 +4,14 @@
 //! exact bytes that came off the bus, so Pupil Player, Pupil's
 //! `file_methods.load_pldata_file` and `gazelight replay` all read it.
 //!
+//! Any other live source (a Neon over `neon://`, a hardware URI) is
+//! recorded into the same layout from its decoded samples: each pupil and
+//! gaze sample encoded as the Pupil datum `gazelight replay` decodes back
+//! to the same sample ([`gazelight_tracker::pupil::msg::encode_sample`];
+//! pupils in mm as `diameter_3d`), timed on the host clock. Blink events
+//! have no Pupil datum and are not written; a replay finds the blinks again
+//! from the pupils' confidence.
+//!
 //! Every received datum is kept: the writers flush at least every second
 //! (`PldataWriter` rewrites the `.npy` header in place, so the files are
 //! complete after every flush), Ctrl-C, SIGTERM and SIGHUP drain what is queued before closing,
@@ -18,7 +26,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_tracker::PldataWriter;
-use gazelight_tracker::pupil::{PupilClient, PupilConfig, RawDatum};
+use gazelight_tracker::pupil::{PupilClient, PupilConfig, RawDatum, msg};
+use gazelight_tracker::transport::{AnySource, SourceUri};
+use gazelight_tracker::{Sample, SampleSource, SourceError};
 
 /// Capacity of the raw-datum queue between the client and the writers
 /// (≈ 16 s of a binocular 200 Hz tracker with gaze).
@@ -27,7 +37,9 @@ const RAW_QUEUE: usize = 16_384;
 /// Arguments of `gazelight record`.
 #[derive(Args, Debug)]
 pub struct RecordArgs {
-    /// Tracker source (Pupil Capture's Pupil Remote).
+    /// Tracker source: Pupil Capture's Pupil Remote (its bus bytes are
+    /// kept as they are) or any other live source URI, e.g. `neon://HOST`
+    /// (its samples are written as Pupil datums).
     #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
     pub source: String,
     /// Recording directory (created; must not already hold a recording).
@@ -53,10 +65,18 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
     if args.topics.iter().any(|t| t.trim().is_empty()) {
         bail!("--topics: empty topic prefix");
     }
-    let mut pupil = gazelight_tracker::uri::pupil_config(&args.source)
-        .with_context(|| format!("--source {}", args.source))?;
-    pupil.topics = args.topics.clone();
-    pupil.raw_capacity = RAW_QUEUE;
+    let uri =
+        SourceUri::parse(&args.source).with_context(|| format!("--source {}", args.source))?;
+    let pupil = match &uri {
+        SourceUri::Pupil { .. } => {
+            let mut pupil = gazelight_tracker::uri::pupil_config(&args.source)
+                .with_context(|| format!("--source {}", args.source))?;
+            pupil.topics = args.topics.clone();
+            pupil.raw_capacity = RAW_QUEUE;
+            Some(pupil)
+        }
+        _ => None,
+    };
     if args.out.join("info.player.json").exists() {
         bail!(
             "--out {}: already holds a recording (info.player.json); choose a new directory",
@@ -70,7 +90,10 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
-    runtime.block_on(record(args, pupil))
+    match pupil {
+        Some(pupil) => runtime.block_on(record(args, pupil)),
+        None => runtime.block_on(record_samples(args, uri)),
+    }
 }
 
 /// The writers of one recording, one per stream (the topic's first part).
@@ -100,7 +123,13 @@ impl Recording {
     }
 
     fn append(&mut self, d: &RawDatum) -> anyhow::Result<()> {
-        let stream = d.topic.split('.').next().unwrap_or_default();
+        self.append_bytes(&d.topic, &d.payload, d.pupil_t_secs)
+    }
+
+    /// Appends one datum (`topic`, msgpack `payload`, its time in seconds)
+    /// to the stream its topic names.
+    fn append_bytes(&mut self, topic: &str, payload: &[u8], t_secs: f64) -> anyhow::Result<()> {
+        let stream = topic.split('.').next().unwrap_or_default();
         if stream.is_empty() {
             return Ok(());
         }
@@ -109,11 +138,11 @@ impl Recording {
             self.writers.insert(stream.to_owned(), w);
         }
         if let Some(w) = self.writers.get_mut(stream) {
-            w.append(&d.topic, &d.payload, d.pupil_t_secs)?;
+            w.append(topic, payload, t_secs)?;
         }
-        if d.pupil_t_secs.is_finite() {
-            self.first_pupil_t.get_or_insert(d.pupil_t_secs);
-            self.last_pupil_t = Some(d.pupil_t_secs);
+        if t_secs.is_finite() {
+            self.first_pupil_t.get_or_insert(t_secs);
+            self.last_pupil_t = Some(t_secs);
         }
         self.records += 1;
         Ok(())
@@ -127,7 +156,7 @@ impl Recording {
     }
 
     /// `info.player.json` (Pupil Player recording format 2.x).
-    fn write_info(&self, version: &str) -> anyhow::Result<()> {
+    fn write_info(&self, source: &str) -> anyhow::Result<()> {
         let start_synced = self.first_pupil_t.unwrap_or(0.0);
         let duration = match (self.first_pupil_t, self.last_pupil_t) {
             (Some(a), Some(b)) => (b - a).max(0.0),
@@ -143,7 +172,7 @@ impl Recording {
             "start_time_system_s": self.start_system_s,
             "start_time_synced_s": start_synced,
             "duration_s": duration,
-            "system_info": format!("gazelight record; source Pupil {version}"),
+            "system_info": format!("gazelight record; source {source}"),
         });
         let path = self.dir.join("info.player.json");
         let text = serde_json::to_string_pretty(&info)?;
@@ -185,8 +214,9 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
         bail!("internal: the Pupil client has no raw channel");
     };
     let version = client.stats().version.unwrap_or_default();
+    let source_info = format!("Pupil {version}");
     let mut rec = Recording::new(&args.out);
-    rec.write_info(&version)?;
+    rec.write_info(&source_info)?;
     eprintln!(
         "recording {} (Pupil {version}) into {}{}",
         args.source,
@@ -257,7 +287,7 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
     }
     let stats = client.stats();
     client.shutdown().await;
-    rec.write_info(&version)?;
+    rec.write_info(&source_info)?;
     let total = rec.records;
     let streams_written = rec.close()?;
     let per_stream: Vec<String> = streams_written
@@ -277,6 +307,114 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// Records any other live source from its decoded samples (see the module
+/// docs): the same writers, flushing, signals and drain as [`record`].
+async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> {
+    let signals = crate::shutdown::Signals::new()
+        .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
+    let connect = crate::bounds::secs("--connect-secs", args.connect_secs)?;
+    let mut source = gazelight_tracker::transport::open(&uri)
+        .with_context(|| format!("--source {}", args.source))?;
+    let describe = source.describe();
+    // The first sample within --connect-secs, or no recording.
+    let first = match tokio::time::timeout(connect, first_sample(&mut source)).await {
+        Ok(first) => first?,
+        Err(_) => bail!(
+            "no samples from {} within {:.1} s (--connect-secs): is the tracker on and streaming?",
+            args.source,
+            connect.as_secs_f64()
+        ),
+    };
+    let mut rec = Recording::new(&args.out);
+    rec.write_info(&describe)?;
+    eprintln!(
+        "recording {describe} into {}{}",
+        args.out.display(),
+        match args.secs {
+            Some(s) => format!(" for {s:.1} s"),
+            None => "; Ctrl-C stops".to_owned(),
+        }
+    );
+    let wanted = |topic: &str| args.topics.iter().any(|p| topic.starts_with(p.as_str()));
+    let append = |rec: &mut Recording, sample: &Sample| -> anyhow::Result<()> {
+        if let Some((topic, payload)) = msg::encode_sample(sample)
+            .with_context(|| format!("cannot encode a sample of {describe}"))?
+            && wanted(&topic)
+        {
+            rec.append_bytes(&topic, &payload, sample.t_secs())?;
+        }
+        Ok(())
+    };
+    append(&mut rec, &first)?;
+    let started = Instant::now();
+    let deadline = match args.secs {
+        Some(s) => {
+            let d = crate::bounds::secs("--secs", s)?;
+            tokio::time::Instant::now().checked_add(d)
+        }
+        None => None,
+    };
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    let (mut losses, mut bad) = (0u64, 0u64);
+    let signal = signals.first();
+    tokio::pin!(signal);
+    let reason = loop {
+        let until_deadline = async {
+            match deadline {
+                Some(d) => tokio::time::sleep_until(d).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            next = source.next() => match next {
+                Ok(Some(sample)) => append(&mut rec, &sample)?,
+                Ok(None) => break "the source ended",
+                Err(e @ SourceError::Fatal { .. }) => return Err(e.into()),
+                Err(SourceError::Disconnected { reason, .. }) => {
+                    losses += 1;
+                    eprintln!("tracker lost ({reason}); recording continues when it is back");
+                }
+                Err(_) => bad += 1,
+            },
+            _ = tick.tick() => rec.flush_if_due()?,
+            _ = until_deadline => break "duration reached",
+            name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
+        }
+    };
+    rec.write_info(&describe)?;
+    let total = rec.records;
+    let streams_written = rec.close()?;
+    let per_stream: Vec<String> = streams_written
+        .iter()
+        .map(|(n, k)| format!("{n}: {k}"))
+        .collect();
+    println!(
+        "stopped ({reason}) after {:.1} s: {total} datums ({}), {} dropped by the source, {bad} bad items skipped, {losses} losses; wrote {}",
+        started.elapsed().as_secs_f64(),
+        if per_stream.is_empty() {
+            "none".to_owned()
+        } else {
+            per_stream.join(", ")
+        },
+        source.dropped(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The source's first sample; bad items and losses before it are waited
+/// out (the caller bounds the wait).
+async fn first_sample(source: &mut AnySource) -> anyhow::Result<Sample> {
+    loop {
+        match source.next().await {
+            Ok(Some(s)) => return Ok(s),
+            Ok(None) => bail!("{} ended before its first sample", source.describe()),
+            Err(e @ SourceError::Fatal { .. }) => return Err(e.into()),
+            Err(_) => {}
+        }
+    }
 }
 
 /// A random RFC 4122 v4 UUID from the kernel, or a time-based fallback.

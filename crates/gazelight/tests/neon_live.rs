@@ -207,3 +207,79 @@ fn run_drives_the_psf_from_neon_pupils() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `record --source neon://…` writes the session in the layout `replay`
+/// and `inspect` read, and the replay reproduces it: the recording's pupils
+/// are the ones Neon sent (the demo recording's first n, in mm) and the
+/// replayed frames follow them.
+#[test]
+fn record_a_live_neon_then_replay_it() {
+    let Some(peer) = neon_peer() else { return };
+    let uri = format!("neon://127.0.0.1:{}", peer.http_port);
+    let dir = tmp("neon-record");
+    let rec_dir = dir.join("rec");
+    let rec = rec_dir.to_str().unwrap();
+    let out = gazelight(&["record", "--source", &uri, "--secs", "4", "--out", rec]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "record failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    eprintln!("{stdout}");
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rec_dir.join("info.player.json")).unwrap())
+            .unwrap();
+    let duration = info["duration_s"].as_f64().unwrap();
+    assert!((3.0..5.0).contains(&duration), "{info}");
+
+    let out = gazelight(&["inspect", rec, "--json"]);
+    assert!(out.status.success());
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let n = s["samples"]["pupil"][0].as_u64().unwrap() as usize;
+    assert!(n >= 600, "{s}");
+    assert_eq!(s["samples"]["pupil"][1].as_u64().unwrap() as usize, n);
+    assert_eq!(s["invalid_after_filter"], 0);
+    let want = recorded_pupils(n);
+    for e in 0..2 {
+        assert_eq!(s["pupil"][e]["unit"], "mm");
+        let got = s["pupil"][e]["raw"]["median"].as_f64().unwrap();
+        let rec = median(&want[e]);
+        assert!((got - rec).abs() < 0.05, "eye {e}: {got} vs {rec}");
+    }
+
+    let frames = dir.join("replay");
+    let out = gazelight(&[
+        "replay",
+        rec,
+        "--size",
+        "96x64",
+        "--no-frames",
+        "--backend",
+        "cpu",
+        "--out",
+        frames.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "replay failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let timeline = std::fs::read_to_string(frames.join("timeline.csv")).unwrap();
+    let mut lines = timeline.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = header.iter().position(|h| *h == "pupil_mm").unwrap();
+    let pupils: Vec<f32> = lines
+        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .collect();
+    assert!(pupils.len() >= 90, "{} frames for 4 s", pupils.len());
+    let binocular: Vec<f32> = want[0]
+        .iter()
+        .zip(&want[1])
+        .map(|(a, b)| 0.5 * (a + b))
+        .collect();
+    let (got, rec) = (median(&pupils[pupils.len() / 3..]), median(&binocular));
+    eprintln!("replayed frames' pupil median {got:.3} mm, recording's binocular {rec:.3} mm");
+    assert!((got - rec).abs() < 0.25, "{got} vs {rec}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
