@@ -197,11 +197,16 @@ fn run_lsl_outlets_are_read_by_pylsl() {
     let ts: Vec<f64> = eye["t"].as_array().unwrap().iter().map(f).collect();
     let vals = eye["values"].as_array().unwrap();
     let secs_f: f64 = secs.parse().unwrap();
-    // One sample per tracker cycle at 200 Hz, from when pylsl connected
-    // (liblsl starts slowly in a fresh namespace: allow 4 s).
+    // One sample per tracker cycle at 200 Hz from when pylsl connected.
+    // liblsl starts in 3–10 s in a fresh namespace on a loaded 2-core
+    // machine, so the rate is checked over what arrived, not the count
+    // over the whole run.
+    assert!(ts.len() >= 200, "{} eye samples", ts.len());
+    let span_secs = ts[ts.len() - 1] - ts[0];
+    let rate_hz = (ts.len() - 1) as f64 / span_secs;
     assert!(
-        ts.len() as f64 > 200.0 * (secs_f - 4.0) * 0.6,
-        "{} eye samples",
+        (120.0..=260.0).contains(&rate_hz) && span_secs <= secs_f,
+        "{} eye samples over {span_secs:.2} s: {rate_hz:.1} Hz",
         ts.len()
     );
     assert!(

@@ -228,8 +228,7 @@ fn record_a_live_neon_then_replay_it() {
     );
     eprintln!("{stdout}");
     let info: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(rec_dir.join("info.player.json")).unwrap())
-            .unwrap();
+        serde_json::from_slice(&std::fs::read(rec_dir.join("info.player.json")).unwrap()).unwrap();
     let duration = info["duration_s"].as_f64().unwrap();
     assert!((3.0..5.0).contains(&duration), "{info}");
 
