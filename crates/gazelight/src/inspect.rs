@@ -32,16 +32,8 @@ pub struct InspectArgs {
 /// `inspect lsl://?name=…`: reads the stream for `--secs` (from its first
 /// sample) with the machine-only LSL configuration (or `LSLAPICFG`).
 fn inspect_lsl(uri: &str, args: &InspectArgs) -> anyhow::Result<()> {
-    if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
-        anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
-    }
     let query = gazelight_tracker::lsl::LslQuery::parse(uri).map_err(|e| anyhow::anyhow!(e))?;
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("cannot start the async runtime")?;
-    eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+    let runtime = live_runtime(uri, args)?;
     let (summary, facts) = runtime.block_on(gazelight_tracker::lsl::summarize_lsl(
         query,
         gazelight_tracker::lsl::LslConfig::default(),
@@ -79,16 +71,8 @@ fn live_source_kind(uri: &str) -> Option<&'static str> {
 /// one URI parser, collects `--secs` from its first sample (waiting up to
 /// 10 s for it) and summarises.
 fn inspect_source(uri: &str, format: &'static str, args: &InspectArgs) -> anyhow::Result<()> {
-    if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
-        anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
-    }
     let parsed = gazelight_tracker::transport::SourceUri::parse(uri)?;
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("cannot start the async runtime")?;
-    eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+    let runtime = live_runtime(uri, args)?;
     let mut summary = runtime.block_on(async {
         let mut source = gazelight_tracker::transport::open(&parsed)?;
         let summary = gazelight_tracker::summarize::summarize_source(
@@ -113,6 +97,21 @@ fn inspect_source(uri: &str, format: &'static str, args: &InspectArgs) -> anyhow
     Ok(())
 }
 
+/// Checks `--secs` for a live source and starts the runtime that
+/// collects it, saying so on stderr.
+fn live_runtime(uri: &str, args: &InspectArgs) -> anyhow::Result<tokio::runtime::Runtime> {
+    if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
+        anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
+    }
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
+    Ok(runtime)
+}
+
 /// Runs `gazelight inspect`.
 pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     let uri = args.path.to_string_lossy();
@@ -123,16 +122,8 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         return inspect_source(&uri, kind, &args);
     }
     let summary = if uri.starts_with("pupil://") {
-        if !(args.secs.is_finite() && args.secs > 0.0 && args.secs <= 3600.0) {
-            anyhow::bail!("--secs {}: expected 0 < secs ≤ 3600", args.secs);
-        }
+        let runtime = live_runtime(&uri, &args)?;
         let config = gazelight_tracker::uri::pupil_config(&uri)?;
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .context("cannot start the async runtime")?;
-        eprintln!("collecting from {uri} for {:.1} s ...", args.secs);
         runtime.block_on(summarize_live(
             config,
             Duration::from_secs_f64(args.secs),

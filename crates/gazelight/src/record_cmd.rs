@@ -183,6 +183,24 @@ impl Recording {
         Ok(())
     }
 
+    /// Writes the final `info.player.json` and closes every stream;
+    /// returns the records written and a "stream: records, …" summary.
+    fn finish(self, source: &str) -> anyhow::Result<(u64, String)> {
+        self.write_info(source)?;
+        let total = self.records;
+        let per_stream: Vec<String> = self
+            .close()?
+            .iter()
+            .map(|(n, k)| format!("{n}: {k}"))
+            .collect();
+        let streams = if per_stream.is_empty() {
+            "none".to_owned()
+        } else {
+            per_stream.join(", ")
+        };
+        Ok((total, streams))
+    }
+
     /// Closes every stream; returns (stream, records) pairs.
     fn close(self) -> anyhow::Result<Vec<(String, u64)>> {
         let mut out = Vec::new();
@@ -221,19 +239,10 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
         "recording {} (Pupil {version}) into {}{}",
         args.source,
         args.out.display(),
-        match args.secs {
-            Some(s) => format!(" for {s:.1} s"),
-            None => "; Ctrl-C stops".to_owned(),
-        }
+        for_how_long(args.secs)
     );
     let started = Instant::now();
-    let deadline = match args.secs {
-        Some(s) => {
-            let d = crate::bounds::secs("--secs", s)?;
-            tokio::time::Instant::now().checked_add(d)
-        }
-        None => None,
-    };
+    let deadline = deadline(args.secs)?;
     let mut tick = tokio::time::interval(Duration::from_millis(250));
     let mut was_connected = true;
     let mut last_report = Instant::now();
@@ -287,21 +296,10 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
     }
     let stats = client.stats();
     client.shutdown().await;
-    rec.write_info(&source_info)?;
-    let total = rec.records;
-    let streams_written = rec.close()?;
-    let per_stream: Vec<String> = streams_written
-        .iter()
-        .map(|(n, k)| format!("{n}: {k}"))
-        .collect();
+    let (total, streams) = rec.finish(&source_info)?;
     println!(
-        "stopped ({reason}) after {:.1} s: {total} datums ({}), {} dropped by the queue, {} malformed skipped; wrote {}",
+        "stopped ({reason}) after {:.1} s: {total} datums ({streams}), {} dropped by the queue, {} malformed skipped; wrote {}",
         started.elapsed().as_secs_f64(),
-        if per_stream.is_empty() {
-            "none".to_owned()
-        } else {
-            per_stream.join(", ")
-        },
         stats.raw_dropped,
         stats.malformed,
         args.out.display()
@@ -332,10 +330,7 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
     eprintln!(
         "recording {describe} into {}{}",
         args.out.display(),
-        match args.secs {
-            Some(s) => format!(" for {s:.1} s"),
-            None => "; Ctrl-C stops".to_owned(),
-        }
+        for_how_long(args.secs)
     );
     let wanted = |topic: &str| args.topics.iter().any(|p| topic.starts_with(p.as_str()));
     let append = |rec: &mut Recording, sample: &Sample| -> anyhow::Result<()> {
@@ -349,13 +344,7 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
     };
     append(&mut rec, &first)?;
     let started = Instant::now();
-    let deadline = match args.secs {
-        Some(s) => {
-            let d = crate::bounds::secs("--secs", s)?;
-            tokio::time::Instant::now().checked_add(d)
-        }
-        None => None,
-    };
+    let deadline = deadline(args.secs)?;
     let mut tick = tokio::time::interval(Duration::from_millis(250));
     let (mut losses, mut bad) = (0u64, 0u64);
     let signal = signals.first();
@@ -383,21 +372,10 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
             name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
         }
     };
-    rec.write_info(&describe)?;
-    let total = rec.records;
-    let streams_written = rec.close()?;
-    let per_stream: Vec<String> = streams_written
-        .iter()
-        .map(|(n, k)| format!("{n}: {k}"))
-        .collect();
+    let (total, streams) = rec.finish(&describe)?;
     println!(
-        "stopped ({reason}) after {:.1} s: {total} datums ({}), {} dropped by the source, {bad} bad items skipped, {losses} losses; wrote {}",
+        "stopped ({reason}) after {:.1} s: {total} datums ({streams}), {} dropped by the source, {bad} bad items skipped, {losses} losses; wrote {}",
         started.elapsed().as_secs_f64(),
-        if per_stream.is_empty() {
-            "none".to_owned()
-        } else {
-            per_stream.join(", ")
-        },
         source.dropped(),
         args.out.display()
     );
@@ -414,6 +392,22 @@ async fn first_sample(source: &mut AnySource) -> anyhow::Result<Sample> {
             Err(e @ SourceError::Fatal { .. }) => return Err(e.into()),
             Err(_) => {}
         }
+    }
+}
+
+/// When `--secs` ends the recording (none: at a signal).
+fn deadline(secs: Option<f64>) -> anyhow::Result<Option<tokio::time::Instant>> {
+    Ok(match secs {
+        Some(s) => tokio::time::Instant::now().checked_add(crate::bounds::secs("--secs", s)?),
+        None => None,
+    })
+}
+
+/// " for S s" or "; Ctrl-C stops", for the start line.
+fn for_how_long(secs: Option<f64>) -> String {
+    match secs {
+        Some(s) => format!(" for {s:.1} s"),
+        None => "; Ctrl-C stops".to_owned(),
     }
 }
 

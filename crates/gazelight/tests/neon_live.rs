@@ -237,7 +237,9 @@ fn record_a_live_neon_then_replay_it() {
     let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let n = s["samples"]["pupil"][0].as_u64().unwrap() as usize;
     assert!(n >= 600, "{s}");
-    assert_eq!(s["samples"]["pupil"][1].as_u64().unwrap() as usize, n);
+    // Both eyes come from one packet; the stop may fall between them.
+    let n_left = s["samples"]["pupil"][1].as_u64().unwrap() as usize;
+    assert!(n_left.abs_diff(n) <= 1, "{s}");
     assert_eq!(s["invalid_after_filter"], 0);
     let want = recorded_pupils(n);
     for e in 0..2 {
