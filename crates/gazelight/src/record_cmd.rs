@@ -249,12 +249,6 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
     let signal = signals.first();
     tokio::pin!(signal);
     let reason = loop {
-        let until_deadline = async {
-            match deadline {
-                Some(d) => tokio::time::sleep_until(d).await,
-                None => std::future::pending().await,
-            }
-        };
         tokio::select! {
             d = raw.recv() => match d {
                 Some(d) => rec.append(&d)?,
@@ -285,7 +279,7 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
                     );
                 }
             }
-            _ = until_deadline => break "duration reached",
+            _ = until(deadline) => break "duration reached",
             // Ctrl-C is SIGINT; the others are named.
             name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
         }
@@ -350,12 +344,6 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
     let signal = signals.first();
     tokio::pin!(signal);
     let reason = loop {
-        let until_deadline = async {
-            match deadline {
-                Some(d) => tokio::time::sleep_until(d).await,
-                None => std::future::pending().await,
-            }
-        };
         tokio::select! {
             next = source.next() => match next {
                 Ok(Some(sample)) => append(&mut rec, &sample)?,
@@ -368,7 +356,7 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
                 Err(_) => bad += 1,
             },
             _ = tick.tick() => rec.flush_if_due()?,
-            _ = until_deadline => break "duration reached",
+            _ = until(deadline) => break "duration reached",
             name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
         }
     };
@@ -401,6 +389,14 @@ fn deadline(secs: Option<f64>) -> anyhow::Result<Option<tokio::time::Instant>> {
         Some(s) => tokio::time::Instant::now().checked_add(crate::bounds::secs("--secs", s)?),
         None => None,
     })
+}
+
+/// Resolves at `deadline`, never without one.
+async fn until(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(d) => tokio::time::sleep_until(d).await,
+        None => std::future::pending().await,
+    }
 }
 
 /// " for S s" or "; Ctrl-C stops", for the start line.
