@@ -35,6 +35,19 @@ pub struct EyeChannel {
     /// Host time (seconds, monotonic clock of the process) of the newest
     /// valid sample of this eye; `None` if there has been none.
     pub last_valid_t_secs: Option<f64>,
+    /// This eye's own gaze (monocular gaze samples, e.g. Pupil's
+    /// `gaze.3d.0.`, Neon's per-eye gaze, EyeLink's per-eye columns),
+    /// normalised image coordinates, top-left origin; meaningful only when
+    /// `gaze_valid`. See [`EyeState::eye_gaze_uv`].
+    #[serde(default = "centre_uv")]
+    pub gaze_uv: [f32; 2],
+    /// Whether `gaze_uv` comes from a valid recent monocular sample.
+    #[serde(default)]
+    pub gaze_valid: bool,
+}
+
+fn centre_uv() -> [f32; 2] {
+    [0.5, 0.5]
 }
 
 impl Default for EyeChannel {
@@ -45,6 +58,8 @@ impl Default for EyeChannel {
             pupil_origin: PupilOrigin::Default,
             confidence: 0.0,
             last_valid_t_secs: None,
+            gaze_uv: centre_uv(),
+            gaze_valid: false,
         }
     }
 }
@@ -101,6 +116,38 @@ impl EyeState {
             sum / count as f32
         }
     }
+
+    /// The pupil diameter of eye `eye` ([`EYE_RIGHT`] or [`EYE_LEFT`]) for a
+    /// per-eye (stereo) view: its own pupil when it is measured (or held);
+    /// else the other eye's when that one is measured, since both pupils
+    /// follow the light reaching either eye (the consensual light reflex);
+    /// else its own model value. Any other index gives [`Self::pupil_mm`].
+    pub fn eye_pupil_mm(&self, eye: usize) -> f32 {
+        let measured =
+            |e: &EyeChannel| matches!(e.pupil_origin, PupilOrigin::Measured | PupilOrigin::Held);
+        match eye {
+            EYE_RIGHT | EYE_LEFT => {
+                let own = &self.eyes[eye];
+                let other = &self.eyes[1 - eye];
+                if !measured(own) && measured(other) {
+                    other.pupil_mm
+                } else {
+                    own.pupil_mm
+                }
+            }
+            _ => self.pupil_mm(),
+        }
+    }
+
+    /// The gaze of eye `eye` for its own view: its monocular gaze when the
+    /// tracker gives one (valid and recent), else the fused gaze. Any other
+    /// index gives the fused gaze.
+    pub fn eye_gaze_uv(&self, eye: usize) -> [f32; 2] {
+        match self.eyes.get(eye) {
+            Some(e) if e.gaze_valid => e.gaze_uv,
+            _ => self.gaze_uv,
+        }
+    }
 }
 
 /// The newest filtered state as the live eye task publishes it (on a
@@ -139,5 +186,33 @@ mod tests {
         s.eyes[EYE_LEFT].pupil_mm = 7.0;
         s.eyes[EYE_LEFT].pupil_origin = PupilOrigin::Model;
         assert_eq!(s.pupil_mm(), 3.0);
+    }
+
+    #[test]
+    fn per_eye_pupil_falls_back_to_the_measured_eye() {
+        let mut s = EyeState::default();
+        s.eyes[EYE_RIGHT].pupil_mm = 3.0;
+        s.eyes[EYE_RIGHT].pupil_origin = PupilOrigin::Measured;
+        s.eyes[EYE_LEFT].pupil_mm = 7.0;
+        s.eyes[EYE_LEFT].pupil_origin = PupilOrigin::Model;
+        assert_eq!(s.eye_pupil_mm(EYE_RIGHT), 3.0);
+        assert_eq!(s.eye_pupil_mm(EYE_LEFT), 3.0);
+        s.eyes[EYE_LEFT].pupil_origin = PupilOrigin::Held;
+        assert_eq!(s.eye_pupil_mm(EYE_LEFT), 7.0);
+        assert_eq!(s.eye_pupil_mm(2), 5.0);
+    }
+
+    #[test]
+    fn per_eye_gaze_falls_back_to_the_fused_gaze() {
+        let mut s = EyeState {
+            gaze_uv: [0.4, 0.6],
+            ..Default::default()
+        };
+        s.eyes[EYE_LEFT].gaze_uv = [0.1, 0.2];
+        s.eyes[EYE_LEFT].gaze_valid = true;
+        s.eyes[EYE_RIGHT].gaze_uv = [0.9, 0.9];
+        assert_eq!(s.eye_gaze_uv(EYE_LEFT), [0.1, 0.2]);
+        assert_eq!(s.eye_gaze_uv(EYE_RIGHT), [0.4, 0.6]);
+        assert_eq!(s.eye_gaze_uv(7), [0.4, 0.6]);
     }
 }

@@ -49,7 +49,7 @@ pub struct AscImporter<R: BufRead = BufReader<File>> {
     unit: PupilUnit,
     /// Which eyes the sample columns hold: `[right, left]` recorded.
     eyes: [bool; 2],
-    pending: Pending<4>,
+    pending: Pending<6>,
     warnings: ImportWarnings,
     done: bool,
 }
@@ -247,6 +247,19 @@ impl<R: BufRead> AscImporter<R> {
             confidence: if gaze_n > 0 { 1.0 } else { 0.0 },
             eyes,
         }));
+        // Both eyes tracked: each eye's own gaze too, for per-eye (stereo)
+        // views; the binocular mean above drives the fused gaze.
+        if right_ok && left_ok {
+            for (eye, which) in [(1, GazeEyes::Left), (0, GazeEyes::Right)] {
+                let [x, y, _] = cols[eye];
+                self.pending.push(Sample::Gaze(GazeSample {
+                    t_secs,
+                    gaze_uv: [x / self.screen_px[0], y / self.screen_px[1]],
+                    confidence: 1.0,
+                    eyes: which,
+                }));
+            }
+        }
     }
 }
 
@@ -317,7 +330,7 @@ mod tests {
                     100\t  960.0\t  540.0\t 1425.0\t  480.0\t  270.0\t 1387.0\t.....\n";
         let (s, w) = import(text);
         assert_eq!(w.skipped_records, 0);
-        assert_eq!(s.len(), 3);
+        assert_eq!(s.len(), 5);
         let Sample::Pupil(left) = s[0] else { panic!() };
         assert_eq!(
             (left.eye, left.diameter_raw, left.unit),
@@ -329,6 +342,15 @@ mod tests {
         let Sample::Gaze(g) = s[2] else { panic!() };
         assert!((g.gaze_uv[0] - 0.375).abs() < 1e-6);
         assert!((g.gaze_uv[1] - 0.375).abs() < 1e-6);
+        assert_eq!(g.eyes, GazeEyes::Binocular);
+        // Each eye's own gaze follows: left (960, 540), right (480, 270) on
+        // the 1920×1080 display.
+        let Sample::Gaze(l) = s[3] else { panic!() };
+        assert_eq!(l.eyes, GazeEyes::Left);
+        assert!((l.gaze_uv[0] - 0.5).abs() < 1e-6 && (l.gaze_uv[1] - 0.5).abs() < 1e-6);
+        let Sample::Gaze(r) = s[4] else { panic!() };
+        assert_eq!(r.eyes, GazeEyes::Right);
+        assert!((r.gaze_uv[0] - 0.25).abs() < 1e-6 && (r.gaze_uv[1] - 0.25).abs() < 1e-6);
     }
 
     #[test]
@@ -351,9 +373,10 @@ mod tests {
         assert_eq!(w.skipped_records, 3);
         assert!(w.messages[0].contains("t.asc (line 3)"), "{:?}", w.messages);
         assert!(w.messages[1].contains("line 4"));
+        // Two pupils, the binocular gaze and each eye's own gaze.
         assert_eq!(
             s.len(),
-            3,
+            5,
             "the good line after the bad ones still comes through"
         );
     }

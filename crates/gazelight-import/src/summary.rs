@@ -61,7 +61,11 @@ impl Range {
 pub struct SampleCounts {
     /// Pupil samples per eye (0 right, 1 left).
     pub pupil: [u64; 2],
+    /// Binocular gaze samples (or a monocular tracker's gaze).
     pub gaze: u64,
+    /// Per-eye gaze samples beside binocular ones (EyeLink binocular, Neon
+    /// live, Pupil's monocular topics): each eye's own gaze for stereo.
+    pub gaze_per_eye: u64,
     pub blink_events: u64,
 }
 
@@ -215,9 +219,13 @@ impl Summarizer {
                 self.filtered[e].push(f);
             }
             Sample::Pupil(_) => {}
-            Sample::Gaze(_) => {
+            Sample::Gaze(g) => {
                 span(2);
-                self.counts.gaze += 1;
+                if g.eyes == gazelight_eye::GazeEyes::Binocular {
+                    self.counts.gaze += 1;
+                } else {
+                    self.counts.gaze_per_eye += 1;
+                }
             }
             Sample::Blink(_) => self.counts.blink_events += 1,
         }
@@ -407,11 +415,15 @@ impl fmt::Display for RecordingSummary {
                 .unwrap_or_default(),
             self.duration_s
         )?;
-        writeln!(
+        write!(
             f,
             "  gaze: {} samples, {:.1} Hz",
             self.samples.gaze, self.rate_hz.gaze
         )?;
+        if self.samples.gaze_per_eye > 0 {
+            write!(f, " (+{} per-eye samples)", self.samples.gaze_per_eye)?;
+        }
+        writeln!(f)?;
         for e in 0..2 {
             let p = &self.pupil[e];
             if self.samples.pupil[e] == 0 {

@@ -281,6 +281,28 @@ impl GlareSpectra {
     pub fn pupil_mm(&self) -> f64 {
         self.pupil_mm
     }
+
+    /// Copies `other` into these spectra (a second eye sharing a kernel):
+    /// no allocation when both have the same geometry, which is required.
+    pub fn copy_from(&mut self, other: &GlareSpectra) -> Result<(), VisionError> {
+        if self.key != other.key {
+            return Err(VisionError::invalid(
+                "glare spectra",
+                "spectra of another geometry",
+                "spectra of the same convolver geometry",
+            ));
+        }
+        for (d, s) in [
+            (&mut self.fine, &other.fine),
+            (&mut self.coarse, &other.coarse),
+        ] {
+            d.a.copy_from_slice(&s.a);
+            d.b.copy_from_slice(&s.b);
+            d.blue.copy_from_slice(&s.blue);
+        }
+        self.pupil_mm = other.pupil_mm;
+        Ok(())
+    }
 }
 
 /// Makes [`GlareSpectra`] for the convolver it came from

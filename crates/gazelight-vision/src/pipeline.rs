@@ -236,7 +236,15 @@ pub struct FramePipeline {
     small_lum: Vec<f32>,
     small_w: usize,
     small_h: usize,
-    glare: Option<(PsfBuilder, GlareConvolver)>,
+    /// The PSF builder (dropped while rebuilding is off: a live session
+    /// builds kernels elsewhere, and a builder holds tens of MB) and the
+    /// convolver.
+    glare: Option<(Option<PsfBuilder>, GlareConvolver)>,
+    /// The builder's parameters (to make it again) and its kernel's size
+    /// and pixel size.
+    psf_params: PsfParams,
+    kernel_size: usize,
+    kernel_deg_per_px: f64,
     psf_pupil_mm: f64,
     /// Rebuild the PSF in [`FramePipeline::process`] when the pupil moves
     /// (off: the caller installs kernels with [`FramePipeline::set_kernel`]).
@@ -278,15 +286,19 @@ impl FramePipeline {
         let ds = config.downsample();
         let small_w = width.div_ceil(ds);
         let small_h = height.div_ceil(ds);
+        let keep_display = config.keep_display_linear;
         let psf_pupil_mm = 4.0;
+        let mut psf_params = config.glare.psf.clone();
+        psf_params.ppd = 1.0 / deg_per_px;
+        psf_params.pupil_mm = psf_pupil_mm;
+        let (mut kernel_size, mut kernel_deg_per_px) = (0, deg_per_px);
         let glare = if config.glare.enabled {
-            let mut params = config.glare.psf.clone();
-            params.ppd = 1.0 / deg_per_px;
-            params.pupil_mm = psf_pupil_mm;
-            params.validate()?;
-            let builder = PsfBuilder::new(params)?;
+            psf_params.validate()?;
+            let builder = PsfBuilder::new(psf_params.clone())?;
             let conv = GlareConvolver::new(builder.kernel(), config.glare.window())?;
-            Some((builder, conv))
+            kernel_size = builder.kernel().size;
+            kernel_deg_per_px = builder.kernel().deg_per_px;
+            Some((Some(builder), conv))
         } else {
             None
         };
@@ -299,11 +311,19 @@ impl FramePipeline {
             deg_per_px,
             state: None,
             work: RgbImage::new(width, height),
-            display: RgbImage::new(width, height),
+            // Only kept on request (a frame-sized buffer otherwise unused).
+            display: if keep_display {
+                RgbImage::new(width, height)
+            } else {
+                RgbImage::new(0, 0)
+            },
             small_lum: vec![0.0; small_w * small_h],
             small_w,
             small_h,
             glare,
+            psf_params,
+            kernel_size,
+            kernel_deg_per_px,
             psf_pupil_mm,
             psf_auto_rebuild: true,
             installed: None,
@@ -352,15 +372,28 @@ impl FramePipeline {
     /// builder's.
     pub fn psf_kernel(&self) -> Option<&crate::psf::PsfKernel> {
         let (builder, _) = self.glare.as_ref()?;
-        Some(self.installed.as_ref().unwrap_or(builder.kernel()))
+        self.installed
+            .as_ref()
+            .or_else(|| builder.as_ref().map(PsfBuilder::kernel))
     }
 
     /// Whether [`FramePipeline::process`] rebuilds the PSF itself when the
     /// pupil moves more than `psf_rebuild_threshold_mm` (the default). A
     /// live session turns it off and builds kernels on another thread,
     /// installing each with [`FramePipeline::set_kernel`].
+    ///
+    /// Turning it off drops the builder (keeping its kernel): a live
+    /// session's kernels come from its own worker. Turning it back on makes
+    /// a builder again at the first rebuild.
     pub fn set_psf_auto_rebuild(&mut self, on: bool) {
         self.psf_auto_rebuild = on;
+        if !on
+            && let Some((builder, _)) = self.glare.as_mut()
+            && let Some(b) = builder.take()
+            && self.installed.is_none()
+        {
+            self.installed = Some(b.kernel().clone());
+        }
     }
 
     /// Installs a kernel built elsewhere (e.g. by a [`PsfBuilder`] with the
@@ -409,7 +442,7 @@ impl FramePipeline {
         &mut self,
         prepared: &mut crate::glare::PreparedKernel,
     ) -> Result<(), VisionError> {
-        let Some((builder, conv)) = self.glare.as_mut() else {
+        let Some((_, conv)) = self.glare.as_mut() else {
             return Err(VisionError::invalid(
                 "glare kernel",
                 "a kernel",
@@ -417,8 +450,8 @@ impl FramePipeline {
             ));
         };
         let k = &prepared.kernel;
-        if k.size != builder.kernel().size
-            || k.deg_per_px != builder.kernel().deg_per_px
+        if k.size != self.kernel_size
+            || k.deg_per_px != self.kernel_deg_per_px
             || k.rgb.len() != k.size * k.size
         {
             return Err(VisionError::invalid(
@@ -535,12 +568,14 @@ impl FramePipeline {
                 && (f64::from(pupil_mm) - self.psf_pupil_mm).abs()
                     > self.config.glare.psf_rebuild_threshold_mm
             {
+                if builder.is_none() {
+                    *builder = Some(PsfBuilder::new(self.psf_params.clone())?);
+                }
                 // Same size and pixel size as at construction: cannot fail.
-                if conv
-                    .set_kernel(builder.rebuild(f64::from(pupil_mm)))
-                    .is_ok()
+                if let Some(b) = builder.as_mut()
+                    && conv.set_kernel(b.rebuild(f64::from(pupil_mm))).is_ok()
                 {
-                    self.psf_pupil_mm = builder.kernel().pupil_mm;
+                    self.psf_pupil_mm = b.kernel().pupil_mm;
                     self.installed = None;
                     psf_rebuilt = true;
                 }

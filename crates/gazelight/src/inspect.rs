@@ -134,7 +134,7 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         let summary = summarize_importer(importer.as_mut(), FilterChain::with_defaults())
             .with_context(|| format!("while reading {}", args.path.display()))?;
         let c = &summary.samples;
-        if c.pupil == [0, 0] && c.gaze == 0 && c.blink_events == 0 {
+        if c.pupil == [0, 0] && c.gaze == 0 && c.gaze_per_eye == 0 && c.blink_events == 0 {
             return Err(crate::input_report::no_samples(
                 &args.path,
                 importer.warnings(),

@@ -27,6 +27,7 @@ mod run;
 mod serve;
 mod service_config;
 mod shutdown;
+mod stereo;
 mod view_args;
 mod window;
 

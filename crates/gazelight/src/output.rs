@@ -133,40 +133,71 @@ impl ContactSheet {
     }
 }
 
-/// Writes `timeline.csv`.
-pub fn write_timeline(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
+/// The per-view columns of `timeline.csv`, after `t_secs`.
+const TIMELINE_COLUMNS: [&str; 16] = [
+    "gaze_u",
+    "gaze_v",
+    "pupil_mm",
+    "pupil_held",
+    "target_cd_m2",
+    "adaptation_cd_m2",
+    "psf_pupil_mm",
+    "psf_rebuilt",
+    "acuity_sigma_px",
+    "pooling_ms",
+    "temporal_ms",
+    "psf_ms",
+    "glare_ms",
+    "acuity_ms",
+    "tone_colour_encode_ms",
+    "total_ms",
+];
+
+/// Writes `timeline.csv`: `t_secs`, then each view's columns with its
+/// suffix (`""` for a mono frame; `_left`, `_right` for stereo). The views'
+/// rows are frame by frame, so row `i` of every view is frame `i`.
+pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut w = std::io::BufWriter::new(file);
-    writeln!(
-        w,
-        "t_secs,gaze_u,gaze_v,pupil_mm,pupil_held,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,acuity_sigma_px,\
-         pooling_ms,temporal_ms,psf_ms,glare_ms,acuity_ms,tone_colour_encode_ms,total_ms"
-    )?;
-    for r in rows {
-        let s = &r.stats;
-        let t = &s.timings;
-        writeln!(
-            w,
-            "{:.4},{:.5},{:.5},{:.4},{},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
-            r.t_secs,
-            r.gaze_u,
-            r.gaze_v,
-            r.pupil_mm,
-            u8::from(r.pupil_held),
-            s.target_cd_m2,
-            s.adaptation_cd_m2,
-            s.psf_pupil_mm,
-            u8::from(s.psf_rebuilt),
-            s.acuity_sigma_px,
-            t.pooling_ms,
-            t.temporal_ms,
-            t.psf_ms,
-            t.glare_ms,
-            t.acuity_ms,
-            t.tone_colour_encode_ms,
-            t.total_ms
-        )?;
+    write!(w, "t_secs")?;
+    for (suffix, _) in views {
+        for c in TIMELINE_COLUMNS {
+            write!(w, ",{c}{suffix}")?;
+        }
+    }
+    writeln!(w)?;
+    let frames = views.iter().map(|(_, r)| r.len()).min().unwrap_or(0);
+    for i in 0..frames {
+        if let Some(r) = views.first().and_then(|(_, rows)| rows.get(i)) {
+            write!(w, "{:.4}", r.t_secs)?;
+        }
+        for (_, rows) in views {
+            let r = &rows[i];
+            let s = &r.stats;
+            let t = &s.timings;
+            write!(
+                w,
+                ",{:.5},{:.5},{:.4},{},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
+                r.gaze_u,
+                r.gaze_v,
+                r.pupil_mm,
+                u8::from(r.pupil_held),
+                s.target_cd_m2,
+                s.adaptation_cd_m2,
+                s.psf_pupil_mm,
+                u8::from(s.psf_rebuilt),
+                s.acuity_sigma_px,
+                t.pooling_ms,
+                t.temporal_ms,
+                t.psf_ms,
+                t.glare_ms,
+                t.acuity_ms,
+                t.tone_colour_encode_ms,
+                t.total_ms
+            )?;
+        }
+        writeln!(w)?;
     }
     w.flush()
         .with_context(|| format!("cannot write {}", path.display()))
@@ -177,18 +208,19 @@ pub(crate) fn register_font() -> anyhow::Result<()> {
         .map_err(|_| anyhow::anyhow!("the embedded font is invalid"))
 }
 
-/// Writes the plot of adaptation luminance (log) and pupil over time.
-pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
+/// Writes the plot of adaptation luminance (log) and pupil over time, one
+/// set of lines per view (labelled by its suffix in stereo; the right eye
+/// dashed).
+pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Result<()> {
     register_font()?;
     let draw = |buf: &mut [u8], size: (u32, u32)| -> Result<(), Box<dyn std::error::Error>> {
         let root = BitMapBackend::with_buffer(buf, size).into_drawing_area();
         root.fill(&WHITE)?;
         let (top, bottom) = root.split_vertically(340);
-        let t_max = rows.last().map_or(1.0, |r| r.t_secs).max(1e-3);
+        let all = || views.iter().flat_map(|(_, rows)| rows.iter());
+        let t_max = all().map(|r| r.t_secs).fold(1e-3, f64::max);
         let log = |v: f64| v.max(1e-6).log10();
-        let lums = rows
-            .iter()
-            .flat_map(|r| [log(r.stats.target_cd_m2), log(r.stats.adaptation_cd_m2)]);
+        let lums = all().flat_map(|r| [log(r.stats.target_cd_m2), log(r.stats.adaptation_cd_m2)]);
         let (lo, hi) = lums.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
             (a.min(v), b.max(v))
         });
@@ -208,27 +240,33 @@ pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
             .x_desc("t (s)")
             .y_desc("log10 cd/m²")
             .draw()?;
-        chart
-            .draw_series(LineSeries::new(
-                rows.iter().map(|r| (r.t_secs, log(r.stats.target_cd_m2))),
-                &RED,
-            ))?
-            .label("pooled target")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        chart
-            .draw_series(LineSeries::new(
-                rows.iter()
-                    .map(|r| (r.t_secs, log(r.stats.adaptation_cd_m2))),
-                BLUE.stroke_width(2),
-            ))?
-            .label("adaptation")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        for (k, (suffix, rows)) in views.iter().enumerate() {
+            let eye = suffix.replace('_', " ");
+            let dashed = k > 0;
+            chart
+                .draw_series(line(
+                    rows.iter().map(|r| (r.t_secs, log(r.stats.target_cd_m2))),
+                    RED.stroke_width(1),
+                    dashed,
+                ))?
+                .label(format!("pooled target{eye}"))
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+            chart
+                .draw_series(line(
+                    rows.iter()
+                        .map(|r| (r.t_secs, log(r.stats.adaptation_cd_m2))),
+                    BLUE.stroke_width(2),
+                    dashed,
+                ))?
+                .label(format!("adaptation{eye}"))
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()?;
-        let p_hi = rows.iter().map(|r| r.pupil_mm).fold(8.0f32, f32::max) as f64;
+        let p_hi = all().map(|r| r.pupil_mm).fold(8.0f32, f32::max) as f64;
         let mut chart = ChartBuilder::on(&bottom)
             .caption("pupil", ("sans-serif", 20))
             .margin(10)
@@ -236,20 +274,26 @@ pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
             .y_label_area_size(70)
             .build_cartesian_2d(0.0..t_max, 0.0..p_hi + 0.5)?;
         chart.configure_mesh().x_desc("t (s)").y_desc("mm").draw()?;
-        chart
-            .draw_series(LineSeries::new(
-                rows.iter().map(|r| (r.t_secs, f64::from(r.pupil_mm))),
-                &BLACK,
-            ))?
-            .label("pupil (trace, dropouts held)")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
-        chart
-            .draw_series(LineSeries::new(
-                rows.iter().map(|r| (r.t_secs, r.stats.psf_pupil_mm)),
-                GREEN.stroke_width(2),
-            ))?
-            .label("PSF built for")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+        for (k, (suffix, rows)) in views.iter().enumerate() {
+            let eye = suffix.replace('_', " ");
+            let dashed = k > 0;
+            chart
+                .draw_series(line(
+                    rows.iter().map(|r| (r.t_secs, f64::from(r.pupil_mm))),
+                    BLACK.stroke_width(1),
+                    dashed,
+                ))?
+                .label(format!("pupil{eye} (trace, dropouts held)"))
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+            chart
+                .draw_series(line(
+                    rows.iter().map(|r| (r.t_secs, r.stats.psf_pupil_mm)),
+                    GREEN.stroke_width(2),
+                    dashed,
+                ))?
+                .label(format!("PSF{eye} built for"))
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))
@@ -260,6 +304,24 @@ pub fn write_plot(path: &Path, rows: &[TimelineRow]) -> anyhow::Result<()> {
     };
     write_chart_png(path, (1000, 640), draw)
         .map_err(|e| anyhow::anyhow!("cannot draw {}: {e}", path.display()))
+}
+
+/// A line through `points`, dashed (every other segment drawn) when
+/// `dashed`.
+fn line(
+    points: impl Iterator<Item = (f64, f64)>,
+    style: ShapeStyle,
+    dashed: bool,
+) -> Vec<PathElement<(f64, f64)>> {
+    let points: Vec<(f64, f64)> = points.collect();
+    if !dashed {
+        return vec![PathElement::new(points, style)];
+    }
+    points
+        .windows(2)
+        .step_by(2)
+        .map(|w| PathElement::new(w.to_vec(), style))
+        .collect()
 }
 
 /// Draws a `size` RGB chart into memory with `draw` and writes it as PNG

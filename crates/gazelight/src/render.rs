@@ -9,7 +9,7 @@ use clap::Args;
 use gazelight_tracker::filter::{ChainStats, FilterChain};
 use gazelight_tracker::live::LiveChain;
 use gazelight_tracker::trace_source;
-use gazelight_tracker::{EyeState, GazeTrace, PupilOrigin, Sample, TraceSample};
+use gazelight_tracker::{EyeState, GazeTrace, Sample, TraceSample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput};
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
@@ -18,6 +18,7 @@ use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
 use crate::demo;
 use crate::output::{self, TimelineRow};
+use crate::stereo::{self, MONO, STEREO, StereoKernels, View};
 
 /// Arguments of `gazelight render`.
 #[derive(Args, Debug)]
@@ -65,6 +66,13 @@ pub struct RenderArgs {
     /// glare and acuity, before tone mapping — as frames/frame_NNNNN.exr.
     #[arg(long, conflicts_with = "no_frames")]
     pub exr: bool,
+    /// Render both eyes: one pipeline per eye on that eye's own gaze (where
+    /// the tracker gives one) and pupil, so pooling, adaptation, glare and
+    /// acuity run per eye. Frames are left | right side by side;
+    /// `timeline.csv` has per-eye columns (`pupil_mm_left`, …). The eyes
+    /// share one glare kernel while their pupils agree.
+    #[arg(long)]
+    pub stereo: bool,
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
@@ -153,7 +161,6 @@ pub(crate) struct SampleFeed<I> {
     pending: Option<Sample>,
     live: LiveChain,
     updates: u64,
-    held: bool,
 }
 
 impl<I: Iterator<Item = Sample>> SampleFeed<I> {
@@ -163,18 +170,12 @@ impl<I: Iterator<Item = Sample>> SampleFeed<I> {
             pending: None,
             live: LiveChain::new(chain),
             updates: 0,
-            held: false,
         }
     }
 
-    /// The frame input at `t_secs` (feeding the adaptation luminance of the
-    /// previous frame back to the pupil model first).
-    pub(crate) fn input(
-        &mut self,
-        t_secs: f64,
-        dt_secs: f32,
-        adaptation_cd_m2: Option<f64>,
-    ) -> FrameInput {
+    /// The filtered state at `t_secs` (feeding the adaptation luminance of
+    /// the previous frame back to the pupil model first).
+    pub(crate) fn state(&mut self, t_secs: f64, adaptation_cd_m2: Option<f64>) -> EyeState {
         if let Some(l) = adaptation_cd_m2 {
             self.live.set_adaptation_luminance(l);
         }
@@ -187,15 +188,7 @@ impl<I: Iterator<Item = Sample>> SampleFeed<I> {
             self.updates += 1;
         }
         let age_secs = (t_secs - self.live.chain().state().t_secs).max(0.0);
-        let state = self.live.state_at(t_secs, age_secs, self.updates);
-        let (input, held) = frame_input(&state, dt_secs);
-        self.held = held;
-        input
-    }
-
-    /// Whether either pupil is held or modelled rather than measured.
-    pub(crate) fn held(&self) -> bool {
-        self.held
+        self.live.state_at(t_secs, age_secs, self.updates)
     }
 
     /// The chain's counters.
@@ -247,26 +240,49 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             .with_context(|| format!("cannot create {}", frames_dir.display()))?;
     }
 
+    let views: &[View] = if args.stereo { &STEREO } else { &MONO };
+    let n_views = views.len();
     tracing::info!(
         scene = %scene.name,
         size = %format!("{width}x{height}"),
         ppd = format!("{:.2}", view.ppd()),
         frames,
+        eyes = n_views,
         "rendering"
     );
-    let mut pipeline = Renderer::new(
-        args.backend,
-        &config.pipeline,
-        width,
-        height,
-        view.deg_per_px(),
-    )?;
-    let mut out = DisplayFrame::new(width, height);
-    let mut retinal = RgbImage::new(if args.exr { width } else { 0 }, height);
+    let mut pipelines = views
+        .iter()
+        .map(|_| {
+            Renderer::new(
+                args.backend,
+                &config.pipeline,
+                width,
+                height,
+                view.deg_per_px(),
+            )
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut kernels = if n_views == 2 {
+        StereoKernels::new(&config.pipeline, view.deg_per_px(), &mut pipelines)?
+    } else {
+        None
+    };
+    // Each view's display frame; a stereo frame is composed side by side.
+    let mut eye_out: Vec<DisplayFrame> = views
+        .iter()
+        .map(|_| DisplayFrame::new(width, height))
+        .collect();
+    let mut composed = DisplayFrame::new(width * n_views, if n_views > 1 { height } else { 0 });
+    let exr_w = if args.exr { width } else { 0 };
+    let mut eye_retinal = RgbImage::new(exr_w, height);
+    let mut retinal = RgbImage::new(exr_w * n_views, height);
     let mut last_adaptation = None;
-    let mut timeline = Vec::with_capacity(frames.min(4096));
+    let mut timeline: Vec<Vec<TimelineRow>> = views
+        .iter()
+        .map(|_| Vec::with_capacity(frames.min(4096)))
+        .collect();
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
-    let mut sheet = output::ContactSheet::new(width, height);
+    let mut sheet = output::ContactSheet::new(width * n_views, height);
     let progress = indicatif::ProgressBar::new(frames as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template(
@@ -275,68 +291,112 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let dt_secs = 1.0 / args.fps;
+    let mut rendered = 0usize;
     for i in 0..frames {
         if stop.as_ref().is_some_and(|s| s.requested()) {
             break;
         }
         let t_secs = t0 + i as f64 * dt_secs;
-        let input = eye.input(
-            t_secs,
-            if i == 0 { 0.0 } else { dt_secs as f32 },
-            last_adaptation,
-        );
-        let stats = pipeline.process(view_img, &input, &mut out)?;
-        last_adaptation = Some(stats.adaptation_cd_m2);
+        let state = eye.state(t_secs, last_adaptation);
+        let dt = if i == 0 { 0.0 } else { dt_secs as f32 };
+        let inputs: Vec<(FrameInput, bool)> = views.iter().map(|v| v.input(&state, dt)).collect();
+        let new_kernel = match (&mut kernels, inputs.as_slice()) {
+            (Some(k), [(left, _), (right, _)]) => k.update([left, right], &mut pipelines)?,
+            _ => [false; 2],
+        };
+        // The pupil model of the chain adapts to the eyes' mean adaptation
+        // (geometric: luminances are compared on a log scale).
+        let mut log_adaptation = 0.0;
+        for (k, ((input, held), pipeline)) in inputs.iter().zip(&mut pipelines).enumerate() {
+            let mut stats = pipeline.process(view_img, input, &mut eye_out[k])?;
+            stats.psf_rebuilt |= new_kernel.get(k).copied().unwrap_or(false) && n_views > 1;
+            log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n_views as f64;
+            if n_views > 1 {
+                stereo::place_side_by_side(
+                    &eye_out[k].rgba8,
+                    &mut composed.rgba8,
+                    width * 4,
+                    k,
+                    n_views,
+                );
+            }
+            if args.exr {
+                pipeline.retinal(&mut eye_retinal)?;
+                stereo::place_side_by_side(
+                    &eye_retinal.pixels,
+                    &mut retinal.pixels,
+                    width,
+                    k,
+                    n_views,
+                );
+            }
+            timeline[k].push(TimelineRow {
+                t_secs: t_secs - t0,
+                gaze_u: input.gaze_uv[0],
+                gaze_v: input.gaze_uv[1],
+                pupil_mm: input.pupil_mm,
+                pupil_held: *held,
+                stats,
+            });
+        }
+        last_adaptation = Some(log_adaptation.exp());
+        let out = if n_views > 1 { &composed } else { &eye_out[0] };
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
-            output::write_png(&path, &out)?;
+            output::write_png(&path, out)?;
         }
         if args.exr {
-            pipeline.retinal(&mut retinal)?;
             let path = frames_dir.join(format!("frame_{i:05}.exr"));
             gazelight_vision::scene::write_exr(&path, &retinal)
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         if i % sheet_every == 0 {
-            sheet.add(&out, t_secs - t0);
+            sheet.add(out, t_secs - t0);
         }
-        timeline.push(TimelineRow {
-            t_secs: t_secs - t0,
-            gaze_u: input.gaze_uv[0],
-            gaze_v: input.gaze_uv[1],
-            pupil_mm: input.pupil_mm,
-            pupil_held: eye.held(),
-            stats,
-        });
+        rendered += 1;
         progress.inc(1);
     }
     progress.finish_and_clear();
     let requested = frames;
-    let frames = timeline.len();
+    let frames = rendered;
     let interrupted = stop.as_ref().and_then(|s| s.signal());
     if let Some(sig) = interrupted
         && frames == 0
     {
         bail!("{sig}: stopped before the first frame; nothing written");
     }
-    output::write_timeline(&args.out.join("timeline.csv"), &timeline)?;
-    sheet.write(&args.out.join("contact_sheet.png"))?;
-    output::write_plot(&args.out.join("plot.png"), &timeline)?;
-    let mean_ms = timeline
+    let eyes: Vec<(&str, &[TimelineRow])> = views
         .iter()
-        .map(|r| r.stats.timings.total_ms)
-        .sum::<f64>()
-        / timeline.len() as f64;
-    let rebuilds = timeline.iter().filter(|r| r.stats.psf_rebuilt).count();
+        .zip(&timeline)
+        .map(|(v, rows)| (v.suffix(), rows.as_slice()))
+        .collect();
+    output::write_timeline(&args.out.join("timeline.csv"), &eyes)?;
+    sheet.write(&args.out.join("contact_sheet.png"))?;
+    output::write_plot(&args.out.join("plot.png"), &eyes)?;
+    let all_rows = || timeline.iter().flatten();
+    let mean_ms = all_rows().map(|r| r.stats.timings.total_ms).sum::<f64>() / frames as f64;
+    let rebuilds = match &kernels {
+        Some(k) => k.builds as usize,
+        None => all_rows().filter(|r| r.stats.psf_rebuilt).count(),
+    };
     println!(
-        "rendered {frames} frames ({width}x{height}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline ({}), {rebuilds} PSF rebuilds",
+        "rendered {frames} {}frames ({width}x{height}{}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline ({}), {rebuilds} PSF rebuilds",
+        if n_views > 1 { "stereo " } else { "" },
+        if n_views > 1 { " per eye" } else { "" },
         view.ppd(),
         scene.name,
         started.elapsed().as_secs_f64(),
         mean_ms,
-        pipeline.describe()
+        pipelines
+            .first()
+            .map_or_else(String::new, Renderer::describe)
     );
-    println!("backend {}", pipeline.describe());
+    println!(
+        "backend {}",
+        pipelines
+            .first()
+            .map_or_else(String::new, Renderer::describe)
+    );
     println!(
         "wrote {}/{{{}contact_sheet.png, timeline.csv, plot.png}}",
         args.out.display(),
@@ -367,23 +427,6 @@ fn sweep_trace() -> GazeTrace {
             })
             .collect(),
     }
-}
-
-/// Maps a filtered `EyeState` onto the pipeline's per-frame input; also says
-/// whether either pupil is held or modelled rather than measured.
-pub(crate) fn frame_input(state: &EyeState, dt_secs: f32) -> (FrameInput, bool) {
-    let held = state
-        .eyes
-        .iter()
-        .any(|e| e.pupil_origin != PupilOrigin::Measured);
-    (
-        FrameInput {
-            gaze_uv: state.gaze_uv,
-            pupil_mm: state.pupil_mm(),
-            dt_secs,
-        },
-        held,
-    )
 }
 
 #[cfg(test)]

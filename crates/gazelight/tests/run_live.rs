@@ -14,11 +14,10 @@
 
 mod common;
 
-use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::Duration;
 
-use common::{Peer, free_port, python_ready, spawn_peer, tmp, wait_bounded};
+use common::{Csv, Peer, free_port, python_ready, spawn_peer, tmp, wait_bounded};
 
 use gazelight_vision::psf::REFERENCE_WAVELENGTH_NM;
 
@@ -66,50 +65,6 @@ fn spawn_run(args: &[&str]) -> Child {
         .stderr(Stdio::piped())
         .spawn()
         .expect("run gazelight")
-}
-
-/// A CSV as a header → column index map and rows of fields.
-struct Csv {
-    header: Vec<String>,
-    rows: Vec<Vec<String>>,
-}
-
-impl Csv {
-    fn read(path: &Path) -> Self {
-        let text =
-            std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        let mut lines = text.lines();
-        let header = lines
-            .next()
-            .expect("header")
-            .split(',')
-            .map(str::to_owned)
-            .collect();
-        let rows = lines
-            .map(|l| l.split(',').map(str::to_owned).collect())
-            .collect();
-        Self { header, rows }
-    }
-
-    fn col(&self, name: &str) -> usize {
-        self.header
-            .iter()
-            .position(|h| h == name)
-            .unwrap_or_else(|| panic!("no column {name} in {:?}", self.header))
-    }
-
-    fn f64s(&self, name: &str) -> Vec<f64> {
-        let c = self.col(name);
-        self.rows
-            .iter()
-            .map(|r| r[c].parse::<f64>().expect("number"))
-            .collect()
-    }
-
-    fn strs(&self, name: &str) -> Vec<String> {
-        let c = self.col(name);
-        self.rows.iter().map(|r| r[c].clone()).collect()
-    }
 }
 
 fn assert_success(out: &Output) -> String {

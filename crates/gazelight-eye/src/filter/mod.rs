@@ -42,8 +42,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::profile::{BadRawPupil, PupilCalibration};
 use crate::pupil_model::PupilModel;
-use crate::sample::{PupilSample, Sample};
-use crate::state::{EyeState, PupilOrigin};
+use crate::sample::{GazeEyes, GazeSample, PupilSample, Sample};
+use crate::state::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
 
 pub use binocular::{BinocularConfig, BinocularPairing};
 pub use blink::{BlinkConfig, BlinkDetector, Closure, ClosureKind};
@@ -150,8 +150,15 @@ pub struct FilterChain {
     /// Per eye: the dropout stage's latest value (the slew limiter's target)
     /// and its origin.
     target: [(f32, PupilOrigin); 2],
+    /// The fused (binocular) gaze.
     gaze: GazeFilter,
     last_gaze_t: Option<f64>,
+    /// Per eye: monocular gaze, with the time of its last accepted sample.
+    eye_gaze: [GazeFilter; 2],
+    last_eye_gaze_t: [Option<f64>; 2],
+    /// Time of the last binocular gaze sample (accepted or not): while
+    /// binocular samples arrive, monocular ones feed only their eye.
+    last_binocular_t: Option<f64>,
     pairing: BinocularPairing,
     luminance_cd_m2: f64,
     state: EyeState,
@@ -180,6 +187,9 @@ impl FilterChain {
             target: [(model_mm, PupilOrigin::Default); 2],
             gaze: GazeFilter::new(cfg.gaze),
             last_gaze_t: None,
+            eye_gaze: [GazeFilter::new(cfg.gaze); 2],
+            last_eye_gaze_t: [None; 2],
+            last_binocular_t: None,
             pairing: BinocularPairing::new(cfg.binocular),
             luminance_cd_m2: DEFAULT_ADAPTATION_LUMINANCE_CD_M2,
             state,
@@ -235,21 +245,51 @@ impl FilterChain {
             Sample::Gaze(g) => {
                 self.stats.gaze_samples += 1;
                 if g.t_secs.is_finite() {
-                    match self.gaze.update(g.t_secs, g.gaze_uv, g.confidence) {
-                        Some(uv) => {
-                            self.state.gaze_uv = uv;
-                            self.state.gaze_valid = true;
-                            self.last_gaze_t = Some(g.t_secs);
-                        }
-                        None => {
-                            self.stats.gaze_rejected += 1;
-                            if self
-                                .last_gaze_t
+                    let eye = match g.eyes {
+                        GazeEyes::Binocular => None,
+                        GazeEyes::Right => Some(EYE_RIGHT),
+                        GazeEyes::Left => Some(EYE_LEFT),
+                    };
+                    if eye.is_none() {
+                        self.last_binocular_t = Some(g.t_secs);
+                        // An eye whose monocular gaze stopped falls back to
+                        // the fused one.
+                        for (e, ch) in self.state.eyes.iter_mut().enumerate() {
+                            if self.last_eye_gaze_t[e]
                                 .is_none_or(|t0| g.t_secs - t0 > self.cfg.gaze.reset_after_s)
                             {
-                                self.state.gaze_valid = false;
+                                ch.gaze_valid = false;
                             }
                         }
+                    }
+                    // A monocular sample also drives the fused gaze when no
+                    // binocular gaze has come lately (a monocular tracker).
+                    let fused = eye.is_none()
+                        || self
+                            .last_binocular_t
+                            .is_none_or(|t0| g.t_secs - t0 > self.cfg.gaze.reset_after_s);
+                    let mut accepted = false;
+                    if let Some(e) = eye {
+                        let ch = &mut self.state.eyes[e];
+                        accepted |= step_gaze(
+                            &mut self.eye_gaze[e],
+                            &mut self.last_eye_gaze_t[e],
+                            (&mut ch.gaze_uv, &mut ch.gaze_valid),
+                            g,
+                            self.cfg.gaze.reset_after_s,
+                        );
+                    }
+                    if fused {
+                        accepted |= step_gaze(
+                            &mut self.gaze,
+                            &mut self.last_gaze_t,
+                            (&mut self.state.gaze_uv, &mut self.state.gaze_valid),
+                            g,
+                            self.cfg.gaze.reset_after_s,
+                        );
+                    }
+                    if !accepted {
+                        self.stats.gaze_rejected += 1;
                     }
                     self.state.t_secs = self.state.t_secs.max(g.t_secs);
                 } else {
@@ -401,6 +441,34 @@ impl FilterChain {
     }
 }
 
+/// Feeds one gaze sample to `filter`; on acceptance writes the smoothed
+/// gaze into `out` (position, validity) and notes its time in `last_t`. A
+/// rejection clears the validity once no sample was accepted for
+/// `reset_after_s`. Returns whether the sample was accepted.
+fn step_gaze(
+    filter: &mut GazeFilter,
+    last_t: &mut Option<f64>,
+    out: (&mut [f32; 2], &mut bool),
+    g: &GazeSample,
+    reset_after_s: f64,
+) -> bool {
+    let (uv_out, valid) = out;
+    match filter.update(g.t_secs, g.gaze_uv, g.confidence) {
+        Some(uv) => {
+            *uv_out = uv;
+            *valid = true;
+            *last_t = Some(g.t_secs);
+            true
+        }
+        None => {
+            if last_t.is_none_or(|t0| g.t_secs - t0 > reset_after_s) {
+                *valid = false;
+            }
+            false
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -442,6 +510,48 @@ mod tests {
             norm_pos: [0.5, 0.5],
             method: DetectorMethod::Other,
         })
+    }
+
+    fn gaze(t: f64, uv: [f32; 2], eyes: GazeEyes) -> Sample {
+        Sample::Gaze(GazeSample {
+            t_secs: t,
+            gaze_uv: uv,
+            confidence: 1.0,
+            eyes,
+        })
+    }
+
+    /// Monocular gaze lands in its own eye, binocular gaze in the fused
+    /// state; an eye whose monocular gaze stops falls back to the fused one;
+    /// a monocular-only tracker still drives the fused gaze.
+    #[test]
+    fn monocular_gaze_goes_to_its_eye() {
+        let mut chain = FilterChain::with_defaults();
+        for i in 0..50 {
+            let t = f64::from(i) * 0.005;
+            chain.push(&gaze(t, [0.5, 0.5], GazeEyes::Binocular));
+            chain.push(&gaze(t, [0.3, 0.5], GazeEyes::Left));
+            chain.push(&gaze(t, [0.7, 0.5], GazeEyes::Right));
+        }
+        let s = chain.state();
+        assert!((s.gaze_uv[0] - 0.5).abs() < 1e-4, "{s:?}");
+        assert!((s.eye_gaze_uv(EYE_LEFT)[0] - 0.3).abs() < 1e-4, "{s:?}");
+        assert!((s.eye_gaze_uv(EYE_RIGHT)[0] - 0.7).abs() < 1e-4, "{s:?}");
+        // The monocular streams stop; binocular goes on past the reset time.
+        for i in 50..200 {
+            chain.push(&gaze(f64::from(i) * 0.005, [0.5, 0.5], GazeEyes::Binocular));
+        }
+        let s = chain.state();
+        assert!(!s.eyes[EYE_LEFT].gaze_valid && !s.eyes[EYE_RIGHT].gaze_valid);
+        assert_eq!(s.eye_gaze_uv(EYE_LEFT), s.gaze_uv);
+        // Monocular only: the fused gaze follows it.
+        let mut chain = FilterChain::with_defaults();
+        for i in 0..50 {
+            chain.push(&gaze(f64::from(i) * 0.005, [0.2, 0.4], GazeEyes::Right));
+        }
+        let s = chain.state();
+        assert!(s.gaze_valid && (s.gaze_uv[0] - 0.2).abs() < 1e-4, "{s:?}");
+        assert!(!s.eyes[EYE_LEFT].gaze_valid);
     }
 
     #[test]

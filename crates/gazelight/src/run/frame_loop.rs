@@ -34,16 +34,19 @@ use std::time::{Duration, Instant};
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, PUPIL_MM_RANGE, PipelineConfig};
+use gazelight_vision::pipeline::{
+    DisplayFrame, FrameInput, FrameStats, PUPIL_MM_RANGE, PipelineConfig,
+};
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::scene::{PanoramaView, ViewParams};
 
 use super::head::Head;
 use super::psf_worker::PsfWorker;
 use super::source_task::{AdaptationCell, AgeClock};
-use super::writer::{OutputWriter, PsfEvent, Row, WriterReport};
+use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub, SourceHealth};
+use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
 
 /// Shortest interval between display-frame copies to the hub.
@@ -72,6 +75,8 @@ pub struct FrameLoopSetup {
     /// The cursor as gaze (`--mouse-gaze`) or as head orientation
     /// (`--head mouse`), from the window.
     pub mouse: Option<MouseControl>,
+    /// Render both eyes (left | right), each on its own gaze and pupil.
+    pub stereo: bool,
 }
 
 /// What the mouse drives in a windowed run.
@@ -93,7 +98,10 @@ pub struct RunSummary {
     /// Display deadlines that passed with no frame (skipped).
     pub frames_dropped: u64,
     pub wall_secs: f64,
+    /// Kernels installed after the initial one (per view).
     pub psf_rebuilds: u64,
+    /// Kernels the PSF worker built (a kernel two views share counts once).
+    pub kernels_built: u64,
     pub eye_state_age_median_ms: f64,
     pub eye_state_age_p99_ms: f64,
     pub eye_state_age_max_ms: f64,
@@ -112,22 +120,24 @@ pub struct FrameLoop {
     hub: Arc<Hub>,
     age_clock: AgeClock,
     adaptation_cell: Arc<AdaptationCell>,
-    pipeline: Renderer,
+    /// One pipeline per view: one (both eyes), or left and right.
+    eyes: Vec<EyePipe>,
     pano: RgbImage,
     view: ViewParams,
     view_img: RgbImage,
     head: Head,
-    out: DisplayFrame,
+    /// The stereo frame, left | right (empty for one view, whose own
+    /// frame is the output).
+    composed: DisplayFrame,
     frames: u64,
     late: u64,
     dropped: u64,
     psf_rebuilds: u64,
     last_display_secs: f64,
     psf_scratch: Vec<f32>,
-    /// Builds kernels off the frame thread (`None` with glare off).
+    /// Builds every view's kernels off the frame thread (`None` with glare
+    /// off).
     psf_worker: Option<PsfWorker>,
-    /// The pupil of the last kernel requested (or installed), mm.
-    psf_target_mm: f64,
     psf_threshold_mm: f64,
     ages_ms: Vec<f32>,
     age_next: usize,
@@ -140,8 +150,72 @@ pub struct FrameLoop {
     base_yaw_pitch_deg: (f64, f64),
 }
 
+/// One view's pipeline and frame.
+struct EyePipe {
+    view: View,
+    pipeline: Renderer,
+    out: DisplayFrame,
+    /// The pupil of the last kernel requested for this view (or
+    /// installed), mm; NaN with glare off.
+    psf_target_mm: f64,
+}
+
+impl EyePipe {
+    /// Builds the view's pipeline.
+    fn new(
+        view: View,
+        backend: BackendChoice,
+        config: &PipelineConfig,
+        params: &ViewParams,
+    ) -> anyhow::Result<Self> {
+        let pipeline = Renderer::new(
+            backend,
+            config,
+            params.width,
+            params.height,
+            params.deg_per_px(),
+        )?;
+        Ok(Self {
+            view,
+            pipeline,
+            out: DisplayFrame::new(params.width, params.height),
+            psf_target_mm: f64::NAN,
+        })
+    }
+}
+
+/// Starts the one PSF worker that builds every view's kernels off the
+/// frame thread (`None` with glare off) and turns the pipelines' own
+/// rebuilding off.
+fn start_psf_worker(
+    eyes: &mut [EyePipe],
+    config: &PipelineConfig,
+    view: &ViewParams,
+) -> anyhow::Result<Option<PsfWorker>> {
+    let Some(first) = eyes.first_mut() else {
+        return Ok(None);
+    };
+    // The CPU convolver's spectra are made on the worker too (the views'
+    // convolvers have one geometry: the first one's preparer serves all).
+    let preparer = first.pipeline.kernel_preparer();
+    let Some(initial) = first.pipeline.psf_kernel()?.cloned() else {
+        return Ok(None);
+    };
+    let mut psf = config.glare.psf.clone();
+    // As the pipelines' own builders: same size and pixel size.
+    psf.ppd = 1.0 / view.deg_per_px();
+    psf.pupil_mm = initial.pupil_mm;
+    let worker = PsfWorker::start(psf, &initial, preparer, eyes.len())
+        .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
+    for eye in eyes.iter_mut() {
+        eye.psf_target_mm = initial.pupil_mm;
+        eye.pipeline.set_psf_auto_rebuild(false);
+    }
+    Ok(Some(worker))
+}
+
 impl FrameLoop {
-    /// Builds the pipeline and every buffer, renders the initial view and
+    /// Builds the pipelines and every buffer, renders the initial view and
     /// publishes the initial kernel.
     pub fn new(setup: FrameLoopSetup) -> anyhow::Result<Self> {
         let FrameLoopSetup {
@@ -157,11 +231,17 @@ impl FrameLoop {
             writer,
             display,
             mouse,
+            stereo,
         } = setup;
         let config = pipeline;
-        let mut pipeline =
-            Renderer::new(backend, &config, view.width, view.height, view.deg_per_px())?;
-        tracing::info!(backend = %pipeline.describe(), reason = pipeline.reason(), "frame pipeline");
+        let views: &[View] = if stereo { &STEREO } else { &MONO };
+        let mut eyes = views
+            .iter()
+            .map(|v| EyePipe::new(*v, backend, &config, &view))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        if let Some(first) = eyes.first() {
+            tracing::info!(backend = %first.pipeline.describe(), reason = first.pipeline.reason(), views = eyes.len(), "frame pipeline");
+        }
         let mut view = view;
         if let Some((yaw, pitch)) = head.orientation(0.0) {
             view.yaw_deg = yaw;
@@ -169,35 +249,25 @@ impl FrameLoop {
         }
         let mut view_img = RgbImage::new(view.width, view.height);
         PanoramaView::new(view)?.render(&pano, &mut view_img);
-        let kernel_len = pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size);
-        // The PSF is rebuilt on a worker thread from here on.
-        let mut psf_target_mm = f64::NAN;
-        // The CPU convolver's spectra are made on the worker too.
-        let preparer = pipeline.kernel_preparer();
-        let psf_worker = match pipeline.psf_kernel()? {
-            Some(initial) => {
-                let mut params = config.glare.psf.clone();
-                // As the pipeline's own builder: same size and pixel size.
-                params.ppd = 1.0 / view.deg_per_px();
-                params.pupil_mm = initial.pupil_mm;
-                psf_target_mm = initial.pupil_mm;
-                let worker = PsfWorker::start(params, initial, preparer)
-                    .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
-                pipeline.set_psf_auto_rebuild(false);
-                Some(worker)
-            }
-            None => None,
+        let kernel_len = match eyes.first_mut() {
+            Some(e) => e.pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size),
+            None => 0,
         };
+        let psf_worker = start_psf_worker(&mut eyes, &config, &view)?;
+        let n = eyes.len();
         let mut this = Self {
             hub,
             age_clock,
             adaptation_cell: adaptation,
-            pipeline,
+            eyes,
             pano,
             view,
             view_img,
             head,
-            out: DisplayFrame::new(view.width, view.height),
+            composed: DisplayFrame::new(
+                if n > 1 { view.width * n } else { 0 },
+                if n > 1 { view.height } else { 0 },
+            ),
             frames: 0,
             late: 0,
             dropped: 0,
@@ -205,7 +275,6 @@ impl FrameLoop {
             last_display_secs: f64::NEG_INFINITY,
             psf_scratch: Vec::with_capacity(kernel_len),
             psf_worker,
-            psf_target_mm,
             psf_threshold_mm: config.glare.psf_rebuild_threshold_mm,
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
@@ -220,69 +289,115 @@ impl FrameLoop {
         Ok(this)
     }
 
+    /// Publishes each view's current kernel (at start, and after a
+    /// pipeline rebuilt one itself).
     fn publish_kernel(&mut self, t_secs: f64) {
         let generation = self.psf_rebuilds + 1;
-        let kernel = match self.pipeline.psf_kernel() {
-            Ok(k) => k,
-            Err(e) => {
-                tracing::warn!(error = %format!("{e:#}"), "cannot read the glare kernel back");
-                None
+        for (k, eye) in self.eyes.iter_mut().enumerate() {
+            let kernel = match eye.pipeline.psf_kernel() {
+                Ok(kernel) => kernel,
+                Err(e) => {
+                    tracing::warn!(error = %format!("{e:#}"), "cannot read the glare kernel back");
+                    None
+                }
+            };
+            if let Some(kernel) = kernel {
+                // The pipeline built this one: psf.csv computes its ring
+                // from its parameters.
+                publish_psf(
+                    &self.hub,
+                    &mut self.writer,
+                    &mut self.psf_scratch,
+                    PsfPublish {
+                        kernel,
+                        first_ring_rad: None,
+                        generation,
+                        t_secs,
+                        view: eye.view,
+                        to_hub: k == 0,
+                    },
+                );
             }
-        };
-        if let Some(k) = kernel {
-            // The pipeline built this one: psf.csv computes its ring from
-            // its parameters.
-            publish_psf(
-                &self.hub,
-                &mut self.writer,
-                &mut self.psf_scratch,
-                k,
-                None,
-                generation,
-                t_secs,
-            );
         }
     }
 
-    /// Requests a kernel for this frame's pupil when it moved more than the
-    /// threshold since the last request, and installs a finished one if it
-    /// is ready. Returns whether a kernel was installed. Never blocks.
-    fn follow_psf(&mut self, pupil_mm: f32, t_secs: f64) -> anyhow::Result<bool> {
+    /// Requests kernels for this frame's pupils (one per view) where they
+    /// moved more than the threshold since the last request — in stereo one
+    /// kernel at the mean while the two pupils agree ([`stereo::plan`]) —
+    /// and installs finished ones that are ready. Returns per view whether
+    /// a kernel was installed. Never blocks.
+    fn follow_psf(&mut self, pupils_mm: [f32; 2], t_secs: f64) -> anyhow::Result<[bool; 2]> {
+        // As the pipeline clamps the pupil it would rebuild for.
+        let clamp = |p: f32| f64::from(p.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1));
+        let thr = self.psf_threshold_mm;
         let Some(worker) = &self.psf_worker else {
-            return Ok(false);
+            return Ok([false; 2]);
         };
-        if pupil_mm.is_finite() {
-            // As the pipeline clamps the pupil it would rebuild for.
-            let p = f64::from(pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1));
-            if self.psf_target_mm.is_nan() || (p - self.psf_target_mm).abs() > self.psf_threshold_mm
-            {
-                worker.request(p);
-                self.psf_target_mm = p;
+        let mut requests = [None; 2];
+        match self.eyes.as_mut_slice() {
+            [one] => {
+                if pupils_mm[0].is_finite() {
+                    let p = clamp(pupils_mm[0]);
+                    if one.psf_target_mm.is_nan() || (p - one.psf_target_mm).abs() > thr {
+                        requests[0] = Some(p);
+                        one.psf_target_mm = p;
+                    }
+                }
             }
+            [a, b] if pupils_mm.iter().all(|p| p.is_finite()) => {
+                let pupils = [clamp(pupils_mm[0]), clamp(pupils_mm[1])];
+                requests = match stereo::plan(pupils, [a.psf_target_mm, b.psf_target_mm], thr) {
+                    stereo::KernelPlan::Keep => [None, None],
+                    stereo::KernelPlan::Shared(p) => [Some(p), Some(p)],
+                    stereo::KernelPlan::Own(own) => own,
+                };
+                for (eye, r) in [a, b].into_iter().zip(requests) {
+                    if let Some(p) = r {
+                        eye.psf_target_mm = p;
+                    }
+                }
+            }
+            _ => {}
         }
-        // Generation 1 is the initial kernel; this is rebuild `psf_rebuilds + 1`.
-        let generation = self.psf_rebuilds + 2;
-        let (pipeline, hub, writer, scratch) = (
-            &mut self.pipeline,
-            &self.hub,
-            &mut self.writer,
-            &mut self.psf_scratch,
-        );
-        let installed = worker.take(|prepared, ring_rad| -> anyhow::Result<()> {
-            // Kernel and spectra were made on the worker: this swaps them in.
-            let k = &prepared.kernel;
-            publish_psf(hub, writer, scratch, k, Some(ring_rad), generation, t_secs);
-            pipeline.install_prepared(prepared)?;
-            Ok(())
-        });
-        match installed {
-            Some(r) => {
+        worker.request_views(requests);
+        let mut installed = [false; 2];
+        for (k, eye) in self.eyes.iter_mut().enumerate() {
+            // Generation 1 is the initial kernel; this is rebuild
+            // `psf_rebuilds + 1`.
+            let generation = self.psf_rebuilds + 2;
+            let (pipeline, hub, writer, scratch, view) = (
+                &mut eye.pipeline,
+                &self.hub,
+                &mut self.writer,
+                &mut self.psf_scratch,
+                eye.view,
+            );
+            let done = worker.take(k, |prepared, ring_rad| -> anyhow::Result<()> {
+                // Kernel and spectra were made on the worker: this swaps
+                // them in.
+                publish_psf(
+                    hub,
+                    writer,
+                    scratch,
+                    PsfPublish {
+                        kernel: &prepared.kernel,
+                        first_ring_rad: Some(ring_rad),
+                        generation,
+                        t_secs,
+                        view,
+                        to_hub: k == 0,
+                    },
+                );
+                pipeline.install_prepared(prepared)?;
+                Ok(())
+            });
+            if let Some(r) = done {
                 r?;
                 self.psf_rebuilds += 1;
-                Ok(true)
+                installed[k] = true;
             }
-            None => Ok(false),
         }
+        Ok(installed)
     }
 
     /// Renders one frame at host time `now_host_secs`, session time
@@ -307,12 +422,21 @@ impl FrameLoop {
         {
             state.gaze_uv = uv;
             state.gaze_valid = true;
+            for e in &mut state.eyes {
+                e.gaze_valid = false;
+            }
         }
-        let input = FrameInput {
-            gaze_uv: state.gaze_uv,
-            pupil_mm: state.pupil_mm(),
-            dt_secs: dt_secs.clamp(0.0, MAX_DT_SECS),
+        let dt_secs = dt_secs.clamp(0.0, MAX_DT_SECS);
+        // Per view: its input (one view, or left and right).
+        let unused = FrameInput {
+            gaze_uv: [0.5, 0.5],
+            pupil_mm: f32::NAN,
+            dt_secs,
         };
+        let mut inputs = [(unused, false); 2];
+        for (slot, eye) in inputs.iter_mut().zip(&self.eyes) {
+            *slot = eye.view.input(&state, dt_secs);
+        }
 
         let mouse_head = match (&self.mouse, cursor) {
             (Some(m), Some(uv)) if m.head => {
@@ -335,17 +459,30 @@ impl FrameLoop {
             PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
         }
 
-        let installed = self.follow_psf(input.pupil_mm, t_secs)?;
-        let mut stats = self
-            .pipeline
-            .render(&self.view_img, &input, &mut self.out)?;
-        self.adaptation_cell.set(stats.adaptation_cd_m2);
-        if stats.psf_rebuilt {
+        let installed = self.follow_psf([inputs[0].0.pupil_mm, inputs[1].0.pupil_mm], t_secs)?;
+        let mut all_stats = [FrameStats::default(); 2];
+        let mut self_rebuilt = false;
+        let mut log_adaptation = 0.0;
+        let n = self.eyes.len();
+        for (k, eye) in self.eyes.iter_mut().enumerate() {
+            let mut stats = eye
+                .pipeline
+                .render(&self.view_img, &inputs[k].0, &mut eye.out)?;
             // Only without a worker (the pipeline rebuilt synchronously).
+            self_rebuilt |= stats.psf_rebuilt;
+            stats.psf_rebuilt |= installed[k];
+            log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n as f64;
+            all_stats[k] = stats;
+        }
+        // The pupil model of the live eye task adapts to the eyes' mean
+        // adaptation (geometric: luminances compare on a log scale).
+        self.adaptation_cell.set(log_adaptation.exp());
+        if self_rebuilt {
             self.psf_rebuilds += 1;
             self.publish_kernel(t_secs);
         }
-        stats.psf_rebuilt |= installed;
+        let (input, _) = inputs[0];
+        let stats = all_stats[0];
         self.frames += 1;
         let age_ms = age_secs * 1e3;
         if self.ages_ms.len() < self.ages_ms.capacity() {
@@ -354,6 +491,35 @@ impl FrameLoop {
             self.ages_ms[self.age_next] = age_ms as f32;
             self.age_next = (self.age_next + 1) % self.ages_ms.len();
         }
+        // The host consumers of the frame: the status page (at most every
+        // DISPLAY_PUBLISH_SECS), the file writer (every frame) and, in
+        // stereo, the window (one side-by-side frame).
+        let publish =
+            self.hub.display_wanted() && t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS;
+        let write = self.writer.as_ref().is_some_and(OutputWriter::wants_frames);
+        if n == 1 {
+            if let Some(slot) = &self.display {
+                self.eyes[0].pipeline.show(slot, &self.eyes[0].out);
+            }
+            if publish || write {
+                let eye = &mut self.eyes[0];
+                eye.pipeline.read_frame(&mut eye.out)?;
+            }
+        } else if publish || write || self.display.is_some() {
+            let row_len = self.view.width * 4;
+            for (k, eye) in self.eyes.iter_mut().enumerate() {
+                eye.pipeline.read_frame(&mut eye.out)?;
+                stereo::place_side_by_side(&eye.out.rgba8, &mut self.composed.rgba8, row_len, k, n);
+            }
+            if let Some(slot) = &self.display {
+                slot.put(&self.composed.rgba8);
+            }
+        }
+        let out = if n == 1 {
+            &self.eyes[0].out
+        } else {
+            &self.composed
+        };
         let frame_ms = started.elapsed().as_secs_f64() * 1e3;
         self.frame_ms_sum += frame_ms;
         let mut status = FrameStatus {
@@ -374,51 +540,48 @@ impl FrameLoop {
             psf_rebuilds: self.psf_rebuilds,
             ..FrameStatus::default()
         };
-        if let Some(slot) = &self.display {
-            self.pipeline.show(slot, &self.out);
-        }
-        // The host consumers of the frame: the status page (at most every
-        // DISPLAY_PUBLISH_SECS) and the file writer (every frame).
-        let publish =
-            self.hub.display_wanted() && t_secs - self.last_display_secs >= DISPLAY_PUBLISH_SECS;
-        let write = self.writer.as_ref().is_some_and(OutputWriter::wants_frames);
-        if publish || write {
-            self.pipeline.read_frame(&mut self.out)?;
-        }
-        status.frames_read_back = self.pipeline.frames_read_back();
+        status.frames_read_back = self
+            .eyes
+            .iter()
+            .map(|e| e.pipeline.frames_read_back())
+            .sum();
         status.frames_presented = self.display.as_ref().map_or(0, |s| s.presented());
         self.hub.publish_frame(status);
         if publish {
             self.last_display_secs = t_secs;
-            self.hub.publish_display(
-                self.frames,
-                self.out.width,
-                self.out.height,
-                &self.out.rgba8,
-            );
+            self.hub
+                .publish_display(self.frames, out.width, out.height, &out.rgba8);
         }
         if let Some(w) = &mut self.writer {
             // Read the health without cloning the status (no allocation).
             let mut health = SourceHealth::Connecting;
             self.hub.update_source(|s| health = s.health);
+            let mut views = [ViewRow::default(); 2];
+            for (k, v) in views.iter_mut().enumerate().take(n) {
+                let (input, _) = inputs[k];
+                let s = &all_stats[k];
+                *v = ViewRow {
+                    gaze_u: input.gaze_uv[0],
+                    gaze_v: input.gaze_uv[1],
+                    frame_pupil_mm: input.pupil_mm,
+                    target_cd_m2: s.target_cd_m2,
+                    adaptation_cd_m2: s.adaptation_cd_m2,
+                    psf_pupil_mm: s.psf_pupil_mm,
+                    psf_rebuilt: s.psf_rebuilt,
+                };
+            }
             w.row(Row {
                 frame: self.frames,
                 t_secs,
-                gaze_u: input.gaze_uv[0],
-                gaze_v: input.gaze_uv[1],
                 pupil_mm: status.pupil_mm,
-                frame_pupil_mm: input.pupil_mm,
                 pupil_held: held,
                 eye_state_age_ms: age_ms,
                 health,
-                target_cd_m2: stats.target_cd_m2,
-                adaptation_cd_m2: stats.adaptation_cd_m2,
-                psf_pupil_mm: stats.psf_pupil_mm,
-                psf_rebuilt: stats.psf_rebuilt,
+                views,
                 frame_ms,
             });
             if write {
-                w.frame(self.frames, &self.out);
+                w.frame(self.frames, out);
             }
         }
         Ok(status)
@@ -490,6 +653,7 @@ impl FrameLoop {
             frames_dropped: self.dropped,
             wall_secs,
             psf_rebuilds: self.psf_rebuilds,
+            kernels_built: self.psf_worker.as_ref().map_or(0, PsfWorker::builds),
             eye_state_age_median_ms: pct(0.5),
             eye_state_age_p99_ms: pct(0.99),
             eye_state_age_max_ms: pct(1.0),
@@ -501,9 +665,27 @@ impl FrameLoop {
             writer: None,
             frames_not_written: 0,
             rows_dropped: 0,
-            frames_read_back: self.pipeline.frames_read_back(),
+            frames_read_back: self
+                .eyes
+                .iter()
+                .map(|e| e.pipeline.frames_read_back())
+                .sum(),
         }
     }
+}
+
+/// A kernel to publish.
+struct PsfPublish<'a> {
+    kernel: &'a PsfKernel,
+    /// The first dark ring measured where it was built (`None`: psf.csv
+    /// computes it from the parameters).
+    first_ring_rad: Option<f64>,
+    generation: u64,
+    t_secs: f64,
+    /// The view it is for.
+    view: View,
+    /// Whether the status page shows it (one view's kernels: the first).
+    to_hub: bool,
 }
 
 /// Publishes a kernel to the hub (its luminance) and to psf.csv.
@@ -511,25 +693,26 @@ fn publish_psf(
     hub: &Hub,
     writer: &mut Option<OutputWriter>,
     scratch: &mut Vec<f32>,
-    k: &PsfKernel,
-    first_ring_rad: Option<f64>,
-    generation: u64,
-    t_secs: f64,
+    p: PsfPublish<'_>,
 ) {
-    scratch.clear();
-    // Rec. 709 luminance of the linear-sRGB kernel.
-    scratch.extend(
-        k.rgb
-            .iter()
-            .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]),
-    );
-    hub.publish_psf(generation, k.pupil_mm, k.size, scratch);
+    let k = p.kernel;
+    if p.to_hub {
+        scratch.clear();
+        // Rec. 709 luminance of the linear-sRGB kernel.
+        scratch.extend(
+            k.rgb
+                .iter()
+                .map(|p| 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]),
+        );
+        hub.publish_psf(p.generation, k.pupil_mm, k.size, scratch);
+    }
     if let Some(w) = writer {
         w.psf(PsfEvent {
-            generation,
-            t_secs,
+            generation: p.generation,
+            t_secs: p.t_secs,
             pupil_mm: k.pupil_mm,
-            first_ring_rad,
+            first_ring_rad: p.first_ring_rad,
+            view: p.view,
         });
     }
 }
@@ -603,7 +786,9 @@ mod tests {
     fn small_loop(
         tx_state: LiveEyeState,
         out: Option<&std::path::Path>,
+        stereo: bool,
     ) -> (FrameLoop, watch::Sender<LiveEyeState>) {
+        let views = if stereo { 2 } else { 1 };
         let (tx, rx) = watch::channel(tx_state);
         let hub = Hub::new("test://", rx);
         let scene = Scene::from_bytes(
@@ -619,7 +804,8 @@ mod tests {
         let writer = out.map(|dir| {
             let mut psf = config.glare.psf.clone();
             psf.ppd = view.ppd();
-            OutputWriter::start(dir, view.width, view.height, psf, true).expect("writer")
+            OutputWriter::start(dir, view.width * views, view.height, psf, true, stereo)
+                .expect("writer")
         });
         let fl = FrameLoop::new(FrameLoopSetup {
             hub,
@@ -633,17 +819,29 @@ mod tests {
             fps: 90.0,
             writer,
             // The window's slot takes every frame: part of the steady state.
-            display: Some(DisplaySlot::new(view.width as u32, view.height as u32)),
+            display: Some(DisplaySlot::new(
+                (view.width * views) as u32,
+                view.height as u32,
+            )),
             mouse: None,
+            stereo,
         })
         .expect("frame loop");
         (fl, tx)
     }
 
+    /// One view, then a stereo pair. One test: the count is global, and a
+    /// second test counting in parallel would add its own allocations.
     #[test]
     fn steady_state_steps_do_not_allocate() {
-        let dir = std::env::temp_dir().join(format!("gazelight-alloc-{}", std::process::id()));
-        let (mut fl, tx) = small_loop(live_state(0.0, 5.0, 0.3, 1), Some(&dir));
+        steady_state_does_not_allocate(false);
+        steady_state_does_not_allocate(true);
+    }
+
+    fn steady_state_does_not_allocate(stereo: bool) {
+        let dir =
+            std::env::temp_dir().join(format!("gazelight-alloc-{}-{stereo}", std::process::id()));
+        let (mut fl, tx) = small_loop(live_state(0.0, 5.0, 0.3, 1), Some(&dir), stereo);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
             .start_handler(|_| COUNT_HERE.with(|c| c.set(true)))
@@ -664,18 +862,20 @@ mod tests {
             let mut i = 10u64;
             // Done when the pupil has slewed to 5 mm and the kernel for the
             // last request (within the threshold of 5 mm) is installed.
-            let kernel_mm = |fl: &mut FrameLoop| {
-                fl.pipeline
-                    .psf_kernel()
-                    .ok()
-                    .flatten()
-                    .map_or(f64::NAN, |k| k.pupil_mm)
+            // Every view's kernel is the one last requested for it.
+            let kernels_current = |fl: &mut FrameLoop| {
+                fl.eyes.iter_mut().all(|e| {
+                    let mm = e
+                        .pipeline
+                        .psf_kernel()
+                        .ok()
+                        .flatten()
+                        .map_or(f64::NAN, |k| k.pupil_mm);
+                    mm == e.psf_target_mm
+                })
             };
             let mut last_pupil = 0.0f32;
-            while fl.psf_rebuilds == 0
-                || last_pupil != 5.0
-                || kernel_mm(&mut fl) != fl.psf_target_mm
-            {
+            while fl.psf_rebuilds == 0 || last_pupil != 5.0 || !kernels_current(&mut fl) {
                 assert!(
                     waited.elapsed() < Duration::from_secs(120),
                     "the 5 mm kernel never arrived"
@@ -686,8 +886,10 @@ mod tests {
                 t += dt;
                 i += 1;
             }
-            let base_mm = kernel_mm(&mut fl);
+            let base_mm = fl.eyes[0].psf_target_mm;
             assert!((base_mm - 5.0).abs() <= 0.1, "kernel at {base_mm} mm");
+            // Both eyes' pupils agree: one kernel, the same pupil.
+            assert!(fl.eyes.iter().all(|e| e.psf_target_mm == base_mm));
             let warm_frames = fl.frames;
             let rebuilds = fl.psf_rebuilds;
             COUNT_HERE.with(|c| c.set(true));

@@ -122,6 +122,13 @@ pub struct RunArgs {
     /// configuration; discovery stays on this machine by default).
     #[arg(long)]
     pub lsl: bool,
+    /// Render both eyes every frame, each on its own gaze (where the
+    /// tracker gives one per eye) and pupil: pooling, adaptation, glare
+    /// kernel and acuity per eye. The window, `--out` frames and the status
+    /// page show left | right side by side; `timeline.csv` has per-eye
+    /// columns, `psf.csv` a `view` column.
+    #[arg(long)]
+    pub stereo: bool,
 }
 
 /// The settings of a run after merging the file and the flags.
@@ -239,9 +246,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         // Driven by the window's cursor (refused headless in `resolve`).
         HeadSpec::Mouse => Head::Fixed,
     };
+    // The frame shown and written: one view, or left | right.
+    let views = if args.stereo { 2 } else { 1 };
     let window = (!r.headless).then(|| {
         (
-            DisplaySlot::new(view.width as u32, view.height as u32),
+            DisplaySlot::new((view.width * views) as u32, view.height as u32),
             Arc::new(MouseGaze::default()),
         )
     });
@@ -285,10 +294,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             psf.ppd = view.ppd();
             Some(OutputWriter::start(
                 dir,
-                view.width,
+                view.width * views,
                 view.height,
                 psf,
                 !args.no_frames,
+                args.stereo,
             )?)
         }
         None => None,
@@ -423,6 +433,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             writer,
             display,
             mouse,
+            stereo: args.stereo,
         };
         let (done_tx, done_rx) = tokio::sync::oneshot::channel();
         let thread_hub = hub.clone();
@@ -476,7 +487,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             });
             let options = WindowOptions {
                 title: format!("gazelight — {}", r.uri),
-                width: view.width as u32,
+                width: (view.width * views) as u32,
                 height: view.height as u32,
                 fullscreen: args.fullscreen,
             };
@@ -546,7 +557,7 @@ fn print_summary(
     out: Option<&std::path::Path>,
 ) {
     println!(
-        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines, {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds; source {} ({:?}, {} samples, {} reconnects)",
+        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines, {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds ({} kernels built); source {} ({:?}, {} samples, {} reconnects)",
         s.frames,
         s.wall_secs,
         s.frames as f64 / s.wall_secs.max(1e-9),
@@ -557,6 +568,7 @@ fn print_summary(
         s.eye_state_age_p99_ms,
         s.eye_state_age_max_ms,
         s.psf_rebuilds,
+        s.kernels_built,
         source.uri,
         source.health,
         source.samples_total,

@@ -1,9 +1,10 @@
 //! The glare PSF rebuilt off the frame thread (issue 10 §2: a rebuild must
 //! not stall a frame).
 //!
-//! A worker thread owns a [`PsfBuilder`] with the frame pipeline's PSF
-//! parameters and, on the CPU backend, a [`GlarePreparer`] for the
-//! pipeline's convolver. Two bounded slots connect it to the frame loop:
+//! A worker thread owns a [`PsfBuilder`] with the frame pipelines' PSF
+//! parameters and, on the CPU backend, a [`GlarePreparer`] for their
+//! convolvers. It serves one view, or the two of a stereo frame; per view
+//! two bounded slots connect it to the frame loop:
 //!
 //! * the request slot holds at most one pupil diameter (an `f64` in an
 //!   atomic): a newer request overwrites an unserved one (the newest pupil
@@ -18,6 +19,10 @@
 //!   With it comes the first dark ring the worker measured on its
 //!   builder's 575 nm field for that build ([`PsfBuilder::first_ring_rad`];
 //!   `psf.csv`).
+//!
+//! Two views asking for the same pupil at once (the shared kernel of two
+//! agreeing pupils, `crate::stereo::plan`) are served by one build: the
+//! second view's slot gets a copy of the kernel and its spectra.
 //!
 //! Frames keep the previous kernel until the new one is ready. Neither side
 //! allocates per request once both buffers have held a kernel (the builder
@@ -38,16 +43,27 @@ const NO_REQUEST: u64 = u64::MAX;
 /// How often an idle worker looks at the stop flag.
 const IDLE_POLL: Duration = Duration::from_millis(100);
 
-struct Shared {
+/// The largest number of views one worker serves (a stereo frame's two).
+pub const MAX_VIEWS: usize = 2;
+
+/// One view's two slots.
+struct ViewSlots {
     request_bits: AtomicU64,
     /// The finished kernel (with its spectra) and its measured first ring,
     /// radians (NaN: no minimum found).
     ready: Mutex<(PreparedKernel, f64)>,
     ready_flag: AtomicBool,
-    stop: AtomicBool,
 }
 
-/// The worker and its two slots; dropping it stops and joins the thread.
+struct Shared {
+    views: Vec<ViewSlots>,
+    stop: AtomicBool,
+    /// Kernels built so far (a shared kernel counts once).
+    builds: AtomicU64,
+}
+
+/// The worker and its slots (two per view); dropping it stops and joins
+/// the thread.
 pub struct PsfWorker {
     shared: Arc<Shared>,
     thread: Thread,
@@ -55,33 +71,46 @@ pub struct PsfWorker {
 }
 
 impl PsfWorker {
-    /// Starts the worker. `params` are the pipeline's PSF parameters (with
-    /// its `ppd`); `initial` is the kernel the pipeline holds now, which
+    /// Starts the worker for `views` views (1, or 2 for a stereo frame;
+    /// more are refused). `params` are the pipelines' PSF parameters (with
+    /// their `ppd`); `initial` is the kernel the pipelines hold now, which
     /// sizes the kernel buffers; `preparer` (the CPU pipeline's
     /// [`gazelight_vision::pipeline::FramePipeline::kernel_preparer`]; `None`
     /// on the GPU, which makes its spectra itself) also makes each kernel's
-    /// convolver spectra on the worker. The builder is made on the worker
-    /// thread (it costs as much as a rebuild); if that fails the worker logs
-    /// it and ends, and frames keep the initial kernel.
+    /// convolver spectra on the worker. Two views with the same geometry
+    /// share it: when both ask for the same pupil (one shared kernel) the
+    /// kernel and its spectra are made once and copied to both slots. The
+    /// builder is made on the worker thread (it costs as much as a
+    /// rebuild); if that fails the worker logs it and ends, and frames keep
+    /// the initial kernel.
     pub fn start(
         params: PsfParams,
         initial: &PsfKernel,
         preparer: Option<GlarePreparer>,
+        views: usize,
     ) -> std::io::Result<Self> {
-        let slot = PreparedKernel {
+        if views == 0 || views > MAX_VIEWS {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("a PSF worker serves 1 to {MAX_VIEWS} views, not {views}"),
+            ));
+        }
+        let prepared = || PreparedKernel {
             kernel: initial.clone(),
             spectra: preparer.as_ref().map(GlarePreparer::new_spectra),
         };
         let shared = Arc::new(Shared {
-            request_bits: AtomicU64::new(NO_REQUEST),
-            ready: Mutex::new((slot, f64::NAN)),
-            ready_flag: AtomicBool::new(false),
+            views: (0..views)
+                .map(|_| ViewSlots {
+                    request_bits: AtomicU64::new(NO_REQUEST),
+                    ready: Mutex::new((prepared(), f64::NAN)),
+                    ready_flag: AtomicBool::new(false),
+                })
+                .collect(),
             stop: AtomicBool::new(false),
+            builds: AtomicU64::new(0),
         });
-        let staging = PreparedKernel {
-            kernel: initial.clone(),
-            spectra: preparer.as_ref().map(GlarePreparer::new_spectra),
-        };
+        let staging: Vec<PreparedKernel> = (0..views).map(|_| prepared()).collect();
         let worker = Arc::clone(&shared);
         let handle = std::thread::Builder::new()
             .name("gazelight-psf".into())
@@ -93,36 +122,54 @@ impl PsfWorker {
         })
     }
 
-    /// Asks for a kernel for `pupil_mm` (replacing an unserved request).
-    /// Never blocks, never allocates. Non-finite diameters are ignored.
-    pub fn request(&self, pupil_mm: f64) {
-        if pupil_mm.is_finite() {
-            self.shared
-                .request_bits
-                .store(pupil_mm.to_bits(), Ordering::Release);
+    /// Asks for kernels for several views at once (`None`: no request for
+    /// that view), waking the worker once, so that views asking for the
+    /// same pupil (a shared kernel) are served by one build.
+    pub fn request_views(&self, pupils_mm: [Option<f64>; MAX_VIEWS]) {
+        let mut any = false;
+        for (v, p) in self.shared.views.iter().zip(pupils_mm) {
+            if let Some(p) = p.filter(|p| p.is_finite()) {
+                v.request_bits.store(p.to_bits(), Ordering::Release);
+                any = true;
+            }
+        }
+        if any {
             self.thread.unpark();
         }
     }
 
-    /// If a finished kernel is waiting and its slot is free right now,
-    /// passes it (to be installed by swapping: what `install` leaves in it
-    /// goes back to the worker for reuse) and its measured first ring
-    /// (radians) to `install` and empties the slot; returns what `install`
-    /// returned. Never blocks.
-    pub fn take<R>(&self, install: impl FnOnce(&mut PreparedKernel, f64) -> R) -> Option<R> {
-        if !self.shared.ready_flag.load(Ordering::Acquire) {
+    /// If a finished kernel for view `view` is waiting and its slot is free
+    /// right now, passes it (to be installed by swapping: what `install`
+    /// leaves in it goes back to the worker for reuse) and its measured
+    /// first ring (radians) to `install` and empties the slot; returns what
+    /// `install` returned. Never blocks.
+    pub fn take<R>(
+        &self,
+        view: usize,
+        install: impl FnOnce(&mut PreparedKernel, f64) -> R,
+    ) -> Option<R> {
+        let v = self.shared.views.get(view)?;
+        if !v.ready_flag.load(Ordering::Acquire) {
             return None;
         }
-        let mut guard = self.shared.ready.try_lock().ok()?;
-        self.shared.ready_flag.store(false, Ordering::Release);
+        let mut guard = v.ready.try_lock().ok()?;
+        v.ready_flag.store(false, Ordering::Release);
         let ring_rad = guard.1;
         Some(install(&mut guard.0, ring_rad))
+    }
+
+    /// Kernels built so far (a kernel shared by two views counts once).
+    pub fn builds(&self) -> u64 {
+        self.shared.builds.load(Ordering::Relaxed)
     }
 
     /// Whether a request is waiting to be picked up by the worker.
     #[cfg(test)]
     pub fn request_pending(&self) -> bool {
-        self.shared.request_bits.load(Ordering::Acquire) != NO_REQUEST
+        self.shared
+            .views
+            .iter()
+            .any(|v| v.request_bits.load(Ordering::Acquire) != NO_REQUEST)
     }
 }
 
@@ -151,11 +198,20 @@ fn copy_kernel(dst: &mut PsfKernel, src: &PsfKernel) {
     dst.wavelengths_nm.clone_from(&src.wavelengths_nm);
 }
 
+/// Hands `staging` to view `v`'s ready slot (by swapping) with its ring.
+fn publish(slots: &ViewSlots, staging: &mut PreparedKernel, ring_rad: f64) {
+    let mut guard = slots.ready.lock().unwrap_or_else(PoisonError::into_inner);
+    std::mem::swap(&mut guard.0, staging);
+    guard.1 = ring_rad;
+    drop(guard);
+    slots.ready_flag.store(true, Ordering::Release);
+}
+
 fn work(
     shared: &Shared,
     params: PsfParams,
     mut preparer: Option<GlarePreparer>,
-    mut staging: PreparedKernel,
+    mut staging: Vec<PreparedKernel>,
 ) {
     let mut builder = match PsfBuilder::new(params) {
         Ok(b) => b,
@@ -164,27 +220,61 @@ fn work(
             return;
         }
     };
+    let mut requests = [NO_REQUEST; MAX_VIEWS];
     while !shared.stop.load(Ordering::Acquire) {
-        let bits = shared.request_bits.swap(NO_REQUEST, Ordering::AcqRel);
-        if bits == NO_REQUEST {
+        for (r, v) in requests.iter_mut().zip(&shared.views) {
+            *r = v.request_bits.swap(NO_REQUEST, Ordering::AcqRel);
+        }
+        if requests.iter().all(|&r| r == NO_REQUEST) {
             std::thread::park_timeout(IDLE_POLL);
             continue;
         }
-        builder.rebuild(f64::from_bits(bits));
-        let ring_rad = builder.first_ring_rad().unwrap_or(f64::NAN);
-        copy_kernel(&mut staging.kernel, builder.kernel());
-        if let (Some(p), Some(s)) = (preparer.as_mut(), staging.spectra.as_mut())
-            && let Err(e) = p.prepare(&staging.kernel, s)
-        {
-            // Cannot happen with the pipeline's own parameters; the frame
-            // thread then computes the spectra itself.
-            tracing::warn!(error = %e, "PSF worker: cannot prepare the glare spectra");
+        // View by view; a view asking for the kernel just built for an
+        // earlier view (a shared kernel) gets a copy of it.
+        let mut built: Option<(u64, usize, f64)> = None;
+        let mut rings = [f64::NAN; MAX_VIEWS];
+        for view in 0..shared.views.len() {
+            let bits = requests[view];
+            if bits == NO_REQUEST {
+                continue;
+            }
+            let (done, rest) = staging.split_at_mut(view);
+            let Some(out) = rest.first_mut() else { break };
+            rings[view] = match built {
+                Some((b, from, ring)) if b == bits => {
+                    let src = &done[from];
+                    copy_kernel(&mut out.kernel, &src.kernel);
+                    if let (Some(d), Some(s)) = (out.spectra.as_mut(), src.spectra.as_ref())
+                        && let Err(e) = d.copy_from(s)
+                    {
+                        tracing::warn!(error = %e, "PSF worker: cannot copy the glare spectra");
+                    }
+                    ring
+                }
+                _ => {
+                    builder.rebuild(f64::from_bits(bits));
+                    shared.builds.fetch_add(1, Ordering::Relaxed);
+                    let ring = builder.first_ring_rad().unwrap_or(f64::NAN);
+                    copy_kernel(&mut out.kernel, builder.kernel());
+                    if let (Some(p), Some(s)) = (preparer.as_mut(), out.spectra.as_mut())
+                        && let Err(e) = p.prepare(&out.kernel, s)
+                    {
+                        // Cannot happen with the pipeline's own parameters;
+                        // the frame thread then computes the spectra itself.
+                        tracing::warn!(error = %e, "PSF worker: cannot prepare the glare spectra");
+                    }
+                    built = Some((bits, view, ring));
+                    ring
+                }
+            };
         }
-        let mut guard = shared.ready.lock().unwrap_or_else(PoisonError::into_inner);
-        std::mem::swap(&mut guard.0, &mut staging);
-        guard.1 = ring_rad;
-        drop(guard);
-        shared.ready_flag.store(true, Ordering::Release);
+        // Handed over only now: a later view may have copied from an
+        // earlier view's staging copy.
+        for (view, (slots, out)) in shared.views.iter().zip(&mut staging).enumerate() {
+            if requests[view] != NO_REQUEST {
+                publish(slots, out, rings[view]);
+            }
+        }
     }
 }
 
@@ -208,13 +298,13 @@ mod tests {
         let params = small_params();
         let mut reference = PsfBuilder::new(params.clone()).expect("builder");
         let initial = reference.kernel().clone();
-        let worker = PsfWorker::start(params, &initial, None).expect("worker");
-        worker.request(3.0);
-        worker.request(6.0);
+        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
+        worker.request_views([Some(3.0), None]);
+        worker.request_views([Some(6.0), None]);
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         let mut got: Option<PsfKernel> = None;
         while std::time::Instant::now() < deadline {
-            if let Some(k) = worker.take(|k, _| k.kernel.clone()) {
+            if let Some(k) = worker.take(0, |k, _| k.kernel.clone()) {
                 let done = k.pupil_mm == 6.0;
                 got = Some(k);
                 if done && !worker.request_pending() {
@@ -229,6 +319,57 @@ mod tests {
         assert_eq!(got.size, expected.size);
         assert_eq!(got.rgb, expected.rgb);
         assert_ne!(got.rgb, initial.rgb, "the kernel did not change");
+    }
+
+    /// Two views: the same pupil for both (a shared kernel) is built once
+    /// and both get it with its spectra; different pupils are built each.
+    #[test]
+    fn two_views_share_one_build() {
+        use gazelight_vision::glare::{GlareConvolver, GlareWindow};
+        let params = small_params();
+        let mut reference = PsfBuilder::new(params.clone()).expect("builder");
+        let initial = reference.kernel().clone();
+        let window = GlareWindow {
+            full_weight_deg: 1.0,
+            fade_sigma_deg: 0.5,
+        };
+        let conv = GlareConvolver::new(&initial, window).expect("convolver");
+        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 2).expect("worker");
+        let wait = |view: usize| {
+            let deadline = std::time::Instant::now() + Duration::from_secs(120);
+            loop {
+                assert!(
+                    std::time::Instant::now() < deadline,
+                    "no kernel for view {view}"
+                );
+                if let Some(r) = worker.take(view, |p, _| {
+                    let spectra_mm = p.spectra.as_ref().map_or(f64::NAN, |s| s.pupil_mm());
+                    (p.kernel.clone(), spectra_mm)
+                }) {
+                    break r;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        };
+        // Requested together (before the worker wakes): one build.
+        worker.request_views([Some(5.0), Some(5.0)]);
+        let (a, a_spectra) = wait(0);
+        let (b, b_spectra) = wait(1);
+        assert_eq!(
+            (a.pupil_mm, b.pupil_mm, a_spectra, b_spectra),
+            (5.0, 5.0, 5.0, 5.0)
+        );
+        assert_eq!(a.rgb, b.rgb);
+        assert_eq!(a.rgb, reference.rebuild(5.0).rgb);
+        assert_eq!(worker.builds(), 1, "a shared kernel was built twice");
+        // Different pupils: one build each.
+        worker.request_views([Some(3.0), Some(7.0)]);
+        let (a, _) = wait(0);
+        let (b, _) = wait(1);
+        assert_eq!((a.pupil_mm, b.pupil_mm), (3.0, 7.0));
+        assert_eq!(b.rgb, reference.rebuild(7.0).rgb);
+        assert_eq!(worker.builds(), 3);
+        assert!(PsfWorker::start(small_params(), &initial, None, 3).is_err());
     }
 
     /// The ring the worker reports is measured on the field it built: with
@@ -247,14 +388,14 @@ mod tests {
             .expect("builder")
             .kernel()
             .clone();
-        let worker = PsfWorker::start(params, &initial, None).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
         let mut rings = Vec::new();
         for pupil_mm in [6.0, 2.5] {
-            worker.request(pupil_mm);
+            worker.request_views([Some(pupil_mm), None]);
             let deadline = std::time::Instant::now() + Duration::from_secs(120);
             let (got_mm, ring) = loop {
                 assert!(std::time::Instant::now() < deadline, "no kernel");
-                if let Some(r) = worker.take(|k, ring| (k.kernel.pupil_mm, ring)) {
+                if let Some(r) = worker.take(0, |k, ring| (k.kernel.pupil_mm, ring)) {
                     break r;
                 }
                 std::thread::sleep(Duration::from_millis(5));
@@ -292,12 +433,12 @@ mod tests {
             fade_sigma_deg: 0.5,
         };
         let mut conv = GlareConvolver::new(&initial, window).expect("convolver");
-        let worker = PsfWorker::start(params, &initial, Some(conv.preparer())).expect("worker");
-        worker.request(6.5);
+        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 1).expect("worker");
+        worker.request_views([Some(6.5), None]);
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         let (got_mm, spectra_mm) = loop {
             assert!(std::time::Instant::now() < deadline, "no kernel");
-            let taken = worker.take(|p, _| {
+            let taken = worker.take(0, |p, _| {
                 let spectra = p.spectra.as_mut().expect("spectra made on the worker");
                 let mm = (p.kernel.pupil_mm, spectra.pupil_mm());
                 conv.install(spectra).expect("install");

@@ -32,6 +32,8 @@ use gazelight_vision::psf::{MonoPsf, PsfParams, REFERENCE_WAVELENGTH_NM, monochr
 
 use crate::hub::SourceHealth;
 use crate::output;
+use crate::stereo::View;
+use gazelight_tracker::EYE_LEFT;
 
 /// Frame buffers in flight between the loop and the PNG encoder.
 const FRAME_POOL: usize = 4;
@@ -45,24 +47,35 @@ const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
 pub struct Row {
     pub frame: u64,
     pub t_secs: f64,
-    pub gaze_u: f32,
-    pub gaze_v: f32,
     /// Calibrated pupil per eye, [right, left], mm.
     pub pupil_mm: [f32; 2],
-    /// Pupil the frame used, mm.
-    pub frame_pupil_mm: f32,
     /// Either pupil held or modelled rather than measured.
     pub pupil_held: bool,
     pub eye_state_age_ms: f64,
     pub health: SourceHealth,
+    /// Per view: the one view, or left and right (stereo).
+    pub views: [ViewRow; 2],
+    pub frame_ms: f64,
+}
+
+/// What one view of a frame used and did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ViewRow {
+    pub gaze_u: f32,
+    pub gaze_v: f32,
+    /// Pupil the view used, mm.
+    pub frame_pupil_mm: f32,
     pub target_cd_m2: f64,
     pub adaptation_cd_m2: f64,
     pub psf_pupil_mm: f64,
     pub psf_rebuilt: bool,
-    pub frame_ms: f64,
 }
 
 const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,pupil_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms";
+/// A stereo run's header: per-view columns suffixed `_left`, `_right`.
+const STEREO_HEADER: &str = "frame,t_secs,pupil_right_mm,pupil_left_mm,pupil_held,eye_state_age_ms,source_health,\
+gaze_u_left,gaze_v_left,pupil_mm_left,target_cd_m2_left,adaptation_cd_m2_left,psf_pupil_mm_left,psf_rebuilt_left,\
+gaze_u_right,gaze_v_right,pupil_mm_right,target_cd_m2_right,adaptation_cd_m2_right,psf_pupil_mm_right,psf_rebuilt_right,frame_ms";
 
 fn health_name(h: SourceHealth) -> &'static str {
     match h {
@@ -82,6 +95,8 @@ pub struct PsfEvent {
     pub t_secs: f64,
     pub pupil_mm: f64,
     pub first_ring_rad: Option<f64>,
+    /// The view the kernel is for (`psf.csv`'s `view`: both, left, right).
+    pub view: View,
 }
 
 enum Msg {
@@ -119,6 +134,7 @@ impl OutputWriter {
         height: usize,
         psf: PsfParams,
         write_frames: bool,
+        stereo: bool,
     ) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let frames_dir = dir.join("frames");
@@ -134,10 +150,10 @@ impl OutputWriter {
         };
         let mut timeline = open("timeline.csv")?;
         let mut psf_csv = open("psf.csv")?;
-        writeln!(timeline, "{HEADER}")?;
+        writeln!(timeline, "{}", if stereo { STEREO_HEADER } else { HEADER })?;
         writeln!(
             psf_csv,
-            "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin"
+            "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin,view"
         )?;
         // The headers are on disk before the session starts.
         timeline.flush()?;
@@ -179,7 +195,7 @@ impl OutputWriter {
                     match msg {
                         Msg::Row(r) => {
                             line.clear();
-                            format_row(&mut line, &r);
+                            format_row(&mut line, &r, stereo);
                             timeline.write_all(line.as_bytes()).with_context(|| {
                                 format!("cannot write {}", timeline_path.display())
                             })?;
@@ -205,13 +221,18 @@ impl OutputWriter {
                             line.clear();
                             let _ = writeln!(
                                 line,
-                                "{},{:.4},{:.4},{},{:.6e},{:.4}",
+                                "{},{:.4},{:.4},{},{:.6e},{:.4},{}",
                                 ev.generation,
                                 ev.t_secs,
                                 ev.pupil_mm,
                                 REFERENCE_WAVELENGTH_NM,
                                 ring,
-                                ring.to_degrees() * 60.0
+                                ring.to_degrees() * 60.0,
+                                match ev.view {
+                                    View::Both => "both",
+                                    View::Eye(EYE_LEFT) => "left",
+                                    View::Eye(_) => "right",
+                                }
                             );
                             psf_csv
                                 .write_all(line.as_bytes())
@@ -299,25 +320,55 @@ impl OutputWriter {
     }
 }
 
-/// Formats one timeline row (with its newline) into `w`.
-fn format_row(w: &mut String, r: &Row) {
-    let _ = writeln!(
+/// Formats one timeline row (with its newline) into `w`: the one view's
+/// columns, or (stereo) the left then the right view's.
+fn format_row(w: &mut String, r: &Row, stereo: bool) {
+    let [v, right] = &r.views;
+    if !stereo {
+        let _ = writeln!(
+            w,
+            "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3}",
+            r.frame,
+            r.t_secs,
+            v.gaze_u,
+            v.gaze_v,
+            r.pupil_mm[0],
+            r.pupil_mm[1],
+            v.frame_pupil_mm,
+            u8::from(r.pupil_held),
+            r.eye_state_age_ms,
+            health_name(r.health),
+            v.target_cd_m2,
+            v.adaptation_cd_m2,
+            v.psf_pupil_mm,
+            u8::from(v.psf_rebuilt),
+            r.frame_ms
+        );
+        return;
+    }
+    let _ = write!(
         w,
-        "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3}",
+        "{},{:.4},{:.4},{:.4},{},{:.3},{}",
         r.frame,
         r.t_secs,
-        r.gaze_u,
-        r.gaze_v,
         r.pupil_mm[0],
         r.pupil_mm[1],
-        r.frame_pupil_mm,
         u8::from(r.pupil_held),
         r.eye_state_age_ms,
         health_name(r.health),
-        r.target_cd_m2,
-        r.adaptation_cd_m2,
-        r.psf_pupil_mm,
-        u8::from(r.psf_rebuilt),
-        r.frame_ms
     );
+    for v in [v, right] {
+        let _ = write!(
+            w,
+            ",{:.5},{:.5},{:.4},{:.6e},{:.6e},{:.4},{}",
+            v.gaze_u,
+            v.gaze_v,
+            v.frame_pupil_mm,
+            v.target_cd_m2,
+            v.adaptation_cd_m2,
+            v.psf_pupil_mm,
+            u8::from(v.psf_rebuilt),
+        );
+    }
+    let _ = writeln!(w, ",{:.3}", r.frame_ms);
 }

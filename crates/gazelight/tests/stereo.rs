@@ -1,0 +1,300 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
+//! Stereo frames (`--stereo`): each eye rendered on its own pupil, kernel
+//! and gaze, frames left | right, per-eye `timeline.csv` columns, and a
+//! stereo live run.
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use common::{Csv, gazelight, python_ready, shared_str, spawn_peer_any_port, tmp, wait_bounded};
+use gazelight_vision::RgbImage;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Width and height from a PNG's IHDR chunk.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).expect("png");
+    assert_eq!(&bytes[1..4], b"PNG", "{}", path.display());
+    let be = |o: usize| u32::from_be_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+    (be(16), be(20))
+}
+
+fn success(out: &std::process::Output) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "exit {:?}: {stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The filtered pupil medians `inspect` reports per eye: [right, left].
+fn inspect_medians(rec: &str) -> [f64; 2] {
+    let text = success(&gazelight(&["inspect", rec]));
+    let medians: Vec<f64> = text
+        .lines()
+        .filter(|l| l.trim_start().starts_with("pupil filt."))
+        .map(|l| {
+            let values = l.split(':').nth(1).expect("values");
+            values
+                .split('/')
+                .nth(1)
+                .expect("median")
+                .trim()
+                .trim_end_matches(" mm")
+                .parse()
+                .expect("mm")
+        })
+        .collect();
+    assert_eq!(medians.len(), 2, "{text}");
+    [medians[0], medians[1]]
+}
+
+/// Neon measured different pupils for the two eyes (left ≈ 0.35 mm wider
+/// than right in the shared recording): a stereo replay renders each eye
+/// with its own pupil and, once they part, its own kernel; the frames are
+/// left | right.
+#[test]
+fn neon_replay_renders_each_eye_with_its_own_pupil_and_kernel() {
+    let rec = shared_str("eye/neon-demo");
+    let [right_mm, left_mm] = inspect_medians(&rec);
+    assert!(
+        left_mm - right_mm > 0.2,
+        "the recording's eyes: {left_mm} vs {right_mm}"
+    );
+    let dir = tmp("stereo-neon");
+    let out = gazelight(&[
+        "replay",
+        &rec,
+        "--stereo",
+        "--backend",
+        "cpu",
+        "--size",
+        "96x80",
+        "--fps",
+        "30",
+        "--secs",
+        "6",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    let stdout = success(&out);
+    assert!(stdout.contains("stereo frames (96x80 per eye"), "{stdout}");
+    assert_eq!(png_size(&dir.join("frames/frame_00010.png")), (192, 80));
+
+    let csv = Csv::read(&dir.join("timeline.csv"));
+    for column in [
+        "gaze_u",
+        "gaze_v",
+        "pupil_mm",
+        "adaptation_cd_m2",
+        "psf_pupil_mm",
+    ] {
+        for eye in ["left", "right"] {
+            csv.col(&format!("{column}_{eye}"));
+        }
+    }
+    let pl = csv.f64s("pupil_mm_left");
+    let pr = csv.f64s("pupil_mm_right");
+    // Each eye's column follows that eye (the first second eases from the
+    // model's start, so compare medians).
+    let (ml, mr) = (median(pl.clone()), median(pr.clone()));
+    eprintln!(
+        "median pupils: left {ml:.3} (inspect {left_mm}), right {mr:.3} (inspect {right_mm})"
+    );
+    assert!((ml - left_mm).abs() < 0.15, "left {ml} vs {left_mm}");
+    assert!((mr - right_mm).abs() < 0.15, "right {mr} vs {right_mm}");
+
+    // Kernels: shared while the pupils agree, each eye's own once they part.
+    let kl = csv.f64s("psf_pupil_mm_left");
+    let kr = csv.f64s("psf_pupil_mm_right");
+    assert_eq!(kl[0], kr[0], "the first frame's pupils agree: one kernel");
+    let parted: Vec<usize> = (0..pl.len())
+        .filter(|&i| (pl[i] - pr[i]).abs() > 0.3)
+        .collect();
+    assert!(
+        parted.len() > pl.len() / 3,
+        "{} of {} frames parted",
+        parted.len(),
+        pl.len()
+    );
+    let own = parted.iter().filter(|&&i| kl[i] != kr[i]).count();
+    assert!(
+        own * 10 >= parted.len() * 9,
+        "only {own} of {} parted frames have two kernels",
+        parted.len()
+    );
+    for &i in &parted {
+        assert!(
+            (kl[i] - pl[i]).abs() <= 0.1 + 1e-3,
+            "frame {i}: left kernel {} for pupil {}",
+            kl[i],
+            pl[i]
+        );
+        assert!(
+            (kr[i] - pr[i]).abs() <= 0.1 + 1e-3,
+            "frame {i}: right kernel {} for pupil {}",
+            kr[i],
+            pr[i]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A panorama bright on one side of the view and dark on the other, and
+/// an EyeLink recording whose left eye looks at the bright side while the
+/// right eye looks at the dark side: each eye pools and adapts at its own
+/// gaze.
+#[test]
+fn per_eye_gaze_lands_in_its_own_view() {
+    let dir = tmp("stereo-gaze");
+    std::fs::create_dir_all(&dir).expect("dir");
+    // Equirectangular, 256×128: the view looks at its centre (yaw 0), so
+    // with a 60° field the left of the view is bright, the right dark.
+    let (w, h) = (256, 128);
+    let pixels = (0..w * h)
+        .map(|i| {
+            if i % w < w / 2 {
+                [100.0f32; 3]
+            } else {
+                [0.5f32; 3]
+            }
+        })
+        .collect();
+    let pano = RgbImage::from_pixels(w, h, pixels).expect("image");
+    let scene = dir.join("split.exr");
+    gazelight_vision::scene::write_exr(&scene, &pano).expect("exr");
+    // 2 s at 500 Hz, 1920×1080 display: left eye at x = 20 %, right eye at
+    // x = 80 %, both at mid height; pupils in EyeLink area units.
+    let mut asc = String::from(
+        "MSG\t1 DISPLAY_COORDS 0 0 1919 1079\nSTART\t1000 \tLEFT\tRIGHT\tSAMPLES\tEVENTS\nPUPIL\tAREA\n",
+    );
+    for i in 0..1000 {
+        let t = 1000 + 2 * i;
+        asc.push_str(&format!(
+            "{t}\t 384.0\t 540.0\t 1400.0\t 1536.0\t 540.0\t 1400.0\t.....\n"
+        ));
+    }
+    let rec = dir.join("split.asc");
+    std::fs::write(&rec, asc).expect("asc");
+    let out_dir = dir.join("out");
+    let out = gazelight(&[
+        "replay",
+        rec.to_str().unwrap(),
+        "--stereo",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--luminance-scale",
+        "1",
+        "--yaw-deg",
+        "0",
+        "--pitch-deg",
+        "0",
+        "--hfov-deg",
+        "60",
+        "--size",
+        "120x80",
+        "--backend",
+        "cpu",
+        "--no-frames",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    success(&out);
+    let csv = Csv::read(&out_dir.join("timeline.csv"));
+    let last = csv.rows.len() - 1;
+    let at = |name: &str| csv.f64s(name)[last];
+    assert!(
+        (at("gaze_u_left") - 0.2).abs() < 0.01,
+        "left gaze {}",
+        at("gaze_u_left")
+    );
+    assert!(
+        (at("gaze_u_right") - 0.8).abs() < 0.01,
+        "right gaze {}",
+        at("gaze_u_right")
+    );
+    let (tl, tr) = (at("target_cd_m2_left"), at("target_cd_m2_right"));
+    eprintln!("pooled: left {tl:.3} cd/m², right {tr:.3} cd/m²");
+    // The left eye looks at 100 cd/m², the right at 0.5 cd/m²; pooling
+    // weights the neighbourhood, so ask for a clear separation only.
+    assert!(tl > 30.0 && tr < 5.0, "left {tl}, right {tr}");
+    let (al, ar) = (at("adaptation_cd_m2_left"), at("adaptation_cd_m2_right"));
+    assert!(al > 5.0 * ar, "adaptation left {al}, right {ar}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `run --stereo` against the pyzmq Pupil peer (whose eyes differ: 3.75
+/// and 4.25 mm): per-eye columns follow each eye's pupil, psf.csv names the
+/// view of each kernel, and the frames are left | right.
+#[test]
+fn stereo_run_follows_each_eye() {
+    if !python_ready() {
+        eprintln!("SKIP: python3 with pyzmq + msgpack is not available");
+        return;
+    }
+    let peer = spawn_peer_any_port("200", "30", &[]);
+    let port = peer.remote_port;
+    let dir = tmp("stereo-run");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            "--source",
+            &format!("pupil://127.0.0.1:{port}"),
+            "--stereo",
+            "--headless",
+            "--backend",
+            "cpu",
+            "--size",
+            "96x80",
+            "--fps",
+            "30",
+            "--secs",
+            "4",
+            "--out",
+            dir.to_str().unwrap(),
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let out = wait_bounded(child, Duration::from_secs(60));
+    drop(peer);
+    let stdout = success(&out);
+    eprintln!("{stdout}");
+    let csv = Csv::read(&dir.join("timeline.csv"));
+    let n = csv.rows.len();
+    assert!(n > 30, "{n} frames");
+    let tail = |name: &str| median(csv.f64s(name)[n / 2..].to_vec());
+    // Pupil's eye 1 is the left eye (3D diameters 4.25 mm), eye 0 the right
+    // (3.75 mm).
+    assert!(
+        (tail("pupil_mm_left") - 4.25).abs() < 0.05,
+        "{}",
+        tail("pupil_mm_left")
+    );
+    assert!(
+        (tail("pupil_mm_right") - 3.75).abs() < 0.05,
+        "{}",
+        tail("pupil_mm_right")
+    );
+    assert!((tail("psf_pupil_mm_left") - 4.25).abs() <= 0.1 + 1e-3);
+    assert!((tail("psf_pupil_mm_right") - 3.75).abs() <= 0.1 + 1e-3);
+    let psf = Csv::read(&dir.join("psf.csv"));
+    let views = psf.strs("view");
+    assert!(
+        views.iter().any(|v| v == "left") && views.iter().any(|v| v == "right"),
+        "{views:?}"
+    );
+    let frames: Vec<_> = std::fs::read_dir(dir.join("frames"))
+        .expect("frames")
+        .flatten()
+        .collect();
+    assert!(!frames.is_empty());
+    assert_eq!(png_size(&frames[0].path()), (192, 80));
+    let _ = std::fs::remove_dir_all(&dir);
+}
