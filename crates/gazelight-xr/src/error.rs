@@ -24,7 +24,7 @@ pub enum XrError {
     )]
     NoHeadset,
     /// An OpenXR call failed.
-    #[error("{call} failed: {result}")]
+    #[error("{call} failed: XR_{result:?} ({result})")]
     Xr {
         /// The OpenXR function (or step) that failed.
         call: &'static str,

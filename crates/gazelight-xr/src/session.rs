@@ -290,8 +290,13 @@ pub struct XrSession {
 }
 
 fn no_runtime(what: &str, result: xr::sys::Result) -> XrError {
+    let cause = if result == xr::sys::Result::ERROR_RUNTIME_UNAVAILABLE {
+        "no runtime manifest found, or its library failed to load"
+    } else {
+        "the runtime is installed but not working; is its service running?"
+    };
     XrError::NoRuntime {
-        detail: format!("{what} returned {result}"),
+        detail: format!("{what} returned XR_{result:?} ({cause})"),
     }
 }
 

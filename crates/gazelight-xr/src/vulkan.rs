@@ -121,19 +121,11 @@ pub(crate) fn create(
     )?;
     // SAFETY: `raw_instance` was just created from `entry`'s loader.
     let ash_instance = unsafe { ash::Instance::load(entry.static_fn(), raw_instance) };
-
-    // SAFETY: the runtime created the instance for this system.
-    let raw_physical_device = unsafe {
-        xr_instance.vulkan_graphics_device(system, raw_instance.as_raw() as *const c_void)
-    }
-    .map_err(xr("xrGetVulkanGraphicsDevice2KHR"))?;
-    let raw_physical_device = vk::PhysicalDevice::from_raw(raw_physical_device as u64);
-    let queue_family_index = graphics_queue_family(&ash_instance, raw_physical_device)?;
-
     // SAFETY (from_raw): the instance was created from `entry` for
     // `api_version` with exactly `extensions` (the runtime may have added
     // more, which wgpu-hal does not need to know) and no debug messenger;
-    // with no drop callback wgpu-hal owns it and destroys it last.
+    // with no drop callback wgpu-hal owns it and destroys it last. Wrapped
+    // at once so that every error below still destroys it.
     let hal_instance = unsafe {
         hal::vulkan::Instance::from_raw(
             entry,
@@ -155,14 +147,25 @@ pub(crate) fn create(
     // SAFETY: a valid Vulkan hal instance; wgpu takes ownership.
     let instance = unsafe { wgpu::Instance::from_hal::<VkApi>(hal_instance) };
 
-    let exposed = {
+    // SAFETY: the runtime created the instance for this system.
+    let raw_physical_device = unsafe {
+        xr_instance.vulkan_graphics_device(system, raw_instance.as_raw() as *const c_void)
+    }
+    .map_err(xr("xrGetVulkanGraphicsDevice2KHR"))?;
+    let raw_physical_device = vk::PhysicalDevice::from_raw(raw_physical_device as u64);
+
+    let (exposed, queue_family_index) = {
         // SAFETY: only used to expose the adapter below.
         let hal_instance =
             unsafe { instance.as_hal::<VkApi>() }.ok_or_else(|| XrError::Adapter {
                 device: format!("{raw_physical_device:?}"),
                 reason: "the wgpu instance has no Vulkan backend".into(),
             })?;
-        hal_instance
+        let queue_family_index = graphics_queue_family(
+            hal_instance.shared_instance().raw_instance(),
+            raw_physical_device,
+        )?;
+        let exposed = hal_instance
             .expose_adapter(raw_physical_device)
             .ok_or_else(|| XrError::Adapter {
                 device: device_name(
@@ -172,7 +175,8 @@ pub(crate) fn create(
                 reason: "expose_adapter refused it (below wgpu's minimum Vulkan \
                          capabilities; see the wgpu-hal debug log)"
                     .into(),
-            })?
+            })?;
+        (exposed, queue_family_index)
     };
     let adapter_name = exposed.info.name.clone();
     // SAFETY: `exposed` was made from this instance's hal instance.

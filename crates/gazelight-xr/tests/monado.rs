@@ -7,6 +7,15 @@
 //! with a wgpu render pass (one frame is read back from the runtime's images
 //! to check the clear landed), then asks to exit and expects STOPPING then
 //! EXITING.
+//!
+//! To run it in the Monado root of `.ci/xr`, which binds the repository
+//! (and so `target/`) at the same path; bind another `CARGO_TARGET_DIR`
+//! with `GAZELIGHT_XR_BINDS=$CARGO_TARGET_DIR`:
+//!
+//! ```text
+//! cargo test -p gazelight-xr --no-run        # prints the monado-<hash> path
+//! .ci/xr/root exec --monado -- $PWD/target/debug/deps/monado-<hash> --nocapture
+//! ```
 
 use std::time::{Duration, Instant};
 
