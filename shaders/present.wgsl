@@ -8,8 +8,10 @@
 // no read-back; a CPU frame is uploaded into a buffer of the same layout.
 // It is filtered bilinearly with clamp-to-edge, as a linear sampler would:
 // at 1:1 scale each fragment lands on its pixel's centre and gets that
-// pixel's code exactly. The surface is a non-sRGB format, so the encoded
-// values pass through unchanged. Twin: crates/gazelight-gpu/src/present.rs.
+// pixel's code exactly. A window surface is a non-sRGB format, so the
+// encoded values pass through unchanged; into an sRGB target they are
+// decoded to linear (IEC 61966-2-1) and the target encodes them back.
+// Twin: crates/gazelight-gpu/src/present.rs.
 
 struct PresentParams {
     // Scale of the frame quad in clip space (≤ 1 on each axis).
@@ -18,6 +20,12 @@ struct PresentParams {
     frame_size: vec2<u32>,
     // Solid colour mode for calibration stimuli: rgb + 1 in w, else 0.
     solid: vec4<f32>,
+    // 1 when the target is an sRGB format (an OpenXR swapchain image): it
+    // encodes what is written, so the codes are decoded to linear first.
+    decode_srgb: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 };
 
 @group(0) @binding(0) var<storage, read> frame_rgba8: array<u32>;
@@ -49,6 +57,9 @@ fn texel(x: i32, y: i32) -> vec4<f32> {
 @fragment
 fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     if (params.solid.w > 0.5) {
+        if (params.decode_srgb == 1u) {
+            return vec4<f32>(srgb_to_linear(params.solid.rgb), 1.0);
+        }
         return vec4<f32>(params.solid.rgb, 1.0);
     }
     // Texel space: pixel centres at integer + 0.5, as a sampler's.
@@ -58,5 +69,16 @@ fn fs_main(in: VsOut) -> @location(0) vec4<f32> {
     let i = vec2<i32>(base);
     let top = mix(texel(i.x, i.y), texel(i.x + 1, i.y), f.x);
     let bottom = mix(texel(i.x, i.y + 1), texel(i.x + 1, i.y + 1), f.x);
-    return vec4<f32>(mix(top, bottom, f.y).rgb, 1.0);
+    let code = mix(top, bottom, f.y).rgb;
+    if (params.decode_srgb == 1u) {
+        return vec4<f32>(srgb_to_linear(code), 1.0);
+    }
+    return vec4<f32>(code, 1.0);
+}
+
+// The sRGB transfer function inverted (IEC 61966-2-1).
+fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
+    let lo = c / 12.92;
+    let hi = pow((c + vec3<f32>(0.055)) / 1.055, vec3<f32>(2.4));
+    return select(hi, lo, c <= vec3<f32>(0.04045));
 }

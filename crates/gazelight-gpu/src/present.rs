@@ -59,6 +59,13 @@ pub struct PresentParams {
     /// Solid colour (the encoded value / 255) with w = 1, or w = 0 to draw
     /// the frame.
     pub solid: [f32; 4],
+    /// 1: the target is an sRGB format (an OpenXR swapchain image), which
+    /// encodes what the shader writes, so the shader writes the frame's
+    /// codes decoded to linear; 0: a UNORM target takes the codes as they
+    /// are.
+    pub decode_srgb: u32,
+    /// Padding to the uniform's 16-byte size.
+    pub _pad: [u32; 3],
 }
 
 /// A GPU frame to present: a pipeline's device and its RGBA8 output buffer
@@ -287,6 +294,55 @@ impl PresentPass {
     }
 }
 
+/// Draws a GPU frame into textures the caller owns — an OpenXR swapchain
+/// image, say — on the frame's own device: the pipeline's output buffer is
+/// read in place (no copy, no read-back), scaled to fill the target (1:1
+/// when the pipeline renders at the target's size). An sRGB target gets the
+/// codes decoded to linear, so it stores the frame's own codes.
+pub struct TexturePresenter {
+    ctx: GpuContext,
+    pass: PresentPass,
+    params: PresentParams,
+}
+
+impl TexturePresenter {
+    /// A presenter of `source` into targets of `format` (created with
+    /// `RENDER_ATTACHMENT` usage).
+    pub fn new(source: &FrameSource, format: wgpu::TextureFormat) -> Result<Self, GpuError> {
+        let pass = PresentPass::new(&source.ctx, &source.buffer, format)?;
+        Ok(Self {
+            ctx: source.ctx.clone(),
+            pass,
+            params: PresentParams {
+                scale: [1.0, 1.0],
+                frame_size: [source.width, source.height],
+                decode_srgb: u32::from(format.is_srgb()),
+                ..PresentParams::default()
+            },
+        })
+    }
+
+    /// Records drawing the frame into `target` (a view of a texture of the
+    /// presenter's format). The frame is whatever the pipeline last wrote
+    /// when the encoder is submitted.
+    pub fn encode(&self, encoder: &mut wgpu::CommandEncoder, target: &wgpu::TextureView) {
+        self.pass.encode(&self.ctx, encoder, target, &self.params);
+    }
+
+    /// Draws the frame into `target` now: records and submits one command
+    /// buffer (for callers that keep no encoder of their own).
+    pub fn present(&self, target: &wgpu::TextureView) {
+        let mut encoder =
+            self.ctx
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("present to texture"),
+                });
+        self.encode(&mut encoder, target);
+        self.ctx.queue().submit([encoder.finish()]);
+    }
+}
+
 impl WindowPresenter {
     /// A presenter for `window` on the device of a GPU frame pipeline,
     /// drawing the pipeline's output buffer itself. `size_px` is the window's
@@ -479,7 +535,7 @@ impl WindowPresenter {
         let params = PresentParams {
             scale: self.letterbox(),
             frame_size: self.frame_size,
-            solid: [0.0; 4],
+            ..PresentParams::default()
         };
         self.draw(&params)
     }
@@ -491,6 +547,7 @@ impl WindowPresenter {
             scale: [1.0, 1.0],
             frame_size: self.frame_size,
             solid: [r, g, b, 1.0],
+            ..PresentParams::default()
         };
         self.draw(&params)
     }
@@ -569,6 +626,13 @@ mod tests {
                     "solid".to_owned(),
                     std::mem::offset_of!(PresentParams, solid) as u32
                 ),
+                (
+                    "decode_srgb".to_owned(),
+                    std::mem::offset_of!(PresentParams, decode_srgb) as u32
+                ),
+                ("_pad0".to_owned(), 36),
+                ("_pad1".to_owned(), 40),
+                ("_pad2".to_owned(), 44),
             ]
         );
     }
@@ -602,6 +666,24 @@ mod tests {
         [fw, fh]: [u32; 2],
         [tw, th]: [u32; 2],
     ) -> Vec<u8> {
+        draw_offscreen_as(
+            ctx,
+            frame,
+            [fw, fh],
+            [tw, th],
+            wgpu::TextureFormat::Rgba8Unorm,
+        )
+    }
+
+    /// [`draw_offscreen`] into a target of `format` (with the matching
+    /// `decode_srgb`).
+    fn draw_offscreen_as(
+        ctx: &GpuContext,
+        frame: &[u8],
+        [fw, fh]: [u32; 2],
+        [tw, th]: [u32; 2],
+        format: wgpu::TextureFormat,
+    ) -> Vec<u8> {
         let device = ctx.device();
         let frame_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("test frame"),
@@ -610,7 +692,6 @@ mod tests {
             mapped_at_creation: false,
         });
         ctx.queue().write_buffer(&frame_buffer, 0, frame);
-        let format = wgpu::TextureFormat::Rgba8Unorm;
         let pass = PresentPass::new(ctx, &frame_buffer, format).expect("present pass");
         let target = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("test target"),
@@ -637,7 +718,8 @@ mod tests {
         let params = PresentParams {
             scale: letterbox_scale([fw, fh], [tw, th]),
             frame_size: [fw, fh],
-            solid: [0.0; 4],
+            decode_srgb: u32::from(format.is_srgb()),
+            ..PresentParams::default()
         };
         pass.encode(ctx, &mut encoder, &view, &params);
         encoder.copy_texture_to_buffer(
@@ -704,6 +786,47 @@ mod tests {
                 assert_eq!(got, want, "frame row {} letterboxed at row {y}", y - bar);
             }
         }
+    }
+
+    /// Into an sRGB target (an OpenXR swapchain's format) the shader writes
+    /// linear values that the target encodes back: the stored bytes are
+    /// the frame's codes (within one code of rounding).
+    #[test]
+    fn an_srgb_target_stores_the_frames_codes() {
+        let Some(ctx) = crate::testing::test_context("an_srgb_target_stores_the_frames_codes")
+        else {
+            return;
+        };
+        let (w, h) = (64u32, 32u32);
+        let frame = test_frame(w, h);
+        let got = draw_offscreen_as(
+            ctx,
+            &frame,
+            [w, h],
+            [w, h],
+            wgpu::TextureFormat::Rgba8UnormSrgb,
+        );
+        let worst = got
+            .iter()
+            .zip(&frame)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        assert!(worst <= 1, "an sRGB target is off by up to {worst} codes");
+        // Without the decode the mid-greys would be encoded twice.
+        let mid = [128u8, 128, 128, 255].repeat((w * h) as usize);
+        let twice = draw_offscreen_as(
+            ctx,
+            &mid,
+            [w, h],
+            [w, h],
+            wgpu::TextureFormat::Rgba8UnormSrgb,
+        );
+        assert!(
+            twice.chunks_exact(4).all(|p| p[0].abs_diff(128) <= 1),
+            "{:?}",
+            &twice[..4]
+        );
     }
 
     #[test]

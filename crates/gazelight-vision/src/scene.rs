@@ -417,13 +417,20 @@ impl ViewParams {
     }
 }
 
-/// A validated perspective projection into an equirectangular panorama.
+/// A validated perspective projection into an equirectangular panorama:
+/// a symmetric view from yaw, pitch and horizontal field ([`Self::new`]),
+/// or any frustum — an HMD eye's asymmetric field of view and full
+/// orientation ([`Self::from_frustum`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PanoramaView {
     params: ViewParams,
     rotation: Mat3,
-    tan_half_h: f32,
-    tan_half_v: f32,
+    /// Tangents of the frustum's edge angles: left and down are negative
+    /// for a frustum around the view axis.
+    tan_left: f32,
+    tan_right: f32,
+    tan_up: f32,
+    tan_down: f32,
 }
 
 impl PanoramaView {
@@ -438,8 +445,65 @@ impl PanoramaView {
         Ok(Self {
             params,
             rotation,
-            tan_half_h,
-            tan_half_v,
+            tan_left: -tan_half_h,
+            tan_right: tan_half_h,
+            tan_up: tan_half_v,
+            tan_down: -tan_half_v,
+        })
+    }
+
+    /// A view through any frustum: `orientation_xyzw` is the unit
+    /// quaternion turning view space (−z forward, +y up, +x right, as
+    /// OpenXR's) into the panorama's world; `angles_rad` are the edge
+    /// angles left, right, up, down (OpenXR's `XrFovf`: left and down
+    /// negative for a frustum around the view axis); `width × height`
+    /// pixels. [`Self::params`] then gives the view axis's yaw and pitch
+    /// and the horizontal field, for the pipeline's pixel size.
+    pub fn from_frustum(
+        orientation_xyzw: [f32; 4],
+        angles_rad: [f32; 4],
+        width: usize,
+        height: usize,
+    ) -> Result<Self, VisionError> {
+        let q = glam::Quat::from_array(orientation_xyzw);
+        if !q.is_finite() || (q.length() - 1.0).abs() > 1e-3 {
+            return Err(VisionError::invalid(
+                "view orientation",
+                format!("{orientation_xyzw:?}"),
+                "a unit quaternion",
+            ));
+        }
+        let [l, r, u, d] = angles_rad;
+        let half_pi = std::f32::consts::FRAC_PI_2 - 1e-3;
+        if !(angles_rad
+            .iter()
+            .all(|a| a.is_finite() && a.abs() < half_pi)
+            && l < r
+            && d < u)
+        {
+            return Err(VisionError::invalid(
+                "view field",
+                format!("{angles_rad:?} rad"),
+                "left < right and down < up, each within ±90°",
+            ));
+        }
+        let rotation = Mat3::from_quat(q.normalize());
+        let forward = rotation * Vec3::new(0.0, 0.0, -1.0);
+        let params = ViewParams {
+            yaw_deg: f64::from(forward.x.atan2(-forward.z)).to_degrees(),
+            pitch_deg: f64::from(forward.y.clamp(-1.0, 1.0).asin()).to_degrees(),
+            hfov_deg: f64::from(r - l).to_degrees(),
+            width,
+            height,
+        };
+        params.validate()?;
+        Ok(Self {
+            params,
+            rotation,
+            tan_left: l.tan(),
+            tan_right: r.tan(),
+            tan_up: u.tan(),
+            tan_down: d.tan(),
         })
     }
 
@@ -451,8 +515,10 @@ impl PanoramaView {
     /// World direction through the centre of view pixel (x, y) (pixel units,
     /// may be fractional).
     pub fn direction(&self, x_px: f32, y_px: f32) -> Vec3 {
-        let sx = (2.0 * x_px / self.params.width as f32 - 1.0) * self.tan_half_h;
-        let sy = (1.0 - 2.0 * y_px / self.params.height as f32) * self.tan_half_v;
+        let fx = x_px / self.params.width as f32;
+        let fy = y_px / self.params.height as f32;
+        let sx = self.tan_left + fx * (self.tan_right - self.tan_left);
+        let sy = self.tan_up - fy * (self.tan_up - self.tan_down);
         (self.rotation * Vec3::new(sx, sy, -1.0)).normalize()
     }
 
@@ -465,8 +531,8 @@ impl PanoramaView {
         let sx = cam.x / -cam.z;
         let sy = cam.y / -cam.z;
         Some([
-            (sx / self.tan_half_h + 1.0) * 0.5 * self.params.width as f32,
-            (1.0 - sy / self.tan_half_v) * 0.5 * self.params.height as f32,
+            (sx - self.tan_left) / (self.tan_right - self.tan_left) * self.params.width as f32,
+            (self.tan_up - sy) / (self.tan_up - self.tan_down) * self.params.height as f32,
         ])
     }
 
@@ -863,5 +929,60 @@ mod tests {
             .validate()
             .is_err()
         );
+    }
+
+    /// A frustum view: symmetric with no rotation it is the yaw/pitch view;
+    /// an asymmetric field puts its edges at the given angles; a quaternion
+    /// turning +90° about +y looks left (yaw −90°).
+    #[test]
+    fn frustum_views_follow_their_angles_and_orientation() {
+        let half = 30f32.to_radians();
+        let (w, h) = (64, 48);
+        let v_half = (half.tan() * h as f32 / w as f32).atan();
+        let f =
+            PanoramaView::from_frustum([0.0, 0.0, 0.0, 1.0], [-half, half, v_half, -v_half], w, h)
+                .unwrap();
+        let p = PanoramaView::new(ViewParams {
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            hfov_deg: 60.0,
+            width: w,
+            height: h,
+        })
+        .unwrap();
+        for (x, y) in [(0.5, 0.5), (31.5, 20.0), (63.5, 47.5)] {
+            assert!((f.direction(x, y) - p.direction(x, y)).length() < 1e-5);
+        }
+        assert!((f.params().hfov_deg - 60.0).abs() < 1e-4);
+        // Asymmetric (an HMD eye: more field on the nasal side).
+        let (l, r, u, d) = (-0.8f32, 0.6f32, 0.7f32, -0.75f32);
+        let a = PanoramaView::from_frustum([0.0, 0.0, 0.0, 1.0], [l, r, u, d], w, h).unwrap();
+        let left_edge = a.direction(0.0, 24.0);
+        assert!(
+            (left_edge.x.atan2(-left_edge.z) - l).abs() < 1e-4,
+            "{left_edge}"
+        );
+        let top_edge = a.direction(32.0, 0.0);
+        assert!(
+            (top_edge.y.atan2(-top_edge.z) - u).abs() < 1e-4,
+            "{top_edge}"
+        );
+        let px = a.project(a.direction(10.25, 33.5)).unwrap();
+        assert!(
+            (px[0] - 10.25).abs() < 1e-3 && (px[1] - 33.5).abs() < 1e-3,
+            "{px:?}"
+        );
+        // +90° about +y: −z turns into −x, the view looks left.
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let left = PanoramaView::from_frustum([0.0, s, 0.0, s], [l, r, u, d], w, h).unwrap();
+        assert!(
+            (left.params().yaw_deg + 90.0).abs() < 1e-3,
+            "{:?}",
+            left.params()
+        );
+        // Bad input is an error naming the field.
+        let e = PanoramaView::from_frustum([0.0, 0.0, 0.0, 2.0], [l, r, u, d], w, h).unwrap_err();
+        assert!(e.to_string().contains("orientation"), "{e}");
+        assert!(PanoramaView::from_frustum([0.0, 0.0, 0.0, 1.0], [r, l, u, d], w, h).is_err());
     }
 }

@@ -68,6 +68,23 @@ pub mod session;
 pub mod vulkan;
 
 pub use error::XrError;
+
+/// CLOCK_MONOTONIC now, seconds: the clock
+/// [`XrFrame::predicted_display_monotonic_secs`] is on (and the one Rust's
+/// `Instant` reads on Linux), for mapping a display time onto a host clock.
+pub fn monotonic_now_secs() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: an out-pointer to a timespec; CLOCK_MONOTONIC always exists
+    // on Linux.
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    if r != 0 {
+        return f64::NAN;
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
 pub use geometry::{Fov, Pose, TangentProjection, gaze_to_view_uv};
 pub use session::{
     Eye, EyeView, ReferenceSpace, SessionState, SessionStatus, XrFrame, XrOptions, XrSession,

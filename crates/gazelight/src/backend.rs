@@ -153,6 +153,28 @@ impl Renderer {
         Ok(Renderer::Cpu(Box::new(pipeline), why))
     }
 
+    /// The GPU pipeline on a device the caller made (an OpenXR runtime's,
+    /// say): `why` says why.
+    pub fn on_device(
+        ctx: &GpuContext,
+        config: &PipelineConfig,
+        width: usize,
+        height: usize,
+        deg_per_px: f64,
+        why: &str,
+    ) -> anyhow::Result<Renderer> {
+        Self::gpu(ctx, config, width, height, deg_per_px, why)
+    }
+
+    /// The GPU pipeline's output (`None` on the CPU), for a presenter that
+    /// draws it into the caller's textures.
+    pub fn frame_source(&self) -> Option<FrameSource> {
+        match self {
+            Renderer::Cpu(..) => None,
+            Renderer::Gpu(g, _) => Some(FrameSource::of(&g.pipeline)),
+        }
+    }
+
     fn gpu(
         ctx: &GpuContext,
         config: &PipelineConfig,

@@ -77,6 +77,9 @@ pub struct FrameLoopSetup {
     pub mouse: Option<MouseControl>,
     /// Render both eyes (left | right), each on its own gaze and pupil.
     pub stereo: bool,
+    /// Render on this device (an OpenXR runtime's) instead of the one
+    /// `backend` picks.
+    pub device: Option<gazelight_gpu::GpuContext>,
 }
 
 /// What the mouse drives in a windowed run.
@@ -139,6 +142,8 @@ pub struct FrameLoop {
     /// off).
     psf_worker: Option<PsfWorker>,
     psf_threshold_mm: f64,
+    /// Per view: mean luminance of its own image ([`Self::view_means`]).
+    view_means: [f64; 2],
     ages_ms: Vec<f32>,
     age_next: usize,
     frame_ms_sum: f64,
@@ -155,6 +160,9 @@ struct EyePipe {
     view: View,
     pipeline: Renderer,
     out: DisplayFrame,
+    /// The view's own panorama image when each view has its own pose and
+    /// field ([`FrameLoop::step_views`]; empty otherwise).
+    view_img: RgbImage,
     /// The pupil of the last kernel requested for this view (or
     /// installed), mm; NaN with glare off.
     psf_target_mm: f64,
@@ -167,18 +175,20 @@ impl EyePipe {
         backend: BackendChoice,
         config: &PipelineConfig,
         params: &ViewParams,
+        device: Option<&gazelight_gpu::GpuContext>,
     ) -> anyhow::Result<Self> {
-        let pipeline = Renderer::new(
-            backend,
-            config,
-            params.width,
-            params.height,
-            params.deg_per_px(),
-        )?;
+        let (w, h, dpp) = (params.width, params.height, params.deg_per_px());
+        let pipeline = match device {
+            Some(ctx) => {
+                Renderer::on_device(ctx, config, w, h, dpp, "the OpenXR runtime's device")?
+            }
+            None => Renderer::new(backend, config, w, h, dpp)?,
+        };
         Ok(Self {
             view,
             pipeline,
-            out: DisplayFrame::new(params.width, params.height),
+            out: DisplayFrame::new(w, h),
+            view_img: RgbImage::new(if device.is_some() { w } else { 0 }, h),
             psf_target_mm: f64::NAN,
         })
     }
@@ -232,12 +242,13 @@ impl FrameLoop {
             display,
             mouse,
             stereo,
+            device,
         } = setup;
         let config = pipeline;
         let views: &[View] = if stereo { &STEREO } else { &MONO };
         let mut eyes = views
             .iter()
-            .map(|v| EyePipe::new(*v, backend, &config, &view))
+            .map(|v| EyePipe::new(*v, backend, &config, &view, device.as_ref()))
             .collect::<anyhow::Result<Vec<_>>>()?;
         if let Some(first) = eyes.first() {
             tracing::info!(backend = %first.pipeline.describe(), reason = first.pipeline.reason(), views = eyes.len(), "frame pipeline");
@@ -275,6 +286,7 @@ impl FrameLoop {
             last_display_secs: f64::NEG_INFINITY,
             psf_scratch: Vec::with_capacity(kernel_len),
             psf_worker,
+            view_means: [f64::NAN; 2],
             psf_threshold_mm: config.glare.psf_rebuild_threshold_mm,
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
@@ -408,6 +420,23 @@ impl FrameLoop {
         t_secs: f64,
         dt_secs: f32,
     ) -> anyhow::Result<FrameStatus> {
+        self.step_views(now_host_secs, t_secs, dt_secs, None, [None; 2])
+    }
+
+    /// [`Self::step`] with each view's own projection (an HMD's eyes: pose
+    /// and field from the OpenXR runtime), rendered from the panorama into
+    /// the view's own image, and optionally each view's gaze (the runtime's
+    /// eye gaze, in the view's normalised coordinates) in place of the
+    /// tracker's. `now_host_secs` is the time the frame will be shown (the
+    /// `EyeState` age is taken there).
+    pub fn step_views(
+        &mut self,
+        now_host_secs: f64,
+        t_secs: f64,
+        dt_secs: f32,
+        views: Option<&[PanoramaView; 2]>,
+        gaze_uv: [Option<[f32; 2]>; 2],
+    ) -> anyhow::Result<FrameStatus> {
         let started = Instant::now();
         let live = *self.hub.eye.borrow();
         let mut state = live.state;
@@ -434,8 +463,22 @@ impl FrameLoop {
             dt_secs,
         };
         let mut inputs = [(unused, false); 2];
-        for (slot, eye) in inputs.iter_mut().zip(&self.eyes) {
+        for ((slot, eye), gaze) in inputs.iter_mut().zip(&self.eyes).zip(gaze_uv) {
             *slot = eye.view.input(&state, dt_secs);
+            if let Some(uv) = gaze {
+                slot.0.gaze_uv = uv;
+            }
+        }
+        if let Some(projections) = views {
+            for ((eye, p), mean) in self
+                .eyes
+                .iter_mut()
+                .zip(projections)
+                .zip(&mut self.view_means)
+            {
+                p.render(&self.pano, &mut eye.view_img);
+                *mean = sparse_mean_luminance(&eye.view_img);
+            }
         }
 
         let mouse_head = match (&self.mouse, cursor) {
@@ -625,11 +668,36 @@ impl FrameLoop {
                 }
             }
         }
-        let wall_secs = start.elapsed().as_secs_f64();
-        let summary = self.summary(wall_secs);
-        let writer = self.writer.take();
-        let mut summary = summary;
-        if let Some(w) = writer {
+        self.finish(start.elapsed().as_secs_f64(), result)
+    }
+
+    /// Counts a frame that missed its display slot (the OpenXR loop's
+    /// pacing: the runtime's predicted display times).
+    pub fn count_late(&mut self, late: bool, dropped: u64) {
+        self.late += u64::from(late);
+        self.dropped += dropped;
+    }
+
+    /// Each view's mean luminance (cd/m², over a sparse grid) as last
+    /// rendered by [`Self::step_views`]: what the head's pose shows.
+    pub fn view_means(&self) -> [f64; 2] {
+        self.view_means
+    }
+
+    /// The GPU output of view `k` (`None` on the CPU), for a presenter.
+    pub fn frame_source(&self, k: usize) -> Option<gazelight_gpu::present::FrameSource> {
+        self.eyes.get(k).and_then(|e| e.pipeline.frame_source())
+    }
+
+    /// Flushes the outputs and returns the summary of a session that ran
+    /// `wall_secs` and ended with `result`.
+    pub fn finish(
+        mut self,
+        wall_secs: f64,
+        result: anyhow::Result<()>,
+    ) -> anyhow::Result<RunSummary> {
+        let mut summary = self.summary(wall_secs);
+        if let Some(w) = self.writer.take() {
             summary.frames_not_written = w.frames_skipped;
             summary.rows_dropped = w.dropped;
             summary.writer = Some(w.finish()?);
@@ -672,6 +740,18 @@ impl FrameLoop {
                 .sum(),
         }
     }
+}
+
+/// Mean Rec. 709 luminance of every 8th pixel of every 8th row.
+fn sparse_mean_luminance(img: &RgbImage) -> f64 {
+    let (mut sum, mut n) = (0.0f64, 0u64);
+    for row in img.pixels.chunks_exact(img.width.max(1)).step_by(8) {
+        for p in row.iter().step_by(8) {
+            sum += f64::from(0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
+            n += 1;
+        }
+    }
+    if n == 0 { f64::NAN } else { sum / n as f64 }
 }
 
 /// A kernel to publish.
@@ -825,6 +905,7 @@ mod tests {
             )),
             mouse: None,
             stereo,
+            device: None,
         })
         .expect("frame loop");
         (fl, tx)

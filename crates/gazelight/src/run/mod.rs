@@ -23,6 +23,7 @@ pub mod head;
 pub mod psf_worker;
 pub mod source_task;
 pub mod writer;
+pub mod xr;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -84,11 +85,19 @@ pub struct RunArgs {
     /// With --out: write timeline.csv and psf.csv only, no frame images.
     #[arg(long)]
     pub no_frames: bool,
-    /// Run with no window (frames go to --out and the hub). Without it the
-    /// frames are shown in a window (winit + wgpu, vsync); when no display
-    /// can be opened the run goes on headless and says so.
+    /// Run with no window (frames go to --out and the hub); the same as
+    /// `--display none`. Without it the frames are shown in a window (winit
+    /// + wgpu, vsync); when no display can be opened the run goes on
+    /// headless and says so.
     #[arg(long)]
     pub headless: bool,
+    /// Where frames go: `window` (the default: a desktop window, both eyes
+    /// side by side with --stereo), `xr` (an OpenXR session: both eyes, each
+    /// from the runtime's pose and field of view, paced by the runtime; the
+    /// GPU pipeline on the runtime's Vulkan device; needs an OpenXR runtime,
+    /// `XR_RUNTIME_JSON`), or `none` (as --headless).
+    #[arg(long, value_enum, conflicts_with = "headless")]
+    pub display: Option<DisplayMode>,
     /// Frame pipeline: auto (a hardware GPU when present, else the CPU —
     /// a software adapter is slower than the CPU pipeline), gpu, or cpu.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
@@ -131,6 +140,14 @@ pub struct RunArgs {
     pub stereo: bool,
 }
 
+/// Where a live run's frames go (`--display`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DisplayMode {
+    Window,
+    Xr,
+    None,
+}
+
 /// The settings of a run after merging the file and the flags.
 struct Resolved {
     uri: String,
@@ -141,6 +158,8 @@ struct Resolved {
     calibration: Option<PathBuf>,
     head: HeadSpec,
     headless: bool,
+    /// `--display xr`.
+    xr: bool,
     relay: Option<SocketAddr>,
     http: Option<SocketAddr>,
     config: ServiceConfig,
@@ -169,7 +188,21 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
         (None, Some(h)) => service_config::parse_head(h).map_err(|e| anyhow::anyhow!(e))?,
         (None, None) => HeadSpec::Fixed,
     };
-    let headless = args.headless || config.display.headless.unwrap_or(false);
+    let xr = args.display == Some(DisplayMode::Xr);
+    let headless = args.headless
+        || matches!(args.display, Some(DisplayMode::None | DisplayMode::Xr))
+        || (args.display.is_none() && config.display.headless.unwrap_or(false));
+    if xr && (args.mouse_gaze || head == HeadSpec::Mouse) {
+        bail!(
+            "--display xr: the gaze and head come from the tracker and the headset, not the mouse"
+        );
+    }
+    if xr && args.backend == BackendChoice::Cpu {
+        bail!(
+            "--display xr renders on the OpenXR runtime's GPU device: drop --backend cpu \
+             (the CPU pipeline cannot write the runtime's swapchain images without a host round trip)"
+        );
+    }
     if headless && args.mouse_gaze {
         bail!("--mouse-gaze needs the window: drop --headless");
     }
@@ -193,6 +226,7 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
     };
     Ok(Resolved {
         headless,
+        xr,
         relay,
         http,
         uri: args
@@ -246,8 +280,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         // Driven by the window's cursor (refused headless in `resolve`).
         HeadSpec::Mouse => Head::Fixed,
     };
-    // The frame shown and written: one view, or left | right.
-    let views = if args.stereo { 2 } else { 1 };
+    // The frame shown and written: one view, or left | right (an OpenXR
+    // session is always stereo).
+    let stereo = args.stereo || r.xr;
+    let views = if stereo { 2 } else { 1 };
     let window = (!r.headless).then(|| {
         (
             DisplaySlot::new((view.width * views) as u32, view.height as u32),
@@ -292,13 +328,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(dir) => {
             let mut psf = cfg.pipeline.glare.psf.clone();
             psf.ppd = view.ppd();
+            if r.xr && !args.no_frames {
+                tracing::info!(
+                    "--display xr: --out writes timeline.csv, psf.csv and xr.csv, no frame images \
+                     (they stay on the GPU, in the runtime's swapchain)"
+                );
+            }
             Some(OutputWriter::start(
                 dir,
                 view.width * views,
                 view.height,
                 psf,
-                !args.no_frames,
-                args.stereo,
+                !args.no_frames && !r.xr,
+                stereo,
             )?)
         }
         None => None,
@@ -433,14 +475,23 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             writer,
             display,
             mouse,
-            stereo: args.stereo,
+            stereo,
+            device: None,
         };
         let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+        let xr_display = r.xr;
+        let out_dir = r.out.clone();
         let thread_hub = hub.clone();
         std::thread::Builder::new()
             .name("gazelight-frames".into())
             .spawn(move || {
-                let result = FrameLoop::new(setup).and_then(FrameLoop::run);
+                let result = if xr_display {
+                    xr::run(setup, out_dir.as_deref()).map(|(s, x)| (s, Some(x)))
+                } else {
+                    FrameLoop::new(setup)
+                        .and_then(FrameLoop::run)
+                        .map(|s| (s, None))
+                };
                 thread_hub.request_shutdown();
                 let _ = done_tx.send(result);
             })
@@ -519,10 +570,45 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }),
     };
     runtime.shutdown_timeout(Duration::from_secs(1));
-    let (summary, source) = summary?;
+    let ((summary, xr_report), source) = summary?;
     print_summary(&summary, r.fps, &source, r.out.as_deref());
+    if let Some(x) = &xr_report {
+        print_xr(x, &summary);
+    }
     print_display(&summary, window_stats.as_ref());
     Ok(())
+}
+
+/// What the OpenXR session did (the lines `.ci/xr/run` checks).
+fn print_xr(x: &xr::XrReport, s: &RunSummary) {
+    let [l, r] = x.first_positions_m;
+    let ipd_mm =
+        ((l[0] - r[0]).powi(2) + (l[1] - r[1]).powi(2) + (l[2] - r[2]).powi(2)).sqrt() * 1e3;
+    println!(
+        "xr: {} on {} ({}x{} per eye); states {:?}; focused {}; {} frames submitted, predicted display times {}; eye views {:.1} mm apart; head turned up to {:.2}°; EyeState age at display median {:.2} ms, p99 {:.2} ms; eye gaze from {}; extensions {}",
+        x.system,
+        x.runtime,
+        x.eye_size_px[0],
+        x.eye_size_px[1],
+        x.states,
+        if x.focused_reached { "yes" } else { "no" },
+        x.frames_submitted,
+        if x.display_times_increasing {
+            "increasing"
+        } else {
+            "NOT increasing"
+        },
+        ipd_mm,
+        x.max_head_turn_deg,
+        s.eye_state_age_median_ms,
+        s.eye_state_age_p99_ms,
+        if x.eye_gaze {
+            "the runtime"
+        } else {
+            "the tracker"
+        },
+        x.extensions.join(" "),
+    );
 }
 
 /// One line on where the frames went: presented by the window (and how
