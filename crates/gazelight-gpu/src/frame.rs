@@ -788,6 +788,92 @@ impl GpuFramePipeline {
         Ok(())
     }
 
+    /// Records copying the caller's HDR texture into the bound scene buffer
+    /// (before [`Self::encode`] in the same encoder): the host-renderer
+    /// path for a renderer whose eyes are already GPU textures. The texture
+    /// must be `Rgba32Float` (linear RGB in cd/m², alpha ignored), the
+    /// pipeline's size, with `COPY_SRC` usage, and its rows a multiple of
+    /// 256 bytes (the width a multiple of 16 pixels: a texture-to-buffer
+    /// copy's row alignment).
+    ///
+    /// # Example: the pipeline inside a host renderer
+    ///
+    /// One pipeline per eye on the host's own device; each eye's HDR
+    /// texture in, the display frame drawn into the host's (e.g. an OpenXR
+    /// swapchain's) texture out, no host round trip:
+    ///
+    /// ```no_run
+    /// # fn eye(device: wgpu::Device, queue: wgpu::Queue, hdr: &wgpu::Texture,
+    /// #        target: &wgpu::TextureView, deg_per_px: f64) -> Result<(), gazelight_gpu::GpuError> {
+    /// use gazelight_gpu::present::{FrameSource, TexturePresenter};
+    /// use gazelight_gpu::{GpuContext, GpuFramePipeline};
+    /// use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
+    ///
+    /// let ctx = GpuContext::from_device(device, queue);
+    /// let (w, h) = (hdr.width() as usize, hdr.height() as usize);
+    /// let mut pipeline = GpuFramePipeline::new(&ctx, PipelineConfig::default(), w, h, deg_per_px)?;
+    /// let presenter = TexturePresenter::new(&FrameSource::of(&pipeline), wgpu::TextureFormat::Rgba8UnormSrgb)?;
+    /// // Per frame, per eye: this eye's gaze and pupil.
+    /// let input = FrameInput { gaze_uv: [0.5, 0.5], pupil_mm: 4.0, dt_secs: 1.0 / 90.0 };
+    /// let mut encoder = ctx.device().create_command_encoder(&Default::default());
+    /// pipeline.encode_scene_texture(&mut encoder, hdr)?;
+    /// pipeline.encode(&mut encoder, &input);
+    /// presenter.encode(&mut encoder, target);
+    /// ctx.queue().submit([encoder.finish()]);
+    /// # Ok(()) }
+    /// ```
+    pub fn encode_scene_texture(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        texture: &wgpu::Texture,
+    ) -> Result<(), GpuError> {
+        let (w, h) = (self.sizes.width, self.sizes.height);
+        let bad = |message: String| GpuError::Wgpu {
+            what: "host scene texture".to_owned(),
+            message,
+        };
+        if texture.format() != wgpu::TextureFormat::Rgba32Float {
+            return Err(bad(format!(
+                "format {:?}, expected Rgba32Float",
+                texture.format()
+            )));
+        }
+        if texture.width() != w || texture.height() != h {
+            return Err(bad(format!(
+                "{}x{}, the pipeline renders {w}x{h}",
+                texture.width(),
+                texture.height()
+            )));
+        }
+        if !texture.usage().contains(wgpu::TextureUsages::COPY_SRC) {
+            return Err(bad("needs wgpu::TextureUsages::COPY_SRC".to_owned()));
+        }
+        let row_bytes = w * 16;
+        if row_bytes % wgpu::COPY_BYTES_PER_ROW_ALIGNMENT != 0 {
+            return Err(bad(format!(
+                "rows of {row_bytes} bytes; a texture copy needs a multiple of {} (width a multiple of 16)",
+                wgpu::COPY_BYTES_PER_ROW_ALIGNMENT
+            )));
+        }
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &self.buffers.scene,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row_bytes),
+                    rows_per_image: Some(h),
+                },
+            },
+            wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+        );
+        Ok(())
+    }
+
     /// Whether a frame rebuilds the PSF itself when the pupil moves more
     /// than `psf_rebuild_threshold_mm` (the default). A live session turns
     /// it off and installs kernels built on another thread with

@@ -829,6 +829,186 @@ mod tests {
         );
     }
 
+    /// The host-renderer API: the frame pipeline on a device the caller
+    /// made (`GpuContext::from_device`, as an OpenXR runtime's), one
+    /// pipeline per eye with its own input, each drawn by a
+    /// [`TexturePresenter`] into the caller's sRGB texture (an XR swapchain
+    /// image's format): the texture holds the CPU reference pipeline's
+    /// frame within 2 codes (1 for GPU vs CPU, 1 for the sRGB round trip).
+    #[test]
+    fn host_renderer_on_the_callers_device_matches_the_cpu() {
+        use gazelight_vision::RgbImage;
+        use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FramePipeline, PipelineConfig};
+
+        let Some(own) = crate::testing::test_context("host_renderer_on_the_callers_device") else {
+            return;
+        };
+        let caller = GpuContext::from_device(own.device().clone(), own.queue().clone());
+        // A dim night scene with a bright lamp (glare, scotopic colour,
+        // per-pixel acuity) at 6.4 ppd.
+        let (w, h) = (128usize, 96usize);
+        let deg_per_px = 1.0 / 6.4;
+        let pixels = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let d2 = (x - 40.0).powi(2) + (y - 30.0).powi(2);
+                if d2 < 4.0 {
+                    [3.0e3, 2.5e3, 1.5e3]
+                } else {
+                    let g = 0.02 + 0.03 * x / w as f32;
+                    [g, 1.2 * g, 0.8 * g]
+                }
+            })
+            .collect();
+        let scene = RgbImage::from_pixels(w, h, pixels).unwrap();
+        let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+        let eyes = [
+            FrameInput {
+                gaze_uv: [0.3, 0.3],
+                pupil_mm: 3.0,
+                dt_secs: 0.0,
+            },
+            FrameInput {
+                gaze_uv: [0.7, 0.6],
+                pupil_mm: 6.0,
+                dt_secs: 0.0,
+            },
+        ];
+        for (k, input) in eyes.iter().enumerate() {
+            let config = PipelineConfig::default();
+            let mut cpu = FramePipeline::new(config.clone(), w, h, deg_per_px).unwrap();
+            let mut gpu = crate::GpuFramePipeline::new(&caller, config, w, h, deg_per_px).unwrap();
+            let mut reference = DisplayFrame::new(w, h);
+            cpu.process(&scene, input, &mut reference).unwrap();
+            if k == 0 {
+                // Eye 0: the scene from host memory.
+                gpu.process(&scene, input).unwrap();
+            } else {
+                // Eye 1: the scene as the caller's HDR texture, copied on
+                // the device and rendered in the caller's encoder.
+                let texture = caller.device().create_texture(&wgpu::TextureDescriptor {
+                    label: Some("caller's HDR eye texture"),
+                    size: wgpu::Extent3d {
+                        width: w as u32,
+                        height: h as u32,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format: wgpu::TextureFormat::Rgba32Float,
+                    usage: wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC,
+                    view_formats: &[],
+                });
+                let texels: Vec<[f32; 4]> = scene
+                    .pixels
+                    .iter()
+                    .map(|p| [p[0], p[1], p[2], 1.0])
+                    .collect();
+                caller.queue().write_texture(
+                    texture.as_image_copy(),
+                    bytemuck::cast_slice(&texels),
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(w as u32 * 16),
+                        rows_per_image: Some(h as u32),
+                    },
+                    wgpu::Extent3d {
+                        width: w as u32,
+                        height: h as u32,
+                        depth_or_array_layers: 1,
+                    },
+                );
+                let mut encoder = caller
+                    .device()
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+                gpu.encode_scene_texture(&mut encoder, &texture).unwrap();
+                gpu.encode(&mut encoder, input);
+                caller.queue().submit([encoder.finish()]);
+                // A texture of another format is refused, naming it.
+                let wrong = caller.device().create_texture(&wgpu::TextureDescriptor {
+                    label: None,
+                    size: wgpu::Extent3d {
+                        width: w as u32,
+                        height: h as u32,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format: wgpu::TextureFormat::Rgba8Unorm,
+                    usage: wgpu::TextureUsages::COPY_SRC,
+                    view_formats: &[],
+                });
+                let mut encoder = caller
+                    .device()
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+                let e = gpu.encode_scene_texture(&mut encoder, &wrong).unwrap_err();
+                assert!(e.to_string().contains("Rgba32Float"), "{e}");
+            }
+            let presenter = TexturePresenter::new(&FrameSource::of(&gpu), format).unwrap();
+            let device = caller.device();
+            let target = device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("caller's eye texture"),
+                size: wgpu::Extent3d {
+                    width: w as u32,
+                    height: h as u32,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+                view_formats: &[],
+            });
+            presenter.present(&target.create_view(&wgpu::TextureViewDescriptor::default()));
+            let staging = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("caller's read-back"),
+                size: (w * h * 4) as u64,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            let mut encoder =
+                device.create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+            encoder.copy_texture_to_buffer(
+                target.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &staging,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(w as u32 * 4),
+                        rows_per_image: Some(h as u32),
+                    },
+                },
+                wgpu::Extent3d {
+                    width: w as u32,
+                    height: h as u32,
+                    depth_or_array_layers: 1,
+                },
+            );
+            caller.queue().submit([encoder.finish()]);
+            let mut got = Vec::new();
+            crate::fft::read_mapped(&caller, &staging, "caller's read-back", |b| {
+                got.extend_from_slice(b)
+            })
+            .unwrap();
+            let worst = got
+                .iter()
+                .zip(&reference.rgba8)
+                .map(|(a, b)| a.abs_diff(*b))
+                .max()
+                .unwrap_or(0);
+            println!("eye {k}: worst difference from the CPU reference {worst}/255");
+            assert!(
+                worst <= 2,
+                "eye {k}: the caller's texture is {worst} codes from the CPU"
+            );
+            // The eyes differ (gaze and pupil), so each texture is its own.
+            assert!(got.iter().any(|&c| c > 0), "eye {k}: a black texture");
+        }
+    }
+
     #[test]
     fn letterbox_keeps_the_aspect() {
         assert_eq!(letterbox_scale([720, 800], [720, 800]), [1.0, 1.0]);

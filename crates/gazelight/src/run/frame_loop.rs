@@ -347,13 +347,11 @@ impl FrameLoop {
         };
         let mut requests = [None; 2];
         match self.eyes.as_mut_slice() {
-            [one] => {
-                if pupils_mm[0].is_finite() {
-                    let p = clamp(pupils_mm[0]);
-                    if one.psf_target_mm.is_nan() || (p - one.psf_target_mm).abs() > thr {
-                        requests[0] = Some(p);
-                        one.psf_target_mm = p;
-                    }
+            [one] if pupils_mm[0].is_finite() => {
+                let p = clamp(pupils_mm[0]);
+                if one.psf_target_mm.is_nan() || (p - one.psf_target_mm).abs() > thr {
+                    requests[0] = Some(p);
+                    one.psf_target_mm = p;
                 }
             }
             [a, b] if pupils_mm.iter().all(|p| p.is_finite()) => {

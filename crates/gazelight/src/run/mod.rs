@@ -87,7 +87,7 @@ pub struct RunArgs {
     pub no_frames: bool,
     /// Run with no window (frames go to --out and the hub); the same as
     /// `--display none`. Without it the frames are shown in a window (winit
-    /// + wgpu, vsync); when no display can be opened the run goes on
+    /// and wgpu, vsync); when no display can be opened the run goes on
     /// headless and says so.
     #[arg(long)]
     pub headless: bool,
