@@ -481,3 +481,44 @@ async fn blinks_arrive_from_eye_events() {
     assert!(want_closed > 0);
     assert!(closed >= want_closed.min(1), "{closed} closed-lid pupils");
 }
+
+/// The peer itself against Pupil Labs' official Python client
+/// (`pupil-labs-realtime-api`): its status parses with the official models,
+/// and the official decoder reads the 65/89/105-byte layouts, the pupils,
+/// the sender-report timestamps and the blinks as the recording has them
+/// (`neon_official_client.py` prints a PASS/FAIL line per check). Without
+/// the client: SKIP, except in CI.
+#[test]
+fn the_peer_is_what_the_official_client_decodes() {
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/neon_official_client.py");
+    let out = match std::process::Command::new("python3")
+        .arg(&script)
+        .arg(data_dir())
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) => {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "python3 missing in CI: {e}"
+            );
+            eprintln!("SKIP: python3 missing ({e})");
+            return;
+        }
+    };
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}");
+    if out.status.code() == Some(2) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "the official client is missing in CI: {stdout}{stderr}"
+        );
+        return;
+    }
+    assert!(
+        out.status.success() && !stdout.contains("FAIL"),
+        "{stdout}\n{stderr}"
+    );
+    assert_eq!(stdout.matches("PASS").count(), 16, "{stdout}");
+}

@@ -252,7 +252,14 @@ def status_json(rtsp_port, args):
             "sensor": name, "conn_type": "DIRECT", "connected": True, "ip": "127.0.0.1",
             "port": rtsp_port, "protocol": "rtsp", "params": "camera=%s&audioenable=on" % name,
             "stream_error": False}}
-    result = [{"model": "Phone", "data": {"device_name": "Neon Companion (gazelight test peer)"}},
+    # Every field the official client's models require (its Status parser
+    # refuses a Phone without them; checked by neon_official_client.py).
+    phone = {"battery_level": 87, "battery_state": "OK", "device_id": "gazelight-test-peer",
+             "device_name": "Neon Companion (gazelight test peer)", "ip": "127.0.0.1",
+             "memory": 64_000_000_000, "memory_state": "OK"}
+    hardware = {"version": "2.0", "glasses_serial": "test", "world_camera_serial": "test",
+                "module_serial": "test"}
+    result = [{"model": "Phone", "data": phone}, {"model": "Hardware", "data": hardware},
               sensor("gaze")]
     if not args.no_events:
         result.append(sensor("eye_events"))
