@@ -16,6 +16,10 @@ the recording's own or shifted to start now, malformed packets, and a drop:
 after --drop-after packets the RTSP connection is closed and both listeners
 refuse connections for --down-secs, then come back.
 
+--step-mm A,B replaces the recording's pupils by a square wave (both eyes,
+A then B mm, --step-secs each, starting at start_unix_ns) to check that
+the filters follow step changes.
+
 Prints one line "READY http=PORT rtsp=PORT start_unix_ns=NS" when listening.
 """
 import argparse
@@ -199,13 +203,27 @@ def play_gaze(conn, args, recs, st, start_unix_ns):
         delay = due - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        if args.stamp_send:
+            # The packet's time is when it leaves (the same linear RTP
+            # clock, so the sender reports stay consistent).
+            unix_ns = time.time_ns()
+            rel_ns = unix_ns - start_unix_ns
+            ts = (args.rtp_start + (rel_ns * rate) // 1_000_000_000) & 0xFFFFFFFF
         out = b""
         if k == 0 or (args.sr_every > 0 and k % args.sr_every == 0):
             out += frame(1, sender_report(unix_ns, ts))
         if args.malformed_every and k % args.malformed_every == args.malformed_every - 1:
             out += frame(0, rtp(i, ts, b"\x00" * 7))  # a 7-byte gaze payload: no layout
             out += frame(0, b"\x80\x63\x00")  # a 3-byte RTP packet
-        out += frame(0, rtp(i, ts, gaze_payload(args.layout, recs[idx])))
+        rec = recs[idx]
+        if args.step_mm:
+            a, b = (float(v) for v in args.step_mm.split(","))
+            mm = a if int(rel_ns / 1e9 / args.step_secs) % 2 == 0 else b
+            es = list(rec[4])
+            es[0] = es[7] = mm  # pupil diameters, left and right
+            es[16] = es[19] = 10.0  # eyelid apertures: open
+            rec = (rec[0], rec[1], rec[2], 255, tuple(es))
+        out += frame(0, rtp(i, ts, gaze_payload(args.layout, rec)))
         conn.sendall(out)
         i += 1
         k += 1
@@ -306,6 +324,12 @@ def main():
     p.add_argument("--drop-after", type=int, default=0)
     p.add_argument("--down-secs", type=float, default=1.0)
     p.add_argument("--no-events", action="store_true")
+    p.add_argument("--step-mm", default="", help="A,B: both eyes' pupils alternate between A and B mm "
+                   "(a square wave; eyelids open) instead of the recording's")
+    p.add_argument("--step-secs", type=float, default=2.0, help="length of each --step-mm plateau, s")
+    p.add_argument("--stamp-send", action="store_true",
+                   help="time each gaze packet by when it is sent (for latency measurements), "
+                        "not by its place in the recording")
     args = p.parse_args()
     recs, blinks = load(args.data)
     start_unix_ns = recs[0][0] if args.time == "recording" else time.time_ns()

@@ -18,14 +18,20 @@ use std::time::Duration;
 use common::{Proc, gazelight, shared, tmp};
 use gazelight_tracker::Sample;
 
-/// The peer, killed on drop, and its HTTP port.
+/// The peer, killed on drop, its HTTP port and its time origin.
 struct NeonPeer {
     _proc: Proc,
     http_port: u16,
+    start_unix_ns: i128,
 }
 
 /// Starts the peer; `None` (a SKIP line) without python3 outside CI.
 fn neon_peer() -> Option<NeonPeer> {
+    neon_peer_with(&[])
+}
+
+/// [`neon_peer`] with extra arguments.
+fn neon_peer_with(extra: &[&str]) -> Option<NeonPeer> {
     let have = Command::new("python3")
         .arg("--version")
         .output()
@@ -41,6 +47,7 @@ fn neon_peer() -> Option<NeonPeer> {
         .arg(script)
         .arg("--data")
         .arg(shared(""))
+        .args(extra)
         // The peer exits when its stdin closes (when the Proc is dropped).
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -62,9 +69,15 @@ fn neon_peer() -> Option<NeonPeer> {
         .find_map(|w| w.strip_prefix("http="))
         .and_then(|p| p.parse().ok())
         .unwrap_or_else(|| panic!("no http= in {line:?}"));
+    let start_unix_ns = line
+        .split_whitespace()
+        .find_map(|w| w.strip_prefix("start_unix_ns="))
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no start_unix_ns= in {line:?}"));
     Some(NeonPeer {
         _proc: Proc(child),
         http_port,
+        start_unix_ns,
     })
 }
 
@@ -283,4 +296,107 @@ fn record_a_live_neon_then_replay_it() {
     eprintln!("replayed frames' pupil median {got:.3} mm, recording's binocular {rec:.3} mm");
     assert!((got - rec).abs() < 0.25, "{got} vs {rec}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The live eye task on `neon://127.0.0.1:PORT` for `secs`: every state it
+/// published, with the host-to-Unix clock offset (s) read at the start.
+fn live_states(port: u16, secs: f64) -> (Vec<gazelight_tracker::LiveEyeState>, f64) {
+    use gazelight_tracker::live::{self, LiveConfig};
+    use gazelight_tracker::pupil::clock::host_now_secs;
+    use gazelight_tracker::transport::{SourceUri, open};
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    let offset = unix - host_now_secs();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    let states = rt.block_on(async {
+        let text = format!("neon://127.0.0.1:{port}");
+        let uri = SourceUri::parse(&text).unwrap();
+        let source = open(&uri).unwrap();
+        let age_clock = source.age_clock();
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let live = live::spawn(
+            &text,
+            source,
+            gazelight_tracker::filter::FilterChain::with_defaults(),
+            age_clock,
+            stop_rx,
+            LiveConfig::default(),
+        );
+        let mut rx = live.eye.clone();
+        let end = tokio::time::Instant::now() + Duration::from_secs_f64(secs);
+        let mut out = Vec::new();
+        while let Ok(Ok(())) = tokio::time::timeout_at(end, rx.changed()).await {
+            out.push(*rx.borrow_and_update());
+        }
+        let _ = stop_tx.send(true);
+        let _ = tokio::time::timeout(Duration::from_secs(3), live.task).await;
+        out
+    });
+    (states, offset)
+}
+
+/// The peer steps both pupils 3.2 ↔ 4.0 mm every 2 s: the filtered pupils
+/// follow each step (within 0.05 mm from 0.6 s after it, the physiological
+/// rate limit being 6 mm/s), and the latency from each packet's own time
+/// (its RTP timestamp through the sender reports; the peer stamps each
+/// packet with the time it sends it, `--stamp-send`) to the published
+/// `EyeState` is measured.
+#[test]
+fn filtered_pupils_follow_steps_and_the_latency_is_measured() {
+    let (a_mm, b_mm, step_secs) = (3.2f32, 4.0f32, 2.0f64);
+    let Some(peer) = neon_peer_with(&["--step-mm", "3.2,4.0", "--step-secs", "2", "--stamp-send"])
+    else {
+        return;
+    };
+    let (states, offset) = live_states(peer.http_port, 9.0);
+    let start_unix = peer.start_unix_ns as f64 * 1e-9;
+    let mut settled = 0usize;
+    let mut plateaus = std::collections::BTreeSet::new();
+    let mut latencies_ms = Vec::new();
+    let mut last_updates = 0;
+    for s in &states {
+        if s.updates == last_updates || s.updates == 0 {
+            continue;
+        }
+        last_updates = s.updates;
+        latencies_ms.push((s.updated_host_secs - s.state.t_secs) * 1e3);
+        let rel = s.state.t_secs + offset - start_unix;
+        if rel < 0.0 {
+            continue;
+        }
+        let k = (rel / step_secs).floor();
+        let into = rel - k * step_secs;
+        let want = if (k as i64) % 2 == 0 { a_mm } else { b_mm };
+        if into > 0.6 && into < step_secs - 0.05 {
+            for e in 0..2 {
+                let got = s.state.eyes[e].pupil_mm;
+                assert!(
+                    (got - want).abs() < 0.05,
+                    "eye {e}: {got} mm at {rel:.3} s, {into:.3} s into a {want} mm plateau"
+                );
+            }
+            settled += 1;
+            plateaus.insert(k as i64);
+        }
+    }
+    assert!(settled > 300, "only {settled} settled states");
+    assert!(plateaus.len() >= 3, "plateaus seen: {plateaus:?}");
+    latencies_ms.sort_by(f64::total_cmp);
+    let q = |p: f64| latencies_ms[((latencies_ms.len() - 1) as f64 * p).round() as usize];
+    println!(
+        "RTP packet time -> EyeState published: {} states, median {:.2} ms, p99 {:.2} ms, max {:.2} ms; {settled} settled states on {} plateaus",
+        latencies_ms.len(),
+        q(0.5),
+        q(0.99),
+        q(1.0),
+        plateaus.len()
+    );
+    // Loopback on this machine: well under the 250 ms stale limit.
+    assert!(q(0.5) < 20.0, "median latency {} ms", q(0.5));
 }
