@@ -43,6 +43,8 @@ pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod pupil {
     pub use gazelight_eye::clock;
     pub use gazelight_pupil::client::*;
+    /// Neon discovery over mDNS.
+    pub use gazelight_pupil::neon::discover as neon_discover;
     pub use gazelight_pupil::{msg, relay, stimulus};
 }
 

@@ -1,14 +1,52 @@
 //! `gazelight devices`: list connected HID devices (marking page-0x12 eye
 //! trackers and devices with a vendor profile), USB devices (marking those
 //! with a vendor-specific interface, usable as `usb://VID:PID`) and serial
-//! ports, each with the source URI to use. With no tracker found it says so
+//! ports, and Pupil Labs Neons announcing themselves on the local network
+//! (mDNS), each with the source URI to use. With no tracker found it says so
 //! and what it searched; it exits 0 either way.
 
+use std::time::Duration;
+
+use gazelight_tracker::pupil::neon_discover::{self, DiscoverError, FoundNeon};
 use gazelight_tracker::transport::discover::{self, Discovery, HidKind};
 
-/// Arguments of `gazelight devices` (none yet).
+/// Arguments of `gazelight devices`.
 #[derive(clap::Args, Debug)]
-pub struct DevicesArgs {}
+pub struct DevicesArgs {
+    /// How long to listen for Neons on the local network (mDNS), seconds;
+    /// 0 skips it.
+    #[arg(long, value_name = "S", default_value_t = 2.0)]
+    pub mdns_secs: f64,
+}
+
+/// Renders the Neons found by mDNS (`None`: not searched).
+pub fn render_neons(found: &Option<Result<Vec<FoundNeon>, DiscoverError>>, secs: f64) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let Some(found) = found else {
+        return s;
+    };
+    let _ = writeln!(
+        s,
+        "Neon (mDNS {}, instances \"{}…\", {secs} s):",
+        neon_discover::SERVICE_TYPE,
+        neon_discover::INSTANCE_PREFIX
+    );
+    match found {
+        Err(e) => {
+            let _ = writeln!(s, "  cannot search: {e}");
+        }
+        Ok(v) if v.is_empty() => {
+            let _ = writeln!(s, "  none");
+        }
+        Ok(v) => {
+            for n in v {
+                let _ = writeln!(s, "  {}  host {}  source: {}", n.name, n.host, n.uri());
+            }
+        }
+    }
+    s
+}
 
 /// Render the listing as text.
 pub fn render(d: &Discovery) -> String {
@@ -108,7 +146,13 @@ pub fn render(d: &Discovery) -> String {
 }
 
 /// Run `gazelight devices`.
-pub fn run(_args: DevicesArgs) -> anyhow::Result<()> {
+pub fn run(args: DevicesArgs) -> anyhow::Result<()> {
+    let wait = crate::bounds::secs_or_zero("--mdns-secs", args.mdns_secs)?;
+    if wait > Duration::from_secs(60) {
+        anyhow::bail!("--mdns-secs {}: at most 60 s", args.mdns_secs);
+    }
     print!("{}", render(&discover::discover()));
+    let neons = (!wait.is_zero()).then(|| neon_discover::discover_neons(wait));
+    print!("{}", render_neons(&neons, args.mdns_secs));
     Ok(())
 }

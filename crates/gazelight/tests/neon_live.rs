@@ -400,3 +400,73 @@ fn filtered_pupils_follow_steps_and_the_latency_is_measured() {
     // Loopback on this machine: well under the 250 ms stale limit.
     assert!(q(0.5) < 20.0, "median latency {} ms", q(0.5));
 }
+
+/// `gazelight devices` finds a Neon announced over mDNS — the Companion
+/// app's announcement (`_http._tcp.local.`, instance `PI monitor:…`) made by
+/// python-zeroconf, another mDNS implementation — inside a private network
+/// namespace holding only a veth pair (the announcer on one end; nothing
+/// leaves the machine). SKIP without `unshare -n` (root), `ip` or zeroconf, outside CI.
+#[test]
+fn devices_finds_a_neon_by_mdns() {
+    let ok = |c: &mut Command| c.output().is_ok_and(|o| o.status.success());
+    let have = ok(Command::new("unshare").args(["-n", "true"]))
+        && ok(Command::new("ip").arg("-V"))
+        && ok(Command::new("python3").args(["-c", "import zeroconf"]));
+    if !have {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must have unshare -n (root), iproute2 and python3 zeroconf"
+        );
+        eprintln!("SKIP: needs unshare -n (as root), ip and python3 with zeroconf");
+        return;
+    }
+    let script = r#"
+set -e
+ip link set lo up
+ip link add v0 type veth peer name v1
+ip addr add 10.77.0.1/24 dev v0
+ip addr add 10.77.0.2/24 dev v1
+ip link set v0 up
+ip link set v1 up
+ip route add 224.0.0.0/4 dev v0
+python3 -c '
+import socket, time
+from zeroconf import ServiceInfo, Zeroconf
+zc = Zeroconf(interfaces=["10.77.0.2"])
+zc.register_service(ServiceInfo("_http._tcp.local.",
+    "PI monitor:Neon Companion:test01._http._tcp.local.",
+    addresses=[socket.inet_aton("10.77.0.2")], port=8080, server="neon-test.local."))
+zc.register_service(ServiceInfo("_http._tcp.local.", "printer._http._tcp.local.",
+    addresses=[socket.inet_aton("10.77.0.2")], port=631, server="printer.local."))
+print("ANNOUNCED", flush=True)
+time.sleep(30)
+' &
+PEER=$!
+sleep 3
+"$BIN" devices --mdns-secs 4
+kill $PEER
+"#;
+    let out = Command::new("unshare")
+        .args(["-n", "sh", "-c", script])
+        .env("BIN", env!("CARGO_BIN_EXE_gazelight"))
+        .output()
+        .expect("unshare");
+    let text = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "the namespace script failed");
+    assert!(text.contains("ANNOUNCED"), "the announcer did not start");
+    let neon_lines: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("source: neon://"))
+        .collect();
+    assert_eq!(neon_lines.len(), 1, "{text}");
+    assert!(
+        neon_lines[0].contains("PI monitor:Neon Companion:test01")
+            && neon_lines[0].contains("source: neon://10.77.0.2:8080"),
+        "{text}"
+    );
+    assert!(
+        !text.contains("printer"),
+        "a non-Neon service was listed: {text}"
+    );
+}

@@ -27,6 +27,7 @@
 //! Time Echo protocol, which would measure the phone's clock offset, is not
 //! implemented.
 
+pub mod discover;
 pub mod http;
 pub mod payload;
 pub mod rtp;
