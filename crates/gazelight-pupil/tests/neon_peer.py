@@ -16,6 +16,10 @@ the recording's own or shifted to start now, malformed packets, and a drop:
 after --drop-after packets the RTSP connection is closed and both listeners
 refuse connections for --down-secs, then come back.
 
+--clock-offset-ms X makes the phone's clock run X ms ahead of the real
+time (packets, sender reports, blinks), and the Time Echo server (on the
+port /api/status names as Phone.time_echo_port) answers with that clock.
+
 --step-mm A,B replaces the recording's pupils by a square wave (both eyes,
 A then B mm, --step-secs each, starting at start_unix_ns) to check that
 the filters follow step changes.
@@ -169,7 +173,7 @@ def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
                 # A device stamps what it streams with its clock now: a
                 # reconnect replays the recording from its start at today's
                 # time, not at the time of the first connection.
-                start_unix_ns = time.time_ns()
+                start_unix_ns = time.time_ns() + args.clock_offset_ms * 1_000_000
             play_gaze(conn, args, recs, st, start_unix_ns)
         else:
             play_events(conn, args, blinks, recs, st, start_unix_ns)
@@ -206,7 +210,7 @@ def play_gaze(conn, args, recs, st, start_unix_ns):
         if args.stamp_send:
             # The packet's time is when it leaves (the same linear RTP
             # clock, so the sender reports stay consistent).
-            unix_ns = time.time_ns()
+            unix_ns = time.time_ns() + args.clock_offset_ms * 1_000_000
             rel_ns = unix_ns - start_unix_ns
             ts = (args.rtp_start + (rel_ns * rate) // 1_000_000_000) & 0xFFFFFFFF
         out = b""
@@ -275,6 +279,8 @@ def status_json(rtsp_port, args):
     phone = {"battery_level": 87, "battery_state": "OK", "device_id": "gazelight-test-peer",
              "device_name": "Neon Companion (gazelight test peer)", "ip": "127.0.0.1",
              "memory": 64_000_000_000, "memory_state": "OK"}
+    if args.time_echo_port:
+        phone["time_echo_port"] = args.time_echo_port
     hardware = {"version": "2.0", "glasses_serial": "test", "world_camera_serial": "test",
                 "module_serial": "test"}
     result = [{"model": "Phone", "data": phone}, {"model": "Hardware", "data": hardware},
@@ -294,6 +300,24 @@ def serve_http(conn, rtsp_port, args):
         code = "200 OK" if req[1] == "/api/status" else "404 Not Found"
         conn.sendall(("HTTP/1.1 %s\r\nContent-Type: application/json\r\nContent-Length: %d\r\n"
                       "Connection: close\r\n\r\n" % (code, len(body))).encode() + body)
+    except OSError:
+        pass
+    finally:
+        conn.close()
+
+
+def serve_time_echo(conn, args):
+    """The Time Echo protocol: each 8-byte client time (ms, !Q) is answered
+    with itself and the phone's time (ms, !Q), the phone's clock running
+    --clock-offset-ms ahead of the real time."""
+    try:
+        f = conn.makefile("rb")
+        while True:
+            t1 = f.read(8)
+            if len(t1) < 8:
+                return
+            phone_ms = time.time_ns() // 1_000_000 + args.clock_offset_ms
+            conn.sendall(t1 + struct.pack("!Q", phone_ms))
     except OSError:
         pass
     finally:
@@ -327,13 +351,26 @@ def main():
     p.add_argument("--step-mm", default="", help="A,B: both eyes' pupils alternate between A and B mm "
                    "(a square wave; eyelids open) instead of the recording's")
     p.add_argument("--step-secs", type=float, default=2.0, help="length of each --step-mm plateau, s")
+    p.add_argument("--clock-offset-ms", type=int, default=0,
+                   help="the phone's clock runs this many ms ahead of the real time (its packets, "
+                        "sender reports, blinks and Time Echo answers all say so)")
+    p.add_argument("--no-time-echo", action="store_true", help="offer no Time Echo port")
     p.add_argument("--stamp-send", action="store_true",
                    help="time each gaze packet by when it is sent (for latency measurements), "
                         "not by its place in the recording")
     args = p.parse_args()
     recs, blinks = load(args.data)
     start_unix_ns = recs[0][0] if args.time == "recording" else time.time_ns()
+    start_unix_ns += args.clock_offset_ms * 1_000_000
     st = State()
+    args.time_echo_port = 0
+    if not args.no_time_echo:
+        es = socket.socket()
+        es.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        es.bind(("127.0.0.1", 0))
+        es.listen(4)
+        args.time_echo_port = es.getsockname()[1]
+        threading.Thread(target=accept_loop, args=(es, st, lambda c: serve_time_echo(c, args)), daemon=True).start()
     hs = socket.socket()
     hs.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     hs.bind(("127.0.0.1", 0))

@@ -88,6 +88,18 @@ pub fn parse_status(body: &[u8]) -> Result<Vec<Sensor>, NeonError> {
     Ok(sensors)
 }
 
+/// The Time Echo port the status's `Phone` entry names, if any.
+pub fn time_echo_port(body: &[u8]) -> Option<u16> {
+    let reply: StatusReply = serde_json::from_slice(body).ok()?;
+    reply
+        .result
+        .iter()
+        .filter(|c| c.model == "Phone")
+        .find_map(|c| c.data.get("time_echo_port")?.as_u64())
+        .and_then(|p| u16::try_from(p).ok())
+        .filter(|&p| p != 0)
+}
+
 /// The DIRECT sensor named `name`.
 pub fn direct_sensor<'a>(sensors: &'a [Sensor], name: &str) -> Option<&'a Sensor> {
     sensors

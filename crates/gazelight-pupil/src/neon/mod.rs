@@ -35,6 +35,7 @@ pub mod rtsp;
 pub mod sdp;
 pub mod source;
 pub mod stream;
+pub mod time_echo;
 
 pub use source::{DEFAULT_HTTP_PORT, NeonConfig, NeonSource, NeonStats};
 pub use stream::RtpStream;

@@ -51,6 +51,8 @@ pub const APERTURE_OPEN_MM: f32 = 3.0;
 /// Gaze packets without eye state between two "turn on Compute eye state"
 /// reports (1 s at 200 Hz).
 pub const NO_EYE_STATE_REPORT_EVERY: u64 = 200;
+/// Time Echo round trips per connection (their median is the offset).
+pub const TIME_ECHOES: usize = 20;
 
 /// Where and how to reach a Neon.
 #[derive(Clone, Debug, PartialEq)]
@@ -100,11 +102,14 @@ pub struct NeonStats {
     blinks: AtomicU64,
     dropped_full: AtomicU64,
     clock_rate_hz: AtomicU64,
+    /// The Time Echo offset, ms, as f64 bits, once measured.
+    time_echo_offset_ms_bits: AtomicU64,
+    time_echo_measured: AtomicBool,
     last_error: Mutex<Option<String>>,
 }
 
 /// A copy of [`NeonStats`].
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct NeonStatsSnapshot {
     pub connected: bool,
     /// Gaze streams played.
@@ -121,6 +126,9 @@ pub struct NeonStatsSnapshot {
     pub dropped_full: u64,
     /// The gaze stream's SDP clock rate (0 before the first connection).
     pub clock_rate_hz: u64,
+    /// Host clock − phone clock by Time Echo, ms (`None`: the phone offers
+    /// no Time Echo port, or it failed; NTP is trusted then).
+    pub time_echo_offset_ms: Option<f64>,
     pub last_error: Option<String>,
 }
 
@@ -138,6 +146,10 @@ impl NeonStats {
             blinks: l(&self.blinks),
             dropped_full: l(&self.dropped_full),
             clock_rate_hz: l(&self.clock_rate_hz),
+            time_echo_offset_ms: self
+                .time_echo_measured
+                .load(Ordering::Relaxed)
+                .then(|| f64::from_bits(l(&self.time_echo_offset_ms_bits))),
             last_error: self.last_error.lock().map(|e| e.clone()).unwrap_or(None),
         }
     }
@@ -289,6 +301,36 @@ async fn session(
     let r: Result<std::convert::Infallible, NeonError> = async {
         let body = get_status(&cfg.host, cfg.port, cfg.io_timeout).await?;
         let sensors = parse_status(&body)?;
+        // The phone's clock against ours (Time Echo), else trust NTP.
+        let offset_secs = match super::http::time_echo_port(&body) {
+            Some(port) => match super::time_echo::estimate_offset(
+                &cfg.host,
+                port,
+                TIME_ECHOES,
+                cfg.io_timeout,
+            )
+            .await
+            {
+                Ok(e) => {
+                    tracing::info!(
+                        offset_ms = e.offset_ms,
+                        roundtrip_ms = e.roundtrip_ms,
+                        echoes = e.echoes,
+                        "Neon clock offset (Time Echo): phone time + offset = host time"
+                    );
+                    stats
+                        .time_echo_offset_ms_bits
+                        .store(e.offset_ms.to_bits(), Ordering::Relaxed);
+                    stats.time_echo_measured.store(true, Ordering::Relaxed);
+                    e.offset_ms * 1e-3
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "Time Echo failed; assuming the phone's clock follows NTP as ours does");
+                    0.0
+                }
+            },
+            None => 0.0,
+        };
         let gaze = direct_sensor(&sensors, "gaze").ok_or_else(|| NeonError::Status {
             reason: format!(
                 "http://{}:{}/api/status lists no DIRECT gaze sensor",
@@ -310,8 +352,9 @@ async fn session(
         stats.connections.fetch_add(1, Ordering::Relaxed);
         stats.connected.store(true, Ordering::Relaxed);
         tracing::info!(%url, clock_rate_hz = stream.clock_rate_hz(), "Neon gaze stream playing");
-        // Unix time − host time; a sample's host time = its Unix time − this.
-        let unix_minus_host = unix_now_secs() - host_now_secs();
+        // The phone's Unix time − host time; a sample's host time = its Unix
+        // time − this (phone time + offset = our Unix time).
+        let unix_minus_host = unix_now_secs() - offset_secs - host_now_secs();
         let _events = events_url.map(|u| {
             AbortOnDrop(tokio::spawn(events_loop(
                 u,
