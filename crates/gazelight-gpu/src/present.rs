@@ -124,6 +124,9 @@ pub fn letterbox_scale(frame: [u32; 2], window: [u32; 2]) -> [f32; 2] {
     }
 }
 
+/// Tries at configuring a window surface (see [`WindowPresenter::on_pipeline`]).
+const CONFIGURE_ATTEMPTS: u32 = 4;
+
 /// Which buffer the present pass reads.
 enum Frames {
     /// A pipeline's output buffer (no copy).
@@ -442,9 +445,25 @@ impl WindowPresenter {
             config.format = *f;
         }
         config.present_mode = wgpu::PresentMode::Fifo;
-        ctx.scoped("window surface configuration", |device| {
-            surface.configure(device, &config)
-        })?;
+        // Configuring waits (with a deadline) for the device to go idle; on
+        // the pipeline's own device the frame thread may be submitting work
+        // meanwhile, and a software adapter on a loaded machine can miss the
+        // deadline ("Failed to wait for GPU to come idle"). Wait for what is
+        // queued, then try again, a few times.
+        let mut attempt = 0;
+        loop {
+            attempt += 1;
+            match ctx.scoped("window surface configuration", |device| {
+                surface.configure(device, &config)
+            }) {
+                Ok(()) => break,
+                Err(e) if attempt < CONFIGURE_ATTEMPTS => {
+                    tracing::warn!(attempt, error = %e, "window surface configuration failed; waiting for the device and retrying");
+                    ctx.wait_idle()?;
+                }
+                Err(e) => return Err(e),
+            }
+        }
 
         let pass = PresentPass::new(ctx, &frame_buffer, config.format)?;
         tracing::info!(
