@@ -520,5 +520,5 @@ fn the_peer_is_what_the_official_client_decodes() {
         out.status.success() && !stdout.contains("FAIL"),
         "{stdout}\n{stderr}"
     );
-    assert_eq!(stdout.matches("PASS").count(), 16, "{stdout}");
+    assert_eq!(stdout.matches("PASS").count(), 17, "{stdout}");
 }

@@ -6,8 +6,8 @@ use cannot drift from the reference decoder.
 Starts the peer on the shared Neon recording, finds its sensors the way a
 user of the official API does (`Device.get_status()`, the gaze and eye
 events sensors' URLs), receives gaze with `receive_gaze_data` and eye
-events with `receive_eye_events_data` (RTSP over TCP, `rtspt://`: the peer's
-transport), and compares what the official decoder made of the packets with
+events with `receive_eye_events_data` (RTSP over TCP, `rtspt://`, and for
+the 89-byte layout also over UDP, `rtsp://`, the client's default), and compares what the official decoder made of the packets with
 the recording itself (read here from its raw files, not through the peer):
 the packet type for the layout, each eye's pupil diameter, the worn flag,
 increasing timestamps from the RTCP sender reports, and the recording's
@@ -120,6 +120,12 @@ async def check_layout(data, layout, pupils):
               f"the last {time.time() - ts[-1]:.2f} s before now")
         check(all(d.worn for d in got), f"layout {layout}: the worn flag decodes as worn")
         if layout == 89:
+            # The official client's own transport: RTP over UDP (rtsp://).
+            udp = await take(receive_gaze_data(gaze_sensor.url), 200, 20)
+            same = sum(1 for d, (l, r) in zip(udp, pupils)
+                       if abs(d.pupil_diameter_left - l) < 1e-4 and abs(d.pupil_diameter_right - r) < 1e-4)
+            check(len(udp) >= 200 and same == len(udp),
+                  f"layout 89 over UDP (rtsp://, the official default): {len(udp)} packets, {same} pupil pairs equal the recording's")
             ev_url = events_sensor.url.replace("rtsp://", "rtspt://", 1)
             events = await take(receive_eye_events_data(ev_url), 2, 15)
             names = sorted({type(e).__name__ for e in events})

@@ -2,8 +2,10 @@
 """A Neon-like Real-time API peer for gazelight's tests (standard library only).
 
 Serves GET /api/status (HTTP) and two RTSP presentations (camera=gaze,
-camera=eye_events) played over RTSP/TCP interleaved: RTP on channel 0,
-RTCP sender reports on channel 1. The gaze values are the Neon demo
+camera=eye_events) played over RTSP/TCP interleaved (RTP on channel 0,
+RTCP sender reports on channel 1) or, when SETUP asks for client_port=A-B,
+as UDP datagrams to those ports (RTP to A, RTCP to B), as the Companion app
+does for the official client. The gaze values are the Neon demo
 recording's (DATA/eye/neon-demo: "gaze ps1.raw", "eye_state ps1.raw",
 worn_200hz.raw, their .time files), packed big-endian in the layout the
 official client's streaming/gaze.py decodes by length; the blinks are the
@@ -123,10 +125,42 @@ def read_request(f):
     return method, url, headers
 
 
+class TcpSink:
+    """RTP (channel 0) and RTCP (channel 1) interleaved on the RTSP connection."""
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.closed = False
+
+    def send(self, items):
+        self.conn.sendall(b"".join(frame(c, d) for c, d in items))
+
+    def shutdown(self):
+        self.conn.shutdown(socket.SHUT_RDWR)
+
+
+class UdpSink:
+    """RTP and RTCP as UDP datagrams to the client's two ports."""
+
+    def __init__(self, sock, rtp_addr, rtcp_addr):
+        self.sock, self.addrs = sock, (rtp_addr, rtcp_addr)
+        self.closed = False  # set when the RTSP connection ends
+
+    def send(self, items):
+        if self.closed:
+            raise OSError("the RTSP session ended")
+        for c, d in items:
+            self.sock.sendto(d, self.addrs[c])
+
+    def shutdown(self):
+        self.sock.close()
+
+
 def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
     f = conn.makefile("rb")
     camera = None
     playing = False
+    sink = TcpSink(conn)
     try:
         while not playing:
             req = read_request(f)
@@ -147,8 +181,24 @@ def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
                               "Content-Base: rtsp://127.0.0.1:%d/?camera=%s\r\nContent-Length: %d\r\n\r\n%s"
                               % (cseq, rtsp_port, camera, len(sdp), sdp)).encode())
             elif method == "SETUP":
-                conn.sendall(("RTSP/1.0 200 OK\r\nCSeq: %s\r\nSession: 12345678;timeout=60\r\n"
-                              "Transport: RTP/AVP/TCP;unicast;interleaved=0-1\r\n\r\n" % cseq).encode())
+                transport = h.get("transport", "")
+                ports = [p.split("=", 1)[1] for p in transport.split(";") if p.strip().startswith("client_port=")]
+                if ports and "/TCP" not in transport:
+                    # RTP over UDP to the client's ports (RTP, RTCP).
+                    a, _, b = ports[0].partition("-")
+                    a = int(a)
+                    b = int(b) if b else a + 1
+                    udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    udp.bind(("127.0.0.1", 0))
+                    sp = udp.getsockname()[1]
+                    peer_ip = conn.getpeername()[0]
+                    sink = UdpSink(udp, (peer_ip, a), (peer_ip, b))
+                    conn.sendall(("RTSP/1.0 200 OK\r\nCSeq: %s\r\nSession: 12345678;timeout=60\r\n"
+                                  "Transport: RTP/AVP;unicast;client_port=%d-%d;server_port=%d-%d\r\n\r\n"
+                                  % (cseq, a, b, sp, sp + 1)).encode())
+                else:
+                    conn.sendall(("RTSP/1.0 200 OK\r\nCSeq: %s\r\nSession: 12345678;timeout=60\r\n"
+                                  "Transport: RTP/AVP/TCP;unicast;interleaved=0-1\r\n\r\n" % cseq).encode())
             elif method == "PLAY":
                 conn.sendall(("RTSP/1.0 200 OK\r\nCSeq: %s\r\nSession: 12345678\r\n\r\n" % cseq).encode())
                 playing = True
@@ -160,9 +210,11 @@ def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
                 while True:
                     req = read_request(f)
                     if req is None:
+                        sink.closed = True
                         return
                     conn.sendall(("RTSP/1.0 200 OK\r\nCSeq: %s\r\n\r\n" % req[2].get("cseq", "0")).encode())
             except OSError:
+                sink.closed = True
                 return
         threading.Thread(target=drain, daemon=True).start()
         if camera == "gaze":
@@ -174,9 +226,9 @@ def serve_rtsp(conn, args, recs, blinks, st, start_unix_ns, rtsp_port):
                 # reconnect replays the recording from its start at today's
                 # time, not at the time of the first connection.
                 start_unix_ns = time.time_ns() + args.clock_offset_ms * 1_000_000
-            play_gaze(conn, args, recs, st, start_unix_ns)
+            play_gaze(sink, args, recs, st, start_unix_ns)
         else:
-            play_events(conn, args, blinks, recs, st, start_unix_ns)
+            play_events(sink, args, blinks, recs, st, start_unix_ns)
     except OSError:
         pass
     finally:
@@ -190,7 +242,7 @@ def rec_unix_ns(args, recs, i, start_unix_ns):
     return recs[i][0] - recs[0][0] + start_unix_ns
 
 
-def play_gaze(conn, args, recs, st, start_unix_ns):
+def play_gaze(sink, args, recs, st, start_unix_ns):
     rate = args.clock
     t0 = time.monotonic()
     n = len(recs)
@@ -213,12 +265,12 @@ def play_gaze(conn, args, recs, st, start_unix_ns):
             unix_ns = time.time_ns() + args.clock_offset_ms * 1_000_000
             rel_ns = unix_ns - start_unix_ns
             ts = (args.rtp_start + (rel_ns * rate) // 1_000_000_000) & 0xFFFFFFFF
-        out = b""
+        out = []
         if k == 0 or (args.sr_every > 0 and k % args.sr_every == 0):
-            out += frame(1, sender_report(unix_ns, ts))
+            out.append((1, sender_report(unix_ns, ts)))
         if args.malformed_every and k % args.malformed_every == args.malformed_every - 1:
-            out += frame(0, rtp(i, ts, b"\x00" * 7))  # a 7-byte gaze payload: no layout
-            out += frame(0, b"\x80\x63\x00")  # a 3-byte RTP packet
+            out.append((0, rtp(i, ts, b"\x00" * 7)))  # a 7-byte gaze payload: no layout
+            out.append((0, b"\x80\x63\x00"))  # a 3-byte RTP packet
         rec = recs[idx]
         if args.step_mm:
             a, b = (float(v) for v in args.step_mm.split(","))
@@ -227,8 +279,8 @@ def play_gaze(conn, args, recs, st, start_unix_ns):
             es[0] = es[7] = mm  # pupil diameters, left and right
             es[16] = es[19] = 10.0  # eyelid apertures: open
             rec = (rec[0], rec[1], rec[2], 255, tuple(es))
-        out += frame(0, rtp(i, ts, gaze_payload(args.layout, rec)))
-        conn.sendall(out)
+        out.append((0, rtp(i, ts, gaze_payload(args.layout, rec))))
+        sink.send(out)
         i += 1
         k += 1
         with st.lock:
@@ -236,13 +288,13 @@ def play_gaze(conn, args, recs, st, start_unix_ns):
         if args.drop_after and k == args.drop_after:
             st.down_until = time.time() + args.down_secs
             args.drop_after = 0  # drop once
-            conn.shutdown(socket.SHUT_RDWR)
+            sink.shutdown()
             return
     # End of data: keep the connection open but silent (a dead peer).
     time.sleep(3600)
 
 
-def play_events(conn, args, blinks, recs, st, start_unix_ns):
+def play_events(sink, args, blinks, recs, st, start_unix_ns):
     rate = args.clock
     t0 = time.monotonic()
     seq = 0
@@ -252,19 +304,19 @@ def play_events(conn, args, blinks, recs, st, start_unix_ns):
         now_rel_ns = int((time.monotonic() - t0) * 1e9 * args.speed)
         unix_ns = start_unix_ns + now_rel_ns
         ts = (args.rtp_start + (now_rel_ns * rate) // 1_000_000_000) & 0xFFFFFFFF
-        out = b""
+        out = []
         if first:
-            out += frame(1, sender_report(unix_ns, ts))
+            out.append((1, sender_report(unix_ns, ts)))
             first = False
         for j, (etype, s, e) in enumerate(blinks):
             e_unix = e - recs[0][0] + start_unix_ns
             if j not in sent_blinks and e_unix <= unix_ns:
                 sent_blinks.add(j)
-                out += frame(0, rtp(seq, ts, struct.pack("!iqq", etype, s - recs[0][0] + start_unix_ns, e_unix)))
+                out.append((0, rtp(seq, ts, struct.pack("!iqq", etype, s - recs[0][0] + start_unix_ns, e_unix))))
                 seq += 1
-        out += frame(0, rtp(seq, ts, struct.pack("!i", 5)))  # keepalive
+        out.append((0, rtp(seq, ts, struct.pack("!i", 5))))  # keepalive
         seq += 1
-        conn.sendall(out)
+        sink.send(out)
         time.sleep(0.25)
 
 

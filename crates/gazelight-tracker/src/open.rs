@@ -9,6 +9,7 @@ use gazelight_eye::source::{SampleSource, SourceError};
 use gazelight_eye::{Sample, TraceSample};
 use gazelight_import::Importer;
 use gazelight_pupil::PupilSource;
+use gazelight_pupil::neon::stream::RtpTransport;
 use gazelight_pupil::neon::{NeonConfig, NeonSource};
 
 use crate::live::AgeClock;
@@ -178,10 +179,15 @@ pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, So
         SourceUri::Gazepoint { host, port } => Ok(AnySource::Gazepoint(
             gazepoint::GazepointSource::new(host.clone(), *port),
         )),
-        SourceUri::Neon { host, port } => {
+        SourceUri::Neon { host, port, udp } => {
             Ok(AnySource::Neon(Box::new(NeonSource::new(NeonConfig {
                 host: host.clone(),
                 port: *port,
+                transport: if *udp {
+                    RtpTransport::Udp
+                } else {
+                    RtpTransport::Tcp
+                },
                 ..NeonConfig::default()
             }))))
         }

@@ -8,7 +8,7 @@
 //! | `usb://VVVV:PPPP[?interface=N]` | vendor bulk-IN endpoint of a USB device |
 //! | `serial:///dev/ttyACM0?baud=115200&format=gazepoint\|csv\|framed` | serial line |
 //! | `gazepoint://HOST[:PORT]` | Gazepoint Open Gaze API over TCP (port 4242 by default) |
-//! | `neon://HOST[:PORT]` | Pupil Labs Neon Real-time API (HTTP port 8080 by default; gaze and eye state over RTSP) |
+//! | `neon://HOST[:PORT][?transport=udp]` | Pupil Labs Neon Real-time API (HTTP port 8080 by default; gaze and eye state over RTSP, the media interleaved on TCP or over UDP) |
 //! | `replay://PATH[?speed=S]` | a recording any importer reads, replayed at S × real time (0 < S ≤ 1000, default 1) |
 //! | `synthetic://demo` | the demo's keyframed trace, looped |
 //! | `lsl://?name=NAME`, `lsl://?type=TYPE`, `lsl://?source_id=ID` | a Lab Streaming Layer stream |
@@ -53,8 +53,10 @@ pub enum SourceUri {
     },
     /// Gazepoint Open Gaze API over TCP.
     Gazepoint { host: String, port: u16 },
-    /// Pupil Labs Neon's Real-time API (its HTTP port).
-    Neon { host: String, port: u16 },
+    /// Pupil Labs Neon's Real-time API (its HTTP port); the media over UDP
+    /// (`?transport=udp`) or, by default, interleaved on the RTSP TCP
+    /// connection.
+    Neon { host: String, port: u16, udp: bool },
     /// A recording, replayed at `speed` × real time.
     Replay { path: PathBuf, speed: f64 },
     /// A synthetic session (`synthetic://demo`).
@@ -165,10 +167,20 @@ impl SourceUri {
                 Ok(SourceUri::Gazepoint { host, port })
             }
             "neon" => {
-                allow(&[])?;
+                allow(&["transport"])?;
                 let (host, port) =
                     host_port(body, Some(NEON_DEFAULT_HTTP_PORT)).map_err(|(p, r)| err(p, r))?;
-                Ok(SourceUri::Neon { host, port })
+                let udp = match params.iter().find(|(k, _)| *k == "transport") {
+                    None | Some((_, "tcp")) => false,
+                    Some((_, "udp")) => true,
+                    Some((_, other)) => {
+                        return Err(err(
+                            "transport",
+                            format!("`{other}`: expected tcp (RTP interleaved on RTSP) or udp"),
+                        ));
+                    }
+                };
+                Ok(SourceUri::Neon { host, port, udp })
             }
             "hid" => {
                 allow(&[])?;
@@ -289,7 +301,13 @@ impl fmt::Display for SourceUri {
             SourceUri::Gazepoint { host, port } => {
                 write!(f, "gazepoint://{}:{port}", bracket(host))
             }
-            SourceUri::Neon { host, port } => write!(f, "neon://{}:{port}", bracket(host)),
+            SourceUri::Neon { host, port, udp } => {
+                write!(f, "neon://{}:{port}", bracket(host))?;
+                if *udp {
+                    write!(f, "?transport=udp")?;
+                }
+                Ok(())
+            }
             SourceUri::Hid(HidTarget::VidPid {
                 vendor_id,
                 product_id,
@@ -476,9 +494,22 @@ mod tests {
             SourceUri::parse("neon://192.168.1.60/").unwrap(),
             SourceUri::Neon {
                 host: "192.168.1.60".into(),
-                port: 8080
+                port: 8080,
+                udp: false
             }
         );
+        let udp = SourceUri::parse("neon://10.0.0.2:8081?transport=udp").unwrap();
+        assert_eq!(
+            udp,
+            SourceUri::Neon {
+                host: "10.0.0.2".into(),
+                port: 8081,
+                udp: true
+            }
+        );
+        assert_eq!(udp.to_string(), "neon://10.0.0.2:8081?transport=udp");
+        let e = SourceUri::parse("neon://10.0.0.2?transport=quic").unwrap_err();
+        assert_eq!(e.part, "transport");
     }
 
     #[test]

@@ -112,8 +112,19 @@ fn median(v: &[f32]) -> f64 {
 
 #[test]
 fn inspect_a_live_neon() {
+    inspect_a_live_neon_over("");
+}
+
+/// The same over UDP (`?transport=udp`: RTP and RTCP as datagrams to two
+/// local ports, the official client's default transport).
+#[test]
+fn inspect_a_live_neon_over_udp() {
+    inspect_a_live_neon_over("?transport=udp");
+}
+
+fn inspect_a_live_neon_over(query: &str) {
     let Some(peer) = neon_peer() else { return };
-    let uri = format!("neon://127.0.0.1:{}", peer.http_port);
+    let uri = format!("neon://127.0.0.1:{}{query}", peer.http_port);
     let out = gazelight(&["inspect", &uri, "--secs", "6", "--json"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "inspect failed: {stderr}");

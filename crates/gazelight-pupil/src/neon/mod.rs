@@ -9,8 +9,15 @@
 //!   `rtsp://192.168.1.60:8086/?camera=gaze&audioenable=on` ([`http`]).
 //! - Each URL is one RTSP presentation with one RTP media whose SDP
 //!   `a=rtpmap` carries the clock rate ([`sdp`], [`rtsp`]). gazelight plays
-//!   it over TCP interleaved (`RTP/AVP/TCP;unicast;interleaved=0-1`); the
-//!   official client uses UDP, which is not implemented here.
+//!   it over TCP interleaved (`RTP/AVP/TCP;unicast;interleaved=0-1`, the
+//!   default) or over UDP (`RTP/AVP;unicast;client_port=A-B`, the official
+//!   client's default; `neon://…?transport=udp`) ([`stream`]).
+//! - The RTSP client is written here (a few hundred lines: DESCRIBE, SETUP,
+//!   PLAY, OPTIONS keepalives, `$` frames) rather than taken from a crate:
+//!   `retina`, the one Rust RTSP client that fits, is built around audio
+//!   and video depacketisers and its own session state machine, and would
+//!   have added a large dependency tree for two `application` streams of
+//!   raw RTP payloads.
 //! - The payload carries no time: Unix time = RTP timestamp / clock rate,
 //!   anchored by the latest RTCP sender report ([`rtp`]); the 32-bit
 //!   timestamp is extended to 64 bits so its wrap does not move the time.
@@ -21,11 +28,12 @@
 //!
 //! [`NeonSource`] (URI `neon://HOST[:PORT]`, port 8080 by default) runs
 //! both streams in a task that reconnects with a bounded backoff and
-//! delivers [`gazelight_eye::Sample`]s on the host clock: the phone's Unix
-//! time minus the host's (`SystemTime` − [`gazelight_eye::clock`]) measured
-//! at each connection, so it assumes both clocks follow NTP. Pupil Labs'
-//! Time Echo protocol, which would measure the phone's clock offset, is not
-//! implemented.
+//! delivers [`gazelight_eye::Sample`]s on the host clock: at each
+//! connection the phone's clock is measured against the host's with Pupil
+//! Labs' Time Echo protocol ([`time_echo`], when the status names its port;
+//! else both clocks are assumed to follow NTP), and a sample's host time is
+//! its Unix time on the phone's clock mapped through that offset. Neons on
+//! the network are found by mDNS ([`discover`]).
 
 pub mod discover;
 pub mod http;

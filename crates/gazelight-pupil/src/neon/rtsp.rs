@@ -214,6 +214,54 @@ impl RtspConn {
                 &[("Transport", "RTP/AVP/TCP;unicast;interleaved=0-1")],
             )
             .await?;
+        self.take_session(&r, control)?;
+        let mut channels = (0u8, 1u8);
+        if let Some(t) = r.header("transport")
+            && let Some(il) = t
+                .split(';')
+                .find_map(|p| p.trim().strip_prefix("interleaved="))
+        {
+            let (a, b) = il.split_once('-').unwrap_or((il, ""));
+            let a = a.parse::<u8>().map_err(|_| NeonError::Rtsp {
+                what: format!("RTSP SETUP {control}"),
+                reason: format!("bad interleaved channels `{il}`"),
+            })?;
+            let b = b.parse::<u8>().unwrap_or(a.wrapping_add(1));
+            channels = (a, b);
+        }
+        Ok(channels)
+    }
+
+    /// SETUP over UDP: RTP to this host's `rtp_port`, RTCP to the next
+    /// port. A reply that does not take UDP is an error naming it.
+    pub async fn setup_udp(&mut self, control: &str, rtp_port: u16) -> Result<(), NeonError> {
+        let transport = format!(
+            "RTP/AVP;unicast;client_port={rtp_port}-{}",
+            rtp_port.saturating_add(1)
+        );
+        let r = self
+            .request("SETUP", control, &[("Transport", transport.as_str())])
+            .await?;
+        self.take_session(&r, control)?;
+        if let Some(t) = r.header("transport")
+            && (t.contains("/TCP") || t.contains("interleaved="))
+        {
+            return Err(NeonError::Rtsp {
+                what: format!("RTSP SETUP {control}"),
+                reason: format!("asked for UDP, the server answered `{}`", clip(t)),
+            });
+        }
+        Ok(())
+    }
+
+    /// The local address of the RTSP connection (where UDP media should
+    /// arrive).
+    pub fn local_ip(&self) -> Option<std::net::IpAddr> {
+        self.io.get_ref().local_addr().ok().map(|a| a.ip())
+    }
+
+    /// Keeps the Session header (and its timeout) of a SETUP reply.
+    fn take_session(&mut self, r: &Response, control: &str) -> Result<(), NeonError> {
         let session = r.header("session").ok_or_else(|| NeonError::Rtsp {
             what: format!("RTSP SETUP {control}"),
             reason: "reply has no Session header".to_owned(),
@@ -230,21 +278,7 @@ impl RtspConn {
             .filter_map(|p| p.trim().strip_prefix("timeout="))
             .find_map(|t| t.parse::<u64>().ok());
         self.session = Some(id);
-        let mut channels = (0u8, 1u8);
-        if let Some(t) = r.header("transport")
-            && let Some(il) = t
-                .split(';')
-                .find_map(|p| p.trim().strip_prefix("interleaved="))
-        {
-            let (a, b) = il.split_once('-').unwrap_or((il, ""));
-            let a = a.parse::<u8>().map_err(|_| NeonError::Rtsp {
-                what: format!("RTSP SETUP {control}"),
-                reason: format!("bad interleaved channels `{il}`"),
-            })?;
-            let b = b.parse::<u8>().unwrap_or(a.wrapping_add(1));
-            channels = (a, b);
-        }
-        Ok(channels)
+        Ok(())
     }
 
     /// PLAY the whole presentation.

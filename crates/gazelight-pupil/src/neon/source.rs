@@ -32,7 +32,7 @@ use tokio::task::JoinHandle;
 use super::NeonError;
 use super::http::{direct_sensor, get_status, parse_status};
 use super::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
-use super::stream::RtpStream;
+use super::stream::{RtpStream, RtpTransport};
 use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
@@ -60,6 +60,8 @@ pub struct NeonConfig {
     pub host: String,
     /// HTTP port of the Real-time API.
     pub port: u16,
+    /// How the RTP media travel (TCP interleaved by default).
+    pub transport: RtpTransport,
     /// Bound of every connect and request/reply.
     pub io_timeout: Duration,
     /// A gaze stream silent this long is lost.
@@ -79,6 +81,7 @@ impl Default for NeonConfig {
         Self {
             host: "127.0.0.1".to_owned(),
             port: DEFAULT_HTTP_PORT,
+            transport: RtpTransport::Tcp,
             io_timeout: Duration::from_secs(3),
             gaze_timeout: Duration::from_secs(2),
             events_timeout: Duration::from_secs(15),
@@ -345,7 +348,7 @@ async fn session(
             ),
         })?;
         let events_url = direct_sensor(&sensors, "eye_events").and_then(|s| s.url());
-        let mut stream = RtpStream::open(&url, cfg.io_timeout, cfg.gaze_timeout).await?;
+        let mut stream = RtpStream::open_with(&url, cfg.transport, cfg.io_timeout, cfg.gaze_timeout).await?;
         stats
             .clock_rate_hz
             .store(u64::from(stream.clock_rate_hz()), Ordering::Relaxed);
@@ -431,45 +434,48 @@ async fn events_loop(
 ) {
     let mut backoff = cfg.backoff_initial;
     loop {
-        let err = match RtpStream::open(&url, cfg.io_timeout, cfg.events_timeout).await {
-            Err(e) => e,
-            Ok(mut stream) => loop {
-                let p = match stream.next_packet().await {
-                    Ok(p) => p,
-                    Err(e @ NeonError::Packet { .. }) => {
-                        stats.malformed.fetch_add(1, Ordering::Relaxed);
-                        send(&tx, &stats, Event::Bad(format!("{url}: {e}")));
-                        continue;
+        let err =
+            match RtpStream::open_with(&url, cfg.transport, cfg.io_timeout, cfg.events_timeout)
+                .await
+            {
+                Err(e) => e,
+                Ok(mut stream) => loop {
+                    let p = match stream.next_packet().await {
+                        Ok(p) => p,
+                        Err(e @ NeonError::Packet { .. }) => {
+                            stats.malformed.fetch_add(1, Ordering::Relaxed);
+                            send(&tx, &stats, Event::Bad(format!("{url}: {e}")));
+                            continue;
+                        }
+                        Err(e) => break e,
+                    };
+                    backoff = cfg.backoff_initial;
+                    match decode_eye_event(p.payload) {
+                        Ok(EyeEvent::Blink { start_ns, end_ns }) => {
+                            stats.blinks.fetch_add(1, Ordering::Relaxed);
+                            send(
+                                &tx,
+                                &stats,
+                                Event::Sample(Sample::Blink(BlinkEvent {
+                                    start_t_secs: start_ns as f64 * 1e-9 - unix_minus_host,
+                                    end_t_secs: end_ns as f64 * 1e-9 - unix_minus_host,
+                                    eye: None,
+                                })),
+                            );
+                        }
+                        Ok(_) => {}
+                        Err(e) => {
+                            stats.malformed.fetch_add(1, Ordering::Relaxed);
+                            let seq = p.sequence;
+                            send(
+                                &tx,
+                                &stats,
+                                Event::Bad(format!("{url}: RTP seq {seq}: {e}")),
+                            );
+                        }
                     }
-                    Err(e) => break e,
-                };
-                backoff = cfg.backoff_initial;
-                match decode_eye_event(p.payload) {
-                    Ok(EyeEvent::Blink { start_ns, end_ns }) => {
-                        stats.blinks.fetch_add(1, Ordering::Relaxed);
-                        send(
-                            &tx,
-                            &stats,
-                            Event::Sample(Sample::Blink(BlinkEvent {
-                                start_t_secs: start_ns as f64 * 1e-9 - unix_minus_host,
-                                end_t_secs: end_ns as f64 * 1e-9 - unix_minus_host,
-                                eye: None,
-                            })),
-                        );
-                    }
-                    Ok(_) => {}
-                    Err(e) => {
-                        stats.malformed.fetch_add(1, Ordering::Relaxed);
-                        let seq = p.sequence;
-                        send(
-                            &tx,
-                            &stats,
-                            Event::Bad(format!("{url}: RTP seq {seq}: {e}")),
-                        );
-                    }
-                }
-            },
-        };
+                },
+            };
         tracing::warn!(%url, "Neon eye events lost: {err}; retrying");
         tokio::time::sleep(backoff).await;
         backoff = (backoff * 2).min(cfg.backoff_max);
