@@ -694,6 +694,63 @@ mod tests {
         )
     }
 
+    /// A `w × h` 2-D texture of `format` with `usage`.
+    fn texture_2d(
+        ctx: &GpuContext,
+        [w, h]: [u32; 2],
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> wgpu::Texture {
+        ctx.device().create_texture(&wgpu::TextureDescriptor {
+            label: Some("test texture"),
+            size: wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    }
+
+    /// Reads a 4-byte-per-texel `w × h` texture back (rows of `w · 4`
+    /// bytes; `w · 4` must be a multiple of 256), after what `encoder`
+    /// already holds.
+    fn read_rgba8(
+        ctx: &GpuContext,
+        mut encoder: wgpu::CommandEncoder,
+        texture: &wgpu::Texture,
+        [w, h]: [u32; 2],
+    ) -> Vec<u8> {
+        let staging = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: Some("test texture read-back"),
+            size: u64::from(w * h * 4),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &staging,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(w * 4),
+                    rows_per_image: Some(h),
+                },
+            },
+            texture.size(),
+        );
+        ctx.queue().submit([encoder.finish()]);
+        let mut out = Vec::new();
+        crate::fft::read_mapped(ctx, &staging, "test texture", |b| out.extend_from_slice(b))
+            .expect("read back");
+        out
+    }
+
     /// [`draw_offscreen`] into a target of `format` (with the matching
     /// `decode_srgb`).
     fn draw_offscreen_as(
@@ -712,26 +769,12 @@ mod tests {
         });
         ctx.queue().write_buffer(&frame_buffer, 0, frame);
         let pass = PresentPass::new(ctx, &frame_buffer, format).expect("present pass");
-        let target = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("test target"),
-            size: wgpu::Extent3d {
-                width: tw,
-                height: th,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
+        let target = texture_2d(
+            ctx,
+            [tw, th],
             format,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
-        let staging = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("test target read-back"),
-            size: u64::from(tw * th * 4),
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
+            wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        );
         let view = target.create_view(&wgpu::TextureViewDescriptor::default());
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
         let params = PresentParams {
@@ -741,27 +784,7 @@ mod tests {
             ..PresentParams::default()
         };
         pass.encode(ctx, &mut encoder, &view, &params);
-        encoder.copy_texture_to_buffer(
-            target.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &staging,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(tw * 4),
-                    rows_per_image: Some(th),
-                },
-            },
-            wgpu::Extent3d {
-                width: tw,
-                height: th,
-                depth_or_array_layers: 1,
-            },
-        );
-        ctx.queue().submit([encoder.finish()]);
-        let mut out = Vec::new();
-        crate::fft::read_mapped(ctx, &staging, "test target", |b| out.extend_from_slice(b))
-            .expect("read back");
-        out
+        read_rgba8(ctx, encoder, &target, [tw, th])
     }
 
     /// A frame of distinct codes (a hash of the pixel index per channel).
@@ -893,6 +916,7 @@ mod tests {
                 dt_secs: 0.0,
             },
         ];
+        let size = [w as u32, h as u32];
         for (k, input) in eyes.iter().enumerate() {
             let config = PipelineConfig::default();
             let mut cpu = FramePipeline::new(config.clone(), w, h, deg_per_px).unwrap();
@@ -905,20 +929,12 @@ mod tests {
             } else {
                 // Eye 1: the scene as the caller's HDR texture, copied on
                 // the device and rendered in the caller's encoder.
-                let texture = caller.device().create_texture(&wgpu::TextureDescriptor {
-                    label: Some("caller's HDR eye texture"),
-                    size: wgpu::Extent3d {
-                        width: w as u32,
-                        height: h as u32,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format: wgpu::TextureFormat::Rgba32Float,
-                    usage: wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC,
-                    view_formats: &[],
-                });
+                let texture = texture_2d(
+                    &caller,
+                    size,
+                    wgpu::TextureFormat::Rgba32Float,
+                    wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC,
+                );
                 let texels: Vec<[f32; 4]> = scene
                     .pixels
                     .iter()
@@ -932,11 +948,7 @@ mod tests {
                         bytes_per_row: Some(w as u32 * 16),
                         rows_per_image: Some(h as u32),
                     },
-                    wgpu::Extent3d {
-                        width: w as u32,
-                        height: h as u32,
-                        depth_or_array_layers: 1,
-                    },
+                    texture.size(),
                 );
                 let mut encoder = caller
                     .device()
@@ -945,20 +957,12 @@ mod tests {
                 gpu.encode(&mut encoder, input);
                 caller.queue().submit([encoder.finish()]);
                 // A texture of another format is refused, naming it.
-                let wrong = caller.device().create_texture(&wgpu::TextureDescriptor {
-                    label: None,
-                    size: wgpu::Extent3d {
-                        width: w as u32,
-                        height: h as u32,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format: wgpu::TextureFormat::Rgba8Unorm,
-                    usage: wgpu::TextureUsages::COPY_SRC,
-                    view_formats: &[],
-                });
+                let wrong = texture_2d(
+                    &caller,
+                    size,
+                    wgpu::TextureFormat::Rgba8Unorm,
+                    wgpu::TextureUsages::COPY_SRC,
+                );
                 let mut encoder = caller
                     .device()
                     .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
@@ -966,52 +970,17 @@ mod tests {
                 assert!(e.to_string().contains("Rgba32Float"), "{e}");
             }
             let presenter = TexturePresenter::new(&FrameSource::of(&gpu), format).unwrap();
-            let device = caller.device();
-            let target = device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("caller's eye texture"),
-                size: wgpu::Extent3d {
-                    width: w as u32,
-                    height: h as u32,
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
+            let target = texture_2d(
+                &caller,
+                size,
                 format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-                view_formats: &[],
-            });
-            presenter.present(&target.create_view(&wgpu::TextureViewDescriptor::default()));
-            let staging = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("caller's read-back"),
-                size: (w * h * 4) as u64,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let mut encoder =
-                device.create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
-            encoder.copy_texture_to_buffer(
-                target.as_image_copy(),
-                wgpu::TexelCopyBufferInfo {
-                    buffer: &staging,
-                    layout: wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(w as u32 * 4),
-                        rows_per_image: Some(h as u32),
-                    },
-                },
-                wgpu::Extent3d {
-                    width: w as u32,
-                    height: h as u32,
-                    depth_or_array_layers: 1,
-                },
+                wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             );
-            caller.queue().submit([encoder.finish()]);
-            let mut got = Vec::new();
-            crate::fft::read_mapped(&caller, &staging, "caller's read-back", |b| {
-                got.extend_from_slice(b)
-            })
-            .unwrap();
+            presenter.present(&target.create_view(&wgpu::TextureViewDescriptor::default()));
+            let encoder = caller
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor::default());
+            let got = read_rgba8(&caller, encoder, &target, size);
             let worst = got
                 .iter()
                 .zip(&reference.rgba8)
