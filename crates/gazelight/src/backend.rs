@@ -128,7 +128,7 @@ impl Renderer {
                          (or --backend auto to fall back to it when there is no hardware GPU)"
                     )
                 })?;
-                Self::gpu(&ctx, config, width, height, deg_per_px, "--backend gpu")
+                Self::on_device(&ctx, config, width, height, deg_per_px, "--backend gpu")
                     .context("--backend gpu: cannot build the GPU pipeline (try --backend cpu)")?
             }
             BackendChoice::Auto => Self::auto(config, width, height, deg_per_px)?,
@@ -153,19 +153,6 @@ impl Renderer {
         Ok(Renderer::Cpu(Box::new(pipeline), why))
     }
 
-    /// The GPU pipeline on a device the caller made (an OpenXR runtime's,
-    /// say): `why` says why.
-    pub fn on_device(
-        ctx: &GpuContext,
-        config: &PipelineConfig,
-        width: usize,
-        height: usize,
-        deg_per_px: f64,
-        why: &str,
-    ) -> anyhow::Result<Renderer> {
-        Self::gpu(ctx, config, width, height, deg_per_px, why)
-    }
-
     /// The GPU pipeline's output (`None` on the CPU), for a presenter that
     /// draws it into the caller's textures.
     pub fn frame_source(&self) -> Option<FrameSource> {
@@ -175,7 +162,9 @@ impl Renderer {
         }
     }
 
-    fn gpu(
+    /// The GPU pipeline on `ctx`'s device (one this process made, or a
+    /// caller's: an OpenXR runtime's); `why` says why it was chosen.
+    pub fn on_device(
         ctx: &GpuContext,
         config: &PipelineConfig,
         width: usize,
@@ -212,7 +201,7 @@ impl Renderer {
             let attempt = GpuContext::new(&options)
                 .map_err(anyhow::Error::from)
                 .and_then(|ctx| {
-                    Self::gpu(
+                    Self::on_device(
                         &ctx,
                         config,
                         width,

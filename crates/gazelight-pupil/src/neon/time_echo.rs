@@ -109,11 +109,9 @@ mod tests {
     use super::*;
     use tokio::net::TcpListener;
 
-    /// A phone whose clock runs 1500 ms behind this host's: the estimate
-    /// says +1500 ms (within the protocol's 1 ms resolution and the round
-    /// trip); a wrong echo is an error.
-    #[tokio::test]
-    async fn offset_of_a_phone_behind_by_1500_ms() {
+    /// A Time Echo server on 127.0.0.1 answering each 8-byte request with
+    /// `answer(request)`; returns its port.
+    async fn phone(answer: fn([u8; 8]) -> [u8; 16]) -> u16 {
         let listener = TcpListener::bind("127.0.0.1:0")
             .await
             .unwrap_or_else(|e| panic!("{e}"));
@@ -124,15 +122,26 @@ mod tests {
             };
             let mut t1 = [0u8; 8];
             while c.read_exact(&mut t1).await.is_ok() {
-                let th = unix_ms() - 1500;
-                let mut out = [0u8; 16];
-                out[..8].copy_from_slice(&t1);
-                out[8..].copy_from_slice(&th.to_be_bytes());
-                if c.write_all(&out).await.is_err() {
+                if c.write_all(&answer(t1)).await.is_err() {
                     return;
                 }
             }
         });
+        port
+    }
+
+    /// A phone whose clock runs 1500 ms behind this host's: the estimate
+    /// says +1500 ms (within the protocol's 1 ms resolution and the round
+    /// trip); a wrong echo is an error.
+    #[tokio::test]
+    async fn offset_of_a_phone_behind_by_1500_ms() {
+        let port = phone(|t1| {
+            let mut out = [0u8; 16];
+            out[..8].copy_from_slice(&t1);
+            out[8..].copy_from_slice(&(unix_ms() - 1500).to_be_bytes());
+            out
+        })
+        .await;
         let e = estimate_offset("127.0.0.1", port, 10, Duration::from_secs(2))
             .await
             .unwrap_or_else(|e| panic!("{e}"));
@@ -142,18 +151,7 @@ mod tests {
             "{e:?}"
         );
 
-        let listener = TcpListener::bind("127.0.0.1:0")
-            .await
-            .unwrap_or_else(|e| panic!("{e}"));
-        let port = listener.local_addr().map(|a| a.port()).unwrap_or(0);
-        tokio::spawn(async move {
-            let Ok((mut c, _)) = listener.accept().await else {
-                return;
-            };
-            let mut t1 = [0u8; 8];
-            let _ = c.read_exact(&mut t1).await;
-            let _ = c.write_all(&[7u8; 16]).await;
-        });
+        let port = phone(|_| [7u8; 16]).await;
         let err = estimate_offset("127.0.0.1", port, 3, Duration::from_secs(2))
             .await
             .expect_err("a wrong echo");

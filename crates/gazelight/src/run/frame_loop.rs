@@ -682,6 +682,13 @@ impl FrameLoop {
         self.view_means
     }
 
+    /// Hands an `xr.csv` row to the output writer (with `--out`).
+    pub fn write_xr(&mut self, row: super::writer::XrRow) {
+        if let Some(w) = &mut self.writer {
+            w.xr(row);
+        }
+    }
+
     /// The GPU output of view `k` (`None` on the CPU), for a presenter.
     pub fn frame_source(&self, k: usize) -> Option<gazelight_gpu::present::FrameSource> {
         self.eyes.get(k).and_then(|e| e.pipeline.frame_source())

@@ -480,13 +480,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         };
         let (done_tx, done_rx) = tokio::sync::oneshot::channel();
         let xr_display = r.xr;
-        let out_dir = r.out.clone();
         let thread_hub = hub.clone();
         std::thread::Builder::new()
             .name("gazelight-frames".into())
             .spawn(move || {
                 let result = if xr_display {
-                    xr::run(setup, out_dir.as_deref()).map(|(s, x)| (s, Some(x)))
+                    xr::run(setup).map(|(s, x)| (s, Some(x)))
                 } else {
                     FrameLoop::new(setup)
                         .and_then(FrameLoop::run)

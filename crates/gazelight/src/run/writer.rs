@@ -103,6 +103,59 @@ enum Msg {
     Row(Row),
     Frame(u64, DisplayFrame),
     Psf(PsfEvent),
+    Xr(XrRow),
+}
+
+/// One row of `xr.csv` (an OpenXR session's frame, `run --display xr`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct XrRow {
+    pub frame: u64,
+    /// The runtime's predicted display time (XrTime), ns.
+    pub predicted_display_time_ns: i64,
+    /// The same on the host clock, s.
+    pub display_host_secs: f64,
+    /// The `EyeState`'s age at that time, ms.
+    pub eye_state_age_ms: f64,
+    /// Per eye (left, right): position (m) then orientation (x, y, z, w).
+    pub poses: [[f32; 7]; 2],
+    /// The left view's gaze.
+    pub gaze_uv_left: [f32; 2],
+    /// The left view's pooled luminance, cd/m².
+    pub target_cd_m2_left: f64,
+    /// Each view's mean luminance (what the head's pose shows), cd/m².
+    pub view_mean_cd_m2: [f64; 2],
+}
+
+const XR_HEADER: &str = "frame,predicted_display_time_ns,display_host_secs,eye_state_age_ms,\
+left_x_m,left_y_m,left_z_m,left_qx,left_qy,left_qz,left_qw,\
+right_x_m,right_y_m,right_z_m,right_qx,right_qy,right_qz,right_qw,\
+gaze_u_left,gaze_v_left,target_cd_m2_left,view_mean_cd_m2_left,view_mean_cd_m2_right";
+
+/// Formats one `xr.csv` row (with its newline) into `w`.
+fn format_xr(w: &mut String, r: &XrRow) {
+    let _ = write!(
+        w,
+        "{},{},{:.6},{:.3}",
+        r.frame, r.predicted_display_time_ns, r.display_host_secs, r.eye_state_age_ms
+    );
+    for pose in &r.poses {
+        for (i, v) in pose.iter().enumerate() {
+            let _ = if i < 3 {
+                write!(w, ",{v:.5}")
+            } else {
+                write!(w, ",{v:.6}")
+            };
+        }
+    }
+    let _ = writeln!(
+        w,
+        ",{:.5},{:.5},{:.6e},{:.6e},{:.6e}",
+        r.gaze_uv_left[0],
+        r.gaze_uv_left[1],
+        r.target_cd_m2_left,
+        r.view_mean_cd_m2[0],
+        r.view_mean_cd_m2[1]
+    );
 }
 
 /// What the writer did.
@@ -170,6 +223,9 @@ impl OutputWriter {
                 let mut report = WriterReport::default();
                 let timeline_path = dir_owned.join("timeline.csv");
                 let psf_path = dir_owned.join("psf.csv");
+                let xr_path = dir_owned.join("xr.csv");
+                // Opened with the first OpenXR row.
+                let mut xr_csv: Option<std::io::BufWriter<std::fs::File>> = None;
                 // Rows are formatted here and handed to the file whole, and
                 // the files are flushed at least every `FLUSH_EVERY`: the
                 // files only ever hold complete rows, up to a second old,
@@ -190,6 +246,10 @@ impl OutputWriter {
                         psf_csv
                             .flush()
                             .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                        if let Some(x) = &mut xr_csv {
+                            x.flush()
+                                .with_context(|| format!("cannot write {}", xr_path.display()))?;
+                        }
                     }
                     let Some(msg) = msg else { continue };
                     match msg {
@@ -239,7 +299,28 @@ impl OutputWriter {
                                 .with_context(|| format!("cannot write {}", psf_path.display()))?;
                             report.psf_rows += 1;
                         }
+                        Msg::Xr(r) => {
+                            let x = match &mut xr_csv {
+                                Some(x) => x,
+                                slot => {
+                                    let f = std::fs::File::create(&xr_path).with_context(|| {
+                                        format!("cannot write {}", xr_path.display())
+                                    })?;
+                                    let mut x = std::io::BufWriter::new(f);
+                                    writeln!(x, "{XR_HEADER}")?;
+                                    slot.insert(x)
+                                }
+                            };
+                            line.clear();
+                            format_xr(&mut line, &r);
+                            x.write_all(line.as_bytes())
+                                .with_context(|| format!("cannot write {}", xr_path.display()))?;
+                        }
                     }
+                }
+                if let Some(x) = &mut xr_csv {
+                    x.flush()
+                        .with_context(|| format!("cannot write {}", xr_path.display()))?;
                 }
                 timeline
                     .flush()
@@ -274,6 +355,11 @@ impl OutputWriter {
     /// Queues a timeline row (never blocks).
     pub fn row(&mut self, row: Row) {
         let _ = self.send(Msg::Row(row));
+    }
+
+    /// Queues an `xr.csv` row (never blocks).
+    pub fn xr(&mut self, row: XrRow) {
+        let _ = self.send(Msg::Xr(row));
     }
 
     /// Queues a kernel event (never blocks).

@@ -21,11 +21,10 @@
 //! Session states are followed ([`XrSession::poll_events`]); a shutdown
 //! (a signal, `--secs`) asks the runtime to exit and the loop ends when the
 //! session reaches EXITING (bounded). With `--out`, `xr.csv` gets one row per
-//! submitted frame: the predicted display time, the state's age there and
-//! both eyes' poses.
+//! submitted frame (written by the output writer's thread, as the other
+//! files): the predicted display time, the state's age there and both
+//! eyes' poses.
 
-use std::io::Write;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -36,6 +35,7 @@ use gazelight_vision::scene::{PanoramaView, ViewParams};
 use gazelight_xr::{SessionState, XrFrame, XrOptions, XrSession, monotonic_now_secs};
 
 use super::frame_loop::{FrameLoop, FrameLoopSetup, RunSummary};
+use super::writer::XrRow;
 
 /// How long the runtime may take to start showing frames.
 const START_LIMIT: Duration = Duration::from_secs(20);
@@ -71,10 +71,7 @@ pub struct XrReport {
 /// Runs the live session into the OpenXR runtime: on the frame thread.
 /// `setup` is the windowless setup of a stereo run; its view size and field
 /// are replaced by the runtime's.
-pub fn run(
-    mut setup: FrameLoopSetup,
-    out_dir: Option<&Path>,
-) -> anyhow::Result<(RunSummary, XrReport)> {
+pub fn run(mut setup: FrameLoopSetup) -> anyhow::Result<(RunSummary, XrReport)> {
     let options = XrOptions {
         app_name: "gazelight".to_owned(),
         eye_gaze: true,
@@ -128,26 +125,7 @@ pub fn run(
             Ok(TexturePresenter::new(&source, info.swapchain_format)?)
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut csv = match out_dir {
-        Some(dir) => {
-            let path = dir.join("xr.csv");
-            let f = std::fs::File::create(&path)
-                .with_context(|| format!("cannot write {}", path.display()))?;
-            let mut w = std::io::BufWriter::new(f);
-            writeln!(
-                w,
-                "frame,predicted_display_time_ns,display_host_secs,eye_state_age_ms,\
-                 left_x_m,left_y_m,left_z_m,left_qx,left_qy,left_qz,left_qw,\
-                 right_x_m,right_y_m,right_z_m,right_qx,right_qy,right_qz,right_qw,\
-                 gaze_u_left,gaze_v_left,target_cd_m2_left,view_mean_cd_m2_left,view_mean_cd_m2_right"
-            )?;
-            Some((w, path))
-        }
-        None => None,
-    };
-
     let start = Instant::now();
-    let mut last_flush = Instant::now();
     let mut exit_asked: Option<Instant> = None;
     let mut prev_display_ns: Option<i64> = None;
     let mut first_orientation: Option<[f32; 4]> = None;
@@ -231,55 +209,41 @@ pub fn run(
         report.max_head_turn_deg = report
             .max_head_turn_deg
             .max(angle_deg(q0, left.orientation));
-        if let Some((w, _)) = &mut csv {
-            let (s, g) = (&status_frame, status_frame.gaze_uv);
-            let row = writeln!(
-                w,
-                "{},{},{:.6},{:.3},{:.5},{:.5},{:.5},{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.5},{:.6},{:.6},{:.6},{:.6},{:.5},{:.5},{:.6e},{:.6e},{:.6e}",
-                s.frames,
-                frame.predicted_display_time_ns,
-                display_host,
-                s.eye_state_age_ms,
-                left.position_m[0],
-                left.position_m[1],
-                left.position_m[2],
-                left.orientation[0],
-                left.orientation[1],
-                left.orientation[2],
-                left.orientation[3],
-                right.position_m[0],
-                right.position_m[1],
-                right.position_m[2],
-                right.orientation[0],
-                right.orientation[1],
-                right.orientation[2],
-                right.orientation[3],
-                g[0],
-                g[1],
-                s.target_cd_m2,
-                fl.view_means()[0],
-                fl.view_means()[1],
-            );
-            if let Err(e) = row {
-                break Err(e.into());
-            }
-            if last_flush.elapsed() >= Duration::from_secs(1) {
-                last_flush = Instant::now();
-                if let Err(e) = w.flush() {
-                    break Err(e.into());
-                }
-            }
-        }
+        fl.write_xr(XrRow {
+            frame: status_frame.frames,
+            predicted_display_time_ns: frame.predicted_display_time_ns,
+            display_host_secs: display_host,
+            eye_state_age_ms: status_frame.eye_state_age_ms,
+            poses: [
+                [
+                    left.position_m[0],
+                    left.position_m[1],
+                    left.position_m[2],
+                    left.orientation[0],
+                    left.orientation[1],
+                    left.orientation[2],
+                    left.orientation[3],
+                ],
+                [
+                    right.position_m[0],
+                    right.position_m[1],
+                    right.position_m[2],
+                    right.orientation[0],
+                    right.orientation[1],
+                    right.orientation[2],
+                    right.orientation[3],
+                ],
+            ],
+            gaze_uv_left: status_frame.gaze_uv,
+            target_cd_m2_left: status_frame.target_cd_m2,
+            view_mean_cd_m2: fl.view_means(),
+        });
         if let Err(e) = xr.end_frame(frame) {
             break Err(e.into());
         }
         frames += 1;
         report.frames_submitted = frames;
     };
-    if let Some((mut w, path)) = csv {
-        w.flush()
-            .with_context(|| format!("cannot write {}", path.display()))?;
-    }
     let summary = fl.finish(start.elapsed().as_secs_f64(), result)?;
     // The session (and its Vulkan device) ends after the pipelines.
     drop(xr);
