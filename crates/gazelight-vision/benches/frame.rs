@@ -12,8 +12,8 @@
 //!   (**day**).
 //! * Sizes: 720×800 (half the Vive Pro, the default) and 1440×1600 per eye.
 //! * One eye (one pipeline) and two eyes (two pipelines, the views 3° apart
-//!   in yaw, processed one after the other per frame, as a stereo loop
-//!   would until stereo exists); the two-eye floor copies both frames.
+//!   in yaw, run side by side with `rayon::join` as the stereo loops of
+//!   `render`, `replay` and `run` do); the two-eye floor copies both frames.
 //! * `psf_rebuild`: one eye, a PSF rebuild every frame (pupil 3 ↔ 6 mm).
 //!
 //! After each group the bench prints medians of 31 interleaved samples of
@@ -80,6 +80,17 @@ impl Eye {
             .expect("frame")
             .timings
     }
+}
+
+/// Both eyes of a stereo frame, as the stereo loops run them: the two
+/// pipelines side by side on the rayon pool (`rayon::join`), each one's own
+/// parallel passes sharing the same threads.
+fn both(eyes: &mut [Eye], input: &FrameInput) -> [StageTimings; 2] {
+    let [left, right] = eyes else {
+        panic!("two eyes")
+    };
+    let (a, b) = rayon::join(|| left.frame(input), || right.frame(input));
+    [a, b]
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -167,11 +178,7 @@ fn bench_view(
         b.iter(|| copy(1))
     });
     group.bench_function(format!("{label}_two_eyes"), |b| {
-        b.iter(|| {
-            for eye in &mut eyes {
-                black_box(eye.frame(&input));
-            }
-        })
+        b.iter(|| black_box(both(&mut eyes, &input)))
     });
     group.bench_function(format!("{label}_copy_floor_two_frames"), |b| {
         b.iter(|| copy(2))
@@ -203,9 +210,7 @@ fn bench_view(
         copy(1);
         floor1.push(ms_since(t));
         let t = Instant::now();
-        for eye in &mut eyes {
-            eye.frame(&input);
-        }
+        both(&mut eyes, &input);
         two.push(ms_since(t));
         let t = Instant::now();
         copy(2);

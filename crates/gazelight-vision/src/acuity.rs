@@ -120,6 +120,9 @@ const MIN_ACUITY_LUMINANCE_CD_M2: f64 = 1e-6;
 /// CIE 1976 κ = 24389/27: L\* = κ·Y/Yn below ε.
 const LAB_KAPPA: f64 = 24389.0 / 27.0;
 
+/// [`LAB_KAPPA`] in f32.
+const LAB_KAPPA_F32: f32 = 24389.0 / 27.0;
+
 /// CIE 1976 ε = 216/24389.
 const LAB_EPSILON: f64 = 216.0 / 24389.0;
 
@@ -869,9 +872,26 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
         let xyz = mat3_v(&RGB_TO_XYZ, &p);
         let mut tx = [0.0; LANES];
         let mut tz = [0.0; LANES];
+        let mut linear = true;
         for i in 0..LANES {
             tx[i] = xyz[0][i] / wx[0];
             tz[i] = xyz[2][i] / wx[2];
+            // g and g⁻¹ both in their linear parts, before and after the shift
+            let d = l_new[i] - l_old[i];
+            let hi = tx[i].max(tz[i]) * LAB_KAPPA_F32 + d.max(0.0);
+            linear &= (hi <= 8.0) & (l_old[i] + d.max(0.0) <= 8.0);
+        }
+        if linear {
+            // g(t) = κt and g⁻¹(v) = v/κ: X' = X + Xn·Δ/κ, the same for Y
+            // and Z, so RGB' = RGB + (white·Δ/κ)·(1, 1, 1) (M⁻¹·M = I).
+            for (i, o) in out.iter_mut().enumerate() {
+                if moved[i] {
+                    let shift = (l_new[i] - l_old[i]) * (ctx.white / LAB_KAPPA_F32);
+                    *o = [o[0] + shift, o[1] + shift, o[2] + shift];
+                    changed += 1;
+                }
+            }
+            continue;
         }
         let (gx, gz) = (lab_g_v(tx), lab_g_v(tz));
         let mut new = [[0.0; LANES]; 3];
@@ -922,24 +942,23 @@ fn sigma_v(rule: SigmaRule, l: V, white: f32) -> V {
 #[inline(always)]
 fn gather_v(ctx: &Ctx, centre: V, pair: impl Fn(usize) -> (V, V)) -> V {
     let sigma = sigma_v(ctx.rule, centre, ctx.white);
-    let r_max = ctx.r as f32;
-    let mut active = [false; LANES];
-    let mut e = [0.0; LANES];
-    let mut radius = [0.0; LANES];
-    let mut block_r = 0.0f32;
-    for i in 0..LANES {
-        active[i] = sigma[i] > AcuityBlur::MIN_SIGMA_PX;
-        let s = if active[i] { sigma[i] } else { 1.0 };
-        e[i] = -0.5 / (s * s);
-        radius[i] = if active[i] {
-            (3.0 * s).ceil().min(r_max)
-        } else {
-            0.0
-        };
-        block_r = block_r.max(radius[i]);
+    let mut sigma_max = 0.0f32;
+    for &s in &sigma {
+        sigma_max = sigma_max.max(s);
     }
-    if block_r == 0.0 {
+    if !(sigma_max > AcuityBlur::MIN_SIGMA_PX) {
         return centre;
+    }
+    let block_r = (3.0 * sigma_max).ceil().min(ctx.r as f32) as usize;
+    // Tap k of a lane is in its radius ⌈3σ⌉ iff k − 1 < 3σ; inactive lanes
+    // (σ ≤ 0.3) get no taps: their sum is `centre / 1`, bit-identical.
+    let mut e = [0.0; LANES];
+    let mut three_sigma = [0.0; LANES];
+    for i in 0..LANES {
+        let active = sigma[i] > AcuityBlur::MIN_SIGMA_PX;
+        let s = if active { sigma[i] } else { 1.0 };
+        e[i] = -0.5 / (s * s);
+        three_sigma[i] = if active { 3.0 * s } else { 0.0 };
     }
     let e = exp_v(e);
     let mut e2 = [0.0; LANES];
@@ -948,22 +967,20 @@ fn gather_v(ctx: &Ctx, centre: V, pair: impl Fn(usize) -> (V, V)) -> V {
     }
     let (mut g, mut q) = ([1.0f32; LANES], e);
     let (mut acc, mut norm) = (centre, [1.0f32; LANES]);
-    for k in 1..=block_r as usize {
+    for k in 1..=block_r {
         let (a, b) = pair(k);
-        let kf = k as f32;
+        let below = (k - 1) as f32;
         for i in 0..LANES {
             g[i] *= q[i];
             q[i] *= e2[i];
-            let gk = if kf <= radius[i] { g[i] } else { 0.0 };
+            let gk = if below < three_sigma[i] { g[i] } else { 0.0 };
             acc[i] += gk * (a[i] + b[i]);
             norm[i] += 2.0 * gk;
         }
     }
-    let mut out = centre;
+    let mut out = [0.0; LANES];
     for i in 0..LANES {
-        if active[i] {
-            out[i] = acc[i] / norm[i];
-        }
+        out[i] = acc[i] / norm[i];
     }
     out
 }
@@ -971,6 +988,18 @@ fn gather_v(ctx: &Ctx, centre: V, pair: impl Fn(usize) -> (V, V)) -> V {
 /// [`lab_g`] of `LANES` values with [`cbrt_v`].
 #[inline(always)]
 fn lab_g_v(t: V) -> V {
+    let mut any_cubic = false;
+    for &ti in &t {
+        any_cubic |= ti > 216.0 / 24389.0;
+    }
+    if !any_cubic {
+        // All eight in the linear part (most of a night frame): no cube root.
+        let mut o = [0.0; LANES];
+        for i in 0..LANES {
+            o[i] = 24389.0 / 27.0 * t[i];
+        }
+        return o;
+    }
     let mut c = [0.0; LANES];
     for i in 0..LANES {
         c[i] = t[i].max(216.0 / 24389.0);

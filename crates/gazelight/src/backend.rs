@@ -286,6 +286,36 @@ impl Renderer {
         }
     }
 
+    /// Renders the views of one frame, one renderer and output per view
+    /// ([`Self::render`] each). A stereo pair of CPU pipelines runs side by
+    /// side on the rayon pool (`rayon::join`): each pipeline's own parallel
+    /// passes share the same threads, so one eye's serial parts (pooling,
+    /// the FFTs' set-up, the row bands' tails) overlap the other eye's work.
+    /// GPU pipelines, and a single view, run one after the other. Each
+    /// result is written into `stats` at its view's index.
+    pub fn render_views(
+        eyes: &mut [(&mut Renderer, &mut DisplayFrame)],
+        view: &RgbImage,
+        inputs: &[FrameInput],
+        stats: &mut [FrameStats],
+    ) -> anyhow::Result<()> {
+        if let ([(Renderer::Cpu(a, _), out_a), (Renderer::Cpu(b, _), out_b)], [in_a, in_b]) =
+            (&mut *eyes, inputs)
+        {
+            let (ra, rb) = rayon::join(
+                || a.process(view, in_a, out_a),
+                || b.process(view, in_b, out_b),
+            );
+            stats[0] = ra?;
+            stats[1] = rb?;
+            return Ok(());
+        }
+        for (((renderer, out), input), s) in eyes.iter_mut().zip(inputs).zip(stats.iter_mut()) {
+            *s = renderer.render(view, input, out)?;
+        }
+        Ok(())
+    }
+
     /// Brings the last rendered frame to the host in `out` (resized only if
     /// its size differs; no allocation in steady state): on the GPU a
     /// blocking read-back, counted in [`Self::frames_read_back`]; on the CPU
@@ -312,8 +342,8 @@ impl Renderer {
         Ok(())
     }
 
-    /// [`Self::render`] then [`Self::read_frame`]: for `render` and `replay`,
-    /// whose file writer takes every frame.
+    /// [`Self::render`] then [`Self::read_frame`] (the tests' one-call frame).
+    #[cfg(test)]
     pub fn process(
         &mut self,
         view: &RgbImage,

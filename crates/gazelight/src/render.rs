@@ -11,7 +11,7 @@ use gazelight_tracker::live::LiveChain;
 use gazelight_tracker::trace_source;
 use gazelight_tracker::{EyeState, GazeTrace, Sample, TraceSample};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats};
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use crate::backend::{BackendChoice, Renderer};
@@ -307,8 +307,25 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         // The pupil model of the chain adapts to the eyes' mean adaptation
         // (geometric: luminances are compared on a log scale).
         let mut log_adaptation = 0.0;
+        let frame_inputs: [FrameInput; 2] =
+            [inputs[0].0, inputs.get(1).map_or(inputs[0].0, |i| i.0)];
+        let mut all_stats = [FrameStats::default(); 2];
+        {
+            let mut eyes: Vec<(&mut Renderer, &mut DisplayFrame)> =
+                pipelines.iter_mut().zip(eye_out.iter_mut()).collect();
+            Renderer::render_views(
+                &mut eyes,
+                view_img,
+                &frame_inputs[..n_views],
+                &mut all_stats,
+            )?;
+            // The file writer takes every frame (a GPU frame comes back).
+            for (pipeline, out) in &mut eyes {
+                pipeline.read_frame(out)?;
+            }
+        }
         for (k, ((input, held), pipeline)) in inputs.iter().zip(&mut pipelines).enumerate() {
-            let mut stats = pipeline.process(view_img, input, &mut eye_out[k])?;
+            let mut stats = all_stats[k];
             stats.psf_rebuilt |= new_kernel.get(k).copied().unwrap_or(false) && n_views > 1;
             log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n_views as f64;
             if n_views > 1 {

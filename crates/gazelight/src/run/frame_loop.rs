@@ -505,15 +505,27 @@ impl FrameLoop {
         let mut self_rebuilt = false;
         let mut log_adaptation = 0.0;
         let n = self.eyes.len();
-        for (k, eye) in self.eyes.iter_mut().enumerate() {
-            let mut stats = eye
-                .pipeline
-                .render(&self.view_img, &inputs[k].0, &mut eye.out)?;
+        let frame_inputs = [inputs[0].0, inputs[1].0];
+        let view_img = &self.view_img;
+        match &mut self.eyes[..] {
+            [l, r] => Renderer::render_views(
+                &mut [(&mut l.pipeline, &mut l.out), (&mut r.pipeline, &mut r.out)],
+                view_img,
+                &frame_inputs,
+                &mut all_stats,
+            )?,
+            eyes => {
+                for ((eye, input), stats) in eyes.iter_mut().zip(&frame_inputs).zip(&mut all_stats)
+                {
+                    *stats = eye.pipeline.render(view_img, input, &mut eye.out)?;
+                }
+            }
+        }
+        for (k, stats) in all_stats.iter_mut().enumerate().take(n) {
             // Only without a worker (the pipeline rebuilt synchronously).
             self_rebuilt |= stats.psf_rebuilt;
             stats.psf_rebuilt |= installed[k];
             log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n as f64;
-            all_stats[k] = stats;
         }
         // The pupil model of the live eye task adapts to the eyes' mean
         // adaptation (geometric: luminances compare on a log scale).

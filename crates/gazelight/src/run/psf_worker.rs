@@ -24,7 +24,14 @@
 //! agreeing pupils, `crate::stereo::plan`) are served by one build: the
 //! second view's slot gets a copy of the kernel and its spectra.
 //!
-//! Frames keep the previous kernel until the new one is ready. Neither side
+//! Frames keep the previous kernel until the new one is ready, and a build
+//! never takes a core from a frame: the worker and the rayon pool it builds
+//! on (its own two threads, not the global pool the frame passes use, so
+//! no frame thread can steal a build task while it waits in a join) run at
+//! the kernel's idle priority (Linux `SCHED_IDLE`), so they get a core only while no frame thread wants it: in the
+//! gaps between frames. Kernel latency pays for that, not frames.
+//!
+//! Neither side
 //! allocates per request once both buffers have held a kernel (the builder
 //! reuses its buffers; kernels and spectra circulate between the staging
 //! copy, the slot and the pipeline by swapping).
@@ -42,6 +49,25 @@ use gazelight_vision::psf::{PsfBuilder, PsfKernel, PsfParams};
 const NO_REQUEST: u64 = u64::MAX;
 /// How often an idle worker looks at the stop flag.
 const IDLE_POLL: Duration = Duration::from_millis(100);
+
+/// Threads of the worker's own build pool.
+const BUILD_THREADS: usize = 2;
+
+/// Puts the calling thread at the lowest CPU priority, Linux `SCHED_IDLE`:
+/// it runs only on a core no normal thread wants. A failure is logged and
+/// the thread keeps its priority; other systems keep it too.
+fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: pid 0 is the calling thread; `param` is a valid, live
+        // sched_param for the duration of the call.
+        let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
+        if rc != 0 {
+            tracing::warn!(error = %std::io::Error::last_os_error(), "PSF worker: cannot lower its priority");
+        }
+    }
+}
 
 /// The largest number of views one worker serves (a stereo frame's two).
 pub const MAX_VIEWS: usize = 2;
@@ -111,10 +137,19 @@ impl PsfWorker {
             builds: AtomicU64::new(0),
         });
         let staging: Vec<PreparedKernel> = (0..views).map(|_| prepared()).collect();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(BUILD_THREADS)
+            .thread_name(|i| format!("gazelight-psf-{i}"))
+            .start_handler(|_| lower_priority())
+            .build()
+            .map_err(std::io::Error::other)?;
         let worker = Arc::clone(&shared);
         let handle = std::thread::Builder::new()
             .name("gazelight-psf".into())
-            .spawn(move || work(&worker, params, preparer, staging))?;
+            .spawn(move || {
+                lower_priority();
+                pool.install(|| work(&worker, params, preparer, staging));
+            })?;
         Ok(Self {
             shared,
             thread: handle.thread().clone(),
