@@ -98,7 +98,14 @@
 //! counts, which the compiler turns into vector code (AVX2 + FMA when the
 //! CPU has it, chosen at run time; the code and the results are the same
 //! either way). The cube root and `exp` are vector polynomials (within
-//! 3e-7 of the standard library's); a block of 8 runs its tap loop to the
+//! 3e-7 of the standard library's) and are skipped for a block whose eight
+//! values all lie in L\*'s linear part (Y/Yn ≤ ε, most of a night frame).
+//! There step 4 needs no cube root either: with `g(t) = κt` and `g⁻¹(v) =
+//! v/κ` for all three of X, Y, Z before and after the shift (checked per
+//! block: `κ·max(X/Xn, Z/Zn) + max(Δ, 0) ≤ 8` and `L + max(Δ, 0) ≤ 8`),
+//! `X' = X + Xn·Δ/κ` and the same for Y and Z, so RGB' = RGB + (white·Δ/κ)
+//! on every channel (the sRGB matrix maps RGB (1, 1, 1) to the D65 white);
+//! the same value up to f32 rounding. A block of 8 runs its tap loop to the
 //! largest radius of its 8 pixels, and each pixel's taps beyond its own
 //! radius get weight exactly 0, so its sum is the one of its own taps. A
 //! bright frame costs one Y per pixel; a dark pixel of small σ costs a few

@@ -678,16 +678,15 @@ fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usiz
             small_row.fill(0.0);
             let rows = src.len() / w;
             for (drow, srow) in dst.chunks_exact_mut(w).zip(src.chunks_exact(w)) {
-                for ((dblk, sblk), acc) in drow
-                    .chunks_mut(ds)
-                    .zip(srow.chunks(ds))
-                    .zip(small_row.iter_mut())
-                {
+                // The row as plain floats (vectorises), then its block sums
+                // from L1.
+                for (d, s) in drow.as_flattened_mut().iter_mut().zip(srow.as_flattened()) {
+                    *d = sanitize(*s);
+                }
+                for (dblk, acc) in drow.chunks(ds).zip(small_row.iter_mut()) {
                     let mut sum = 0.0f32;
-                    for (d, s) in dblk.iter_mut().zip(sblk) {
-                        let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
-                        *d = p;
-                        sum += luminance(p);
+                    for p in dblk {
+                        sum += luminance(*p);
                     }
                     *acc += sum;
                 }
