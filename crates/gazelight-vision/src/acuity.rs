@@ -393,6 +393,10 @@ struct Band {
     lum: Vec<f32>,
     /// Ring of 2r + 1 rows of L\* after the horizontal pass.
     hor: Vec<f32>,
+    /// Ring of 2r + 1 rows (as `hor`): each pixel's max(R, G, B)/white, a
+    /// bound on all three of X/Xn, Y/Yn, Z/Zn (each row of the sRGB → XYZ
+    /// matrix sums to its white component) for step 4's linear-part test.
+    head: Vec<f32>,
     /// Per frame row: holds a pixel below the blur threshold.
     dark: Vec<bool>,
 }
@@ -547,6 +551,7 @@ impl AcuityBlur {
             .map(|_| Band {
                 lum: vec![0.0; (2 * r + 1) * stride_l],
                 hor: vec![0.0; (2 * r + 1) * stride_h],
+                head: vec![0.0; (2 * r + 1) * stride_h],
                 dark: vec![false; h],
             })
             .collect();
@@ -725,6 +730,7 @@ fn run_band<S: RowSink>(
                     ctx,
                     src,
                     &mut band.lum[slot * ctx.stride_l..(slot + 1) * ctx.stride_l],
+                    &mut band.head[slot * ctx.stride_h..(slot + 1) * ctx.stride_h],
                 );
                 next_y += 1;
             }
@@ -762,11 +768,29 @@ fn load_v(s: &[f32], at: usize) -> V {
 /// Channel planes of `n ≤ LANES` pixels (the rest black).
 #[inline(always)]
 fn planes(px: &[[f32; 3]]) -> [V; 3] {
+    if let Ok(full) = <&[[f32; 3]; LANES]>::try_from(px) {
+        return planes_full(full);
+    }
     let mut p = [[0.0; LANES]; 3];
     for (i, q) in px.iter().enumerate().take(LANES) {
         p[0][i] = q[0];
         p[1][i] = q[1];
         p[2][i] = q[2];
+    }
+    p
+}
+
+/// Channel planes of exactly `LANES` pixels: the 24 floats are loaded as
+/// one block and deinterleaved with constant indices, which the compiler
+/// turns into a few vector loads and shuffles instead of 24 inserts.
+#[inline(always)]
+pub(crate) fn planes_full(px: &[[f32; 3]; LANES]) -> [V; 3] {
+    let flat: &[f32; 3 * LANES] = px.as_flattened().try_into().unwrap_or(&[0.0; 3 * LANES]);
+    let mut p = [[0.0; LANES]; 3];
+    for i in 0..LANES {
+        p[0][i] = flat[3 * i];
+        p[1][i] = flat[3 * i + 1];
+        p[2][i] = flat[3 * i + 2];
     }
     p
 }
@@ -782,21 +806,26 @@ fn mat3_v(m: &[[f32; 3]; 3], p: &[V; 3]) -> [V; 3] {
     o
 }
 
-/// Y/Yn of every pixel of `src` into the ring row `lrow` (at offset r);
-/// whether any is below the blur threshold.
+/// Y/Yn of every pixel of `src` into the ring row `lrow` (at offset r) and
+/// max(R, G, B)/white into `head`; whether any is below the blur threshold.
 #[inline(always)]
-fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32]) -> bool {
+fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32], head: &mut [f32]) -> bool {
     let y_row = RGB_TO_XYZ[1];
     let inv_white = 1.0 / ctx.white;
     let mut dark = false;
     let dst = &mut lrow[ctx.r..ctx.r + ctx.stride_h];
-    for (s, d) in src.chunks(LANES).zip(dst.chunks_exact_mut(LANES)) {
+    for ((s, d), hd) in src
+        .chunks(LANES)
+        .zip(dst.chunks_exact_mut(LANES))
+        .zip(head.chunks_exact_mut(LANES))
+    {
         let p = planes(s);
         let mut any = false;
         for i in 0..LANES {
             let y = y_row[0] * p[0][i] + y_row[1] * p[1][i] + y_row[2] * p[2][i];
             let t = y * inv_white;
             d[i] = t;
+            hd[i] = p[0][i].max(p[1][i]).max(p[2][i]) * inv_white;
             any |= (i < s.len()) & (t < ctx.dark_below);
         }
         dark |= any;
@@ -854,6 +883,7 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
         down[k] = ((y + k).min(h - 1) % ring) * sh;
     }
     let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
+    let head_row = &band.head[(y % ring) * sh..];
     let wx = WHITE_XYZ.map(|c| c * ctx.white);
     let mut changed = 0;
     for (bx, out) in row.chunks_mut(LANES).enumerate() {
@@ -875,18 +905,14 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
         if !any {
             continue;
         }
-        let p = planes(out);
-        let xyz = mat3_v(&RGB_TO_XYZ, &p);
-        let mut tx = [0.0; LANES];
-        let mut tz = [0.0; LANES];
+        // g and g⁻¹ both in their linear parts for X, Y and Z, before and
+        // after the shift: κ·max(X/Xn, Y/Yn, Z/Zn) + max(Δ, 0) ≤ 8, with
+        // `head` bounding all three.
+        let head = load_v(head_row, x);
         let mut linear = true;
         for i in 0..LANES {
-            tx[i] = xyz[0][i] / wx[0];
-            tz[i] = xyz[2][i] / wx[2];
-            // g and g⁻¹ both in their linear parts, before and after the shift
             let d = l_new[i] - l_old[i];
-            let hi = tx[i].max(tz[i]) * LAB_KAPPA_F32 + d.max(0.0);
-            linear &= (hi <= 8.0) & (l_old[i] + d.max(0.0) <= 8.0);
+            linear &= head[i] * LAB_KAPPA_F32 + d.max(0.0) <= 8.0;
         }
         if linear {
             // g(t) = κt and g⁻¹(v) = v/κ: X' = X + Xn·Δ/κ, the same for Y
@@ -899,6 +925,14 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
                 }
             }
             continue;
+        }
+        let p = planes(out);
+        let xyz = mat3_v(&RGB_TO_XYZ, &p);
+        let mut tx = [0.0; LANES];
+        let mut tz = [0.0; LANES];
+        for i in 0..LANES {
+            tx[i] = xyz[0][i] / wx[0];
+            tz[i] = xyz[2][i] / wx[2];
         }
         let (gx, gz) = (lab_g_v(tx), lab_g_v(tz));
         let mut new = [[0.0; LANES]; 3];
@@ -1030,11 +1064,11 @@ fn lab_g_v(t: V) -> V {
 #[inline(always)]
 fn cbrt_v(t: V) -> V {
     // (127 − 127/3 − 0.0331)·2²³, FreeBSD s_cbrtf.c B1
-    const B1: f32 = 709_958_130.0;
+    const B1: u32 = 709_958_130;
     let mut y = [0.0; LANES];
     for i in 0..LANES {
-        let bits = t[i].to_bits() as i32 as f32;
-        y[i] = f32::from_bits((bits * (1.0 / 3.0) + B1) as i32 as u32);
+        // FreeBSD s_cbrtf.c's guess, in integers: bits/3 + B1
+        y[i] = f32::from_bits(t[i].to_bits() / 3 + B1);
     }
     for _ in 0..3 {
         for i in 0..LANES {
@@ -1056,13 +1090,17 @@ fn exp_v(x: V) -> V {
     let mut o = [0.0; LANES];
     for i in 0..LANES {
         let x = x[i].max(-87.0);
-        let n = (x * std::f32::consts::LOG2_E + ROUND) - ROUND;
+        // ROUND + n exactly (|n| ≤ 126): its bits are ROUND's plus n, so 2ⁿ
+        // comes from integer arithmetic (no saturating float → int cast).
+        let shifted = x * std::f32::consts::LOG2_E + ROUND;
+        let n = shifted - ROUND;
+        let n_int = shifted.to_bits().wrapping_sub(ROUND.to_bits());
         let r = (x - n * LN2_HI) - n * LN2_LO;
         let p = 1.0
             + r * (1.0
                 + r * (0.5
                     + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-        let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+        let scale = f32::from_bits(n_int.wrapping_add(127) << 23);
         o[i] = p * scale;
     }
     o

@@ -119,15 +119,14 @@ impl Map for Affine {
     /// `m·max(p, 0) + b`.
     #[inline(always)]
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes {
-        let mut planes = [[0.0f32; LANES]; 3];
-        for i in 0..LANES {
-            for c in 0..3 {
+        let mut planes = crate::acuity::planes_full(src);
+        for plane in &mut planes {
+            for v in plane.iter_mut() {
                 // Pass A already replaced NaN, ±∞, negatives and
                 // subnormals; what glare adds is finite but may be slightly
                 // negative (FFT round-off). Plain selects vectorise; the
                 // class tests of `sanitize` would not.
-                let v = src[i][c];
-                planes[c][i] = (if v > 0.0 { v } else { 0.0 }).min(f32::MAX);
+                *v = (if *v > 0.0 { *v } else { 0.0 }).min(f32::MAX);
             }
         }
         let mut out = [[0.0f32; LANES]; 3];
