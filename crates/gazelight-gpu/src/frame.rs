@@ -1767,7 +1767,14 @@ mod tests {
             c
         };
         for (name, yaw, fov, w, h, config) in [
-            ("night.exr", -78.4, 20.0, 128, 128, PipelineConfig::default()),
+            (
+                "night.exr",
+                -78.4,
+                20.0,
+                128,
+                128,
+                PipelineConfig::default(),
+            ),
             ("city.exr", 40.0, 40.0, 160, 144, PipelineConfig::default()),
             ("night.exr", -78.4, 20.0, 128, 128, clean),
         ] {

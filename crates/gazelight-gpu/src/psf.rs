@@ -363,8 +363,7 @@ impl GpuBuild {
             r_samples: r_samples as f32,
             edge: (r_samples + 1.0) as f32,
             defocus_rad_per_sample2: (defocus_per_mm2 * self.sample_mm * self.sample_mm) as f32,
-            intensity_scale: (1.0 / (n * n * std::f64::consts::PI * r_samples * r_samples))
-                as f32,
+            intensity_scale: (1.0 / (n * n * std::f64::consts::PI * r_samples * r_samples)) as f32,
             lobe_scale: (sigma_p * rad_px * rad_px) as f32,
             ..self.base
         }
@@ -785,6 +784,66 @@ mod tests {
             }
         }
         println!("worst {worst:.2e} of the peak");
+    }
+
+    /// The default request (±20° at the Vive Pro's 13.85 ppd: a 555 px
+    /// kernel, N = 1024) against the CPU, with the wall time of a GPU
+    /// rebuild (record, submit, wait) on this device.
+    #[test]
+    fn default_kernel_matches_the_cpu_and_is_timed() {
+        let Some(ctx) = test_context("default_kernel_matches_the_cpu_and_is_timed") else {
+            return;
+        };
+        let params = PsfParams::default();
+        let mut gpu = GpuPsfBuilder::new(ctx, &params).unwrap();
+        assert!(gpu.builds_on_gpu());
+        let mut cpu = PsfBuilder::new(params.clone()).unwrap();
+        let mut times_ms = Vec::new();
+        for pupil_mm in [3.0, 6.0, 3.0, 6.0] {
+            let start = std::time::Instant::now();
+            let mut encoder = ctx.device().create_command_encoder(&Default::default());
+            let _ = gpu.encode_rebuild(&mut encoder, pupil_mm);
+            ctx.queue().submit([encoder.finish()]);
+            ctx.wait_idle().unwrap();
+            times_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            let e = kernel_error(&gpu.read_kernel().unwrap(), cpu.rebuild(pupil_mm));
+            assert!(e < 1e-4, "{pupil_mm} mm: {e:e}");
+            println!("default params, pupil {pupil_mm} mm: GPU vs CPU {e:.2e} of the peak");
+        }
+        println!(
+            "default GPU rebuild (N = {}, kernel {} px) on {}: {times_ms:.0?} ms",
+            gpu.setup().sampling().grid_size,
+            gpu.kernel_size(),
+            ctx.describe()
+        );
+    }
+
+    /// A request whose pupil plane needs 4096 samples (6000 ppd) is beyond
+    /// the GPU FFT: it is built by the CPU builder and uploaded.
+    #[test]
+    fn grids_beyond_the_gpu_fft_fall_back_to_the_cpu_build() {
+        let Some(ctx) = test_context("grids_beyond_the_gpu_fft_fall_back_to_the_cpu_build")
+        else {
+            return;
+        };
+        let params = PsfParams {
+            ppd: 6000.0,
+            field_deg: 0.05,
+            pupil_range_mm: [2.0, 8.0],
+            particles: 0,
+            ..PsfParams::default()
+        };
+        assert!(params.sampling().unwrap().grid_size > MAX_GPU_GRID_SIZE);
+        let mut gpu = GpuPsfBuilder::new(ctx, &params).unwrap();
+        assert!(!gpu.builds_on_gpu());
+        assert_eq!(gpu.rebuild(3.0), 3.0);
+        let want = build_kernel(&PsfParams {
+            pupil_mm: 3.0,
+            ..params
+        })
+        .unwrap();
+        let e = kernel_error(&gpu.read_kernel().unwrap(), &want);
+        assert!(e < 1e-6, "{e:e}");
     }
 
     #[test]

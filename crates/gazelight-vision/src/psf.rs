@@ -1126,7 +1126,6 @@ impl PsfBuilder {
         &self.setup
     }
 
-
     /// The parameters (with `pupil_mm` as given to `new`).
     pub fn params(&self) -> &PsfParams {
         &self.setup.params
@@ -1177,7 +1176,10 @@ impl PsfBuilder {
     /// current kernel. Use [`PsfBuilder::try_rebuild`] to get an error instead.
     pub fn rebuild(&mut self, pupil_mm: f64) -> &PsfKernel {
         if pupil_mm.is_finite() {
-            let p = pupil_mm.clamp(self.setup.params.min_pupil_mm(), self.setup.params.max_pupil_mm());
+            let p = pupil_mm.clamp(
+                self.setup.params.min_pupil_mm(),
+                self.setup.params.max_pupil_mm(),
+            );
             self.build(p);
         }
         &self.kernel
@@ -1282,7 +1284,13 @@ impl PsfBuilder {
         }
         let budget = 1.0 - self.setup.cie_energy;
         let alpha = sums.map(|s| if s > 0.0 { budget / s } else { 0.0 });
-        for ((out, nr), cie) in self.kernel.rgb.iter_mut().zip(&self.near).zip(&self.setup.cie) {
+        for ((out, nr), cie) in self
+            .kernel
+            .rgb
+            .iter_mut()
+            .zip(&self.near)
+            .zip(&self.setup.cie)
+        {
             for k in 0..3 {
                 out[k] = (alpha[k] * nr[k] + cie) as f32;
             }
