@@ -822,8 +822,7 @@ mod tests {
     /// the GPU FFT: it is built by the CPU builder and uploaded.
     #[test]
     fn grids_beyond_the_gpu_fft_fall_back_to_the_cpu_build() {
-        let Some(ctx) = test_context("grids_beyond_the_gpu_fft_fall_back_to_the_cpu_build")
-        else {
+        let Some(ctx) = test_context("grids_beyond_the_gpu_fft_fall_back_to_the_cpu_build") else {
             return;
         };
         let params = PsfParams {
