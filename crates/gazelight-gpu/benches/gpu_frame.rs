@@ -7,7 +7,7 @@
 //! both eyes (pupil alternating 3 ↔ 6 mm).
 //!
 //! Times come from GPU timestamps per stage (pooling, adaptation, PSF
-//! rebuild, kernel spectrum, glare, tone + colour + acuity + encode) when the
+//! rebuild — the GPU kernel build, [`REBUILD_TIMESTAMPS`] — kernel spectrum, glare, tone + colour + acuity + encode) when the
 //! adapter supports `TIMESTAMP_QUERY` — the per-stage split is printed once
 //! per case — otherwise from the wall clock around submit +
 //! `device.poll(wait)` (stated in the output). On lavapipe the figures only
@@ -158,7 +158,9 @@ fn frame(
         stages[4] += ns(6, 7);
         stages[5] += ns(8, 9);
         if rebuild {
-            stages[2] += ns(f, f + 5);
+            // REBUILD_TIMESTAMPS: 0 before the aperture pass, 1 after the
+            // normalisation: the whole GPU kernel build.
+            stages[2] += ns(f, f + 1);
             stages[3] += ns(4, 5);
         }
         first = first.min(t[0]);

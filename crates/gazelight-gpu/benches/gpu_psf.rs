@@ -1,8 +1,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! Glare kernel rebuild of [`GpuPsfBuilder`] at the default parameters for
-//! a pupil alternating between 3 and 6 mm. Interim (see `gazelight_gpu::psf`):
-//! the kernel is built by the CPU model and uploaded, so the figure is the
-//! wall time of the CPU build + upload + submit + `device.poll(wait)`.
+//! a pupil alternating between 3 and 6 mm, built on the GPU (see
+//! `gazelight_gpu::psf`): the figure is the wall time of recording the
+//! build, submit and `device.poll(wait)`.
 //! (`cargo bench -p gazelight-gpu --bench gpu_psf -- --test`).
 
 use std::time::{Duration, Instant};
@@ -32,14 +32,14 @@ fn bench_psf(c: &mut Criterion) {
         }
     };
     println!(
-        "gpu_psf on {} (wall clock, CPU build + upload)",
+        "gpu_psf on {} (wall clock, GPU build: record + submit + wait)",
         ctx.describe()
     );
     let params = PsfParams::default();
     let mut psf = GpuPsfBuilder::new(&ctx, &params).expect("GPU PSF builder");
     let mut group = c.benchmark_group("gpu_psf_rebuild");
     group.sample_size(10);
-    group.bench_function("default_cpu_built_upload", |b| {
+    group.bench_function("default_gpu_built", |b| {
         b.iter_custom(|iters| {
             let mut total = Duration::ZERO;
             for i in 0..iters {

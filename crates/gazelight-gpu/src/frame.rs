@@ -7,7 +7,7 @@
 //! | --- | --- | --- |
 //! | 1 | scene import + block luminance + pooling reductions | `pooling.wgsl` ([`crate::pooling`]) |
 //! | 2 | adaptation step (1 thread) | `temporal.wgsl` ([`crate::temporal`]) |
-//! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm` (interim: CPU-built, uploaded), then the split kernel's two spectra | [`crate::psf`], `glare.wgsl`, [`crate::fft`] |
+//! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm` (built on the GPU: `psf_aperture`, FFT, `psf_intensity`, `psf_spectral`, `psf_normalise`), then the split kernel's two spectra | [`crate::psf`], `psf_*.wgsl`, `glare.wgsl`, [`crate::fft`] |
 //! | 4 | glare at the gaze: full-resolution core in a fine FFT window, wide field on b×b blocks in a coarse one, full weight to `full_weight_deg`, Gaussian fade beyond | `glare.wgsl` ([`crate::glare`]) |
 //! | 5 | per-pixel-σ separable Lab-lightness blur of the HDR frame (σ of the frame's adaptation for the stats, 1 thread) | `acuity.wgsl` ([`crate::acuity`]) |
 //! | 6–8 | tone + colour scalars (1 thread), per pixel tone + colour + encode | `tone.wgsl` ([`crate::tone`]) |
@@ -1754,17 +1754,34 @@ mod tests {
             return;
         };
         // Street lamps at 6.4 ppd (glare, scotopic colour, per-pixel acuity),
-        // and a hazy sun over 40° at 4 ppd. (The Vive Pro's 104° over 160 px,
-        // ~1.1 ppd, is refused by the CPU kernel's sampling: its pupil plane
-        // would need more than a 4096-sample FFT.)
-        for (name, yaw, fov, w, h) in [
-            ("night.exr", -78.4, 20.0, 128, 128),
-            ("city.exr", 40.0, 40.0, 160, 144),
+        // and a hazy sun over 40° at 4 ppd; the lamps again with a clean
+        // pupil (no particles) and no stray light. (The Vive Pro's 104° over
+        // 160 px, ~1.1 ppd, is refused by the CPU kernel's sampling: its
+        // pupil plane would need more than a 4096-sample FFT.) The GPU
+        // pipeline builds its kernels on the GPU (`crate::psf`), the CPU
+        // pipeline with `PsfBuilder`.
+        let clean = {
+            let mut c = PipelineConfig::default();
+            c.glare.psf.particles = 0;
+            c.glare.psf.stray_light = false;
+            c
+        };
+        for (name, yaw, fov, w, h, config) in [
+            (
+                "night.exr",
+                -78.4,
+                20.0,
+                128,
+                128,
+                PipelineConfig::default(),
+            ),
+            ("city.exr", 40.0, 40.0, 160, 144, PipelineConfig::default()),
+            ("night.exr", -78.4, 20.0, 128, 128, clean),
         ] {
             let (img, dpp) = view_fov(name, yaw, -6.0, fov, w, h);
-            let config = PipelineConfig::default();
             let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
             let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+            assert!(gpu.psf().is_some_and(GpuPsfBuilder::builds_on_gpu));
             let mut out = DisplayFrame::new(w, h);
             let mut rebuilds = 0;
             let mut worst = 0u8;

@@ -14,9 +14,10 @@
 //!   gaze-weighted pooling of every `PoolingModel` as workgroup reductions;
 //! - [`temporal`] (stage 2): the adaptation step, one GPU thread;
 //! - [`psf`] (stage 3): the glare kernel, rebuilt when the pupil moved more
-//!   than the threshold, cached otherwise — an interim: built by the CPU
-//!   model ([`gazelight_vision::psf`], wave-optics near field + CIE 146
-//!   stray light) and uploaded, until its WGSL twin exists;
+//!   than the threshold, cached otherwise, built on the GPU as the twin of
+//!   [`gazelight_vision::psf::PsfBuilder`] (wave-optics near field: aperture
+//!   × particles × defocus, FFT, spectral sum; particle lobes; CIE 146 stray
+//!   light; unit energy), its pupil-independent tables made once on the CPU;
 //! - [`glare`] (stage 4): windowed FFT convolution at the gaze with the
 //!   Gaussian falloff blend, kernel spectrum cached between rebuilds;
 //! - [`acuity`] (stage 5): per-pixel σ from each pixel's own lightness

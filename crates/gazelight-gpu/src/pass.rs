@@ -1,8 +1,8 @@
 //! One declaration per compute pass: [`PassDescriptor`].
 //!
 //! Every compute pass of the crate is a `const` descriptor in its pass file
-//! (`pooling.rs`, `temporal.rs`, `glare.rs`, `acuity.rs`, `tone.rs`,
-//! `fft.rs`): the WGSL file, the compute entry points it runs and, per
+//! (`pooling.rs`, `temporal.rs`, `psf.rs`, `glare.rs`, `acuity.rs`,
+//! `tone.rs`, `fft.rs`): the WGSL file, the compute entry points it runs and, per
 //! `@binding` of `@group(0)` in order, what the shader declares there —
 //! uniform or storage, read-only or read-write, and the binding's minimum
 //! size in bytes (the uniform struct, a storage struct, or one array
@@ -233,6 +233,10 @@ pub(crate) fn max_storage_binding_bytes(ctx: &GpuContext) -> u64 {
 /// Every compute pass of the crate.
 pub const ALL: &[&PassDescriptor] = &[
     &crate::fft::FFT_PASS,
+    &crate::psf::PSF_APERTURE_PASS,
+    &crate::psf::PSF_INTENSITY_PASS,
+    &crate::psf::PSF_SPECTRAL_PASS,
+    &crate::psf::PSF_NORMALISE_PASS,
     &crate::pooling::POOLING_PASS,
     &crate::temporal::TEMPORAL_PASS,
     &crate::glare::GLARE_PASS,

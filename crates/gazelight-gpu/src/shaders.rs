@@ -66,6 +66,48 @@ pub const FFT: WgslShader = WgslShader {
     source: with_common!("fft.wgsl"),
 };
 
+/// `shaders/<file>` with `shaders/psf_build.wgsl` (the glare-kernel build's
+/// uniform struct) prepended.
+macro_rules! with_psf_build {
+    ($file:literal) => {
+        concat!(
+            include_str!("../../../shaders/psf_build.wgsl"),
+            "\n",
+            include_str!(concat!("../../../shaders/", $file))
+        )
+    };
+}
+
+/// The uniform struct shared by the glare-kernel build passes.
+pub const PSF_BUILD: WgslShader = WgslShader {
+    name: "psf_build.wgsl",
+    source: include_str!("../../../shaders/psf_build.wgsl"),
+};
+
+/// Stage 3, kernel build 1: the pupil-plane field P · F · A (001 eq 7).
+pub const PSF_APERTURE: WgslShader = WgslShader {
+    name: "psf_aperture.wgsl",
+    source: with_psf_build!("psf_aperture.wgsl"),
+};
+
+/// Stage 3, kernel build 2: |FFT|², fftshifted, as fractions of the light.
+pub const PSF_INTENSITY: WgslShader = WgslShader {
+    name: "psf_intensity.wgsl",
+    source: with_psf_build!("psf_intensity.wgsl"),
+};
+
+/// Stage 3, kernel build 3: spectral sum onto display pixels, particle lobes.
+pub const PSF_SPECTRAL: WgslShader = WgslShader {
+    name: "psf_spectral.wgsl",
+    source: with_psf_build!("psf_spectral.wgsl"),
+};
+
+/// Stage 3, kernel build 4: unit energy, plus the CIE 146 stray light.
+pub const PSF_NORMALISE: WgslShader = WgslShader {
+    name: "psf_normalise.wgsl",
+    source: with_psf_build!("psf_normalise.wgsl"),
+};
+
 /// The per-frame state struct shared by the frame passes.
 pub const FRAME_STATE: WgslShader = WgslShader {
     name: "frame_state.wgsl",
@@ -114,6 +156,11 @@ pub const ALL: &[WgslShader] = &[
     COMMON,
     FFT,
     FRAME_STATE,
+    PSF_BUILD,
+    PSF_APERTURE,
+    PSF_INTENSITY,
+    PSF_SPECTRAL,
+    PSF_NORMALISE,
     POOLING,
     TEMPORAL,
     GLARE,

@@ -20,6 +20,7 @@ use gazelight_gpu::frame::FrameState;
 use gazelight_gpu::glare::GlareParams;
 use gazelight_gpu::pass::{self, BindingKind, PassDescriptor};
 use gazelight_gpu::pooling::PoolParams;
+use gazelight_gpu::psf::PsfBuild;
 use gazelight_gpu::shaders::{self, WgslShader};
 use gazelight_gpu::temporal::TemporalParams;
 use gazelight_gpu::tone::ToneParams;
@@ -95,7 +96,30 @@ fn twins() -> Vec<(WgslShader, RustTwin)> {
     let mut twins = stage_1_2_twins();
     twins.extend(stage_4_8_twins());
     twins.push((shaders::FRAME_STATE, frame_state()));
+    twins.push((shaders::PSF_BUILD, psf_build()));
     twins
+}
+
+/// The glare-kernel build's uniforms (`psf_build.wgsl`).
+fn psf_build() -> RustTwin {
+    twin!(PsfBuild {
+        n,
+        kernel_size,
+        kernel_radius,
+        wavelength_count,
+        half,
+        r_samples,
+        edge,
+        defocus_rad_per_sample2,
+        intensity_scale,
+        near_radius_px,
+        lobe_scale,
+        lobe_count,
+        lobe_per_px,
+        budget,
+        _pad0,
+        _pad1,
+    })
 }
 
 /// The FFT's and stages 1–2's uniforms.
@@ -325,6 +349,15 @@ fn every_uniform_struct_matches_its_repr_c_twin() {
         shaders::TONE,
     ] {
         diffs.extend(struct_differences(&shader, &frame_state()));
+    }
+    // Every glare-kernel build pass sees the same PsfBuild.
+    for shader in [
+        shaders::PSF_APERTURE,
+        shaders::PSF_INTENSITY,
+        shaders::PSF_SPECTRAL,
+        shaders::PSF_NORMALISE,
+    ] {
+        diffs.extend(struct_differences(&shader, &psf_build()));
     }
     assert!(diffs.is_empty(), "\n{}", diffs.join("\n"));
 }

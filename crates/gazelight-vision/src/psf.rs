@@ -14,6 +14,11 @@
 //!   `pupil_plane_mm` W), the radius of the wave-optics region
 //!   `near_radius_px` and the kernel radius `kernel_radius_px`, all in display
 //!   pixels.
+//! * [`PsfSetup`]: the pupil-independent part of a build, made once per
+//!   request (sampling, wavelength and colour-matching table, particle
+//!   positions and transmission, particle lobe table, CIE 146 term per
+//!   kernel pixel); [`PsfBuilder`] and the GPU twin repeat only the
+//!   per-pupil work on it.
 //! * [`PsfBuilder`] / [`build_kernel`] → [`PsfKernel`]: the full-resolution
 //!   kernel, `(2 kernel_radius_px + 1)²` display pixels, each channel summing
 //!   to 1. This is the kernel the glare convolver applies to a point source
@@ -886,18 +891,18 @@ pub fn build_kernel(params: &PsfParams) -> Result<PsfKernel, VisionError> {
 /// Radial table step, display pixels.
 const TABLE_STEP_PX: f64 = 0.25;
 
-/// Builds kernels repeatedly for a changing pupil: the FFT plan, the particle
-/// field, the analytic radial terms and every buffer are made once, so
-/// [`PsfBuilder::rebuild`] allocates nothing.
-pub struct PsfBuilder {
+/// The pupil-independent part of a kernel build, made once per
+/// [`PsfParams`]: the sampling, the wavelength table with its colour
+/// matching weights, the particle positions, the spectrally summed particle
+/// lobe table and the CIE 146 stray-light term per kernel pixel. A
+/// [`PsfBuilder`] holds one and repeats only the per-pupil work (aperture ×
+/// particles × defocus → FFT → spectral sum → lobes → normalisation); the
+/// GPU twin (`gazelight_gpu::psf`) uploads the same tables once.
+#[derive(Clone, Debug)]
+pub struct PsfSetup {
     params: PsfParams,
     sampling: PsfSampling,
-    engine: MonoEngine,
-    positions: Vec<[f64; 2]>,
-    /// M at 575 nm, centred, N².
-    mono: Vec<f64>,
-    /// Summed-area table of `mono`, (N+1)².
-    sat: Vec<f64>,
+    wavelengths_nm: Vec<f64>,
     /// Colour matching function values per wavelength, / (k + 1).
     cmf: Vec<[f64; 3]>,
     /// Linear sRGB of the unit-power particle lobe per steradian, sampled
@@ -907,17 +912,13 @@ pub struct PsfBuilder {
     cie: Vec<f64>,
     /// Σ `cie`.
     cie_energy: f64,
-    /// Near field + lobes, per kernel pixel, linear sRGB (before α).
-    near: Vec<[f64; 3]>,
-    kernel: PsfKernel,
+    positions: Vec<[f64; 2]>,
 }
 
-impl PsfBuilder {
-    /// Validates `params`, prepares every buffer and builds the first kernel
-    /// (for `params.pupil_mm`).
+impl PsfSetup {
+    /// Validates `params` and computes every pupil-independent table.
     pub fn new(params: PsfParams) -> Result<Self, VisionError> {
         let sampling = params.sampling()?;
-        let n = sampling.grid_size;
         let r = sampling.kernel_radius_px;
         let size = sampling.kernel_size();
         let wavelengths_nm = params.wavelengths_nm();
@@ -928,7 +929,6 @@ impl PsfBuilder {
             .collect();
         let rad_px = sampling.deg_per_px.to_radians();
         let omega_px = rad_px * rad_px;
-
         // Particle lobes (physical scale only): Σ_i cmf_i · lobe_φi per sr → sRGB.
         let lobe_table = if params.glare_scale == GlareScale::Physical && params.particles > 0 {
             let r_max = (r as f64 + 1.0) * std::f64::consts::SQRT_2 + 2.0;
@@ -997,30 +997,16 @@ impl PsfBuilder {
             ));
         }
         let positions = particle_positions(&params);
-        let engine = MonoEngine::new(&params, &sampling, &positions);
-        let mut builder = Self {
-            engine,
-            positions,
-            mono: vec![0.0; n * n],
-            sat: vec![0.0; (n + 1) * (n + 1)],
+        Ok(Self {
+            params,
+            sampling,
+            wavelengths_nm,
             cmf,
             lobe_table,
             cie,
             cie_energy,
-            near: vec![[0.0; 3]; size * size],
-            kernel: PsfKernel {
-                size,
-                deg_per_px: sampling.deg_per_px,
-                pupil_mm: params.pupil_mm,
-                wavelengths_nm,
-                rgb: vec![[0.0; 3]; size * size],
-            },
-            sampling,
-            params,
-        };
-        let pupil = builder.params.pupil_mm;
-        builder.build(pupil);
-        Ok(builder)
+            positions,
+        })
     }
 
     /// The parameters (with `pupil_mm` as given to `new`).
@@ -1033,33 +1019,44 @@ impl PsfBuilder {
         &self.sampling
     }
 
-    /// The most recently built kernel.
-    pub fn kernel(&self) -> &PsfKernel {
-        &self.kernel
+    /// The wavelengths of the spectral sum, nm (001 eq 10).
+    pub fn wavelengths_nm(&self) -> &[f64] {
+        &self.wavelengths_nm
     }
 
-    /// Radius of the first dark ring, radians, measured on the 575 nm
-    /// monochromatic field of the last build (the field the kernel was made
-    /// from), as [`MonoPsf::first_minimum_rad`]. Allocates the axis profile
-    /// (`grid_size / 2` values). `None` when the profile has no minimum.
-    pub fn first_ring_rad(&self) -> Option<f64> {
-        let n = self.sampling.grid_size;
-        let c = n / 2;
-        let v = &self.mono;
-        let profile: Vec<f64> = (0..c)
-            .map(|r| {
-                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
-                    / 4.0
-            })
-            .collect();
-        let rad_per_sample = REFERENCE_WAVELENGTH_NM * 1e-6 / self.sampling.pupil_plane_mm;
-        first_minimum_of(&profile).map(|r| r * rad_per_sample)
+    /// CIE 1931 `[x̄, ȳ, z̄]` (Wyman fit) per wavelength, each divided by
+    /// the wavelength count `k + 1` (001 eq 9).
+    pub fn cmf_weights(&self) -> &[[f64; 3]] {
+        &self.cmf
+    }
+
+    /// The spectrally summed unit-power particle lobe per steradian, linear
+    /// sRGB, at radii `i ·` [`PsfSetup::LOBE_TABLE_STEP_PX`] display pixels
+    /// (linearly interpolated between entries); empty when the kernel has
+    /// no particle lobes (no particles, or seed scale).
+    pub fn lobe_table(&self) -> &[[f64; 3]] {
+        &self.lobe_table
+    }
+
+    /// Radial step of [`PsfSetup::lobe_table`], display pixels.
+    pub const LOBE_TABLE_STEP_PX: f64 = TABLE_STEP_PX;
+
+    /// `f · CIE146 · Ω_px` per kernel pixel, row-major (all 0 without stray
+    /// light).
+    pub fn stray_light(&self) -> &[f64] {
+        &self.cie
     }
 
     /// Energy of the CIE 146 term over the kernel field (0 without stray
     /// light); the near field holds the rest.
     pub fn stray_light_energy(&self) -> f64 {
         self.cie_energy
+    }
+
+    /// The transmission of the static particle field `P` on the grid of the
+    /// sampling, as [`particle_transmission`].
+    pub fn particle_transmission(&self) -> Vec<f64> {
+        particle_field(&self.params, &self.sampling, &self.positions)
     }
 
     /// Fraction of the light through a `pupil_mm` pupil that the particle
@@ -1074,13 +1071,115 @@ impl PsfBuilder {
         let s_mm = self.params.particle_um * 1e-3;
         (n_in as f64 * s_mm * s_mm / (pupil_mm * pupil_mm)).min(1.0)
     }
+}
+
+/// Builds kernels repeatedly for a changing pupil: the FFT plan, the particle
+/// field, the analytic radial terms ([`PsfSetup`]) and every buffer are made
+/// once, so [`PsfBuilder::rebuild`] allocates nothing.
+pub struct PsfBuilder {
+    setup: PsfSetup,
+    engine: MonoEngine,
+    /// M at 575 nm, centred, N².
+    mono: Vec<f64>,
+    /// Summed-area table of `mono`, (N+1)².
+    sat: Vec<f64>,
+    /// Near field + lobes, per kernel pixel, linear sRGB (before α).
+    near: Vec<[f64; 3]>,
+    kernel: PsfKernel,
+}
+
+impl PsfBuilder {
+    /// Validates `params`, prepares every buffer and builds the first kernel
+    /// (for `params.pupil_mm`).
+    pub fn new(params: PsfParams) -> Result<Self, VisionError> {
+        Self::from_setup(PsfSetup::new(params)?)
+    }
+
+    /// A builder on a prepared [`PsfSetup`]; builds the first kernel (for
+    /// the setup's `params.pupil_mm`).
+    pub fn from_setup(setup: PsfSetup) -> Result<Self, VisionError> {
+        let sampling = setup.sampling;
+        let n = sampling.grid_size;
+        let size = sampling.kernel_size();
+        let engine = MonoEngine::new(&setup.params, &sampling, &setup.positions);
+        let mut builder = Self {
+            engine,
+            mono: vec![0.0; n * n],
+            sat: vec![0.0; (n + 1) * (n + 1)],
+            near: vec![[0.0; 3]; size * size],
+            kernel: PsfKernel {
+                size,
+                deg_per_px: sampling.deg_per_px,
+                pupil_mm: setup.params.pupil_mm,
+                wavelengths_nm: setup.wavelengths_nm.clone(),
+                rgb: vec![[0.0; 3]; size * size],
+            },
+            setup,
+        };
+        let pupil = builder.setup.params.pupil_mm;
+        builder.build(pupil);
+        Ok(builder)
+    }
+
+    /// The pupil-independent tables the builder was made with.
+    pub fn setup(&self) -> &PsfSetup {
+        &self.setup
+    }
+
+    /// The parameters (with `pupil_mm` as given to `new`).
+    pub fn params(&self) -> &PsfParams {
+        &self.setup.params
+    }
+
+    /// The sampling chosen for the parameters.
+    pub fn sampling(&self) -> &PsfSampling {
+        &self.setup.sampling
+    }
+
+    /// The most recently built kernel.
+    pub fn kernel(&self) -> &PsfKernel {
+        &self.kernel
+    }
+
+    /// Radius of the first dark ring, radians, measured on the 575 nm
+    /// monochromatic field of the last build (the field the kernel was made
+    /// from), as [`MonoPsf::first_minimum_rad`]. Allocates the axis profile
+    /// (`grid_size / 2` values). `None` when the profile has no minimum.
+    pub fn first_ring_rad(&self) -> Option<f64> {
+        let n = self.setup.sampling.grid_size;
+        let c = n / 2;
+        let v = &self.mono;
+        let profile: Vec<f64> = (0..c)
+            .map(|r| {
+                (v[c * n + c + r] + v[c * n + c - r] + v[(c + r) * n + c] + v[(c - r) * n + c])
+                    / 4.0
+            })
+            .collect();
+        let rad_per_sample = REFERENCE_WAVELENGTH_NM * 1e-6 / self.setup.sampling.pupil_plane_mm;
+        first_minimum_of(&profile).map(|r| r * rad_per_sample)
+    }
+
+    /// Energy of the CIE 146 term over the kernel field (0 without stray
+    /// light); the near field holds the rest.
+    pub fn stray_light_energy(&self) -> f64 {
+        self.setup.cie_energy
+    }
+
+    /// Fraction of the light through a `pupil_mm` pupil that the particle
+    /// field scatters by the lobe sum: `n_in · a / (π D² / 4)`.
+    pub fn particle_scatter_fraction(&self, pupil_mm: f64) -> f64 {
+        self.setup.particle_scatter_fraction(pupil_mm)
+    }
 
     /// Rebuilds the kernel for a new pupil diameter. A diameter outside
     /// `pupil_range_mm` is clamped into it; a non-finite one keeps the
     /// current kernel. Use [`PsfBuilder::try_rebuild`] to get an error instead.
     pub fn rebuild(&mut self, pupil_mm: f64) -> &PsfKernel {
         if pupil_mm.is_finite() {
-            let p = pupil_mm.clamp(self.params.min_pupil_mm(), self.params.max_pupil_mm());
+            let p = pupil_mm.clamp(
+                self.setup.params.min_pupil_mm(),
+                self.setup.params.max_pupil_mm(),
+            );
             self.build(p);
         }
         &self.kernel
@@ -1088,15 +1187,15 @@ impl PsfBuilder {
 
     /// Like [`PsfBuilder::rebuild`], but an unsupported pupil is an error.
     pub fn try_rebuild(&mut self, pupil_mm: f64) -> Result<&PsfKernel, VisionError> {
-        self.params.check_pupil(pupil_mm)?;
+        self.setup.params.check_pupil(pupil_mm)?;
         self.build(pupil_mm);
         Ok(&self.kernel)
     }
 
     fn build(&mut self, pupil_mm: f64) {
-        let n = self.sampling.grid_size;
+        let n = self.setup.sampling.grid_size;
         self.engine.compute(
-            self.params.defocus_dioptres,
+            self.setup.params.defocus_dioptres,
             pupil_mm,
             REFERENCE_WAVELENGTH_NM,
             &mut self.mono,
@@ -1115,25 +1214,25 @@ impl PsfBuilder {
         // M → fraction of the light entering the pupil: Σ M (λd)² = Σ|L|²,
         // the pupil admits π r² samples.
         let lambda_d = REFERENCE_WAVELENGTH_NM * 1e-6 * PUPIL_RETINA_MM;
-        let r_samples = pupil_mm / 2.0 / self.sampling.sample_mm();
+        let r_samples = pupil_mm / 2.0 / self.setup.sampling.sample_mm();
         let to_fraction = lambda_d * lambda_d / (std::f64::consts::PI * r_samples * r_samples);
-        let sigma_p = if self.lobe_table.is_empty() {
+        let sigma_p = if self.setup.lobe_table.is_empty() {
             0.0
         } else {
             self.particle_scatter_fraction(pupil_mm)
         };
 
-        let r = self.sampling.kernel_radius_px;
+        let r = self.setup.sampling.kernel_radius_px;
         let size = 2 * r + 1;
-        let near_r = self.sampling.near_radius_px as f64;
-        let rad_px = self.sampling.deg_per_px.to_radians();
+        let near_r = self.setup.sampling.near_radius_px as f64;
+        let rad_px = self.setup.sampling.deg_per_px.to_radians();
         let omega_px = rad_px * rad_px;
         // FFT samples per display pixel at 575 nm.
-        let px_in_samples = rad_px / self.sampling.ref_rad_per_sample;
+        let px_in_samples = rad_px / self.setup.sampling.ref_rad_per_sample;
         let sat = &self.sat;
-        let cmf = &self.cmf;
+        let cmf = &self.setup.cmf;
         let wavelengths = &self.kernel.wavelengths_nm;
-        let lobe = &self.lobe_table;
+        let lobe = &self.setup.lobe_table;
         let half = n as f64 / 2.0;
         self.near
             .par_chunks_mut(size)
@@ -1183,9 +1282,15 @@ impl PsfBuilder {
                 sums[k] += p[k];
             }
         }
-        let budget = 1.0 - self.cie_energy;
+        let budget = 1.0 - self.setup.cie_energy;
         let alpha = sums.map(|s| if s > 0.0 { budget / s } else { 0.0 });
-        for ((out, nr), cie) in self.kernel.rgb.iter_mut().zip(&self.near).zip(&self.cie) {
+        for ((out, nr), cie) in self
+            .kernel
+            .rgb
+            .iter_mut()
+            .zip(&self.near)
+            .zip(&self.setup.cie)
+        {
             for k in 0..3 {
                 out[k] = (alpha[k] * nr[k] + cie) as f32;
             }
