@@ -232,7 +232,12 @@ pub fn decode_message(topic: &[u8], payload: &[u8]) -> Result<Datum, DecodeError
 
 /// Decodes a datum with a UTF-8 topic.
 pub fn decode(topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
-    let kind = parse_topic(topic);
+    decode_as(parse_topic(topic), topic, payload)
+}
+
+/// Decodes a datum whose topic has already been classified
+/// (`kind == parse_topic(topic)`).
+pub fn decode_as(kind: TopicKind, topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
     let wrap = |f: Fail| f.into_error(topic);
     match kind {
         TopicKind::Unknown => Err(DecodeError::UnknownTopic(topic.to_owned())),
@@ -444,6 +449,33 @@ impl<'a> Cur<'a> {
             0xdb => Some(self.uint(4)? as usize),
             _ => None,
         })
+    }
+
+    /// The length of a `.pldata` record's topic or payload (a str or bin
+    /// value), at most `max`; the cursor is left on its first byte.
+    #[inline]
+    fn str_or_bin(&mut self, field: RecordField, max: usize) -> Result<usize, RecordScan> {
+        let start = self.p;
+        let m = self.byte().map_err(|_| RecordScan::Need(start + 1))?;
+        let width = match m {
+            0xa0..=0xbf => 0,
+            0xd9 | 0xc4 => 1,
+            0xda | 0xc5 => 2,
+            0xdb | 0xc6 => 4,
+            marker => {
+                return Err(RecordScan::Bad(BadRecord::NotStrOrBin { field, marker }));
+            }
+        };
+        let len = if width == 0 {
+            (m & 0x1f) as usize
+        } else {
+            self.uint(width)
+                .map_err(|_| RecordScan::Need(start + 1 + width))? as usize
+        };
+        if len > max {
+            return Err(RecordScan::Bad(BadRecord::TooLong { field, len, max }));
+        }
+        Ok(len)
     }
 
     /// A map key: `Some(bytes)` for a string key (compared as bytes, so
@@ -682,9 +714,12 @@ fn is_unused_pupil_field(k: &[u8]) -> bool {
 /// The detector method from Pupil's `method` string (`"2d c++"`,
 /// `"3d c++"`, `"pye3d 0.3.0 real-time"`, …).
 fn method_of(s: &str) -> Option<DetectorMethod> {
-    if s.contains("3d") {
+    // A plain byte scan: the strings are a few dozen bytes, and setting up
+    // a substring searcher cost more than the search.
+    let has = |pat: &[u8; 2]| s.as_bytes().windows(2).any(|w| w == pat);
+    if has(b"3d") {
         Some(DetectorMethod::Pupil3d)
-    } else if s.contains("2d") {
+    } else if has(b"2d") {
         Some(DetectorMethod::Pupil2d)
     } else {
         None
@@ -982,6 +1017,237 @@ impl RawGaze {
             base,
             unknown_fields: self.unknown_fields,
         })
+    }
+}
+
+/// Why bytes of a `.pldata` file are not a record (see [`scan_record`]).
+/// Cheap to build and copy: a reader trying every byte offset of a
+/// corrupt region makes one per offset and formats only the first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BadRecord {
+    /// The first byte is not an array of 2.
+    NotAPair { marker: u8 },
+    /// An array of another length.
+    ArrayLen { len: usize },
+    /// The topic or payload is not a str or bin.
+    NotStrOrBin { field: RecordField, marker: u8 },
+    /// The topic or payload claims more bytes than a record may hold.
+    TooLong {
+        field: RecordField,
+        len: usize,
+        max: usize,
+    },
+    /// The topic is empty or not printable ASCII.
+    TopicNotPrintable,
+    /// The payload is not a msgpack map.
+    PayloadNotMap,
+    /// The payload is a map, but not one complete msgpack value: the walk
+    /// stopped at byte `at` of the payload.
+    PayloadInvalid { at: usize, why: PayloadFault },
+}
+
+/// The two parts of a `.pldata` record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordField {
+    Topic,
+    Payload,
+}
+
+/// How a payload's msgpack walk failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PayloadFault {
+    Truncated,
+    InvalidMarker(u8),
+    TooDeep,
+    TrailingBytes,
+}
+
+impl std::fmt::Display for RecordField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            RecordField::Topic => "topic",
+            RecordField::Payload => "payload",
+        })
+    }
+}
+
+impl std::fmt::Display for BadRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BadRecord::NotAPair { marker } => write!(
+                f,
+                "byte 0x{marker:02x} does not start a [topic, payload] pair"
+            ),
+            BadRecord::ArrayLen { len } => write!(f, "record is an array of {len}, not 2"),
+            BadRecord::NotStrOrBin { field, marker } => {
+                write!(f, "{field}: byte 0x{marker:02x} is not a str or bin marker")
+            }
+            BadRecord::TooLong { field, len, max } => {
+                write!(f, "{field}: length {len} exceeds {max}")
+            }
+            BadRecord::TopicNotPrintable => f.write_str("topic is not printable ASCII"),
+            BadRecord::PayloadNotMap => f.write_str("payload is not a msgpack map"),
+            BadRecord::PayloadInvalid { at, why } => match why {
+                PayloadFault::Truncated => {
+                    write!(f, "payload is not valid msgpack: truncated at byte {at}")
+                }
+                PayloadFault::InvalidMarker(m) => write!(
+                    f,
+                    "payload is not valid msgpack: invalid marker 0x{m:02x} at byte {at}"
+                ),
+                PayloadFault::TooDeep => write!(
+                    f,
+                    "payload is not valid msgpack: nesting deeper than {MAX_DEPTH} at byte {at}"
+                ),
+                PayloadFault::TrailingBytes => {
+                    write!(f, "payload has trailing bytes at byte {at}")
+                }
+            },
+        }
+    }
+}
+
+/// Where the parts of one `.pldata` record lie, relative to its start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RecordSpan {
+    pub topic_start: usize,
+    pub topic_end: usize,
+    pub payload_start: usize,
+    /// Also the record's length.
+    pub payload_end: usize,
+}
+
+/// What [`scan_record`] found at the start of a buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordScan {
+    /// A complete record: a printable topic and a payload that starts
+    /// like a map (its body is not walked; see [`check_payload`]).
+    Complete(RecordSpan),
+    /// More bytes are needed: at least this many from the record start.
+    /// Never more than `max_topic_bytes + max_payload_bytes + 13`.
+    Need(usize),
+    Bad(BadRecord),
+}
+
+/// Frames one `.pldata` record (`[topic: str|bin, payload: str|bin]`, as
+/// Pupil's `PLData_Writer` and older writers wrote it) at the start of `b`.
+///
+/// Checks are ordered so that garbage is refused after a few bytes: the
+/// array marker, the topic's marker and length (≤ `max_topic_bytes`), the
+/// topic's bytes (printable ASCII), the payload's marker and length
+/// (≤ `max_payload_bytes`) and the payload's first byte (a map marker),
+/// before asking for the whole payload.
+pub fn scan_record(b: &[u8], max_topic_bytes: usize, max_payload_bytes: usize) -> RecordScan {
+    let mut c = Cur { b, p: 0 };
+    let need = |c: &Cur<'_>, n: usize| RecordScan::Need(c.p + n);
+    let Ok(m) = c.byte() else {
+        return need(&c, 1);
+    };
+    match m {
+        0x92 => {}
+        0xdc => match c.uint(2) {
+            Ok(2) => {}
+            Ok(len) => {
+                return RecordScan::Bad(BadRecord::ArrayLen { len: len as usize });
+            }
+            Err(_) => return RecordScan::Need(3),
+        },
+        marker => return RecordScan::Bad(BadRecord::NotAPair { marker }),
+    }
+    let topic = match c.str_or_bin(RecordField::Topic, max_topic_bytes) {
+        Ok(n) => n,
+        Err(s) => return s,
+    };
+    if c.b.len() < c.p + topic {
+        return need(&c, topic);
+    }
+    let topic_start = c.p;
+    c.p += topic;
+    let t = &b[topic_start..c.p];
+    if t.is_empty() || !t.iter().all(u8::is_ascii_graphic) {
+        return RecordScan::Bad(BadRecord::TopicNotPrintable);
+    }
+    let topic_end = c.p;
+    let payload = match c.str_or_bin(RecordField::Payload, max_payload_bytes) {
+        Ok(n) => n,
+        Err(s) => return s,
+    };
+    let payload_start = c.p;
+    match b.get(payload_start) {
+        _ if payload == 0 => return RecordScan::Bad(BadRecord::PayloadNotMap),
+        None => return need(&c, 1),
+        Some(&m) if !matches!(m, 0x80..=0x8f | 0xde | 0xdf) => {
+            return RecordScan::Bad(BadRecord::PayloadNotMap);
+        }
+        Some(_) => {}
+    }
+    if b.len() < payload_start + payload {
+        return need(&c, payload);
+    }
+    RecordScan::Complete(RecordSpan {
+        topic_start,
+        topic_end,
+        payload_start,
+        payload_end: payload_start + payload,
+    })
+}
+
+/// Checks that `payload` is exactly one complete msgpack map (any keys and
+/// values, nesting up to 32 levels), without decoding it.
+pub fn check_payload(payload: &[u8]) -> Result<(), BadRecord> {
+    let mut c = Cur { b: payload, p: 0 };
+    let fault = |f: Fail| match f {
+        Fail::Truncated { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::Truncated,
+        },
+        Fail::Invalid { at, marker } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::InvalidMarker(marker),
+        },
+        Fail::TooDeep { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::TooDeep,
+        },
+        Fail::Trailing { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::TrailingBytes,
+        },
+        Fail::Type { .. } => BadRecord::PayloadNotMap,
+    };
+    let m = c.byte().map_err(fault)?;
+    let n = c
+        .map_len(m)
+        .map_err(fault)?
+        .ok_or(BadRecord::PayloadNotMap)?;
+    for _ in 0..n {
+        c.skip(1).map_err(fault)?;
+        c.skip(1).map_err(fault)?;
+    }
+    c.end().map_err(fault)
+}
+
+/// Decodes one `.pldata` record's payload: `Ok(Some(datum))`, `Ok(None)`
+/// for a well-formed payload under a topic the decoder does not know,
+/// `Ok(Err(e))` for a well-formed map that is not a valid datum, and
+/// `Err` when the payload is not one complete msgpack map (the record is
+/// corrupt). A payload that decodes is walked once; only a failing one is
+/// walked again to tell the two kinds of failure apart.
+pub fn decode_record(
+    topic: &str,
+    payload: &[u8],
+) -> Result<Result<Option<Datum>, DecodeError>, BadRecord> {
+    let kind = parse_topic(topic);
+    if kind == TopicKind::Unknown {
+        check_payload(payload)?;
+        return Ok(Ok(None));
+    }
+    match decode_as(kind, topic, payload) {
+        Ok(d) => Ok(Ok(Some(d))),
+        Err(e) => {
+            check_payload(payload)?;
+            Ok(Err(e))
+        }
     }
 }
 
