@@ -17,7 +17,10 @@
 //! cache, so this is the decode speed, not the disk's.
 //!
 //! Set `GAZELIGHT_PLDATA_DIR` to a recording directory (e.g. one made by
-//! `gazelight record`) to measure that instead.
+//! `gazelight record`) to measure that instead (an empty or missing one
+//! gets the generated recording, kept), and `GAZELIGHT_BENCH_REPS=N`
+//! to decode each file N times without criterion (for `perf stat`, whose
+//! CPU time per datum holds on a loaded machine where wall time does not).
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -200,7 +203,14 @@ fn read_all(path: &Path) -> u64 {
 
 fn main() {
     let (dir, cleanup) = match std::env::var_os("GAZELIGHT_PLDATA_DIR") {
-        Some(d) => (PathBuf::from(d), false),
+        Some(d) => {
+            let d = PathBuf::from(d);
+            if !stream_paths(&d, "pupil").0.is_file() {
+                std::fs::create_dir_all(&d).unwrap();
+                write_recording(&d);
+            }
+            (d, false)
+        }
         None => {
             let d =
                 std::env::temp_dir().join(format!("gazelight-pldata-bench-{}", std::process::id()));
@@ -210,6 +220,24 @@ fn main() {
             (d, true)
         }
     };
+    // `GAZELIGHT_BENCH_REPS=N`: decode each stream N times and exit, for
+    // `perf stat` (CPU time per datum on a loaded machine).
+    if let Some(reps) = std::env::var("GAZELIGHT_BENCH_REPS")
+        .ok()
+        .and_then(|r| r.parse::<u32>().ok())
+    {
+        for stream in ["pupil", "gaze"] {
+            let (path, _) = stream_paths(&dir, stream);
+            if path.is_file() {
+                let n: u64 = (0..reps).map(|_| read_all(&path)).sum();
+                eprintln!("{stream}.pldata: decoded {n} datums");
+            }
+        }
+        if cleanup {
+            std::fs::remove_dir_all(&dir).ok();
+        }
+        return;
+    }
     let mut c = Criterion::default()
         .sample_size(20)
         .warm_up_time(Duration::from_secs(1))

@@ -83,6 +83,23 @@ pub enum TopicKind {
 
 /// Classifies a topic (current and v1.x names, trailing dot optional).
 pub fn parse_topic(topic: &str) -> TopicKind {
+    // The topics Pupil Capture v2/v3 publishes, without splitting.
+    let pupil = |eye, m| TopicKind::Pupil {
+        eye: Some(eye),
+        method: Some(m),
+    };
+    match topic {
+        "pupil.0.2d" => return pupil(0, DetectorMethod::Pupil2d),
+        "pupil.1.2d" => return pupil(1, DetectorMethod::Pupil2d),
+        "pupil.0.3d" => return pupil(0, DetectorMethod::Pupil3d),
+        "pupil.1.3d" => return pupil(1, DetectorMethod::Pupil3d),
+        "gaze.3d.01." | "gaze.2d.01." => {
+            return TopicKind::Gaze {
+                eyes: Some(GazeEyes::Binocular),
+            };
+        }
+        _ => {}
+    }
     let mut parts = topic.split('.');
     let head = parts.next().unwrap_or("");
     let rest: [Option<&str>; 3] = [parts.next(), parts.next(), parts.next()];
@@ -247,13 +264,24 @@ pub fn decode_as(kind: TopicKind, topic: &str, payload: &[u8]) -> Result<Datum, 
             c.end().map_err(wrap)?;
             raw.finish(topic, eye, method).map(Datum::Pupil)
         }
-        TopicKind::Gaze { eyes } => {
-            let mut c = Cur { b: payload, p: 0 };
-            let raw = read_gaze(&mut c).map_err(wrap)?;
-            c.end().map_err(wrap)?;
-            raw.finish(topic, eyes).map(Datum::Gaze)
-        }
+        TopicKind::Gaze { eyes } => decode_gaze(topic, payload, eyes, true).map(Datum::Gaze),
     }
+}
+
+/// Decodes a gaze datum; with `decode_base` false (only when the topic
+/// names the eyes) its `base_data` are walked as msgpack but not decoded
+/// and the datum's `base` is empty.
+fn decode_gaze(
+    topic: &str,
+    payload: &[u8],
+    eyes: Option<GazeEyes>,
+    decode_base: bool,
+) -> Result<GazeDatum, DecodeError> {
+    let wrap = |f: Fail| f.into_error(topic);
+    let mut c = Cur { b: payload, p: 0 };
+    let raw = read_gaze(&mut c, decode_base || eyes.is_none()).map_err(wrap)?;
+    c.end().map_err(wrap)?;
+    raw.finish(topic, eyes)
 }
 
 /// Deepest nesting a skipped value may have.
@@ -274,34 +302,41 @@ enum Fail {
     Trailing {
         at: usize,
     },
-    /// A value of the wrong type (or shape) in a named field; `path` is the
-    /// enclosing field (e.g. `base_data[1]`), empty at the top level.
-    Type {
-        path: String,
-        field: &'static str,
-        expected: &'static str,
-        found: &'static str,
-    },
+    /// A value of the wrong type (or shape) in a named field (boxed, so
+    /// that `Fail`, and the `Result`s of the hot path, stay two words).
+    Type(Box<TypeFail>),
+}
+
+/// See [`Fail::Type`]; `path` is the enclosing field (e.g. `base_data[1]`),
+/// empty at the top level.
+struct TypeFail {
+    path: String,
+    field: &'static str,
+    expected: &'static str,
+    found: &'static str,
+}
+
+#[cold]
+fn type_err(field: &'static str, expected: &'static str, found: &'static str) -> Fail {
+    Fail::Type(Box::new(TypeFail {
+        path: String::new(),
+        field,
+        expected,
+        found,
+    }))
 }
 
 impl Fail {
     fn in_path(self, prefix: &str) -> Fail {
         match self {
-            Fail::Type {
-                path,
-                field,
-                expected,
-                found,
-            } => Fail::Type {
-                path: if path.is_empty() {
+            Fail::Type(mut t) => {
+                t.path = if t.path.is_empty() {
                     prefix.to_owned()
                 } else {
-                    format!("{prefix}.{path}")
-                },
-                field,
-                expected,
-                found,
-            },
+                    format!("{prefix}.{}", t.path)
+                };
+                Fail::Type(t)
+            }
             other => other,
         }
     }
@@ -322,14 +357,26 @@ impl Fail {
             Fail::Trailing { at } => {
                 malformed(format!("trailing bytes after the datum at byte {at}"))
             }
-            Fail::Type {
-                path,
-                field: "",
-                expected,
-                found,
-            } => {
+            Fail::Type(t) => t.into_error(topic),
+        }
+    }
+}
+
+impl TypeFail {
+    fn into_error(self, topic: &str) -> DecodeError {
+        let TypeFail {
+            path,
+            field,
+            expected,
+            found,
+        } = self;
+        match field {
+            "" => {
                 if path.is_empty() {
-                    malformed(format!("payload is {found}, expected {expected}"))
+                    DecodeError::Malformed {
+                        topic: topic.to_owned(),
+                        reason: format!("payload is {found}, expected {expected}"),
+                    }
                 } else {
                     DecodeError::Field {
                         topic: topic.to_owned(),
@@ -338,12 +385,7 @@ impl Fail {
                     }
                 }
             }
-            Fail::Type {
-                path,
-                field,
-                expected,
-                found,
-            } => DecodeError::Field {
+            field => DecodeError::Field {
                 topic: topic.to_owned(),
                 field: if path.is_empty() {
                     field.to_owned()
@@ -357,12 +399,7 @@ impl Fail {
 }
 
 fn type_fail(field: &'static str, expected: &'static str, marker: u8) -> Fail {
-    Fail::Type {
-        path: String::new(),
-        field,
-        expected,
-        found: marker_name(marker),
-    }
+    type_err(field, expected, marker_name(marker))
 }
 
 fn marker_name(m: u8) -> &'static str {
@@ -498,6 +535,12 @@ impl<'a> Cur<'a> {
     /// A number (any msgpack int or float) as f64.
     #[inline]
     fn f64(&mut self, field: &'static str) -> Result<f64, Fail> {
+        // Pupil's numbers are float64 (0xcb) nearly always: test that
+        // first, before the jump table of the other markers.
+        if let Some(&[0xcb, a, b, c, d, e, f, g, h]) = self.b.get(self.p..self.p + 9) {
+            self.p += 9;
+            return Ok(f64::from_be_bytes([a, b, c, d, e, f, g, h]));
+        }
         let m = self.byte()?;
         Ok(match m {
             0xcb => f64::from_bits(self.uint(8)?),
@@ -534,16 +577,15 @@ impl<'a> Cur<'a> {
                 }
                 Ok(out)
             }
-            Some(_) => Err(Fail::Type {
-                path: String::new(),
+            Some(_) => Err(type_err(
                 field,
-                expected: if N == 2 {
+                if N == 2 {
                     "an array of 2 numbers"
                 } else {
                     "an array of 3 numbers"
                 },
-                found: "an array of another length",
-            }),
+                "an array of another length",
+            )),
             None => Err(type_fail(field, "an array of numbers", m)),
         }
     }
@@ -554,61 +596,87 @@ impl<'a> Cur<'a> {
         if v.fract() == 0.0 && (0.0..=255.0).contains(&v) {
             Ok(v as u8)
         } else {
-            Err(Fail::Type {
-                path: String::new(),
-                field,
-                expected: "an integer 0..=255",
-                found: "another number",
-            })
+            Err(type_err(field, "an integer 0..=255", "another number"))
         }
     }
 
     fn str_value(&mut self, field: &'static str) -> Result<&'a str, Fail> {
         let m = self.byte()?;
         match self.str_len(m)? {
-            Some(n) => std::str::from_utf8(self.take(n)?).map_err(|_| Fail::Type {
-                path: String::new(),
-                field,
-                expected: "a UTF-8 string",
-                found: "invalid UTF-8",
-            }),
+            Some(n) => std::str::from_utf8(self.take(n)?)
+                .map_err(|_| type_err(field, "a UTF-8 string", "invalid UTF-8")),
             None => Err(type_fail(field, "a string", m)),
         }
     }
 
-    /// Skips one value of any type.
+    /// Skips one value of any type at nesting `depth` (values deeper than
+    /// [`MAX_DEPTH`] are refused). Containers are walked with a counter per
+    /// level instead of recursion.
     fn skip(&mut self, depth: usize) -> Result<(), Fail> {
         if depth > MAX_DEPTH {
             return Err(Fail::TooDeep { at: self.p });
         }
+        match self.skip_one()? {
+            0 => Ok(()),
+            n => self.skip_children(n, depth),
+        }
+    }
+
+    /// Skips `n` values at nesting `depth + 1` and everything inside them.
+    fn skip_children(&mut self, n: usize, depth: usize) -> Result<(), Fail> {
+        // left[k]: values still to skip at nesting depth + 1 + k.
+        let mut left = [0usize; MAX_DEPTH + 1];
+        let mut k = 0;
+        left[0] = n;
+        loop {
+            if left[k] == 0 {
+                if k == 0 {
+                    return Ok(());
+                }
+                k -= 1;
+                continue;
+            }
+            left[k] -= 1;
+            if depth + 1 + k > MAX_DEPTH {
+                return Err(Fail::TooDeep { at: self.p });
+            }
+            let children = self.skip_one()?;
+            if children > 0 {
+                // depth + 1 + k ≤ MAX_DEPTH, so k + 1 ≤ MAX_DEPTH.
+                k += 1;
+                left[k] = children;
+            }
+        }
+    }
+
+    /// Reads one marker and skips the value's bytes; for a map or array,
+    /// returns how many values it holds (keys and values for a map), which
+    /// are not skipped yet.
+    #[inline]
+    fn skip_one(&mut self) -> Result<usize, Fail> {
         let at = self.p;
         let m = self.byte()?;
-        if let Some(n) = self.map_len(m)? {
-            for _ in 0..n {
-                self.skip(depth + 1)?;
-                self.skip(depth + 1)?;
-            }
-            return Ok(());
-        }
-        if let Some(n) = self.array_len(m)? {
-            for _ in 0..n {
-                self.skip(depth + 1)?;
-            }
-            return Ok(());
-        }
-        if let Some(n) = self.str_len(m)? {
-            self.take(n)?;
-            return Ok(());
+        // The common case first.
+        if m == 0xcb {
+            self.take(8)?;
+            return Ok(0);
         }
         let n = match m {
-            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => 0,
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => return Ok(0),
+            0x80..=0x8f => return Ok(2 * (m & 0x0f) as usize),
+            0x90..=0x9f => return Ok((m & 0x0f) as usize),
+            0xde => return Ok(2 * self.uint(2)? as usize),
+            0xdf => return Ok((self.uint(4)? as usize).saturating_mul(2)),
+            0xdc => return Ok(self.uint(2)? as usize),
+            0xdd => return Ok(self.uint(4)? as usize),
+            0xa0..=0xbf => (m & 0x1f) as usize,
             0xcc | 0xd0 => 1,
             0xcd | 0xd1 => 2,
             0xce | 0xd2 | 0xca => 4,
-            0xcf | 0xd3 | 0xcb => 8,
-            0xc4 => self.uint(1)? as usize,
-            0xc5 => self.uint(2)? as usize,
-            0xc6 => self.uint(4)? as usize,
+            0xcf | 0xd3 => 8,
+            0xc4 | 0xd9 => self.uint(1)? as usize,
+            0xc5 | 0xda => self.uint(2)? as usize,
+            0xc6 | 0xdb => self.uint(4)? as usize,
             0xd4 => 2,
             0xd5 => 3,
             0xd6 => 5,
@@ -620,7 +688,7 @@ impl<'a> Cur<'a> {
             _ => return Err(Fail::Invalid { at, marker: m }),
         };
         self.take(n)?;
-        Ok(())
+        Ok(0)
     }
 
     /// Starts a map; a non-map is a type error of `field` ("" = payload).
@@ -655,12 +723,11 @@ impl<'a> Cur<'a> {
                 axes,
                 angle,
             }),
-            _ => Err(Fail::Type {
-                path: String::new(),
-                field: F,
-                expected: "a map with center, axes and angle",
-                found: "a map without them",
-            }),
+            _ => Err(type_err(
+                F,
+                "a map with center, axes and angle",
+                "a map without them",
+            )),
         }
     }
 
@@ -682,12 +749,11 @@ impl<'a> Cur<'a> {
                 normal,
                 radius,
             }),
-            _ => Err(Fail::Type {
-                path: String::new(),
-                field: F,
-                expected: "a map with center, normal and radius",
-                found: "a map without them",
-            }),
+            _ => Err(type_err(
+                F,
+                "a map with center, normal and radius",
+                "a map without them",
+            )),
         }
     }
 }
@@ -761,7 +827,7 @@ fn read_pupil(c: &mut Cur<'_>, depth: usize) -> Result<RawPupil, Fail> {
     Ok(r)
 }
 
-fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
+fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
     let n = c.map_start("")?;
     let mut r = RawGaze::default();
     for _ in 0..n {
@@ -780,7 +846,7 @@ fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
                     .array_len(m)?
                     .ok_or_else(|| type_fail("base_data", "an array of pupil datums", m))?;
                 for i in 0..len {
-                    if i < 2 {
+                    if i < 2 && decode_base {
                         let p = read_pupil(c, 2).map_err(|f| {
                             f.in_path(if i == 0 {
                                 "base_data[0]"
@@ -1213,7 +1279,7 @@ pub fn check_payload(payload: &[u8]) -> Result<(), BadRecord> {
             at,
             why: PayloadFault::TrailingBytes,
         },
-        Fail::Type { .. } => BadRecord::PayloadNotMap,
+        Fail::Type(_) => BadRecord::PayloadNotMap,
     };
     let m = c.byte().map_err(fault)?;
     let n = c
@@ -1244,6 +1310,35 @@ pub fn decode_record(
     }
     match decode_as(kind, topic, payload) {
         Ok(d) => Ok(Ok(Some(d))),
+        Err(e) => {
+            check_payload(payload)?;
+            Ok(Err(e))
+        }
+    }
+}
+
+/// Decodes one `.pldata` record's payload straight into the [`Sample`] it
+/// holds (Pupil time), with the outcomes of [`decode_record`]. What a
+/// sample does not carry is not decoded: a gaze datum whose topic names
+/// its eyes has its `base_data` checked as msgpack only (the pupil datums
+/// in it are recorded, and decoded, in their own stream).
+pub fn decode_record_sample(
+    topic: &str,
+    payload: &[u8],
+) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
+    let kind = parse_topic(topic);
+    let decoded = match kind {
+        TopicKind::Unknown => {
+            check_payload(payload)?;
+            return Ok(Ok(None));
+        }
+        TopicKind::Gaze { eyes } => {
+            decode_gaze(topic, payload, eyes, false).map(|g| Sample::Gaze(g.sample))
+        }
+        TopicKind::Pupil { .. } => decode_as(kind, topic, payload).map(|d| d.to_sample(0.0)),
+    };
+    match decoded {
+        Ok(s) => Ok(Ok(Some(s))),
         Err(e) => {
             check_payload(payload)?;
             Ok(Err(e))

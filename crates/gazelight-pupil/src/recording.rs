@@ -535,8 +535,10 @@ impl PldataReader {
     /// decoder does not know (notifications, …) are skipped; records that
     /// fail to decode are `Err` items naming the file and offset, after
     /// which the iterator continues. Each payload is decoded in place in
-    /// the reader's buffer by [`msg::decode_record`] (the live client's
-    /// decoder): no per-record allocation.
+    /// the reader's buffer by [`msg::decode_record_sample`] (the live
+    /// client's decoder): no per-record allocation. A gaze datum's
+    /// `base_data` (pupil datums, which `pupil.pldata` holds) are checked
+    /// as msgpack but not decoded when the topic names the eyes.
     pub fn samples(self) -> PldataSamples {
         PldataSamples {
             reader: self,
@@ -582,7 +584,7 @@ impl Iterator for PldataSamples {
     type Item = Result<Sample, RecordingError>;
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            let (offset, decoded) = match self.reader.next_with(msg::decode_record) {
+            let (offset, decoded) = match self.reader.next_with(msg::decode_record_sample) {
                 Ok(Some(r)) => r,
                 Ok(None) => return None,
                 Err(e) => {
@@ -591,7 +593,7 @@ impl Iterator for PldataSamples {
                 }
             };
             match decoded {
-                Ok(Some(d)) => return Some(Ok(d.to_sample(0.0))),
+                Ok(Some(s)) => return Some(Ok(s)),
                 Ok(None) => self.unknown_topics += 1,
                 Err(error) => {
                     return Some(Err(RecordingError::Decode {
