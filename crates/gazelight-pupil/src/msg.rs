@@ -518,8 +518,23 @@ impl<'a> Cur<'a> {
     /// A map key: `Some(bytes)` for a string key (compared as bytes, so
     /// no UTF-8 validation on the hot path), `None` (key skipped) for any
     /// other key.
-    #[inline]
+    #[inline(always)]
     fn key(&mut self) -> Result<Option<&'a [u8]>, Fail> {
+        // Pupil's keys are short strings (fixstr): inline that case.
+        if let Some(&m) = self.b.get(self.p)
+            && m & 0xe0 == 0xa0
+        {
+            let start = self.p + 1;
+            if let Some(k) = self.b.get(start..start + (m & 0x1f) as usize) {
+                self.p = start + k.len();
+                return Ok(Some(k));
+            }
+        }
+        self.key_slow()
+    }
+
+    #[inline(never)]
+    fn key_slow(&mut self) -> Result<Option<&'a [u8]>, Fail> {
         let at = self.p;
         let m = self.byte()?;
         match self.str_len(m)? {
@@ -533,14 +548,19 @@ impl<'a> Cur<'a> {
     }
 
     /// A number (any msgpack int or float) as f64.
-    #[inline]
+    #[inline(always)]
     fn f64(&mut self, field: &'static str) -> Result<f64, Fail> {
-        // Pupil's numbers are float64 (0xcb) nearly always: test that
-        // first, before the jump table of the other markers.
+        // Pupil's numbers are float64 (0xcb) nearly always: inline that
+        // case, before the jump table of the other markers.
         if let Some(&[0xcb, a, b, c, d, e, f, g, h]) = self.b.get(self.p..self.p + 9) {
             self.p += 9;
             return Ok(f64::from_be_bytes([a, b, c, d, e, f, g, h]));
         }
+        self.f64_slow(field)
+    }
+
+    #[inline(never)]
+    fn f64_slow(&mut self, field: &'static str) -> Result<f64, Fail> {
         let m = self.byte()?;
         Ok(match m {
             0xcb => f64::from_bits(self.uint(8)?),
