@@ -630,22 +630,33 @@ impl<'a> Cur<'a> {
     }
 
     /// Skips one value of any type at nesting `depth` (values deeper than
-    /// [`MAX_DEPTH`] are refused). Containers are walked with a counter per
-    /// level instead of recursion.
+    /// [`MAX_DEPTH`] are refused).
+    #[inline]
     fn skip(&mut self, depth: usize) -> Result<(), Fail> {
-        if depth > MAX_DEPTH {
-            return Err(Fail::TooDeep { at: self.p });
-        }
-        match self.skip_one()? {
-            0 => Ok(()),
-            n => self.skip_children(n, depth),
+        // A lone float64 or short string: no counters needed.
+        let p = self.p;
+        match self.b.get(p) {
+            Some(0xcb) if depth <= MAX_DEPTH && p + 9 <= self.b.len() => {
+                self.p = p + 9;
+                Ok(())
+            }
+            Some(&m)
+                if depth <= MAX_DEPTH
+                    && m & 0xe0 == 0xa0
+                    && p + 1 + (m & 0x1f) as usize <= self.b.len() =>
+            {
+                self.p = p + 1 + (m & 0x1f) as usize;
+                Ok(())
+            }
+            _ => self.skip_values(1, depth),
         }
     }
 
-    /// Skips `n` values at nesting `depth + 1` and everything inside them.
-    fn skip_children(&mut self, n: usize, depth: usize) -> Result<(), Fail> {
-        // left[k]: values still to skip at nesting depth + 1 + k.
-        let mut left = [0usize; MAX_DEPTH + 1];
+    /// Skips `n` values at nesting `depth` and everything inside them,
+    /// with a counter per nesting level instead of recursion.
+    fn skip_values(&mut self, n: usize, depth: usize) -> Result<(), Fail> {
+        // left[k]: values still to skip at nesting depth + k.
+        let mut left = [0usize; MAX_DEPTH + 2];
         let mut k = 0;
         left[0] = n;
         loop {
@@ -657,12 +668,38 @@ impl<'a> Cur<'a> {
                 continue;
             }
             left[k] -= 1;
-            if depth + 1 + k > MAX_DEPTH {
+            if depth + k > MAX_DEPTH {
                 return Err(Fail::TooDeep { at: self.p });
             }
-            let children = self.skip_one()?;
+            // Inline the markers nearly all of Pupil's bytes are (float64,
+            // short strings, small ints, small arrays and maps); the rest
+            // go through the jump table.
+            let p = self.p;
+            let children = match self.b.get(p) {
+                Some(0xcb) if p + 9 <= self.b.len() => {
+                    self.p = p + 9;
+                    continue;
+                }
+                Some(&m) if m & 0xe0 == 0xa0 && p + 1 + (m & 0x1f) as usize <= self.b.len() => {
+                    self.p = p + 1 + (m & 0x1f) as usize;
+                    continue;
+                }
+                Some(&m) if m < 0x80 => {
+                    self.p = p + 1;
+                    continue;
+                }
+                Some(&m) if m & 0xf0 == 0x90 => {
+                    self.p = p + 1;
+                    (m & 0x0f) as usize
+                }
+                Some(&m) if m & 0xf0 == 0x80 => {
+                    self.p = p + 1;
+                    2 * (m & 0x0f) as usize
+                }
+                _ => self.skip_one()?,
+            };
             if children > 0 {
-                // depth + 1 + k ≤ MAX_DEPTH, so k + 1 ≤ MAX_DEPTH.
+                // depth + k ≤ MAX_DEPTH here, so k + 1 ≤ MAX_DEPTH + 1.
                 k += 1;
                 left[k] = children;
             }
@@ -672,7 +709,7 @@ impl<'a> Cur<'a> {
     /// Reads one marker and skips the value's bytes; for a map or array,
     /// returns how many values it holds (keys and values for a map), which
     /// are not skipped yet.
-    #[inline]
+    #[inline(never)]
     fn skip_one(&mut self) -> Result<usize, Fail> {
         let at = self.p;
         let m = self.byte()?;
