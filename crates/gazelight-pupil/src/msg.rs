@@ -655,22 +655,23 @@ impl<'a> Cur<'a> {
     /// Skips `n` values at nesting `depth` and everything inside them,
     /// with a counter per nesting level instead of recursion.
     fn skip_values(&mut self, n: usize, depth: usize) -> Result<(), Fail> {
-        // left[k]: values still to skip at nesting depth + k.
-        let mut left = [0usize; MAX_DEPTH + 2];
+        if depth > MAX_DEPTH {
+            return Err(Fail::TooDeep { at: self.p });
+        }
+        // `rem`: values still to skip at nesting depth + k; `outer[i]`:
+        // the same for the enclosing levels depth + i, i < k.
+        let mut outer = [0usize; MAX_DEPTH + 1];
         let mut k = 0;
-        left[0] = n;
+        let mut rem = n;
         loop {
-            if left[k] == 0 {
+            while rem == 0 {
                 if k == 0 {
                     return Ok(());
                 }
                 k -= 1;
-                continue;
+                rem = outer[k];
             }
-            left[k] -= 1;
-            if depth + k > MAX_DEPTH {
-                return Err(Fail::TooDeep { at: self.p });
-            }
+            rem -= 1;
             // Inline the markers nearly all of Pupil's bytes are (float64,
             // short strings, small ints, small arrays and maps); the rest
             // go through the jump table.
@@ -699,9 +700,15 @@ impl<'a> Cur<'a> {
                 _ => self.skip_one()?,
             };
             if children > 0 {
-                // depth + k ≤ MAX_DEPTH here, so k + 1 ≤ MAX_DEPTH + 1.
+                // The children sit at depth + k + 1; the first of them
+                // starts here.
+                if depth + k + 1 > MAX_DEPTH {
+                    return Err(Fail::TooDeep { at: self.p });
+                }
+                // depth + k + 1 ≤ MAX_DEPTH, so k < MAX_DEPTH.
+                outer[k] = rem;
                 k += 1;
-                left[k] = children;
+                rem = children;
             }
         }
     }
