@@ -1357,32 +1357,13 @@ pub fn check_payload(payload: &[u8]) -> Result<(), BadRecord> {
     c.end().map_err(fault)
 }
 
-/// Decodes one `.pldata` record's payload: `Ok(Some(datum))`, `Ok(None)`
-/// for a well-formed payload under a topic the decoder does not know,
-/// `Ok(Err(e))` for a well-formed map that is not a valid datum, and
-/// `Err` when the payload is not one complete msgpack map (the record is
-/// corrupt). A payload that decodes is walked once; only a failing one is
-/// walked again to tell the two kinds of failure apart.
-pub fn decode_record(
-    topic: &str,
-    payload: &[u8],
-) -> Result<Result<Option<Datum>, DecodeError>, BadRecord> {
-    let kind = parse_topic(topic);
-    if kind == TopicKind::Unknown {
-        check_payload(payload)?;
-        return Ok(Ok(None));
-    }
-    match decode_as(kind, topic, payload) {
-        Ok(d) => Ok(Ok(Some(d))),
-        Err(e) => {
-            check_payload(payload)?;
-            Ok(Err(e))
-        }
-    }
-}
-
 /// Decodes one `.pldata` record's payload straight into the [`Sample`] it
-/// holds (Pupil time), with the outcomes of [`decode_record`]. What a
+/// holds (Pupil time): `Ok(Some(sample))`, `Ok(None)` for a well-formed
+/// payload under a topic the decoder does not know, `Ok(Err(e))` for a
+/// well-formed map that is not a valid datum, and `Err` when the payload is
+/// not one complete msgpack map (the record is corrupt). A payload that
+/// decodes is walked once; only a failing one is walked again
+/// ([`check_payload`]) to tell the two kinds of failure apart. What a
 /// sample does not carry is not decoded: a gaze datum whose topic names
 /// its eyes has its `base_data` checked as msgpack only (the pupil datums
 /// in it are recorded, and decoded, in their own stream).

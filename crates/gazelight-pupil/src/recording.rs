@@ -20,10 +20,10 @@
 //!
 //! [`PldataReader`] streams records through a bounded buffer without
 //! loading the file, and decodes payloads in place with the live client's
-//! zero-copy decoder ([`msg::decode_record`]). A record that does not parse
-//! (bad marker, impossible length, a payload that is not one complete
-//! msgpack map, a topic that is not printable ASCII) is skipped with a
-//! counted warning naming the file and the byte offset; the reader then
+//! zero-copy decoder ([`msg::decode_record_sample`]). A record that does
+//! not parse (bad marker, impossible length, a payload that is not one
+//! complete msgpack map, a topic that is not printable ASCII) is skipped
+//! with a counted warning naming the file and the byte offset; the reader then
 //! resyncs on the next byte position where a well-formed record starts.
 //! More than [`MAX_GARBAGE_BYTES`] of unreadable bytes in a row end the
 //! stream with [`RecordingError::Garbage`], so garbage is refused after
