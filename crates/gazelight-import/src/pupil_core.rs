@@ -26,7 +26,11 @@
 //!   not decode is skipped and counted in the warnings, naming the file and
 //!   the record's byte offset; records with topics the decoder does not
 //!   know (notifications, custom plugins) are ignored and counted in
-//!   [`PupilCoreImporter::unknown_topics`].
+//!   [`PupilCoreImporter::unknown_topics`]. More than a megabyte of
+//!   unreadable bytes in a row ([`gazelight_pupil::recording::MAX_GARBAGE_BYTES`])
+//!   is not skipped but refused: the import fails naming the file and the
+//!   byte offset where the garbage starts, after reading about a megabyte,
+//!   whatever the file's size.
 
 use std::path::{Path, PathBuf};
 

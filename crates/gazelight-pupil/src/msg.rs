@@ -83,6 +83,23 @@ pub enum TopicKind {
 
 /// Classifies a topic (current and v1.x names, trailing dot optional).
 pub fn parse_topic(topic: &str) -> TopicKind {
+    // The topics Pupil Capture v2/v3 publishes, without splitting.
+    let pupil = |eye, m| TopicKind::Pupil {
+        eye: Some(eye),
+        method: Some(m),
+    };
+    match topic {
+        "pupil.0.2d" => return pupil(0, DetectorMethod::Pupil2d),
+        "pupil.1.2d" => return pupil(1, DetectorMethod::Pupil2d),
+        "pupil.0.3d" => return pupil(0, DetectorMethod::Pupil3d),
+        "pupil.1.3d" => return pupil(1, DetectorMethod::Pupil3d),
+        "gaze.3d.01." | "gaze.2d.01." => {
+            return TopicKind::Gaze {
+                eyes: Some(GazeEyes::Binocular),
+            };
+        }
+        _ => {}
+    }
     let mut parts = topic.split('.');
     let head = parts.next().unwrap_or("");
     let rest: [Option<&str>; 3] = [parts.next(), parts.next(), parts.next()];
@@ -232,7 +249,12 @@ pub fn decode_message(topic: &[u8], payload: &[u8]) -> Result<Datum, DecodeError
 
 /// Decodes a datum with a UTF-8 topic.
 pub fn decode(topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
-    let kind = parse_topic(topic);
+    decode_as(parse_topic(topic), topic, payload)
+}
+
+/// Decodes a datum whose topic has already been classified
+/// (`kind == parse_topic(topic)`).
+pub fn decode_as(kind: TopicKind, topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
     let wrap = |f: Fail| f.into_error(topic);
     match kind {
         TopicKind::Unknown => Err(DecodeError::UnknownTopic(topic.to_owned())),
@@ -242,13 +264,24 @@ pub fn decode(topic: &str, payload: &[u8]) -> Result<Datum, DecodeError> {
             c.end().map_err(wrap)?;
             raw.finish(topic, eye, method).map(Datum::Pupil)
         }
-        TopicKind::Gaze { eyes } => {
-            let mut c = Cur { b: payload, p: 0 };
-            let raw = read_gaze(&mut c).map_err(wrap)?;
-            c.end().map_err(wrap)?;
-            raw.finish(topic, eyes).map(Datum::Gaze)
-        }
+        TopicKind::Gaze { eyes } => decode_gaze(topic, payload, eyes, true).map(Datum::Gaze),
     }
+}
+
+/// Decodes a gaze datum; with `decode_base` false (only when the topic
+/// names the eyes) its `base_data` are walked as msgpack but not decoded
+/// and the datum's `base` is empty.
+fn decode_gaze(
+    topic: &str,
+    payload: &[u8],
+    eyes: Option<GazeEyes>,
+    decode_base: bool,
+) -> Result<GazeDatum, DecodeError> {
+    let wrap = |f: Fail| f.into_error(topic);
+    let mut c = Cur { b: payload, p: 0 };
+    let raw = read_gaze(&mut c, decode_base || eyes.is_none()).map_err(wrap)?;
+    c.end().map_err(wrap)?;
+    raw.finish(topic, eyes)
 }
 
 /// Deepest nesting a skipped value may have.
@@ -269,34 +302,41 @@ enum Fail {
     Trailing {
         at: usize,
     },
-    /// A value of the wrong type (or shape) in a named field; `path` is the
-    /// enclosing field (e.g. `base_data[1]`), empty at the top level.
-    Type {
-        path: String,
-        field: &'static str,
-        expected: &'static str,
-        found: &'static str,
-    },
+    /// A value of the wrong type (or shape) in a named field (boxed, so
+    /// that `Fail`, and the `Result`s of the hot path, stay two words).
+    Type(Box<TypeFail>),
+}
+
+/// See [`Fail::Type`]; `path` is the enclosing field (e.g. `base_data[1]`),
+/// empty at the top level.
+struct TypeFail {
+    path: String,
+    field: &'static str,
+    expected: &'static str,
+    found: &'static str,
+}
+
+#[cold]
+fn type_err(field: &'static str, expected: &'static str, found: &'static str) -> Fail {
+    Fail::Type(Box::new(TypeFail {
+        path: String::new(),
+        field,
+        expected,
+        found,
+    }))
 }
 
 impl Fail {
     fn in_path(self, prefix: &str) -> Fail {
         match self {
-            Fail::Type {
-                path,
-                field,
-                expected,
-                found,
-            } => Fail::Type {
-                path: if path.is_empty() {
+            Fail::Type(mut t) => {
+                t.path = if t.path.is_empty() {
                     prefix.to_owned()
                 } else {
-                    format!("{prefix}.{path}")
-                },
-                field,
-                expected,
-                found,
-            },
+                    format!("{prefix}.{}", t.path)
+                };
+                Fail::Type(t)
+            }
             other => other,
         }
     }
@@ -317,14 +357,26 @@ impl Fail {
             Fail::Trailing { at } => {
                 malformed(format!("trailing bytes after the datum at byte {at}"))
             }
-            Fail::Type {
-                path,
-                field: "",
-                expected,
-                found,
-            } => {
+            Fail::Type(t) => t.into_error(topic),
+        }
+    }
+}
+
+impl TypeFail {
+    fn into_error(self, topic: &str) -> DecodeError {
+        let TypeFail {
+            path,
+            field,
+            expected,
+            found,
+        } = self;
+        match field {
+            "" => {
                 if path.is_empty() {
-                    malformed(format!("payload is {found}, expected {expected}"))
+                    DecodeError::Malformed {
+                        topic: topic.to_owned(),
+                        reason: format!("payload is {found}, expected {expected}"),
+                    }
                 } else {
                     DecodeError::Field {
                         topic: topic.to_owned(),
@@ -333,12 +385,7 @@ impl Fail {
                     }
                 }
             }
-            Fail::Type {
-                path,
-                field,
-                expected,
-                found,
-            } => DecodeError::Field {
+            field => DecodeError::Field {
                 topic: topic.to_owned(),
                 field: if path.is_empty() {
                     field.to_owned()
@@ -352,12 +399,7 @@ impl Fail {
 }
 
 fn type_fail(field: &'static str, expected: &'static str, marker: u8) -> Fail {
-    Fail::Type {
-        path: String::new(),
-        field,
-        expected,
-        found: marker_name(marker),
-    }
+    type_err(field, expected, marker_name(marker))
 }
 
 fn marker_name(m: u8) -> &'static str {
@@ -446,11 +488,53 @@ impl<'a> Cur<'a> {
         })
     }
 
+    /// The length of a `.pldata` record's topic or payload (a str or bin
+    /// value), at most `max`; the cursor is left on its first byte.
+    #[inline]
+    fn str_or_bin(&mut self, field: RecordField, max: usize) -> Result<usize, RecordScan> {
+        let start = self.p;
+        let m = self.byte().map_err(|_| RecordScan::Need(start + 1))?;
+        let width = match m {
+            0xa0..=0xbf => 0,
+            0xd9 | 0xc4 => 1,
+            0xda | 0xc5 => 2,
+            0xdb | 0xc6 => 4,
+            marker => {
+                return Err(RecordScan::Bad(BadRecord::NotStrOrBin { field, marker }));
+            }
+        };
+        let len = if width == 0 {
+            (m & 0x1f) as usize
+        } else {
+            self.uint(width)
+                .map_err(|_| RecordScan::Need(start + 1 + width))? as usize
+        };
+        if len > max {
+            return Err(RecordScan::Bad(BadRecord::TooLong { field, len, max }));
+        }
+        Ok(len)
+    }
+
     /// A map key: `Some(bytes)` for a string key (compared as bytes, so
     /// no UTF-8 validation on the hot path), `None` (key skipped) for any
     /// other key.
-    #[inline]
+    #[inline(always)]
     fn key(&mut self) -> Result<Option<&'a [u8]>, Fail> {
+        // Pupil's keys are short strings (fixstr): inline that case.
+        if let Some(&m) = self.b.get(self.p)
+            && m & 0xe0 == 0xa0
+        {
+            let start = self.p + 1;
+            if let Some(k) = self.b.get(start..start + (m & 0x1f) as usize) {
+                self.p = start + k.len();
+                return Ok(Some(k));
+            }
+        }
+        self.key_slow()
+    }
+
+    #[inline(never)]
+    fn key_slow(&mut self) -> Result<Option<&'a [u8]>, Fail> {
         let at = self.p;
         let m = self.byte()?;
         match self.str_len(m)? {
@@ -464,8 +548,19 @@ impl<'a> Cur<'a> {
     }
 
     /// A number (any msgpack int or float) as f64.
-    #[inline]
+    #[inline(always)]
     fn f64(&mut self, field: &'static str) -> Result<f64, Fail> {
+        // Pupil's numbers are float64 (0xcb) nearly always: inline that
+        // case, before the jump table of the other markers.
+        if let Some(&[0xcb, a, b, c, d, e, f, g, h]) = self.b.get(self.p..self.p + 9) {
+            self.p += 9;
+            return Ok(f64::from_be_bytes([a, b, c, d, e, f, g, h]));
+        }
+        self.f64_slow(field)
+    }
+
+    #[inline(never)]
+    fn f64_slow(&mut self, field: &'static str) -> Result<f64, Fail> {
         let m = self.byte()?;
         Ok(match m {
             0xcb => f64::from_bits(self.uint(8)?),
@@ -502,16 +597,15 @@ impl<'a> Cur<'a> {
                 }
                 Ok(out)
             }
-            Some(_) => Err(Fail::Type {
-                path: String::new(),
+            Some(_) => Err(type_err(
                 field,
-                expected: if N == 2 {
+                if N == 2 {
                     "an array of 2 numbers"
                 } else {
                     "an array of 3 numbers"
                 },
-                found: "an array of another length",
-            }),
+                "an array of another length",
+            )),
             None => Err(type_fail(field, "an array of numbers", m)),
         }
     }
@@ -522,61 +616,131 @@ impl<'a> Cur<'a> {
         if v.fract() == 0.0 && (0.0..=255.0).contains(&v) {
             Ok(v as u8)
         } else {
-            Err(Fail::Type {
-                path: String::new(),
-                field,
-                expected: "an integer 0..=255",
-                found: "another number",
-            })
+            Err(type_err(field, "an integer 0..=255", "another number"))
         }
     }
 
     fn str_value(&mut self, field: &'static str) -> Result<&'a str, Fail> {
         let m = self.byte()?;
         match self.str_len(m)? {
-            Some(n) => std::str::from_utf8(self.take(n)?).map_err(|_| Fail::Type {
-                path: String::new(),
-                field,
-                expected: "a UTF-8 string",
-                found: "invalid UTF-8",
-            }),
+            Some(n) => std::str::from_utf8(self.take(n)?)
+                .map_err(|_| type_err(field, "a UTF-8 string", "invalid UTF-8")),
             None => Err(type_fail(field, "a string", m)),
         }
     }
 
-    /// Skips one value of any type.
+    /// Skips one value of any type at nesting `depth` (values deeper than
+    /// [`MAX_DEPTH`] are refused).
+    #[inline]
     fn skip(&mut self, depth: usize) -> Result<(), Fail> {
+        // A lone float64 or short string: no counters needed.
+        let p = self.p;
+        match self.b.get(p) {
+            Some(0xcb) if depth <= MAX_DEPTH && p + 9 <= self.b.len() => {
+                self.p = p + 9;
+                Ok(())
+            }
+            Some(&m)
+                if depth <= MAX_DEPTH
+                    && m & 0xe0 == 0xa0
+                    && p + 1 + (m & 0x1f) as usize <= self.b.len() =>
+            {
+                self.p = p + 1 + (m & 0x1f) as usize;
+                Ok(())
+            }
+            _ => self.skip_values(1, depth),
+        }
+    }
+
+    /// Skips `n` values at nesting `depth` and everything inside them,
+    /// with a counter per nesting level instead of recursion.
+    fn skip_values(&mut self, n: usize, depth: usize) -> Result<(), Fail> {
         if depth > MAX_DEPTH {
             return Err(Fail::TooDeep { at: self.p });
         }
+        // `rem`: values still to skip at nesting depth + k; `outer[i]`:
+        // the same for the enclosing levels depth + i, i < k.
+        let mut outer = [0usize; MAX_DEPTH + 1];
+        let mut k = 0;
+        let mut rem = n;
+        loop {
+            while rem == 0 {
+                if k == 0 {
+                    return Ok(());
+                }
+                k -= 1;
+                rem = outer[k];
+            }
+            rem -= 1;
+            // Inline the markers nearly all of Pupil's bytes are (float64,
+            // short strings, small ints, small arrays and maps); the rest
+            // go through the jump table.
+            let p = self.p;
+            let children = match self.b.get(p) {
+                Some(0xcb) if p + 9 <= self.b.len() => {
+                    self.p = p + 9;
+                    continue;
+                }
+                Some(&m) if m & 0xe0 == 0xa0 && p + 1 + (m & 0x1f) as usize <= self.b.len() => {
+                    self.p = p + 1 + (m & 0x1f) as usize;
+                    continue;
+                }
+                Some(&m) if m < 0x80 => {
+                    self.p = p + 1;
+                    continue;
+                }
+                Some(&m) if m & 0xf0 == 0x90 => {
+                    self.p = p + 1;
+                    (m & 0x0f) as usize
+                }
+                Some(&m) if m & 0xf0 == 0x80 => {
+                    self.p = p + 1;
+                    2 * (m & 0x0f) as usize
+                }
+                _ => self.skip_one()?,
+            };
+            if children > 0 {
+                // The children sit at depth + k + 1; the first of them
+                // starts here.
+                if depth + k + 1 > MAX_DEPTH {
+                    return Err(Fail::TooDeep { at: self.p });
+                }
+                // depth + k + 1 ≤ MAX_DEPTH, so k < MAX_DEPTH.
+                outer[k] = rem;
+                k += 1;
+                rem = children;
+            }
+        }
+    }
+
+    /// Reads one marker and skips the value's bytes; for a map or array,
+    /// returns how many values it holds (keys and values for a map), which
+    /// are not skipped yet.
+    #[inline(never)]
+    fn skip_one(&mut self) -> Result<usize, Fail> {
         let at = self.p;
         let m = self.byte()?;
-        if let Some(n) = self.map_len(m)? {
-            for _ in 0..n {
-                self.skip(depth + 1)?;
-                self.skip(depth + 1)?;
-            }
-            return Ok(());
-        }
-        if let Some(n) = self.array_len(m)? {
-            for _ in 0..n {
-                self.skip(depth + 1)?;
-            }
-            return Ok(());
-        }
-        if let Some(n) = self.str_len(m)? {
-            self.take(n)?;
-            return Ok(());
+        // The common case first.
+        if m == 0xcb {
+            self.take(8)?;
+            return Ok(0);
         }
         let n = match m {
-            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => 0,
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => return Ok(0),
+            0x80..=0x8f => return Ok(2 * (m & 0x0f) as usize),
+            0x90..=0x9f => return Ok((m & 0x0f) as usize),
+            0xde => return Ok(2 * self.uint(2)? as usize),
+            0xdf => return Ok((self.uint(4)? as usize).saturating_mul(2)),
+            0xdc => return Ok(self.uint(2)? as usize),
+            0xdd => return Ok(self.uint(4)? as usize),
+            0xa0..=0xbf => (m & 0x1f) as usize,
             0xcc | 0xd0 => 1,
             0xcd | 0xd1 => 2,
             0xce | 0xd2 | 0xca => 4,
-            0xcf | 0xd3 | 0xcb => 8,
-            0xc4 => self.uint(1)? as usize,
-            0xc5 => self.uint(2)? as usize,
-            0xc6 => self.uint(4)? as usize,
+            0xcf | 0xd3 => 8,
+            0xc4 | 0xd9 => self.uint(1)? as usize,
+            0xc5 | 0xda => self.uint(2)? as usize,
+            0xc6 | 0xdb => self.uint(4)? as usize,
             0xd4 => 2,
             0xd5 => 3,
             0xd6 => 5,
@@ -588,7 +752,7 @@ impl<'a> Cur<'a> {
             _ => return Err(Fail::Invalid { at, marker: m }),
         };
         self.take(n)?;
-        Ok(())
+        Ok(0)
     }
 
     /// Starts a map; a non-map is a type error of `field` ("" = payload).
@@ -623,12 +787,11 @@ impl<'a> Cur<'a> {
                 axes,
                 angle,
             }),
-            _ => Err(Fail::Type {
-                path: String::new(),
-                field: F,
-                expected: "a map with center, axes and angle",
-                found: "a map without them",
-            }),
+            _ => Err(type_err(
+                F,
+                "a map with center, axes and angle",
+                "a map without them",
+            )),
         }
     }
 
@@ -650,12 +813,11 @@ impl<'a> Cur<'a> {
                 normal,
                 radius,
             }),
-            _ => Err(Fail::Type {
-                path: String::new(),
-                field: F,
-                expected: "a map with center, normal and radius",
-                found: "a map without them",
-            }),
+            _ => Err(type_err(
+                F,
+                "a map with center, normal and radius",
+                "a map without them",
+            )),
         }
     }
 }
@@ -682,9 +844,12 @@ fn is_unused_pupil_field(k: &[u8]) -> bool {
 /// The detector method from Pupil's `method` string (`"2d c++"`,
 /// `"3d c++"`, `"pye3d 0.3.0 real-time"`, …).
 fn method_of(s: &str) -> Option<DetectorMethod> {
-    if s.contains("3d") {
+    // A plain byte scan: the strings are a few dozen bytes, and setting up
+    // a substring searcher cost more than the search.
+    let has = |pat: &[u8; 2]| s.as_bytes().windows(2).any(|w| w == pat);
+    if has(b"3d") {
         Some(DetectorMethod::Pupil3d)
-    } else if s.contains("2d") {
+    } else if has(b"2d") {
         Some(DetectorMethod::Pupil2d)
     } else {
         None
@@ -726,7 +891,7 @@ fn read_pupil(c: &mut Cur<'_>, depth: usize) -> Result<RawPupil, Fail> {
     Ok(r)
 }
 
-fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
+fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
     let n = c.map_start("")?;
     let mut r = RawGaze::default();
     for _ in 0..n {
@@ -745,7 +910,7 @@ fn read_gaze(c: &mut Cur<'_>) -> Result<RawGaze, Fail> {
                     .array_len(m)?
                     .ok_or_else(|| type_fail("base_data", "an array of pupil datums", m))?;
                 for i in 0..len {
-                    if i < 2 {
+                    if i < 2 && decode_base {
                         let p = read_pupil(c, 2).map_err(|f| {
                             f.in_path(if i == 0 {
                                 "base_data[0]"
@@ -982,6 +1147,247 @@ impl RawGaze {
             base,
             unknown_fields: self.unknown_fields,
         })
+    }
+}
+
+/// Why bytes of a `.pldata` file are not a record (see [`scan_record`]).
+/// Cheap to build and copy: a reader trying every byte offset of a
+/// corrupt region makes one per offset and formats only the first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BadRecord {
+    /// The first byte is not an array of 2.
+    NotAPair { marker: u8 },
+    /// An array of another length.
+    ArrayLen { len: usize },
+    /// The topic or payload is not a str or bin.
+    NotStrOrBin { field: RecordField, marker: u8 },
+    /// The topic or payload claims more bytes than a record may hold.
+    TooLong {
+        field: RecordField,
+        len: usize,
+        max: usize,
+    },
+    /// The topic is empty or not printable ASCII.
+    TopicNotPrintable,
+    /// The payload is not a msgpack map.
+    PayloadNotMap,
+    /// The payload is a map, but not one complete msgpack value: the walk
+    /// stopped at byte `at` of the payload.
+    PayloadInvalid { at: usize, why: PayloadFault },
+}
+
+/// The two parts of a `.pldata` record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordField {
+    Topic,
+    Payload,
+}
+
+/// How a payload's msgpack walk failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PayloadFault {
+    Truncated,
+    InvalidMarker(u8),
+    TooDeep,
+    TrailingBytes,
+}
+
+impl std::fmt::Display for RecordField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            RecordField::Topic => "topic",
+            RecordField::Payload => "payload",
+        })
+    }
+}
+
+impl std::fmt::Display for BadRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BadRecord::NotAPair { marker } => write!(
+                f,
+                "byte 0x{marker:02x} does not start a [topic, payload] pair"
+            ),
+            BadRecord::ArrayLen { len } => write!(f, "record is an array of {len}, not 2"),
+            BadRecord::NotStrOrBin { field, marker } => {
+                write!(f, "{field}: byte 0x{marker:02x} is not a str or bin marker")
+            }
+            BadRecord::TooLong { field, len, max } => {
+                write!(f, "{field}: length {len} exceeds {max}")
+            }
+            BadRecord::TopicNotPrintable => f.write_str("topic is not printable ASCII"),
+            BadRecord::PayloadNotMap => f.write_str("payload is not a msgpack map"),
+            BadRecord::PayloadInvalid { at, why } => match why {
+                PayloadFault::Truncated => {
+                    write!(f, "payload is not valid msgpack: truncated at byte {at}")
+                }
+                PayloadFault::InvalidMarker(m) => write!(
+                    f,
+                    "payload is not valid msgpack: invalid marker 0x{m:02x} at byte {at}"
+                ),
+                PayloadFault::TooDeep => write!(
+                    f,
+                    "payload is not valid msgpack: nesting deeper than {MAX_DEPTH} at byte {at}"
+                ),
+                PayloadFault::TrailingBytes => {
+                    write!(f, "payload has trailing bytes at byte {at}")
+                }
+            },
+        }
+    }
+}
+
+/// Where the parts of one `.pldata` record lie, relative to its start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RecordSpan {
+    pub topic_start: usize,
+    pub topic_end: usize,
+    pub payload_start: usize,
+    /// Also the record's length.
+    pub payload_end: usize,
+}
+
+/// What [`scan_record`] found at the start of a buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RecordScan {
+    /// A complete record: a printable topic and a payload that starts
+    /// like a map (its body is not walked; see [`check_payload`]).
+    Complete(RecordSpan),
+    /// More bytes are needed: at least this many from the record start.
+    /// Never more than `max_topic_bytes + max_payload_bytes + 13`.
+    Need(usize),
+    Bad(BadRecord),
+}
+
+/// Frames one `.pldata` record (`[topic: str|bin, payload: str|bin]`, as
+/// Pupil's `PLData_Writer` and older writers wrote it) at the start of `b`.
+///
+/// Checks are ordered so that garbage is refused after a few bytes: the
+/// array marker, the topic's marker and length (≤ `max_topic_bytes`), the
+/// topic's bytes (printable ASCII), the payload's marker and length
+/// (≤ `max_payload_bytes`) and the payload's first byte (a map marker),
+/// before asking for the whole payload.
+pub fn scan_record(b: &[u8], max_topic_bytes: usize, max_payload_bytes: usize) -> RecordScan {
+    let mut c = Cur { b, p: 0 };
+    let need = |c: &Cur<'_>, n: usize| RecordScan::Need(c.p + n);
+    let Ok(m) = c.byte() else {
+        return need(&c, 1);
+    };
+    match m {
+        0x92 => {}
+        0xdc => match c.uint(2) {
+            Ok(2) => {}
+            Ok(len) => {
+                return RecordScan::Bad(BadRecord::ArrayLen { len: len as usize });
+            }
+            Err(_) => return RecordScan::Need(3),
+        },
+        marker => return RecordScan::Bad(BadRecord::NotAPair { marker }),
+    }
+    let topic = match c.str_or_bin(RecordField::Topic, max_topic_bytes) {
+        Ok(n) => n,
+        Err(s) => return s,
+    };
+    if c.b.len() < c.p + topic {
+        return need(&c, topic);
+    }
+    let topic_start = c.p;
+    c.p += topic;
+    let t = &b[topic_start..c.p];
+    if t.is_empty() || !t.iter().all(u8::is_ascii_graphic) {
+        return RecordScan::Bad(BadRecord::TopicNotPrintable);
+    }
+    let topic_end = c.p;
+    let payload = match c.str_or_bin(RecordField::Payload, max_payload_bytes) {
+        Ok(n) => n,
+        Err(s) => return s,
+    };
+    let payload_start = c.p;
+    match b.get(payload_start) {
+        _ if payload == 0 => return RecordScan::Bad(BadRecord::PayloadNotMap),
+        None => return need(&c, 1),
+        Some(&m) if !matches!(m, 0x80..=0x8f | 0xde | 0xdf) => {
+            return RecordScan::Bad(BadRecord::PayloadNotMap);
+        }
+        Some(_) => {}
+    }
+    if b.len() < payload_start + payload {
+        return need(&c, payload);
+    }
+    RecordScan::Complete(RecordSpan {
+        topic_start,
+        topic_end,
+        payload_start,
+        payload_end: payload_start + payload,
+    })
+}
+
+/// Checks that `payload` is exactly one complete msgpack map (any keys and
+/// values, nesting up to 32 levels), without decoding it.
+pub fn check_payload(payload: &[u8]) -> Result<(), BadRecord> {
+    let mut c = Cur { b: payload, p: 0 };
+    let fault = |f: Fail| match f {
+        Fail::Truncated { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::Truncated,
+        },
+        Fail::Invalid { at, marker } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::InvalidMarker(marker),
+        },
+        Fail::TooDeep { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::TooDeep,
+        },
+        Fail::Trailing { at } => BadRecord::PayloadInvalid {
+            at,
+            why: PayloadFault::TrailingBytes,
+        },
+        Fail::Type(_) => BadRecord::PayloadNotMap,
+    };
+    let m = c.byte().map_err(fault)?;
+    let n = c
+        .map_len(m)
+        .map_err(fault)?
+        .ok_or(BadRecord::PayloadNotMap)?;
+    for _ in 0..n {
+        c.skip(1).map_err(fault)?;
+        c.skip(1).map_err(fault)?;
+    }
+    c.end().map_err(fault)
+}
+
+/// Decodes one `.pldata` record's payload straight into the [`Sample`] it
+/// holds (Pupil time): `Ok(Some(sample))`, `Ok(None)` for a well-formed
+/// payload under a topic the decoder does not know, `Ok(Err(e))` for a
+/// well-formed map that is not a valid datum, and `Err` when the payload is
+/// not one complete msgpack map (the record is corrupt). A payload that
+/// decodes is walked once; only a failing one is walked again
+/// ([`check_payload`]) to tell the two kinds of failure apart. What a
+/// sample does not carry is not decoded: a gaze datum whose topic names
+/// its eyes has its `base_data` checked as msgpack only (the pupil datums
+/// in it are recorded, and decoded, in their own stream).
+pub fn decode_record_sample(
+    topic: &str,
+    payload: &[u8],
+) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
+    let kind = parse_topic(topic);
+    let decoded = match kind {
+        TopicKind::Unknown => {
+            check_payload(payload)?;
+            return Ok(Ok(None));
+        }
+        TopicKind::Gaze { eyes } => {
+            decode_gaze(topic, payload, eyes, false).map(|g| Sample::Gaze(g.sample))
+        }
+        TopicKind::Pupil { .. } => decode_as(kind, topic, payload).map(|d| d.to_sample(0.0)),
+    };
+    match decoded {
+        Ok(s) => Ok(Ok(Some(s))),
+        Err(e) => {
+            check_payload(payload)?;
+            Ok(Err(e))
+        }
     }
 }
 
