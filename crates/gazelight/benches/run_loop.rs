@@ -5,8 +5,13 @@
 //! 1. `EyeState` age at frame time (median, p99, max) in a live run against
 //!    the pyzmq Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) at
 //!    200 Hz and at 1 kHz, default size 720×800, 90 Hz display.
-//! 2. A sustained 90 Hz frame loop on the CPU path at the default size
-//!    (synthetic source): frames, late frames, dropped deadlines.
+//! 2. Both eyes (`--stereo`, two 720×800 views) against the 200 Hz peer:
+//!    frames, late frames, dropped deadlines (issue 13).
+//! 3. A sustained 90 Hz frame loop on the CPU path at the default size
+//!    (synthetic source, whose glance at the lamp rebuilds the PSF): frames,
+//!    late frames, dropped deadlines, and from `timeline.csv` the frames
+//!    that installed a new kernel against the others (issue 10: a rebuild
+//!    must not cost a frame).
 //!
 //! `cargo bench -p gazelight --bench run_loop` (`RUN_LOOP_SECS` sets the
 //! length of each run, default 10 s).
@@ -55,7 +60,7 @@ fn main() {
     if python {
         let script =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-tracker/tests/pupil_peer.py");
-        for rate in [200.0, 1000.0] {
+        for (rate, stereo) in [(200.0, false), (1000.0, false), (200.0, true)] {
             let mut peer = Command::new("python3")
                 .arg(&script)
                 .args([
@@ -78,29 +83,36 @@ fn main() {
                 .find_map(|w| w.strip_prefix("remote="))
                 .expect("remote port")
                 .to_owned();
-            let summary = run(&[
-                "--source",
-                &format!("pupil://127.0.0.1:{port}"),
-                "--headless",
-                "--secs",
-                &secs_s,
-            ]);
+            let source = format!("pupil://127.0.0.1:{port}");
+            let mut args = vec!["--source", &source, "--headless", "--secs", &secs_s];
+            if stereo {
+                args.push("--stereo");
+            }
+            let summary = run(&args);
             let _ = peer.kill();
             let _ = peer.wait();
-            println!("peer at {rate} Hz, 720x800 @ 90 Hz: {summary}");
+            let eyes = if stereo { "both eyes" } else { "one eye" };
+            println!("peer at {rate} Hz, {eyes} 720x800 @ 90 Hz: {summary}");
         }
     } else {
         println!("SKIP the live runs: python3 with pyzmq + msgpack not available");
     }
 
+    let out = std::env::temp_dir().join(format!("gazelight-run-loop-{}", std::process::id()));
+    let out_s = out.to_string_lossy().into_owned();
     let summary = run(&[
         "--source",
         "synthetic://demo",
         "--headless",
         "--secs",
         &secs_s,
+        "--out",
+        &out_s,
+        "--no-frames",
     ]);
     println!("CPU path, 720x800 @ 90 Hz, synthetic source: {summary}");
+    rebuild_frames(&out.join("timeline.csv"));
+    let _ = std::fs::remove_dir_all(&out);
     let summary = run(&[
         "--source",
         "synthetic://demo",
@@ -111,4 +123,41 @@ fn main() {
         "360x400",
     ]);
     println!("CPU path, 360x400 @ 90 Hz, synthetic source: {summary}");
+}
+
+/// The frames of a run that installed a new PSF kernel against the others:
+/// their `frame_ms` medians and how many of each took longer than a 90 Hz
+/// period.
+fn rebuild_frames(timeline: &Path) {
+    let text = std::fs::read_to_string(timeline).expect("timeline.csv");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (rebuilt, ms) = (col("psf_rebuilt"), col("frame_ms"));
+    let (mut with, mut without) = (Vec::new(), Vec::new());
+    for line in lines {
+        let f: Vec<&str> = line.split(',').collect();
+        let t: f64 = f[ms].parse().expect("frame_ms");
+        if f[rebuilt] == "1" {
+            with.push(t);
+        } else {
+            without.push(t);
+        }
+    }
+    let period_ms = 1e3 / 90.0;
+    let stats = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let over = v.iter().filter(|&&t| t > period_ms).count();
+        (
+            v.get(v.len() / 2).copied().unwrap_or(f64::NAN),
+            over,
+            v.len(),
+        )
+    };
+    let (m1, o1, n1) = stats(&mut with);
+    let (m0, o0, n0) = stats(&mut without);
+    println!(
+        "  frames that installed a kernel: {n1}, frame_ms median {m1:.2}, {o1} over {period_ms:.1} ms; \
+         other frames: {n0}, median {m0:.2}, {o0} over"
+    );
 }
