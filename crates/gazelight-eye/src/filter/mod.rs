@@ -161,6 +161,9 @@ pub struct FilterChain {
     last_binocular_t: Option<f64>,
     pairing: BinocularPairing,
     luminance_cd_m2: f64,
+    /// The pupil model's diameter at `luminance_cd_m2` (a `powf` each:
+    /// computed when the luminance changes, not per sample).
+    model_mm: f32,
     state: EyeState,
     stats: ChainStats,
 }
@@ -192,6 +195,7 @@ impl FilterChain {
             last_binocular_t: None,
             pairing: BinocularPairing::new(cfg.binocular),
             luminance_cd_m2: DEFAULT_ADAPTATION_LUMINANCE_CD_M2,
+            model_mm,
             state,
             stats: ChainStats::default(),
         })
@@ -210,6 +214,9 @@ impl FilterChain {
     /// the dropout fallback eases towards the model pupil at it.
     pub fn set_adaptation_luminance(&mut self, luminance_cd_m2: f64) {
         if luminance_cd_m2.is_finite() && luminance_cd_m2 >= 0.0 {
+            if luminance_cd_m2 != self.luminance_cd_m2 {
+                self.model_mm = self.cfg.pupil_model.pupil_mm(luminance_cd_m2);
+            }
             self.luminance_cd_m2 = luminance_cd_m2;
         }
     }
@@ -315,7 +322,7 @@ impl FilterChain {
     /// most `max_rate · Δt` between any two consecutive states.
     fn advance_outputs(&mut self) {
         let now = self.state.t_secs;
-        let model_mm = self.cfg.pupil_model.pupil_mm(self.luminance_cd_m2);
+        let model_mm = self.model_mm;
         for e in 0..2 {
             if !self.pairing.has_reported(e) {
                 continue;
@@ -406,7 +413,7 @@ impl FilterChain {
             self.stats.measured[e] += 1;
             up.measured = true;
         }
-        let model_mm = self.cfg.pupil_model.pupil_mm(self.luminance_cd_m2);
+        let model_mm = self.model_mm;
         self.advance_eye(e, t, measured, model_mm, p.confidence);
 
         if let Some(partner) = self.pairing.observe(e, t) {

@@ -100,6 +100,12 @@ pub struct RunSummary {
     pub frames_late: u64,
     /// Display deadlines that passed with no frame (skipped).
     pub frames_dropped: u64,
+    /// Of those, the ones passed during a frame that rendered while the PSF
+    /// worker was building a kernel or that installed one.
+    pub frames_dropped_near_rebuilds: u64,
+    /// Frames rendered while the PSF worker was building a kernel, or that
+    /// installed one.
+    pub frames_near_rebuilds: u64,
     pub wall_secs: f64,
     /// Kernels installed after the initial one (per view).
     pub psf_rebuilds: u64,
@@ -135,6 +141,10 @@ pub struct FrameLoop {
     frames: u64,
     late: u64,
     dropped: u64,
+    dropped_near_rebuilds: u64,
+    frames_near_rebuilds: u64,
+    /// The last frame rendered beside a kernel build or installed one.
+    rebuild_frame: bool,
     psf_rebuilds: u64,
     last_display_secs: f64,
     psf_scratch: Vec<f32>,
@@ -282,6 +292,9 @@ impl FrameLoop {
             frames: 0,
             late: 0,
             dropped: 0,
+            dropped_near_rebuilds: 0,
+            frames_near_rebuilds: 0,
+            rebuild_frame: false,
             psf_rebuilds: 0,
             last_display_secs: f64::NEG_INFINITY,
             psf_scratch: Vec::with_capacity(kernel_len),
@@ -500,7 +513,10 @@ impl FrameLoop {
             PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
         }
 
+        let building = self.psf_worker.as_ref().is_some_and(PsfWorker::building);
         let installed = self.follow_psf([inputs[0].0.pupil_mm, inputs[1].0.pupil_mm], t_secs)?;
+        self.rebuild_frame = building || installed.contains(&true);
+        self.frames_near_rebuilds += u64::from(self.rebuild_frame);
         let mut all_stats = [FrameStats::default(); 2];
         let mut self_rebuilt = false;
         let mut log_adaptation = 0.0;
@@ -666,6 +682,9 @@ impl FrameLoop {
                 let slots = ((after - start).as_secs_f64() / period_secs).floor() as u64;
                 if slots > deadline_index {
                     self.dropped += slots - deadline_index;
+                    if self.rebuild_frame {
+                        self.dropped_near_rebuilds += slots - deadline_index;
+                    }
                     deadline_index = slots;
                 }
             } else {
@@ -736,6 +755,8 @@ impl FrameLoop {
             frames: self.frames,
             frames_late: self.late,
             frames_dropped: self.dropped,
+            frames_dropped_near_rebuilds: self.dropped_near_rebuilds,
+            frames_near_rebuilds: self.frames_near_rebuilds,
             wall_secs,
             psf_rebuilds: self.psf_rebuilds,
             kernels_built: self.psf_worker.as_ref().map_or(0, PsfWorker::builds),

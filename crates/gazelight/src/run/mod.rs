@@ -642,12 +642,14 @@ fn print_summary(
     out: Option<&std::path::Path>,
 ) {
     println!(
-        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines, {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds ({} kernels built); source {} ({:?}, {} samples, {} reconnects)",
+        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines ({} of them in the {} frames beside a PSF build or install), {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds ({} kernels built); source {} ({:?}, {} samples, {} reconnects)",
         s.frames,
         s.wall_secs,
         s.frames as f64 / s.wall_secs.max(1e-9),
         s.frames_late,
         s.frames_dropped,
+        s.frames_dropped_near_rebuilds,
+        s.frames_near_rebuilds,
         s.mean_frame_ms,
         s.eye_state_age_median_ms,
         s.eye_state_age_p99_ms,

@@ -51,7 +51,7 @@ const NO_REQUEST: u64 = u64::MAX;
 const IDLE_POLL: Duration = Duration::from_millis(100);
 
 /// Threads of the worker's own build pool.
-const BUILD_THREADS: usize = 2;
+const BUILD_THREADS: usize = 1;
 
 /// Puts the calling thread at the lowest CPU priority, Linux `SCHED_IDLE`:
 /// it runs only on a core no normal thread wants. A failure is logged and
@@ -84,6 +84,8 @@ struct ViewSlots {
 struct Shared {
     views: Vec<ViewSlots>,
     stop: AtomicBool,
+    /// The worker is building (from taking requests to publishing).
+    busy: AtomicBool,
     /// Kernels built so far (a shared kernel counts once).
     builds: AtomicU64,
 }
@@ -134,6 +136,7 @@ impl PsfWorker {
                 })
                 .collect(),
             stop: AtomicBool::new(false),
+            busy: AtomicBool::new(false),
             builds: AtomicU64::new(0),
         });
         let staging: Vec<PreparedKernel> = (0..views).map(|_| prepared()).collect();
@@ -198,8 +201,14 @@ impl PsfWorker {
         self.shared.builds.load(Ordering::Relaxed)
     }
 
+    /// Whether a kernel is being built or a request waits for the worker
+    /// (what a frame renders beside; the run counts dropped deadlines of
+    /// such frames apart).
+    pub fn building(&self) -> bool {
+        self.shared.busy.load(Ordering::Acquire) || self.request_pending()
+    }
+
     /// Whether a request is waiting to be picked up by the worker.
-    #[cfg(test)]
     pub fn request_pending(&self) -> bool {
         self.shared
             .views
@@ -264,6 +273,7 @@ fn work(
             std::thread::park_timeout(IDLE_POLL);
             continue;
         }
+        shared.busy.store(true, Ordering::Release);
         // View by view; a view asking for the kernel just built for an
         // earlier view (a shared kernel) gets a copy of it.
         let mut built: Option<(u64, usize, f64)> = None;
@@ -310,6 +320,7 @@ fn work(
                 publish(slots, out, rings[view]);
             }
         }
+        shared.busy.store(false, Ordering::Release);
     }
 }
 
