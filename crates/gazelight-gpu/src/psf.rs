@@ -45,7 +45,14 @@
 //! sampling needs a 4096-sample pupil plane (very high ppd, e.g. 6000 ppd
 //! at small pupils), or whose buffers exceed the device's storage binding
 //! limit, is built by the CPU [`PsfBuilder`] and uploaded instead
-//! ([`GpuPsfBuilder::builds_on_gpu`] says which).
+//! ([`GpuPsfBuilder::builds_on_gpu`] says which). So is a request whose
+//! wave-optics region is the centre pixel alone (`near_radius_px` 0: a
+//! coarse display of about 1 ppd, e.g. the 96×80 demo view at 0.84 ppd,
+//! where one display pixel spans ~680 FFT samples): there the GPU's
+//! footprint sum of that pixel came out 0.9 of the peak away from the CPU
+//! builder's (coloured, too small), for a reason not found yet; from 3 ppd
+//! up (near radius ≥ 1 px) the two agree within 3e-7 of the peak
+//! (`coarse_display_kernels_match_the_cpu`).
 //!
 //! # Rebuilds and uploads
 //!
@@ -492,7 +499,13 @@ impl GpuPsfBuilder {
         )?;
         let grid = setup.sampling().grid_size;
         let grid_bytes = (grid * grid * 8) as u64;
-        let engine = if grid <= MAX_GPU_GRID_SIZE && grid_bytes <= max {
+        // A near field of only the centre pixel (coarse displays, about
+        // 1 ppd: one display pixel spans hundreds of FFT samples) is built
+        // on the CPU: the GPU's per-pixel footprint sum disagrees there
+        // (0.9 of the peak at 0.84 ppd, not understood yet; see the module
+        // docs).
+        let near_ok = setup.sampling().near_radius_px > 0;
+        let engine = if grid <= MAX_GPU_GRID_SIZE && grid_bytes <= max && near_ok {
             Engine::Gpu(Box::new(GpuBuild::new(ctx, &setup, &kernel)?))
         } else {
             Engine::Cpu(Box::new(
@@ -784,6 +797,43 @@ mod tests {
             }
         }
         println!("worst {worst:.2e} of the peak");
+    }
+
+    /// Coarse displays: the default ±20° field at 6.28 ppd (the 720×800
+    /// demo), 3 ppd, and 0.84 ppd (the 96×80 demo view: a 35 px kernel
+    /// whose near field is the centre pixel, built by the CPU fallback).
+    #[test]
+    fn coarse_display_kernels_match_the_cpu() {
+        let Some(ctx) = test_context("coarse_display_kernels_match_the_cpu") else {
+            return;
+        };
+        for ppd in [6.28, 3.0, 0.84] {
+            let params = PsfParams {
+                ppd,
+                ..PsfParams::default()
+            };
+            let mut gpu = GpuPsfBuilder::new(ctx, &params).unwrap();
+            let mut cpu = PsfBuilder::new(params.clone()).unwrap();
+            for pupil_mm in [2.5, 4.0, 6.5] {
+                gpu.rebuild(pupil_mm);
+                let read = gpu.read_kernel().unwrap();
+                let want = cpu.rebuild(pupil_mm);
+                let e = kernel_error(&read, want);
+                println!(
+                    "ppd {ppd} pupil {pupil_mm} mm (N = {}, kernel {} px, on GPU {}): {e:.2e} of the peak",
+                    gpu.setup().sampling().grid_size,
+                    read.size,
+                    gpu.builds_on_gpu()
+                );
+                assert!(e < 1e-4, "ppd {ppd} pupil {pupil_mm} mm: {e:e}");
+                // Only the centre-pixel near field falls back to the CPU.
+                assert_eq!(
+                    gpu.builds_on_gpu(),
+                    gpu.setup().sampling().near_radius_px > 0,
+                    "ppd {ppd}"
+                );
+            }
+        }
     }
 
     /// The default request (±20° at the Vive Pro's 13.85 ppd: a 555 px
