@@ -807,7 +807,9 @@ mod tests {
         let Some(ctx) = test_context("coarse_display_kernels_match_the_cpu") else {
             return;
         };
-        for ppd in [6.28, 3.0, 0.84] {
+        // 720 px over a 90° field: 360 px per unit tangent = 2π px/deg at
+        // the centre.
+        for ppd in [std::f64::consts::TAU, 3.0, 0.84] {
             let params = PsfParams {
                 ppd,
                 ..PsfParams::default()

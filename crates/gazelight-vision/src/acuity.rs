@@ -987,7 +987,7 @@ fn gather_v(ctx: &Ctx, centre: V, pair: impl Fn(usize) -> (V, V)) -> V {
     for &s in &sigma {
         sigma_max = sigma_max.max(s);
     }
-    if !(sigma_max > AcuityBlur::MIN_SIGMA_PX) {
+    if sigma_max <= AcuityBlur::MIN_SIGMA_PX {
         return centre;
     }
     let block_r = (3.0 * sigma_max).ceil().min(ctx.r as f32) as usize;
