@@ -26,13 +26,16 @@
 //!
 //! Frames keep the previous kernel until the new one is ready, and a build
 //! never takes a core from a frame: the worker and the rayon pool it builds
-//! on (its own two threads, not the global pool the frame passes use, so
+//! on (its own single thread, not the global pool the frame passes use, so
 //! no frame thread can steal a build task while it waits in a join) run at
-//! the kernel's idle priority (Linux `SCHED_IDLE`), so they get a core only while no frame thread wants it: in the
-//! gaps between frames. Kernel latency pays for that, not frames.
+//! the kernel's idle priority (Linux `SCHED_IDLE`), so they get a core only
+//! while no frame thread wants it: in the gaps between frames and in a
+//! frame's serial parts. Kernel latency pays for that. What a build still
+//! costs a frame is shared cache and memory bandwidth (its FFT grids);
+//! `run` counts the dropped deadlines of frames rendered beside a build
+//! apart (BENCHMARKS.md).
 //!
-//! Neither side
-//! allocates per request once both buffers have held a kernel (the builder
+//! Neither side allocates per request once both buffers have held a kernel (the builder
 //! reuses its buffers; kernels and spectra circulate between the staging
 //! copy, the slot and the pipeline by swapping).
 
