@@ -328,7 +328,26 @@ impl GlarePreparer {
         kernel: &PsfKernel,
         out: &mut GlareSpectra,
     ) -> Result<(), VisionError> {
-        compute_spectra(&self.key, &mut self.fine, &mut self.coarse, kernel, out)
+        self.prepare_paced(kernel, out, &mut || {})
+    }
+
+    /// [`GlarePreparer::prepare`], calling `pace` between its fine and
+    /// coarse parts (as [`crate::psf::PsfBuilder::rebuild_paced`] does
+    /// between its steps).
+    pub fn prepare_paced(
+        &mut self,
+        kernel: &PsfKernel,
+        out: &mut GlareSpectra,
+        pace: &mut dyn FnMut(),
+    ) -> Result<(), VisionError> {
+        compute_spectra(
+            &self.key,
+            &mut self.fine,
+            &mut self.coarse,
+            kernel,
+            out,
+            pace,
+        )
     }
 }
 
@@ -368,6 +387,7 @@ fn compute_spectra(
     coarse: &mut Plane,
     kernel: &PsfKernel,
     out: &mut GlareSpectra,
+    pace: &mut dyn FnMut(),
 ) -> Result<(), VisionError> {
     check_kernel(key, kernel)?;
     if out.key != *key {
@@ -397,6 +417,7 @@ fn compute_spectra(
         }
     }
     fine.kernel_spectra(&mut out.fine);
+    pace();
     // Coarse part: g K summed over b × b blocks.
     let wc = coarse.w as isize;
     let b = key.block as isize;
@@ -648,6 +669,7 @@ impl GlareConvolver {
             &mut self.coarse,
             kernel,
             &mut self.spectra,
+            &mut || {},
         )
     }
 

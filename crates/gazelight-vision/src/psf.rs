@@ -771,13 +771,16 @@ impl MonoEngine {
     }
 
     /// Fills `out` (N², centred) with M (001 eq 8) for `pupil_mm` at
-    /// `wavelength_nm`. Allocates nothing.
+    /// `wavelength_nm`. Allocates nothing. Calls `pace` between steps of
+    /// about [`PACE_STEP_ELEMENTS`] grid samples each (see
+    /// [`PsfBuilder::rebuild_paced`]).
     fn compute(
         &mut self,
         defocus_dioptres: f64,
         pupil_mm: f64,
         wavelength_nm: f64,
         out: &mut [f64],
+        pace: &mut dyn FnMut(),
     ) {
         let n = self.n;
         let dx = self.dx;
@@ -788,10 +791,10 @@ impl MonoEngine {
         let defocus_per_mm2 = std::f64::consts::PI * defocus_dioptres * 1e-6 / lambda_m;
         let edge = r_samples + 1.0;
         let particles = &self.particles;
-        self.field
-            .par_chunks_mut(n)
-            .enumerate()
-            .for_each(|(j, row)| {
+        let step = pace_rows(n);
+        for (b, block) in self.field.chunks_mut(step * n).enumerate() {
+            block.par_chunks_mut(n).enumerate().for_each(|(jj, row)| {
+                let j = b * step + jj;
                 let y = j as f64 - half;
                 let prow = &particles[j * n..(j + 1) * n];
                 for (i, v) in row.iter_mut().enumerate() {
@@ -811,36 +814,66 @@ impl MonoEngine {
                     };
                 }
             });
+            pace();
+        }
         // 2-D FFT: rows, transpose, rows, transpose back. Rows outside the
         // pupil are zero and stay zero in the first pass.
         let lo = ((half - edge).floor().max(0.0)) as usize;
         let hi = (((half + edge).ceil() as usize) + 1).min(n);
-        self.fft
-            .process_with_scratch(&mut self.field[lo * n..hi * n], &mut self.scratch);
-        transpose_square(&mut self.field, n);
-        self.fft
-            .process_with_scratch(&mut self.field, &mut self.scratch);
-        transpose_square(&mut self.field, n);
+        for rows in self.field[lo * n..hi * n].chunks_mut(step * n) {
+            self.fft.process_with_scratch(rows, &mut self.scratch);
+            pace();
+        }
+        transpose_square_paced(&mut self.field, n, pace);
+        for rows in self.field.chunks_mut(step * n) {
+            self.fft.process_with_scratch(rows, &mut self.scratch);
+            pace();
+        }
+        transpose_square_paced(&mut self.field, n, pace);
         // 001 eq 8, λ and d in mm; fftshift so DC lands at (N/2, N/2).
         let lambda_d = wavelength_nm * 1e-6 * PUPIL_RETINA_MM;
         // |FFT/N|² with N the samples per side: Σ|FFT/N|² = Σ|L|² (Parseval).
         let scale = 1.0 / (n * n) as f64 / (lambda_d * lambda_d);
         let h = n / 2;
         let field = &self.field;
-        out.par_chunks_mut(n).enumerate().for_each(|(sj, orow)| {
-            let j = (sj + n - h) % n;
-            for (si, o) in orow.iter_mut().enumerate() {
-                let i = (si + n - h) % n;
-                *o = field[j * n + i].norm_sqr() * scale;
-            }
-        });
+        for (b, block) in out.chunks_mut(step * n).enumerate() {
+            block.par_chunks_mut(n).enumerate().for_each(|(jj, orow)| {
+                let sj = b * step + jj;
+                let j = (sj + n - h) % n;
+                for (si, o) in orow.iter_mut().enumerate() {
+                    let i = (si + n - h) % n;
+                    *o = field[j * n + i].norm_sqr() * scale;
+                }
+            });
+            pace();
+        }
     }
 }
 
-/// In-place transpose of a square row-major matrix, in cache-sized blocks.
-pub(crate) fn transpose_square<T: Copy>(m: &mut [T], n: usize) {
+/// Grid samples a PSF build handles between two calls of its pace
+/// callback ([`PsfBuilder::rebuild_paced`]): 2¹⁶ complex f64 samples,
+/// 1 MiB, a few hundred microseconds of FFT on one core.
+pub const PACE_STEP_ELEMENTS: usize = 1 << 16;
+
+/// Rows of an `n`-wide grid per pace step (at least one).
+fn pace_rows(n: usize) -> usize {
+    (PACE_STEP_ELEMENTS / n.max(1)).max(1)
+}
+
+/// In-place transpose of a square row-major matrix, in cache-sized blocks,
+/// calling `pace` after each band of rows that touches about
+/// [`PACE_STEP_ELEMENTS`] elements.
+fn transpose_square_paced<T: Copy>(m: &mut [T], n: usize, pace: &mut dyn FnMut()) {
     const B: usize = 16;
+    let mut touched = 0usize;
     for bj in (0..n).step_by(B) {
+        // Band `bj` swaps its B rows right of the diagonal with as many
+        // columns: 2·B·(n − bj) elements.
+        touched += 2 * B * (n - bj);
+        if touched >= PACE_STEP_ELEMENTS {
+            touched = 0;
+            pace();
+        }
         for bi in (bj..n).step_by(B) {
             for j in bj..(bj + B).min(n) {
                 let start = if bi == bj { j + 1 } else { bi };
@@ -873,6 +906,7 @@ pub fn monochromatic_psf(params: &PsfParams, wavelength_nm: f64) -> Result<MonoP
         params.pupil_mm,
         wavelength_nm,
         &mut values,
+        &mut || {},
     );
     Ok(MonoPsf {
         size: n,
@@ -1117,7 +1151,7 @@ impl PsfBuilder {
             setup,
         };
         let pupil = builder.setup.params.pupil_mm;
-        builder.build(pupil);
+        builder.build(pupil, &mut || {});
         Ok(builder)
     }
 
@@ -1175,12 +1209,21 @@ impl PsfBuilder {
     /// `pupil_range_mm` is clamped into it; a non-finite one keeps the
     /// current kernel. Use [`PsfBuilder::try_rebuild`] to get an error instead.
     pub fn rebuild(&mut self, pupil_mm: f64) -> &PsfKernel {
+        self.rebuild_paced(pupil_mm, &mut || {})
+    }
+
+    /// [`PsfBuilder::rebuild`] in steps: `pace` is called between steps of
+    /// about [`PACE_STEP_ELEMENTS`] grid samples (a few hundred µs each on
+    /// one core), so a caller can hold the build while something more
+    /// urgent runs (the `run` PSF worker waits there while a frame renders).
+    /// The kernel is the same as [`PsfBuilder::rebuild`]'s, bit for bit.
+    pub fn rebuild_paced(&mut self, pupil_mm: f64, pace: &mut dyn FnMut()) -> &PsfKernel {
         if pupil_mm.is_finite() {
             let p = pupil_mm.clamp(
                 self.setup.params.min_pupil_mm(),
                 self.setup.params.max_pupil_mm(),
             );
-            self.build(p);
+            self.build(p, pace);
         }
         &self.kernel
     }
@@ -1188,22 +1231,27 @@ impl PsfBuilder {
     /// Like [`PsfBuilder::rebuild`], but an unsupported pupil is an error.
     pub fn try_rebuild(&mut self, pupil_mm: f64) -> Result<&PsfKernel, VisionError> {
         self.setup.params.check_pupil(pupil_mm)?;
-        self.build(pupil_mm);
+        self.build(pupil_mm, &mut || {});
         Ok(&self.kernel)
     }
 
-    fn build(&mut self, pupil_mm: f64) {
+    fn build(&mut self, pupil_mm: f64, pace: &mut dyn FnMut()) {
         let n = self.setup.sampling.grid_size;
         self.engine.compute(
             self.setup.params.defocus_dioptres,
             pupil_mm,
             REFERENCE_WAVELENGTH_NM,
             &mut self.mono,
+            pace,
         );
         // Summed-area table: sat[j][i] = Σ mono[y < j][x < i].
         let w = n + 1;
         self.sat[..w].fill(0.0);
+        let step = pace_rows(n);
         for j in 0..n {
+            if j % step == step - 1 {
+                pace();
+            }
             let mut row_sum = 0.0;
             self.sat[(j + 1) * w] = 0.0;
             for i in 0..n {
@@ -1234,47 +1282,54 @@ impl PsfBuilder {
         let wavelengths = &self.kernel.wavelengths_nm;
         let lobe = &self.setup.lobe_table;
         let half = n as f64 / 2.0;
-        self.near
-            .par_chunks_mut(size)
-            .enumerate()
-            .for_each(|(v, row)| {
-                let y = v as f64 - r as f64;
-                for (u, out) in row.iter_mut().enumerate() {
-                    let x = u as f64 - r as f64;
-                    let d = x.hypot(y);
-                    if d <= near_r {
-                        // M_φ(θ)(λ/φ)² integrated over the pixel = ∫ M over the
-                        // pixel scaled by λ/φ (001 eq 9 with the Jacobian).
-                        let mut xyz = [0.0f64; 3];
-                        for (&phi, c) in wavelengths.iter().zip(cmf) {
-                            let to_m = px_in_samples * REFERENCE_WAVELENGTH_NM / phi;
-                            let y0 = (y - 0.5) * to_m + half + 0.5;
-                            let y1 = y0 + to_m;
-                            let x0 = (x - 0.5) * to_m + half + 0.5;
-                            let x1 = x0 + to_m;
-                            let e = (sat_lerp(sat, n, y1, x1)
-                                - sat_lerp(sat, n, y0, x1)
-                                - sat_lerp(sat, n, y1, x0)
-                                + sat_lerp(sat, n, y0, x0))
-                                * to_fraction;
-                            for k in 0..3 {
-                                xyz[k] += c[k] * e;
+        // Rows per pace step: a wave-optics pixel costs an SAT lookup per
+        // wavelength, about as much as an FFT sample.
+        let near_rows = (PACE_STEP_ELEMENTS / (size * wavelengths.len().max(1))).max(1);
+        for (b, block) in self.near.chunks_mut(near_rows * size).enumerate() {
+            block
+                .par_chunks_mut(size)
+                .enumerate()
+                .for_each(|(vv, row)| {
+                    let v = b * near_rows + vv;
+                    let y = v as f64 - r as f64;
+                    for (u, out) in row.iter_mut().enumerate() {
+                        let x = u as f64 - r as f64;
+                        let d = x.hypot(y);
+                        if d <= near_r {
+                            // M_φ(θ)(λ/φ)² integrated over the pixel = ∫ M over the
+                            // pixel scaled by λ/φ (001 eq 9 with the Jacobian).
+                            let mut xyz = [0.0f64; 3];
+                            for (&phi, c) in wavelengths.iter().zip(cmf) {
+                                let to_m = px_in_samples * REFERENCE_WAVELENGTH_NM / phi;
+                                let y0 = (y - 0.5) * to_m + half + 0.5;
+                                let y1 = y0 + to_m;
+                                let x0 = (x - 0.5) * to_m + half + 0.5;
+                                let x1 = x0 + to_m;
+                                let e = (sat_lerp(sat, n, y1, x1)
+                                    - sat_lerp(sat, n, y0, x1)
+                                    - sat_lerp(sat, n, y1, x0)
+                                    + sat_lerp(sat, n, y0, x0))
+                                    * to_fraction;
+                                for k in 0..3 {
+                                    xyz[k] += c[k] * e;
+                                }
                             }
+                            *out = xyz_to_rgb(xyz);
+                        } else if sigma_p > 0.0 {
+                            let t = d / TABLE_STEP_PX;
+                            let i = (t.floor() as usize).min(lobe.len() - 2);
+                            let f = t - i as f64;
+                            let scale = sigma_p * omega_px;
+                            for k in 0..3 {
+                                out[k] = (lobe[i][k] * (1.0 - f) + lobe[i + 1][k] * f) * scale;
+                            }
+                        } else {
+                            *out = [0.0; 3];
                         }
-                        *out = xyz_to_rgb(xyz);
-                    } else if sigma_p > 0.0 {
-                        let t = d / TABLE_STEP_PX;
-                        let i = (t.floor() as usize).min(lobe.len() - 2);
-                        let f = t - i as f64;
-                        let scale = sigma_p * omega_px;
-                        for k in 0..3 {
-                            out[k] = (lobe[i][k] * (1.0 - f) + lobe[i + 1][k] * f) * scale;
-                        }
-                    } else {
-                        *out = [0.0; 3];
                     }
-                }
-            });
+                });
+            pace();
+        }
         // α_c: the near field holds what the stray light leaves.
         let mut sums = [0.0f64; 3];
         for p in &self.near {
@@ -1863,6 +1918,30 @@ mod tests {
         assert_eq!(builder.rebuild(f64::NAN).pupil_mm, p.max_pupil_mm());
         assert!(builder.try_rebuild(-1.0).is_err());
         assert!(builder.try_rebuild(3.0).is_ok());
+    }
+
+    /// A paced rebuild gives the same kernel bit for bit, and hands control
+    /// back often: at least once per 2¹⁶ grid samples of each pass over the
+    /// N² grid (fill, two FFT passes of which the first skips rows outside
+    /// the pupil, two transposes, the |·|² output and the summed-area
+    /// table: more than 5 N² / 2¹⁶ calls in all).
+    #[test]
+    fn paced_rebuild_matches_and_yields_between_steps() {
+        let p = PsfParams {
+            field_deg: 6.0,
+            ..PsfParams::default()
+        };
+        let mut plain = PsfBuilder::new(p.clone()).unwrap();
+        let mut paced = PsfBuilder::new(p).unwrap();
+        let n = paced.sampling().grid_size;
+        let mut calls = 0usize;
+        let got = paced.rebuild_paced(5.5, &mut || calls += 1).clone();
+        assert_eq!(got, *plain.rebuild(5.5));
+        let floor = 5 * n * n / PACE_STEP_ELEMENTS;
+        assert!(
+            calls > floor,
+            "{calls} pace calls for a {n}² grid (more than {floor} expected)"
+        );
     }
 
     #[test]

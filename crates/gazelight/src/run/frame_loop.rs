@@ -111,6 +111,9 @@ pub struct RunSummary {
     pub psf_rebuilds: u64,
     /// Kernels the PSF worker built (a kernel two views share counts once).
     pub kernels_built: u64,
+    /// Of those, builds that ran partly beside frames: frames left no gap
+    /// for the worker's deferral limit.
+    pub kernels_unpaced: u64,
     pub eye_state_age_median_ms: f64,
     pub eye_state_age_p99_ms: f64,
     pub eye_state_age_max_ms: f64,
@@ -448,6 +451,27 @@ impl FrameLoop {
         views: Option<&[PanoramaView; 2]>,
         gaze_uv: [Option<[f32; 2]>; 2],
     ) -> anyhow::Result<FrameStatus> {
+        // The PSF worker holds its build while a frame renders (it builds
+        // in the gaps between frames; `psf_worker`).
+        if let Some(w) = &self.psf_worker {
+            w.frame_started();
+        }
+        let status = self.render_step(now_host_secs, t_secs, dt_secs, views, gaze_uv);
+        if let Some(w) = &self.psf_worker {
+            w.frame_ended();
+        }
+        status
+    }
+
+    /// The body of [`Self::step_views`].
+    fn render_step(
+        &mut self,
+        now_host_secs: f64,
+        t_secs: f64,
+        dt_secs: f32,
+        views: Option<&[PanoramaView; 2]>,
+        gaze_uv: [Option<[f32; 2]>; 2],
+    ) -> anyhow::Result<FrameStatus> {
         let started = Instant::now();
         let live = *self.hub.eye.borrow();
         let mut state = live.state;
@@ -760,6 +784,10 @@ impl FrameLoop {
             wall_secs,
             psf_rebuilds: self.psf_rebuilds,
             kernels_built: self.psf_worker.as_ref().map_or(0, PsfWorker::builds),
+            kernels_unpaced: self
+                .psf_worker
+                .as_ref()
+                .map_or(0, PsfWorker::builds_unpaced),
             eye_state_age_median_ms: pct(0.5),
             eye_state_age_p99_ms: pct(0.99),
             eye_state_age_max_ms: pct(1.0),

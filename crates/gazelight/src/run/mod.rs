@@ -642,7 +642,7 @@ fn print_summary(
     out: Option<&std::path::Path>,
 ) {
     println!(
-        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines ({} of them in the {} frames beside a PSF build or install), {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds ({} kernels built); source {} ({:?}, {} samples, {} reconnects)",
+        "run: {} frames in {:.1} s ({:.1} Hz, target {fps} Hz), {} late, {} dropped deadlines ({} of them in the {} frames beside a PSF build or install), {:.1} ms/frame; EyeState age median {:.2} ms, p99 {:.2} ms, max {:.1} ms; {} PSF rebuilds ({} kernels built, {} of them partly beside frames); source {} ({:?}, {} samples, {} reconnects)",
         s.frames,
         s.wall_secs,
         s.frames as f64 / s.wall_secs.max(1e-9),
@@ -656,6 +656,7 @@ fn print_summary(
         s.eye_state_age_max_ms,
         s.psf_rebuilds,
         s.kernels_built,
+        s.kernels_unpaced,
         source.uri,
         source.health,
         source.samples_total,

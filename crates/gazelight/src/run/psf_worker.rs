@@ -30,8 +30,18 @@
 //! no frame thread can steal a build task while it waits in a join) run at
 //! the kernel's idle priority (Linux `SCHED_IDLE`), so they get a core only
 //! while no frame thread wants it: in the gaps between frames and in a
-//! frame's serial parts. Kernel latency pays for that. What a build still
-//! costs a frame is shared cache and memory bandwidth (its FFT grids);
+//! frame's serial parts. Kernel latency pays for that.
+//!
+//! A build running on the other core while a frame renders still costs
+//! that frame shared cache and memory bandwidth (its FFT grids, tens of
+//! MB). So builds also wait for the gaps between frames: the frame loop
+//! marks each frame's start and end ([`PsfWorker::frame_started`],
+//! [`PsfWorker::frame_ended`]), and the build
+//! ([`PsfBuilder::rebuild_paced`], [`GlarePreparer::prepare_paced`])
+//! stops between steps of about a MiB of grid while a frame renders and
+//! goes on when it ends. Frames that leave no gap (an overloaded run)
+//! cannot starve the worker: after [`MAX_DEFERRAL`] of waiting a build runs
+//! to its end beside frames, counted in [`PsfWorker::builds_unpaced`].
 //! `run` counts the dropped deadlines of frames rendered beside a build
 //! apart (BENCHMARKS.md).
 //!
@@ -40,9 +50,9 @@
 //! copy, the slot and the pipeline by swapping).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 use std::thread::{JoinHandle, Thread};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use gazelight_vision::glare::{GlarePreparer, PreparedKernel};
 use gazelight_vision::psf::{PsfBuilder, PsfKernel, PsfParams};
@@ -55,6 +65,13 @@ const IDLE_POLL: Duration = Duration::from_millis(100);
 
 /// Threads of the worker's own build pool.
 const BUILD_THREADS: usize = 1;
+/// How often a build held by a rendering frame looks again (the frame's end
+/// also wakes it).
+const GAP_POLL: Duration = Duration::from_millis(2);
+/// The longest a build waits for gaps between frames in all, before it
+/// runs beside frames as well: frames that leave no gap (an overloaded
+/// stereo run) still get their kernels, about this much later.
+const MAX_DEFERRAL: Duration = Duration::from_secs(1);
 
 /// Puts the calling thread at the lowest CPU priority, Linux `SCHED_IDLE`:
 /// it runs only on a core no normal thread wants. A failure is logged and
@@ -91,6 +108,33 @@ struct Shared {
     busy: AtomicBool,
     /// Kernels built so far (a shared kernel counts once).
     builds: AtomicU64,
+    /// A frame is rendering: the build waits between its steps.
+    frame_running: AtomicBool,
+    /// The thread that runs the builds (the build pool's), woken when a
+    /// frame ends.
+    build_thread: OnceLock<Thread>,
+    /// Builds that gave up waiting for gaps ([`MAX_DEFERRAL`]).
+    builds_unpaced: AtomicU64,
+}
+
+impl Shared {
+    /// The build's pace callback ([`PsfBuilder::rebuild_paced`]): between
+    /// two steps, waits while a frame renders, until the build has waited
+    /// [`MAX_DEFERRAL`] in all (`deferred`).
+    fn wait_for_gap(&self, deferred: &mut Duration) {
+        if !self.frame_running.load(Ordering::Acquire) || *deferred >= MAX_DEFERRAL {
+            return;
+        }
+        let t0 = Instant::now();
+        while self.frame_running.load(Ordering::Acquire) && !self.stop.load(Ordering::Acquire) {
+            std::thread::park_timeout(GAP_POLL);
+            if *deferred + t0.elapsed() >= MAX_DEFERRAL {
+                self.builds_unpaced.fetch_add(1, Ordering::Relaxed);
+                break;
+            }
+        }
+        *deferred += t0.elapsed();
+    }
 }
 
 /// The worker and its slots (two per view); dropping it stops and joins
@@ -141,6 +185,9 @@ impl PsfWorker {
             stop: AtomicBool::new(false),
             busy: AtomicBool::new(false),
             builds: AtomicU64::new(0),
+            frame_running: AtomicBool::new(false),
+            build_thread: OnceLock::new(),
+            builds_unpaced: AtomicU64::new(0),
         });
         let staging: Vec<PreparedKernel> = (0..views).map(|_| prepared()).collect();
         let pool = rayon::ThreadPoolBuilder::new()
@@ -197,6 +244,30 @@ impl PsfWorker {
         v.ready_flag.store(false, Ordering::Release);
         let ring_rad = guard.1;
         Some(install(&mut guard.0, ring_rad))
+    }
+
+    /// A frame starts rendering: builds wait between their steps until
+    /// [`PsfWorker::frame_ended`] (never longer than [`MAX_DEFERRAL`] per
+    /// build in all), so that a frame does not share the caches and the
+    /// memory bus with a build's FFT grids.
+    pub fn frame_started(&self) {
+        self.shared.frame_running.store(true, Ordering::Release);
+    }
+
+    /// The frame is done: a waiting build goes on in the gap.
+    pub fn frame_ended(&self) {
+        self.shared.frame_running.store(false, Ordering::Release);
+        if self.shared.busy.load(Ordering::Acquire)
+            && let Some(t) = self.shared.build_thread.get()
+        {
+            t.unpark();
+        }
+    }
+
+    /// Builds that ran partly beside frames because frames left no gap
+    /// for [`MAX_DEFERRAL`].
+    pub fn builds_unpaced(&self) -> u64 {
+        self.shared.builds_unpaced.load(Ordering::Relaxed)
     }
 
     /// Kernels built so far (a kernel shared by two views counts once).
@@ -267,6 +338,8 @@ fn work(
             return;
         }
     };
+    // Builds run on this thread (the build pool's only thread).
+    let _ = shared.build_thread.set(std::thread::current());
     let mut requests = [NO_REQUEST; MAX_VIEWS];
     while !shared.stop.load(Ordering::Acquire) {
         for (r, v) in requests.iter_mut().zip(&shared.views) {
@@ -277,6 +350,7 @@ fn work(
             continue;
         }
         shared.busy.store(true, Ordering::Release);
+        let mut deferred = Duration::ZERO;
         // View by view; a view asking for the kernel just built for an
         // earlier view (a shared kernel) gets a copy of it.
         let mut built: Option<(u64, usize, f64)> = None;
@@ -300,12 +374,16 @@ fn work(
                     ring
                 }
                 _ => {
-                    builder.rebuild(f64::from_bits(bits));
+                    builder.rebuild_paced(f64::from_bits(bits), &mut || {
+                        shared.wait_for_gap(&mut deferred)
+                    });
                     shared.builds.fetch_add(1, Ordering::Relaxed);
                     let ring = builder.first_ring_rad().unwrap_or(f64::NAN);
                     copy_kernel(&mut out.kernel, builder.kernel());
                     if let (Some(p), Some(s)) = (preparer.as_mut(), out.spectra.as_mut())
-                        && let Err(e) = p.prepare(&out.kernel, s)
+                        && let Err(e) = p.prepare_paced(&out.kernel, s, &mut || {
+                            shared.wait_for_gap(&mut deferred)
+                        })
                     {
                         // Cannot happen with the pipeline's own parameters;
                         // the frame thread then computes the spectra itself.
@@ -368,6 +446,48 @@ mod tests {
         assert_eq!(got.size, expected.size);
         assert_eq!(got.rgb, expected.rgb);
         assert_ne!(got.rgb, initial.rgb, "the kernel did not change");
+    }
+
+    /// A build waits while a frame renders: a kernel requested during a
+    /// frame that lasts 300 ms is not ready before the frame ends, then
+    /// arrives; a frame that leaves no gap for longer than `MAX_DEFERRAL`
+    /// no longer holds the build (it is counted as unpaced).
+    #[test]
+    fn builds_wait_for_the_gaps_between_frames() {
+        let params = small_params();
+        let initial = PsfBuilder::new(params.clone())
+            .expect("builder")
+            .kernel()
+            .clone();
+        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
+        let wait = |limit: Duration| {
+            let deadline = std::time::Instant::now() + limit;
+            while std::time::Instant::now() < deadline {
+                if let Some(mm) = worker.take(0, |k, _| k.kernel.pupil_mm) {
+                    return Some(mm);
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            None
+        };
+        worker.frame_started();
+        worker.request_views([Some(3.0), None]);
+        assert_eq!(
+            wait(Duration::from_millis(300)),
+            None,
+            "a kernel was built during a frame"
+        );
+        worker.frame_ended();
+        assert_eq!(wait(Duration::from_secs(120)), Some(3.0));
+        assert_eq!(worker.builds_unpaced(), 0);
+        // A frame that never ends: the build goes on after MAX_DEFERRAL.
+        worker.frame_started();
+        worker.request_views([Some(6.0), None]);
+        let t0 = std::time::Instant::now();
+        assert_eq!(wait(Duration::from_secs(120)), Some(6.0));
+        assert!(t0.elapsed() >= MAX_DEFERRAL, "{:?}", t0.elapsed());
+        assert_eq!(worker.builds_unpaced(), 1);
+        worker.frame_ended();
     }
 
     /// Two views: the same pupil for both (a shared kernel) is built once
