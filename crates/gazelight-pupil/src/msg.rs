@@ -968,7 +968,7 @@ enum Key {
 
 /// Classifies a datum key: one jump on its length, then at most two
 /// comparisons of that fixed length.
-#[inline]
+#[inline(always)]
 fn key_of(k: &[u8]) -> Key {
     let is = |name: &[u8]| k == name;
     match k.len() {
