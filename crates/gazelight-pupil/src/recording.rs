@@ -1137,6 +1137,45 @@ mod tests {
     }
 
     #[test]
+    fn topics_beyond_the_cache_and_of_any_length_are_classified() {
+        // More distinct topics than the reader caches, of lengths with and
+        // without a fingerprint (v1 `pupil`, 5 bytes; 20+ bytes unknown).
+        let dir = tmpdir("many-topics");
+        let mut w = PldataWriter::create(&dir, "pupil").unwrap();
+        for i in 0..40u32 {
+            let t = f64::from(i);
+            let eye = (i % 2) as u8;
+            w.append(
+                &format!("notify.custom_plugin_{i}"),
+                &pupil_payload(eye, t, 3.0),
+                t,
+            )
+            .unwrap();
+            let topic = match i % 3 {
+                0 => format!("pupil.{eye}.2d"),
+                1 => "pupil".to_owned(),
+                _ => format!("pupil.{eye}"),
+            };
+            w.append(&topic, &pupil_payload(eye, t, 3.0 + t), t)
+                .unwrap();
+        }
+        w.close().unwrap();
+        let mut samples = PldataReader::open(&dir.join("pupil.pldata"))
+            .unwrap()
+            .samples();
+        let got: Vec<Sample> = samples.by_ref().map(|s| s.unwrap()).collect();
+        assert_eq!(got.len(), 40);
+        assert_eq!(samples.unknown_topics(), 40);
+        for (i, s) in got.iter().enumerate() {
+            let Sample::Pupil(p) = s else {
+                panic!("{s:?}");
+            };
+            assert_eq!(p.eye as usize, i % 2);
+            assert_eq!(p.diameter_raw, 3.0 + i as f32);
+        }
+    }
+
+    #[test]
     fn decode_errors_in_samples_name_file_and_offset() {
         let dir = tmpdir("decode");
         let mut w = PldataWriter::create(&dir, "pupil").unwrap();
