@@ -287,6 +287,32 @@ fn decode_gaze(
 /// Deepest nesting a skipped value may have.
 const MAX_DEPTH: usize = 32;
 
+/// Total size in bytes of a value whose marker alone gives it (nil,
+/// booleans, integers, floats, fixstr, fixext), or 0 for the other markers
+/// (maps, arrays, sized str / bin / ext, and the invalid `0xc1`).
+static SCALAR_SIZE: [u8; 256] = {
+    let mut t = [0u8; 256];
+    let mut m = 0;
+    while m < 256 {
+        t[m] = match m as u8 {
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => 1,
+            0xa0..=0xbf => 1 + (m as u8 & 0x1f),
+            0xcc | 0xd0 => 2,
+            0xcd | 0xd1 => 3,
+            0xce | 0xd2 | 0xca => 5,
+            0xcf | 0xd3 | 0xcb => 9,
+            0xd4 => 3,
+            0xd5 => 4,
+            0xd6 => 6,
+            0xd7 => 10,
+            0xd8 => 18,
+            _ => 0,
+        };
+        m += 1;
+    }
+    t
+};
+
 /// Why the msgpack walk stopped.
 enum Fail {
     Truncated {
@@ -620,36 +646,132 @@ impl<'a> Cur<'a> {
         }
     }
 
-    fn str_value(&mut self, field: &'static str) -> Result<&'a str, Fail> {
+    /// A string's bytes, checked to be UTF-8 (ASCII, the usual case, is
+    /// recognised without the full validation).
+    #[inline]
+    fn str_value(&mut self, field: &'static str) -> Result<&'a [u8], Fail> {
         let m = self.byte()?;
         match self.str_len(m)? {
-            Some(n) => std::str::from_utf8(self.take(n)?)
-                .map_err(|_| type_err(field, "a UTF-8 string", "invalid UTF-8")),
+            Some(n) => {
+                let s = self.take(n)?;
+                if s.is_ascii() || std::str::from_utf8(s).is_ok() {
+                    Ok(s)
+                } else {
+                    Err(type_err(field, "a UTF-8 string", "invalid UTF-8"))
+                }
+            }
             None => Err(type_fail(field, "a string", m)),
         }
     }
 
     /// Skips one value of any type at nesting `depth` (values deeper than
     /// [`MAX_DEPTH`] are refused).
+    ///
+    /// Most values are skipped by [`Self::skip_fast`]; whatever it does not
+    /// settle (an error, or nesting that might exceed the limit) is walked
+    /// again from the same byte by [`Self::skip_values`], which gives the
+    /// exact error.
     #[inline]
     fn skip(&mut self, depth: usize) -> Result<(), Fail> {
-        // A lone float64 or short string: no counters needed.
-        let p = self.p;
-        match self.b.get(p) {
-            Some(0xcb) if depth <= MAX_DEPTH && p + 9 <= self.b.len() => {
-                self.p = p + 9;
-                Ok(())
-            }
-            Some(&m)
-                if depth <= MAX_DEPTH
-                    && m & 0xe0 == 0xa0
-                    && p + 1 + (m & 0x1f) as usize <= self.b.len() =>
-            {
-                self.p = p + 1 + (m & 0x1f) as usize;
-                Ok(())
-            }
-            _ => self.skip_values(1, depth),
+        if depth <= MAX_DEPTH && self.skip_fast(MAX_DEPTH - depth) {
+            return Ok(());
         }
+        self.skip_values(1, depth)
+    }
+
+    /// Skips one value with a single counter of values still to skip (each
+    /// value read takes one off, a map or array adds its entries), which
+    /// msgpack's prefix encoding allows, and a table of the values whose
+    /// size their marker alone gives. Returns false, with the cursor
+    /// unmoved, when the value is truncated or invalid, or when it holds
+    /// more than `budget` non-empty maps and arrays (so that its nesting
+    /// cannot exceed the budget when this returns true).
+    #[inline]
+    fn skip_fast(&mut self, mut budget: usize) -> bool {
+        let b = self.b;
+        let mut p = self.p;
+        let mut rem: usize = 1;
+        while rem > 0 {
+            let Some(&m) = b.get(p) else {
+                return false;
+            };
+            rem -= 1;
+            // Branches for the markers nearly all of Pupil's bytes are
+            // (float64, short strings, small maps and arrays): a predicted
+            // branch lets the next value's position be computed ahead, a
+            // table lookup would chain two loads per value.
+            if m == 0xcb {
+                p += 9;
+                continue;
+            }
+            if m & 0xe0 == 0xa0 {
+                p += 1 + (m & 0x1f) as usize;
+                continue;
+            }
+            let children = if m & 0xe0 == 0x80 {
+                // fixmap (0x80..=0x8f): 2 values per entry; fixarray
+                // (0x90..=0x9f): 1.
+                p += 1;
+                let n = (m & 0x0f) as usize;
+                if m < 0x90 { 2 * n } else { n }
+            } else {
+                let size = SCALAR_SIZE[m as usize];
+                if size != 0 {
+                    // At most 18 bytes: `p` cannot overflow; a value
+                    // running past the end is caught by the next `get` or
+                    // the final check.
+                    p += size as usize;
+                    continue;
+                }
+                let Some((len, children)) = Self::sized_value(b, p) else {
+                    return false;
+                };
+                p = match p.checked_add(len) {
+                    Some(end) if end <= b.len() => end,
+                    _ => return false,
+                };
+                children
+            };
+            if children > 0 {
+                if budget == 0 {
+                    return false;
+                }
+                budget -= 1;
+                rem = rem.saturating_add(children);
+            }
+        }
+        if p > b.len() {
+            return false;
+        }
+        self.p = p;
+        true
+    }
+
+    /// The header and data length and the number of contained values of
+    /// the value at `b[p]` whose marker is not in [`SCALAR_SIZE`] and not a
+    /// fixmap or fixarray: `(bytes from the marker to the first child or
+    /// the next value, children)`; `None` for a truncated header or an
+    /// invalid marker (`0xc1`).
+    #[inline(never)]
+    fn sized_value(b: &[u8], p: usize) -> Option<(usize, usize)> {
+        let m = *b.get(p)?;
+        let be = |w: usize| -> Option<usize> {
+            let s = b.get(p + 1..p + 1 + w)?;
+            Some(s.iter().fold(0usize, |a, x| (a << 8) | usize::from(*x)))
+        };
+        Some(match m {
+            0xc4 | 0xd9 => (2 + be(1)?, 0),
+            0xc5 | 0xda => (3 + be(2)?, 0),
+            0xc6 | 0xdb => (5 + be(4)?, 0),
+            0xc7 => (3 + be(1)?, 0),
+            0xc8 => (4 + be(2)?, 0),
+            0xc9 => (6 + be(4)?, 0),
+            0xdc => (3, be(2)?),
+            0xdd => (5, be(4)?),
+            0xde => (3, 2 * be(2)?),
+            0xdf => (5, be(4)?.saturating_mul(2)),
+            _ => return None,
+        })
     }
 
     /// Skips `n` values at nesting `depth` and everything inside them,
@@ -822,31 +944,66 @@ impl<'a> Cur<'a> {
     }
 }
 
-/// Pupil fields gazelight does not use (skipped without counting).
-fn is_unused_pupil_field(k: &[u8]) -> bool {
-    matches!(
-        k,
-        b"topic"
-            | b"sphere"
-            | b"projected_sphere"
-            | b"location"
-            | b"model_id"
-            | b"model_birth_timestamp"
-            | b"gaze_point_3d"
-            | b"gaze_normal_3d"
-            | b"gaze_normals_3d"
-            | b"eye_center_3d"
-            | b"eye_centers_3d"
-            | b"__raw_data__"
-    )
+/// The keys of pupil and gaze datums the decoder knows.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Key {
+    Id,
+    Timestamp,
+    Confidence,
+    Diameter,
+    Diameter3d,
+    NormPos,
+    Method,
+    Ellipse,
+    ModelConfidence,
+    Circle3d,
+    Theta,
+    Phi,
+    BaseData,
+    /// A field Pupil is known to send that gazelight does not use
+    /// (skipped without counting).
+    Unused,
+    Unknown,
+}
+
+/// Classifies a datum key: one jump on its length, then at most two
+/// comparisons of that fixed length.
+#[inline(always)]
+fn key_of(k: &[u8]) -> Key {
+    let is = |name: &[u8]| k == name;
+    match k.len() {
+        2 if is(b"id") => Key::Id,
+        3 if is(b"phi") => Key::Phi,
+        5 if is(b"theta") => Key::Theta,
+        5 if is(b"topic") => Key::Unused,
+        6 if is(b"method") => Key::Method,
+        6 if is(b"sphere") => Key::Unused,
+        7 if is(b"ellipse") => Key::Ellipse,
+        8 if is(b"diameter") => Key::Diameter,
+        8 if is(b"norm_pos") => Key::NormPos,
+        8 if is(b"location") || is(b"model_id") => Key::Unused,
+        9 if is(b"timestamp") => Key::Timestamp,
+        9 if is(b"circle_3d") => Key::Circle3d,
+        9 if is(b"base_data") => Key::BaseData,
+        10 if is(b"confidence") => Key::Confidence,
+        11 if is(b"diameter_3d") => Key::Diameter3d,
+        12 if is(b"__raw_data__") => Key::Unused,
+        13 if is(b"gaze_point_3d") || is(b"eye_center_3d") => Key::Unused,
+        14 if is(b"gaze_normal_3d") || is(b"eye_centers_3d") => Key::Unused,
+        15 if is(b"gaze_normals_3d") => Key::Unused,
+        16 if is(b"model_confidence") => Key::ModelConfidence,
+        16 if is(b"projected_sphere") => Key::Unused,
+        21 if is(b"model_birth_timestamp") => Key::Unused,
+        _ => Key::Unknown,
+    }
 }
 
 /// The detector method from Pupil's `method` string (`"2d c++"`,
 /// `"3d c++"`, `"pye3d 0.3.0 real-time"`, …).
-fn method_of(s: &str) -> Option<DetectorMethod> {
+fn method_of(s: &[u8]) -> Option<DetectorMethod> {
     // A plain byte scan: the strings are a few dozen bytes, and setting up
     // a substring searcher cost more than the search.
-    let has = |pat: &[u8; 2]| s.as_bytes().windows(2).any(|w| w == pat);
+    let has = |pat: &[u8; 2]| s.windows(2).any(|w| w == pat);
     if has(b"3d") {
         Some(DetectorMethod::Pupil3d)
     } else if has(b"2d") {
@@ -857,38 +1014,45 @@ fn method_of(s: &str) -> Option<DetectorMethod> {
 }
 
 fn read_pupil(c: &mut Cur<'_>, depth: usize) -> Result<RawPupil, Fail> {
+    let mut r = RawPupil::default();
+    read_pupil_into(c, depth, &mut r)?;
+    Ok(r)
+}
+
+/// [`read_pupil`] into a caller's `RawPupil` (a few hundred bytes not
+/// moved through a `Result`); `r` must be `RawPupil::default()`.
+fn read_pupil_into(c: &mut Cur<'_>, depth: usize, r: &mut RawPupil) -> Result<(), Fail> {
     if depth > MAX_DEPTH {
         return Err(Fail::TooDeep { at: c.p });
     }
     let n = c.map_start("")?;
-    let mut r = RawPupil::default();
     for _ in 0..n {
         let Some(key) = c.key()? else {
             r.unknown_fields += 1;
             c.skip(depth + 1)?;
             continue;
         };
-        match key {
-            b"id" => r.id = Some(c.u8_value("id")?),
-            b"timestamp" => r.timestamp = Some(c.f64("timestamp")?),
-            b"confidence" => r.confidence = Some(c.f64("confidence")?),
-            b"diameter" => r.diameter = Some(c.f64("diameter")?),
-            b"diameter_3d" => r.diameter_3d = Some(c.f64("diameter_3d")?),
-            b"norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
-            b"method" => r.method = method_of(c.str_value("method")?),
-            b"ellipse" => r.ellipse = Some(c.ellipse()?),
-            b"model_confidence" => r.model_confidence = Some(c.f64("model_confidence")?),
-            b"circle_3d" => r.circle_3d = Some(c.circle_3d()?),
-            b"theta" => r.theta = Some(c.f64("theta")?),
-            b"phi" => r.phi = Some(c.f64("phi")?),
-            k if is_unused_pupil_field(k) => c.skip(depth + 1)?,
-            _ => {
+        match key_of(key) {
+            Key::Id => r.id = Some(c.u8_value("id")?),
+            Key::Timestamp => r.timestamp = Some(c.f64("timestamp")?),
+            Key::Confidence => r.confidence = Some(c.f64("confidence")?),
+            Key::Diameter => r.diameter = Some(c.f64("diameter")?),
+            Key::Diameter3d => r.diameter_3d = Some(c.f64("diameter_3d")?),
+            Key::NormPos => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            Key::Method => r.method = method_of(c.str_value("method")?),
+            Key::Ellipse => r.ellipse = Some(c.ellipse()?),
+            Key::ModelConfidence => r.model_confidence = Some(c.f64("model_confidence")?),
+            Key::Circle3d => r.circle_3d = Some(c.circle_3d()?),
+            Key::Theta => r.theta = Some(c.f64("theta")?),
+            Key::Phi => r.phi = Some(c.f64("phi")?),
+            Key::Unused => c.skip(depth + 1)?,
+            Key::BaseData | Key::Unknown => {
                 r.unknown_fields += 1;
                 c.skip(depth + 1)?;
             }
         }
     }
-    Ok(r)
+    Ok(())
 }
 
 fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
@@ -900,11 +1064,11 @@ fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
             c.skip(1)?;
             continue;
         };
-        match key {
-            b"timestamp" => r.timestamp = Some(c.f64("timestamp")?),
-            b"confidence" => r.confidence = Some(c.f64("confidence")?),
-            b"norm_pos" => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
-            b"base_data" => {
+        match key_of(key) {
+            Key::Timestamp => r.timestamp = Some(c.f64("timestamp")?),
+            Key::Confidence => r.confidence = Some(c.f64("confidence")?),
+            Key::NormPos => r.norm_pos = Some(c.f64s::<2>("norm_pos")?),
+            Key::BaseData => {
                 let m = c.byte()?;
                 let len = c
                     .array_len(m)?
@@ -925,7 +1089,7 @@ fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
                 }
                 r.n_base = len;
             }
-            k if is_unused_pupil_field(k) => c.skip(1)?,
+            Key::Unused => c.skip(1)?,
             _ => {
                 r.unknown_fields += 1;
                 c.skip(1)?;
@@ -1371,7 +1535,17 @@ pub fn decode_record_sample(
     topic: &str,
     payload: &[u8],
 ) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
-    let kind = parse_topic(topic);
+    decode_record_sample_as(parse_topic(topic), topic, payload)
+}
+
+/// [`decode_record_sample`] for a topic already classified
+/// (`kind == parse_topic(topic)`), e.g. by a reader that caches the
+/// classification of the few topics a file holds.
+pub fn decode_record_sample_as(
+    kind: TopicKind,
+    topic: &str,
+    payload: &[u8],
+) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
     let decoded = match kind {
         TopicKind::Unknown => {
             check_payload(payload)?;
@@ -1380,7 +1554,17 @@ pub fn decode_record_sample(
         TopicKind::Gaze { eyes } => {
             decode_gaze(topic, payload, eyes, false).map(|g| Sample::Gaze(g.sample))
         }
-        TopicKind::Pupil { .. } => decode_as(kind, topic, payload).map(|d| d.to_sample(0.0)),
+        TopicKind::Pupil { eye, method } => {
+            // decode_as without building the whole Datum.
+            let wrap = |f: Fail| f.into_error(topic);
+            let mut c = Cur { b: payload, p: 0 };
+            let mut raw = RawPupil::default();
+            read_pupil_into(&mut c, 0, &mut raw)
+                .and_then(|()| c.end())
+                .map_err(wrap)
+                .and_then(|()| raw.finish(topic, eye, method))
+                .map(|d| Sample::Pupil(d.sample))
+        }
     };
     match decoded {
         Ok(s) => Ok(Ok(Some(s))),
@@ -1801,6 +1985,71 @@ mod tests {
         // Garbage.
         let e = decode("pupil.0.2d", &[0xc1, 0xff, 0x00]).unwrap_err();
         assert!(matches!(e, DecodeError::Malformed { .. }), "{e:?}");
+    }
+
+    /// What a skip did: where the cursor ended, or the error and where.
+    fn skip_outcome(r: Result<(), Fail>, c: &Cur<'_>) -> String {
+        match r {
+            Ok(()) => format!("ok at {}", c.p),
+            Err(Fail::Truncated { at }) => format!("truncated at {at}"),
+            Err(Fail::Invalid { at, marker }) => format!("invalid {marker:#x} at {at}"),
+            Err(Fail::TooDeep { at }) => format!("too deep at {at}"),
+            Err(Fail::Trailing { at }) => format!("trailing at {at}"),
+            Err(Fail::Type(_)) => "type".to_owned(),
+        }
+    }
+
+    #[test]
+    fn fast_skip_agrees_with_the_exact_walk() {
+        // Real datums, cut and mutated, random bytes and deep nesting: the
+        // fast skip (with its fallback) must end where the exact walk ends
+        // and fail where and how it fails, at every nesting depth.
+        let mut inputs: Vec<Vec<u8>> = vec![
+            enc_value(&pupil3d_value(1, 3.0)),
+            enc_value(&gaze_value(&[0, 1], 4.0, [0.5, 0.5])),
+            std::iter::repeat_n(0x91u8, 40).chain([0x01]).collect(),
+            std::iter::repeat_n(0x81u8, 40).chain([0x01]).collect(),
+            vec![0xdc, 0x00, 0x02, 0xcb, 0, 0, 0, 0, 0, 0, 0, 0, 0xc0],
+            vec![
+                0xde, 0x00, 0x01, 0xd9, 0x03, b'a', b'b', b'c', 0xc7, 0x01, 0x05, 0xaa,
+            ],
+            vec![0xdf, 0xff, 0xff, 0xff, 0xff],
+            vec![0x92, 0xc1, 0x00],
+            vec![0xc8, 0x00, 0x02, 0x01, 0xaa, 0xbb, 0xd8, 0x01],
+        ];
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for base in inputs.clone() {
+            for cut in 0..base.len() {
+                inputs.push(base[..cut].to_vec());
+            }
+            for _ in 0..300 {
+                let mut m = base.clone();
+                let i = rnd() as usize % m.len();
+                m[i] = rnd() as u8;
+                inputs.push(m);
+            }
+        }
+        for _ in 0..2000 {
+            let n = rnd() as usize % 24;
+            inputs.push((0..n).map(|_| rnd() as u8).collect());
+        }
+        for b in &inputs {
+            for depth in [0, 1, 2, 20, 31, 32, 33] {
+                let mut fast = Cur { b, p: 0 };
+                let r = fast.skip(depth);
+                let got = skip_outcome(r, &fast);
+                let mut exact = Cur { b, p: 0 };
+                let r = exact.skip_values(1, depth);
+                let want = skip_outcome(r, &exact);
+                assert_eq!(got, want, "depth {depth}, bytes {b:02x?}");
+            }
+        }
     }
 
     #[test]

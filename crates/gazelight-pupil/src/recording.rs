@@ -35,7 +35,7 @@ use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use crate::msg::{self, BadRecord, DecodeError, RecordScan};
+use crate::msg::{self, BadRecord, DecodeError, RecordScan, TopicKind};
 use gazelight_eye::sample::Sample;
 
 /// Longest time appended data may stay in memory buffers.
@@ -441,7 +441,7 @@ impl PldataReader {
     /// [`RecordingError::Garbage`].
     fn next_with<T>(
         &mut self,
-        mut accept: impl FnMut(&str, &[u8]) -> Result<T, BadRecord>,
+        mut accept: impl FnMut(&[u8], &[u8]) -> Result<T, BadRecord>,
     ) -> Result<Option<(u64, T)>, RecordingError> {
         if self.finished {
             return Ok(None);
@@ -484,14 +484,12 @@ impl PldataReader {
                     continue;
                 }
                 RecordScan::Bad(why) => Err(why),
-                RecordScan::Complete(s) => {
-                    // scan_record checked the topic is printable ASCII.
-                    match std::str::from_utf8(&b[s.topic_start..s.topic_end]) {
-                        Ok(topic) => accept(topic, &b[s.payload_start..s.payload_end])
-                            .map(|v| (v, s.payload_end)),
-                        Err(_) => Err(BadRecord::TopicNotPrintable),
-                    }
-                }
+                // scan_record checked the topic is printable ASCII.
+                RecordScan::Complete(s) => accept(
+                    &b[s.topic_start..s.topic_end],
+                    &b[s.payload_start..s.payload_end],
+                )
+                .map(|v| (v, s.payload_end)),
             };
             match verdict {
                 Ok((value, len)) => {
@@ -523,6 +521,7 @@ impl PldataReader {
 
     fn next_record(&mut self) -> Result<Option<PldataRecord>, RecordingError> {
         let next = self.next_with(|topic, payload| {
+            let topic = std::str::from_utf8(topic).map_err(|_| BadRecord::TopicNotPrintable)?;
             msg::check_payload(payload)?;
             Ok((topic.to_owned(), payload.to_vec()))
         })?;
@@ -545,6 +544,7 @@ impl PldataReader {
         PldataSamples {
             reader: self,
             unknown_topics: 0,
+            topics: Vec::new(),
         }
     }
 }
@@ -568,6 +568,76 @@ impl Iterator for PldataReader {
 pub struct PldataSamples {
     reader: PldataReader,
     unknown_topics: u64,
+    /// The topics seen so far with their classification (a file holds a
+    /// handful), so that a record's topic is neither UTF-8 checked nor
+    /// parsed again; at most [`MAX_CACHED_TOPICS`].
+    topics: Vec<CachedTopic>,
+}
+
+/// Most distinct topics [`PldataSamples`] remembers; records with other
+/// topics are classified one by one.
+const MAX_CACHED_TOPICS: usize = 16;
+
+/// A topic seen before and its classification.
+struct CachedTopic {
+    /// [`topic_fingerprint`] of `topic`.
+    fingerprint: Option<(usize, u64, u64)>,
+    topic: String,
+    kind: TopicKind,
+}
+
+/// The length and the first and last 8 bytes of a topic of 8 to 16 bytes
+/// (Pupil's, such as `pupil.0.3d` and `gaze.3d.01.`), which together are
+/// the whole topic: two integer comparisons instead of a `memcmp` call.
+#[inline]
+fn topic_fingerprint(t: &[u8]) -> Option<(usize, u64, u64)> {
+    if !(8..=16).contains(&t.len()) {
+        return None;
+    }
+    let head = <[u8; 8]>::try_from(t.get(..8)?).ok()?;
+    let tail = <[u8; 8]>::try_from(t.get(t.len() - 8..)?).ok()?;
+    Some((t.len(), u64::from_le_bytes(head), u64::from_le_bytes(tail)))
+}
+
+/// Decodes one record's payload to a sample, looking its topic up in (or
+/// adding it to) `topics`.
+#[inline]
+fn decode_cached(
+    topics: &mut Vec<CachedTopic>,
+    topic: &[u8],
+    payload: &[u8],
+) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
+    let fingerprint = topic_fingerprint(topic);
+    let hit = match fingerprint {
+        Some(f) => topics.iter().find(|c| c.fingerprint == Some(f)),
+        None => topics.iter().find(|c| c.topic.as_bytes() == topic),
+    };
+    if let Some(c) = hit {
+        return msg::decode_record_sample_as(c.kind, &c.topic, payload);
+    }
+    decode_uncached(topics, fingerprint, topic, payload)
+}
+
+#[inline(never)]
+fn decode_uncached(
+    topics: &mut Vec<CachedTopic>,
+    fingerprint: Option<(usize, u64, u64)>,
+    topic: &[u8],
+    payload: &[u8],
+) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
+    let t = std::str::from_utf8(topic).map_err(|_| BadRecord::TopicNotPrintable)?;
+    let kind = msg::parse_topic(t);
+    let decoded = msg::decode_record_sample_as(kind, t, payload)?;
+    // Only topics of well-formed records are remembered: garbage that
+    // happens to frame as a record cannot fill the cache.
+    if topics.len() < MAX_CACHED_TOPICS {
+        topics.push(CachedTopic {
+            fingerprint,
+            topic: t.to_owned(),
+            kind,
+        });
+    }
+    Ok(decoded)
 }
 
 impl PldataSamples {
@@ -586,7 +656,11 @@ impl Iterator for PldataSamples {
     type Item = Result<Sample, RecordingError>;
     fn next(&mut self) -> Option<Self::Item> {
         loop {
-            let (offset, decoded) = match self.reader.next_with(msg::decode_record_sample) {
+            let topics = &mut self.topics;
+            let decoded = self
+                .reader
+                .next_with(|topic, payload| decode_cached(topics, topic, payload));
+            let (offset, decoded) = match decoded {
                 Ok(Some(r)) => r,
                 Ok(None) => return None,
                 Err(e) => {
@@ -1060,6 +1134,45 @@ mod tests {
         );
         assert!(r.buf.len() <= READ_CHUNK_BYTES);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn topics_beyond_the_cache_and_of_any_length_are_classified() {
+        // More distinct topics than the reader caches, of lengths with and
+        // without a fingerprint (v1 `pupil`, 5 bytes; 20+ bytes unknown).
+        let dir = tmpdir("many-topics");
+        let mut w = PldataWriter::create(&dir, "pupil").unwrap();
+        for i in 0..40u32 {
+            let t = f64::from(i);
+            let eye = (i % 2) as u8;
+            w.append(
+                &format!("notify.custom_plugin_{i}"),
+                &pupil_payload(eye, t, 3.0),
+                t,
+            )
+            .unwrap();
+            let topic = match i % 3 {
+                0 => format!("pupil.{eye}.2d"),
+                1 => "pupil".to_owned(),
+                _ => format!("pupil.{eye}"),
+            };
+            w.append(&topic, &pupil_payload(eye, t, 3.0 + t), t)
+                .unwrap();
+        }
+        w.close().unwrap();
+        let mut samples = PldataReader::open(&dir.join("pupil.pldata"))
+            .unwrap()
+            .samples();
+        let got: Vec<Sample> = samples.by_ref().map(|s| s.unwrap()).collect();
+        assert_eq!(got.len(), 40);
+        assert_eq!(samples.unknown_topics(), 40);
+        for (i, s) in got.iter().enumerate() {
+            let Sample::Pupil(p) = s else {
+                panic!("{s:?}");
+            };
+            assert_eq!(p.eye as usize, i % 2);
+            assert_eq!(p.diameter_raw, 3.0 + i as f32);
+        }
     }
 
     #[test]
