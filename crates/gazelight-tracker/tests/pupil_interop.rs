@@ -596,12 +596,38 @@ async fn live_summary() {
     let state = *rx.borrow();
     let age = state.updated_host_secs - state.state.t_secs;
     assert!((0.0..0.25).contains(&age), "{state:?}");
-    for (e, want) in [(0, 3.75), (1, 4.25)] {
-        let ch = state.state.eyes[e];
-        assert!((ch.pupil_mm - want).abs() < 0.01, "eye {e}: {state:?}");
-        assert_eq!(ch.pupil_origin, gazelight_tracker::PupilOrigin::Measured);
+    // The peer sends a 2D datum (no mm: the pupil is held) beside each 3D
+    // one, so a snapshot may catch an eye between its 2D and 3D datums:
+    // follow the next updates until each eye has shown a measured pupil,
+    // which must be the peer's.
+    let mut measured = [false; 2];
+    loop {
+        let state = *rx.borrow_and_update();
+        for (e, want) in [(0, 3.75), (1, 4.25)] {
+            let ch = state.state.eyes[e];
+            assert!((ch.pupil_mm - want).abs() < 0.01, "eye {e}: {state:?}");
+            if ch.pupil_origin == gazelight_tracker::PupilOrigin::Measured {
+                measured[e] = true;
+            } else {
+                assert_eq!(
+                    ch.pupil_origin,
+                    gazelight_tracker::PupilOrigin::Held,
+                    "eye {e}: {state:?}"
+                );
+            }
+        }
+        assert!(state.state.gaze_valid, "{state:?}");
+        if measured == [true; 2] {
+            break;
+        }
+        timeout(
+            deadline.saturating_duration_since(tokio::time::Instant::now()),
+            rx.changed(),
+        )
+        .await
+        .expect("a measured pupil of each eye within 5 s")
+        .expect("task alive");
     }
-    assert!(state.state.gaze_valid, "{state:?}");
     let status = gazelight_tracker::live::lock_status(&live.status).clone();
     assert_eq!(status.health, gazelight_tracker::live::SourceHealth::Live);
     assert_eq!(status.samples_dropped, 0, "{status:?}");
