@@ -34,8 +34,8 @@
 //!
 //! A build running on the other core while a frame renders still costs
 //! that frame shared cache and memory bandwidth (its FFT grids, tens of
-//! MB). So builds also wait for the gaps between frames: the frame loop
-//! marks each frame's start and end ([`PsfWorker::frame_started`],
+//! MB). So on the CPU backend builds also wait for the gaps between
+//! frames: the frame loop marks each frame's start and end ([`PsfWorker::frame_started`],
 //! [`PsfWorker::frame_ended`]), and the build
 //! ([`PsfBuilder::rebuild_paced`], [`GlarePreparer::prepare_paced`])
 //! stops between steps of about a MiB of grid while a frame renders and
