@@ -116,6 +116,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::{RgbImage, VisionError};
 
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
 /// Pixels per degree of the HTC Vive Pro, 1440 px over 104° (001 §4.3.2),
 /// the display 001 eq 12 was fitted for.
 // 001 §4.3.2: 1440 / 104 ≈ 13.85 PPD
@@ -383,6 +386,9 @@ pub struct AcuityBlur {
     /// Per band: the original pixels of its first and last `max_radius`
     /// rows, taken before any band writes (the neighbours' halo).
     stash: Vec<Vec<[f32; 3]>>,
+    /// Run the portable row loops even where the CPU has AVX2 (the tests
+    /// compare the two).
+    portable: bool,
 }
 
 /// The scratch of one band of rows.
@@ -443,6 +449,8 @@ struct Ctx {
     stride_l: usize,
     /// Horizontal-ring row stride: w rounded up to lanes.
     stride_h: usize,
+    /// The CPU has AVX2 + FMA: the row loops run their [`avx2`] twins.
+    avx2: bool,
 }
 
 impl AcuityBlur {
@@ -520,6 +528,7 @@ impl AcuityBlur {
             band_rows: 1,
             bands: Vec::new(),
             stash: Vec::new(),
+            portable: false,
         };
         blur.resize(width, height);
         blur
@@ -606,6 +615,7 @@ impl AcuityBlur {
             dark_below: self.blur_below_cd_m2 / self.white_cd_m2,
             stride_l: 2 * r + w.next_multiple_of(LANES),
             stride_h: w.next_multiple_of(LANES),
+            avx2: has_avx2_fma() && !self.portable,
         };
         // The halo rows of every band, before any band writes.
         self.stash
@@ -644,8 +654,14 @@ struct Halo<'a> {
 
 /// Whether the CPU runs the AVX2 + FMA build of the band pass.
 #[cfg(target_arch = "x86_64")]
-fn has_avx2_fma() -> bool {
+pub(crate) fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// Not an x86-64 CPU: the portable loops only.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn has_avx2_fma() -> bool {
+    false
 }
 
 /// [`run_band`] compiled for AVX2 + FMA. The code and so the results are
@@ -810,14 +826,32 @@ fn mat3_v(m: &[[f32; 3]; 3], p: &[V; 3]) -> [V; 3] {
 /// max(R, G, B)/white into `head`; whether any is below the blur threshold.
 #[inline(always)]
 fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32], head: &mut [f32]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if ctx.avx2 {
+        // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
+        let (dark, done) = unsafe { avx2::load_y(ctx, src, lrow, head) };
+        return load_y_from(ctx, src, lrow, head, done) | dark;
+    }
+    load_y_from(ctx, src, lrow, head, 0)
+}
+
+/// [`load_y`] of the pixels from `from` (a multiple of [`LANES`]) on.
+#[inline(always)]
+fn load_y_from(
+    ctx: &Ctx,
+    src: &[[f32; 3]],
+    lrow: &mut [f32],
+    head: &mut [f32],
+    from: usize,
+) -> bool {
     let y_row = RGB_TO_XYZ[1];
     let inv_white = 1.0 / ctx.white;
     let mut dark = false;
-    let dst = &mut lrow[ctx.r..ctx.r + ctx.stride_h];
-    for ((s, d), hd) in src
+    let dst = &mut lrow[ctx.r + from..ctx.r + ctx.stride_h];
+    for ((s, d), hd) in src[from..]
         .chunks(LANES)
         .zip(dst.chunks_exact_mut(LANES))
-        .zip(head.chunks_exact_mut(LANES))
+        .zip(head[from..].chunks_exact_mut(LANES))
     {
         let p = planes(s);
         let mut any = false;
@@ -838,10 +872,22 @@ fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32], head: &mut [f32]) -> bo
 #[inline(always)]
 fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
     let (r, w) = (ctx.r, ctx.w);
-    for d in lrow[r..r + ctx.stride_h].chunks_exact_mut(LANES) {
-        let mut t = [0.0; LANES];
-        t.copy_from_slice(d);
-        d.copy_from_slice(&lab_g_v(t));
+    #[cfg(target_arch = "x86_64")]
+    let portable = if ctx.avx2 {
+        // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
+        unsafe { avx2::to_lightness(ctx, lrow) };
+        false
+    } else {
+        true
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let portable = true;
+    if portable {
+        for d in lrow[r..r + ctx.stride_h].chunks_exact_mut(LANES) {
+            let mut t = [0.0; LANES];
+            t.copy_from_slice(d);
+            d.copy_from_slice(&lab_g_v(t));
+        }
     }
     let (first, last) = (lrow[r], lrow[r + w - 1]);
     lrow[..r].fill(first);
@@ -852,6 +898,12 @@ fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
 /// with x's own σ.
 #[inline(always)]
 fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if ctx.avx2 {
+        // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
+        unsafe { avx2::horizontal(ctx, lrow, hrow) };
+        return;
+    }
     let r = ctx.r;
     for (bx, hv) in hrow.chunks_exact_mut(LANES).enumerate() {
         let x = r + bx * LANES;
@@ -882,12 +934,20 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
         up[k] = (y.saturating_sub(k) % ring) * sh;
         down[k] = ((y + k).min(h - 1) % ring) * sh;
     }
+    #[cfg(target_arch = "x86_64")]
+    let (mut changed, from) = if ctx.avx2 {
+        // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
+        unsafe { avx2::vertical(ctx, band, &up[..=r], &down[..=r], y, row) }
+    } else {
+        (0, 0)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let (mut changed, from) = (0, 0);
     let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
     let head_row = &band.head[(y % ring) * sh..];
     let wx = WHITE_XYZ.map(|c| c * ctx.white);
-    let mut changed = 0;
-    for (bx, out) in row.chunks_mut(LANES).enumerate() {
-        let x = bx * LANES;
+    for (bx, out) in row[from..].chunks_mut(LANES).enumerate() {
+        let x = from + bx * LANES;
         let hv = load_v(hor, up[0] + x);
         let l_new = gather_v(
             ctx,
@@ -1301,6 +1361,72 @@ mod tests {
                     assert!(moved < w * h / 2, "{ppd}: {moved}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn avx2_rows_match_the_portable_rows_bit_for_bit() {
+        if !has_avx2_fma() {
+            eprintln!("no AVX2 + FMA on this CPU: nothing to compare");
+            return;
+        }
+        // The default demo's night view (dark ground, lamps, sky) at three
+        // scales, so that blocks fall in L*'s linear part, its cubic part
+        // and across both, at two pixel sizes (tap radius 1–3 and more).
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/data/hdr/blender-world/night.exr");
+        let scene = crate::scene::Scene::load(&path, crate::scene::LuminanceScale::default())
+            .expect("shared night.exr");
+        let mut cases = Vec::new();
+        for (hfov_deg, w, h) in [(12.0, 203, 157), (4.0, 181, 90)] {
+            let params = crate::scene::ViewParams {
+                yaw_deg: -78.4,
+                pitch_deg: -6.0,
+                hfov_deg,
+                width: w,
+                height: h,
+            };
+            let mut view = RgbImage::new(w, h);
+            crate::scene::PanoramaView::new(params)
+                .expect("view")
+                .render(&scene.image, &mut view);
+            for gain in [1.0f32, 1e-2, 0.1] {
+                let px = view.pixels.iter().map(|p| p.map(|v| v * gain)).collect();
+                let img = RgbImage::from_pixels(w, h, px).expect("image");
+                cases.push((format!("{hfov_deg}° ×{gain}"), img, params.deg_per_px()));
+            }
+        }
+        // Hot pixels beside dark ones: blocks that take the cube-root path
+        // of step 4.
+        let hot = image(97, 61, |x, y| {
+            if (x * 7 + y * 13) % 31 == 0 {
+                [50.0, 40.0, 30.0]
+            } else {
+                [
+                    0.002 * (1 + x % 5) as f32,
+                    0.003,
+                    0.001 * (1 + y % 3) as f32,
+                ]
+            }
+        });
+        cases.push(("hot pixels".into(), hot, 1.0 / 41.55));
+        for (what, img, dpp) in cases {
+            let (w, h) = (img.width, img.height);
+            let mut fast = AcuityBlur::new(&AcuityModel::default(), w, h, dpp);
+            let mut slow = fast.clone();
+            slow.portable = true;
+            let (mut a, mut b) = (img.clone(), img.clone());
+            let (na, nb) = (fast.apply(&mut a), slow.apply(&mut b));
+            assert_eq!(na, nb, "{what}: pixels changed");
+            let differ = a
+                .pixels
+                .iter()
+                .zip(&b.pixels)
+                .filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits))
+                .count();
+            eprintln!("{what}: {na} px blurred, {differ} differ");
+            assert!(na > 0, "{what}: nothing blurred");
+            assert_eq!(differ, 0, "{what}");
         }
     }
 

@@ -43,6 +43,14 @@ pub(crate) type Planes = [[f32; LANES]; 3];
 pub(crate) trait Map: Copy + Sync {
     /// Display-relative linear colour (unclamped) of each pixel.
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes;
+
+    /// Encodes a leading part of the row with a CPU-specific twin of
+    /// [`encode_row_portable`] (the same bits) where the map has one;
+    /// returns how many pixels it did.
+    #[inline(always)]
+    fn encode_fast(&self, _lut: &SrgbLut, _src: &[[f32; 3]], _rgba8: &mut [u8]) -> usize {
+        0
+    }
 }
 
 /// A linear tone operator folded with the colour matrix.
@@ -116,6 +124,17 @@ pub(crate) const IDENTITY: Affine = Affine {
 };
 
 impl Map for Affine {
+    #[inline(always)]
+    fn encode_fast(&self, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if crate::acuity::has_avx2_fma() {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            return unsafe { crate::acuity::avx2::encode_affine(self, lut, src, rgba8) };
+        }
+        let _ = (lut, src, rgba8);
+        0
+    }
+
     /// `m·max(p, 0) + b`.
     #[inline(always)]
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes {
@@ -252,6 +271,18 @@ impl<M: Map> RowSink for EncodeRgba8<'_, M> {
 /// `rgba8` = sRGB encoding of `map` of every pixel of `src`.
 #[inline(always)]
 pub(crate) fn encode_row<M: Map>(map: &M, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) {
+    let done = map.encode_fast(lut, src, rgba8);
+    encode_row_portable(map, lut, &src[done..], &mut rgba8[4 * done..]);
+}
+
+/// [`encode_row`] with the portable loops only.
+#[inline(always)]
+pub(crate) fn encode_row_portable<M: Map>(
+    map: &M,
+    lut: &SrgbLut,
+    src: &[[f32; 3]],
+    rgba8: &mut [u8],
+) {
     for_blocks(
         src,
         rgba8,
