@@ -423,13 +423,12 @@ pub(crate) fn encode_affine(
     let zero = _mm256_setzero_ps();
     let (one, max) = (splat(1.0), splat(f32::MAX));
     let scale = splat((SRGB_LUT_SIZE - 1) as f32);
-    let (half, magic) = (splat(0.5), splat(8_388_608.0));
-    let mantissa = _mm256_set1_epi32(0x007f_ffff);
-    let mask = _mm256_set1_epi32((SRGB_LUT_SIZE - 1) as i32);
+    let half = splat(0.5);
     for x in (0..full).step_by(LANES) {
-        // `max(p, 0)` as a select (NaN → 0), then at most f32::MAX.
-        let p = deinterleave(&src[x..x + LANES])
-            .map(|v| _mm256_min_ps(select(_mm256_cmp_ps::<_CMP_GT_OQ>(v, zero), v, zero), max));
+        // `max(p, 0)` (NaN → 0: `maxps` returns its second operand), then at
+        // most f32::MAX.
+        let p =
+            deinterleave(&src[x..x + LANES]).map(|v| _mm256_min_ps(_mm256_max_ps(v, zero), max));
         let mut idx = [[0u32; LANES]; 3];
         for c in 0..3 {
             let v = _mm256_add_ps(
@@ -439,16 +438,11 @@ pub(crate) fn encode_affine(
                 ),
                 b[c],
             );
-            // crate::encode::lut_index, lane by lane
-            let v = select(_mm256_cmp_ps::<_CMP_GT_OQ>(v, zero), v, zero);
-            let v = select(_mm256_cmp_ps::<_CMP_LT_OQ>(v, one), v, one);
-            let xf = _mm256_add_ps(_mm256_mul_ps(v, scale), half);
-            let yf = _mm256_add_ps(xf, magic);
-            let rounded = _mm256_and_si256(_mm256_castps_si256(yf), mantissa);
-            let above =
-                _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_sub_ps(yf, magic), xf));
-            // `above` is −1 where the rounding went up
-            let floor = _mm256_and_si256(_mm256_add_epi32(rounded, above), mask);
+            // crate::encode::lut_index: clamp to [0, 1] (NaN → 0), then
+            // ⌊v·(N − 1) + 0.5⌋, here by truncation (exact: the value is in
+            // [0.5, N − 0.5]).
+            let v = _mm256_min_ps(_mm256_max_ps(v, zero), one);
+            let floor = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(v, scale), half));
             // SAFETY: `idx[c]` holds 8 u32s; the store is unaligned.
             unsafe { _mm256_storeu_si256(idx[c].as_mut_ptr().cast(), floor) };
         }
@@ -581,10 +575,13 @@ mod tests {
             b: [0.01, -0.02, 0.0],
         };
         for scale in [1.0f32, 0.01, 1e-4] {
-            let px: Vec<[f32; 3]> = pixels(1003, 7)
+            let mut px: Vec<[f32; 3]> = pixels(1003, 7)
                 .iter()
                 .map(|p| p.map(|v| v * scale))
                 .collect();
+            // What the sink never gets from the pipeline, handled alike.
+            px[5] = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+            px[13] = [f32::MAX, 1e38, -0.0];
             let mut want = vec![0u8; 4 * px.len()];
             crate::encode::encode_row_portable(&map, &lut, &px, &mut want);
             let mut got = vec![0u8; 4 * px.len()];
