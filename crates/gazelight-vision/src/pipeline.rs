@@ -678,24 +678,41 @@ fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usiz
             small_row.fill(0.0);
             let rows = src.len() / w;
             for (drow, srow) in dst.chunks_exact_mut(w).zip(src.chunks_exact(w)) {
-                // The row as plain floats (vectorises), then its block sums
-                // from L1.
-                for (d, s) in drow.as_flattened_mut().iter_mut().zip(srow.as_flattened()) {
-                    *d = sanitize(*s);
-                }
-                for (dblk, acc) in drow.chunks(ds).zip(small_row.iter_mut()) {
-                    let mut sum = 0.0f32;
-                    for p in dblk {
-                        sum += luminance(*p);
+                #[cfg(target_arch = "x86_64")]
+                if ds == crate::acuity::LANES && crate::acuity::has_avx2_fma() {
+                    // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                    if unsafe { crate::acuity::avx2::pass_a_row(srow, drow, small_row) } {
+                        continue;
                     }
-                    *acc += sum;
                 }
+                pass_a_row_portable(srow, drow, small_row, ds);
             }
             for (bx, v) in small_row.iter_mut().enumerate() {
                 let cols = (w - bx * ds).min(ds);
                 *v /= (cols * rows) as f32;
             }
         });
+}
+
+/// One row of pass A: `drow` = sanitised `srow`, and each `ds`-pixel
+/// block's luminance sum added to its entry of `sums`.
+pub(crate) fn pass_a_row_portable(
+    srow: &[[f32; 3]],
+    drow: &mut [[f32; 3]],
+    sums: &mut [f32],
+    ds: usize,
+) {
+    // The row as plain floats (vectorises), then its block sums from L1.
+    for (d, s) in drow.as_flattened_mut().iter_mut().zip(srow.as_flattened()) {
+        *d = sanitize(*s);
+    }
+    for (dblk, acc) in drow.chunks(ds).zip(sums.iter_mut()) {
+        let mut sum = 0.0f32;
+        for p in dblk {
+            sum += luminance(*p);
+        }
+        *acc += sum;
+    }
 }
 
 /// Stages 5–8 of one frame: the acuity blur of `work` in place, with the

@@ -459,6 +459,130 @@ pub(crate) fn encode_affine(
     full
 }
 
+/// One row of the pipeline's pass A ([`crate::pipeline`]): `dst` = `src`
+/// sanitised (NaN, ±∞, negatives and subnormals → 0) and each pixel's
+/// luminance added, in pixel order, to its block's sum in `sums` (blocks
+/// of 8 pixels, a block's sum started at 0 — the portable pass's order, so
+/// the same bits). The copy is written with non-temporal stores: the frame
+/// does not fit in cache, and they skip reading `dst` before writing it.
+/// Returns false (and does nothing) unless `src` and `dst` hold the same
+/// number of pixels and `sums` one per started block.
+#[target_feature(enable = "avx2,fma")]
+pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32]) -> bool {
+    let w = src.len();
+    if dst.len() != w || sums.len() != w.div_ceil(LANES) {
+        return false;
+    }
+    let (lo, inf, zero) = (
+        splat(f32::MIN_POSITIVE),
+        splat(f32::INFINITY),
+        _mm256_setzero_ps(),
+    );
+    let sanitize = |v: __m256| {
+        let keep = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(v, lo),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(v, inf),
+        );
+        _mm256_and_ps(v, keep)
+    };
+    // The copy: scalar up to a 32-byte boundary of `dst`, streamed after.
+    let s = src.as_flattened();
+    let d = dst.as_flattened_mut();
+    let head = (d.as_ptr().align_offset(32)).min(d.len());
+    for (o, i) in d[..head].iter_mut().zip(&s[..head]) {
+        *o = if (f32::MIN_POSITIVE..f32::INFINITY).contains(i) {
+            *i
+        } else {
+            0.0
+        };
+    }
+    let body = (d.len() - head) / LANES * LANES;
+    for k in (head..head + body).step_by(LANES) {
+        let v = sanitize(ld(s, k));
+        let out = &mut d[k..k + LANES];
+        // SAFETY: `out` holds 8 f32s and starts `head + 8j` floats past a
+        // 32-byte boundary, i.e. on one (align_offset above).
+        unsafe { _mm256_stream_ps(out.as_mut_ptr(), v) };
+    }
+    for (o, i) in d[head + body..].iter_mut().zip(&s[head + body..]) {
+        *o = if (f32::MIN_POSITIVE..f32::INFINITY).contains(i) {
+            *i
+        } else {
+            0.0
+        };
+    }
+    // The block sums, eight blocks (64 pixels) at a time: each block's
+    // eight luminances, transposed, are added in pixel order.
+    let weights = crate::image::LUMINANCE_WEIGHTS.map(|v| splat(v));
+    let full = w / (LANES * LANES) * (LANES * LANES);
+    for x in (0..full).step_by(LANES * LANES) {
+        let mut y = [zero; LANES];
+        for (b, yb) in y.iter_mut().enumerate() {
+            let [r, g, bl] = deinterleave(&src[x + b * LANES..x + (b + 1) * LANES]).map(sanitize);
+            *yb = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(weights[0], r), _mm256_mul_ps(weights[1], g)),
+                _mm256_mul_ps(weights[2], bl),
+            );
+        }
+        let t = transpose8(y);
+        let mut sum = zero;
+        for tj in t {
+            sum = _mm256_add_ps(sum, tj);
+        }
+        let at = x / LANES;
+        st(sums, at, _mm256_add_ps(ld(sums, at), sum));
+    }
+    // The rest block by block, as the portable pass.
+    for (blk, acc) in src[full..].chunks(LANES).zip(&mut sums[full / LANES..]) {
+        let mut sum = 0.0f32;
+        for p in blk {
+            let q = p.map(|v| {
+                if (f32::MIN_POSITIVE..f32::INFINITY).contains(&v) {
+                    v
+                } else {
+                    0.0
+                }
+            });
+            sum += crate::image::luminance(q);
+        }
+        *acc += sum;
+    }
+    _mm_sfence();
+    true
+}
+
+/// Transpose of an 8×8 block of lanes: `out[j][i] = v[i][j]`.
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+fn transpose8(v: [__m256; LANES]) -> [__m256; LANES] {
+    let t0 = _mm256_unpacklo_ps(v[0], v[1]);
+    let t1 = _mm256_unpackhi_ps(v[0], v[1]);
+    let t2 = _mm256_unpacklo_ps(v[2], v[3]);
+    let t3 = _mm256_unpackhi_ps(v[2], v[3]);
+    let t4 = _mm256_unpacklo_ps(v[4], v[5]);
+    let t5 = _mm256_unpackhi_ps(v[4], v[5]);
+    let t6 = _mm256_unpacklo_ps(v[6], v[7]);
+    let t7 = _mm256_unpackhi_ps(v[6], v[7]);
+    let u0 = _mm256_shuffle_ps::<0b01_00_01_00>(t0, t2);
+    let u1 = _mm256_shuffle_ps::<0b11_10_11_10>(t0, t2);
+    let u2 = _mm256_shuffle_ps::<0b01_00_01_00>(t1, t3);
+    let u3 = _mm256_shuffle_ps::<0b11_10_11_10>(t1, t3);
+    let u4 = _mm256_shuffle_ps::<0b01_00_01_00>(t4, t6);
+    let u5 = _mm256_shuffle_ps::<0b11_10_11_10>(t4, t6);
+    let u6 = _mm256_shuffle_ps::<0b01_00_01_00>(t5, t7);
+    let u7 = _mm256_shuffle_ps::<0b11_10_11_10>(t5, t7);
+    [
+        _mm256_permute2f128_ps::<0x20>(u0, u4),
+        _mm256_permute2f128_ps::<0x20>(u1, u5),
+        _mm256_permute2f128_ps::<0x20>(u2, u6),
+        _mm256_permute2f128_ps::<0x20>(u3, u7),
+        _mm256_permute2f128_ps::<0x31>(u0, u4),
+        _mm256_permute2f128_ps::<0x31>(u1, u5),
+        _mm256_permute2f128_ps::<0x31>(u2, u6),
+        _mm256_permute2f128_ps::<0x31>(u3, u7),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -562,6 +686,55 @@ mod tests {
             }
         }
         assert_eq!(worst, 0, "lanes that differ");
+    }
+
+    #[test]
+    fn transpose8_transposes() {
+        if !avx2() {
+            return;
+        }
+        let m: Vec<f32> = (0..64).map(|i| i as f32).collect();
+        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        let t = unsafe { transpose8(std::array::from_fn(|i| ld(&m, 8 * i))) };
+        for (j, tj) in t.iter().enumerate() {
+            let mut v = [0.0f32; 8];
+            // SAFETY: as above.
+            unsafe { st(&mut v, 0, *tj) };
+            assert_eq!(v, std::array::from_fn(|i| (8 * i + j) as f32), "row {j}");
+        }
+    }
+
+    #[test]
+    fn pass_a_row_matches_the_portable_pass_bit_for_bit() {
+        if !avx2() {
+            return;
+        }
+        for w in [1usize, 7, 64, 130, 203, 720] {
+            let mut src = pixels(w, w as u32);
+            if w > 5 {
+                src[3] = [f32::NAN, f32::INFINITY, -1.0];
+                src[5] = [1e-40, f32::NEG_INFINITY, f32::MAX];
+            }
+            // Every alignment of the destination's start.
+            for shift in 0..8 {
+                let mut backing = vec![[0.0f32; 3]; w + 8];
+                let dst = &mut backing[shift..shift + w];
+                let mut sums = vec![0.5f32; w.div_ceil(8)];
+                // SAFETY: the CPU has AVX2 and FMA (checked above).
+                assert!(unsafe { pass_a_row(&src, dst, &mut sums) });
+                let mut want_dst = vec![[0.0f32; 3]; w];
+                let mut want_sums = vec![0.5f32; w.div_ceil(8)];
+                crate::pipeline::pass_a_row_portable(&src, &mut want_dst, &mut want_sums, 8);
+                let bits =
+                    |v: &[[f32; 3]]| v.iter().map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+                assert_eq!(bits(dst), bits(&want_dst), "w {w} shift {shift}");
+                assert_eq!(
+                    sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    want_sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    "w {w} shift {shift}"
+                );
+            }
+        }
     }
 
     #[test]
