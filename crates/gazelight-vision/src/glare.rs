@@ -598,6 +598,8 @@ unsafe fn gather(
         col[..rows.start].fill(ZERO);
         col[rows.end..].fill(ZERO);
     }
+    assert!(rows.end <= n);
+    let dst = strip.as_mut_ptr();
     for r in rows {
         // SAFETY: columns l and m are this caller's (contract).
         let (sl, sm) = unsafe {
@@ -606,8 +608,13 @@ unsafe fn gather(
                 buf.slice(r * w + m.start, m.len()),
             )
         };
-        for (j, &v) in sl.iter().chain(sm.iter()).enumerate() {
-            strip[j * n + r] = v;
+        for (j, &v) in sl.iter().enumerate() {
+            // SAFETY: j < nl and r < n, so j·n + r < nc·n = strip.len().
+            unsafe { *dst.add(j * n + r) = v };
+        }
+        for (j, &v) in sm.iter().enumerate() {
+            // SAFETY: nl + j < nc and r < n, as above.
+            unsafe { *dst.add((nl + j) * n + r) = v };
         }
     }
 }
@@ -628,6 +635,9 @@ unsafe fn scatter(
     m: &Range<usize>,
 ) {
     let nl = l.len();
+    let strip = &strip[..(nl + m.len()) * n];
+    assert!(rows.end <= n);
+    let src = strip.as_ptr();
     for r in rows {
         // SAFETY: columns l and m are this caller's (contract).
         let (sl, sm) = unsafe {
@@ -636,8 +646,13 @@ unsafe fn scatter(
                 buf.slice(r * w + m.start, m.len()),
             )
         };
-        for (j, v) in sl.iter_mut().chain(sm.iter_mut()).enumerate() {
-            *v = strip[j * n + r];
+        for (j, v) in sl.iter_mut().enumerate() {
+            // SAFETY: j < nl and r < n, so j·n + r < strip.len().
+            *v = unsafe { *src.add(j * n + r) };
+        }
+        for (j, v) in sm.iter_mut().enumerate() {
+            // SAFETY: nl + j < nl + m.len() and r < n, as above.
+            *v = unsafe { *src.add((nl + j) * n + r) };
         }
     }
 }
@@ -1072,53 +1087,90 @@ impl GlareConvolver {
         let (fx0, fx1) = ((sx0 - ofx) as usize, (sx1 - ofx) as usize);
         let off_x = (0.5 - (gx - gxi as f64)) as f32;
         let off_y = (0.5 - (gy - gyi as f64)) as f32;
-        for y in sy0..sy1 {
-            let fj = (y - ofy) as usize;
-            let cj = ((y - ocy) / b) as usize;
-            let dy = (y - gyi) as f32 + off_y;
-            let dy2 = dy * dy;
-            let src = &img.pixels[y as usize * img.width..(y as usize + 1) * img.width];
-            let frg = &mut self.fine.rg[fj * wf..(fj + 1) * wf];
-            let (fb, f_odd) = packed_row(&mut self.fine.b, wf, fj);
-            let fw = &mut self.weight[fj * wf..(fj + 1) * wf];
-            frg[..fx0].fill(ZERO);
-            frg[fx1..].fill(ZERO);
-            let crg = &mut self.coarse.rg[cj * wc..(cj + 1) * wc];
-            let (cb, c_odd) = packed_row(&mut self.coarse.b, wc, cj);
-            let mut ci = ((sx0 - ocx) / b) as usize;
-            let mut cr = (sx0 - ocx) % b;
-            for x in sx0..sx1 {
-                let fi = (x - ofx) as usize;
-                let dx = (x - gxi) as f32 + off_x;
-                let d2 = dx * dx + dy2;
-                let wgt = if d2 <= d_full2 {
-                    1.0
-                } else if d2 >= r_src2 {
-                    0.0
-                } else {
-                    let u = ((d2.sqrt() - fade_d0) * fade_step).max(0.0);
-                    let i = (u as usize).min(FADE_TABLE - 1);
-                    let t = u - i as f32;
-                    fade[i] + (fade[i + 1] - fade[i]) * t
-                };
-                if wgt > 0.0 {
-                    let p = src[x as usize];
-                    let (r, g, bl) = (p[0] * wgt, p[1] * wgt, p[2] * wgt);
-                    frg[fi] = Complex::new(r, g);
-                    *lane(&mut fb[fi], f_odd) = bl;
-                    fw[fi] = wgt;
-                    crg[ci] += Complex::new(r, g);
-                    *lane(&mut cb[ci], c_odd) += bl;
-                } else {
-                    frg[fi] = ZERO;
+        let width = img.width;
+        let pixels = &img.pixels;
+        // Fine rows in pairs (one packed B row each), in parallel.
+        let (p0, p1) = (fs0 / 2, fs1.div_ceil(2));
+        self.fine.b[p0 * wf..p1 * wf]
+            .par_chunks_mut(wf)
+            .zip(self.fine.rg[2 * p0 * wf..2 * p1 * wf].par_chunks_mut(2 * wf))
+            .zip(self.weight[2 * p0 * wf..2 * p1 * wf].par_chunks_mut(2 * wf))
+            .enumerate()
+            .for_each(|(k, ((fb, frg2), fw2))| {
+                for (odd, (frg, fw)) in frg2
+                    .chunks_exact_mut(wf)
+                    .zip(fw2.chunks_exact_mut(wf))
+                    .enumerate()
+                {
+                    let fj = 2 * (p0 + k) + odd;
+                    let y = ofy + fj as i64;
+                    if !(sy0..sy1).contains(&y) {
+                        continue;
+                    }
+                    let dy = (y - gyi) as f32 + off_y;
+                    let dy2 = dy * dy;
+                    let src = &pixels[y as usize * width..(y as usize + 1) * width];
+                    frg[..fx0].fill(ZERO);
+                    frg[fx1..].fill(ZERO);
+                    for x in sx0..sx1 {
+                        let fi = (x - ofx) as usize;
+                        let dx = (x - gxi) as f32 + off_x;
+                        let d2 = dx * dx + dy2;
+                        let wgt = if d2 <= d_full2 {
+                            1.0
+                        } else if d2 >= r_src2 {
+                            0.0
+                        } else {
+                            let u = ((d2.sqrt() - fade_d0) * fade_step).max(0.0);
+                            let i = (u as usize).min(FADE_TABLE - 1);
+                            let t = u - i as f32;
+                            fade[i] + (fade[i + 1] - fade[i]) * t
+                        };
+                        if wgt > 0.0 {
+                            let p = src[x as usize];
+                            frg[fi] = Complex::new(p[0] * wgt, p[1] * wgt);
+                            *lane(&mut fb[fi], odd == 1) = p[2] * wgt;
+                            fw[fi] = wgt;
+                        } else {
+                            frg[fi] = ZERO;
+                        }
+                    }
                 }
-                cr += 1;
-                if cr == b {
-                    cr = 0;
-                    ci += 1;
+            });
+        // Their block sums, block rows in pairs (one packed B row each).
+        let (q0, q1) = (cs0 / 2, cs1.div_ceil(2));
+        let fine = &self.fine;
+        self.coarse.b[q0 * wc..q1 * wc]
+            .par_chunks_mut(wc)
+            .zip(self.coarse.rg[2 * q0 * wc..2 * q1 * wc].par_chunks_mut(2 * wc))
+            .enumerate()
+            .for_each(|(k, (cb, crg2))| {
+                for (odd, crg) in crg2.chunks_exact_mut(wc).enumerate() {
+                    let cj = 2 * (q0 + k) + odd;
+                    if !(cs0..cs1).contains(&cj) {
+                        continue;
+                    }
+                    let y0 = (ocy + cj as i64 * b).max(sy0);
+                    let y1 = (ocy + (cj as i64 + 1) * b).min(sy1);
+                    for y in y0..y1 {
+                        let fj = (y - ofy) as usize;
+                        let frg = &fine.rg[fj * wf + fx0..fj * wf + fx1];
+                        let fb = &fine.b[fj / 2 * wf + fx0..fj / 2 * wf + fx1];
+                        let f_odd = fj % 2 == 1;
+                        let mut ci = ((sx0 - ocx) / b) as usize;
+                        let mut cr = (sx0 - ocx) % b;
+                        for (&v, bl) in frg.iter().zip(fb) {
+                            crg[ci] += v;
+                            *lane(&mut cb[ci], odd == 1) += if f_odd { bl.im } else { bl.re };
+                            cr += 1;
+                            if cr == b {
+                                cr = 0;
+                                ci += 1;
+                            }
+                        }
+                    }
                 }
-            }
-        }
+            });
         // Rows with sources, rows with output (window coordinates).
         let f_src = (sy0 - ofy) as usize..(sy1 - ofy) as usize;
         let f_out = (foy0 - ofy) as usize..(foy1 - ofy) as usize;
@@ -1169,11 +1221,19 @@ impl GlareConvolver {
                         let rg = coarse.rg[idx];
                         [rg.re, rg.im, coarse.b_at(j as usize, i as usize)]
                     };
-                    for (h, &(i0, fx)) in hrow.chunks_exact_mut(3).zip(&hat[xs..xe]) {
+                    // Runs of columns between the same two block centres.
+                    let mut x = xs;
+                    while x < xe {
+                        let i0 = hat[x].0;
+                        let run = hat[x..xe].iter().take_while(|h| h.0 == i0).count();
                         let (a, c) = (at(i0), at(i0 + 1));
-                        for ch in 0..3 {
-                            h[ch] = (a[ch] * (1.0 - fx) + c[ch] * fx) * inv_b2;
+                        let out = &mut hrow[(x - xs) * 3..(x - xs + run) * 3];
+                        for (h, &(_, fx)) in out.chunks_exact_mut(3).zip(&hat[x..x + run]) {
+                            for ch in 0..3 {
+                                h[ch] = (a[ch] * (1.0 - fx) + c[ch] * fx) * inv_b2;
+                            }
                         }
+                        x += run;
                     }
                 });
         }
@@ -1187,7 +1247,6 @@ impl GlareConvolver {
         if y0 >= y1 {
             return;
         }
-        let width = img.width;
         let fine = &self.fine;
         let weight = &self.weight;
         let hrows = &self.hrows;
