@@ -95,9 +95,10 @@
 //! frame is read from memory once for stages 5–8.
 //!
 //! Pixels are processed 8 at a time as channel planes with fixed trip
-//! counts, which the compiler turns into vector code (AVX2 + FMA when the
-//! CPU has it, chosen at run time; the code and the results are the same
-//! either way). The cube root and `exp` are vector polynomials (within
+//! counts. On a CPU with AVX2 + FMA (detected at run time) the row loops
+//! run their explicit-intrinsics twins (module `avx2`), which compute the same
+//! bits (the tests compare them); elsewhere the portable loops, written
+//! for the auto-vectoriser, run. The cube root and `exp` are vector polynomials (within
 //! 3e-7 of the standard library's) and are skipped for a block whose eight
 //! values all lie in L\*'s linear part (Y/Yn ≤ ε, most of a night frame).
 //! There step 4 needs no cube root either: with `g(t) = κt` and `g⁻¹(v) =
