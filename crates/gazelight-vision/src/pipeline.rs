@@ -656,7 +656,7 @@ impl FramePipeline {
 /// arithmetic pass by an order of magnitude on x86. Branch-free: both
 /// comparisons are false for NaN.
 #[inline(always)]
-fn sanitize(v: f32) -> f32 {
+pub(crate) fn sanitize(v: f32) -> f32 {
     if (f32::MIN_POSITIVE..f32::INFINITY).contains(&v) {
         v
     } else {
@@ -706,6 +706,12 @@ pub(crate) fn pass_a_row_portable(
     for (d, s) in drow.as_flattened_mut().iter_mut().zip(srow.as_flattened()) {
         *d = sanitize(*s);
     }
+    add_block_sums(drow, sums, ds);
+}
+
+/// Adds each `ds`-pixel block's luminance sum (pixels in order, the sum
+/// started at 0) of the sanitised row `drow` to its entry of `sums`.
+pub(crate) fn add_block_sums(drow: &[[f32; 3]], sums: &mut [f32], ds: usize) {
     for (dblk, acc) in drow.chunks(ds).zip(sums.iter_mut()) {
         let mut sum = 0.0f32;
         for p in dblk {

@@ -490,11 +490,7 @@ pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32
     let d = dst.as_flattened_mut();
     let head = (d.as_ptr().align_offset(32)).min(d.len());
     for (o, i) in d[..head].iter_mut().zip(&s[..head]) {
-        *o = if (f32::MIN_POSITIVE..f32::INFINITY).contains(i) {
-            *i
-        } else {
-            0.0
-        };
+        *o = crate::pipeline::sanitize(*i);
     }
     let body = (d.len() - head) / LANES * LANES;
     for k in (head..head + body).step_by(LANES) {
@@ -505,11 +501,7 @@ pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32
         unsafe { _mm256_stream_ps(out.as_mut_ptr(), v) };
     }
     for (o, i) in d[head + body..].iter_mut().zip(&s[head + body..]) {
-        *o = if (f32::MIN_POSITIVE..f32::INFINITY).contains(i) {
-            *i
-        } else {
-            0.0
-        };
+        *o = crate::pipeline::sanitize(*i);
     }
     // The block sums, eight blocks (64 pixels) at a time: each block's
     // eight luminances, transposed, are added in pixel order.
@@ -532,21 +524,9 @@ pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32
         let at = x / LANES;
         st(sums, at, _mm256_add_ps(ld(sums, at), sum));
     }
-    // The rest block by block, as the portable pass.
-    for (blk, acc) in src[full..].chunks(LANES).zip(&mut sums[full / LANES..]) {
-        let mut sum = 0.0f32;
-        for p in blk {
-            let q = p.map(|v| {
-                if (f32::MIN_POSITIVE..f32::INFINITY).contains(&v) {
-                    v
-                } else {
-                    0.0
-                }
-            });
-            sum += crate::image::luminance(q);
-        }
-        *acc += sum;
-    }
+    // The rest block by block from the sanitised copy, as the portable
+    // pass.
+    crate::pipeline::add_block_sums(&dst[full..], &mut sums[full / LANES..], LANES);
     _mm_sfence();
     true
 }
