@@ -69,16 +69,20 @@ def read(args):
     names = args.names.split(",")
     deadline = time.monotonic() + args.resolve_secs
     inlets = {}
-    for n in names:
-        while n not in inlets:
-            found = pylsl.resolve_byprop("name", n, 1, 0.5)
-            if found:
-                inlet = pylsl.StreamInlet(found[0], max_buflen=60, recover=False)
+    # All the names are resolved together, and each inlet is opened as soon
+    # as its stream is seen: resolving them one after another left the later
+    # streams connected seconds after the first on a loaded machine.
+    while len(inlets) < len(names):
+        for info in pylsl.resolve_streams(1.0):
+            n = info.name()
+            if n in names and n not in inlets:
+                inlet = pylsl.StreamInlet(info, max_buflen=60, recover=False)
                 inlet.open_stream(5.0)
                 inlets[n] = inlet
-            elif time.monotonic() > deadline:
-                print(json.dumps({"error": "stream %s not found" % n}))
-                return 1
+        if len(inlets) < len(names) and time.monotonic() > deadline:
+            missing = [n for n in names if n not in inlets]
+            print(json.dumps({"error": "streams %s not found" % ",".join(missing)}))
+            return 1
     sub = None
     if args.pupil_remote:
         import msgpack
