@@ -27,6 +27,7 @@
 
 pub mod acuity;
 pub mod colour;
+pub mod cpu;
 mod encode;
 pub mod error;
 pub mod glare;

@@ -670,6 +670,10 @@ pub(crate) fn sanitize(v: f32) -> f32 {
 /// the block sums `ds` at a time (no per-pixel division).
 fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usize, small_w: usize) {
     let w = scene.width;
+    // Non-temporal stores only when the frame read and written would not
+    // stay in cache anyway.
+    #[cfg(target_arch = "x86_64")]
+    let stream = !crate::cpu::frame_fits_in_cache(2 * std::mem::size_of_val(&scene.pixels[..]));
     work.pixels
         .par_chunks_mut(w * ds)
         .zip(scene.pixels.par_chunks(w * ds))
@@ -681,7 +685,7 @@ fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usiz
                 #[cfg(target_arch = "x86_64")]
                 if ds == crate::acuity::LANES && crate::acuity::has_avx2_fma() {
                     // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                    if unsafe { crate::acuity::avx2::pass_a_row(srow, drow, small_row) } {
+                    if unsafe { crate::acuity::avx2::pass_a_row(srow, drow, small_row, stream) } {
                         continue;
                     }
                 }

@@ -463,12 +463,20 @@ pub(crate) fn encode_affine(
 /// sanitised (NaN, ±∞, negatives and subnormals → 0) and each pixel's
 /// luminance added, in pixel order, to its block's sum in `sums` (blocks
 /// of 8 pixels, a block's sum started at 0 — the portable pass's order, so
-/// the same bits). The copy is written with non-temporal stores: the frame
-/// does not fit in cache, and they skip reading `dst` before writing it.
+/// the same bits). With `stream` the copy is written with non-temporal
+/// stores, which skip reading `dst` before writing it: the pipeline asks
+/// for them when the frame does not fit in the last-level cache
+/// ([`crate::cpu::frame_fits_in_cache`]); when it fits, plain stores leave
+/// the copy in cache for the glare and band passes that read it next.
 /// Returns false (and does nothing) unless `src` and `dst` hold the same
 /// number of pixels and `sums` one per started block.
 #[target_feature(enable = "avx2,fma")]
-pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32]) -> bool {
+pub(crate) fn pass_a_row(
+    src: &[[f32; 3]],
+    dst: &mut [[f32; 3]],
+    sums: &mut [f32],
+    stream: bool,
+) -> bool {
     let w = src.len();
     if dst.len() != w || sums.len() != w.div_ceil(LANES) {
         return false;
@@ -498,7 +506,13 @@ pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32
         let out = &mut d[k..k + LANES];
         // SAFETY: `out` holds 8 f32s and starts `head + 8j` floats past a
         // 32-byte boundary, i.e. on one (align_offset above).
-        unsafe { _mm256_stream_ps(out.as_mut_ptr(), v) };
+        unsafe {
+            if stream {
+                _mm256_stream_ps(out.as_mut_ptr(), v);
+            } else {
+                _mm256_store_ps(out.as_mut_ptr(), v);
+            }
+        }
     }
     for (o, i) in d[head + body..].iter_mut().zip(&s[head + body..]) {
         *o = crate::pipeline::sanitize(*i);
@@ -527,7 +541,9 @@ pub(crate) fn pass_a_row(src: &[[f32; 3]], dst: &mut [[f32; 3]], sums: &mut [f32
     // The rest block by block from the sanitised copy, as the portable
     // pass.
     crate::pipeline::add_block_sums(&dst[full..], &mut sums[full / LANES..], LANES);
-    _mm_sfence();
+    if stream {
+        _mm_sfence();
+    }
     true
 }
 
@@ -695,23 +711,23 @@ mod tests {
                 src[3] = [f32::NAN, f32::INFINITY, -1.0];
                 src[5] = [1e-40, f32::NEG_INFINITY, f32::MAX];
             }
-            // Every alignment of the destination's start.
-            for shift in 0..8 {
+            // Every alignment of the destination's start, streamed or not.
+            for (shift, stream) in (0..8).flat_map(|k| [(k, false), (k, true)]) {
                 let mut backing = vec![[0.0f32; 3]; w + 8];
                 let dst = &mut backing[shift..shift + w];
                 let mut sums = vec![0.5f32; w.div_ceil(8)];
                 // SAFETY: the CPU has AVX2 and FMA (checked above).
-                assert!(unsafe { pass_a_row(&src, dst, &mut sums) });
+                assert!(unsafe { pass_a_row(&src, dst, &mut sums, stream) });
                 let mut want_dst = vec![[0.0f32; 3]; w];
                 let mut want_sums = vec![0.5f32; w.div_ceil(8)];
                 crate::pipeline::pass_a_row_portable(&src, &mut want_dst, &mut want_sums, 8);
                 let bits =
                     |v: &[[f32; 3]]| v.iter().map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
-                assert_eq!(bits(dst), bits(&want_dst), "w {w} shift {shift}");
+                assert_eq!(bits(dst), bits(&want_dst), "w {w} shift {shift} {stream}");
                 assert_eq!(
                     sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
                     want_sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    "w {w} shift {shift}"
+                    "w {w} shift {shift} {stream}"
                 );
             }
         }
