@@ -28,21 +28,47 @@ pub struct TimelineRow {
     pub stats: FrameStats,
 }
 
+/// How hard [`write_png`] compresses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngCompression {
+    /// zlib's default level: smaller files, ~10× the time of `Fast`
+    /// (offline `render`, where time is not pressing).
+    Default,
+    /// fdeflate (the `png` crate's fast mode): for frames written during a
+    /// live session, where the encoder shares the CPU with the frame loop.
+    Fast,
+}
+
 /// Writes an RGBA display frame as an RGB PNG.
-pub fn write_png(path: &Path, frame: &DisplayFrame) -> anyhow::Result<()> {
+pub fn write_png(
+    path: &Path,
+    frame: &DisplayFrame,
+    compression: PngCompression,
+) -> anyhow::Result<()> {
+    use image::ImageEncoder;
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
     let rgb: Vec<u8> = frame
         .rgba8
         .chunks_exact(4)
         .flat_map(|p| [p[0], p[1], p[2]])
         .collect();
-    image::save_buffer(
-        path,
-        &rgb,
-        frame.width as u32,
-        frame.height as u32,
-        image::ColorType::Rgb8,
-    )
-    .with_context(|| format!("cannot write {}", path.display()))
+    let (kind, filter) = match compression {
+        PngCompression::Default => (CompressionType::Default, FilterType::Adaptive),
+        PngCompression::Fast => (CompressionType::Fast, FilterType::Adaptive),
+    };
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    PngEncoder::new_with_quality(&mut w, kind, filter)
+        .write_image(
+            &rgb,
+            frame.width as u32,
+            frame.height as u32,
+            image::ExtendedColorType::Rgb8,
+        )
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    w.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// A grid of downscaled frames.

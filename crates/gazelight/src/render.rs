@@ -360,7 +360,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         let out = if n_views > 1 { &composed } else { &eye_out[0] };
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
-            output::write_png(&path, out)?;
+            output::write_png(&path, out, output::PngCompression::Default)?;
         }
         if args.exr {
             let path = frames_dir.join(format!("frame_{i:05}.exr"));

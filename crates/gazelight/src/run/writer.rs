@@ -101,7 +101,6 @@ pub struct PsfEvent {
 
 enum Msg {
     Row(Row),
-    Frame(u64, DisplayFrame),
     Psf(PsfEvent),
     Xr(XrRow),
 }
@@ -169,8 +168,12 @@ pub struct WriterReport {
 /// The writer thread's handle (owned by the frame loop).
 pub struct OutputWriter {
     tx: Option<SyncSender<Msg>>,
+    /// To the PNG encoder thread: at most [`FRAME_POOL`] frames, as many
+    /// as there are buffers, so a send finds room whenever a buffer was free.
+    frame_tx: Option<SyncSender<(u64, DisplayFrame)>>,
     pool: Receiver<DisplayFrame>,
     thread: Option<JoinHandle<anyhow::Result<WriterReport>>>,
+    encoder: Option<JoinHandle<anyhow::Result<u64>>>,
     write_frames: bool,
     /// Rows or events dropped because the queue was full.
     pub dropped: u64,
@@ -216,6 +219,31 @@ impl OutputWriter {
         for _ in 0..FRAME_POOL {
             let _ = pool_tx.try_send(DisplayFrame::new(width, height));
         }
+        // The PNG encoder has its own thread at idle priority (see
+        // `lower_this_threads_priority`); rows and kernels stay on the
+        // writer thread, so their one-second flush never waits on an image.
+        let (frame_tx, frame_rx) = sync_channel::<(u64, DisplayFrame)>(FRAME_POOL);
+        let encoder = if write_frames {
+            Some(
+                std::thread::Builder::new()
+                    .name("gazelight-png".into())
+                    .spawn(move || -> anyhow::Result<u64> {
+                        lower_this_threads_priority();
+                        let mut written = 0;
+                        for (i, frame) in frame_rx {
+                            let p = frames_dir.join(format!("frame_{i:06}.png"));
+                            let r = output::write_png(&p, &frame, output::PngCompression::Fast);
+                            let _ = pool_tx.try_send(frame);
+                            r?;
+                            written += 1;
+                        }
+                        Ok(written)
+                    })
+                    .context("cannot start the frame encoder thread")?,
+            )
+        } else {
+            None
+        };
         let dir_owned = dir.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("gazelight-writer".into())
@@ -260,13 +288,6 @@ impl OutputWriter {
                                 format!("cannot write {}", timeline_path.display())
                             })?;
                             report.rows += 1;
-                        }
-                        Msg::Frame(i, frame) => {
-                            let p = frames_dir.join(format!("frame_{i:06}.png"));
-                            let r = output::write_png(&p, &frame);
-                            let _ = pool_tx.try_send(frame);
-                            r?;
-                            report.frames_written += 1;
                         }
                         Msg::Psf(ev) => {
                             let ring = ev.first_ring_rad.unwrap_or_else(|| {
@@ -333,8 +354,10 @@ impl OutputWriter {
             .context("cannot start the writer thread")?;
         Ok(Self {
             tx: Some(tx),
+            frame_tx: Some(frame_tx),
             pool,
             thread: Some(thread),
+            encoder,
             write_frames,
             dropped: 0,
             frames_skipped: 0,
@@ -381,11 +404,13 @@ impl OutputWriter {
         match self.pool.try_recv() {
             Ok(mut buf) if buf.rgba8.len() == frame.rgba8.len() => {
                 buf.rgba8.copy_from_slice(&frame.rgba8);
-                if let Some(Msg::Frame(_, b)) = self.send(Msg::Frame(index, buf)) {
-                    // Queue full: the buffer stays ours, the image is skipped.
+                let sent = self
+                    .frame_tx
+                    .as_ref()
+                    .is_some_and(|tx| tx.try_send((index, buf)).is_ok());
+                if !sent {
+                    // No room or no encoder: the image is skipped.
                     self.frames_skipped += 1;
-                    self.dropped -= 1;
-                    drop(b);
                 }
             }
             Ok(_) | Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => {
@@ -397,12 +422,19 @@ impl OutputWriter {
     /// Flushes everything and joins the thread.
     pub fn finish(mut self) -> anyhow::Result<WriterReport> {
         self.tx = None;
-        match self.thread.take() {
+        self.frame_tx = None;
+        let mut report = match self.thread.take() {
             Some(t) => t
                 .join()
-                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))?,
-            None => Ok(WriterReport::default()),
+                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))??,
+            None => WriterReport::default(),
+        };
+        if let Some(e) = self.encoder.take() {
+            report.frames_written = e
+                .join()
+                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))??;
         }
+        Ok(report)
     }
 }
 
@@ -457,4 +489,28 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
         );
     }
     let _ = writeln!(w, ",{:.3}", r.frame_ms);
+}
+
+/// Puts the calling thread (the PNG encoder) in Linux's `SCHED_IDLE`
+/// class: it runs when the frame loop leaves a core free, so on a busy
+/// machine the frames it cannot take are skipped and counted
+/// (`frames_skipped`) instead of the encoder taking the frame loop's
+/// cores. Measured (BENCHMARKS.md): a nice of 10 still cost the stereo run
+/// ~5 ms a frame. Moving one's own thread to `SCHED_IDLE` needs no
+/// privilege. A failure only costs frame time, so it is logged and ignored.
+fn lower_this_threads_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: a plain system call on the calling thread (pid 0).
+        let rc = unsafe {
+            let param = libc::sched_param { sched_priority: 0 };
+            libc::sched_setscheduler(0, libc::SCHED_IDLE, &param)
+        };
+        if rc != 0 {
+            tracing::debug!(
+                "writer: cannot lower the thread's priority: {}",
+                std::io::Error::last_os_error()
+            );
+        }
+    }
 }
