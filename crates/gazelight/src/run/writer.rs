@@ -3,8 +3,10 @@
 //!
 //! - `timeline.csv`: one row per frame (streamed, so memory stays bounded);
 //! - `frames/frame_NNNNNN.png`: the display frames, through a fixed pool of
-//!   frame buffers — when the encoder falls behind, a frame's image is
-//!   skipped (counted), never queued without bound;
+//!   frame buffers, encoded (fdeflate) on a second thread at idle priority
+//!   (`SCHED_IDLE`) so it only takes cores the frame loop leaves free —
+//!   when the encoder falls behind, a frame's image is skipped (counted),
+//!   never queued without bound;
 //! - `psf.csv`: one row per glare kernel installed (the initial one and
 //!   every rebuild): the pupil it was built for and the radius of the first
 //!   dark ring of its monochromatic PSF at the reference wavelength (001
