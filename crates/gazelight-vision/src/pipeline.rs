@@ -487,6 +487,22 @@ impl FramePipeline {
         input: &FrameInput,
         out: &mut DisplayFrame,
     ) -> Result<FrameStats, VisionError> {
+        // The whole frame runs on one of rayon's worker threads: the
+        // frame's parallel passes then split through work stealing, instead
+        // of each pass queueing its job from outside the pool and blocking
+        // the caller until a worker takes it (two thread switches a pass).
+        if rayon::current_thread_index().is_none() {
+            return rayon::scope(|_| self.process_on_pool(scene, input, out));
+        }
+        self.process_on_pool(scene, input, out)
+    }
+
+    fn process_on_pool(
+        &mut self,
+        scene: &RgbImage,
+        input: &FrameInput,
+        out: &mut DisplayFrame,
+    ) -> Result<FrameStats, VisionError> {
         if scene.width != self.width || scene.height != self.height {
             return Err(VisionError::SizeMismatch {
                 what: "scene frame",
