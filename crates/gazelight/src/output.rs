@@ -31,8 +31,8 @@ pub struct TimelineRow {
 /// How hard [`write_png`] compresses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PngCompression {
-    /// zlib's default level: smaller files, ~10× the time of `Fast`
-    /// (offline `render`, where time is not pressing).
+    /// zlib's default level: smaller files, slower (offline `render`,
+    /// where time is not pressing).
     Default,
     /// fdeflate (the `png` crate's fast mode): for frames written during a
     /// live session, where the encoder shares the CPU with the frame loop.
@@ -52,14 +52,14 @@ pub fn write_png(
         .chunks_exact(4)
         .flat_map(|p| [p[0], p[1], p[2]])
         .collect();
-    let (kind, filter) = match compression {
-        PngCompression::Default => (CompressionType::Default, FilterType::Adaptive),
-        PngCompression::Fast => (CompressionType::Fast, FilterType::Adaptive),
+    let kind = match compression {
+        PngCompression::Default => CompressionType::Default,
+        PngCompression::Fast => CompressionType::Fast,
     };
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut w = std::io::BufWriter::new(file);
-    PngEncoder::new_with_quality(&mut w, kind, filter)
+    PngEncoder::new_with_quality(&mut w, kind, FilterType::Adaptive)
         .write_image(
             &rgb,
             frame.width as u32,

@@ -425,16 +425,19 @@ impl OutputWriter {
     pub fn finish(mut self) -> anyhow::Result<WriterReport> {
         self.tx = None;
         self.frame_tx = None;
-        let mut report = match self.thread.take() {
-            Some(t) => t
-                .join()
-                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))??,
-            None => WriterReport::default(),
-        };
-        if let Some(e) = self.encoder.take() {
-            report.frames_written = e
-                .join()
-                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))??;
+        // Both threads are joined before either's error is returned: the
+        // images already queued are written whatever the rows' fate.
+        let rows = self.thread.take().map(|t| {
+            t.join()
+                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))?
+        });
+        let images = self.encoder.take().map(|e| {
+            e.join()
+                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))?
+        });
+        let mut report = rows.transpose()?.unwrap_or_default();
+        if let Some(written) = images.transpose()? {
+            report.frames_written = written;
         }
         Ok(report)
     }
@@ -510,7 +513,7 @@ fn lower_this_threads_priority() {
         };
         if rc != 0 {
             tracing::debug!(
-                "writer: cannot lower the thread's priority: {}",
+                "frame encoder: cannot lower the thread's priority: {}",
                 std::io::Error::last_os_error()
             );
         }
