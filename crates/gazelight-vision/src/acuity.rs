@@ -96,8 +96,10 @@
 //!
 //! Pixels are processed 8 at a time as channel planes with fixed trip
 //! counts. On a CPU with AVX2 + FMA (detected at run time) the row loops
-//! run their explicit-intrinsics twins (module `avx2`), which compute the same
-//! bits (the tests compare them); elsewhere the portable loops, written
+//! run their explicit-intrinsics twins (module `avx2`), and with AVX-512F
+//! too, twins on blocks of 16 (module `avx512`, a row's last 8 in AVX2),
+//! which compute the same bits (the tests compare all three builds on the
+//! shared night panorama); elsewhere the portable loops, written
 //! for the auto-vectoriser, run. The cube root and `exp` are vector polynomials (within
 //! 3e-7 of the standard library's) and are skipped for a block whose eight
 //! values all lie in L\*'s linear part (Y/Yn ≤ ε, most of a night frame).
@@ -119,6 +121,8 @@ use crate::{RgbImage, VisionError};
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 /// Pixels per degree of the HTC Vive Pro, 1440 px over 104° (001 §4.3.2),
 /// the display 001 eq 12 was fitted for.
@@ -387,9 +391,33 @@ pub struct AcuityBlur {
     /// Per band: the original pixels of its first and last `max_radius`
     /// rows, taken before any band writes (the neighbours' halo).
     stash: Vec<Vec<[f32; 3]>>,
-    /// Run the portable row loops even where the CPU has AVX2 (the tests
-    /// compare the two).
-    portable: bool,
+    /// The widest instruction set the row loops may use (below what the
+    /// CPU has only in the tests, which compare the builds).
+    isa: Isa,
+}
+
+/// Instruction sets of the row loops, narrowest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(crate) enum Isa {
+    /// The portable loops.
+    Portable,
+    /// [`avx2`] (AVX2 + FMA).
+    Avx2,
+    /// [`avx512`] (AVX-512F), then [`avx2`] for a row's last block of 8.
+    Avx512,
+}
+
+impl Isa {
+    /// The widest this CPU runs.
+    pub(crate) fn detect() -> Self {
+        if has_avx512() {
+            Isa::Avx512
+        } else if has_avx2_fma() {
+            Isa::Avx2
+        } else {
+            Isa::Portable
+        }
+    }
 }
 
 /// The scratch of one band of rows.
@@ -452,6 +480,9 @@ struct Ctx {
     stride_h: usize,
     /// The CPU has AVX2 + FMA: the row loops run their [`avx2`] twins.
     avx2: bool,
+    /// The CPU has AVX-512F too: the row loops run their [`avx512`] twins
+    /// on blocks of 16 first.
+    avx512: bool,
 }
 
 impl AcuityBlur {
@@ -529,7 +560,7 @@ impl AcuityBlur {
             band_rows: 1,
             bands: Vec::new(),
             stash: Vec::new(),
-            portable: false,
+            isa: Isa::detect(),
         };
         blur.resize(width, height);
         blur
@@ -616,7 +647,8 @@ impl AcuityBlur {
             dark_below: self.blur_below_cd_m2 / self.white_cd_m2,
             stride_l: 2 * r + w.next_multiple_of(LANES),
             stride_h: w.next_multiple_of(LANES),
-            avx2: has_avx2_fma() && !self.portable,
+            avx2: self.isa >= Isa::Avx2,
+            avx512: self.isa >= Isa::Avx512,
         };
         // The halo rows of every band, before any band writes.
         self.stash
@@ -665,12 +697,40 @@ pub(crate) fn has_avx2_fma() -> bool {
     false
 }
 
+/// Whether the CPU runs the AVX-512F build of the row loops (it has AVX2
+/// and FMA too).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn has_avx512() -> bool {
+    has_avx2_fma() && std::arch::is_x86_feature_detected!("avx512f")
+}
+
+/// Not an x86-64 CPU.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn has_avx512() -> bool {
+    false
+}
+
 /// [`run_band`] compiled for AVX2 + FMA. The code and so the results are
 /// the same as the portable build (no fused multiply-adds are requested;
 /// only the instruction set differs).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn run_band_avx2<S: RowSink>(
+    ctx: &Ctx,
+    band: &mut Band,
+    px: &mut [[f32; 3]],
+    y0: usize,
+    halo: Halo<'_>,
+    sink: &S,
+    out: &mut [S::Out],
+) -> usize {
+    run_band(ctx, band, px, y0, halo, sink, out)
+}
+
+/// [`run_band`] compiled for AVX-512F (the same code and results).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+fn run_band_avx512<S: RowSink>(
     ctx: &Ctx,
     band: &mut Band,
     px: &mut [[f32; 3]],
@@ -691,6 +751,11 @@ fn run_band_dispatch<S: RowSink>(
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx512() {
+        // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just above).
+        return unsafe { run_band_avx512(ctx, band, px, y0, halo, sink, out) };
+    }
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), the only
@@ -829,9 +894,16 @@ fn mat3_v(m: &[[f32; 3]; 3], p: &[V; 3]) -> [V; 3] {
 fn load_y(ctx: &Ctx, src: &[[f32; 3]], lrow: &mut [f32], head: &mut [f32]) -> bool {
     #[cfg(target_arch = "x86_64")]
     if ctx.avx2 {
+        let (dark16, from) = if ctx.avx512 {
+            // SAFETY: `ctx.avx512` is set only where the CPU has AVX-512F,
+            // AVX2 and FMA.
+            unsafe { avx512::load_y(ctx, src, lrow, head) }
+        } else {
+            (false, 0)
+        };
         // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
-        let (dark, done) = unsafe { avx2::load_y(ctx, src, lrow, head) };
-        return load_y_from(ctx, src, lrow, head, done) | dark;
+        let (dark, done) = unsafe { avx2::load_y(ctx, src, lrow, head, from) };
+        return load_y_from(ctx, src, lrow, head, done) | dark | dark16;
     }
     load_y_from(ctx, src, lrow, head, 0)
 }
@@ -875,8 +947,15 @@ fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
     let (r, w) = (ctx.r, ctx.w);
     #[cfg(target_arch = "x86_64")]
     let portable = if ctx.avx2 {
+        let from = if ctx.avx512 {
+            // SAFETY: `ctx.avx512` is set only where the CPU has AVX-512F,
+            // AVX2 and FMA.
+            unsafe { avx512::to_lightness(ctx, lrow) }
+        } else {
+            0
+        };
         // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
-        unsafe { avx2::to_lightness(ctx, lrow) };
+        unsafe { avx2::to_lightness(ctx, lrow, from) };
         false
     } else {
         true
@@ -901,8 +980,15 @@ fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
 fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
     if ctx.avx2 {
+        let from = if ctx.avx512 {
+            // SAFETY: `ctx.avx512` is set only where the CPU has AVX-512F,
+            // AVX2 and FMA.
+            unsafe { avx512::horizontal(ctx, lrow, hrow) }
+        } else {
+            0
+        };
         // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
-        unsafe { avx2::horizontal(ctx, lrow, hrow) };
+        unsafe { avx2::horizontal(ctx, lrow, hrow, from) };
         return;
     }
     let r = ctx.r;
@@ -937,8 +1023,17 @@ fn vertical(ctx: &Ctx, band: &Band, y: usize, row: &mut [[f32; 3]]) -> usize {
     }
     #[cfg(target_arch = "x86_64")]
     let (mut changed, from) = if ctx.avx2 {
+        let (changed16, from) = if ctx.avx512 {
+            // SAFETY: `ctx.avx512` is set only where the CPU has AVX-512F,
+            // AVX2 and FMA.
+            unsafe { avx512::vertical(ctx, band, &up[..=r], &down[..=r], y, row) }
+        } else {
+            (0, 0)
+        };
         // SAFETY: `ctx.avx2` is set only where the CPU has AVX2 and FMA.
-        unsafe { avx2::vertical(ctx, band, &up[..=r], &down[..=r], y, row) }
+        let (changed, done) =
+            unsafe { avx2::vertical(ctx, band, &up[..=r], &down[..=r], y, row, from) };
+        (changed16 + changed, done)
     } else {
         (0, 0)
     };
@@ -1411,23 +1506,35 @@ mod tests {
             }
         });
         cases.push(("hot pixels".into(), hot, 1.0 / 41.55));
+        // Every build this CPU runs against the portable one: AVX2 alone,
+        // and AVX-512 (blocks of 16, a row's last 8 in AVX2).
+        let isas: Vec<Isa> = [Isa::Avx2, Isa::Avx512]
+            .into_iter()
+            .filter(|&i| i <= Isa::detect())
+            .collect();
+        eprintln!("builds compared with the portable one: {isas:?}");
         for (what, img, dpp) in cases {
             let (w, h) = (img.width, img.height);
-            let mut fast = AcuityBlur::new(&AcuityModel::default(), w, h, dpp);
-            let mut slow = fast.clone();
-            slow.portable = true;
-            let (mut a, mut b) = (img.clone(), img.clone());
-            let (na, nb) = (fast.apply(&mut a), slow.apply(&mut b));
-            assert_eq!(na, nb, "{what}: pixels changed");
-            let differ = a
-                .pixels
-                .iter()
-                .zip(&b.pixels)
-                .filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits))
-                .count();
-            eprintln!("{what}: {na} px blurred, {differ} differ");
-            assert!(na > 0, "{what}: nothing blurred");
-            assert_eq!(differ, 0, "{what}");
+            let mut slow = AcuityBlur::new(&AcuityModel::default(), w, h, dpp);
+            slow.isa = Isa::Portable;
+            let mut b = img.clone();
+            let nb = slow.apply(&mut b);
+            assert!(nb > 0, "{what}: nothing blurred");
+            for &isa in &isas {
+                let mut fast = slow.clone();
+                fast.isa = isa;
+                let mut a = img.clone();
+                let na = fast.apply(&mut a);
+                assert_eq!(na, nb, "{what} {isa:?}: pixels changed");
+                let differ = a
+                    .pixels
+                    .iter()
+                    .zip(&b.pixels)
+                    .filter(|(p, q)| p.map(f32::to_bits) != q.map(f32::to_bits))
+                    .count();
+                eprintln!("{what} {isa:?}: {na} px blurred, {differ} differ");
+                assert_eq!(differ, 0, "{what} {isa:?}");
+            }
         }
     }
 

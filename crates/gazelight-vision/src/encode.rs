@@ -22,14 +22,19 @@ use crate::tone::{self, Op as ToneOp, ToneFrame};
 pub(crate) const SRGB_LUT_SIZE: usize = 16384;
 const _: () = assert!(SRGB_LUT_SIZE.is_power_of_two());
 
-/// The sRGB encoding table: entry `i` is the 8-bit code of linear
-/// `i / (N − 1)`.
-pub(crate) type SrgbLut = [u8; SRGB_LUT_SIZE];
+/// Bytes past the table's last entry (copies of it, never indexed): the
+/// AVX-512 encoding reads 4 bytes at each index.
+pub(crate) const SRGB_LUT_PAD: usize = 4;
+
+/// The sRGB encoding table: entry `i < N` is the 8-bit code of linear
+/// `i / (N − 1)`, then [`SRGB_LUT_PAD`] copies of the last.
+pub(crate) type SrgbLut = [u8; SRGB_LUT_SIZE + SRGB_LUT_PAD];
 
 /// Builds the table from [`crate::pipeline::srgb_encode`].
 pub(crate) fn srgb_lut() -> Box<SrgbLut> {
-    let mut lut = Box::new([0u8; SRGB_LUT_SIZE]);
+    let mut lut = Box::new([0u8; SRGB_LUT_SIZE + SRGB_LUT_PAD]);
     for (i, v) in lut.iter_mut().enumerate() {
+        let i = i.min(SRGB_LUT_SIZE - 1);
         *v = (crate::pipeline::srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round()
             as u8;
     }
@@ -128,8 +133,23 @@ impl Map for Affine {
     fn encode_fast(&self, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) -> usize {
         #[cfg(target_arch = "x86_64")]
         if crate::acuity::has_avx2_fma() {
+            let from = if crate::acuity::has_avx512() {
+                // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just
+                // above).
+                unsafe { crate::acuity::avx512::encode_affine(self, lut, src, rgba8) }
+            } else {
+                0
+            };
             // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            return unsafe { crate::acuity::avx2::encode_affine(self, lut, src, rgba8) };
+            return from
+                + unsafe {
+                    crate::acuity::avx2::encode_affine(
+                        self,
+                        lut,
+                        &src[from..],
+                        &mut rgba8[4 * from..],
+                    )
+                };
         }
         let _ = (lut, src, rgba8);
         0

@@ -910,7 +910,7 @@ fn reference_pass_c(
     work: &RgbImage,
     display: &mut RgbImage,
     out: &mut DisplayFrame,
-    lut: &[u8; SRGB_LUT_SIZE],
+    lut: &SrgbLut,
     to_display: bool,
 ) {
     if to_display {

@@ -293,14 +293,16 @@ macro_rules! gather {
     }};
 }
 
-/// [`super::load_y`] over the row's full blocks; returns (any pixel dark,
-/// pixels done). The caller finishes the tail.
+/// [`super::load_y`] over the row's full blocks from pixel `from` (a
+/// multiple of 8) on; returns (any of those pixels dark, pixels done). The
+/// caller finishes the tail.
 #[target_feature(enable = "avx2,fma")]
 pub(super) fn load_y(
     ctx: &Ctx,
     src: &[[f32; 3]],
     lrow: &mut [f32],
     head: &mut [f32],
+    from: usize,
 ) -> (bool, usize) {
     let y_row = RGB_TO_XYZ[1];
     let inv_white = splat(1.0 / ctx.white);
@@ -308,7 +310,7 @@ pub(super) fn load_y(
     let dark_below = splat(ctx.dark_below);
     let mut dark = _mm256_setzero_ps();
     let full = src.len() / LANES * LANES;
-    for x in (0..full).step_by(LANES) {
+    for x in (from.min(full)..full).step_by(LANES) {
         let [r, g, b] = deinterleave(&src[x..x + LANES]);
         let y = _mm256_add_ps(
             _mm256_add_ps(_mm256_mul_ps(c0, r), _mm256_mul_ps(c1, g)),
@@ -326,28 +328,30 @@ pub(super) fn load_y(
     (_mm256_movemask_ps(dark) != 0, full)
 }
 
-/// [`super::to_lightness`]'s conversion (the caller pads the row).
+/// [`super::to_lightness`]'s conversion from pixel `from` (a multiple of
+/// 8) on (the caller pads the row).
 #[target_feature(enable = "avx2,fma")]
-pub(super) fn to_lightness(ctx: &Ctx, lrow: &mut [f32]) {
-    for x in (ctx.r..ctx.r + ctx.stride_h).step_by(LANES) {
+pub(super) fn to_lightness(ctx: &Ctx, lrow: &mut [f32], from: usize) {
+    for x in (ctx.r + from.min(ctx.stride_h)..ctx.r + ctx.stride_h).step_by(LANES) {
         let t = ld(lrow, x);
         st(lrow, x, lab_g(t));
     }
 }
 
-/// [`super::horizontal`].
+/// [`super::horizontal`] from pixel `from` (a multiple of 8) on.
 #[target_feature(enable = "avx2,fma")]
-pub(super) fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32]) {
+pub(super) fn horizontal(ctx: &Ctx, lrow: &[f32], hrow: &mut [f32], from: usize) {
     let r = ctx.r;
-    for bx in 0..ctx.stride_h / LANES {
+    for bx in from / LANES..ctx.stride_h / LANES {
         let x = r + bx * LANES;
         let v = gather!(ctx, ld(lrow, x), |k| (ld(lrow, x - k), ld(lrow, x + k)));
         st(hrow, bx * LANES, v);
     }
 }
 
-/// [`super::vertical`] over the row's full blocks; returns (pixels whose
-/// lightness changed, pixels done). The caller finishes the tail.
+/// [`super::vertical`] over the row's full blocks from pixel `from` (a
+/// multiple of 8) on; returns (pixels whose lightness changed, pixels
+/// done). The caller finishes the tail.
 #[target_feature(enable = "avx2,fma")]
 pub(super) fn vertical(
     ctx: &Ctx,
@@ -356,6 +360,7 @@ pub(super) fn vertical(
     down: &[usize],
     y: usize,
     row: &mut [[f32; 3]],
+    from: usize,
 ) -> (usize, usize) {
     let Ctx { r, .. } = *ctx;
     let ring = 2 * r + 1;
@@ -368,7 +373,7 @@ pub(super) fn vertical(
     let shift_scale = splat(ctx.white / LAB_KAPPA_F32);
     let mut changed = 0;
     let full = row.len() / LANES * LANES;
-    for x in (0..full).step_by(LANES) {
+    for x in (from.min(full)..full).step_by(LANES) {
         let hv = ld(hor, up[0] + x);
         let l_new = gather!(ctx, hv, |k| (ld(hor, up[k] + x), ld(hor, down[k] + x)));
         let l_old = ld(lrow, x);
