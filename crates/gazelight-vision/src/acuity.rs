@@ -434,6 +434,9 @@ struct Band {
     head: Vec<f32>,
     /// Per frame row: holds a pixel below the blur threshold.
     dark: Vec<bool>,
+    /// One frame row: where a band filled from a [`RowSource`] puts the
+    /// rows of its neighbours that it reads (their Y only).
+    scratch: Vec<[f32; 3]>,
 }
 
 /// Lanes of the vectorised blocks (one AVX2 register of f32).
@@ -462,6 +465,23 @@ impl RowSink for NoSink {
     }
     #[inline(always)]
     fn row(&self, _: &[[f32; 3]], _: &mut [()]) {}
+}
+
+/// Where a band pass filled from a source gets the frame's rows
+/// ([`AcuityBlur::apply_from`]): each row is made just before the band
+/// first reads it, so it is read while in cache (the pipeline makes a row
+/// as the sanitised scene row with the glare blended in).
+pub(crate) trait RowSource: Sync {
+    /// Writes row `y` of the frame (linear RGB, cd/m², `row.len()` pixels)
+    /// into `row`.
+    fn fill(&self, y: usize, row: &mut [[f32; 3]]);
+}
+
+/// A source that is never read ([`AcuityBlur::apply_into`]).
+struct NoSource;
+
+impl RowSource for NoSource {
+    fn fill(&self, _: usize, _: &mut [[f32; 3]]) {}
 }
 
 /// The per-frame constants of the blur.
@@ -594,6 +614,7 @@ impl AcuityBlur {
                 hor: vec![0.0; (2 * r + 1) * stride_h],
                 head: vec![0.0; (2 * r + 1) * stride_h],
                 dark: vec![false; h],
+                scratch: vec![[0.0; 3]; w],
             })
             .collect();
         self.stash = (0..n).map(|_| vec![[0.0; 3]; 2 * r * w]).collect();
@@ -617,6 +638,30 @@ impl AcuityBlur {
         sink: &S,
         out: &mut [S::Out],
     ) -> usize {
+        self.run(img, None::<&NoSource>, sink, out)
+    }
+
+    /// [`apply_into`](Self::apply_into) of the frame that `src` makes:
+    /// each row of `img` is first filled by `src` (whatever `img` held is
+    /// overwritten), just before the band pass reads it; `img` ends as the
+    /// blurred frame, as with [`apply_into`](Self::apply_into).
+    pub(crate) fn apply_from<S: RowSink, R: RowSource>(
+        &mut self,
+        src: &R,
+        img: &mut RgbImage,
+        sink: &S,
+        out: &mut [S::Out],
+    ) -> usize {
+        self.run(img, Some(src), sink, out)
+    }
+
+    fn run<S: RowSink, R: RowSource>(
+        &mut self,
+        img: &mut RgbImage,
+        src: Option<&R>,
+        sink: &S,
+        out: &mut [S::Out],
+    ) -> usize {
         let (w, h) = (img.width, img.height);
         let per_row = sink.per_row();
         if w == 0 || h == 0 || img.pixels.len() != w * h || out.len() != h * per_row {
@@ -629,10 +674,18 @@ impl AcuityBlur {
         let r = self.max_radius;
         if r == 0 || matches!(self.rule, SigmaRule::None) {
             img.pixels
-                .par_chunks(band_rows * w)
+                .par_chunks_mut(band_rows * w)
                 .zip(out.par_chunks_mut(band_rows * per_row))
-                .for_each(|(px, out)| {
-                    for (row, o) in px.chunks_exact(w).zip(out.chunks_exact_mut(per_row)) {
+                .enumerate()
+                .for_each(|(b, (px, out))| {
+                    for (k, (row, o)) in px
+                        .chunks_exact_mut(w)
+                        .zip(out.chunks_exact_mut(per_row))
+                        .enumerate()
+                    {
+                        if let Some(src) = src {
+                            src.fill(b * band_rows + k, row);
+                        }
                         sink.row(row, o);
                     }
                 });
@@ -650,6 +703,20 @@ impl AcuityBlur {
             avx2: self.isa >= Isa::Avx2,
             avx512: self.isa >= Isa::Avx512,
         };
+        let bands = self
+            .bands
+            .par_iter_mut()
+            .zip(img.pixels.par_chunks_mut(band_rows * w))
+            .zip(out.par_chunks_mut(band_rows * per_row))
+            .enumerate();
+        if let Some(src) = src {
+            let input = Filled { src };
+            return bands
+                .map(|(b, ((band, px), out))| {
+                    run_band_dispatch(&ctx, band, px, b * band_rows, &input, sink, out)
+                })
+                .sum();
+        }
         // The halo rows of every band, before any band writes.
         self.stash
             .par_iter_mut()
@@ -671,7 +738,7 @@ impl AcuityBlur {
                     above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
                     below: stash.get(b + 1).map(|s| &s[..r * w]),
                 };
-                run_band_dispatch(&ctx, band, px, b * band_rows, halo, sink, out)
+                run_band_dispatch(&ctx, band, px, b * band_rows, &halo, sink, out)
             })
             .sum()
     }
@@ -683,6 +750,73 @@ impl AcuityBlur {
 struct Halo<'a> {
     above: Option<&'a [[f32; 3]]>,
     below: Option<&'a [[f32; 3]]>,
+}
+
+/// How a band gets its rows: in place with a [`Halo`], or made by a
+/// [`RowSource`] ([`Filled`]).
+trait BandInput: Sync {
+    /// Readies row `t` of the band, `row` (in place: nothing to do).
+    fn band_row(&self, t: usize, row: &mut [[f32; 3]]);
+    /// Row `t` outside the band `y0..y1` (within `r` of it), `w` pixels;
+    /// `scratch` (one row) may hold it.
+    fn outside<'s>(
+        &'s self,
+        t: usize,
+        y0: usize,
+        y1: usize,
+        r: usize,
+        scratch: &'s mut [[f32; 3]],
+    ) -> &'s [[f32; 3]];
+}
+
+impl BandInput for Halo<'_> {
+    #[inline(always)]
+    fn band_row(&self, _: usize, _: &mut [[f32; 3]]) {}
+
+    #[inline(always)]
+    fn outside<'s>(
+        &'s self,
+        t: usize,
+        y0: usize,
+        y1: usize,
+        r: usize,
+        scratch: &'s mut [[f32; 3]],
+    ) -> &'s [[f32; 3]] {
+        let w = scratch.len();
+        if t < y0 {
+            let a = self.above.unwrap_or(&[]);
+            &a[(t + r - y0) * w..(t + r - y0 + 1) * w]
+        } else {
+            let b = self.below.unwrap_or(&[]);
+            &b[(t - y1) * w..(t - y1 + 1) * w]
+        }
+    }
+}
+
+/// Rows made by a [`RowSource`], those of the neighbours in the band's
+/// scratch row.
+struct Filled<'a, R> {
+    src: &'a R,
+}
+
+impl<R: RowSource> BandInput for Filled<'_, R> {
+    #[inline(always)]
+    fn band_row(&self, t: usize, row: &mut [[f32; 3]]) {
+        self.src.fill(t, row);
+    }
+
+    #[inline(always)]
+    fn outside<'s>(
+        &'s self,
+        t: usize,
+        _: usize,
+        _: usize,
+        _: usize,
+        scratch: &'s mut [[f32; 3]],
+    ) -> &'s [[f32; 3]] {
+        self.src.fill(t, scratch);
+        scratch
+    }
 }
 
 /// Whether the CPU runs the AVX2 + FMA build of the band pass.
@@ -715,54 +849,54 @@ pub(crate) fn has_avx512() -> bool {
 /// only the instruction set differs).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn run_band_avx2<S: RowSink>(
+fn run_band_avx2<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
     px: &mut [[f32; 3]],
     y0: usize,
-    halo: Halo<'_>,
+    input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, px, y0, halo, sink, out)
+    run_band(ctx, band, px, y0, input, sink, out)
 }
 
 /// [`run_band`] compiled for AVX-512F (the same code and results).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
-fn run_band_avx512<S: RowSink>(
+fn run_band_avx512<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
     px: &mut [[f32; 3]],
     y0: usize,
-    halo: Halo<'_>,
+    input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, px, y0, halo, sink, out)
+    run_band(ctx, band, px, y0, input, sink, out)
 }
 
-fn run_band_dispatch<S: RowSink>(
+fn run_band_dispatch<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
     px: &mut [[f32; 3]],
     y0: usize,
-    halo: Halo<'_>,
+    input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if has_avx512() {
         // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just above).
-        return unsafe { run_band_avx512(ctx, band, px, y0, halo, sink, out) };
+        return unsafe { run_band_avx512(ctx, band, px, y0, input, sink, out) };
     }
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), the only
         // requirement of a `target_feature` function.
-        return unsafe { run_band_avx2(ctx, band, px, y0, halo, sink, out) };
+        return unsafe { run_band_avx2(ctx, band, px, y0, input, sink, out) };
     }
-    run_band(ctx, band, px, y0, halo, sink, out)
+    run_band(ctx, band, px, y0, input, sink, out)
 }
 
 /// One band of rows `y0..y0 + px.len()/w`, streaming: each row's Y/Yn and
@@ -771,12 +905,12 @@ fn run_band_dispatch<S: RowSink>(
 /// of the neighbouring bands come from `halo`. Returns the number of
 /// pixels whose lightness changed.
 #[inline(always)]
-fn run_band<S: RowSink>(
+fn run_band<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
     px: &mut [[f32; 3]],
     y0: usize,
-    halo: Halo<'_>,
+    input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
@@ -798,14 +932,12 @@ fn run_band<S: RowSink>(
             let last = (j + r).min(y1 - 1).max(j);
             while next_y <= last {
                 let t = next_y;
-                let src: &[[f32; 3]] = if t < y0 {
-                    let a = halo.above.unwrap_or(&[]);
-                    &a[(t + r - y0) * w..(t + r - y0 + 1) * w]
-                } else if t >= y1 {
-                    let b = halo.below.unwrap_or(&[]);
-                    &b[(t - y1) * w..(t - y1 + 1) * w]
+                let src: &[[f32; 3]] = if t < y0 || t >= y1 {
+                    input.outside(t, y0, y1, r, &mut band.scratch)
                 } else {
-                    &px[(t - y0) * w..(t - y0 + 1) * w]
+                    let row = &mut px[(t - y0) * w..(t - y0 + 1) * w];
+                    input.band_row(t, row);
+                    row
                 };
                 let slot = t % ring;
                 band.dark[t] = load_y(

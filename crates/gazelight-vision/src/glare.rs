@@ -63,6 +63,15 @@
 //! (farther from every source than the kernel's radius) are neither
 //! inverted nor blended. Spectra are f32; `apply` allocates nothing.
 //!
+//! # Blending row by row
+//!
+//! [`GlareConvolver::apply`] is [`GlareConvolver::prepare`] (weight the
+//! sources, convolve; the frame is only read) then
+//! [`GlareConvolver::blend_row`] on every row the glare reaches. The CPU
+//! pipeline calls the two apart: it blends each row inside its band pass,
+//! right after reading the row from the scene, so the frame is not read
+//! and written once more just for the glare.
+//!
 //! # Spectra made elsewhere
 //!
 //! [`GlareConvolver::set_kernel`] computes a kernel's spectra in place
@@ -80,6 +89,7 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
+use crate::pipeline::sanitize;
 use crate::psf::PsfKernel;
 use crate::{RgbImage, VisionError};
 
@@ -841,6 +851,33 @@ pub struct GlareConvolver {
     /// 3 floats per column: `(W_c + 2)` rows of `W_c · b` columns (row
     /// `j + 1` holds block row `j`, `j` from −1 to `W_c`).
     hrows: Vec<f32>,
+    /// What [`GlareConvolver::blend_row`] adds to each row, set by
+    /// [`GlareConvolver::prepare`] (`None`: nothing to add).
+    plan: Option<BlendPlan>,
+}
+
+/// Where the prepared glare lands in the frame (image and window
+/// coordinates), from [`GlareConvolver::prepare`].
+#[derive(Clone, Debug)]
+struct BlendPlan {
+    /// Rows with output: the fine rows ∪ the coarse rows.
+    rows: Range<i64>,
+    /// Fine output rows and columns, image coordinates.
+    fine_rows: Range<i64>,
+    fine_cols: Range<i64>,
+    /// Fine window origin.
+    ofx: i64,
+    ofy: i64,
+    /// Coarse window origin (the y one, for `hat`).
+    ocy: i64,
+    /// Coarse output rows, image coordinates (empty: no coarse part).
+    coarse_rows: Range<i64>,
+    /// Coarse output columns: image columns `cx0..cx1` are `hrows`
+    /// columns `xs..xe`.
+    cx0: usize,
+    cx1: usize,
+    xs: usize,
+    xe: usize,
 }
 
 impl GlareConvolver {
@@ -920,6 +957,7 @@ impl GlareConvolver {
             fade,
             hat,
             hrows: vec![0.0; (wc + 2) * wc * block * 3],
+            plan: None,
         };
         conv.set_kernel(kernel)?;
         Ok(conv)
@@ -1022,9 +1060,32 @@ impl GlareConvolver {
     }
 
     /// Convolves `img` with the kernel around `gaze_px` (pixel coordinates,
-    /// x right, y down) and blends it in place (see the module docs). Does
-    /// nothing for a non-finite gaze or an empty image.
+    /// x right, y down) and blends it in place (see the module docs):
+    /// [`GlareConvolver::prepare`], then [`GlareConvolver::blend_row`] on
+    /// every row it reaches. Does nothing for a non-finite gaze or an empty
+    /// image.
     pub fn apply(&mut self, img: &mut RgbImage, gaze_px: [f64; 2]) {
+        self.prepare(img, gaze_px);
+        let Some(rows) = self.plan.as_ref().map(|p| p.rows.clone()) else {
+            return;
+        };
+        let width = img.width;
+        let this = &*self;
+        img.pixels[rows.start as usize * width..rows.end as usize * width]
+            .par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(k, row)| this.blend_row(rows.start as usize + k, row));
+    }
+
+    /// The glare of the frame `src` around `gaze_px` (pixel coordinates,
+    /// x right, y down), ready for [`GlareConvolver::blend_row`]: the
+    /// weighted sources (NaN, ±∞, negative and subnormal values count as 0)
+    /// convolved with the fine and coarse kernels. `src` is only read; the
+    /// frame's rows are blended later, each as it is needed (the CPU
+    /// pipeline blends them inside its band pass). Prepares nothing for a
+    /// non-finite gaze or an empty image.
+    pub fn prepare(&mut self, img: &RgbImage, gaze_px: [f64; 2]) {
+        self.plan = None;
         if !gaze_px[0].is_finite()
             || !gaze_px[1].is_finite()
             || img.width == 0
@@ -1127,7 +1188,7 @@ impl GlareConvolver {
                             fade[i] + (fade[i + 1] - fade[i]) * t
                         };
                         if wgt > 0.0 {
-                            let p = src[x as usize];
+                            let p = src[x as usize].map(sanitize);
                             frg[fi] = Complex::new(p[0] * wgt, p[1] * wgt);
                             *lane(&mut fb[fi], odd == 1) = p[2] * wgt;
                             fw[fi] = wgt;
@@ -1247,50 +1308,81 @@ impl GlareConvolver {
         if y0 >= y1 {
             return;
         }
-        let fine = &self.fine;
-        let weight = &self.weight;
-        let hrows = &self.hrows;
-        let hat = &self.hat;
-        let (cx0, cx1) = ((ocx + cxl.start) as usize, (ocx + cxl.end) as usize);
-        let coarse_on = !cxl.is_empty();
-        img.pixels[y0 as usize * width..y1 as usize * width]
-            .par_chunks_mut(width)
-            .enumerate()
-            .for_each(|(k, row)| {
-                let y = y0 + k as i64;
-                if (foy0..foy1).contains(&y) {
-                    // (1 − w)·img + fine.
-                    let fj = (y - ofy) as usize;
-                    let (x0, x1) = ((fox0 - ofx) as usize, (fox1 - ofx) as usize);
-                    let (f0, f1) = (fj * wf + x0, fj * wf + x1);
-                    let (p0, p1) = (fj / 2 * wf + x0, fj / 2 * wf + x1);
-                    let odd = fj % 2 == 1;
-                    let px = &mut row[fox0 as usize..fox1 as usize];
-                    for (((p, &w), rg), bl) in px
-                        .iter_mut()
-                        .zip(&weight[f0..f1])
-                        .zip(&fine.rg[f0..f1])
-                        .zip(&fine.b[p0..p1])
-                    {
-                        let keep = 1.0 - w;
-                        p[0] = p[0] * keep + rg.re;
-                        p[1] = p[1] * keep + rg.im;
-                        p[2] = p[2] * keep + if odd { bl.im } else { bl.re };
-                    }
-                }
-                if coarse_on && (cy0..cy1).contains(&y) {
-                    // + the coarse wide field.
-                    let (j0, fy) = hat[(y - ocy) as usize];
-                    let lo = (j0 + 1) as usize * row3;
-                    let hi = lo + row3;
-                    let lo = &hrows[lo + xs * 3..lo + xe * 3];
-                    let hi = &hrows[hi + xs * 3..hi + xe * 3];
-                    let px = row[cx0..cx1].as_flattened_mut();
-                    for ((p, &a), &c) in px.iter_mut().zip(lo).zip(hi) {
-                        *p += a * (1.0 - fy) + c * fy;
-                    }
-                }
-            });
+        self.plan = Some(BlendPlan {
+            rows: y0..y1,
+            fine_rows: foy0..foy1,
+            fine_cols: fox0..fox1,
+            ofx,
+            ofy,
+            ocy,
+            coarse_rows: if cxl.is_empty() { 0..0 } else { cy0..cy1 },
+            cx0: (ocx + cxl.start).max(0) as usize,
+            cx1: (ocx + cxl.end).max(0) as usize,
+            xs,
+            xe,
+        });
+    }
+
+    /// Rows `rows` of the frame get glare from [`GlareConvolver::prepare`]
+    /// (empty: none; `0..0` before the first prepare).
+    pub fn rows_reached(&self) -> Range<usize> {
+        self.plan
+            .as_ref()
+            .map_or(0..0, |p| p.rows.start as usize..p.rows.end as usize)
+    }
+
+    /// Blends the prepared glare into row `y` of the frame (`row`, its
+    /// pixels as given to [`GlareConvolver::prepare`]):
+    /// `(1 − w)·row + fine + bilinear(coarse / b²)`. Rows outside
+    /// [`GlareConvolver::rows_reached`], or a `row` of another width, are
+    /// left as they are.
+    #[inline]
+    pub fn blend_row(&self, y: usize, row: &mut [[f32; 3]]) {
+        let Some(plan) = self.plan.as_ref() else {
+            return;
+        };
+        let y = y as i64;
+        if !plan.rows.contains(&y) || row.len() < plan.fine_cols.end as usize {
+            return;
+        }
+        let wf = self.key.wf;
+        let (fine, weight, hrows, hat) = (&self.fine, &self.weight, &self.hrows, &self.hat);
+        let row3 = self.key.wc * self.key.block * 3;
+        let (fox0, fox1) = (plan.fine_cols.start, plan.fine_cols.end);
+        let (ofx, ofy) = (plan.ofx, plan.ofy);
+        if plan.fine_rows.contains(&y) {
+            // (1 − w)·img + fine.
+            let fj = (y - ofy) as usize;
+            let (x0, x1) = ((fox0 - ofx) as usize, (fox1 - ofx) as usize);
+            let (f0, f1) = (fj * wf + x0, fj * wf + x1);
+            let (p0, p1) = (fj / 2 * wf + x0, fj / 2 * wf + x1);
+            let odd = fj % 2 == 1;
+            let px = &mut row[fox0 as usize..fox1 as usize];
+            for (((p, &w), rg), bl) in px
+                .iter_mut()
+                .zip(&weight[f0..f1])
+                .zip(&fine.rg[f0..f1])
+                .zip(&fine.b[p0..p1])
+            {
+                let keep = 1.0 - w;
+                p[0] = p[0] * keep + rg.re;
+                p[1] = p[1] * keep + rg.im;
+                p[2] = p[2] * keep + if odd { bl.im } else { bl.re };
+            }
+        }
+        if plan.coarse_rows.contains(&y) && plan.cx1 <= row.len() {
+            // + the coarse wide field.
+            let (xs, xe) = (plan.xs, plan.xe);
+            let (j0, fy) = hat[(y - plan.ocy) as usize];
+            let lo = (j0 + 1) as usize * row3;
+            let hi = lo + row3;
+            let lo = &hrows[lo + xs * 3..lo + xe * 3];
+            let hi = &hrows[hi + xs * 3..hi + xe * 3];
+            let px = row[plan.cx0..plan.cx1].as_flattened_mut();
+            for ((p, &a), &c) in px.iter_mut().zip(lo).zip(hi) {
+                *p += a * (1.0 - fy) + c * fy;
+            }
+        }
     }
 }
 

@@ -24,11 +24,9 @@
 //! | [`glare`] | windowed FFT glare convolution at the gaze | 001 §4.2.3 |
 //! | [`scene`] | OpenEXR / Radiance loading, panorama views | 004 §3.3 |
 //! | [`pipeline`] | the full frame pipeline, stages 1–8 | all |
-//! | [`cpu`] | the CPU's last-level cache size (pass A's store kind) | — |
 
 pub mod acuity;
 pub mod colour;
-pub mod cpu;
 mod encode;
 pub mod error;
 pub mod glare;

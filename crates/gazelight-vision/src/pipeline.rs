@@ -6,12 +6,12 @@
 //!
 //! | pass | stages | what |
 //! | --- | --- | --- |
-//! | A | 1 (input) | copy the frame into the working buffer and average its luminance over `pooling_downsample`² blocks |
+//! | A | 1 (input) | average the sanitised frame's luminance over `pooling_downsample`² blocks (reads the scene only) |
 //! | – | 1 pooling | [`PoolingModel::pool`] on the small luminance plane, centred on the gaze |
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
-//! | B | 4 glare | [`GlareConvolver::apply`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond |
-//! | C | 5 acuity + 6 tone + 7 colour + 8 encode | one streaming pass in bands of rows on the rayon pool: separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13, [`AcuityBlur`]); each row, as soon as its blur is final and while it is in cache, goes through tone reproduction and colour (one affine map per frame for the linear operators) and sRGB encoding ([`crate::encode`]) |
+//! | B | 4 glare | [`GlareConvolver::prepare`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond; nothing is written to the frame yet |
+//! | C | 1 + 4 (rows) + 5 acuity + 6 tone + 7 colour + 8 encode | one streaming pass in bands of rows on the rayon pool: each row of the working frame is made just before the band first reads it (the scene row sanitised, the glare blended in with [`GlareConvolver::blend_row`]), so the frame is read from memory once; then separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13, [`AcuityBlur`]); each row, as soon as its blur is final and while it is in cache, goes through tone reproduction and colour (one affine map per frame for the linear operators) and sRGB encoding ([`crate::encode`]) |
 //!
 //! Acuity loss (stage 5) runs on the HDR frame in cd/m², after glare and
 //! before tone reproduction, as in 001 §4.3.1 ("the linear HDR values (i.e.,
@@ -30,7 +30,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::acuity::{AcuityBlur, AcuityModel};
+use crate::acuity::{AcuityBlur, AcuityModel, RowSource};
 #[cfg(test)]
 use crate::colour::ColourFrame;
 use crate::colour::ColourModel;
@@ -540,7 +540,8 @@ impl FramePipeline {
             self.psf_pupil_mm as f32
         };
 
-        // Pass A: copy + sanitise, and block-average luminance for pooling.
+        // Pass A: block-average luminance for pooling (the optimised pass
+        // reads the scene only; the reference copies it into `work` too).
         let ds = self.config.downsample();
         #[cfg(test)]
         let reference = self.reference;
@@ -550,7 +551,7 @@ impl FramePipeline {
             #[cfg(test)]
             reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
         } else {
-            pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+            pass_a(scene, &mut self.small_lum, ds, self.small_w);
         }
         let small_gaze = [gaze_px[0] / ds as f64, gaze_px[1] / ds as f64];
         let target_cd_m2 = self
@@ -598,7 +599,13 @@ impl FramePipeline {
             }
             let t_psf = Instant::now();
             timings.psf_ms = ms(t_temporal, t_psf);
-            conv.apply(&mut self.work, gaze_px);
+            if reference {
+                conv.apply(&mut self.work, gaze_px);
+            } else {
+                // The FFTs only: each row is blended as the band pass makes
+                // it (`FrameRows`).
+                conv.prepare(scene, gaze_px);
+            }
             timings.glare_ms = ms(t_psf, Instant::now());
         }
         let t_glare = Instant::now();
@@ -634,6 +641,10 @@ impl FramePipeline {
             }
         } else {
             let stages = Stages5To8 {
+                rows: FrameRows {
+                    scene,
+                    glare: self.glare.as_ref().map(|(_, conv)| conv),
+                },
                 acuity: &mut self.acuity,
                 work: &mut self.work,
                 display: &mut self.display,
@@ -680,32 +691,30 @@ pub(crate) fn sanitize(v: f32) -> f32 {
     }
 }
 
-/// Pass A: `work` = sanitised `scene`; `small_lum` = mean luminance of
-/// every `ds × ds` block (edge blocks over the pixels they have). Rows of
-/// blocks run in parallel; within a block row, each row adds its pixels to
-/// the block sums `ds` at a time (no per-pixel division).
-fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usize, small_w: usize) {
+/// Pass A: `small_lum` = mean luminance of every `ds × ds` block of the
+/// sanitised `scene` (edge blocks over the pixels they have). Reads the
+/// scene only: the band pass makes the working frame's rows itself
+/// ([`FrameRows`]). Rows of blocks run in parallel; within a block row,
+/// each row adds its pixels to the block sums `ds` at a time (no per-pixel
+/// division).
+fn pass_a(scene: &RgbImage, small_lum: &mut [f32], ds: usize, small_w: usize) {
     let w = scene.width;
-    // Non-temporal stores only when the frame read and written would not
-    // stay in cache anyway.
-    #[cfg(target_arch = "x86_64")]
-    let stream = !crate::cpu::frame_fits_in_cache(2 * std::mem::size_of_val(&scene.pixels[..]));
-    work.pixels
-        .par_chunks_mut(w * ds)
-        .zip(scene.pixels.par_chunks(w * ds))
+    scene
+        .pixels
+        .par_chunks(w * ds)
         .zip(small_lum.par_chunks_mut(small_w))
-        .for_each(|((dst, src), small_row)| {
+        .for_each(|(src, small_row)| {
             small_row.fill(0.0);
             let rows = src.len() / w;
-            for (drow, srow) in dst.chunks_exact_mut(w).zip(src.chunks_exact(w)) {
+            for srow in src.chunks_exact(w) {
                 #[cfg(target_arch = "x86_64")]
                 if ds == crate::acuity::LANES && crate::acuity::has_avx2_fma() {
                     // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                    if unsafe { crate::acuity::avx2::pass_a_row(srow, drow, small_row, stream) } {
+                    if unsafe { crate::acuity::avx2::block_sums_row(srow, small_row) } {
                         continue;
                     }
                 }
-                pass_a_row_portable(srow, drow, small_row, ds);
+                block_sums_row_portable(srow, small_row, ds);
             }
             for (bx, v) in small_row.iter_mut().enumerate() {
                 let cols = (w - bx * ds).min(ds);
@@ -714,36 +723,44 @@ fn pass_a(scene: &RgbImage, work: &mut RgbImage, small_lum: &mut [f32], ds: usiz
         });
 }
 
-/// One row of pass A: `drow` = sanitised `srow`, and each `ds`-pixel
-/// block's luminance sum added to its entry of `sums`.
-pub(crate) fn pass_a_row_portable(
-    srow: &[[f32; 3]],
-    drow: &mut [[f32; 3]],
-    sums: &mut [f32],
-    ds: usize,
-) {
-    // The row as plain floats (vectorises), then its block sums from L1.
-    for (d, s) in drow.as_flattened_mut().iter_mut().zip(srow.as_flattened()) {
-        *d = sanitize(*s);
-    }
-    add_block_sums(drow, sums, ds);
-}
-
-/// Adds each `ds`-pixel block's luminance sum (pixels in order, the sum
-/// started at 0) of the sanitised row `drow` to its entry of `sums`.
-pub(crate) fn add_block_sums(drow: &[[f32; 3]], sums: &mut [f32], ds: usize) {
-    for (dblk, acc) in drow.chunks(ds).zip(sums.iter_mut()) {
+/// Adds each `ds`-pixel block's luminance sum (pixels sanitised, in
+/// order, the sum started at 0) of the row `srow` to its entry of `sums`.
+pub(crate) fn block_sums_row_portable(srow: &[[f32; 3]], sums: &mut [f32], ds: usize) {
+    for (blk, acc) in srow.chunks(ds).zip(sums.iter_mut()) {
         let mut sum = 0.0f32;
-        for p in dblk {
-            sum += luminance(*p);
+        for p in blk {
+            sum += luminance(p.map(sanitize));
         }
         *acc += sum;
     }
 }
 
-/// Stages 5–8 of one frame: the acuity blur of `work` in place, with the
-/// tone + colour map and the encoding as its row sink.
+/// The rows of the working frame, made as the band pass first reads them
+/// (while they are in cache): the scene row sanitised, with the prepared
+/// glare blended in (stages 1 and 4 of one row).
+struct FrameRows<'a> {
+    scene: &'a RgbImage,
+    glare: Option<&'a GlareConvolver>,
+}
+
+impl RowSource for FrameRows<'_> {
+    #[inline]
+    fn fill(&self, y: usize, row: &mut [[f32; 3]]) {
+        let w = self.scene.width;
+        let src = &self.scene.pixels[y * w..(y + 1) * w];
+        for (d, s) in row.as_flattened_mut().iter_mut().zip(src.as_flattened()) {
+            *d = sanitize(*s);
+        }
+        if let Some(glare) = self.glare {
+            glare.blend_row(y, row);
+        }
+    }
+}
+
+/// Stages 5–8 of one frame: the acuity blur of the rows `rows` makes, into
+/// `work`, with the tone + colour map and the encoding as its row sink.
 struct Stages5To8<'a> {
+    rows: FrameRows<'a>,
     acuity: &'a mut AcuityBlur,
     work: &'a mut RgbImage,
     display: &'a mut RgbImage,
@@ -759,7 +776,7 @@ impl Stages5To8<'_> {
         if self.to_display {
             let sink = DisplayLinear { map, width };
             self.acuity
-                .apply_into(self.work, &sink, &mut self.display.pixels);
+                .apply_from(&self.rows, self.work, &sink, &mut self.display.pixels);
         } else {
             let sink = EncodeRgba8 {
                 map,
@@ -767,7 +784,7 @@ impl Stages5To8<'_> {
                 width,
             };
             self.acuity
-                .apply_into(self.work, &sink, &mut self.out.rgba8);
+                .apply_from(&self.rows, self.work, &sink, &mut self.out.rgba8);
         }
     }
 }

@@ -464,26 +464,16 @@ pub(crate) fn encode_affine(
     full
 }
 
-/// One row of the pipeline's pass A ([`crate::pipeline`]): `dst` = `src`
-/// sanitised (NaN, ±∞, negatives and subnormals → 0) and each pixel's
-/// luminance added, in pixel order, to its block's sum in `sums` (blocks
-/// of 8 pixels, a block's sum started at 0 — the portable pass's order, so
-/// the same bits). With `stream` the copy is written with non-temporal
-/// stores, which skip reading `dst` before writing it: the pipeline asks
-/// for them when the frame does not fit in the last-level cache
-/// ([`crate::cpu::frame_fits_in_cache`]); when it fits, plain stores leave
-/// the copy in cache for the glare and band passes that read it next.
-/// Returns false (and does nothing) unless `src` and `dst` hold the same
-/// number of pixels and `sums` one per started block.
+/// One row of the pipeline's pass A ([`crate::pipeline`]): each pixel's
+/// luminance, sanitised (NaN, ±∞, negatives and subnormals → 0), added in
+/// pixel order to its block's sum in `sums` (blocks of 8 pixels, a block's
+/// sum started at 0 — the portable pass's order, so the same bits). `src`
+/// is only read. Returns false (and does nothing) unless `sums` holds one
+/// sum per started block.
 #[target_feature(enable = "avx2,fma")]
-pub(crate) fn pass_a_row(
-    src: &[[f32; 3]],
-    dst: &mut [[f32; 3]],
-    sums: &mut [f32],
-    stream: bool,
-) -> bool {
+pub(crate) fn block_sums_row(src: &[[f32; 3]], sums: &mut [f32]) -> bool {
     let w = src.len();
-    if dst.len() != w || sums.len() != w.div_ceil(LANES) {
+    if sums.len() != w.div_ceil(LANES) {
         return false;
     }
     let (lo, inf, zero) = (
@@ -498,30 +488,6 @@ pub(crate) fn pass_a_row(
         );
         _mm256_and_ps(v, keep)
     };
-    // The copy: scalar up to a 32-byte boundary of `dst`, streamed after.
-    let s = src.as_flattened();
-    let d = dst.as_flattened_mut();
-    let head = (d.as_ptr().align_offset(32)).min(d.len());
-    for (o, i) in d[..head].iter_mut().zip(&s[..head]) {
-        *o = crate::pipeline::sanitize(*i);
-    }
-    let body = (d.len() - head) / LANES * LANES;
-    for k in (head..head + body).step_by(LANES) {
-        let v = sanitize(ld(s, k));
-        let out = &mut d[k..k + LANES];
-        // SAFETY: `out` holds 8 f32s and starts `head + 8j` floats past a
-        // 32-byte boundary, i.e. on one (align_offset above).
-        unsafe {
-            if stream {
-                _mm256_stream_ps(out.as_mut_ptr(), v);
-            } else {
-                _mm256_store_ps(out.as_mut_ptr(), v);
-            }
-        }
-    }
-    for (o, i) in d[head + body..].iter_mut().zip(&s[head + body..]) {
-        *o = crate::pipeline::sanitize(*i);
-    }
     // The block sums, eight blocks (64 pixels) at a time: each block's
     // eight luminances, transposed, are added in pixel order.
     let weights = crate::image::LUMINANCE_WEIGHTS.map(|v| splat(v));
@@ -543,12 +509,8 @@ pub(crate) fn pass_a_row(
         let at = x / LANES;
         st(sums, at, _mm256_add_ps(ld(sums, at), sum));
     }
-    // The rest block by block from the sanitised copy, as the portable
-    // pass.
-    crate::pipeline::add_block_sums(&dst[full..], &mut sums[full / LANES..], LANES);
-    if stream {
-        _mm_sfence();
-    }
+    // The rest block by block, as the portable pass.
+    crate::pipeline::block_sums_row_portable(&src[full..], &mut sums[full / LANES..], LANES);
     true
 }
 
@@ -706,7 +668,7 @@ mod tests {
     }
 
     #[test]
-    fn pass_a_row_matches_the_portable_pass_bit_for_bit() {
+    fn block_sums_row_matches_the_portable_pass_bit_for_bit() {
         if !avx2() {
             return;
         }
@@ -716,24 +678,24 @@ mod tests {
                 src[3] = [f32::NAN, f32::INFINITY, -1.0];
                 src[5] = [1e-40, f32::NEG_INFINITY, f32::MAX];
             }
-            // Every alignment of the destination's start, streamed or not.
-            for (shift, stream) in (0..8).flat_map(|k| [(k, false), (k, true)]) {
-                let mut backing = vec![[0.0f32; 3]; w + 8];
-                let dst = &mut backing[shift..shift + w];
-                let mut sums = vec![0.5f32; w.div_ceil(8)];
-                // SAFETY: the CPU has AVX2 and FMA (checked above).
-                assert!(unsafe { pass_a_row(&src, dst, &mut sums, stream) });
-                let mut want_dst = vec![[0.0f32; 3]; w];
-                let mut want_sums = vec![0.5f32; w.div_ceil(8)];
-                crate::pipeline::pass_a_row_portable(&src, &mut want_dst, &mut want_sums, 8);
-                let bits =
-                    |v: &[[f32; 3]]| v.iter().map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
-                assert_eq!(bits(dst), bits(&want_dst), "w {w} shift {shift} {stream}");
-                assert_eq!(
-                    sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    want_sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
-                    "w {w} shift {shift} {stream}"
-                );
+            let mut sums = vec![0.5f32; w.div_ceil(8)];
+            // SAFETY: the CPU has AVX2 and FMA (checked above).
+            assert!(unsafe { block_sums_row(&src, &mut sums) });
+            let mut want_sums = vec![0.5f32; w.div_ceil(8)];
+            crate::pipeline::block_sums_row_portable(&src, &mut want_sums, 8);
+            assert_eq!(
+                sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want_sums.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                "w {w}"
+            );
+            // A sum that is not its block's fails.
+            if w >= 64 {
+                let mut bad = src.clone();
+                bad[9][1] += 1.0;
+                let mut bad_sums = vec![0.5f32; w.div_ceil(8)];
+                // SAFETY: as above.
+                assert!(unsafe { block_sums_row(&bad, &mut bad_sums) });
+                assert_ne!(bad_sums[1].to_bits(), want_sums[1].to_bits());
             }
         }
     }
