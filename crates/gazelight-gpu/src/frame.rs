@@ -1625,6 +1625,7 @@ mod tests {
                 let config = no_glare(PipelineConfig {
                     acuity,
                     keep_display_linear: true,
+                    keep_retinal: true,
                     ..PipelineConfig::default()
                 });
                 let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();

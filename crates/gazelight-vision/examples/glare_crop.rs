@@ -46,7 +46,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut frames = Vec::new();
     let mut veils = Vec::new();
     for glare in [true, false] {
-        let mut config = PipelineConfig::default();
+        let mut config = PipelineConfig {
+            keep_retinal: true,
+            ..PipelineConfig::default()
+        };
         config.glare.enabled = glare;
         let mut p = FramePipeline::new(config, w, h, view.deg_per_px())?;
         let mut frame = DisplayFrame::new(w, h);

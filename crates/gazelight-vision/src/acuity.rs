@@ -437,6 +437,9 @@ struct Band {
     /// One frame row: where a band filled from a [`RowSource`] puts the
     /// rows of its neighbours that it reads (their Y only).
     scratch: Vec<[f32; 3]>,
+    /// Ring of 2r + 1 frame rows: the band's own rows when they are not
+    /// kept in a frame ([`AcuityBlur::apply_from`] without one).
+    rgb: Vec<[f32; 3]>,
 }
 
 /// Lanes of the vectorised blocks (one AVX2 register of f32).
@@ -602,7 +605,13 @@ impl AcuityBlur {
         self.band_rows = h.div_ceil(wanted).max(1);
         let n = h.div_ceil(self.band_rows);
         if r == 0 {
-            self.bands.clear();
+            // A row each, for bands whose rows are not kept.
+            self.bands = (0..n)
+                .map(|_| Band {
+                    scratch: vec![[0.0; 3]; w],
+                    ..Band::default()
+                })
+                .collect();
             self.stash.clear();
             return;
         }
@@ -615,6 +624,7 @@ impl AcuityBlur {
                 head: vec![0.0; (2 * r + 1) * stride_h],
                 dark: vec![false; h],
                 scratch: vec![[0.0; 3]; w],
+                rgb: vec![[0.0; 3]; (2 * r + 1) * w],
             })
             .collect();
         self.stash = (0..n).map(|_| vec![[0.0; 3]; 2 * r * w]).collect();
@@ -638,33 +648,49 @@ impl AcuityBlur {
         sink: &S,
         out: &mut [S::Out],
     ) -> usize {
-        self.run(img, None::<&NoSource>, sink, out)
+        let (w, h) = (img.width, img.height);
+        self.run((w, h), Some(img), None::<&NoSource>, sink, out)
     }
 
-    /// [`apply_into`](Self::apply_into) of the frame that `src` makes:
-    /// each row of `img` is first filled by `src` (whatever `img` held is
-    /// overwritten), just before the band pass reads it; `img` ends as the
-    /// blurred frame, as with [`apply_into`](Self::apply_into).
+    /// [`apply_into`](Self::apply_into) of the `width × height` frame that
+    /// `src` makes: each row is made by `src` just before the band pass
+    /// first reads it. With `keep`, the rows are made in it (whatever it
+    /// held is overwritten) and it ends as the blurred frame, as with
+    /// [`apply_into`](Self::apply_into); without, each band keeps only the
+    /// 2r + 1 rows it is working on, in its own ring (no frame-sized
+    /// buffer is written). Does nothing (returns 0) when `keep` is not
+    /// `width × height`.
     pub(crate) fn apply_from<S: RowSink, R: RowSource>(
         &mut self,
         src: &R,
-        img: &mut RgbImage,
+        size: (usize, usize),
+        keep: Option<&mut RgbImage>,
         sink: &S,
         out: &mut [S::Out],
     ) -> usize {
-        self.run(img, Some(src), sink, out)
+        self.run(size, keep, Some(src), sink, out)
     }
 
     fn run<S: RowSink, R: RowSource>(
         &mut self,
-        img: &mut RgbImage,
+        (w, h): (usize, usize),
+        mut img: Option<&mut RgbImage>,
         src: Option<&R>,
         sink: &S,
         out: &mut [S::Out],
     ) -> usize {
-        let (w, h) = (img.width, img.height);
         let per_row = sink.per_row();
-        if w == 0 || h == 0 || img.pixels.len() != w * h || out.len() != h * per_row {
+        if w == 0
+            || h == 0
+            || out.len() != h * per_row
+            || img
+                .as_ref()
+                .is_some_and(|i| (i.width, i.height) != (w, h) || i.pixels.len() != w * h)
+        {
+            return 0;
+        }
+        // Rows in place need a frame; rows from a source may go without.
+        if img.is_none() && src.is_none() {
             return 0;
         }
         if (w, h) != (self.width, self.height) {
@@ -672,25 +698,7 @@ impl AcuityBlur {
         }
         let band_rows = self.band_rows;
         let r = self.max_radius;
-        if r == 0 || matches!(self.rule, SigmaRule::None) {
-            img.pixels
-                .par_chunks_mut(band_rows * w)
-                .zip(out.par_chunks_mut(band_rows * per_row))
-                .enumerate()
-                .for_each(|(b, (px, out))| {
-                    for (k, (row, o)) in px
-                        .chunks_exact_mut(w)
-                        .zip(out.chunks_exact_mut(per_row))
-                        .enumerate()
-                    {
-                        if let Some(src) = src {
-                            src.fill(b * band_rows + k, row);
-                        }
-                        sink.row(row, o);
-                    }
-                });
-            return 0;
-        }
+        let in_place = src.is_none();
         let ctx = Ctx {
             w,
             h,
@@ -703,44 +711,103 @@ impl AcuityBlur {
             avx2: self.isa >= Isa::Avx2,
             avx512: self.isa >= Isa::Avx512,
         };
-        let bands = self
+        let no_blur = r == 0 || matches!(self.rule, SigmaRule::None);
+        if in_place && !no_blur {
+            // The halo rows of every band, before any band writes.
+            if let Some(img) = img.as_ref() {
+                self.stash
+                    .par_iter_mut()
+                    .zip(img.pixels.par_chunks(band_rows * w))
+                    .for_each(|(stash, px)| {
+                        let rows = px.len() / w;
+                        let k = r.min(rows);
+                        stash[..k * w].copy_from_slice(&px[..k * w]);
+                        stash[r * w..(r + k) * w].copy_from_slice(&px[(rows - k) * w..]);
+                    });
+            }
+        }
+        let stash = &self.stash[..];
+        // One job per band: its rows in the frame, or `None` (its ring).
+        let frame_rows = img.as_mut().map(|i| i.pixels.par_chunks_mut(band_rows * w));
+        let jobs = self
             .bands
             .par_iter_mut()
-            .zip(img.pixels.par_chunks_mut(band_rows * w))
             .zip(out.par_chunks_mut(band_rows * per_row))
             .enumerate();
-        if let Some(src) = src {
-            let input = Filled { src };
-            return bands
-                .map(|(b, ((band, px), out))| {
-                    run_band_dispatch(&ctx, band, px, b * band_rows, &input, sink, out)
-                })
-                .sum();
+        let band =
+            |b: usize, band: &mut Band, mut px: Option<&mut [[f32; 3]]>, out: &mut [S::Out]| {
+                let y0 = b * band_rows;
+                let y1 = (y0 + band_rows).min(h);
+                if no_blur {
+                    for (k, o) in out.chunks_exact_mut(per_row).enumerate() {
+                        let row = match px.as_deref_mut() {
+                            Some(px) => &mut px[k * w..(k + 1) * w],
+                            None => &mut band.scratch[..],
+                        };
+                        if let Some(src) = src {
+                            src.fill(y0 + k, row);
+                        }
+                        sink.row(row, o);
+                    }
+                    return 0;
+                }
+                match (px, src) {
+                    (Some(px), None) => {
+                        let halo = Halo {
+                            above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
+                            below: stash.get(b + 1).map(|s| &s[..r * w]),
+                        };
+                        run_band_dispatch(
+                            &ctx,
+                            band,
+                            BandRows {
+                                px,
+                                y0,
+                                y1,
+                                ring: false,
+                            },
+                            &halo,
+                            sink,
+                            out,
+                        )
+                    }
+                    (Some(px), Some(src)) => run_band_dispatch(
+                        &ctx,
+                        band,
+                        BandRows {
+                            px,
+                            y0,
+                            y1,
+                            ring: false,
+                        },
+                        &Filled { src },
+                        sink,
+                        out,
+                    ),
+                    (None, Some(src)) => {
+                        // The ring moves out of the band for the pass (no copy).
+                        let mut ring = std::mem::take(&mut band.rgb);
+                        let rows = BandRows {
+                            px: &mut ring,
+                            y0,
+                            y1,
+                            ring: true,
+                        };
+                        let changed =
+                            run_band_dispatch(&ctx, band, rows, &Filled { src }, sink, out);
+                        band.rgb = ring;
+                        changed
+                    }
+                    (None, None) => 0,
+                }
+            };
+        match frame_rows {
+            Some(rows) => jobs
+                .zip(rows)
+                .map(|((b, (bd, out)), px)| band(b, bd, Some(px), out))
+                .sum(),
+            None => jobs.map(|(b, (bd, out))| band(b, bd, None, out)).sum(),
         }
-        // The halo rows of every band, before any band writes.
-        self.stash
-            .par_iter_mut()
-            .zip(img.pixels.par_chunks(band_rows * w))
-            .for_each(|(stash, px)| {
-                let rows = px.len() / w;
-                let k = r.min(rows);
-                stash[..k * w].copy_from_slice(&px[..k * w]);
-                stash[r * w..(r + k) * w].copy_from_slice(&px[(rows - k) * w..]);
-            });
-        let stash = &self.stash[..];
-        self.bands
-            .par_iter_mut()
-            .zip(img.pixels.par_chunks_mut(band_rows * w))
-            .zip(out.par_chunks_mut(band_rows * per_row))
-            .enumerate()
-            .map(|(b, ((band, px), out))| {
-                let halo = Halo {
-                    above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
-                    below: stash.get(b + 1).map(|s| &s[..r * w]),
-                };
-                run_band_dispatch(&ctx, band, px, b * band_rows, &halo, sink, out)
-            })
-            .sum()
     }
 }
 
@@ -750,6 +817,15 @@ impl AcuityBlur {
 struct Halo<'a> {
     above: Option<&'a [[f32; 3]]>,
     below: Option<&'a [[f32; 3]]>,
+}
+
+/// Where a band's rows `y0..y1` live: `px` holds them in order, or with
+/// `ring` in a ring of 2r + 1 rows.
+struct BandRows<'a> {
+    px: &'a mut [[f32; 3]],
+    y0: usize,
+    y1: usize,
+    ring: bool,
 }
 
 /// How a band gets its rows: in place with a [`Halo`], or made by a
@@ -852,13 +928,12 @@ pub(crate) fn has_avx512() -> bool {
 fn run_band_avx2<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
-    px: &mut [[f32; 3]],
-    y0: usize,
+    rows: BandRows<'_>,
     input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, px, y0, input, sink, out)
+    run_band(ctx, band, rows, input, sink, out)
 }
 
 /// [`run_band`] compiled for AVX-512F (the same code and results).
@@ -867,20 +942,18 @@ fn run_band_avx2<S: RowSink, I: BandInput>(
 fn run_band_avx512<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
-    px: &mut [[f32; 3]],
-    y0: usize,
+    rows: BandRows<'_>,
     input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, px, y0, input, sink, out)
+    run_band(ctx, band, rows, input, sink, out)
 }
 
 fn run_band_dispatch<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
-    px: &mut [[f32; 3]],
-    y0: usize,
+    rows: BandRows<'_>,
     input: &I,
     sink: &S,
     out: &mut [S::Out],
@@ -888,35 +961,39 @@ fn run_band_dispatch<S: RowSink, I: BandInput>(
     #[cfg(target_arch = "x86_64")]
     if has_avx512() {
         // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just above).
-        return unsafe { run_band_avx512(ctx, band, px, y0, input, sink, out) };
+        return unsafe { run_band_avx512(ctx, band, rows, input, sink, out) };
     }
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), the only
         // requirement of a `target_feature` function.
-        return unsafe { run_band_avx2(ctx, band, px, y0, input, sink, out) };
+        return unsafe { run_band_avx2(ctx, band, rows, input, sink, out) };
     }
-    run_band(ctx, band, px, y0, input, sink, out)
+    run_band(ctx, band, rows, input, sink, out)
 }
 
-/// One band of rows `y0..y0 + px.len()/w`, streaming: each row's Y/Yn and
+/// One band of rows `y0..y1` (`rows`), streaming: each row's Y/Yn and
 /// darkness is read r rows ahead of its L\*, whose horizontal pass is r rows
-/// ahead of the output row's vertical pass, back-conversion and sink. Rows
-/// of the neighbouring bands come from `halo`. Returns the number of
-/// pixels whose lightness changed.
+/// ahead of the output row's vertical pass, back-conversion and sink. The
+/// band's rows live in `px` (in order, or with `ring` in a ring of 2r + 1
+/// rows); `input` readies each one and gives the neighbours' rows. Returns
+/// the number of pixels whose lightness changed.
 #[inline(always)]
 fn run_band<S: RowSink, I: BandInput>(
     ctx: &Ctx,
     band: &mut Band,
-    px: &mut [[f32; 3]],
-    y0: usize,
+    rows: BandRows<'_>,
     input: &I,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
     let Ctx { w, h, r, .. } = *ctx;
     let per_row = sink.per_row();
-    let y1 = y0 + px.len() / w;
+    let BandRows { px, y0, y1, ring } = rows;
+    // Where row t of the band lives in `px`: the band's rows in order, or
+    // a ring of 2r + 1 (row t is made at most 2r rows before it is output,
+    // and its slot is reused 2r + 1 rows later).
+    let slot = |t: usize| if ring { t % (2 * r + 1) } else { t - y0 };
     let t0 = y0.saturating_sub(r);
     let t_end = (y1 + r).min(h);
     let ring = 2 * r + 1;
@@ -935,7 +1012,7 @@ fn run_band<S: RowSink, I: BandInput>(
                 let src: &[[f32; 3]] = if t < y0 || t >= y1 {
                     input.outside(t, y0, y1, r, &mut band.scratch)
                 } else {
-                    let row = &mut px[(t - y0) * w..(t - y0 + 1) * w];
+                    let row = &mut px[slot(t) * w..(slot(t) + 1) * w];
                     input.band_row(t, row);
                     row
                 };
@@ -963,7 +1040,7 @@ fn run_band<S: RowSink, I: BandInput>(
             }
             next_l += 1;
         }
-        let row = &mut px[(y - y0) * w..(y - y0 + 1) * w];
+        let row = &mut px[slot(y) * w..(slot(y) + 1) * w];
         if band.dark[y] {
             changed += vertical(ctx, band, y, row);
         }

@@ -1850,7 +1850,11 @@ mod tests {
         check_lamp_veil(&img, ppd, (w / 2, h / 2), e_glare, "convolver");
         // Through the frame pipeline: the retinal image (linear cd/m², after
         // glare and acuity, before tone reproduction).
-        let mut pipeline = FramePipeline::new(PipelineConfig::default(), w, h, 1.0 / ppd).unwrap();
+        let kept = PipelineConfig {
+            keep_retinal: true,
+            ..PipelineConfig::default()
+        };
+        let mut pipeline = FramePipeline::new(kept.clone(), w, h, 1.0 / ppd).unwrap();
         let mut out = DisplayFrame::new(w, h);
         let input = FrameInput {
             gaze_uv: [0.5, 0.5],
@@ -1866,7 +1870,7 @@ mod tests {
             "pipeline retinal image",
         );
         // Glare off: no veil at 2°.
-        let mut config = PipelineConfig::default();
+        let mut config = kept;
         config.glare.enabled = false;
         let mut off = FramePipeline::new(config, w, h, 1.0 / ppd).unwrap();
         off.process(&scene, &input, &mut out).unwrap();

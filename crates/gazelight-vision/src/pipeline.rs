@@ -108,6 +108,12 @@ pub struct PipelineConfig {
     /// For tests and GPU parity checks.
     #[serde(skip)]
     pub keep_display_linear: bool,
+    /// Keep the retinal image (after glare and acuity, before tone
+    /// reproduction) for [`FramePipeline::retinal`]; costs a frame-sized
+    /// buffer and one more write per pixel (without it, the band pass
+    /// keeps only the rows it works on). For EXR output, tests and tools.
+    #[serde(skip)]
+    pub keep_retinal: bool,
 }
 
 impl PipelineConfig {
@@ -287,6 +293,7 @@ impl FramePipeline {
         let small_w = width.div_ceil(ds);
         let small_h = height.div_ceil(ds);
         let keep_display = config.keep_display_linear;
+        let keep_retinal = config.keep_retinal;
         let psf_pupil_mm = 4.0;
         let mut psf_params = config.glare.psf.clone();
         psf_params.ppd = 1.0 / deg_per_px;
@@ -310,7 +317,13 @@ impl FramePipeline {
             height,
             deg_per_px,
             state: None,
-            work: RgbImage::new(width, height),
+            // Only kept on request (the band pass otherwise works in rings
+            // of rows).
+            work: if keep_retinal {
+                RgbImage::new(width, height)
+            } else {
+                RgbImage::new(0, 0)
+            },
             // Only kept on request (a frame-sized buffer otherwise unused).
             display: if keep_display {
                 RgbImage::new(width, height)
@@ -362,7 +375,8 @@ impl FramePipeline {
     }
 
     /// The retinal image of the last [`FramePipeline::process`]: linear
-    /// RGB in cd/m² after glare and acuity, before tone reproduction.
+    /// RGB in cd/m² after glare and acuity, before tone reproduction. Kept
+    /// only when [`PipelineConfig::keep_retinal`] is set (else 0 × 0).
     pub fn retinal(&self) -> &RgbImage {
         &self.work
     }
@@ -549,7 +563,12 @@ impl FramePipeline {
         let reference = false;
         if reference {
             #[cfg(test)]
-            reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+            {
+                if self.work.pixels.len() != w * h {
+                    self.work = RgbImage::new(w, h);
+                }
+                reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+            }
         } else {
             pass_a(scene, &mut self.small_lum, ds, self.small_w);
         }
@@ -646,7 +665,7 @@ impl FramePipeline {
                     glare: self.glare.as_ref().map(|(_, conv)| conv),
                 },
                 acuity: &mut self.acuity,
-                work: &mut self.work,
+                work: self.config.keep_retinal.then_some(&mut self.work),
                 display: &mut self.display,
                 out,
                 lut,
@@ -762,7 +781,8 @@ impl RowSource for FrameRows<'_> {
 struct Stages5To8<'a> {
     rows: FrameRows<'a>,
     acuity: &'a mut AcuityBlur,
-    work: &'a mut RgbImage,
+    /// Where the retinal image is kept (`None`: not kept).
+    work: Option<&'a mut RgbImage>,
     display: &'a mut RgbImage,
     out: &'a mut DisplayFrame,
     lut: &'a SrgbLut,
@@ -772,11 +792,12 @@ struct Stages5To8<'a> {
 impl Stages5To8<'_> {
     /// One monomorphic pass per operator.
     fn run<M: Map>(self, map: M) {
-        let width = self.work.width;
+        let size = (self.rows.scene.width, self.rows.scene.height);
+        let width = size.0;
         if self.to_display {
             let sink = DisplayLinear { map, width };
             self.acuity
-                .apply_from(&self.rows, self.work, &sink, &mut self.display.pixels);
+                .apply_from(&self.rows, size, self.work, &sink, &mut self.display.pixels);
         } else {
             let sink = EncodeRgba8 {
                 map,
@@ -784,7 +805,7 @@ impl Stages5To8<'_> {
                 width,
             };
             self.acuity
-                .apply_from(&self.rows, self.work, &sink, &mut self.out.rgba8);
+                .apply_from(&self.rows, size, self.work, &sink, &mut self.out.rgba8);
         }
     }
 }
@@ -988,12 +1009,25 @@ mod tests {
     /// Runs the optimised and the reference pipeline side by side over a
     /// few frames (gaze moving, pupil changing so the PSF is rebuilt) and
     /// checks every display byte within 1/255, the display-linear frame
-    /// and the frame statistics.
+    /// and the frame statistics. The optimised pipeline runs twice, keeping
+    /// the retinal image and not (rows in rings): both must give the same
+    /// bytes.
     fn compare(config: &PipelineConfig, img: &RgbImage, dpp: f64, what: &str) -> (usize, usize) {
         let (w, h) = (img.width, img.height);
-        let mut fast = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+        let kept = PipelineConfig {
+            keep_retinal: true,
+            ..config.clone()
+        };
+        let rings = PipelineConfig {
+            keep_retinal: false,
+            ..config.clone()
+        };
+        let mut fast = FramePipeline::new(kept, w, h, dpp).unwrap();
+        let mut ring = FramePipeline::new(rings, w, h, dpp).unwrap();
         let mut slow = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
         slow.reference = true;
+        ring.set_adaptation(AdaptationState::new(0.05));
+        let mut out_ring = DisplayFrame::new(w, h);
         // Start adapted to a dim 0.05 cd/m²: the day view light-adapts
         // (000 eq 10's offset), the night view dark-adapts.
         fast.set_adaptation(AdaptationState::new(0.05));
@@ -1015,6 +1049,13 @@ mod tests {
             };
             let a = fast.process(img, &input, &mut out_fast).unwrap();
             let b = slow.process(img, &input, &mut out_slow).unwrap();
+            let c = ring.process(img, &input, &mut out_ring).unwrap();
+            assert_eq!(a.adaptation_cd_m2, c.adaptation_cd_m2);
+            assert!(
+                out_ring.rgba8 == out_fast.rgba8,
+                "{what} frame {n}: the frame made in rings differs from the kept one"
+            );
+            assert_eq!(ring.retinal().pixels.len(), 0);
             assert_eq!(a.psf_rebuilt, b.psf_rebuilt);
             let state = fast.adaptation().unwrap();
             light_adapting += usize::from(state.light_target_cd_m2 > state.luminance_cd_m2);

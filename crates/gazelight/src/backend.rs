@@ -382,6 +382,10 @@ impl Renderer {
         match self {
             Renderer::Cpu(p, _) => {
                 let img = p.retinal();
+                anyhow::ensure!(
+                    !img.pixels.is_empty(),
+                    "the CPU pipeline was built without keep_retinal: no retinal image to read"
+                );
                 if out.width != img.width || out.height != img.height {
                     *out = RgbImage::new(img.width, img.height);
                 }

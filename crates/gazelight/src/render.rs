@@ -11,7 +11,7 @@ use gazelight_tracker::live::LiveChain;
 use gazelight_tracker::trace_source;
 use gazelight_tracker::{EyeState, GazeTrace, Sample, TraceSample};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use crate::backend::{BackendChoice, Renderer};
@@ -250,12 +250,17 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         eyes = n_views,
         "rendering"
     );
+    // The CPU pipeline keeps the retinal image only for the EXR frames.
+    let pipeline_config = PipelineConfig {
+        keep_retinal: args.exr,
+        ..config.pipeline.clone()
+    };
     let mut pipelines = views
         .iter()
         .map(|_| {
             Renderer::new(
                 args.backend,
-                &config.pipeline,
+                &pipeline_config,
                 width,
                 height,
                 view.deg_per_px(),
