@@ -22,6 +22,12 @@
 //! the retinal image, linear RGB in cd/m² after glare and acuity
 //! ([`FramePipeline::retinal`]); tone reproduction maps it to the display.
 //!
+//! Memory traffic per frame: pass A and pass C each read the scene once,
+//! pass C writes the display frame, and glare touches only its FFT
+//! windows. The retinal image is written to a frame-sized buffer only when
+//! [`PipelineConfig::keep_retinal`] asks for it; otherwise each band of
+//! pass C keeps just the 2r + 1 rows its blur is working on.
+//!
 //! Nothing is allocated per frame once the pipeline is built (the tests
 //! prove it with a counting allocator).
 
