@@ -920,6 +920,32 @@ pub(crate) fn has_avx512() -> bool {
     false
 }
 
+/// Whether the CPU runs the AVX-512 encoding ([`avx512::encode_affine`]):
+/// AVX-512F and BW (16-bit lanes) besides AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn has_avx512bw() -> bool {
+    has_avx512() && std::arch::is_x86_feature_detected!("avx512bw")
+}
+
+/// Not an x86-64 CPU.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn has_avx512bw() -> bool {
+    false
+}
+
+/// Whether the CPU has AVX-512 VBMI2 too (for
+/// [`avx512::encode_affine_vbmi2`]).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn has_avx512vbmi2() -> bool {
+    has_avx512bw() && std::arch::is_x86_feature_detected!("avx512vbmi2")
+}
+
+/// Not an x86-64 CPU.
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) fn has_avx512vbmi2() -> bool {
+    false
+}
+
 /// [`run_band`] compiled for AVX2 + FMA. The code and so the results are
 /// the same as the portable build (no fused multiply-adds are requested;
 /// only the instruction set differs).

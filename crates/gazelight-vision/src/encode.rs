@@ -22,23 +22,78 @@ use crate::tone::{self, Op as ToneOp, ToneFrame};
 pub(crate) const SRGB_LUT_SIZE: usize = 16384;
 const _: () = assert!(SRGB_LUT_SIZE.is_power_of_two());
 
-/// Bytes past the table's last entry (copies of it, never indexed): the
-/// AVX-512 encoding reads 4 bytes at each index.
-pub(crate) const SRGB_LUT_PAD: usize = 4;
+/// Bits of the sRGB table's output codes.
+pub(crate) const SRGB_CODE_BITS: u32 = 8;
+
+/// Output codes of the sRGB table.
+pub(crate) const SRGB_CODES: usize = 1 << SRGB_CODE_BITS;
 
 /// The sRGB encoding table: entry `i < N` is the 8-bit code of linear
-/// `i / (N − 1)`, then [`SRGB_LUT_PAD`] copies of the last.
-pub(crate) type SrgbLut = [u8; SRGB_LUT_SIZE + SRGB_LUT_PAD];
+/// `i / (N − 1)`; beside it, the same table as thresholds for lookups
+/// without gathers ([`SrgbThresholds`]).
+pub(crate) struct SrgbLut {
+    codes: [u8; SRGB_LUT_SIZE],
+    thresholds: SrgbThresholds,
+}
 
-/// Builds the table from [`crate::pipeline::srgb_encode`].
+/// The sRGB table as thresholds: `first(c)` = the smallest index whose
+/// entry is at least `c` (N when none is), so that, the table being
+/// non-decreasing, `lut[i] = #{c in 1..=255 : first(c) ≤ i}`, the largest
+/// `c` with `first(c) ≤ i` (`first(0)` = 0). Stored in the order of an
+/// 8-step binary search for that `c` (Eytzinger's): node `k` in 1..256 at
+/// depth `s = ⌊log₂ k⌋`, `k = 2^s + p`, holds `first((2p + 1)·2^(7−s))`;
+/// starting at `k = 1`, each step goes to `2k + (node ≤ i)`, and after 8
+/// steps `k − 256` is the code. Node 0 is unused. Aligned to 64 bytes:
+/// each of the eight registers of 32 u16s the AVX-512 search loads is one
+/// cache line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C, align(64))]
+pub(crate) struct SrgbThresholds(pub(crate) [u16; SRGB_CODES]);
+
+const _: () = assert!(SRGB_LUT_SIZE <= u16::MAX as usize);
+
+impl SrgbLut {
+    /// The table's thresholds.
+    #[inline(always)]
+    pub(crate) fn thresholds(&self) -> &SrgbThresholds {
+        &self.thresholds
+    }
+}
+
+impl std::ops::Index<usize> for SrgbLut {
+    type Output = u8;
+    #[inline(always)]
+    fn index(&self, i: usize) -> &u8 {
+        &self.codes[i]
+    }
+}
+
+impl SrgbThresholds {
+    /// The thresholds of `codes`, which must be non-decreasing for the
+    /// search to give its entries (the tests check every index).
+    fn of(codes: &[u8; SRGB_LUT_SIZE]) -> Self {
+        // first[c]: the table is sorted, so the entries below c come first.
+        let first = |c: usize| codes.partition_point(|&v| usize::from(v) < c) as u16;
+        let mut nodes = [0u16; SRGB_CODES];
+        for (k, node) in nodes.iter_mut().enumerate().skip(1) {
+            let depth = k.ilog2();
+            let p = k - (1 << depth);
+            *node = first((2 * p + 1) << (SRGB_CODE_BITS - 1 - depth));
+        }
+        Self(nodes)
+    }
+}
+
+/// Builds the table from [`crate::pipeline::srgb_encode`], and its
+/// thresholds from the table.
 pub(crate) fn srgb_lut() -> Box<SrgbLut> {
-    let mut lut = Box::new([0u8; SRGB_LUT_SIZE + SRGB_LUT_PAD]);
-    for (i, v) in lut.iter_mut().enumerate() {
-        let i = i.min(SRGB_LUT_SIZE - 1);
+    let mut codes = [0u8; SRGB_LUT_SIZE];
+    for (i, v) in codes.iter_mut().enumerate() {
         *v = (crate::pipeline::srgb_encode(i as f32 / (SRGB_LUT_SIZE - 1) as f32) * 255.0).round()
             as u8;
     }
-    lut
+    let thresholds = SrgbThresholds::of(&codes);
+    Box::new(SrgbLut { codes, thresholds })
 }
 
 /// Channel planes of `LANES` pixels.
@@ -133,9 +188,13 @@ impl Map for Affine {
     fn encode_fast(&self, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) -> usize {
         #[cfg(target_arch = "x86_64")]
         if crate::acuity::has_avx2_fma() {
-            let from = if crate::acuity::has_avx512() {
-                // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just
-                // above).
+            let from = if crate::acuity::has_avx512vbmi2() {
+                // SAFETY: the CPU has AVX-512F, BW and VBMI2, AVX2 and FMA
+                // (checked just above).
+                unsafe { crate::acuity::avx512::encode_affine_vbmi2(self, lut, src, rgba8) }
+            } else if crate::acuity::has_avx512bw() {
+                // SAFETY: the CPU has AVX-512F and BW, AVX2 and FMA
+                // (checked just above).
                 unsafe { crate::acuity::avx512::encode_affine(self, lut, src, rgba8) }
             } else {
                 0
@@ -377,6 +436,40 @@ pub(crate) fn lut_index(v: f32) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn srgb_table_is_non_decreasing_and_has_every_code() {
+        let lut = srgb_lut();
+        assert!(lut.codes.windows(2).all(|w| w[0] <= w[1]));
+        assert_eq!((lut.codes[0], lut.codes[SRGB_LUT_SIZE - 1]), (0, 255));
+        assert!(lut.codes.windows(2).all(|w| w[1] - w[0] <= 1));
+    }
+
+    /// The search of [`SrgbThresholds`], one index at a time.
+    fn search(t: &SrgbThresholds, idx: usize) -> usize {
+        let mut k = 1;
+        for _ in 0..SRGB_CODE_BITS {
+            k = 2 * k + usize::from(usize::from(t.0[k]) <= idx);
+        }
+        k - SRGB_CODES
+    }
+
+    #[test]
+    fn threshold_search_gives_the_table_at_every_index() {
+        let lut = srgb_lut();
+        let miss = |t: &SrgbThresholds| {
+            (0..SRGB_LUT_SIZE)
+                .filter(|&i| search(t, i) != usize::from(lut[i]))
+                .count()
+        };
+        assert_eq!(miss(lut.thresholds()), 0);
+        // Each node matters: one threshold off by one misses an index.
+        for k in 1..SRGB_CODES {
+            let mut t = *lut.thresholds();
+            t.0[k] += 1;
+            assert!(miss(&t) > 0, "node {k}");
+        }
+    }
 
     #[test]
     fn lut_index_matches_the_clamped_rounding() {
