@@ -751,39 +751,25 @@ impl AcuityBlur {
                     }
                     return 0;
                 }
-                match (px, src) {
-                    (Some(px), None) => {
+                match (
+                    px.map(|px| BandRows {
+                        px,
+                        y0,
+                        y1,
+                        ring: false,
+                    }),
+                    src,
+                ) {
+                    (Some(rows), None) => {
                         let halo = Halo {
                             above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
                             below: stash.get(b + 1).map(|s| &s[..r * w]),
                         };
-                        run_band_dispatch(
-                            &ctx,
-                            band,
-                            BandRows {
-                                px,
-                                y0,
-                                y1,
-                                ring: false,
-                            },
-                            &halo,
-                            sink,
-                            out,
-                        )
+                        run_band_dispatch(&ctx, band, rows, &halo, sink, out)
                     }
-                    (Some(px), Some(src)) => run_band_dispatch(
-                        &ctx,
-                        band,
-                        BandRows {
-                            px,
-                            y0,
-                            y1,
-                            ring: false,
-                        },
-                        &Filled { src },
-                        sink,
-                        out,
-                    ),
+                    (Some(rows), Some(src)) => {
+                        run_band_dispatch(&ctx, band, rows, &Filled { src }, sink, out)
+                    }
                     (None, Some(src)) => {
                         // The ring moves out of the band for the pass (no copy).
                         let mut ring = std::mem::take(&mut band.rgb);
