@@ -94,6 +94,13 @@
 //! tone + colour + encode, [`crate::encode`]) while it is in cache. The
 //! frame is read from memory once for stages 5–8.
 //!
+//! The pipeline does not hand the band pass a finished frame: it gives a
+//! row source (`apply_from`), which makes each row (the sanitised scene
+//! row with the glare blended in) just before the band first reads it.
+//! Rows of the neighbours are then made again into a scratch row instead
+//! of copied, and, unless the caller keeps the blurred frame, a band's rows
+//! live only in a ring of 2r + 1 rows of its own.
+//!
 //! Pixels are processed 8 at a time as channel planes with fixed trip
 //! counts. On a CPU with AVX2 + FMA (detected at run time) the row loops
 //! run their explicit-intrinsics twins (module `avx2`), and with AVX-512F
