@@ -80,9 +80,9 @@
 //!
 //! The frame is split into bands of rows (at most 8, each at least 8r
 //! rows for the frame's largest radius r), which run in parallel on the
-//! rayon pool; each band first copies the r rows on either side of its
-//! neighbours' edges (their original values) so that no band reads a row
-//! another has already blurred. Within a band, rows stream through two
+//! rayon pool. A band reads its rows from a row source, never from rows
+//! another band has already blurred: the r rows on either side of its
+//! edges are made again from the source. Within a band, rows stream through two
 //! rings of 2r + 1 rows: row t + 2r's Y/Yn (no cube root) and whether it
 //! holds a pixel darker than the blur threshold (the models' σ falls
 //! monotonically with Y, so one threshold luminance per frame decides,
@@ -94,12 +94,11 @@
 //! tone + colour + encode, [`crate::encode`]) while it is in cache. The
 //! frame is read from memory once for stages 5–8.
 //!
-//! The pipeline does not hand the band pass a finished frame: it gives a
-//! row source (`apply_from`), which makes each row (the sanitised scene
-//! row with the glare blended in) just before the band first reads it.
-//! Rows of the neighbours are then made again into a scratch row instead
-//! of copied, and, unless the caller keeps the blurred frame, a band's rows
-//! live only in a ring of 2r + 1 rows of its own.
+//! The source makes each row just before the band first reads it: for
+//! [`AcuityBlur::apply`], a copy of the original frame; for the pipeline,
+//! the sanitised scene row with the glare blended in. Unless the caller
+//! keeps the blurred frame, a band's rows live only in a ring of 2r + 1
+//! rows of its own.
 //!
 //! Pixels are processed 8 at a time as channel planes with fixed trip
 //! counts. On a CPU with AVX2 + FMA (detected at run time) the row loops
@@ -396,8 +395,9 @@ pub struct AcuityBlur {
     /// Per band: its ring buffers.
     bands: Vec<Band>,
     /// Per band: the original pixels of its first and last `max_radius`
-    /// rows, taken before any band writes (the neighbours' halo).
-    stash: Vec<Vec<[f32; 3]>>,
+    /// A copy of the frame [`AcuityBlur::apply`] blurs in place, which it
+    /// reads its rows from (allocated by the first `apply` of a size).
+    original: Vec<[f32; 3]>,
     /// The widest instruction set the row loops may use (below what the
     /// CPU has only in the tests, which compare the builds).
     isa: Isa,
@@ -485,13 +485,6 @@ pub(crate) trait RowSource: Sync {
     /// Writes row `y` of the frame (linear RGB, cd/m², `row.len()` pixels)
     /// into `row`.
     fn fill(&self, y: usize, row: &mut [[f32; 3]]);
-}
-
-/// A source that is never read ([`AcuityBlur::apply_into`]).
-struct NoSource;
-
-impl RowSource for NoSource {
-    fn fill(&self, _: usize, _: &mut [[f32; 3]]) {}
 }
 
 /// The per-frame constants of the blur.
@@ -589,7 +582,7 @@ impl AcuityBlur {
             max_radius,
             band_rows: 1,
             bands: Vec::new(),
-            stash: Vec::new(),
+            original: Vec::new(),
             isa: Isa::detect(),
         };
         blur.resize(width, height);
@@ -619,7 +612,6 @@ impl AcuityBlur {
                     ..Band::default()
                 })
                 .collect();
-            self.stash.clear();
             return;
         }
         let stride_l = 2 * r + w.next_multiple_of(LANES);
@@ -634,39 +626,38 @@ impl AcuityBlur {
                 rgb: vec![[0.0; 3]; (2 * r + 1) * w],
             })
             .collect();
-        self.stash = (0..n).map(|_| vec![[0.0; 3]; 2 * r * w]).collect();
     }
 
     /// Blurs the lightness of `img` (linear RGB, cd/m²) in place, each
     /// pixel with its own σ, keeping a\* and b\* of every pixel. Returns the
-    /// number of pixels whose lightness changed. Resizes the scratch
-    /// buffers (allocating) only when the image size changed.
+    /// number of pixels whose lightness changed. Reads the rows from a copy
+    /// of `img` (no band reads a row another has already blurred); the copy
+    /// and the scratch buffers are allocated only when the size changed.
     pub fn apply(&mut self, img: &mut RgbImage) -> usize {
+        let mut original = std::mem::take(&mut self.original);
+        original.clear();
+        original.extend_from_slice(&img.pixels);
+        let src = ImageRows {
+            pixels: &original,
+            width: img.width,
+        };
         let mut none = vec![(); img.height];
-        self.apply_into(img, &NoSink, &mut none)
+        let size = (img.width, img.height);
+        let changed = self.apply_from(&src, size, Some(img), &NoSink, &mut none);
+        self.original = original;
+        changed
     }
 
-    /// [`apply`](Self::apply), then `sink` on every row of the result
-    /// right after the row is final (while it is in cache); `out` holds
-    /// `sink.per_row()` items per row. Rows run in bands, in parallel.
-    pub(crate) fn apply_into<S: RowSink>(
-        &mut self,
-        img: &mut RgbImage,
-        sink: &S,
-        out: &mut [S::Out],
-    ) -> usize {
-        let (w, h) = (img.width, img.height);
-        self.run((w, h), Some(img), None::<&NoSource>, sink, out)
-    }
-
-    /// [`apply_into`](Self::apply_into) of the `width × height` frame that
-    /// `src` makes: each row is made by `src` just before the band pass
-    /// first reads it. With `keep`, the rows are made in it (whatever it
-    /// held is overwritten) and it ends as the blurred frame, as with
-    /// [`apply_into`](Self::apply_into); without, each band keeps only the
-    /// 2r + 1 rows it is working on, in its own ring (no frame-sized
-    /// buffer is written). Does nothing (returns 0) when `keep` is not
-    /// `width × height`.
+    /// Blurs the `width × height` frame that `src` makes, each row made
+    /// just before the band pass first reads it, then gives `sink` every
+    /// row of the result right after the row is final (while it is in
+    /// cache); `out` holds `sink.per_row()` items per row. Rows run in
+    /// bands, in parallel. With `keep`, the rows are made in it (whatever
+    /// it held is overwritten) and it ends as the blurred frame; without,
+    /// each band keeps only the 2r + 1 rows it is working on, in its own
+    /// ring (no frame-sized buffer is written). Returns the number of
+    /// pixels whose lightness changed; does nothing (returns 0) when `keep`
+    /// is not `width × height`.
     pub(crate) fn apply_from<S: RowSink, R: RowSource>(
         &mut self,
         src: &R,
@@ -675,17 +666,8 @@ impl AcuityBlur {
         sink: &S,
         out: &mut [S::Out],
     ) -> usize {
-        self.run(size, keep, Some(src), sink, out)
-    }
-
-    fn run<S: RowSink, R: RowSource>(
-        &mut self,
-        (w, h): (usize, usize),
-        mut img: Option<&mut RgbImage>,
-        src: Option<&R>,
-        sink: &S,
-        out: &mut [S::Out],
-    ) -> usize {
+        let (w, h) = size;
+        let mut img = keep;
         let per_row = sink.per_row();
         if w == 0
             || h == 0
@@ -696,16 +678,11 @@ impl AcuityBlur {
         {
             return 0;
         }
-        // Rows in place need a frame; rows from a source may go without.
-        if img.is_none() && src.is_none() {
-            return 0;
-        }
         if (w, h) != (self.width, self.height) {
             self.resize(w, h);
         }
         let band_rows = self.band_rows;
         let r = self.max_radius;
-        let in_place = src.is_none();
         let ctx = Ctx {
             w,
             h,
@@ -719,21 +696,6 @@ impl AcuityBlur {
             avx512: self.isa >= Isa::Avx512,
         };
         let no_blur = r == 0 || matches!(self.rule, SigmaRule::None);
-        if in_place && !no_blur {
-            // The halo rows of every band, before any band writes.
-            if let Some(img) = img.as_ref() {
-                self.stash
-                    .par_iter_mut()
-                    .zip(img.pixels.par_chunks(band_rows * w))
-                    .for_each(|(stash, px)| {
-                        let rows = px.len() / w;
-                        let k = r.min(rows);
-                        stash[..k * w].copy_from_slice(&px[..k * w]);
-                        stash[r * w..(r + k) * w].copy_from_slice(&px[(rows - k) * w..]);
-                    });
-            }
-        }
-        let stash = &self.stash[..];
         // One job per band: its rows in the frame, or `None` (its ring).
         let frame_rows = img.as_mut().map(|i| i.pixels.par_chunks_mut(band_rows * w));
         let jobs = self
@@ -751,33 +713,22 @@ impl AcuityBlur {
                             Some(px) => &mut px[k * w..(k + 1) * w],
                             None => &mut band.scratch[..],
                         };
-                        if let Some(src) = src {
-                            src.fill(y0 + k, row);
-                        }
+                        src.fill(y0 + k, row);
                         sink.row(row, o);
                     }
                     return 0;
                 }
-                match (
-                    px.map(|px| BandRows {
-                        px,
-                        y0,
-                        y1,
-                        ring: false,
-                    }),
-                    src,
-                ) {
-                    (Some(rows), None) => {
-                        let halo = Halo {
-                            above: b.checked_sub(1).map(|p| &stash[p][r * w..]),
-                            below: stash.get(b + 1).map(|s| &s[..r * w]),
+                match px {
+                    Some(px) => {
+                        let rows = BandRows {
+                            px,
+                            y0,
+                            y1,
+                            ring: false,
                         };
-                        run_band_dispatch(&ctx, band, rows, &halo, sink, out)
+                        run_band_dispatch(&ctx, band, rows, src, sink, out)
                     }
-                    (Some(rows), Some(src)) => {
-                        run_band_dispatch(&ctx, band, rows, &Filled { src }, sink, out)
-                    }
-                    (None, Some(src)) => {
+                    None => {
                         // The ring moves out of the band for the pass (no copy).
                         let mut ring = std::mem::take(&mut band.rgb);
                         let rows = BandRows {
@@ -786,12 +737,10 @@ impl AcuityBlur {
                             y1,
                             ring: true,
                         };
-                        let changed =
-                            run_band_dispatch(&ctx, band, rows, &Filled { src }, sink, out);
+                        let changed = run_band_dispatch(&ctx, band, rows, src, sink, out);
                         band.rgb = ring;
                         changed
                     }
-                    (None, None) => 0,
                 }
             };
         match frame_rows {
@@ -804,14 +753,6 @@ impl AcuityBlur {
     }
 }
 
-/// The rows next to a band that belong to its neighbours: the last r rows
-/// of the band above, the first r rows of the band below (original values).
-#[derive(Clone, Copy)]
-struct Halo<'a> {
-    above: Option<&'a [[f32; 3]]>,
-    below: Option<&'a [[f32; 3]]>,
-}
-
 /// Where a band's rows `y0..y1` live: `px` holds them in order, or with
 /// `ring` in a ring of 2r + 1 rows.
 struct BandRows<'a> {
@@ -821,70 +762,16 @@ struct BandRows<'a> {
     ring: bool,
 }
 
-/// How a band gets its rows: in place with a [`Halo`], or made by a
-/// [`RowSource`] ([`Filled`]).
-trait BandInput: Sync {
-    /// Readies row `t` of the band, `row` (in place: nothing to do).
-    fn band_row(&self, t: usize, row: &mut [[f32; 3]]);
-    /// Row `t` outside the band `y0..y1` (within `r` of it), `w` pixels;
-    /// `scratch` (one row) may hold it.
-    fn outside<'s>(
-        &'s self,
-        t: usize,
-        y0: usize,
-        y1: usize,
-        r: usize,
-        scratch: &'s mut [[f32; 3]],
-    ) -> &'s [[f32; 3]];
+/// The rows of an image, as they are ([`AcuityBlur::apply`]).
+struct ImageRows<'a> {
+    pixels: &'a [[f32; 3]],
+    width: usize,
 }
 
-impl BandInput for Halo<'_> {
-    #[inline(always)]
-    fn band_row(&self, _: usize, _: &mut [[f32; 3]]) {}
-
-    #[inline(always)]
-    fn outside<'s>(
-        &'s self,
-        t: usize,
-        y0: usize,
-        y1: usize,
-        r: usize,
-        scratch: &'s mut [[f32; 3]],
-    ) -> &'s [[f32; 3]] {
-        let w = scratch.len();
-        if t < y0 {
-            let a = self.above.unwrap_or(&[]);
-            &a[(t + r - y0) * w..(t + r - y0 + 1) * w]
-        } else {
-            let b = self.below.unwrap_or(&[]);
-            &b[(t - y1) * w..(t - y1 + 1) * w]
-        }
-    }
-}
-
-/// Rows made by a [`RowSource`], those of the neighbours in the band's
-/// scratch row.
-struct Filled<'a, R> {
-    src: &'a R,
-}
-
-impl<R: RowSource> BandInput for Filled<'_, R> {
-    #[inline(always)]
-    fn band_row(&self, t: usize, row: &mut [[f32; 3]]) {
-        self.src.fill(t, row);
-    }
-
-    #[inline(always)]
-    fn outside<'s>(
-        &'s self,
-        t: usize,
-        _: usize,
-        _: usize,
-        _: usize,
-        scratch: &'s mut [[f32; 3]],
-    ) -> &'s [[f32; 3]] {
-        self.src.fill(t, scratch);
-        scratch
+impl RowSource for ImageRows<'_> {
+    #[inline]
+    fn fill(&self, y: usize, row: &mut [[f32; 3]]) {
+        row.copy_from_slice(&self.pixels[y * self.width..(y + 1) * self.width]);
     }
 }
 
@@ -944,51 +831,51 @@ pub(crate) fn has_avx512vbmi2() -> bool {
 /// only the instruction set differs).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn run_band_avx2<S: RowSink, I: BandInput>(
+fn run_band_avx2<S: RowSink, R: RowSource>(
     ctx: &Ctx,
     band: &mut Band,
     rows: BandRows<'_>,
-    input: &I,
+    src: &R,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, rows, input, sink, out)
+    run_band(ctx, band, rows, src, sink, out)
 }
 
 /// [`run_band`] compiled for AVX-512F (the same code and results).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
-fn run_band_avx512<S: RowSink, I: BandInput>(
+fn run_band_avx512<S: RowSink, R: RowSource>(
     ctx: &Ctx,
     band: &mut Band,
     rows: BandRows<'_>,
-    input: &I,
+    src: &R,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
-    run_band(ctx, band, rows, input, sink, out)
+    run_band(ctx, band, rows, src, sink, out)
 }
 
-fn run_band_dispatch<S: RowSink, I: BandInput>(
+fn run_band_dispatch<S: RowSink, R: RowSource>(
     ctx: &Ctx,
     band: &mut Band,
     rows: BandRows<'_>,
-    input: &I,
+    src: &R,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if has_avx512() {
         // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked just above).
-        return unsafe { run_band_avx512(ctx, band, rows, input, sink, out) };
+        return unsafe { run_band_avx512(ctx, band, rows, src, sink, out) };
     }
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         // SAFETY: the CPU has AVX2 and FMA (checked just above), the only
         // requirement of a `target_feature` function.
-        return unsafe { run_band_avx2(ctx, band, rows, input, sink, out) };
+        return unsafe { run_band_avx2(ctx, band, rows, src, sink, out) };
     }
-    run_band(ctx, band, rows, input, sink, out)
+    run_band(ctx, band, rows, src, sink, out)
 }
 
 /// One band of rows `y0..y1` (`rows`), streaming: each row's Y/Yn and
@@ -998,11 +885,11 @@ fn run_band_dispatch<S: RowSink, I: BandInput>(
 /// rows); `input` readies each one and gives the neighbours' rows. Returns
 /// the number of pixels whose lightness changed.
 #[inline(always)]
-fn run_band<S: RowSink, I: BandInput>(
+fn run_band<S: RowSink, R: RowSource>(
     ctx: &Ctx,
     band: &mut Band,
     rows: BandRows<'_>,
-    input: &I,
+    src: &R,
     sink: &S,
     out: &mut [S::Out],
 ) -> usize {
@@ -1028,17 +915,18 @@ fn run_band<S: RowSink, I: BandInput>(
             let last = (j + r).min(y1 - 1).max(j);
             while next_y <= last {
                 let t = next_y;
-                let src: &[[f32; 3]] = if t < y0 || t >= y1 {
-                    input.outside(t, y0, y1, r, &mut band.scratch)
+                // Rows of the neighbouring bands are made again, into the
+                // scratch row (their Y only is read).
+                let row = if t < y0 || t >= y1 {
+                    &mut band.scratch[..]
                 } else {
-                    let row = &mut px[slot(t) * w..(slot(t) + 1) * w];
-                    input.band_row(t, row);
-                    row
+                    &mut px[slot(t) * w..(slot(t) + 1) * w]
                 };
+                src.fill(t, row);
                 let slot = t % ring;
                 band.dark[t] = load_y(
                     ctx,
-                    src,
+                    row,
                     &mut band.lum[slot * ctx.stride_l..(slot + 1) * ctx.stride_l],
                     &mut band.head[slot * ctx.stride_h..(slot + 1) * ctx.stride_h],
                 );
