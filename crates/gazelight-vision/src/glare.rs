@@ -1066,15 +1066,13 @@ impl GlareConvolver {
     /// image.
     pub fn apply(&mut self, img: &mut RgbImage, gaze_px: [f64; 2]) {
         self.prepare(img, gaze_px);
-        let Some(rows) = self.plan.as_ref().map(|p| p.rows.clone()) else {
-            return;
-        };
+        let rows = self.rows_reached();
         let width = img.width;
         let this = &*self;
-        img.pixels[rows.start as usize * width..rows.end as usize * width]
+        img.pixels[rows.start * width..rows.end * width]
             .par_chunks_mut(width)
             .enumerate()
-            .for_each(|(k, row)| this.blend_row(rows.start as usize + k, row));
+            .for_each(|(k, row)| this.blend_row(rows.start + k, row));
     }
 
     /// The glare of the frame `src` around `gaze_px` (pixel coordinates,
@@ -1334,7 +1332,8 @@ impl GlareConvolver {
     /// Blends the prepared glare into row `y` of the frame (`row`, its
     /// pixels as given to [`GlareConvolver::prepare`]):
     /// `(1 − w)·row + fine + bilinear(coarse / b²)`. Rows outside
-    /// [`GlareConvolver::rows_reached`], or a `row` of another width, are
+    /// [`GlareConvolver::rows_reached`], or a `row` too short for the
+    /// columns the glare reaches (not a row of the prepared frame), are
     /// left as they are.
     #[inline]
     pub fn blend_row(&self, y: usize, row: &mut [[f32; 3]]) {
