@@ -610,33 +610,39 @@ impl AffineEncoder {
         }
     }
 
-    /// The table indices of 16 pixels, per channel as i32 lanes.
+    /// The table indices of 16 pixels, per channel as i32 lanes. (No
+    /// closures here or in [`Self::words`]: LLVM left `[_; 3].map`'s
+    /// closures out of line, as calls taking their registers through
+    /// memory and compiled without VBMI2, a fifth of the night frame.)
     #[inline]
     #[target_feature(enable = "avx512f,avx512bw,avx2,fma")]
     fn indices(&self, px: &[[f32; 3]]) -> [__m512i; 3] {
-        let (m, b) = (&self.m, &self.b);
-        let zero = _mm512_setzero_ps();
+        let [r, g, b] = self.sh.deinterleave(px);
         // `max(p, 0)` (NaN → 0), then at most f32::MAX.
-        let p = self
-            .sh
-            .deinterleave(px)
-            .map(|v| _mm512_min_ps(_mm512_max_ps(v, zero), splat(f32::MAX)));
-        [0, 1, 2].map(|c| {
-            let v = _mm512_add_ps(
-                _mm512_add_ps(
-                    _mm512_add_ps(_mm512_mul_ps(m[c][0], p[0]), _mm512_mul_ps(m[c][1], p[1])),
-                    _mm512_mul_ps(m[c][2], p[2]),
-                ),
-                b[c],
-            );
-            // crate::encode::lut_index, as in the AVX2 twin: in 0..N, so the
-            // low word of each lane is the index.
-            let v = _mm512_min_ps(_mm512_max_ps(v, zero), splat(1.0));
-            _mm512_cvttps_epi32(_mm512_add_ps(
-                _mm512_mul_ps(v, splat((SRGB_LUT_SIZE - 1) as f32)),
-                splat(0.5),
-            ))
-        })
+        let p = [clamp_finite(r), clamp_finite(g), clamp_finite(b)];
+        [self.index(&p, 0), self.index(&p, 1), self.index(&p, 2)]
+    }
+
+    /// Channel `c`'s table indices of the clamped pixels `p`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512bw,avx2,fma")]
+    fn index(&self, p: &[__m512; 3], c: usize) -> __m512i {
+        let (m, b) = (&self.m[c], self.b[c]);
+        let zero = _mm512_setzero_ps();
+        let v = _mm512_add_ps(
+            _mm512_add_ps(
+                _mm512_add_ps(_mm512_mul_ps(m[0], p[0]), _mm512_mul_ps(m[1], p[1])),
+                _mm512_mul_ps(m[2], p[2]),
+            ),
+            b,
+        );
+        // crate::encode::lut_index, as in the AVX2 twin: in 0..N, so the
+        // low word of each lane is the index.
+        let v = _mm512_min_ps(_mm512_max_ps(v, zero), splat(1.0));
+        _mm512_cvttps_epi32(_mm512_add_ps(
+            _mm512_mul_ps(v, splat((SRGB_LUT_SIZE - 1) as f32)),
+            splat(0.5),
+        ))
     }
 
     /// The RGBA8 words of two blocks of 16 pixels from their table
@@ -644,10 +650,16 @@ impl AffineEncoder {
     #[inline]
     #[target_feature(enable = "avx512f,avx512bw,avx2,fma")]
     fn words(&self, first: [__m512i; 3], second: [__m512i; 3]) -> [__m512i; 2] {
-        let [r, g, b] = [0, 1, 2].map(|c| {
-            let idx = _mm512_permutex2var_epi16(first[c], self.low_words, second[c]);
-            self.search.codes(idx)
-        });
+        let lw = self.low_words;
+        let r = self
+            .search
+            .codes(_mm512_permutex2var_epi16(first[0], lw, second[0]));
+        let g = self
+            .search
+            .codes(_mm512_permutex2var_epi16(first[1], lw, second[1]));
+        let b = self
+            .search
+            .codes(_mm512_permutex2var_epi16(first[2], lw, second[2]));
         // Codes are 256 + entry: (r & 0xff) | g << 8 (the shift drops bit 8)
         // and (b & 0xff) | α << 8, each as `x | (y & z)`.
         let low_byte = _mm512_set1_epi16(0xff);
@@ -659,6 +671,13 @@ impl AffineEncoder {
             _mm512_permutex2var_epi16(rg, self.rgba_high, ba),
         ]
     }
+}
+
+/// `min(max(v, 0), f32::MAX)` per lane (NaN → 0).
+#[inline]
+#[target_feature(enable = "avx512f,avx2,fma")]
+fn clamp_finite(v: __m512) -> __m512 {
+    _mm512_min_ps(_mm512_max_ps(v, _mm512_setzero_ps()), splat(f32::MAX))
 }
 
 /// Stores the RGBA8 words of 16 pixels to `rgba8[4x..4(x + 16)]`
