@@ -585,6 +585,12 @@ fn part(r: &Range<usize>, i: usize, parts: usize) -> Range<usize> {
     r.start + n * i / parts..r.start + n * (i + 1) / parts
 }
 
+/// Rows per tile of [`gather`] and [`scatter`]: each column of a tile is
+/// one run of 8 samples (64 bytes) in the strip. Moving one sample per row
+/// and column instead wrote 32 streams 4 KiB apart (the strip's column
+/// length), which the L1 cannot hold.
+const TILE_ROWS: usize = 8;
+
 /// Copies columns `l` then `m` of `buf` (rows of `w`) into `strip` as
 /// columns of length `n`, rows `rows` (< `n`) read, the others zero.
 ///
@@ -609,22 +615,21 @@ unsafe fn gather(
         col[rows.end..].fill(ZERO);
     }
     assert!(rows.end <= n);
-    let dst = strip.as_mut_ptr();
-    for r in rows {
-        // SAFETY: columns l and m are this caller's (contract).
-        let (sl, sm) = unsafe {
-            (
-                buf.slice(r * w + l.start, nl),
-                buf.slice(r * w + m.start, m.len()),
-            )
-        };
-        for (j, &v) in sl.iter().enumerate() {
-            // SAFETY: j < nl and r < n, so j·n + r < nc·n = strip.len().
-            unsafe { *dst.add(j * n + r) = v };
-        }
-        for (j, &v) in sm.iter().enumerate() {
-            // SAFETY: nl + j < nc and r < n, as above.
-            unsafe { *dst.add((nl + j) * n + r) = v };
+    for r0 in rows.clone().step_by(TILE_ROWS) {
+        let r1 = (r0 + TILE_ROWS).min(rows.end);
+        for (c0, cols) in [(0, l), (nl, m)] {
+            let mut tile: [&[C32]; TILE_ROWS] = [&[]; TILE_ROWS];
+            for (t, r) in tile.iter_mut().zip(r0..r1) {
+                // SAFETY: columns l and m are this caller's (contract).
+                *t = unsafe { buf.slice(r * w + cols.start, cols.len()) };
+            }
+            let tile = &tile[..r1 - r0];
+            for j in 0..cols.len() {
+                let col = &mut strip[(c0 + j) * n + r0..(c0 + j) * n + r1];
+                for (d, src) in col.iter_mut().zip(tile) {
+                    *d = src[j];
+                }
+            }
         }
     }
 }
@@ -647,22 +652,22 @@ unsafe fn scatter(
     let nl = l.len();
     let strip = &strip[..(nl + m.len()) * n];
     assert!(rows.end <= n);
-    let src = strip.as_ptr();
-    for r in rows {
-        // SAFETY: columns l and m are this caller's (contract).
-        let (sl, sm) = unsafe {
-            (
-                buf.slice(r * w + l.start, nl),
-                buf.slice(r * w + m.start, m.len()),
-            )
-        };
-        for (j, v) in sl.iter_mut().enumerate() {
-            // SAFETY: j < nl and r < n, so j·n + r < strip.len().
-            *v = unsafe { *src.add(j * n + r) };
-        }
-        for (j, v) in sm.iter_mut().enumerate() {
-            // SAFETY: nl + j < nl + m.len() and r < n, as above.
-            *v = unsafe { *src.add((nl + j) * n + r) };
+    for r0 in rows.clone().step_by(TILE_ROWS) {
+        let r1 = (r0 + TILE_ROWS).min(rows.end);
+        for (c0, cols) in [(0, l), (nl, m)] {
+            let mut tile: [&mut [C32]; TILE_ROWS] = Default::default();
+            for (t, r) in tile.iter_mut().zip(r0..r1) {
+                // SAFETY: columns l and m are this caller's (contract), and
+                // the tile's rows are distinct.
+                *t = unsafe { buf.slice(r * w + cols.start, cols.len()) };
+            }
+            let tile = &mut tile[..r1 - r0];
+            for j in 0..cols.len() {
+                let col = &strip[(c0 + j) * n + r0..(c0 + j) * n + r1];
+                for (dst, &v) in tile.iter_mut().zip(col) {
+                    dst[j] = v;
+                }
+            }
         }
     }
 }
