@@ -239,13 +239,27 @@ fn bench_view(
     );
 }
 
-/// The glare stage alone at 720×800 (default kernel: ±20° field with the
-/// CIE 146 wide field, full weight 12° around the gaze), against an f32
+/// The glare stage alone at 720×800 and 1440×1600 (default kernel: ±20°
+/// field with the CIE 146 wide field, full weight 12° around the gaze):
+/// `apply` (prepare and blend every row) and `prepare` alone (the FFTs, what
+/// the pipeline runs before its band pass blends the rows), against an f32
 /// RGBA copy of the same frame measured in the same run (the floor).
 fn glare_stage(c: &mut Criterion) {
-    let (w, h) = (720, 800);
+    let only = std::env::var("GAZELIGHT_BENCH_SIZES").ok();
     let scene = load("night.exr");
-    let (img, view) = view_of(&scene, DEMO_YAW_DEG, w, h);
+    for (w, h) in [(720, 800), (1440, 1600)] {
+        if only
+            .as_ref()
+            .is_some_and(|s| !s.contains(&format!("{w}x{h}")))
+        {
+            continue;
+        }
+        glare_at(c, &scene, w, h);
+    }
+}
+
+fn glare_at(c: &mut Criterion, scene: &Scene, w: usize, h: usize) {
+    let (img, view) = view_of(scene, DEMO_YAW_DEG, w, h);
     let params = PsfParams {
         ppd: 1.0 / view.deg_per_px(),
         ..PsfParams::default()
@@ -264,14 +278,21 @@ fn glare_stage(c: &mut Criterion) {
     let mut work = img.clone();
     let src: Vec<[f32; 4]> = img.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]).collect();
     let mut dst = vec![[0.0f32; 4]; w * h];
+    let gaze_px = [0.5 * w as f64, 0.45 * h as f64];
     let mut group = c.benchmark_group(format!("glare_{w}x{h}"));
     group.sample_size(30);
     group.bench_function("glare_stage", |b| {
         b.iter(|| {
             // Energy conserving: applying it again and again keeps the
             // frame finite, and the FFT work does not depend on the values.
-            conv.apply(black_box(&mut work), [0.5 * w as f64, 0.45 * h as f64]);
+            conv.apply(black_box(&mut work), gaze_px);
             black_box(&work);
+        })
+    });
+    group.bench_function("glare_prepare", |b| {
+        b.iter(|| {
+            conv.prepare(black_box(&img), gaze_px);
+            black_box(conv.rows_reached());
         })
     });
     group.bench_function("f32_rgba_copy_floor", |b| {

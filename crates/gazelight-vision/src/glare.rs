@@ -1340,7 +1340,10 @@ impl GlareConvolver {
     /// [`GlareConvolver::rows_reached`], or a `row` too short for the
     /// columns the glare reaches (not a row of the prepared frame), are
     /// left as they are.
-    #[inline]
+    ///
+    /// Always inlined: the pipeline's row source compiles it inside its
+    /// AVX-512 and AVX2 twins.
+    #[inline(always)]
     pub fn blend_row(&self, y: usize, row: &mut [[f32; 3]]) {
         let Some(plan) = self.plan.as_ref() else {
             return;
