@@ -775,6 +775,16 @@ impl RowSource for ImageRows<'_> {
     }
 }
 
+/// `[f(a), f(b), f(c)]`: `[T; 3]::map` for the SIMD passes. Always
+/// inlined, so that `f` is inlined into the `#[target_feature]` caller too:
+/// LLVM left `map` and its closures out of line there (calls passing the
+/// vectors through memory, compiled without the caller's features).
+#[inline(always)]
+pub(crate) fn map3<T, U>(a: [T; 3], mut f: impl FnMut(T) -> U) -> [U; 3] {
+    let [x, y, z] = a;
+    [f(x), f(y), f(z)]
+}
+
 /// Whether the CPU runs the AVX2 + FMA build of the band pass.
 #[cfg(target_arch = "x86_64")]
 pub(crate) fn has_avx2_fma() -> bool {

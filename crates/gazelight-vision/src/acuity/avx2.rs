@@ -19,7 +19,7 @@
 use std::arch::x86_64::*;
 
 use super::{
-    AcuityBlur, Band, Ctx, LAB_KAPPA_F32, LANES, RGB_TO_XYZ, SigmaRule, WHITE_XYZ, XYZ_TO_RGB,
+    AcuityBlur, Band, Ctx, LAB_KAPPA_F32, LANES, RGB_TO_XYZ, SigmaRule, WHITE_XYZ, XYZ_TO_RGB, map3,
 };
 use crate::encode::{Affine, SRGB_LUT_SIZE, SrgbLut};
 
@@ -131,7 +131,7 @@ fn interleave(c: [__m256; 3], px: &mut [[f32; 3]]) {
 #[inline]
 #[target_feature(enable = "avx2,fma")]
 fn mat3(m: &[[f32; 3]; 3], p: &[__m256; 3]) -> [__m256; 3] {
-    m.map(|row| {
+    map3(*m, |row| {
         _mm256_add_ps(
             _mm256_add_ps(
                 _mm256_mul_ps(splat(row[0]), p[0]),
@@ -368,7 +368,7 @@ pub(super) fn vertical(
     let hor = &band.hor[..];
     let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
     let head_row = &band.head[(y % ring) * sh..];
-    let wx = WHITE_XYZ.map(|c| c * ctx.white);
+    let wx = map3(WHITE_XYZ, |c| c * ctx.white);
     let kappa = splat(LAB_KAPPA_F32);
     let shift_scale = splat(ctx.white / LAB_KAPPA_F32);
     let mut changed = 0;
@@ -394,7 +394,7 @@ pub(super) fn vertical(
         let new = if linear {
             // RGB' = RGB + (white·Δ/κ)·(1, 1, 1), see the parent module.
             let shift = _mm256_mul_ps(d, shift_scale);
-            p.map(|c| _mm256_add_ps(c, shift))
+            map3(p, |c| _mm256_add_ps(c, shift))
         } else {
             let xyz = mat3(&RGB_TO_XYZ, &p);
             let gx = lab_g(_mm256_div_ps(xyz[0], splat(wx[0])));
@@ -406,7 +406,7 @@ pub(super) fn vertical(
             ];
             mat3(&XYZ_TO_RGB, &new)
         };
-        let kept = [0, 1, 2].map(|c| select(moved, new[c], p[c]));
+        let kept = map3([0, 1, 2], |c| select(moved, new[c], p[c]));
         interleave(kept, out);
         changed += moved_bits.count_ones() as usize;
     }
@@ -423,8 +423,8 @@ pub(crate) fn encode_affine(
     rgba8: &mut [u8],
 ) -> usize {
     let full = (src.len() / LANES * LANES).min(rgba8.len() / 4 / LANES * LANES);
-    let m = map.m.map(|row| row.map(|v| splat(v)));
-    let b = map.b.map(|v| splat(v));
+    let m = map3(map.m, |row| map3(row, |v| splat(v)));
+    let b = map3(map.b, |v| splat(v));
     let zero = _mm256_setzero_ps();
     let (one, max) = (splat(1.0), splat(f32::MAX));
     let scale = splat((SRGB_LUT_SIZE - 1) as f32);
@@ -432,8 +432,9 @@ pub(crate) fn encode_affine(
     for x in (0..full).step_by(LANES) {
         // `max(p, 0)` (NaN → 0: `maxps` returns its second operand), then at
         // most f32::MAX.
-        let p =
-            deinterleave(&src[x..x + LANES]).map(|v| _mm256_min_ps(_mm256_max_ps(v, zero), max));
+        let p = map3(deinterleave(&src[x..x + LANES]), |v| {
+            _mm256_min_ps(_mm256_max_ps(v, zero), max)
+        });
         let mut idx = [[0u32; LANES]; 3];
         for c in 0..3 {
             let v = _mm256_add_ps(
@@ -490,12 +491,15 @@ pub(crate) fn block_sums_row(src: &[[f32; 3]], sums: &mut [f32]) -> bool {
     };
     // The block sums, eight blocks (64 pixels) at a time: each block's
     // eight luminances, transposed, are added in pixel order.
-    let weights = crate::image::LUMINANCE_WEIGHTS.map(|v| splat(v));
+    let weights = map3(crate::image::LUMINANCE_WEIGHTS, |v| splat(v));
     let full = w / (LANES * LANES) * (LANES * LANES);
     for x in (0..full).step_by(LANES * LANES) {
         let mut y = [zero; LANES];
         for (b, yb) in y.iter_mut().enumerate() {
-            let [r, g, bl] = deinterleave(&src[x + b * LANES..x + (b + 1) * LANES]).map(sanitize);
+            let [r, g, bl] = map3(
+                deinterleave(&src[x + b * LANES..x + (b + 1) * LANES]),
+                sanitize,
+            );
             *yb = _mm256_add_ps(
                 _mm256_add_ps(_mm256_mul_ps(weights[0], r), _mm256_mul_ps(weights[1], g)),
                 _mm256_mul_ps(weights[2], bl),

@@ -35,7 +35,9 @@
 
 use std::arch::x86_64::*;
 
-use super::{AcuityBlur, Band, Ctx, LAB_KAPPA_F32, RGB_TO_XYZ, SigmaRule, WHITE_XYZ, XYZ_TO_RGB};
+use super::{
+    AcuityBlur, Band, Ctx, LAB_KAPPA_F32, RGB_TO_XYZ, SigmaRule, WHITE_XYZ, XYZ_TO_RGB, map3,
+};
 use crate::encode::{Affine, SRGB_CODES, SRGB_LUT_SIZE, SrgbLut, SrgbThresholds};
 
 /// Lanes of one register.
@@ -157,8 +159,9 @@ impl Shuffles {
     fn deinterleave(&self, px: &[[f32; 3]]) -> [__m512; 3] {
         let f = &px.as_flattened()[..3 * W];
         let (a, b, c) = (ld(f, 0), ld(f, W), ld(f, 2 * W));
-        self.de
-            .map(|[i1, i2]| _mm512_permutex2var_ps(_mm512_permutex2var_ps(a, i1, b), i2, c))
+        map3(self.de, |[i1, i2]| {
+            _mm512_permutex2var_ps(_mm512_permutex2var_ps(a, i1, b), i2, c)
+        })
     }
 
     /// Inverse of [`Self::deinterleave`]: writes 16 RGB pixels.
@@ -178,7 +181,7 @@ impl Shuffles {
 #[inline]
 #[target_feature(enable = "avx512f,avx2,fma")]
 fn mat3(m: &[[f32; 3]; 3], p: &[__m512; 3]) -> [__m512; 3] {
-    m.map(|row| {
+    map3(*m, |row| {
         _mm512_add_ps(
             _mm512_add_ps(
                 _mm512_mul_ps(splat(row[0]), p[0]),
@@ -424,7 +427,7 @@ pub(super) fn vertical(
     let hor = &band.hor[..];
     let lrow = &band.lum[(y % ring) * ctx.stride_l + r..];
     let head_row = &band.head[(y % ring) * stride_h..];
-    let wx = WHITE_XYZ.map(|c| c * ctx.white);
+    let wx = map3(WHITE_XYZ, |c| c * ctx.white);
     let kappa = splat(LAB_KAPPA_F32);
     let shift_scale = splat(ctx.white / LAB_KAPPA_F32);
     let mut changed = 0;
@@ -451,7 +454,7 @@ pub(super) fn vertical(
         let shifted = || {
             // RGB' = RGB + (white·Δ/κ)·(1, 1, 1), see the parent module.
             let shift = _mm512_mul_ps(d, shift_scale);
-            p.map(|c| _mm512_add_ps(c, shift))
+            map3(p, |c| _mm512_add_ps(c, shift))
         };
         let converted = || {
             let xyz = mat3(&RGB_TO_XYZ, &p);
@@ -470,10 +473,10 @@ pub(super) fn vertical(
             _ => {
                 let (a, b) = (shifted(), converted());
                 let half: __mmask16 = if lo { 0x00ff } else { 0xff00 };
-                [0, 1, 2].map(|c| select(half, a[c], b[c]))
+                map3([0, 1, 2], |c| select(half, a[c], b[c]))
             }
         };
-        let kept = [0, 1, 2].map(|c| select(moved, new[c], p[c]));
+        let kept = map3([0, 1, 2], |c| select(moved, new[c], p[c]));
         sh.interleave(kept, out);
         changed += moved.count_ones() as usize;
     }
@@ -602,8 +605,8 @@ impl AffineEncoder {
         Self {
             sh: Shuffles::new(),
             search: Search::new(lut.thresholds()),
-            m: map.m.map(|row| row.map(|v| splat(v))),
-            b: map.b.map(|v| splat(v)),
+            m: map3(map.m, |row| map3(row, |v| splat(v))),
+            b: map3(map.b, |v| splat(v)),
             low_words: ld_u16(&LOW_WORDS),
             rgba_low: ld_u16(&RGBA_LOW),
             rgba_high: ld_u16(&RGBA_HIGH),
