@@ -28,8 +28,15 @@
 //! [`PupilDatum::unknown_fields`] / [`GazeDatum::unknown_fields`]. A field
 //! with the wrong type is an error naming the field
 //! (e.g. `base_data[1].confidence`).
+//!
+//! Recordings hold long runs of datums with one layout per topic;
+//! [`decode_record_sample_shaped`] decodes those through a learnt
+//! [`ShapeCache`] (see the `shape` module) with the walk's result.
 
 use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
+
+mod shape;
+pub use shape::{ShapeCache, decode_record_sample_shaped};
 
 /// Why a message could not be decoded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -1099,7 +1106,7 @@ fn read_gaze(c: &mut Cur<'_>, decode_base: bool) -> Result<RawGaze, Fail> {
     Ok(r)
 }
 
-#[derive(Default, Clone, Copy)]
+#[derive(Default, Clone, Copy, PartialEq)]
 struct RawPupil {
     id: Option<u8>,
     timestamp: Option<f64>,
@@ -1236,7 +1243,7 @@ impl RawPupil {
     }
 }
 
-#[derive(Default, Clone, Copy)]
+#[derive(Default, Clone, Copy, PartialEq)]
 struct RawGaze {
     timestamp: Option<f64>,
     confidence: Option<f64>,
