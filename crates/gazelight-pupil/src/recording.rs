@@ -633,18 +633,21 @@ fn decode_uncached(
 ) -> Result<Result<Option<Sample>, DecodeError>, BadRecord> {
     let t = std::str::from_utf8(topic).map_err(|_| BadRecord::TopicNotPrintable)?;
     let kind = msg::parse_topic(t);
+    if topics.len() >= MAX_CACHED_TOPICS {
+        // Not remembered, so no shape either: learning one costs a decode
+        // per float, which only pays off over the topic's later datums.
+        return msg::decode_record_sample_as(kind, t, payload);
+    }
     let mut shape = msg::ShapeCache::default();
     let decoded = msg::decode_record_sample_shaped(kind, t, payload, &mut shape)?;
     // Only topics of well-formed records are remembered: garbage that
     // happens to frame as a record cannot fill the cache.
-    if topics.len() < MAX_CACHED_TOPICS {
-        topics.push(CachedTopic {
-            fingerprint,
-            topic: t.to_owned(),
-            kind,
-            shape,
-        });
-    }
+    topics.push(CachedTopic {
+        fingerprint,
+        topic: t.to_owned(),
+        kind,
+        shape,
+    });
     Ok(decoded)
 }
 
