@@ -22,9 +22,10 @@
 //! loading the file, and decodes payloads in place with the live client's
 //! zero-copy decoder ([`msg::decode_record_sample`]). Each topic keeps a
 //! [`msg::ShapeCache`]: once one of its datums has decoded, the datums
-//! with the same byte layout (all of them, for a Pupil Capture recording)
-//! are decoded by a masked comparison with that datum and a few 8-byte
-//! loads, with the same result as the walk. A record that does
+//! with the same byte layout (in a Pupil Capture recording, those whose
+//! keys, types, strings and integers repeat) are decoded by a masked
+//! comparison with that datum and a few 8-byte loads, with the same result
+//! as the walk. A record that does
 //! not parse (bad marker, impossible length, a payload that is not one
 //! complete msgpack map, a topic that is not printable ASCII) is skipped
 //! with a counted warning naming the file and the byte offset; the reader then
