@@ -1174,6 +1174,13 @@ impl GlareConvolver {
                     let dy = (y - gyi) as f32 + off_y;
                     let dy2 = dy * dy;
                     let src = &pixels[y as usize * width..(y as usize + 1) * width];
+                    // The sources of the row after next (this worker's
+                    // next pair): a new stream every row, which the
+                    // hardware prefetcher starts late.
+                    if y + 2 < sy1 {
+                        let next = (y + 2) as usize * width;
+                        crate::image::prefetch(&pixels[next + sx0 as usize..next + sx1 as usize]);
+                    }
                     frg[..fx0].fill(ZERO);
                     frg[fx1..].fill(ZERO);
                     for x in sx0..sx1 {

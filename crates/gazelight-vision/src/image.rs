@@ -124,6 +124,31 @@ impl RgbImage {
     }
 }
 
+/// Asks the CPU to bring `data` into its caches ahead of a read (one
+/// prefetch instruction per 64-byte line; nothing off x86-64). For rows
+/// read from memory a little later, after work that keeps the core busy:
+/// the lines then arrive while it works instead of stalling the read
+/// (the band pass reads each scene row this way, after prefetching it
+/// while the row before went through the blur).
+#[inline(always)]
+pub(crate) fn prefetch<T>(data: &[T]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let base = data.as_ptr().cast::<i8>();
+        let bytes = std::mem::size_of_val(data);
+        let mut at = 0;
+        while at < bytes {
+            // SAFETY: `base + at` is inside `data`; a prefetch never faults
+            // and changes nothing but the caches.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(base.add(at)) };
+            at += 64;
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = data;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -46,6 +46,8 @@
 //! the planar pixel distance times `deg_per_px` (no wrap-around and no
 //! projection correction). Pooling never allocates.
 
+use std::ops::Range;
+
 use serde::{Deserialize, Serialize};
 
 use crate::VisionError;
@@ -160,23 +162,7 @@ impl PoolingModel {
             width,
             height,
         };
-        let gaze = [
-            if gaze_px[0].is_finite() {
-                gaze_px[0]
-            } else {
-                width as f64 / 2.0
-            },
-            if gaze_px[1].is_finite() {
-                gaze_px[1]
-            } else {
-                height as f64 / 2.0
-            },
-        ];
-        let deg_per_px = if deg_per_px.is_finite() && deg_per_px > 0.0 {
-            deg_per_px
-        } else {
-            1.0
-        };
+        let (gaze, deg_per_px) = sanitise(width, height, gaze_px, deg_per_px);
         let (sum, weight) = match *self {
             Self::Gaussian { sigma_deg } => plane.gaussian(gaze, sigma_deg / deg_per_px),
             Self::CentreWeight { follow_gaze } => {
@@ -197,6 +183,96 @@ impl PoolingModel {
             plane.nearest(gaze)
         }
     }
+}
+
+/// The pixels of a plane that [`PoolingModel::pool`] reads: columns
+/// `x`, rows `y` (half-open). A model that weights the whole plane reaches
+/// all of it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PlaneRect {
+    /// Columns.
+    pub x: Range<usize>,
+    /// Rows.
+    pub y: Range<usize>,
+}
+
+impl PoolingModel {
+    /// The pixels of a `width × height` plane that [`PoolingModel::pool`]
+    /// reads for this gaze and pixel size (the same arguments): the
+    /// Gaussian's ±(6σ + 1) and the gaze window's box, each with the
+    /// nearest-pixel fallback; the whole plane for the models that weight
+    /// every pixel. `pool`'s result depends on these pixels only, so a
+    /// caller need not compute the rest of the plane (the CPU pipeline's
+    /// pass A block-averages only these blocks). Empty for an empty plane.
+    pub fn reach(
+        &self,
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        deg_per_px: f64,
+    ) -> PlaneRect {
+        if width == 0 || height == 0 {
+            return PlaneRect { x: 0..0, y: 0..0 };
+        }
+        let (gaze, deg_per_px) = sanitise(width, height, gaze_px, deg_per_px);
+        let half = match *self {
+            // `Plane::gaussian`'s reach.
+            Self::Gaussian { sigma_deg } => 6.0 * (sigma_deg / deg_per_px) + 1.0,
+            // `Plane::window`'s half side.
+            Self::GazeWindow { size_deg } => size_deg / deg_per_px / 2.0,
+            Self::CentreWeight { .. } | Self::Eccentricity { .. } | Self::PanoramaMean => {
+                return PlaneRect {
+                    x: 0..width,
+                    y: 0..height,
+                };
+            }
+        };
+        let (x0, x1) = span(gaze[0] - half, gaze[0] + half, width);
+        let (y0, y1) = span(gaze[1] - half, gaze[1] + half, height);
+        // With the pixel `Plane::nearest` falls back to.
+        let (nx, ny) = nearest_pixel(width, height, gaze);
+        let join = |a: usize, b: usize, n: usize| {
+            if a < b {
+                a.min(n)..b.max(n + 1)
+            } else {
+                n..n + 1
+            }
+        };
+        PlaneRect {
+            x: join(x0, x1, nx),
+            y: join(y0, y1, ny),
+        }
+    }
+}
+
+/// `pool`'s gaze (a non-finite coordinate → the plane centre) and pixel
+/// size (not finite and positive → 1°).
+fn sanitise(width: usize, height: usize, gaze_px: [f64; 2], deg_per_px: f64) -> ([f64; 2], f64) {
+    let gaze = [
+        if gaze_px[0].is_finite() {
+            gaze_px[0]
+        } else {
+            width as f64 / 2.0
+        },
+        if gaze_px[1].is_finite() {
+            gaze_px[1]
+        } else {
+            height as f64 / 2.0
+        },
+    ];
+    let deg_per_px = if deg_per_px.is_finite() && deg_per_px > 0.0 {
+        deg_per_px
+    } else {
+        1.0
+    };
+    (gaze, deg_per_px)
+}
+
+/// The pixel nearest to `gaze` in a non-empty plane.
+fn nearest_pixel(width: usize, height: usize, gaze: [f64; 2]) -> (usize, usize) {
+    let x = (gaze[0].floor().max(0.0) as usize).min(width - 1);
+    let y = (gaze[1].floor().max(0.0) as usize).min(height - 1);
+    (x, y)
 }
 
 /// A pixel value with negative / non-finite values as 0.
@@ -222,8 +298,7 @@ impl Plane<'_> {
     }
 
     fn nearest(&self, gaze: [f64; 2]) -> f64 {
-        let x = (gaze[0].floor().max(0.0) as usize).min(self.width - 1);
-        let y = (gaze[1].floor().max(0.0) as usize).min(self.height - 1);
+        let (x, y) = nearest_pixel(self.width, self.height, gaze);
         clean(self.lum[y * self.width + x])
     }
 
@@ -456,6 +531,97 @@ mod tests {
             },
             PoolingModel::PanoramaMean,
         ]
+    }
+
+    /// `pool` depends on the pixels of `reach` only: every pixel outside
+    /// it replaced by garbage (NaN, ∞, huge, negative) gives the same bits,
+    /// on a real night panorama, for every model, gazes inside, at the
+    /// edges of, outside and off the plane (NaN), and pixel sizes down to
+    /// σ below a pixel (and a bad one, taken as 1°). A rectangle one pixel
+    /// short on any side changes the result (checked on the Gaussian, so
+    /// the test can tell a reach that is too small).
+    #[test]
+    fn pool_reads_only_its_reach() {
+        let pano = night::load("night.exr");
+        // A 300×200 crop around the brightest lamp, block-averaged 2×.
+        let spot = pano.brightest_below_horizon();
+        let (w, h) = (150usize, 100usize);
+        let (x0, y0) = (spot[0] as usize - 150, spot[1] as usize - 100);
+        let mut plane = vec![0.0f32; w * h];
+        for (i, v) in plane.iter_mut().enumerate() {
+            let (x, y) = (x0 + 2 * (i % w), y0 + 2 * (i / w));
+            *v = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                .iter()
+                .map(|(dx, dy)| pano.lum[(y + dy) * pano.width + x + dx])
+                .sum::<f32>()
+                / 4.0;
+        }
+        let garbage = [f32::NAN, f32::INFINITY, 3.0e38, -5.0, 1.0e6];
+        let mut checked_small = 0;
+        for m in all_models().into_iter().chain([
+            PoolingModel::Gaussian { sigma_deg: 0.3 },
+            PoolingModel::Gaussian { sigma_deg: 40.0 },
+            PoolingModel::GazeWindow { size_deg: 0.01 },
+        ]) {
+            for deg_per_px in [0.02, 0.16, 0.9, 7.0, f64::NAN, -1.0] {
+                for gaze in [
+                    [75.3, 50.8],
+                    [0.2, 0.7],
+                    [149.9, 99.5],
+                    [-12.0, 40.0],
+                    [400.0, -300.0],
+                    [f64::NAN, 20.0],
+                    [f64::NAN, f64::INFINITY],
+                ] {
+                    let want = m.pool(&plane, w, h, gaze, deg_per_px);
+                    let r = m.reach(w, h, gaze, deg_per_px);
+                    assert!(!r.x.is_empty() && r.x.end <= w && !r.y.is_empty() && r.y.end <= h);
+                    let mut poisoned = plane.clone();
+                    for (i, v) in poisoned.iter_mut().enumerate() {
+                        if !(r.x.contains(&(i % w)) && r.y.contains(&(i / w))) {
+                            *v = garbage[i % garbage.len()];
+                        }
+                    }
+                    let got = m.pool(&poisoned, w, h, gaze, deg_per_px);
+                    assert_eq!(
+                        got.to_bits(),
+                        want.to_bits(),
+                        "{m:?} at {gaze:?}, {deg_per_px} deg/px, reach {r:?}: {got} vs {want}"
+                    );
+                    if r.x.len() * r.y.len() < w * h / 4 {
+                        checked_small += 1;
+                    }
+                    // One pixel less on a side of a partial reach changes
+                    // the Gaussian's result (its weights are never 0 there).
+                    if matches!(m, PoolingModel::Gaussian { sigma_deg } if sigma_deg == 2.0)
+                        && deg_per_px == 0.9
+                        && gaze == [75.3, 50.8]
+                    {
+                        assert!(r.x.len() < w && r.y.len() < h, "{r:?}");
+                        for side in 0..4 {
+                            let mut p = plane.clone();
+                            for (i, v) in p.iter_mut().enumerate() {
+                                let (x, y) = (i % w, i / w);
+                                let edge = match side {
+                                    0 => x == r.x.start,
+                                    1 => x == r.x.end - 1,
+                                    2 => y == r.y.start,
+                                    _ => y == r.y.end - 1,
+                                };
+                                if edge {
+                                    *v = 1.0e6;
+                                }
+                            }
+                            assert_ne!(m.pool(&p, w, h, gaze, deg_per_px), want, "side {side}");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            checked_small > 50,
+            "{checked_small} reaches below a quarter of the plane"
+        );
     }
 
     #[test]
