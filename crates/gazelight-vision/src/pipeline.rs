@@ -570,6 +570,7 @@ impl FramePipeline {
         let reference = self.reference;
         #[cfg(not(test))]
         let reference = false;
+        let small_gaze = [gaze_px[0] / ds as f64, gaze_px[1] / ds as f64];
         if reference {
             #[cfg(test)]
             {
@@ -578,9 +579,7 @@ impl FramePipeline {
                 }
                 reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
             }
-        }
-        let small_gaze = [gaze_px[0] / ds as f64, gaze_px[1] / ds as f64];
-        if !reference {
+        } else {
             // Only the blocks the pooling model reads.
             let blocks = self.config.pooling.reach(
                 self.small_w,

@@ -216,8 +216,7 @@ impl PoolingModel {
         }
         let (gaze, deg_per_px) = sanitise(width, height, gaze_px, deg_per_px);
         let half = match *self {
-            // `Plane::gaussian`'s reach.
-            Self::Gaussian { sigma_deg } => 6.0 * (sigma_deg / deg_per_px) + 1.0,
+            Self::Gaussian { sigma_deg } => gaussian_reach_px(sigma_deg / deg_per_px),
             // `Plane::window`'s half side.
             Self::GazeWindow { size_deg } => size_deg / deg_per_px / 2.0,
             Self::CentreWeight { .. } | Self::Eccentricity { .. } | Self::PanoramaMean => {
@@ -268,6 +267,12 @@ fn sanitise(width: usize, height: usize, gaze_px: [f64; 2], deg_per_px: f64) -> 
     (gaze, deg_per_px)
 }
 
+/// How far from the gaze the Gaussian pool visits pixels: 6σ plus one
+/// pixel (its weights beyond are < 1e-9 of the peak).
+fn gaussian_reach_px(sigma_px: f64) -> f64 {
+    6.0 * sigma_px + 1.0
+}
+
 /// The pixel nearest to `gaze` in a non-empty plane.
 fn nearest_pixel(width: usize, height: usize, gaze: [f64; 2]) -> (usize, usize) {
     let x = (gaze[0].floor().max(0.0) as usize).min(width - 1);
@@ -305,7 +310,7 @@ impl Plane<'_> {
     /// Gaussian integrated over each pixel; only pixels within 6σ (plus one)
     /// are visited, their weights beyond that are < 1e-9 of the peak.
     fn gaussian(&self, gaze: [f64; 2], sigma_px: f64) -> (f64, f64) {
-        let reach = 6.0 * sigma_px + 1.0;
+        let reach = gaussian_reach_px(sigma_px);
         let (x0, x1) = span(gaze[0] - reach, gaze[0] + reach, self.width);
         let (y0, y1) = span(gaze[1] - reach, gaze[1] + reach, self.height);
         let inv = 1.0 / (sigma_px * std::f64::consts::SQRT_2);
