@@ -1,5 +1,5 @@
 //! The whole frame pipeline on the GPU: [`GpuFramePipeline`], the twin of
-//! [`gazelight_vision::pipeline::FramePipeline`] (DESIGN.md stages 1–8).
+//! [`gazelight_vision::pipeline::FramePipeline`] (ARCHITECTURE.md, "Data flow", stages 1–8).
 //!
 //! # Passes (one command encoder per frame, nothing read back in between)
 //!

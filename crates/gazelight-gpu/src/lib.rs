@@ -1,7 +1,7 @@
 //! The gazelight frame pipeline on wgpu compute passes.
 //!
 //! Every stage of the CPU reference pipeline in `gazelight-vision` has a
-//! WGSL twin here (see DESIGN.md, "Data flow"), matched against it by parity
+//! WGSL twin here (see ARCHITECTURE.md, "Every stage exists twice"), matched against it by parity
 //! tests, and [`GpuFramePipeline`] runs them all, per frame, in one command
 //! encoder with nothing read back between stages:
 //!

@@ -1,5 +1,5 @@
 //! Presentation: the display frame into a window's surface, on the frame
-//! pipeline's own device (DESIGN.md, "Runtime": GPU frames go to the display
+//! pipeline's own device (ARCHITECTURE.md, "Threads": GPU frames go to the display
 //! without a round trip through host memory).
 //!
 //! A [`WindowPresenter`] owns the surface of one window and one render pass

@@ -8,7 +8,7 @@
 //! binocular `gaze.3d.01.` datum carrying both 3D datums as `base_data`,
 //! as Pupil Capture records them. The pupil diameters, timestamps and rate
 //! (200 Hz) come from the real pupil light reflex trace in
-//! `../shared/data/eye/piprkit-plr/pupil_trace.csv` (both eyes, mm).
+//! `eye/piprkit-plr/pupil_trace.csv` of the shared test data (both eyes, mm).
 //!
 //! `pldata_decode/pupil` reads `pupil.pldata` with [`PldataReader::samples`]
 //! (file → bounded buffer → framing → zero-copy decode → [`Sample`]) and

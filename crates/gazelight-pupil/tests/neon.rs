@@ -1,7 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! The Neon Real-time API client against `neon_peer.py`, a Neon-like peer
-//! that serves the Neon demo recording (`../shared/data/eye/neon-demo`,
-//! MIT, © Pupil Labs) over HTTP status + RTSP/TCP interleaved + RTP/RTCP.
+//! that serves the Neon demo recording (`eye/neon-demo` of
+//! the shared test data, MIT, © Pupil Labs) over HTTP status + RTSP/TCP interleaved + RTP/RTCP.
 //! The expected values are read here straight from the recording's files,
 //! not from the code under test. 127.0.0.1 only; every wait is bounded.
 

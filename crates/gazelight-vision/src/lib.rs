@@ -7,8 +7,9 @@
 //! pipeline that is both the no-GPU backend and the reference the GPU passes
 //! are compared against.
 //!
-//! Equation references such as `001 eq 14` name a seed file prefix in
-//! `shared/seeds/` and an equation number in it.
+//! Equation references such as `001 eq 14` name a seed paper by its prefix
+//! and an equation number in it (the prefixes and full references are in
+//! `docs/references.md`).
 //!
 //! | module | what | seeds |
 //! | --- | --- | --- |

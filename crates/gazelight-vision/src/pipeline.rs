@@ -2,7 +2,7 @@
 //! (gaze, pupil) and the time step → a display frame.
 //!
 //! This is the no-GPU backend and the reference the GPU passes are compared
-//! against. Stages (DESIGN.md), and how they are fused here:
+//! against. Stages (ARCHITECTURE.md, "Data flow"), and how they are fused here:
 //!
 //! | pass | stages | what |
 //! | --- | --- | --- |

@@ -1,5 +1,5 @@
 //! Which frame pipeline renders: the wgpu one of `gazelight-gpu` or the CPU
-//! reference of `gazelight-vision` (DESIGN.md, "Every stage exists twice").
+//! reference of `gazelight-vision` (ARCHITECTURE.md, "Every stage exists twice").
 //!
 //! [`Renderer`] hides the choice behind one per-frame call with the CPU
 //! pipeline's signature, so `render`, `replay` and `run` drive either.

@@ -3,8 +3,8 @@
 //! and `run --source neon://…` against `neon_peer.py`, the Neon-like peer
 //! of `crates/gazelight-pupil/tests` (HTTP `/api/status` + RTSP/TCP
 //! interleaved + RTP/RTCP at 200 Hz, 89-byte eye-state packets) that plays
-//! the Neon demo recording (`../shared/data/eye/neon-demo`, MIT, © Pupil
-//! Labs). The expected pupils come from the recording's files read by the
+//! the Neon demo recording (`eye/neon-demo` of the shared test
+//! data, MIT, © Pupil Labs). The expected pupils come from the recording's files read by the
 //! recording importer (another decoder than the live client's), not from
 //! the live path under test. 127.0.0.1 only; every wait is bounded.
 

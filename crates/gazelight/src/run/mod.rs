@@ -6,7 +6,7 @@
 //! thread at the display rate — renders the panorama view for the head
 //! orientation through the perception pipeline, reading the newest state
 //! without ever waiting for it, and records the age of the state each frame
-//! used (see DESIGN.md, "Runtime").
+//! used (see ARCHITECTURE.md, "Threads").
 //!
 //! Ctrl-C or `--secs` ends the run: the hub's shutdown is requested, the
 //! frame loop finishes its frame, the outputs are flushed and a summary
