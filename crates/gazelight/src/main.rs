@@ -81,6 +81,40 @@ enum Command {
     Devices(devices::DevicesArgs),
 }
 
+/// Hidden switch: with `GAZELIGHT_PARSE_ONLY=1` in the environment the
+/// binary stops right after parsing its arguments (clap's own errors exit
+/// with status 2 as usual) and loading and validating the command's
+/// configuration (`--config` of `render`, `replay` and `run`, with the same
+/// flag checks the command makes before it opens anything): status 0 when
+/// both are good, 1 with the error otherwise. Nothing is opened, rendered or
+/// written. The doc-command test (`tests/doc_commands.rs`) checks with it the
+/// commands and configuration files of README.md and docs/ that need a live
+/// tracker, a headset or hardware.
+const PARSE_ONLY_ENV: &str = "GAZELIGHT_PARSE_ONLY";
+
+/// Whether [`PARSE_ONLY_ENV`] is set to something other than empty or `0`.
+fn parse_only() -> bool {
+    std::env::var_os(PARSE_ONLY_ENV).is_some_and(|v| !v.is_empty() && v != "0")
+}
+
+/// The parse-only checks of one command: its configuration file loaded and
+/// validated, its source URI parsed, and the flag checks it makes before
+/// opening anything.
+fn check(command: &Command) -> anyhow::Result<()> {
+    match command {
+        Command::Render(args) => render::check(args),
+        Command::Replay(args) => replay::check(args),
+        Command::Run(args) => run::check(args),
+        Command::Calibrate(args) => gazelight_tracker::uri::pupil_config(&args.source)
+            .map(|_| ())
+            .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
+        Command::Record(args) => gazelight_tracker::uri::SourceUri::parse(&args.source)
+            .map(|_| ())
+            .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
+        Command::Psf(_) | Command::Inspect(_) | Command::Devices(_) => Ok(()),
+    }
+}
+
 fn main() -> std::process::ExitCode {
     // Negative numbers are values, not flags (`--yaw-deg -78`, `--secs -1`
     // reaches the range check that names the flag instead of clap's
@@ -90,6 +124,15 @@ fn main() -> std::process::ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
+    if parse_only() {
+        return match check(&cli.command) {
+            Ok(()) => std::process::ExitCode::SUCCESS,
+            Err(err) => {
+                eprintln!("error: {err:#}");
+                std::process::ExitCode::FAILURE
+            }
+        };
+    }
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .or_else(|_| tracing_subscriber::EnvFilter::try_new(&cli.log))
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));

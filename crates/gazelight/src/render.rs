@@ -84,14 +84,27 @@ pub(crate) struct Setup {
     pub view_img: RgbImage,
 }
 
-/// Loads the configuration and scene and renders the panorama view.
-pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
+/// The configuration (loaded and validated) with the observer flags
+/// applied, after the flag checks that need no file but the configuration.
+fn load_config(args: &RenderArgs) -> anyhow::Result<RenderConfig> {
     let mut config = match &args.config {
         Some(p) => RenderConfig::load(p)?,
         None => RenderConfig::default(),
     };
     crate::observer::apply(&mut config.pipeline.glare.psf, &args.observer, None, None)?;
     crate::bounds::fps("--fps", args.fps)?;
+    Ok(config)
+}
+
+/// `GAZELIGHT_PARSE_ONLY`: the configuration and flag checks of `render`
+/// (and `replay`), nothing loaded or written.
+pub(crate) fn check(args: &RenderArgs) -> anyhow::Result<()> {
+    load_config(args).map(|_| ())
+}
+
+/// Loads the configuration and scene and renders the panorama view.
+pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
+    let config = load_config(args)?;
 
     // Scene.
     let scale = args.view.scale(config.scene.luminance_scale)?;

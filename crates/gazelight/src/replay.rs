@@ -45,9 +45,8 @@ pub struct ReplayArgs {
     pub render: RenderArgs,
 }
 
-/// Runs `gazelight replay`.
-pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
-    let started = Instant::now();
+/// The flag checks of `replay` that need no file.
+fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     if args.render.trace.is_some() {
         bail!("replay takes the recording as its argument; --trace belongs to `render`");
     }
@@ -57,6 +56,20 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     if let Some(s) = args.secs {
         crate::bounds::secs("--secs", s)?;
     }
+    Ok(())
+}
+
+/// `GAZELIGHT_PARSE_ONLY`: the flag and configuration checks of `replay`;
+/// the recording is not opened.
+pub(crate) fn check(args: &ReplayArgs) -> anyhow::Result<()> {
+    check_flags(args)?;
+    render::check(&args.render)
+}
+
+/// Runs `gazelight replay`.
+pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    check_flags(&args)?;
     let calibration = match &args.calibration {
         Some(path) => Some(PupilCalibration::load(path)?),
         None => None,

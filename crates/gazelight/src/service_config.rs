@@ -4,7 +4,9 @@
 //! takes the CLI flag or the default); unknown fields are errors that name
 //! the field, and every value is validated on load with an error naming
 //! the file and the field (`config run.toml: display.fps = -5: …`).
-//! Relative paths are resolved against the directory of the file.
+//! Relative paths are resolved against the directory of the file. Every
+//! section and key, with its default and unit: `docs/configuration.md`. The
+//! example below is loaded by the test `the_module_doc_example_loads`.
 //!
 //! ```toml
 //! [source]
@@ -25,7 +27,7 @@
 //! hfov_deg = 90.0
 //!
 //! [pipeline]                        # as in the render configuration
-//! glare = { window_px = 256 }
+//! glare = { full_weight_deg = 12.0, fade_sigma_deg = 2.0 }
 //!
 //! [filter]                          # the tracker's filter chain
 //! dropout = { hold_s = 0.5 }
@@ -361,6 +363,18 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_module_doc_example_loads() {
+        let text = crate::config::tests::doc_example(include_str!("service_config.rs"));
+        assert!(text.contains("[relay]"), "no example found: {text}");
+        let c = load_str(&text).unwrap();
+        assert_eq!(c.display.fps, Some(90.0));
+        assert_eq!(c.pipeline.glare.full_weight_deg, 12.0);
+        assert_eq!(c.filter.dropout.hold_s, 0.5);
+        let bad = text.replace("glare = {", "glare = { window_px = 256,");
+        assert!(load_str(&bad).is_err());
     }
 
     #[test]

@@ -247,6 +247,16 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
     })
 }
 
+/// `GAZELIGHT_PARSE_ONLY`: the configuration file loaded and validated, the
+/// flags resolved against it as [`run`] does before it opens anything, and
+/// the source URI parsed.
+pub fn check(args: &RunArgs) -> anyhow::Result<()> {
+    let r = resolve(args)?;
+    gazelight_tracker::uri::SourceUri::parse(&r.uri)
+        .map(|_| ())
+        .map_err(|e| anyhow::anyhow!("--source {}: {e}", r.uri))
+}
+
 /// Runs `gazelight run`.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let r = resolve(&args)?;
