@@ -45,8 +45,7 @@ fn steady_state_frames_do_not_allocate() {
         .num_threads(2)
         .build()
         .expect("thread pool");
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/hdr/blender-world/night.exr");
+    let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
     let scene = Scene::load(&path, LuminanceScale::default()).expect("night.exr");
     let view = ViewParams {
         yaw_deg: -78.4,

@@ -22,9 +22,7 @@ const PANORAMAS: [&str; 6] = [
 ];
 
 fn shared(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/hdr/blender-world")
-        .join(name)
+    gazelight_test_support::data_path("hdr/blender-world").join(name)
 }
 
 fn small_config() -> PipelineConfig {

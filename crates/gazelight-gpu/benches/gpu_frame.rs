@@ -43,8 +43,7 @@ fn size() -> (usize, usize) {
 }
 
 fn eye_view(yaw_deg: f64, w: usize, h: usize) -> (RgbImage, f64) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/hdr/blender-world/night.exr");
+    let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
     let scene = Scene::load(&path, LuminanceScale::default()).expect("shared panorama");
     let view = ViewParams {
         yaw_deg,

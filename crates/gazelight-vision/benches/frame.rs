@@ -45,9 +45,7 @@ const DEMO_PITCH_DEG: f64 = -6.0;
 const DEMO_HFOV_DEG: f64 = 90.0;
 
 fn load(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/hdr/blender-world")
-        .join(name);
+    let path = gazelight_test_support::data_path("hdr/blender-world").join(name);
     Scene::load(&path, LuminanceScale::default()).expect("shared panorama")
 }
 
