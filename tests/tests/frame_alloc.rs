@@ -4,7 +4,6 @@
 //! gaze moving and the PSF cached, on a real panorama view.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use gazelight_vision::RgbImage;

@@ -3,7 +3,7 @@
 //! in [0, 1] at several gaze points, and glare energy around the sun of
 //! `city.exr` only near the gaze window.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::luminance;

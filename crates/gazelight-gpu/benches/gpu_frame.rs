@@ -15,7 +15,6 @@
 //! `GAZELIGHT_BENCH_SIZE=256x256 cargo bench -p gazelight-gpu --bench gpu_frame -- --quick`.
 //! Not part of CI.
 
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};

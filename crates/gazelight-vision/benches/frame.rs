@@ -25,7 +25,6 @@
 //! setup and printed figures too).
 
 use std::hint::black_box;
-use std::path::Path;
 use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};

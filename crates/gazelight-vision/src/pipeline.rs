@@ -1042,7 +1042,6 @@ fn reference_pass_c(
 
 #[cfg(test)]
 mod tests {
-    use std::path::Path;
 
     use super::*;
     use crate::acuity::AcuityModel;

@@ -15,9 +15,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::Sample;
-use gazelight_tracker::live::{
-    LiveEye, SAMPLE_BROADCAST_CAPACITY, SharedStatus, SourceHealth, SourceStatus,
-};
+use gazelight_tracker::live::{LiveEye, SAMPLE_BROADCAST_CAPACITY, SharedStatus, SourceStatus};
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 

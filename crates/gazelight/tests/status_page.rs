@@ -93,6 +93,15 @@ fn status_page_of_a_live_session() {
     let second = dump_with_updates(&url);
     let (u1, e1, d1, err1) = page_state(&first);
     let (u2, e2, d2, err2) = page_state(&second);
+    // The mirrored #state as JSON (null before the first update).
+    let state_json = |text: &str| -> serde_json::Value {
+        if text.is_empty() {
+            serde_json::Value::Null
+        } else {
+            serde_json::from_str(text).unwrap()
+        }
+    };
+    let (d1, d2) = (state_json(&d1), state_json(&d2));
     eprintln!("page: {u1} updates {d1}; then {u2} updates {d2}");
     assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
     assert!(err1.trim().is_empty() && err2.trim().is_empty());

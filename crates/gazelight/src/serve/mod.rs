@@ -978,6 +978,15 @@ mod browser_tests {
         let second = dump(url.clone()).await.unwrap();
         let (u1, e1, s1, err1) = page_state(&first);
         let (u2, e2, s2, err2) = page_state(&second);
+        // The mirrored #state as JSON (null before the first update).
+        let state_json = |text: &str| -> serde_json::Value {
+            if text.is_empty() {
+                serde_json::Value::Null
+            } else {
+                serde_json::from_str(text).unwrap()
+            }
+        };
+        let (s1, s2) = (state_json(&s1), state_json(&s2));
         eprintln!("first load: {u1} updates {s1}; second: {u2} updates {s2}");
         assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
         assert!(err1.trim().is_empty() && err2.trim().is_empty());
