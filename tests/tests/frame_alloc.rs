@@ -4,7 +4,6 @@
 //! gaze moving and the PSF cached, on a real panorama view.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use gazelight_vision::RgbImage;
@@ -45,8 +44,7 @@ fn steady_state_frames_do_not_allocate() {
         .num_threads(2)
         .build()
         .expect("thread pool");
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/hdr/blender-world/night.exr");
+    let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
     let scene = Scene::load(&path, LuminanceScale::default()).expect("night.exr");
     let view = ViewParams {
         yaw_deg: -78.4,

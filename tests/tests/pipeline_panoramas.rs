@@ -3,7 +3,7 @@
 //! in [0, 1] at several gaze points, and glare energy around the sun of
 //! `city.exr` only near the gaze window.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::luminance;
@@ -22,9 +22,7 @@ const PANORAMAS: [&str; 6] = [
 ];
 
 fn shared(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/hdr/blender-world")
-        .join(name)
+    gazelight_test_support::data_path("hdr/blender-world").join(name)
 }
 
 fn small_config() -> PipelineConfig {

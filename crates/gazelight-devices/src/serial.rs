@@ -39,7 +39,7 @@ use super::{ClockAligner, READ_POLL_MS, ThreadItem, ThreadedSource, now_secs, se
 use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
-pub use crate::target::SerialFormat;
+use crate::target::SerialFormat;
 
 /// Longest accepted text line, bytes.
 pub const MAX_LINE_BYTES: usize = 4096;

@@ -7,8 +7,9 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Duration;
 
+use gazelight_devices::SerialFormat;
 use gazelight_devices::framing;
-use gazelight_devices::serial::{SerialFormat, SerialSource};
+use gazelight_devices::serial::SerialSource;
 use gazelight_eye::{
     DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample, SampleSource, SourceError,
 };

@@ -14,7 +14,7 @@
 //! an equivalent diameter, √area, so the map stays linear in diameter.
 //!
 //! The profile this produces (the per-eye map, the observer, the JSON
-//! file) is [`crate::profile`]; its types are re-exported here.
+//! file) is [`crate::profile`].
 //!
 //! The routine that produces a profile is [`CalibrationSession`]: a state
 //! machine fed timed raw pupil samples from any source, driving a
@@ -24,10 +24,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-pub use crate::profile::{
-    AGE_YEARS_RANGE, BadRawPupil, DEFAULT_AGE_YEARS, DEFAULT_MM_MAX, DEFAULT_MM_MIN,
-    DEFAULT_PIGMENTATION, EyeCalibration, EyeCalibrations, Observer, PIGMENTATION_RANGE,
-    ProfileError, PupilCalibration, SCHEMA, SCHEMA_V1,
+use crate::profile::{
+    DEFAULT_MM_MAX, DEFAULT_MM_MIN, EyeCalibration, EyeCalibrations, Observer, ProfileError,
+    PupilCalibration, SCHEMA,
 };
 
 use crate::filter::{BlinkConfig, BlinkDetector, ConfidenceGate};

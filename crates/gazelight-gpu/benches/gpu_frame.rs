@@ -15,7 +15,6 @@
 //! `GAZELIGHT_BENCH_SIZE=256x256 cargo bench -p gazelight-gpu --bench gpu_frame -- --quick`.
 //! Not part of CI.
 
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -43,8 +42,7 @@ fn size() -> (usize, usize) {
 }
 
 fn eye_view(yaw_deg: f64, w: usize, h: usize) -> (RgbImage, f64) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/hdr/blender-world/night.exr");
+    let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
     let scene = Scene::load(&path, LuminanceScale::default()).expect("shared panorama");
     let view = ViewParams {
         yaw_deg,

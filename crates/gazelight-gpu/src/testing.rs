@@ -129,9 +129,7 @@ pub(crate) mod pass_harness {
         size: [usize; 2],
     ) -> (gazelight_vision::RgbImage, f64) {
         use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
-        let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world")
-            .join(name);
+        let path = gazelight_test_support::data_path("hdr/blender-world").join(name);
         let scene = Scene::load(&path, LuminanceScale::default()).unwrap();
         let params = ViewParams {
             yaw_deg,

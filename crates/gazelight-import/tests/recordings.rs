@@ -4,15 +4,13 @@
 
 use std::path::PathBuf;
 
-use gazelight_eye::calibration::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
 use gazelight_eye::filter::{FilterChain, FilterConfig};
+use gazelight_eye::profile::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
 use gazelight_eye::{PupilUnit, Sample};
 use gazelight_import::{self as import, Importer};
 
 fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/eye")
-        .join(rel)
+    gazelight_test_support::data_path("eye").join(rel)
 }
 
 /// What a replay saw.

@@ -142,8 +142,7 @@ fn enc(v: &V) -> Vec<u8> {
 
 /// The real PLR trace: (t s, left mm, right mm) at 200 Hz.
 fn trace() -> Vec<(f64, f64, f64)> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/eye/piprkit-plr/pupil_trace.csv");
+    let path = gazelight_test_support::data_path("eye/piprkit-plr/pupil_trace.csv");
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
     text.lines()
         .skip(1)

@@ -44,9 +44,6 @@ use gazelight_eye::clock::{
 };
 use gazelight_eye::sample::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
-/// The state the live eye task publishes (in `gazelight-eye`; re-exported
-/// here for the relay and the old `pupil::LiveEyeState` path).
-pub use gazelight_eye::state::LiveEyeState;
 
 /// Default Pupil Remote port.
 pub const DEFAULT_REMOTE_PORT: u16 = 50020;

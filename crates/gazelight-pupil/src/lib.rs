@@ -1,11 +1,14 @@
 //! # gazelight-pupil
 //!
-//! Pupil Labs' protocols: the Pupil Core network client ([`PupilClient`],
+//! Pupil Core only: the Pupil Core network client ([`PupilClient`],
 //! [`PupilSource`]), the msgpack datums on its bus ([`msg`]), `.pldata`
 //! recordings ([`recording`]), the calibration stimulus sent to a host
 //! application as a notification ([`stimulus`]), and the Pupil-compatible
 //! relay server ([`relay`]) that re-publishes a session's filtered stream
 //! to existing Pupil clients.
+//!
+//! Pupil Labs Neon is elsewhere: the live Real-time API client is the
+//! `gazelight-neon` crate, recorded Neon sessions are `gazelight-import`'s.
 //!
 //! Every sample leaves as a [`gazelight_eye::Sample`] on the host clock
 //! ([`gazelight_eye::clock`]).
@@ -38,7 +41,6 @@
 
 pub mod client;
 pub mod msg;
-pub mod neon;
 pub mod recording;
 pub mod relay;
 pub mod stimulus;

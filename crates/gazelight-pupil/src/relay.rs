@@ -64,7 +64,7 @@ use tokio::sync::{broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
 use zeromq::{PubSocket, RepSocket, Socket, SocketRecv, SocketSend, SubSocket, ZmqMessage};
 
-use crate::LiveEyeState;
+use gazelight_eye::state::LiveEyeState;
 
 /// What the relay reads from a running session: the filtered eye state,
 /// the raw sample broadcast, the frame loop's latest figures and the

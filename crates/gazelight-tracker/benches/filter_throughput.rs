@@ -19,9 +19,7 @@ use gazelight_tracker::import::{self, csv::CsvPupilImporter, eyelink::AscImporte
 use gazelight_tracker::synthetic::{SyntheticConfig, SyntheticTrace};
 
 fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/eye")
-        .join(rel)
+    gazelight_test_support::data_path("eye").join(rel)
 }
 
 fn run(chain: &mut FilterChain, samples: impl Iterator<Item = Sample>) -> f32 {

@@ -7,9 +7,12 @@
 //! them:
 //!
 //! - `gazelight-eye`: samples, [`EyeState`], the [`filter`] chain,
-//!   [`calibration`], the [`pupil_model`], traces and the host clock;
+//!   [`calibration`] and its [`profile`], the [`pupil_model`], traces and
+//!   the host clock;
 //! - `gazelight-pupil`: the Pupil Core client ([`pupil`]) and `.pldata`
 //!   ([`recording`]);
+//! - `gazelight-neon`: the live Pupil Labs Neon client and its mDNS
+//!   discovery ([`neon`]);
 //! - `gazelight-devices`: HID, USB, serial, Gazepoint ([`transport`]) and
 //!   Lab Streaming Layer ([`lsl`]);
 //! - `gazelight-import`: recorded logs ([`import`]) and [`summary`].
@@ -29,9 +32,12 @@ pub use gazelight_eye::{
     BlinkEvent, DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeChannel, EyeState, GazeEyes, GazeSample,
     GazeTrace, LiveEyeState, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
 };
-pub use gazelight_eye::{calibration, filter, pupil_model, sample, state, synthetic, trace};
+pub use gazelight_eye::{
+    calibration, filter, profile, pupil_model, sample, state, synthetic, trace,
+};
 pub use gazelight_import as import;
 pub use gazelight_import::summary;
+pub use gazelight_neon as neon;
 pub use gazelight_pupil::recording;
 pub use gazelight_pupil::recording::{PldataReader, PldataWriter, RecordingError};
 pub use gazelight_pupil::{
@@ -43,8 +49,6 @@ pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod pupil {
     pub use gazelight_eye::clock;
     pub use gazelight_pupil::client::*;
-    /// Neon discovery over mDNS.
-    pub use gazelight_pupil::neon::discover as neon_discover;
     pub use gazelight_pupil::{msg, relay, stimulus};
 }
 

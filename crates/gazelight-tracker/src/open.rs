@@ -8,9 +8,9 @@ use gazelight_devices::{gazepoint, hid, serial, usb};
 use gazelight_eye::source::{SampleSource, SourceError};
 use gazelight_eye::{Sample, TraceSample};
 use gazelight_import::Importer;
+use gazelight_neon::stream::RtpTransport;
+use gazelight_neon::{NeonConfig, NeonSource};
 use gazelight_pupil::PupilSource;
-use gazelight_pupil::neon::stream::RtpTransport;
-use gazelight_pupil::neon::{NeonConfig, NeonSource};
 
 use crate::live::AgeClock;
 use crate::source::{Pacing, ReplaySource};

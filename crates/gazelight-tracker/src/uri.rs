@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use gazelight_devices::lsl::LslQuery;
-use gazelight_pupil::neon::DEFAULT_HTTP_PORT as NEON_DEFAULT_HTTP_PORT;
+use gazelight_neon::DEFAULT_HTTP_PORT as NEON_DEFAULT_HTTP_PORT;
 use gazelight_pupil::{DEFAULT_REMOTE_PORT, PupilConfig};
 
 pub use gazelight_devices::target::{

@@ -6,10 +6,11 @@
 use std::path::PathBuf;
 
 use gazelight_tracker::calibration::{
-    CalibrationConfig, CalibrationError, LogSink, Phase, PupilCalibration, Stimulus, StimulusError,
-    StimulusSink, run_calibration, run_calibration_source,
+    CalibrationConfig, CalibrationError, LogSink, Phase, Stimulus, StimulusError, StimulusSink,
+    run_calibration, run_calibration_source,
 };
 use gazelight_tracker::import;
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::source::{Pacing, ReplaySource};
 use gazelight_tracker::synthetic::black_white_session;
 use gazelight_tracker::{PupilUnit, Sample};
@@ -159,8 +160,7 @@ fn piprkit_flash_replayed_as_a_black_white_session() {
     // The piprkit subject saw darkness, then a flash at 8.06 s; the pupil
     // constricts to its minimum within ~3 s. Treat the 5 s before the flash
     // as "black" and the 3 s after its onset as "white" (settle 1.5 s).
-    let data =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/eye/piprkit-plr");
+    let data = gazelight_test_support::data_path("eye/piprkit-plr");
     let flash = import::csv::load_stimuli(&data.join("stimuli.csv")).unwrap()[0];
     let start = flash.start_t_secs - 5.0;
     let samples: Vec<Sample> = import::open(&data.join("pupil_trace.csv"))
@@ -354,8 +354,8 @@ fn summary_reports_each_phase_and_eye() {
     }
 }
 
-fn px_map() -> gazelight_tracker::calibration::EyeCalibration {
-    gazelight_tracker::calibration::EyeCalibration {
+fn px_map() -> gazelight_tracker::profile::EyeCalibration {
+    gazelight_tracker::profile::EyeCalibration {
         raw_unit: PupilUnit::Px,
         raw_black: 60.0,
         raw_white: 20.0,
@@ -366,7 +366,7 @@ fn px_map() -> gazelight_tracker::calibration::EyeCalibration {
 
 #[test]
 fn the_map_clamps_to_the_calibrated_range() {
-    use gazelight_tracker::calibration::EyeCalibration;
+    use gazelight_tracker::profile::EyeCalibration;
     let c = px_map();
     // Inside the phases' pupils the line itself (001 §5):
     // 8 + (40 − 60)·(2 − 8)/(20 − 60) = 5 mm.
@@ -388,7 +388,7 @@ fn the_map_clamps_to_the_calibrated_range() {
 #[test]
 fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
     use gazelight_tracker::DetectorMethod;
-    use gazelight_tracker::calibration::{BadRawPupil, EyeCalibrations};
+    use gazelight_tracker::profile::{BadRawPupil, EyeCalibrations};
     let c = px_map();
     assert_eq!(c.map(0.0), Err(BadRawPupil::NonPositive));
     assert_eq!(c.map(-3.0), Err(BadRawPupil::NonPositive));
@@ -419,7 +419,7 @@ fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
     // Area units: √area of a negative area is not a pupil either.
     let mut area = sample(-4.0);
     area.unit = PupilUnit::ArbitraryArea;
-    cal.eyes.right = Some(gazelight_tracker::calibration::EyeCalibration {
+    cal.eyes.right = Some(gazelight_tracker::profile::EyeCalibration {
         raw_unit: PupilUnit::ArbitraryArea,
         ..c
     });
@@ -428,7 +428,7 @@ fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
 
 #[test]
 fn profiles_carry_the_observer_and_version_1_still_loads() {
-    use gazelight_tracker::calibration::{Observer, SCHEMA};
+    use gazelight_tracker::profile::{Observer, SCHEMA};
     let eyes = r#""eyes": {"right": {"raw_unit": "px", "raw_black": 60, "raw_white": 20, "mm_min": 2, "mm_max": 8}}"#;
     let path = std::path::Path::new("profile.json");
     // Version 1: no observer → CIE 146 defaults 25 years, 0.5.

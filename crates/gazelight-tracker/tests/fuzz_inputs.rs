@@ -37,9 +37,7 @@ fn config() -> Config {
 }
 
 fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(rel)
+    gazelight_test_support::data_path(rel)
 }
 
 /// The first `n` bytes of a real file (mutations stay fast).
@@ -336,9 +334,9 @@ fn hid_descriptor_and_report_parsers_never_panic() {
 /// that says something; the RTP clock stays finite for any timestamps.
 #[test]
 fn neon_packet_decoders_never_panic() {
-    use gazelight_pupil::neon::payload::{decode_eye_event, decode_gaze};
-    use gazelight_pupil::neon::rtp::{RtpClock, RtpPacket, sender_reports};
-    use gazelight_pupil::neon::{http, sdp};
+    use gazelight_neon::payload::{decode_eye_event, decode_gaze};
+    use gazelight_neon::rtp::{RtpClock, RtpPacket, sender_reports};
+    use gazelight_neon::{http, sdp};
     let mut r = TestRunner::new(config());
     r.run(&prop::collection::vec(any::<u8>(), 0..160), |b| {
         for e in [

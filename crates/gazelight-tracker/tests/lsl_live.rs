@@ -11,65 +11,31 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use gazelight_test_support::netns;
 use gazelight_tracker::lsl::{
     ChannelDesc, ChannelFormat, LslConfig, LslQuery, LslSource, Outlet, StreamDesc, local_clock,
 };
 use gazelight_tracker::{PupilUnit, Sample, SampleSource, SourceError};
 
-const INNER: &str = "GAZELIGHT_LSL_NETNS";
-
 fn peer_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight/tests/lsl_peer.py")
 }
 
-fn ready() -> bool {
-    let ok = |c: &mut Command| c.output().map(|o| o.status.success()).unwrap_or(false);
-    let have = ok(Command::new("unshare").args(["-n", "true"]))
-        && ok(Command::new("ip").arg("-V"))
-        && ok(Command::new("python3").args(["-c", "import pylsl"]));
-    if !have {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have unshare -n (root), iproute2 and pylsl"
-        );
-        eprintln!("SKIP: needs unshare -n (as root), ip (iproute2) and python3 with pylsl");
-    }
-    have
-}
-
 /// Runs test `name` of this binary again inside a fresh network namespace
-/// (loopback up); returns true when the caller is already inside.
+/// (loopback up, the machine-only LSL configuration); returns true when
+/// the caller is already inside.
 fn in_netns(name: &str) -> bool {
-    if std::env::var_os(INNER).is_some() {
+    if netns::inside() {
         return true;
     }
-    if !ready() {
+    if !netns::ready(&["pylsl"]) {
         return false;
     }
     let dir = std::env::temp_dir().join(format!("gazelight-lsl-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let cfg = dir.join("lsl_api.cfg");
     std::fs::write(&cfg, LslConfig::default().generated()).unwrap();
-    let exe = std::env::current_exe().unwrap();
-    let out = Command::new("unshare")
-        .args(["-n", "sh", "-c", "ip link set lo up && exec \"$0\" \"$@\""])
-        .arg(&exe)
-        .args([name, "--exact", "--nocapture", "--test-threads=1"])
-        .env(INNER, "1")
-        .env("LSLAPICFG", &cfg)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    eprintln!("{text}");
-    assert!(
-        out.status.success(),
-        "{name} in the network namespace failed"
-    );
-    assert!(text.contains("1 passed"), "{name} did not run: {text}");
+    netns::rerun_test(name, &[("LSLAPICFG", cfg.as_os_str())]);
     false
 }
 

@@ -23,8 +23,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use gazelight_tracker::calibration::{CalibrationConfig, PupilCalibration, run_calibration_source};
+use gazelight_tracker::calibration::{CalibrationConfig, run_calibration_source};
 use gazelight_tracker::filter::FilterChain;
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil::{
     PupilClient, PupilConfig, PupilSource, PupilStats, PupilStreams, RemoteSink,

@@ -25,7 +25,6 @@
 //! setup and printed figures too).
 
 use std::hint::black_box;
-use std::path::Path;
 use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -45,9 +44,7 @@ const DEMO_PITCH_DEG: f64 = -6.0;
 const DEMO_HFOV_DEG: f64 = 90.0;
 
 fn load(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/hdr/blender-world")
-        .join(name);
+    let path = gazelight_test_support::data_path("hdr/blender-world").join(name);
     Scene::load(&path, LuminanceScale::default()).expect("shared panorama")
 }
 

@@ -1595,8 +1595,7 @@ mod tests {
         // The default demo's night view (dark ground, lamps, sky) at three
         // scales, so that blocks fall in L*'s linear part, its cubic part
         // and across both, at two pixel sizes (tap radius 1–3 and more).
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world/night.exr");
+        let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
         let scene = crate::scene::Scene::load(&path, crate::scene::LuminanceScale::default())
             .expect("shared night.exr");
         let mut cases = Vec::new();

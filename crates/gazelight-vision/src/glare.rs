@@ -1755,8 +1755,7 @@ mod tests {
     fn apply_matches_a_direct_convolution_on_the_night_view() {
         use crate::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
         let (w, h) = (720, 800);
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world/night.exr");
+        let path = gazelight_test_support::data_path("hdr/blender-world/night.exr");
         let scene = Scene::load(&path, LuminanceScale::default()).unwrap();
         let view = ViewParams {
             yaw_deg: -78.4,

@@ -1042,7 +1042,6 @@ fn reference_pass_c(
 
 #[cfg(test)]
 mod tests {
-    use std::path::Path;
 
     use super::*;
     use crate::acuity::AcuityModel;
@@ -1057,9 +1056,7 @@ mod tests {
         width: usize,
         height: usize,
     ) -> (RgbImage, f64) {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world")
-            .join(name);
+        let path = gazelight_test_support::data_path("hdr/blender-world").join(name);
         let scale = LuminanceScale::CdM2PerUnit {
             factor: cd_m2_per_unit,
         };

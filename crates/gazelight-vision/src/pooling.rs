@@ -464,9 +464,7 @@ pub(crate) mod night {
     }
 
     pub fn shared_hdr(name: &str) -> PathBuf {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world")
-            .join(name)
+        gazelight_test_support::data_path("hdr/blender-world").join(name)
     }
 
     /// Loads `name` from the shared panoramas as a luminance plane (001 eq 1).

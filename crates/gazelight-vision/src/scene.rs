@@ -608,9 +608,7 @@ mod tests {
     use super::*;
 
     fn shared(name: &str) -> PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world")
-            .join(name)
+        gazelight_test_support::data_path("hdr/blender-world").join(name)
     }
 
     #[test]

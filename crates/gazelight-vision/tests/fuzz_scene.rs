@@ -105,10 +105,9 @@ fn scene_loader_never_panics_on_mutated_files() {
     r.run(&mutated(small_exr(), 400), |b| load(&b)).unwrap();
     // A real DWAB panorama: header mutations (the pixel data is decoded in
     // full for the cases whose header survives, so fewer cases).
-    let night = std::fs::read(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/hdr/blender-world/night.exr"),
-    )
+    let night = std::fs::read(gazelight_test_support::data_path(
+        "hdr/blender-world/night.exr",
+    ))
     .unwrap();
     let mut few = TestRunner::new(Config {
         cases: config().cases / 8,

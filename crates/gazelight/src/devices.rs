@@ -7,7 +7,7 @@
 
 use std::time::Duration;
 
-use gazelight_tracker::pupil::neon_discover::{self, DiscoverError, FoundNeon};
+use gazelight_tracker::neon::discover::{DiscoverError, FoundNeon};
 use gazelight_tracker::transport::discover::{self, Discovery, HidKind};
 
 /// Arguments of `gazelight devices`.
@@ -29,8 +29,8 @@ pub fn render_neons(found: &Option<Result<Vec<FoundNeon>, DiscoverError>>, secs:
     let _ = writeln!(
         s,
         "Neon (mDNS {}, instances \"{}…\", {secs} s):",
-        neon_discover::SERVICE_TYPE,
-        neon_discover::INSTANCE_PREFIX
+        gazelight_tracker::neon::discover::SERVICE_TYPE,
+        gazelight_tracker::neon::discover::INSTANCE_PREFIX
     );
     match found {
         Err(e) => {
@@ -152,7 +152,7 @@ pub fn run(args: DevicesArgs) -> anyhow::Result<()> {
         anyhow::bail!("--mdns-secs {}: at most 60 s", args.mdns_secs);
     }
     print!("{}", render(&discover::discover()));
-    let neons = (!wait.is_zero()).then(|| neon_discover::discover_neons(wait));
+    let neons = (!wait.is_zero()).then(|| gazelight_tracker::neon::discover::discover_neons(wait));
     print!("{}", render_neons(&neons, args.mdns_secs));
     Ok(())
 }

@@ -13,14 +13,12 @@
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
+use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::Sample;
-use gazelight_tracker::live::{LiveEye, SharedStatus};
-use gazelight_tracker::pupil::LiveEyeState;
+use gazelight_tracker::live::{LiveEye, SAMPLE_BROADCAST_CAPACITY, SharedStatus, SourceStatus};
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 
-/// The source status and health are the live eye task's.
-pub use gazelight_tracker::live::{SAMPLE_BROADCAST_CAPACITY, SourceHealth, SourceStatus};
 /// Points kept in the status history ring (≈ 45 s at 90 Hz).
 pub const HISTORY_CAPACITY: usize = 4096;
 

@@ -27,8 +27,8 @@ use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
 use tokio::task::JoinHandle;
 
-use crate::hub::{Hub, SourceHealth, TappedFrame};
-use crate::run::source_task::AgeClock;
+use crate::hub::{Hub, TappedFrame};
+use gazelight_tracker::live::{AgeClock, SourceHealth};
 
 /// Quiet time after which a held eye state is published, even if no newer
 /// tracker time has arrived.

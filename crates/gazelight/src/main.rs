@@ -5,10 +5,14 @@
 //! gazelight render --scene city.exr --trace gaze.csv --out out/
 //! gazelight psf --pupil-mm 4 --out psf/  # one glare kernel as EXR + PNG + JSON
 //! ```
+//!
+//! Each subcommand `gazelight NAME` is the module `NAME` (`src/NAME.rs`, or
+//! `src/NAME/mod.rs` when it has parts, as `run` does) with its arguments
+//! (`psf::PsfArgs`) and `run`; the other modules are what subcommands share.
 
 mod backend;
 mod bounds;
-mod calibrate_cmd;
+mod calibrate;
 mod config;
 mod demo;
 mod devices;
@@ -18,8 +22,8 @@ mod inspect;
 mod lsl_outlets;
 mod observer;
 mod output;
-mod psf_cmd;
-mod record_cmd;
+mod psf;
+mod record;
 mod relay;
 mod render;
 mod replay;
@@ -64,14 +68,14 @@ enum Command {
     /// tracker: shows black then white (in the host application through
     /// `gazelight.stimulus`, or by hand), prints a per-eye summary and writes
     /// the profile, or refuses with the reason.
-    Calibrate(calibrate_cmd::CalibrateArgs),
+    Calibrate(calibrate::CalibrateArgs),
     /// Record a live Pupil source in Pupil's own recording layout
     /// (.pldata + _timestamps.npy + info.player.json); flushed every second,
     /// Ctrl-C keeps every received datum.
-    Record(record_cmd::RecordArgs),
+    Record(record::RecordArgs),
     /// Build one glare point spread function for a pupil diameter and write
     /// it as kernel.exr, kernel.png and psf.json.
-    Psf(psf_cmd::PsfArgs),
+    Psf(psf::PsfArgs),
     /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
     /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
     Inspect(inspect::InspectArgs),
@@ -144,9 +148,9 @@ fn main() -> std::process::ExitCode {
         Command::Render(args) => render::run(args),
         Command::Replay(args) => replay::run(args),
         Command::Run(args) => run::run(args),
-        Command::Calibrate(args) => calibrate_cmd::run(args),
-        Command::Record(args) => record_cmd::run(args),
-        Command::Psf(args) => psf_cmd::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
+        Command::Record(args) => record::run(args),
+        Command::Psf(args) => psf::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Devices(args) => devices::run(args),
     };

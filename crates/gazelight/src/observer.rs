@@ -9,7 +9,7 @@
 //! configuration's `pipeline.glare.psf` values (defaults 25 years, 0.5).
 
 use anyhow::bail;
-use gazelight_tracker::calibration::{AGE_YEARS_RANGE, Observer, PIGMENTATION_RANGE};
+use gazelight_tracker::profile::{AGE_YEARS_RANGE, Observer, PIGMENTATION_RANGE};
 use gazelight_vision::psf::PsfParams;
 use serde::Deserialize;
 

@@ -4,8 +4,8 @@
 use std::net::SocketAddr;
 use std::sync::Arc;
 
+use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::Sample;
-use gazelight_tracker::pupil::LiveEyeState;
 use gazelight_tracker::pupil::relay::{FrameFigures, RelayFeed, RelayHandle};
 use tokio::sync::{broadcast, watch};
 

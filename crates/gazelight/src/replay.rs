@@ -14,9 +14,9 @@ use std::time::Instant;
 
 use anyhow::bail;
 use clap::Args;
-use gazelight_tracker::calibration::PupilCalibration;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import::{self, Importer};
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::{PupilUnit, Sample};
 
 use crate::input_report;

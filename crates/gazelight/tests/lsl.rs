@@ -13,9 +13,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use common::{Proc, spawn_peer_any_port, tmp, wait_bounded};
+use gazelight_test_support::netns;
 use serde_json::Value;
 
-const INNER: &str = "GAZELIGHT_LSL_NETNS";
 /// The pyzmq peer's Pupil time minus its wall clock (its default --offset).
 const PEER_OFFSET_S: f64 = 1234.5;
 
@@ -23,30 +23,13 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/lsl_peer.py")
 }
 
-fn ready() -> bool {
-    let ok = |c: &mut Command| c.output().map(|o| o.status.success()).unwrap_or(false);
-    let have = ok(Command::new("unshare").args(["-n", "true"]))
-        && ok(Command::new("ip").arg("-V"))
-        && ok(Command::new("python3").args(["-c", "import pylsl, zmq, msgpack"]));
-    if !have {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have unshare -n (root), iproute2, pylsl, pyzmq and msgpack"
-        );
-        eprintln!(
-            "SKIP: needs unshare -n (as root), ip (iproute2), python3 with pylsl, pyzmq, msgpack"
-        );
-    }
-    have
-}
-
 /// Runs test `name` again inside a fresh network namespace (loopback up);
 /// true when the caller is already inside.
 fn in_netns(name: &str) -> bool {
-    if std::env::var_os(INNER).is_some() {
+    if netns::inside() {
         return true;
     }
-    if !ready() {
+    if !netns::ready(&["pylsl", "zmq", "msgpack"]) {
         return false;
     }
     let dir = tmp(&format!("netns-{name}"));
@@ -57,25 +40,7 @@ fn in_netns(name: &str) -> bool {
         "[ports]\nIPv6 = disable\n\n[multicast]\nResolveScope = machine\n",
     )
     .unwrap();
-    let out = Command::new("unshare")
-        .args(["-n", "sh", "-c", "ip link set lo up && exec \"$0\" \"$@\""])
-        .arg(std::env::current_exe().unwrap())
-        .args([name, "--exact", "--nocapture", "--test-threads=1"])
-        .env(INNER, "1")
-        .env("LSLAPICFG", &cfg)
-        .output()
-        .unwrap();
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    eprintln!("{text}");
-    assert!(
-        out.status.success(),
-        "{name} in the network namespace failed"
-    );
-    assert!(text.contains("1 passed"), "{name} did not run");
+    netns::rerun_test(name, &[("LSLAPICFG", cfg.as_os_str())]);
     false
 }
 

@@ -1,7 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
 //! A live Neon end to end through the CLI (issue 16): `inspect neon://…`
 //! and `run --source neon://…` against `neon_peer.py`, the Neon-like peer
-//! of `crates/gazelight-pupil/tests` (HTTP `/api/status` + RTSP/TCP
+//! of `crates/gazelight-neon/tests` (HTTP `/api/status` + RTSP/TCP
 //! interleaved + RTP/RTCP at 200 Hz, 89-byte eye-state packets) that plays
 //! the Neon demo recording (`eye/neon-demo` of the shared test
 //! data, MIT, © Pupil Labs). The expected pupils come from the recording's files read by the
@@ -10,6 +10,7 @@
 
 mod common;
 
+use std::ffi::OsStr;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -41,8 +42,7 @@ fn neon_peer_with(extra: &[&str]) -> Option<NeonPeer> {
         eprintln!("SKIP: python3 not available");
         return None;
     }
-    let script =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-pupil/tests/neon_peer.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-neon/tests/neon_peer.py");
     let mut child = Command::new("python3")
         .arg(script)
         .arg("--data")
@@ -438,16 +438,7 @@ fn filtered_pupils_follow_steps_and_the_latency_is_measured() {
 /// leaves the machine). SKIP without `unshare -n` (root), `ip` or zeroconf, outside CI.
 #[test]
 fn devices_finds_a_neon_by_mdns() {
-    let ok = |c: &mut Command| c.output().is_ok_and(|o| o.status.success());
-    let have = ok(Command::new("unshare").args(["-n", "true"]))
-        && ok(Command::new("ip").arg("-V"))
-        && ok(Command::new("python3").args(["-c", "import zeroconf"]));
-    if !have {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI must have unshare -n (root), iproute2 and python3 zeroconf"
-        );
-        eprintln!("SKIP: needs unshare -n (as root), ip and python3 with zeroconf");
+    if !gazelight_test_support::netns::ready(&["zeroconf"]) {
         return;
     }
     let script = r#"
@@ -476,11 +467,10 @@ sleep 3
 "$BIN" devices --mdns-secs 4
 kill $PEER
 "#;
-    let out = Command::new("unshare")
-        .args(["-n", "sh", "-c", script])
-        .env("BIN", env!("CARGO_BIN_EXE_gazelight"))
-        .output()
-        .expect("unshare");
+    let out = gazelight_test_support::netns::run_script(
+        script,
+        &[("BIN", OsStr::new(env!("CARGO_BIN_EXE_gazelight")))],
+    );
     let text = String::from_utf8_lossy(&out.stdout);
     eprintln!("{text}{}", String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "the namespace script failed");

@@ -18,17 +18,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use common::{Proc, free_port, spawn_peer, wait_listening};
-
-const CHROMIUM_FLAGS: [&str; 8] = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--hide-scrollbars",
-];
+use gazelight_test_support::chromium::{self, dump_with_updates, page_state};
 
 /// A raw HTTP/1.1 GET of a JSON document.
 fn get_json(port: u16, path: &str) -> serde_json::Value {
@@ -45,76 +35,6 @@ fn get_json(port: u16, path: &str) -> serde_json::Value {
     let head = String::from_utf8_lossy(&buf[..end]);
     assert!(head.starts_with("HTTP/1.1 200"), "{path}: {head}");
     serde_json::from_slice(&buf[end + 4..]).expect("JSON body")
-}
-
-fn chromium(args: &[String]) -> String {
-    let profile = std::env::temp_dir().join(format!(
-        "gazelight-chromium-e2e-{}-{}",
-        std::process::id(),
-        args.len()
-    ));
-    let _ = std::fs::remove_dir_all(&profile);
-    let out = Command::new("chromium")
-        .args(CHROMIUM_FLAGS)
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .args(args)
-        .output()
-        .expect("headless Chromium (Debian package `chromium`) must be installed");
-    let _ = std::fs::remove_dir_all(&profile);
-    assert!(
-        out.status.success(),
-        "chromium {args:?}: {}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// The page's DOM after it has had WebSocket updates. Virtual time runs
-/// out as soon as the page is idle, so on a loaded machine (a cold
-/// Chromium start beside a build) it can end before the socket's first
-/// real-time message arrives: up to 4 loads, the first with an update
-/// returned (else the last, which the caller's assertion reports).
-fn dump_with_updates(url: &str) -> String {
-    let mut dom = String::new();
-    for _ in 0..4 {
-        dom = chromium(&[
-            "--virtual-time-budget=3000".into(),
-            "--dump-dom".into(),
-            url.to_owned(),
-        ]);
-        if page_state(&dom).0 >= 1 {
-            break;
-        }
-    }
-    dom
-}
-
-/// (WebSocket updates, script errors, mirrored #state, #errors text).
-fn page_state(dom: &str) -> (u64, u64, serde_json::Value, String) {
-    let attr = |name: &str| -> u64 {
-        let key = format!("{name}=\"");
-        let i = dom
-            .find(&key)
-            .unwrap_or_else(|| panic!("no {name} in {dom}"))
-            + key.len();
-        dom[i..].split('"').next().unwrap().parse().unwrap()
-    };
-    let start = dom.find("<pre id=\"state\"").expect("#state");
-    let body = &dom[start..];
-    let open = body.find('>').unwrap() + 1;
-    let close = body.find("</pre>").unwrap();
-    let json = body[open..close]
-        .replace("&quot;", "\"")
-        .replace("&amp;", "&");
-    let state = if json.trim().is_empty() {
-        serde_json::Value::Null
-    } else {
-        serde_json::from_str(&json).unwrap()
-    };
-    let e0 = dom.find("<div id=\"errors\">").expect("#errors") + "<div id=\"errors\">".len();
-    let errors = dom[e0..].split("</div>").next().unwrap().to_owned();
-    (attr("data-updates"), attr("data-errors"), state, errors)
 }
 
 #[test]
@@ -173,6 +93,15 @@ fn status_page_of_a_live_session() {
     let second = dump_with_updates(&url);
     let (u1, e1, d1, err1) = page_state(&first);
     let (u2, e2, d2, err2) = page_state(&second);
+    // The mirrored #state as JSON (null before the first update).
+    let state_json = |text: &str| -> serde_json::Value {
+        if text.is_empty() {
+            serde_json::Value::Null
+        } else {
+            serde_json::from_str(text).unwrap()
+        }
+    };
+    let (d1, d2) = (state_json(&d1), state_json(&d2));
     eprintln!("page: {u1} updates {d1}; then {u2} updates {d2}");
     assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
     assert!(err1.trim().is_empty() && err2.trim().is_empty());
@@ -190,7 +119,7 @@ fn status_page_of_a_live_session() {
     } else {
         std::env::temp_dir().join(format!("gazelight-status-page-{}.png", std::process::id()))
     };
-    chromium(&[
+    chromium::run(&[
         "--virtual-time-budget=4000".into(),
         "--window-size=1280,820".into(),
         format!("--screenshot={}", shot.display()),

@@ -42,12 +42,13 @@ use gazelight_vision::scene::{PanoramaView, ViewParams};
 
 use super::head::Head;
 use super::psf_worker::PsfWorker;
-use super::source_task::{AdaptationCell, AgeClock};
 use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
-use crate::hub::{FrameStatus, Hub, SourceHealth};
+use crate::hub::{FrameStatus, Hub};
 use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
+use gazelight_tracker::live::SourceHealth;
+use gazelight_tracker::live::{AdaptationCell, AgeClock};
 
 /// Shortest interval between display-frame copies to the hub.
 const DISPLAY_PUBLISH_SECS: f64 = 0.1;
@@ -879,7 +880,7 @@ mod tests {
     use std::cell::Cell;
     use std::sync::atomic::{AtomicUsize, Ordering};
 
-    use gazelight_tracker::pupil::LiveEyeState;
+    use gazelight_tracker::LiveEyeState;
     use gazelight_tracker::{EyeState, PupilOrigin};
     use gazelight_vision::scene::{LuminanceScale, Scene};
     use tokio::sync::watch;

@@ -33,8 +33,8 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use gazelight_tracker::calibration::PupilCalibration;
 use gazelight_tracker::filter::FilterChain;
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_vision::RgbImage;
 use gazelight_vision::scene::{PanoramaView, Scene};
 
@@ -648,7 +648,7 @@ fn print_display(s: &RunSummary, w: Option<&window::WindowStats>) {
 fn print_summary(
     s: &RunSummary,
     fps: f64,
-    source: &crate::hub::SourceStatus,
+    source: &gazelight_tracker::live::SourceStatus,
     out: Option<&std::path::Path>,
 ) {
     println!(

@@ -21,7 +21,7 @@ use tokio::task::JoinHandle;
 use crate::demo;
 use crate::hub::Hub;
 
-pub use gazelight_tracker::live::{AdaptationCell, AgeClock};
+use gazelight_tracker::live::{AdaptationCell, AgeClock};
 
 /// A running source: the hub it feeds and the task behind it.
 pub struct SourceHandle {

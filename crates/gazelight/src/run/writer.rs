@@ -32,10 +32,10 @@ use anyhow::Context;
 use gazelight_vision::pipeline::DisplayFrame;
 use gazelight_vision::psf::{MonoPsf, PsfParams, REFERENCE_WAVELENGTH_NM, monochromatic_psf};
 
-use crate::hub::SourceHealth;
 use crate::output;
 use crate::stereo::View;
 use gazelight_tracker::EYE_LEFT;
+use gazelight_tracker::live::SourceHealth;
 
 /// Frame buffers in flight between the loop and the PNG encoder.
 const FRAME_POOL: usize = 4;

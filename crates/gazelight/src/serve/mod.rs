@@ -40,7 +40,8 @@ use serde::Serialize;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
-use crate::hub::{FrameStatus, Hub, SourceStatus};
+use crate::hub::{FrameStatus, Hub};
+use gazelight_tracker::live::SourceStatus;
 
 /// Version of the `/api/status` and `/api/history` JSON layouts; bumped on
 /// any incompatible change.
@@ -559,7 +560,7 @@ async fn ws_client(mut socket: WebSocket, st: AppState) {
 mod tests {
     use super::*;
     use gazelight_tracker::EyeState;
-    use gazelight_tracker::pupil::LiveEyeState;
+    use gazelight_tracker::LiveEyeState;
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
 
@@ -655,7 +656,7 @@ mod tests {
         // Session state 1.
         tx.send_replace(live(10, [3.5, 3.75]));
         hub.update_source(|s| {
-            s.health = crate::hub::SourceHealth::Live;
+            s.health = gazelight_tracker::live::SourceHealth::Live;
             s.sample_rate_hz = 600.0;
             s.confidence = 0.93;
             s.dropout_rate = 0.02;
@@ -879,70 +880,9 @@ mod tests {
 #[cfg(test)]
 mod browser_tests {
     use super::*;
+    use gazelight_test_support::chromium::{self, dump_with_updates, page_state};
     use gazelight_tracker::EyeState;
-    use gazelight_tracker::pupil::LiveEyeState;
-    use std::process::Command;
-
-    const CHROMIUM_FLAGS: [&str; 8] = [
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        "--hide-scrollbars",
-    ];
-
-    /// Runs chromium with a fresh profile; returns stdout.
-    fn chromium(args: &[String]) -> String {
-        let profile = std::env::temp_dir().join(format!(
-            "gazelight-chromium-{}-{}",
-            std::process::id(),
-            host_now_secs().to_bits()
-        ));
-        let out = Command::new("chromium")
-            .args(CHROMIUM_FLAGS)
-            .arg(format!("--user-data-dir={}", profile.display()))
-            .args(args)
-            .output()
-            .expect("headless Chromium (Debian package `chromium`) must be installed");
-        let _ = std::fs::remove_dir_all(&profile);
-        assert!(
-            out.status.success(),
-            "chromium {args:?}: {}\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stdout).into_owned()
-    }
-
-    /// The page's mirrored state (`#state`) and counters from a DOM dump.
-    fn page_state(dom: &str) -> (u64, u64, serde_json::Value, String) {
-        let attr = |name: &str| -> u64 {
-            let key = format!("{name}=\"");
-            let i = dom
-                .find(&key)
-                .unwrap_or_else(|| panic!("no {name} in {dom}"))
-                + key.len();
-            dom[i..].split('"').next().unwrap().parse().unwrap()
-        };
-        let start = dom.find("<pre id=\"state\"").expect("#state");
-        let body = &dom[start..];
-        let open = body.find('>').unwrap() + 1;
-        let close = body.find("</pre>").unwrap();
-        let json = body[open..close]
-            .replace("&quot;", "\"")
-            .replace("&amp;", "&");
-        let state = if json.trim().is_empty() {
-            serde_json::Value::Null
-        } else {
-            serde_json::from_str(&json).unwrap()
-        };
-        let e0 = dom.find("<div id=\"errors\">").expect("#errors") + "<div id=\"errors\">".len();
-        let errors = dom[e0..].split("</div>").next().unwrap().to_owned();
-        (attr("data-updates"), attr("data-errors"), state, errors)
-    }
+    use gazelight_tracker::LiveEyeState;
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn page_loads_updates_and_has_no_errors_in_headless_chromium() {
@@ -1002,7 +942,7 @@ mod browser_tests {
                     updates: k,
                 });
                 feeder_hub.update_source(|s| {
-                    s.health = crate::hub::SourceHealth::Live;
+                    s.health = gazelight_tracker::live::SourceHealth::Live;
                     s.sample_rate_hz = 600.0;
                     s.confidence = 0.95;
                     s.samples_total = k * 7;
@@ -1032,27 +972,21 @@ mod browser_tests {
         // machine (a cold Chromium start beside a build) it can end before
         // the socket's first real-time message: up to 4 loads, the first
         // with an update kept.
-        let dump = |url: String| {
-            tokio::task::spawn_blocking(move || {
-                let mut dom = String::new();
-                for _ in 0..4 {
-                    dom = chromium(&[
-                        "--virtual-time-budget=3000".into(),
-                        "--dump-dom".into(),
-                        url.clone(),
-                    ]);
-                    if page_state(&dom).0 >= 1 {
-                        break;
-                    }
-                }
-                dom
-            })
-        };
+        let dump = |url: String| tokio::task::spawn_blocking(move || dump_with_updates(&url));
         let first = dump(url.clone()).await.unwrap();
         tokio::time::sleep(Duration::from_millis(500)).await;
         let second = dump(url.clone()).await.unwrap();
         let (u1, e1, s1, err1) = page_state(&first);
         let (u2, e2, s2, err2) = page_state(&second);
+        // The mirrored #state as JSON (null before the first update).
+        let state_json = |text: &str| -> serde_json::Value {
+            if text.is_empty() {
+                serde_json::Value::Null
+            } else {
+                serde_json::from_str(text).unwrap()
+            }
+        };
+        let (s1, s2) = (state_json(&s1), state_json(&s2));
         eprintln!("first load: {u1} updates {s1}; second: {u2} updates {s2}");
         assert_eq!((e1, e2), (0, 0), "script errors: {err1} {err2}");
         assert!(err1.trim().is_empty() && err2.trim().is_empty());
@@ -1071,7 +1005,7 @@ mod browser_tests {
         let shot_arg = format!("--screenshot={}", shot.display());
         let u = url.clone();
         tokio::task::spawn_blocking(move || {
-            chromium(&[
+            chromium::run(&[
                 "--virtual-time-budget=4000".into(),
                 "--window-size=1280,820".into(),
                 shot_arg,

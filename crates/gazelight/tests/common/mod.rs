@@ -52,9 +52,7 @@ pub fn tmp_path(name: &str) -> PathBuf {
 
 /// A path under the shared real data (/work/shared/data).
 pub fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
-        .join(rel)
+    gazelight_test_support::data_path(rel)
 }
 
 /// [`shared`] as a UTF-8 string, for command lines.

@@ -15,7 +15,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::time::timeout;
 
-use super::NeonError;
+use crate::NeonError;
 
 /// Largest status reply accepted, bytes.
 pub const MAX_STATUS_BYTES: usize = 1024 * 1024;
@@ -176,9 +176,9 @@ pub(crate) fn parse_http_reply(raw: &[u8]) -> Result<Vec<u8>, String> {
         .strip_prefix("HTTP/1.")
         .and_then(|r| r.get(2..5))
         .and_then(|s| s.parse::<u16>().ok())
-        .ok_or_else(|| format!("bad status line `{}`", super::rtsp::clip(status_line)))?;
+        .ok_or_else(|| format!("bad status line `{}`", crate::rtsp::clip(status_line)))?;
     if status != 200 {
-        return Err(format!("answered `{}`", super::rtsp::clip(status_line)));
+        return Err(format!("answered `{}`", crate::rtsp::clip(status_line)));
     }
     let mut length = None;
     let mut chunked = false;
@@ -188,7 +188,7 @@ pub(crate) fn parse_http_reply(raw: &[u8]) -> Result<Vec<u8>, String> {
             if k == "content-length" {
                 length = Some(
                     v.parse::<usize>()
-                        .map_err(|_| format!("bad Content-Length `{}`", super::rtsp::clip(v)))?,
+                        .map_err(|_| format!("bad Content-Length `{}`", crate::rtsp::clip(v)))?,
                 );
             } else if k == "transfer-encoding" && v.eq_ignore_ascii_case("chunked") {
                 chunked = true;
@@ -218,7 +218,7 @@ fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
         let size_text = String::from_utf8_lossy(&b[..eol]);
         let size_hex = size_text.split(';').next().unwrap_or_default().trim();
         let size = usize::from_str_radix(size_hex, 16)
-            .map_err(|_| format!("bad chunk size `{}`", super::rtsp::clip(size_hex)))?;
+            .map_err(|_| format!("bad chunk size `{}`", crate::rtsp::clip(size_hex)))?;
         b = &b[eol + 2..];
         if size == 0 {
             return Ok(out);

@@ -13,7 +13,7 @@ use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::time::timeout;
 
-use super::NeonError;
+use crate::NeonError;
 
 /// Largest response head (status line and headers), bytes.
 pub const MAX_HEAD_BYTES: usize = 16 * 1024;
@@ -33,7 +33,7 @@ pub fn host_port(url: &str) -> Result<(String, u16), NeonError> {
         .or_else(|| url.strip_prefix("rtspt://"))
         .ok_or_else(|| bad("expected rtsp://HOST[:PORT]/…"))?;
     let authority = rest.split(['/', '?']).next().unwrap_or_default();
-    super::split_host_port(authority, DEFAULT_RTSP_PORT).map_err(|r| bad(&r))
+    crate::split_host_port(authority, DEFAULT_RTSP_PORT).map_err(|r| bad(&r))
 }
 
 /// One RTSP response.

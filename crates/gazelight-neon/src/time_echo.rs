@@ -15,7 +15,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use super::NeonError;
+use crate::NeonError;
 
 /// The median of a run of echoes.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -2,7 +2,7 @@
 //! needs: each media's type, payload types, `a=rtpmap` encoding and clock
 //! rate, and `a=control` URL.
 
-use super::NeonError;
+use crate::NeonError;
 
 /// Largest SDP accepted, bytes.
 pub const MAX_SDP_BYTES: usize = 64 * 1024;

@@ -10,10 +10,10 @@ use std::time::Duration;
 use tokio::net::UdpSocket;
 use tokio::time::{Instant, timeout};
 
-use super::NeonError;
-use super::rtp::{RtpClock, RtpPacket, sender_reports};
-use super::rtsp::{Item, RtspConn};
-use super::sdp;
+use crate::NeonError;
+use crate::rtp::{RtpClock, RtpPacket, sender_reports};
+use crate::rtsp::{Item, RtspConn};
+use crate::sdp;
 
 /// Counters of one stream.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -340,7 +340,7 @@ impl RtpStream {
 }
 
 /// A keepalive's reply: fine when 2xx.
-fn response(r: &super::rtsp::Response, url: &str) -> Result<(), NeonError> {
+fn response(r: &crate::rtsp::Response, url: &str) -> Result<(), NeonError> {
     if (200..300).contains(&r.status) {
         Ok(())
     } else {

@@ -18,7 +18,7 @@
 //! 0/1 fixation or saccade (60 bytes), 2/3 their onsets (12 bytes),
 //! 4 a blink (`!iqq`: type, start ns, end ns; 20 bytes), 5 a keepalive.
 
-use super::NeonError;
+use crate::NeonError;
 
 /// Accepted gaze payload lengths.
 pub const GAZE_LENGTHS: [usize; 6] = [9, 17, 25, 65, 89, 105];

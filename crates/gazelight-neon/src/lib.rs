@@ -1,4 +1,9 @@
-//! Live Pupil Labs Neon through its Real-time API.
+//! # gazelight-neon
+//!
+//! One job: live Pupil Labs Neon through its Real-time API, from the
+//! phone's HTTP status to [`gazelight_eye::Sample`]s on the host clock
+//! ([`NeonSource`]). Recorded Neon sessions are read by
+//! `gazelight-import` (`neon`), not here; Pupil Core is `gazelight-pupil`.
 //!
 //! How a Neon streams (checked against Pupil Labs' official Python client
 //! `pupil-labs/realtime-python-api`: `models.py`, `streaming/base.py`,

@@ -8,7 +8,7 @@
 //! timestamp is extended to 64 bits against the newest one seen, so a wrap
 //! between two sender reports does not move the time.
 
-use super::NeonError;
+use crate::NeonError;
 
 /// Fixed RTP header length (RFC 3550 §5.1).
 pub const RTP_HEADER_LEN: usize = 12;

@@ -12,13 +12,10 @@ use std::time::Duration;
 
 use gazelight_eye::sample::{GazeEyes, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
-use gazelight_pupil::neon::http::{direct_sensor, get_status, parse_status};
-use gazelight_pupil::neon::payload::decode_gaze;
-use gazelight_pupil::neon::{NeonConfig, NeonError, NeonSource, RtpStream};
-
-fn data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data")
-}
+use gazelight_neon::http::{direct_sensor, get_status, parse_status};
+use gazelight_neon::payload::decode_gaze;
+use gazelight_neon::{NeonConfig, NeonError, NeonSource, RtpStream};
+use gazelight_test_support::{data_dir, skip_or_fail, try_data_dir};
 
 /// The recording: per record (unix ns, [x, y], 20 eye-state floats).
 struct Recording {
@@ -80,17 +77,20 @@ impl Drop for Peer {
 
 /// Starts the peer, or `None` (SKIP) without python3 or the data outside CI.
 fn peer(args: &[&str]) -> Option<Peer> {
-    let have = Command::new("python3")
+    let python = Command::new("python3")
         .arg("--version")
         .output()
-        .is_ok_and(|o| o.status.success())
-        && data_dir().join("eye/neon-demo/eye_state ps1.raw").exists();
-    if !have {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "python3 or ../shared/data missing in CI"
-        );
-        eprintln!("SKIP: python3 or ../shared/data/eye/neon-demo missing");
+        .is_ok_and(|o| o.status.success());
+    let missing = match try_data_dir() {
+        _ if !python => Some("python3".to_owned()),
+        Err(e) => Some(e.to_string()),
+        Ok(d) => {
+            let raw = d.join("eye/neon-demo/eye_state ps1.raw");
+            (!raw.exists()).then(|| format!("the Neon demo recording ({})", raw.display()))
+        }
+    };
+    if let Some(what) = missing {
+        skip_or_fail(&format!("missing {what}"));
         return None;
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/neon_peer.py");
@@ -491,9 +491,13 @@ async fn blinks_arrive_from_eye_events() {
 #[test]
 fn the_peer_is_what_the_official_client_decodes() {
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/neon_official_client.py");
+    let data = match try_data_dir() {
+        Ok(d) => d,
+        Err(e) => return skip_or_fail(&e.to_string()),
+    };
     let out = match std::process::Command::new("python3")
         .arg(&script)
-        .arg(data_dir())
+        .arg(data)
         .output()
     {
         Ok(o) => o,

@@ -29,10 +29,10 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::NeonError;
-use super::http::{direct_sensor, get_status, parse_status};
-use super::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
-use super::stream::{RtpStream, RtpTransport};
+use crate::NeonError;
+use crate::http::{direct_sensor, get_status, parse_status};
+use crate::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
+use crate::stream::{RtpStream, RtpTransport};
 use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
@@ -305,8 +305,8 @@ async fn session(
         let body = get_status(&cfg.host, cfg.port, cfg.io_timeout).await?;
         let sensors = parse_status(&body)?;
         // The phone's clock against ours (Time Echo), else trust NTP.
-        let offset_secs = match super::http::time_echo_port(&body) {
-            Some(port) => match super::time_echo::estimate_offset(
+        let offset_secs = match crate::http::time_echo_port(&body) {
+            Some(port) => match crate::time_echo::estimate_offset(
                 &cfg.host,
                 port,
                 TIME_ECHOES,
