@@ -53,8 +53,9 @@
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
+use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
 use gazelight_vision::pipeline::{
-    DisplayFrame, FrameInput, FrameStats, PUPIL_MM_RANGE, PipelineConfig, StageTimings, srgb_encode,
+    DisplayFrame, FrameInput, FrameStats, PipelineConfig, StageTimings, srgb_encode,
 };
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::temporal::AdaptationState;
@@ -74,8 +75,6 @@ use crate::tone::{ToneParams, TonePass};
 pub(crate) const SRGB_LUT_SIZE: usize = 16384;
 /// Threads per side of the 8×8 per-pixel workgroups.
 const TILE: u32 = 8;
-/// The pupil of the first PSF, mm (as the CPU pipeline).
-const INITIAL_PUPIL_MM: f64 = 4.0;
 
 /// Timestamps written by [`GpuFramePipeline::encode_timed`] into its frame
 /// query set: pairs (begin, end) for 0–1 pooling, 2–3 temporal, 4–5 kernel
@@ -145,7 +144,7 @@ pub(crate) struct GlareStage {
     fine_spectrum: wgpu::Buffer,
     coarse_spectrum: wgpu::Buffer,
     group: wgpu::BindGroup,
-    threshold_mm: f64,
+    policy: KernelPolicy,
 }
 
 /// The sizes fixed by the frame and the pooling downsample.
@@ -422,7 +421,7 @@ impl GlareStage {
             fine_spectrum,
             coarse_spectrum,
             group,
-            threshold_mm: config.glare.psf_rebuild_threshold_mm,
+            policy: KernelPolicy::new(&config.glare),
         })
     }
 
@@ -916,8 +915,8 @@ impl GpuFramePipeline {
     /// Records one frame into `encoder` (the caller submits): all stages, on
     /// the bound scene buffer, into the bound output buffer. Input handling
     /// is the CPU's: the gaze is clamped to the frame (non-finite → centre),
-    /// a negative or non-finite `dt` counts as 0, the pupil is clamped to
-    /// [`PUPIL_MM_RANGE`] (non-finite → the current PSF's pupil).
+    /// a negative or non-finite `dt` counts as 0, and the PSF follows the
+    /// pupil by [`gazelight_vision::kernel_policy`].
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
@@ -934,12 +933,12 @@ impl GpuFramePipeline {
         input: &FrameInput,
         timestamps: Option<FrameTimestamps<'_>>,
     ) -> EncodedFrame {
-        let (gaze_px, dt_secs, pupil_mm) = self.sanitise(input);
+        let (gaze_px, dt_secs) = self.sanitise(input);
         self.write_frame_uniforms(gaze_px, dt_secs);
         let frame_queries = timestamps.map(|t| t.frame);
         self.encode_pooling(encoder, frame_queries);
         self.encode_temporal(encoder, frame_queries);
-        let psf_rebuilt = self.encode_glare(encoder, gaze_px, pupil_mm, timestamps);
+        let psf_rebuilt = self.encode_glare(encoder, gaze_px, input.pupil_mm, timestamps);
         self.encode_acuity_tone(encoder, frame_queries);
         EncodedFrame {
             psf_pupil_mm: self.psf_pupil_mm,
@@ -948,8 +947,8 @@ impl GpuFramePipeline {
     }
 
     /// The CPU's input handling: gaze in frame pixels (clamped, non-finite
-    /// → centre), `dt` ≥ 0, the pupil clamped (non-finite → the PSF's).
-    fn sanitise(&self, input: &FrameInput) -> ([f64; 2], f32, f64) {
+    /// → centre), `dt` ≥ 0.
+    fn sanitise(&self, input: &FrameInput) -> ([f64; 2], f32) {
         let (w, h) = (f64::from(self.sizes.width), f64::from(self.sizes.height));
         let coord = |v: f32| {
             if v.is_finite() {
@@ -967,12 +966,7 @@ impl GpuFramePipeline {
         } else {
             0.0
         };
-        let pupil_mm = if input.pupil_mm.is_finite() {
-            f64::from(input.pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1))
-        } else {
-            self.psf_pupil_mm
-        };
-        (gaze_px, dt_secs, pupil_mm)
+        (gaze_px, dt_secs)
     }
 
     /// Pooling (at the gaze) and temporal (dt, reset) uniforms of a frame.
@@ -1040,7 +1034,7 @@ impl GpuFramePipeline {
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         gaze_px: [f64; 2],
-        pupil_mm: f64,
+        pupil_mm: f32,
         timestamps: Option<FrameTimestamps<'_>>,
     ) -> bool {
         let Some(g) = self.glare.as_mut() else {
@@ -1048,7 +1042,9 @@ impl GpuFramePipeline {
         };
         let frame_queries = timestamps.map(|t| t.frame);
         let mut psf_rebuilt = false;
-        if self.psf_auto_rebuild && (pupil_mm - self.psf_pupil_mm).abs() > g.threshold_mm {
+        if self.psf_auto_rebuild
+            && let Some(pupil_mm) = g.policy.decide(pupil_mm, self.psf_pupil_mm)
+        {
             let psf_queries = timestamps.map(|t| t.psf);
             self.psf_pupil_mm = g.psf.encode_rebuild_timed(encoder, pupil_mm, psf_queries);
             g.encode_kernel_spectrum(encoder, frame_queries);

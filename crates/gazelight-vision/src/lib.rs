@@ -23,6 +23,7 @@
 //! | [`psf`] | the glare point spread function | 001 §4.2, eq 5–10 |
 //! | [`stray_light`] | CIE 146:2002 stray light, particle Airy lobes, J1 | CIE 146:2002 |
 //! | [`glare`] | windowed FFT glare convolution at the gaze | 001 §4.2.3 |
+//! | [`kernel_policy`] | which glare kernel for which pupil (range, missing pupils, rebuild threshold, one kernel or one per eye) | 001 §5 |
 //! | [`scene`] | OpenEXR / Radiance loading, panorama views | 004 §3.3 |
 //! | [`pipeline`] | the full frame pipeline, stages 1–8 | all |
 
@@ -32,6 +33,7 @@ mod encode;
 pub mod error;
 pub mod glare;
 pub mod image;
+pub mod kernel_policy;
 pub mod pipeline;
 pub mod pooling;
 pub mod psf;

@@ -48,6 +48,7 @@ use crate::encode::SRGB_LUT_SIZE;
 use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
+use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
 use crate::pooling::PoolingModel;
 use crate::psf::{PsfBuilder, PsfParams};
 use crate::temporal::{AdaptationState, TemporalModel};
@@ -55,11 +56,6 @@ use crate::temporal::{AdaptationState, TemporalModel};
 use crate::tone::ToneFrame;
 use crate::tone::ToneModel;
 use crate::{RgbImage, VisionError};
-
-/// Smallest and largest pupil the PSF is ever built for, mm. Real pupils
-/// range over about 2–8 mm (001 §5); the margins keep the aperture physical
-/// whatever reaches the pipeline.
-pub const PUPIL_MM_RANGE: (f32, f32) = (1.5, 9.0);
 
 /// Glare settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -161,7 +157,8 @@ impl PipelineConfig {
 pub struct FrameInput {
     /// Gaze in normalised frame coordinates, top-left origin.
     pub gaze_uv: [f32; 2],
-    /// Calibrated pupil diameter, mm (clamped to [`PUPIL_MM_RANGE`]).
+    /// Calibrated pupil diameter, mm (the kernel's pupil follows it by
+    /// [`crate::kernel_policy`]: clamped to 1.5–9 mm, non-finite → kept).
     pub pupil_mm: f32,
     /// Time since the previous frame, seconds.
     pub dt_secs: f32,
@@ -303,7 +300,7 @@ impl FramePipeline {
         let small_h = height.div_ceil(ds);
         let keep_display = config.keep_display_linear;
         let keep_retinal = config.keep_retinal;
-        let psf_pupil_mm = 4.0;
+        let psf_pupil_mm = INITIAL_PUPIL_MM;
         let mut psf_params = config.glare.psf.clone();
         psf_params.ppd = 1.0 / deg_per_px;
         psf_params.pupil_mm = psf_pupil_mm;
@@ -557,11 +554,6 @@ impl FramePipeline {
         } else {
             0.0
         };
-        let pupil_mm = if input.pupil_mm.is_finite() {
-            input.pupil_mm.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1)
-        } else {
-            self.psf_pupil_mm as f32
-        };
 
         // Pass A: block-average luminance for pooling (the optimised pass
         // reads the scene only; the reference copies it into `work` too).
@@ -616,16 +608,16 @@ impl FramePipeline {
         // Stages 3 + 4: PSF (cached) and glare at the gaze.
         let mut psf_rebuilt = false;
         if let Some((builder, conv)) = self.glare.as_mut() {
+            let policy = KernelPolicy::new(&self.config.glare);
             if self.psf_auto_rebuild
-                && (f64::from(pupil_mm) - self.psf_pupil_mm).abs()
-                    > self.config.glare.psf_rebuild_threshold_mm
+                && let Some(pupil_mm) = policy.decide(input.pupil_mm, self.psf_pupil_mm)
             {
                 if builder.is_none() {
                     *builder = Some(PsfBuilder::new(self.psf_params.clone())?);
                 }
                 // Same size and pixel size as at construction: cannot fail.
                 if let Some(b) = builder.as_mut()
-                    && conv.set_kernel(b.rebuild(f64::from(pupil_mm))).is_ok()
+                    && conv.set_kernel(b.rebuild(pupil_mm)).is_ok()
                 {
                     self.psf_pupil_mm = b.kernel().pupil_mm;
                     self.installed = None;

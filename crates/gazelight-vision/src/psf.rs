@@ -134,6 +134,10 @@
 
 use std::sync::Arc;
 
+use gazelight_eye::filter::physio::PUPIL_MM_RANGE;
+use gazelight_eye::profile::{
+    AGE_YEARS_RANGE, DEFAULT_AGE_YEARS, DEFAULT_PIGMENTATION, PIGMENTATION_RANGE,
+};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
@@ -159,20 +163,9 @@ pub const SPECTRUM_MAX_NM: f64 = 770.0;
 pub const VIVE_PRO_PPD: f64 = 13.85;
 /// Default kernel field, degrees (±20°, the glare window of issue 10).
 pub const DEFAULT_FIELD_DEG: f64 = 40.0;
-/// Default observer age, years (CIE 146:2002's young reference observer).
-pub const DEFAULT_AGE_YEARS: f64 = 25.0;
-/// Default ocular pigmentation (CIE 146:2002: 0.5 = brown eyes).
-pub const DEFAULT_PIGMENTATION: f64 = 0.5;
-/// Valid range of the CIE 146 age, years.
-pub const AGE_YEARS_RANGE: (f64, f64) = (0.0, 120.0);
-/// Valid range of the CIE 146 pigmentation (0 very dark … 1.2 very light).
-pub const PIGMENTATION_RANGE: (f64, f64) = (0.0, 1.2);
 /// Valid range of the kernel field, degrees (CIE 146 holds to 100°; the
 /// field's half width is at most that).
 pub const FIELD_DEG_RANGE: (f64, f64) = (0.01, 200.0);
-/// Default range of pupils a builder is rebuilt for, mm (the pipeline's
-/// clamp range: real pupils span about 2–8 mm, 001 §5).
-pub const DEFAULT_PUPIL_RANGE_MM: [f64; 2] = [1.5, 9.0];
 /// Smallest pupil, in pupil-plane samples across.
 pub const MIN_PUPIL_SAMPLES: f64 = 24.0;
 /// Largest pupil-plane grid (FFT size).
@@ -238,6 +231,7 @@ pub struct PsfParams {
     pub pupil_mm: f64,
     /// Pupils a builder is rebuilt for, mm `[min, max]`: the plane is sized
     /// for the largest, the sampling for the smallest. `pupil_mm` must lie in it.
+    /// Default: the physiological range, `gazelight_eye`'s `PUPIL_MM_RANGE`.
     pub pupil_range_mm: [f64; 2],
     /// Number of scattering particles in the static field `P` (0 = a clean
     /// aperture, whose PSF is an Airy pattern).
@@ -271,7 +265,7 @@ impl Default for PsfParams {
     fn default() -> Self {
         Self {
             pupil_mm: 4.0,
-            pupil_range_mm: DEFAULT_PUPIL_RANGE_MM,
+            pupil_range_mm: [f64::from(PUPIL_MM_RANGE.0), f64::from(PUPIL_MM_RANGE.1)],
             // 001 Fig. 4: 1000 particles
             particles: 1000,
             // lens/cornea scatterers of a few µm (001 Fig. 4 uses 6 and 10 µm)

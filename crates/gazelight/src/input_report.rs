@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use gazelight_tracker::filter::ChainStats;
-use gazelight_tracker::filter::physio::{DEFAULT_MAX_PUPIL_MM, DEFAULT_MIN_PUPIL_MM};
+use gazelight_tracker::filter::physio::PUPIL_MM_RANGE;
 use gazelight_tracker::import::ImportWarnings;
 use gazelight_tracker::import::time_guard::TimeStats;
 
@@ -107,10 +107,11 @@ pub fn pupil_rejection(stats: &ChainStats) -> Option<String> {
             (
                 stats.rejected_range[e],
                 format!(
-                    "are outside the physiological range {DEFAULT_MIN_PUPIL_MM}–{DEFAULT_MAX_PUPIL_MM} mm: \
+                    "are outside the physiological range {}–{} mm: \
                      the pupil is probably not in millimetres (pixels, area units or µm); \
                      convert it, or give its unit (a CSV column named `left_px`/`right_px`) \
-                     and a --calibration FILE mapping it to mm"
+                     and a --calibration FILE mapping it to mm",
+                    PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1
                 ),
             ),
             (

@@ -6,7 +6,7 @@
 //! The two eyes share one glare kernel while their pupils agree (within
 //! `psf_rebuild_threshold_mm`, 0.1 mm by default: the kernel is built once,
 //! at their mean, and installed in both pipelines) and get one each when
-//! the pupils part ([`plan`]). The pipelines never rebuild kernels
+//! the pupils part (`gazelight_vision::kernel_policy`). The pipelines never rebuild kernels
 //! themselves in stereo; [`StereoKernels`] does.
 //!
 //! A panorama lies at infinity, so an eye offset of ±IPD/2 moves nothing in
@@ -15,7 +15,8 @@
 //! eye its own pose and field of view.)
 
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
-use gazelight_vision::pipeline::{FrameInput, PUPIL_MM_RANGE, PipelineConfig};
+use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
+use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
 use gazelight_vision::psf::PsfBuilder;
 
 use crate::backend::Renderer;
@@ -74,49 +75,11 @@ impl View {
     }
 }
 
-/// The kernels two eyes need, given their pupils and the pupils their
-/// current kernels were built for.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum KernelPlan {
-    /// Both kernels stay.
-    Keep,
-    /// One kernel, built for this pupil (mm), into both eyes.
-    Shared(f64),
-    /// Per eye (indexed like the inputs): a kernel for this pupil, or keep.
-    Own([Option<f64>; 2]),
-}
-
-/// Decides the kernels for two eyes: while the pupils agree within
-/// `threshold_mm` both eyes share one kernel at their mean (rebuilt when
-/// the mean leaves the shared kernel by more than the threshold, or when
-/// the eyes had two); once they part, each eye's kernel follows its own
-/// pupil as a single eye's does.
-pub(crate) fn plan(pupils_mm: [f64; 2], kernels_mm: [f64; 2], threshold_mm: f64) -> KernelPlan {
-    let [a, b] = pupils_mm;
-    if (a - b).abs() <= threshold_mm {
-        let mean = 0.5 * (a + b);
-        let shared = kernels_mm[0] == kernels_mm[1];
-        if shared && (mean - kernels_mm[0]).abs() <= threshold_mm {
-            KernelPlan::Keep
-        } else {
-            KernelPlan::Shared(mean)
-        }
-    } else {
-        let own = [0, 1]
-            .map(|e| ((pupils_mm[e] - kernels_mm[e]).abs() > threshold_mm).then_some(pupils_mm[e]));
-        if own == [None, None] {
-            KernelPlan::Keep
-        } else {
-            KernelPlan::Own(own)
-        }
-    }
-}
-
 /// Builds the two eyes' kernels (on the calling thread: `render` and
 /// `replay` are offline) and installs them.
 pub(crate) struct StereoKernels {
     builder: PsfBuilder,
-    threshold_mm: f64,
+    policy: KernelPolicy,
     /// The pupil each eye's installed kernel was built for, mm.
     installed_mm: [f64; 2],
     /// Kernels built so far.
@@ -148,7 +111,7 @@ impl StereoKernels {
         }
         Ok(Some(Self {
             builder,
-            threshold_mm: config.glare.psf_rebuild_threshold_mm,
+            policy: KernelPolicy::new(&config.glare),
             installed_mm: [initial_mm; 2],
             builds: 0,
         }))
@@ -165,20 +128,11 @@ impl StereoKernels {
         if renderers.len() != 2 {
             anyhow::bail!("stereo kernels: {} renderers, expected 2", renderers.len());
         }
-        let pupils = inputs.map(|i| {
-            let (lo, hi) = PUPIL_MM_RANGE;
-            let p = if i.pupil_mm.is_finite() {
-                i.pupil_mm.clamp(lo, hi)
-            } else {
-                lo
-            };
-            f64::from(p).clamp(
-                self.builder.params().min_pupil_mm(),
-                self.builder.params().max_pupil_mm(),
-            )
-        });
         let mut changed = [false; 2];
-        match plan(pupils, self.installed_mm, self.threshold_mm) {
+        match self
+            .policy
+            .plan(inputs.map(|i| i.pupil_mm), self.installed_mm)
+        {
             KernelPlan::Keep => {}
             KernelPlan::Shared(p) => {
                 let kernel = self.builder.try_rebuild(p)?;
@@ -222,32 +176,6 @@ pub(crate) fn place_side_by_side<T: Copy>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn one_kernel_while_the_pupils_agree_two_when_they_part() {
-        let t = 0.1;
-        // Agreeing pupils near the shared kernel: keep it.
-        assert_eq!(plan([4.02, 4.05], [4.0, 4.0], t), KernelPlan::Keep);
-        // Agreeing pupils away from it: one kernel at their mean.
-        let shared = |p: KernelPlan| match p {
-            KernelPlan::Shared(mm) => mm,
-            other => panic!("{other:?}"),
-        };
-        assert!((shared(plan([3.0, 3.08], [4.0, 4.0], t)) - 3.04).abs() < 1e-12);
-        // The pupils part: each eye its own, only where needed.
-        assert_eq!(
-            plan([3.0, 3.5], [3.04, 3.04], t),
-            KernelPlan::Own([None, Some(3.5)])
-        );
-        assert_eq!(
-            plan([2.5, 3.5], [3.04, 3.04], t),
-            KernelPlan::Own([Some(2.5), Some(3.5)])
-        );
-        assert_eq!(plan([2.55, 3.45], [2.5, 3.5], t), KernelPlan::Keep);
-        // They agree again: back to one kernel, even when each own kernel is
-        // within the threshold of its pupil.
-        assert!((shared(plan([3.0, 3.05], [2.95, 3.1], t)) - 3.025).abs() < 1e-12);
-    }
 
     #[test]
     fn views_take_their_eyes_gaze_and_pupil() {

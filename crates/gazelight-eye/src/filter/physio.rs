@@ -28,10 +28,11 @@
 use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
 
-/// Smallest plausible pupil, mm.
-pub const DEFAULT_MIN_PUPIL_MM: f32 = 1.5;
-/// Largest plausible pupil, mm.
-pub const DEFAULT_MAX_PUPIL_MM: f32 = 9.0;
+/// The physiological pupil range, mm `(min, max)` (the bounds in the
+/// module docs: 2–8 mm, 001 §5, with margins): the filter's default
+/// plausibility bounds, and the pupils every glare kernel is built for
+/// (`gazelight_vision::kernel_policy`). Defined here only.
+pub const PUPIL_MM_RANGE: (f32, f32) = (1.5, 9.0);
 /// Fastest plausible pupil change, mm/s (above Reeves' 5.48 mm/s primary
 /// constriction of the light reflex).
 pub const DEFAULT_MAX_RATE_MM_PER_S: f32 = 6.0;
@@ -56,8 +57,8 @@ pub struct PhysioConfig {
 impl Default for PhysioConfig {
     fn default() -> Self {
         Self {
-            min_pupil_mm: DEFAULT_MIN_PUPIL_MM,
-            max_pupil_mm: DEFAULT_MAX_PUPIL_MM,
+            min_pupil_mm: PUPIL_MM_RANGE.0,
+            max_pupil_mm: PUPIL_MM_RANGE.1,
             max_rate_mm_per_s: DEFAULT_MAX_RATE_MM_PER_S,
             jump_tolerance_mm: DEFAULT_JUMP_TOLERANCE_MM,
         }

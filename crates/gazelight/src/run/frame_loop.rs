@@ -34,9 +34,8 @@ use std::time::{Duration, Instant};
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{
-    DisplayFrame, FrameInput, FrameStats, PUPIL_MM_RANGE, PipelineConfig,
-};
+use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
+use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::scene::{PanoramaView, ViewParams};
 
@@ -158,7 +157,8 @@ pub struct FrameLoop {
     /// Whether the worker's builds wait for the gaps between frames (the
     /// CPU backend only; see [`Self::step_views`]).
     pace_builds: bool,
-    psf_threshold_mm: f64,
+    /// Which kernel for which pupil.
+    psf_policy: KernelPolicy,
     /// Per view: mean luminance of its own image ([`Self::view_means`]).
     view_means: [f64; 2],
     ages_ms: Vec<f32>,
@@ -309,7 +309,7 @@ impl FrameLoop {
             pace_builds,
             psf_worker,
             view_means: [f64::NAN; 2],
-            psf_threshold_mm: config.glare.psf_rebuild_threshold_mm,
+            psf_policy: KernelPolicy::new(&config.glare),
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
             frame_ms_sum: 0.0,
@@ -357,31 +357,27 @@ impl FrameLoop {
 
     /// Requests kernels for this frame's pupils (one per view) where they
     /// moved more than the threshold since the last request — in stereo one
-    /// kernel at the mean while the two pupils agree ([`stereo::plan`]) —
+    /// kernel at the mean while the two pupils agree ([`KernelPolicy::plan`]) —
     /// and installs finished ones that are ready. Returns per view whether
     /// a kernel was installed. Never blocks.
     fn follow_psf(&mut self, pupils_mm: [f32; 2], t_secs: f64) -> anyhow::Result<[bool; 2]> {
-        // As the pipeline clamps the pupil it would rebuild for.
-        let clamp = |p: f32| f64::from(p.clamp(PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1));
-        let thr = self.psf_threshold_mm;
+        let policy = self.psf_policy;
         let Some(worker) = &self.psf_worker else {
             return Ok([false; 2]);
         };
         let mut requests = [None; 2];
         match self.eyes.as_mut_slice() {
-            [one] if pupils_mm[0].is_finite() => {
-                let p = clamp(pupils_mm[0]);
-                if one.psf_target_mm.is_nan() || (p - one.psf_target_mm).abs() > thr {
-                    requests[0] = Some(p);
+            [one] => {
+                requests[0] = policy.decide(pupils_mm[0], one.psf_target_mm);
+                if let Some(p) = requests[0] {
                     one.psf_target_mm = p;
                 }
             }
-            [a, b] if pupils_mm.iter().all(|p| p.is_finite()) => {
-                let pupils = [clamp(pupils_mm[0]), clamp(pupils_mm[1])];
-                requests = match stereo::plan(pupils, [a.psf_target_mm, b.psf_target_mm], thr) {
-                    stereo::KernelPlan::Keep => [None, None],
-                    stereo::KernelPlan::Shared(p) => [Some(p), Some(p)],
-                    stereo::KernelPlan::Own(own) => own,
+            [a, b] => {
+                requests = match policy.plan(pupils_mm, [a.psf_target_mm, b.psf_target_mm]) {
+                    KernelPlan::Keep => [None, None],
+                    KernelPlan::Shared(p) => [Some(p), Some(p)],
+                    KernelPlan::Own(own) => own,
                 };
                 for (eye, r) in [a, b].into_iter().zip(requests) {
                     if let Some(p) = r {
