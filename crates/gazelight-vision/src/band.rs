@@ -1037,6 +1037,7 @@ fn exp_v(x: V) -> V {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::colour::{lightness, lightness_to_y, rgb_to_lab};
 
     fn image(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> RgbImage {
         let mut px = Vec::with_capacity(w * h);

@@ -1051,7 +1051,7 @@ mod tests {
             let (sw, sh) = (w.div_ceil(ds), h.div_ceil(ds));
             let mut all = vec![0.0f32; sw * sh];
             let every = crate::pooling::PlaneRect { x: 0..sw, y: 0..sh };
-            pass_a(&img, &mut all, ds, sw, &every);
+            pass_a(Simd::host(), &img, &mut all, ds, sw, &every);
             for model in [
                 PoolingModel::default(),
                 PoolingModel::Gaussian { sigma_deg: 0.2 },
@@ -1073,7 +1073,7 @@ mod tests {
                     let sdpp = dpp * ds as f64;
                     let blocks = model.reach(sw, sh, small_gaze, sdpp);
                     let mut some = vec![f32::NAN; sw * sh];
-                    pass_a(&img, &mut some, ds, sw, &blocks);
+                    pass_a(Simd::host(), &img, &mut some, ds, sw, &blocks);
                     let want = model.pool(&all, sw, sh, small_gaze, sdpp);
                     let got = model.pool(&some, sw, sh, small_gaze, sdpp);
                     assert_eq!(
