@@ -1,5 +1,5 @@
 //! Stage 5 on the GPU, the twin of `shaders/acuity.wgsl`: the per-pixel-σ
-//! blur of CIE Lab lightness of [`gazelight_vision::acuity::AcuityBlur`]
+//! blur of CIE Lab lightness of [`gazelight_vision::band::AcuityBlur`]
 //! (001 §4.3.1, eq 11–13) on the HDR frame in cd/m², after glare and before
 //! tone reproduction. Every pixel's σ comes from its own lightness against
 //! the fixed Lab white `lab_white_cd_m2` (horizontal pass) and from its
@@ -11,11 +11,12 @@
 //! is). When no pixel can ever blur ([`AcuityBlur::max_radius`] = 0) the
 //! host skips the per-pixel passes, as the CPU returns at once.
 //!
-//! [`AcuityBlur::MIN_SIGMA_PX`]: gazelight_vision::acuity::AcuityBlur::MIN_SIGMA_PX
-//! [`AcuityBlur::max_radius`]: gazelight_vision::acuity::AcuityBlur::max_radius
+//! [`AcuityBlur::MIN_SIGMA_PX`]: gazelight_vision::band::AcuityBlur::MIN_SIGMA_PX
+//! [`AcuityBlur::max_radius`]: gazelight_vision::band::AcuityBlur::max_radius
 
 use bytemuck::{Pod, Zeroable};
-use gazelight_vision::acuity::{AcuityBlur, AcuityModel, VIVE_PRO_PPD};
+use gazelight_vision::acuity::{AcuityModel, VIVE_PRO_PPD};
+use gazelight_vision::band::AcuityBlur;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;

@@ -29,7 +29,8 @@ use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use gazelight_vision::RgbImage;
-use gazelight_vision::acuity::{AcuityBlur, AcuityModel};
+use gazelight_vision::acuity::AcuityModel;
+use gazelight_vision::band::AcuityBlur;
 use gazelight_vision::glare::{GlareConvolver, GlareWindow};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, PipelineConfig, StageTimings,

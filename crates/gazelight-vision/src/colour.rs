@@ -27,6 +27,12 @@
 //!   luminance given to [`ColourModel::prepare`].
 //!
 //! [`ColourModel::Both`] applies the discrimination first, then the shift.
+//!
+//! The CIE 1976 L\*a\*b\* conversions of linear sRGB (IEC 61966-2-1
+//! matrices, D65 white scaled to the input's unit) live here too:
+//! [`lightness`] / [`lightness_to_y`] (L\* of Y/Yn and back, the acuity
+//! model's σ rule, [`crate::acuity`]) and [`rgb_to_lab`] / [`lab_to_rgb`];
+//! the band engine ([`crate::band`]) uses their constants.
 
 use serde::{Deserialize, Serialize};
 
@@ -193,6 +199,104 @@ fn desaturate(rgb: [f32; 3], sigma: f32) -> [f32; 3] {
     ]
 }
 
+// CIE 1976 L*a*b* of linear sRGB (IEC 61966-2-1 primaries, D65 white).
+
+/// CIE 1976 κ = 24389/27: L\* = κ·Y/Yn below ε.
+pub(crate) const LAB_KAPPA: f64 = 24389.0 / 27.0;
+
+/// [`LAB_KAPPA`] in f32.
+pub(crate) const LAB_KAPPA_F32: f32 = 24389.0 / 27.0;
+
+/// CIE 1976 ε = 216/24389.
+const LAB_EPSILON: f64 = 216.0 / 24389.0;
+
+/// CIE lightness L\* (0–100) of relative luminance `y` (Y/Yn).
+pub fn lightness(y: f64) -> f64 {
+    if y > LAB_EPSILON {
+        116.0 * y.cbrt() - 16.0
+    } else {
+        y * LAB_KAPPA
+    }
+}
+
+/// Relative luminance Y/Yn of CIE lightness `l` (inverse of [`lightness`]).
+pub fn lightness_to_y(l: f64) -> f64 {
+    let f = (l + 16.0) / 116.0;
+    if f > 6.0 / 29.0 {
+        f * f * f
+    } else {
+        l / LAB_KAPPA
+    }
+}
+
+/// D65 XYZ of RGB (1, 1, 1) under the sRGB matrix (IEC 61966-2-1).
+pub(crate) const WHITE_XYZ: [f32; 3] = [0.950_47, 1.0, 1.088_83];
+
+/// Linear sRGB → XYZ (IEC 61966-2-1, D65).
+pub(crate) const RGB_TO_XYZ: [[f32; 3]; 3] = [
+    [0.412_456_4, 0.357_576_1, 0.180_437_5],
+    [0.212_672_9, 0.715_152_2, 0.072_175],
+    [0.019_333_9, 0.119_192, 0.950_304_1],
+];
+
+/// XYZ → linear sRGB (inverse of [`RGB_TO_XYZ`]).
+pub(crate) const XYZ_TO_RGB: [[f32; 3]; 3] = [
+    [3.240_454_2, -1.537_138_5, -0.498_531_4],
+    [-0.969_266, 1.876_010_8, 0.041_556],
+    [0.055_643_4, -0.204_025_9, 1.057_225_2],
+];
+
+#[inline]
+fn lab_f(t: f32) -> f32 {
+    if t > 216.0 / 24389.0 {
+        t.cbrt()
+    } else {
+        (24389.0 / 27.0 * t + 16.0) / 116.0
+    }
+}
+
+#[inline]
+fn lab_f_inv(f: f32) -> f32 {
+    if f > 6.0 / 29.0 {
+        f * f * f
+    } else {
+        (116.0 * f - 16.0) * (27.0 / 24389.0)
+    }
+}
+
+#[inline]
+fn mat3(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
+    [
+        m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2],
+        m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+        m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2],
+    ]
+}
+
+/// Linear RGB → CIE L\*a\*b\* (D65, white = RGB 1,1,1 in the input's unit).
+#[inline]
+pub fn rgb_to_lab(rgb: [f32; 3]) -> [f32; 3] {
+    let xyz = mat3(&RGB_TO_XYZ, rgb);
+    let fx = lab_f(xyz[0] / WHITE_XYZ[0]);
+    let fy = lab_f(xyz[1] / WHITE_XYZ[1]);
+    let fz = lab_f(xyz[2] / WHITE_XYZ[2]);
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+/// CIE L\*a\*b\* → linear RGB (inverse of [`rgb_to_lab`]).
+#[inline]
+pub fn lab_to_rgb(lab: [f32; 3]) -> [f32; 3] {
+    let fy = (lab[0] + 16.0) / 116.0;
+    let fx = fy + lab[1] / 500.0;
+    let fz = fy - lab[2] / 200.0;
+    let xyz = [
+        lab_f_inv(fx) * WHITE_XYZ[0],
+        lab_f_inv(fy) * WHITE_XYZ[1],
+        lab_f_inv(fz) * WHITE_XYZ[2],
+    ];
+    mat3(&XYZ_TO_RGB, xyz)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -323,5 +427,35 @@ mod tests {
         // Night: every column is the tint times a luminance weight.
         let m = ColourModel::ScotopicShift.prepare(1e-6).matrix();
         assert!((m[2][1] / m[0][1] - SCOTOPIC_TINT[2] / SCOTOPIC_TINT[0]).abs() < 1e-3);
+    }
+
+    #[test]
+    fn lab_round_trip() {
+        let mut worst = 0.0f32;
+        for r in 0..=10 {
+            for g in 0..=10 {
+                for b in 0..=10 {
+                    let c = [r as f32 / 10.0, g as f32 / 10.0, b as f32 / 10.0];
+                    let back = lab_to_rgb(rgb_to_lab(c));
+                    for i in 0..3 {
+                        worst = worst.max((back[i] - c[i]).abs());
+                    }
+                }
+            }
+        }
+        assert!(worst < 2e-5, "worst round-trip error {worst}");
+        // White is L* = 100, a* = b* = 0; black is 0.
+        let w = rgb_to_lab([1.0; 3]);
+        assert!(
+            (w[0] - 100.0).abs() < 1e-3 && w[1].abs() < 1e-3 && w[2].abs() < 1e-3,
+            "{w:?}"
+        );
+        assert_eq!(rgb_to_lab([0.0; 3]), [0.0; 3]);
+        // CIE: 18 % grey has L* = 49.5.
+        let g = rgb_to_lab([0.18; 3]);
+        assert!((g[0] - 49.496).abs() < 0.01, "{g:?}");
+        for l in [0.0, 0.5, 7.9, 8.1, 50.0, 662.0] {
+            assert!((lightness(lightness_to_y(l)) - l).abs() < 1e-9, "{l}");
+        }
     }
 }

@@ -2,7 +2,7 @@
 //! model, specialised once per frame into one map, then sRGB encoding.
 //!
 //! The frame pipeline runs these as the sink of the acuity pass
-//! ([`crate::acuity::AcuityBlur`]): each row is tone mapped, coloured and
+//! ([`crate::band::AcuityBlur`]): each row is tone mapped, coloured and
 //! encoded right after its blur is final, while it is still in cache, so
 //! the frame is read from memory once for stages 5–8.
 //!
@@ -13,8 +13,9 @@
 //! [`LANES`] pixels at a time as channel planes, with fixed trip counts
 //! and selects instead of branches, so that the compiler vectorises them.
 
-use crate::acuity::{LANES, RowSink};
+use crate::band::RowSink;
 use crate::colour::ColourFrame;
+use crate::simd::{LANES, Simd};
 use crate::tone::{self, Op as ToneOp, ToneFrame};
 
 /// Size of the sRGB encoding table over linear [0, 1] (a power of two:
@@ -104,11 +105,17 @@ pub(crate) trait Map: Copy + Sync {
     /// Display-relative linear colour (unclamped) of each pixel.
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes;
 
-    /// Encodes a leading part of the row with a CPU-specific twin of
-    /// [`encode_row_portable`] (the same bits) where the map has one;
-    /// returns how many pixels it did.
+    /// Encodes a leading part of the row with a twin of
+    /// [`encode_row_portable`] for `simd`'s tier (the same bits) where the
+    /// map has one; returns how many pixels it did.
     #[inline(always)]
-    fn encode_fast(&self, _lut: &SrgbLut, _src: &[[f32; 3]], _rgba8: &mut [u8]) -> usize {
+    fn encode_fast(
+        &self,
+        _simd: Simd,
+        _lut: &SrgbLut,
+        _src: &[[f32; 3]],
+        _rgba8: &mut [u8],
+    ) -> usize {
         0
     }
 }
@@ -185,39 +192,37 @@ pub(crate) const IDENTITY: Affine = Affine {
 
 impl Map for Affine {
     #[inline(always)]
-    fn encode_fast(&self, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) -> usize {
+    fn encode_fast(&self, simd: Simd, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) -> usize {
         #[cfg(target_arch = "x86_64")]
-        if crate::acuity::has_avx2_fma() {
-            let from = if crate::acuity::has_avx512vbmi2() {
-                // SAFETY: the CPU has AVX-512F, BW and VBMI2, AVX2 and FMA
-                // (checked just above).
-                unsafe { crate::acuity::avx512::encode_affine_vbmi2(self, lut, src, rgba8) }
-            } else if crate::acuity::has_avx512bw() {
-                // SAFETY: the CPU has AVX-512F and BW, AVX2 and FMA
-                // (checked just above).
-                unsafe { crate::acuity::avx512::encode_affine(self, lut, src, rgba8) }
-            } else {
-                0
-            };
-            // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            return from
-                + unsafe {
-                    crate::acuity::avx2::encode_affine(
-                        self,
-                        lut,
-                        &src[from..],
-                        &mut rgba8[4 * from..],
-                    )
+        {
+            use crate::simd::{Tier, avx2, avx512};
+            if simd.has(Tier::Avx2) {
+                let from = if simd.has(Tier::Avx512Vbmi2) {
+                    // SAFETY: a `Simd` of this tier proves AVX-512F, BW and
+                    // VBMI2, AVX2 and FMA.
+                    unsafe { avx512::encode_affine_vbmi2(self, lut, src, rgba8) }
+                } else if simd.has(Tier::Avx512) {
+                    // SAFETY: a `Simd` of this tier proves AVX-512F and BW,
+                    // AVX2 and FMA.
+                    unsafe { avx512::encode_affine(self, lut, src, rgba8) }
+                } else {
+                    0
                 };
+                // SAFETY: a `Simd` of this tier proves AVX2 and FMA.
+                return from
+                    + unsafe {
+                        avx2::encode_affine(self, lut, &src[from..], &mut rgba8[4 * from..])
+                    };
+            }
         }
-        let _ = (lut, src, rgba8);
+        let _ = (simd, lut, src, rgba8);
         0
     }
 
     /// `m·max(p, 0) + b`.
     #[inline(always)]
     fn block(&self, src: &[[f32; 3]; LANES]) -> Planes {
-        let mut planes = crate::acuity::planes_full(src);
+        let mut planes = crate::simd::planes_full(src);
         for plane in &mut planes {
             for v in plane.iter_mut() {
                 // Pass A already replaced NaN, ±∞, negatives and
@@ -334,6 +339,8 @@ pub(crate) struct EncodeRgba8<'a, M> {
     pub map: M,
     pub lut: &'a SrgbLut,
     pub width: usize,
+    /// The tier the encoding runs on.
+    pub simd: Simd,
 }
 
 impl<M: Map> RowSink for EncodeRgba8<'_, M> {
@@ -343,14 +350,21 @@ impl<M: Map> RowSink for EncodeRgba8<'_, M> {
     }
     #[inline(always)]
     fn row(&self, px: &[[f32; 3]], out: &mut [u8]) {
-        encode_row(&self.map, self.lut, px, out);
+        encode_row(self.simd, &self.map, self.lut, px, out);
     }
 }
 
-/// `rgba8` = sRGB encoding of `map` of every pixel of `src`.
+/// `rgba8` = sRGB encoding of `map` of every pixel of `src`, with the
+/// kernels of `simd`'s tier where the map has them.
 #[inline(always)]
-pub(crate) fn encode_row<M: Map>(map: &M, lut: &SrgbLut, src: &[[f32; 3]], rgba8: &mut [u8]) {
-    let done = map.encode_fast(lut, src, rgba8);
+pub(crate) fn encode_row<M: Map>(
+    simd: Simd,
+    map: &M,
+    lut: &SrgbLut,
+    src: &[[f32; 3]],
+    rgba8: &mut [u8],
+) {
+    let done = map.encode_fast(simd, lut, src, rgba8);
     encode_row_portable(map, lut, &src[done..], &mut rgba8[4 * done..]);
 }
 

@@ -39,21 +39,17 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::acuity::{AcuityBlur, AcuityModel, RowSource};
-#[cfg(test)]
-use crate::colour::ColourFrame;
+use crate::acuity::AcuityModel;
+use crate::band::{AcuityBlur, RowSource};
 use crate::colour::ColourModel;
-#[cfg(test)]
-use crate::encode::SRGB_LUT_SIZE;
 use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
 use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
 use crate::pooling::PoolingModel;
 use crate::psf::{PsfBuilder, PsfParams};
+use crate::simd::{LANES, Simd, Tier};
 use crate::temporal::{AdaptationState, TemporalModel};
-#[cfg(test)]
-use crate::tone::ToneFrame;
 use crate::tone::ToneModel;
 use crate::{RgbImage, VisionError};
 
@@ -266,6 +262,8 @@ pub struct FramePipeline {
     installed: Option<crate::psf::PsfKernel>,
     acuity: AcuityBlur,
     srgb_lut: Box<SrgbLut>,
+    /// The tier pass A, the row source and the encoder run on.
+    simd: Simd,
     /// Run the pre-optimisation per-pixel passes (the tests' reference).
     #[cfg(test)]
     reference: bool,
@@ -348,6 +346,7 @@ impl FramePipeline {
             installed: None,
             acuity,
             srgb_lut,
+            simd: Simd::host(),
             #[cfg(test)]
             reference: false,
         })
@@ -371,6 +370,14 @@ impl FramePipeline {
     /// Sets the adaptation state (e.g. to start a replay adapted).
     pub fn set_adaptation(&mut self, state: AdaptationState) {
         self.state = Some(state);
+    }
+
+    /// Runs pass A, the row source, the band engine and the encoder on
+    /// `simd`'s tier (the tests compare the tiers).
+    #[cfg(test)]
+    pub(crate) fn set_simd(&mut self, simd: Simd) {
+        self.simd = simd;
+        self.acuity.set_simd(simd);
     }
 
     /// The display-linear frame of the last [`FramePipeline::process`]
@@ -579,7 +586,14 @@ impl FramePipeline {
                 small_gaze,
                 self.deg_per_px * ds as f64,
             );
-            pass_a(scene, &mut self.small_lum, ds, self.small_w, &blocks);
+            pass_a(
+                self.simd,
+                scene,
+                &mut self.small_lum,
+                ds,
+                self.small_w,
+                &blocks,
+            );
         }
         let target_cd_m2 = self
             .config
@@ -671,6 +685,7 @@ impl FramePipeline {
                 rows: FrameRows {
                     scene,
                     glare: self.glare.as_ref().map(|(_, conv)| conv),
+                    simd: self.simd,
                 },
                 acuity: &mut self.acuity,
                 work: self.config.keep_retinal.then_some(&mut self.work),
@@ -687,10 +702,11 @@ impl FramePipeline {
         }
         if to_display {
             let display = &self.display.pixels;
+            let simd = self.simd;
             out.rgba8
                 .par_chunks_mut(4 * w)
                 .zip(display.par_chunks(w))
-                .for_each(|(o, d)| encode::encode_row(&encode::IDENTITY, lut, d, o));
+                .for_each(|(o, d)| encode::encode_row(simd, &encode::IDENTITY, lut, d, o));
         }
         timings.tone_colour_encode_ms = ms(t_glare, Instant::now()) - timings.acuity_ms;
         timings.total_ms = ms(t_start, Instant::now());
@@ -726,8 +742,10 @@ pub(crate) fn sanitize(v: f32) -> f32 {
 /// ([`crate::pooling::PoolingModel::reach`]: ±(6σ + 1) blocks around the
 /// gaze for the default Gaussian). Rows of blocks run in parallel; within
 /// a block row, each row adds its pixels to the block sums `ds` at a time
-/// (no per-pixel division).
+/// (no per-pixel division), with [`crate::simd::avx2::block_sums_row`] for
+/// blocks of 8 where `simd` has AVX2.
 fn pass_a(
+    simd: Simd,
     scene: &RgbImage,
     small_lum: &mut [f32],
     ds: usize,
@@ -751,9 +769,9 @@ fn pass_a(
             for srow in src.chunks_exact(w) {
                 let srow = &srow[px0..px1];
                 #[cfg(target_arch = "x86_64")]
-                if ds == crate::acuity::LANES && crate::acuity::has_avx2_fma() {
-                    // SAFETY: the CPU has AVX2 and FMA (checked just above).
-                    if unsafe { crate::acuity::avx2::block_sums_row(srow, small_row) } {
+                if ds == LANES && simd.has(Tier::Avx2) {
+                    // SAFETY: a `Simd` of this tier proves AVX2 and FMA.
+                    if unsafe { crate::simd::avx2::block_sums_row(srow, small_row) } {
                         continue;
                     }
                 }
@@ -784,24 +802,20 @@ pub(crate) fn block_sums_row_portable(srow: &[[f32; 3]], sums: &mut [f32], ds: u
 struct FrameRows<'a> {
     scene: &'a RgbImage,
     glare: Option<&'a GlareConvolver>,
+    /// The tier the rows are made on.
+    simd: Simd,
 }
 
 impl RowSource for FrameRows<'_> {
+    /// [`FrameRows::fill_portable`] compiled for the tier ([`Simd::compiled`]:
+    /// the same operations, no FMA contraction, so the same bits; 16 lanes
+    /// with AVX-512, 8 with AVX2, SSE's 4 otherwise).
     #[inline]
     fn fill(&self, y: usize, row: &mut [[f32; 3]]) {
-        #[cfg(target_arch = "x86_64")]
-        if crate::acuity::has_avx512() {
-            // SAFETY: the CPU has AVX-512F, AVX2 and FMA (checked above).
-            unsafe { self.fill_avx512(y, row) };
-            return;
-        }
-        #[cfg(target_arch = "x86_64")]
-        if crate::acuity::has_avx2_fma() {
-            // SAFETY: the CPU has AVX2 and FMA (checked above).
-            unsafe { self.fill_avx2(y, row) };
-            return;
-        }
-        self.fill_portable(y, row);
+        self.simd.compiled(
+            #[inline(always)]
+            || self.fill_portable(y, row),
+        );
     }
 }
 
@@ -822,21 +836,6 @@ impl FrameRows<'_> {
         if let Some(next) = self.scene.pixels.get((y + 1) * w..(y + 2) * w) {
             crate::image::prefetch(next);
         }
-    }
-
-    /// [`Self::fill_portable`] compiled for AVX-512 (the same operations,
-    /// no FMA contraction: the same bits), 16 lanes instead of SSE's 4.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx2,fma")]
-    fn fill_avx512(&self, y: usize, row: &mut [[f32; 3]]) {
-        self.fill_portable(y, row);
-    }
-
-    /// [`Self::fill_portable`] compiled for AVX2 (8 lanes).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn fill_avx2(&self, y: usize, row: &mut [[f32; 3]]) {
-        self.fill_portable(y, row);
     }
 }
 
@@ -867,6 +866,7 @@ impl Stages5To8<'_> {
                 map,
                 lut: self.lut,
                 width,
+                simd: self.rows.simd,
             };
             self.acuity
                 .apply_from(&self.rows, size, self.work, &sink, &mut self.out.rgba8);
@@ -878,159 +878,10 @@ fn ms(a: Instant, b: Instant) -> f64 {
     b.duration_since(a).as_secs_f64() * 1e3
 }
 
-/// The per-pixel passes as they were before they were specialised, kept as
-/// the reference the optimised passes are tested against.
 #[cfg(test)]
-fn reference_pass_a(
-    scene: &RgbImage,
-    work: &mut RgbImage,
-    small_lum: &mut [f32],
-    ds: usize,
-    small_w: usize,
-) {
-    fn sanitize(v: f32) -> f32 {
-        if v.is_finite() && v >= f32::MIN_POSITIVE {
-            v
-        } else {
-            0.0
-        }
-    }
-    let w = scene.width;
-    work.pixels
-        .chunks_mut(w * ds)
-        .zip(scene.pixels.chunks(w * ds))
-        .zip(small_lum.chunks_mut(small_w))
-        .for_each(|((dst, src), small_row)| {
-            small_row.fill(0.0);
-            let rows = src.len() / w;
-            for (i, (d, s)) in dst.iter_mut().zip(src).enumerate() {
-                let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
-                *d = p;
-                small_row[(i % w) / ds] += luminance(p);
-            }
-            for (bx, v) in small_row.iter_mut().enumerate() {
-                let cols = (w - bx * ds).min(ds);
-                *v /= (cols * rows) as f32;
-            }
-        });
-}
-
-/// Reference stage 5, written plainly in f64: every pixel's full CIE Lab
-/// (IEC 61966-2-1 matrices, D65 white scaled to the Lab white), σ from
-/// [`AcuityModel::sigma_px`] of its own lightness, then of its
-/// horizontally blurred lightness, Gaussian taps from `exp`, back to RGB
-/// with the pixel's a*, b*.
+mod reference;
 #[cfg(test)]
-fn reference_acuity(model: &AcuityModel, deg_per_px: f64, img: &mut RgbImage) {
-    use crate::acuity::lightness_to_y;
-    const M: [[f64; 3]; 3] = [
-        [0.412_456_4, 0.357_576_1, 0.180_437_5],
-        [0.212_672_9, 0.715_152_2, 0.072_175],
-        [0.019_333_9, 0.119_192, 0.950_304_1],
-    ];
-    const MI: [[f64; 3]; 3] = [
-        [3.240_454_2, -1.537_138_5, -0.498_531_4],
-        [-0.969_266, 1.876_010_8, 0.041_556],
-        [0.055_643_4, -0.204_025_9, 1.057_225_2],
-    ];
-    let (w, h) = (img.width, img.height);
-    let white = model.lab_white_cd_m2();
-    let wn = [0.950_47 * white, white, 1.088_83 * white];
-    let f = |t: f64| {
-        if t > 216.0 / 24389.0 {
-            t.cbrt()
-        } else {
-            (24389.0 / 27.0 * t + 16.0) / 116.0
-        }
-    };
-    let finv = |v: f64| {
-        if v > 6.0 / 29.0 {
-            v * v * v
-        } else {
-            (116.0 * v - 16.0) * 27.0 / 24389.0
-        }
-    };
-    let lab: Vec<[f64; 3]> = img
-        .pixels
-        .iter()
-        .map(|p| {
-            let p = p.map(f64::from);
-            let xyz = M.map(|r| r[0] * p[0] + r[1] * p[1] + r[2] * p[2]);
-            let (fx, fy, fz) = (f(xyz[0] / wn[0]), f(xyz[1] / wn[1]), f(xyz[2] / wn[2]));
-            [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
-        })
-        .collect();
-    let sigma = |l: f64| f64::from(model.sigma_px(lightness_to_y(l) * white, deg_per_px));
-    let blur = |s: f64, v: &dyn Fn(i64) -> f64| -> f64 {
-        if s <= f64::from(AcuityBlur::MIN_SIGMA_PX) {
-            return v(0);
-        }
-        let r = ((3.0 * s).ceil() as i64).min(AcuityBlur::MAX_RADIUS_PX as i64);
-        let (mut acc, mut norm) = (0.0f64, 0.0f64);
-        for k in -r..=r {
-            let g = (-((k * k) as f64) / (2.0 * s * s)).exp();
-            acc += g * v(k);
-            norm += g;
-        }
-        acc / norm
-    };
-    let mut hz = vec![0.0f64; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let l = lab[y * w + x][0];
-            hz[y * w + x] = blur(sigma(l), &|k| {
-                lab[y * w + (x as i64 + k).clamp(0, w as i64 - 1) as usize][0]
-            });
-        }
-    }
-    for y in 0..h {
-        for x in 0..w {
-            let hv = hz[y * w + x];
-            let l = blur(sigma(hv), &|k| {
-                hz[(y as i64 + k).clamp(0, h as i64 - 1) as usize * w + x]
-            });
-            let [l0, a, b] = lab[y * w + x];
-            if l != l0 {
-                let fy = (l + 16.0) / 116.0;
-                let xyz = [
-                    finv(fy + a / 500.0) * wn[0],
-                    finv(fy) * wn[1],
-                    finv(fy - b / 200.0) * wn[2],
-                ];
-                img.pixels[y * w + x] =
-                    MI.map(|r| (r[0] * xyz[0] + r[1] * xyz[1] + r[2] * xyz[2]) as f32);
-            }
-        }
-    }
-}
-
-/// Reference stages 6 + 7 (+ 8): `colour.apply(tone.apply(p))` per pixel.
-#[cfg(test)]
-fn reference_pass_c(
-    tone: &ToneFrame,
-    colour: &ColourFrame,
-    work: &RgbImage,
-    display: &mut RgbImage,
-    out: &mut DisplayFrame,
-    lut: &SrgbLut,
-    to_display: bool,
-) {
-    if to_display {
-        for (d, s) in display.pixels.iter_mut().zip(&work.pixels) {
-            *d = colour.apply(tone.apply(*s)).map(|v| v.clamp(0.0, 1.0));
-        }
-    } else {
-        for (d, s) in out.rgba8.chunks_exact_mut(4).zip(&work.pixels) {
-            let idx = |v: f32| {
-                ((if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) } * (SRGB_LUT_SIZE - 1) as f32
-                    + 0.5) as usize)
-                    .min(SRGB_LUT_SIZE - 1)
-            };
-            let rgb = colour.apply(tone.apply(*s));
-            d.copy_from_slice(&[lut[idx(rgb[0])], lut[idx(rgb[1])], lut[idx(rgb[2])], 255]);
-        }
-    }
-}
+use reference::{reference_acuity, reference_pass_a, reference_pass_c};
 
 #[cfg(test)]
 mod tests {
@@ -1189,7 +1040,7 @@ mod tests {
             let (sw, sh) = (w.div_ceil(ds), h.div_ceil(ds));
             let mut all = vec![0.0f32; sw * sh];
             let every = crate::pooling::PlaneRect { x: 0..sw, y: 0..sh };
-            pass_a(&img, &mut all, ds, sw, &every);
+            pass_a(Simd::host(), &img, &mut all, ds, sw, &every);
             for model in [
                 PoolingModel::default(),
                 PoolingModel::Gaussian { sigma_deg: 0.2 },
@@ -1211,7 +1062,7 @@ mod tests {
                     let sdpp = dpp * ds as f64;
                     let blocks = model.reach(sw, sh, small_gaze, sdpp);
                     let mut some = vec![f32::NAN; sw * sh];
-                    pass_a(&img, &mut some, ds, sw, &blocks);
+                    pass_a(Simd::host(), &img, &mut some, ds, sw, &blocks);
                     let want = model.pool(&all, sw, sh, small_gaze, sdpp);
                     let got = model.pool(&some, sw, sh, small_gaze, sdpp);
                     assert_eq!(
