@@ -107,7 +107,8 @@ pub struct PsfBuild {
     pub half: f32,
     /// Pupil radius, samples.
     pub r_samples: f32,
-    /// The aperture's last non-zero radius, samples (`r_samples + 1`).
+    /// A radius beyond which every cell lies outside the pupil, samples
+    /// (`r_samples + 1`).
     pub edge: f32,
     /// Residual defocus phase per sample², radians (`π ΔD Δx² / λ`).
     pub defocus_rad_per_sample2: f32,

@@ -60,7 +60,9 @@
 //!   residual defocus `exp(iπ r² ΔD / λ)` ([`PsfParams::defocus_dioptres`],
 //!   0 = focused; the bare Fresnel phase cannot be sampled on any practical
 //!   grid, and a focused eye sees its in-focus Airy pattern).
-//! * `A` — the pupil, a disc of `pupil_mm` with a one-sample anti-aliased edge.
+//! * `A` — the pupil, a disc of `pupil_mm`: each sample holds the exact
+//!   fraction of its cell that the disc covers (analytic circle–square
+//!   overlap, [`pupil_cell_coverage`]), so `Σ A Δx²` is the pupil's area.
 //!
 //! `M = |FFT(L)/N|² / (λd)²` (001 eq 8, λ = 575 nm, d = 24 mm); by Parseval
 //! `Σ M (λd)² = Σ |L|²`. One FFT sample subtends `Δθ = λ / W` rad; the FFT
@@ -739,6 +741,81 @@ fn particle_field(params: &PsfParams, sampling: &PsfSampling, positions: &[[f64;
     t
 }
 
+/// `θ − sin θ` without the cancellation of the direct form at small `θ`
+/// (Taylor series below 0.5 rad: the next term, θ¹¹/11!, is < 2e-11 of it).
+fn theta_minus_sin(t: f64) -> f64 {
+    if t < 0.5 {
+        let t2 = t * t;
+        t * t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0)))
+    } else {
+        t - t.sin()
+    }
+}
+
+/// Area of the disc of radius `r` (centred at the origin) inside the
+/// rectangle `[x0, x1] × [y0, y1]`, `0 ≤ x0 ≤ x1`, `0 ≤ y0 ≤ y1`, all in
+/// samples: `∫ clamp(√(r² − v²) − x0, 0, x1 − x0) dv` over `[y0, y1]`,
+/// in closed form. `v1` and `v0` are where the arc leaves the rectangle's
+/// right and left edges; between them the integral is the trapezoid under
+/// the chord plus the circular segment between chord and arc,
+/// `r²/2 (θ − sin θ)`. Every term is local to the rectangle (no
+/// difference of quantities of size `r²`), so the f32 twin in
+/// `shaders/psf_aperture.wgsl` keeps its error near `r · 2⁻²⁴` where the arc
+/// is no steeper than 45° (`pupil_cell_coverage` folds cells into that octant).
+fn disc_rect_area(x0: f64, x1: f64, y0: f64, y1: f64, r: f64) -> f64 {
+    let h = |v: f64| ((r - v) * (r + v)).max(0.0).sqrt();
+    let v1 = ((r - x1) * (r + x1)).max(0.0).sqrt();
+    let v0 = ((r - x0) * (r + x0)).max(0.0).sqrt();
+    let a = v1.clamp(y0, y1);
+    let b = v0.clamp(y0, y1);
+    let full = (a - y0) * (x1 - x0);
+    if b <= a {
+        return full;
+    }
+    let (ha, hb) = (h(a), h(b));
+    let trapezoid = (b - a) * ((ha - x0) + (hb - x0)) * 0.5;
+    let chord = (b - a).hypot(ha - hb);
+    let theta = 2.0 * (chord / (2.0 * r)).min(1.0).asin();
+    full + trapezoid + 0.5 * r * r * theta_minus_sin(theta)
+}
+
+/// The pieces `[lo, hi]` (both ≥ 0) of the interval `[c − ½, c + ½]`,
+/// `c ≥ 0`, folded about 0: one piece, or two when it straddles 0.
+fn folded_half_unit(c: f64) -> [(f64, f64); 2] {
+    if c >= 0.5 {
+        [(c - 0.5, c + 0.5), (0.0, 0.0)]
+    } else {
+        [(0.0, c + 0.5), (0.0, 0.5 - c)]
+    }
+}
+
+/// 001 eq 7, the aperture `A`: the exact fraction of the unit pupil-plane
+/// cell centred at `(x, y)` samples from the pupil's centre that the pupil
+/// disc of radius `r` samples covers (analytic circle–square overlap). The
+/// cell is folded into the octant `|x| ≥ |y| ≥ 0` (the disc is symmetric),
+/// where the arc through it is no steeper than 45°.
+pub fn pupil_cell_coverage(x: f64, y: f64, r: f64) -> f64 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (ax, ay) = if ay > ax { (ay, ax) } else { (ax, ay) };
+    let (nx, ny) = ((ax - 0.5).max(0.0), (ay - 0.5).max(0.0));
+    if nx * nx + ny * ny >= r * r {
+        return 0.0;
+    }
+    let (fx, fy) = (ax + 0.5, ay + 0.5);
+    if fx * fx + fy * fy <= r * r {
+        return 1.0;
+    }
+    let mut area = 0.0;
+    for (x0, x1) in folded_half_unit(ax) {
+        for (y0, y1) in folded_half_unit(ay) {
+            if x1 > x0 && y1 > y0 {
+                area += disc_rect_area(x0, x1, y0, y1, r);
+            }
+        }
+    }
+    area.clamp(0.0, 1.0)
+}
+
 /// Pupil-plane field, FFT plan and scratch: computes monochromatic PSFs.
 struct MonoEngine {
     n: usize,
@@ -798,8 +875,8 @@ impl MonoEngine {
                         *v = Complex::new(0.0, 0.0);
                         continue;
                     }
-                    // 001 eq 7: anti-aliased aperture A
-                    let a = (r_samples - r2.sqrt() + 0.5).clamp(0.0, 1.0);
+                    // 001 eq 7: aperture A, the area of the cell inside the pupil
+                    let a = pupil_cell_coverage(x, y, r_samples);
                     let amp = a * prow[i];
                     *v = if defocus_per_mm2 == 0.0 {
                         Complex::new(amp, 0.0)
@@ -1619,6 +1696,337 @@ mod tests {
             assert!(worst < 0.05, "ppd {ppd} D {d_mm}: {worst}");
             // The Airy core spans pixels at these ppd (not a single one).
             assert!(k.at(0, 0)[1] < 0.5);
+        }
+    }
+
+    /// The pupil cell coverage against an independent numerical area (the
+    /// chord length of the disc across the cell's x range, integrated over
+    /// its y range by the midpoint rule) and, summed over the grid, the
+    /// disc's area π r².
+    #[test]
+    fn pupil_cell_coverage_is_the_area_of_the_cell_inside_the_disc() {
+        let numeric = |x: f64, y: f64, r: f64| -> f64 {
+            let steps = 20_000;
+            let mut acc = 0.0;
+            for i in 0..steps {
+                let v = y - 0.5 + (i as f64 + 0.5) / steps as f64;
+                let half = (r * r - v * v).max(0.0).sqrt();
+                acc += ((x + 0.5).min(half) - (x - 0.5).max(-half)).max(0.0);
+            }
+            acc / steps as f64
+        };
+        for r in [0.3f64, 0.8, 5.3, 12.0, 15.654_351_9, 31.3, 511.7] {
+            let m = r.ceil() as i64 + 1;
+            let (mut total, mut worst, mut partial) = (0.0, 0.0f64, 0usize);
+            for j in -m..=m {
+                for i in -m..=m {
+                    let (x, y) = (i as f64, j as f64);
+                    let c = pupil_cell_coverage(x, y, r);
+                    assert!((0.0..=1.0).contains(&c));
+                    total += c;
+                    // Every cell of the small discs, a sample of the large one.
+                    if c > 0.0 && c < 1.0 && (r < 100.0 || (i * 7 + j) % 41 == 0) {
+                        let want = numeric(x, y, r);
+                        worst = worst.max((c - want).abs());
+                        partial += 1;
+                    }
+                }
+            }
+            let disc = std::f64::consts::PI * r * r;
+            eprintln!(
+                "r = {r} samples: Σ coverage / π r² − 1 = {:.1e}; {partial} edge cells checked, worst |analytic − numeric| {worst:.1e}",
+                total / disc - 1.0
+            );
+            assert!(
+                (total / disc - 1.0).abs() < 1e-12,
+                "r {r}: {total} vs {disc}"
+            );
+            // The midpoint rule's own error is below 2e-6 at 20 000 steps.
+            assert!(worst < 3e-6, "r {r}: {worst:e}");
+            assert!(partial > 0);
+        }
+        // Cells wholly inside and outside, and the symmetry of the disc.
+        assert_eq!(pupil_cell_coverage(0.0, 0.0, 12.0), 1.0);
+        assert_eq!(pupil_cell_coverage(13.0, 0.0, 12.0), 0.0);
+        for (x, y) in [(11.0, 3.0), (8.0, 8.0), (0.0, 12.0)] {
+            let c = pupil_cell_coverage(x, y, 12.0);
+            assert_eq!(c, pupil_cell_coverage(-y, x, 12.0));
+            assert_eq!(c, pupil_cell_coverage(-x, -y, 12.0));
+        }
+    }
+
+    /// CIE 1931 2° colour matching functions `[x̄, ȳ, z̄]`: the multi-lobe
+    /// fit of Wyman, Sloan and Shirley, "Simple Analytic Approximations to
+    /// the CIE XYZ Color Matching Functions", JCGT 2(2) 2013, eq 2–4, typed
+    /// here from the paper (not `cie_xyz_wyman`).
+    fn test_cmf_multi_lobe(l: f64) -> [f64; 3] {
+        let g = |mu: f64, s_lo: f64, s_hi: f64| {
+            let t = (l - mu) / if l < mu { s_lo } else { s_hi };
+            (-0.5 * t * t).exp()
+        };
+        [
+            1.056 * g(599.8, 37.9, 31.0) + 0.362 * g(442.0, 16.0, 26.7)
+                - 0.065 * g(501.1, 20.4, 26.2),
+            0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1),
+            1.217 * g(437.0, 11.8, 36.0) + 0.681 * g(459.0, 26.0, 13.8),
+        ]
+    }
+
+    /// The single-lobe fit of the same paper (Wyman 2013 eq 5–7): a second,
+    /// coarser approximation of the CIE 1931 table, to size what the choice
+    /// of fit does to the comparison.
+    fn test_cmf_single_lobe(l: f64) -> [f64; 3] {
+        let gauss = |t: f64| (-0.5 * t * t).exp();
+        [
+            1.065 * gauss((l - 595.8) / 33.33) + 0.366 * gauss((l - 446.8) / 19.44),
+            1.014 * gauss((l.ln() - 556.3f64.ln()) / 0.075),
+            1.839 * gauss((l.ln() - 449.8f64.ln()) / 0.051),
+        ]
+    }
+
+    /// Each channel's spectral Airy sum per display pixel of a `size`² grid
+    /// centred on the source, for the pixels whose centre lies within
+    /// `radius_px`, as the fraction of that channel's light over all angles.
+    /// Written independently of the code under test: the energy-normalised
+    /// Airy pattern `π D²/(4λ²) [2 J1(x)/x]²` per sr, `x = π D sin θ / λ`
+    /// (J1 by its integral, [`j1_integral`]), at the wavelengths of 001 eq
+    /// 10 (`count` of them over 380–770 nm), each weighted by its colour
+    /// matching functions `cmf` turned into linear sRGB by the IEC
+    /// 61966-2-1 matrix (as printed in the standard, 4 decimals), the
+    /// weighted sum averaged over 4 × 4 points of each pixel, then negatives
+    /// clamped to 0 (the channel definition of [`PsfBuilder`]); the channel's
+    /// light over all angles is `Σ_φ w_c(φ)`, each Airy pattern holding unit
+    /// energy.
+    fn independent_spectral_airy(
+        d_mm: f64,
+        ppd: f64,
+        size: usize,
+        radius_px: f64,
+        count: usize,
+        cmf: fn(f64) -> [f64; 3],
+    ) -> Vec<[f64; 3]> {
+        // IEC 61966-2-1:1999 eq (F.7): XYZ → linear sRGB.
+        const SRGB: [[f64; 3]; 3] = [
+            [3.2406, -1.5372, -0.4986],
+            [-0.9689, 1.8758, 0.0415],
+            [0.0557, -0.2040, 1.0570],
+        ];
+        let d_m = d_mm * 1e-3;
+        let rad_px = (1.0 / ppd).to_radians();
+        let k = count - 1;
+        // (φ, w_R, w_G, w_B): the channel weights per wavelength.
+        let weights: Vec<(f64, [f64; 3])> = (0..=k)
+            .map(|i| {
+                let phi = 380.0 + i as f64 / k as f64 * 390.0;
+                let xyz = cmf(phi);
+                let mut w = [0.0; 3];
+                for (ch, wc) in w.iter_mut().enumerate() {
+                    *wc = (0..3).map(|j| SRGB[ch][j] * xyz[j]).sum();
+                }
+                (phi, w)
+            })
+            .collect();
+        let mut channel_light = [0.0; 3];
+        for (_, w) in &weights {
+            for ch in 0..3 {
+                channel_light[ch] += w[ch];
+            }
+        }
+        // Radial table of Σ_φ w_c(φ) I_φ(θ) Ω_px, 1/8 px steps.
+        let step = 1.0 / 8.0;
+        let n_tab = ((radius_px + 2.0) * std::f64::consts::SQRT_2 / step) as usize + 2;
+        let table: Vec<[f64; 3]> = (0..n_tab)
+            .into_par_iter()
+            .map(|i| {
+                let theta = i as f64 * step * rad_px;
+                let mut acc = [0.0; 3];
+                for &(phi, w) in &weights {
+                    let lam = phi * 1e-9;
+                    let x = std::f64::consts::PI * d_m * theta.sin() / lam;
+                    let a = if x < 1e-9 {
+                        1.0
+                    } else {
+                        2.0 * j1_integral(x) / x
+                    };
+                    let per_sr = std::f64::consts::PI * d_m * d_m / (4.0 * lam * lam) * a * a;
+                    for ch in 0..3 {
+                        acc[ch] += w[ch] * per_sr * rad_px * rad_px;
+                    }
+                }
+                acc
+            })
+            .collect();
+        let c = (size / 2) as f64;
+        let mut out = vec![[0.0f64; 3]; size * size];
+        out.par_chunks_mut(size).enumerate().for_each(|(v, row)| {
+            for (u, o) in row.iter_mut().enumerate() {
+                let (x, y) = (u as f64 - c, v as f64 - c);
+                if x.hypot(y) > radius_px {
+                    continue;
+                }
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let ox = x + (sx as f64 - 1.5) / 4.0;
+                        let oy = y + (sy as f64 - 1.5) / 4.0;
+                        let t = ox.hypot(oy) / step;
+                        let i = t.floor() as usize;
+                        let f = t - i as f64;
+                        for ch in 0..3 {
+                            o[ch] += (table[i][ch] * (1.0 - f) + table[i + 1][ch] * f) / 16.0;
+                        }
+                    }
+                }
+                for ch in 0..3 {
+                    o[ch] = o[ch].max(0.0) / channel_light[ch];
+                }
+            }
+        });
+        out
+    }
+
+    /// Mean per pixel in 1 px annuli (pixel centre distance rounded),
+    /// radii `0..=r_max`, per channel.
+    fn annulus_profile(px: &[[f64; 3]], size: usize, r_max: usize) -> Vec<[f64; 3]> {
+        let c = (size / 2) as f64;
+        let mut sum = vec![[0.0; 3]; r_max + 1];
+        let mut n = vec![0usize; r_max + 1];
+        for (i, p) in px.iter().enumerate() {
+            let (x, y) = ((i % size) as f64 - c, (i / size) as f64 - c);
+            let b = x.hypot(y).round() as usize;
+            if b <= r_max {
+                n[b] += 1;
+                for ch in 0..3 {
+                    sum[b][ch] += p[ch];
+                }
+            }
+        }
+        sum.iter()
+            .zip(&n)
+            .map(|(s, &k)| s.map(|v| v / k.max(1) as f64))
+            .collect()
+    }
+
+    /// Issue 32 item 7: each channel of the clean-aperture kernel (no
+    /// particles, no stray light) at 6000 ppd against that channel's
+    /// spectral Airy sum, evaluated independently
+    /// ([`independent_spectral_airy`]), for 2, 4 and 8 mm pupils.
+    ///
+    /// Like with like: the kernel holds unit energy within its wave-optics
+    /// region (radius 510 px, 0.085° here: the kernel's field), so the
+    /// reference is normalised to unit energy over the same pixels. The
+    /// test asserts the peak (centre pixel) and the 1 px annulus mean at the
+    /// first bright ring (the reference's maximum, per channel) within 3 %
+    /// and prints the second and third rings;
+    /// it also prints the profile's largest deviation out to the fourth dark
+    /// ring (as a fraction of the peak), the peak against the Airy sum
+    /// normalised over all angles (the kernel has no light beyond its
+    /// field, the Airy pattern has 1–4 % there), and the peak and rings with
+    /// the paper's single-lobe fit in place of the multi-lobe one.
+    #[test]
+    fn clean_aperture_channels_match_an_independent_spectral_airy_at_6000_ppd() {
+        let ppd = 6000.0;
+        for d_mm in [2.0, 4.0, 8.0] {
+            let params = PsfParams {
+                pupil_mm: d_mm,
+                pupil_range_mm: [d_mm, d_mm],
+                particles: 0,
+                stray_light: false,
+                ppd,
+                field_deg: 0.17,
+                ..PsfParams::default()
+            };
+            let (size, near, grid, plane_mm, kernel): (usize, usize, usize, f64, Vec<[f64; 3]>) = {
+                let builder = PsfBuilder::new(params.clone()).unwrap();
+                let s = *builder.sampling();
+                let k = builder.kernel();
+                (
+                    k.size,
+                    s.near_radius_px,
+                    s.grid_size,
+                    s.pupil_plane_mm,
+                    k.rgb.iter().map(|p| p.map(f64::from)).collect(),
+                )
+            };
+            let r_pupil_samples = d_mm / 2.0 / (plane_mm / grid as f64);
+            let r_max = near;
+            let kprof = annulus_profile(&kernel, size, r_max);
+            let c = size / 2;
+            for (fit, cmf) in [
+                ("multi-lobe", test_cmf_multi_lobe as fn(f64) -> [f64; 3]),
+                ("single-lobe", test_cmf_single_lobe as fn(f64) -> [f64; 3]),
+            ] {
+                let all_sky = independent_spectral_airy(
+                    d_mm,
+                    ppd,
+                    size,
+                    near as f64,
+                    params.wavelength_count,
+                    cmf,
+                );
+                let mut in_field = [0.0; 3];
+                for p in &all_sky {
+                    for ch in 0..3 {
+                        in_field[ch] += p[ch];
+                    }
+                }
+                let reference: Vec<[f64; 3]> = all_sky
+                    .iter()
+                    .map(|p| [0, 1, 2].map(|ch| p[ch] / in_field[ch]))
+                    .collect();
+                let rprof = annulus_profile(&reference, size, r_max);
+                for (ch, name) in ["R", "G", "B"].into_iter().enumerate() {
+                    let k0 = kernel[c * size + c][ch];
+                    let peak = k0 / reference[c * size + c][ch] - 1.0;
+                    let peak_all_sky = k0 / all_sky[c * size + c][ch] - 1.0;
+                    // Bright rings: the reference profile's local maxima;
+                    // dark rings: its local minima.
+                    let mut rings = Vec::new();
+                    let mut darks = Vec::new();
+                    for b in 2..r_max {
+                        let (p, v, n) = (rprof[b - 1][ch], rprof[b][ch], rprof[b + 1][ch]);
+                        if v > p && v >= n {
+                            rings.push(b);
+                        }
+                        if v < p && v <= n {
+                            darks.push(b);
+                        }
+                    }
+                    assert!(rings.len() >= 3 && darks.len() >= 4, "{d_mm} mm {name}");
+                    let ring_err: Vec<f64> = rings[..3]
+                        .iter()
+                        .map(|&b| kprof[b][ch] / rprof[b][ch] - 1.0)
+                        .collect();
+                    let profile_dev = (0..=darks[3])
+                        .map(|b| (kprof[b][ch] - rprof[b][ch]).abs())
+                        .fold(0.0f64, f64::max)
+                        / rprof[0][ch];
+                    eprintln!(
+                        "D {d_mm} mm ({r_pupil_samples:.2} samples radius, N {grid}), {fit} fit, {name}: \
+                         peak {:+.2} % (all-sky normalised {:+.2} %, in-field light {:.2} %); \
+                         bright rings at {:?} px: {:+.2?} %; profile to {} px: max |Δ| {:.3} % of the peak",
+                        peak * 100.0,
+                        peak_all_sky * 100.0,
+                        in_field[ch] * 100.0,
+                        &rings[..3],
+                        ring_err.iter().map(|e| e * 100.0).collect::<Vec<_>>(),
+                        darks[3],
+                        profile_dev * 100.0
+                    );
+                    if fit == "multi-lobe" {
+                        assert!(peak.abs() < 0.03, "{d_mm} mm {name}: peak {peak}");
+                        // The first bright ring is asserted; the second and
+                        // third are printed: the cell-averaged aperture's
+                        // spectrum is the disc's times sinc(fΔx) per axis,
+                        // which lowers them (2 mm, 12 samples radius: ≈ −4 %
+                        // and −8 %).
+                        assert!(
+                            ring_err[0].abs() < 0.03,
+                            "{d_mm} mm {name}: ring 1 {}",
+                            ring_err[0]
+                        );
+                    }
+                }
+            }
         }
     }
 
