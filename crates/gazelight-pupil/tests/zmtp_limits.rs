@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
 //! Hostile ZMTP peers, written byte by byte (ZMTP 3.0, RFC 23: 64-byte
 //! greeting, NULL mechanism, READY command), against the relay's three
 //! sockets and the `pupil://` client:
@@ -464,7 +465,7 @@ impl FakeCapture {
             std::thread::spawn(move || {
                 let mut first = true;
                 while !stop.load(Ordering::Relaxed) {
-                    let Ok((mut s, _)) = remote.accept() else {
+                    let Ok((s, _)) = remote.accept() else {
                         std::thread::sleep(Duration::from_millis(5));
                         continue;
                     };
@@ -484,7 +485,7 @@ impl FakeCapture {
             std::thread::spawn(move || {
                 let mut first = true;
                 while !stop.load(Ordering::Relaxed) {
-                    let Ok((mut s, _)) = bus.accept() else {
+                    let Ok((s, _)) = bus.accept() else {
                         std::thread::sleep(Duration::from_millis(5));
                         continue;
                     };
