@@ -35,7 +35,8 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use gazelight_input::LineAccumulator;
+use tokio::io::{AsyncBufRead, AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 
@@ -55,8 +56,43 @@ pub const ENABLE_FIELDS: [&str; 7] = [
 ];
 
 /// Longest line accepted, bytes (a full record with every field enabled is
-/// well under 1 KiB).
+/// well under 1 KiB). Enforced while reading: a server that sends more
+/// without a newline is disconnected once this many bytes have arrived.
 pub const MAX_LINE_BYTES: usize = 8192;
+
+/// How a bounded line read ended.
+enum LineRead {
+    /// A complete line (with its newline) is in the accumulator.
+    Line,
+    /// The server closed the connection (a partial last line is dropped).
+    Eof,
+    /// [`MAX_LINE_BYTES`] arrived without a newline; reading stopped there.
+    TooLong,
+}
+
+/// Reads one line into `line`, keeping at most its limit and stopping as
+/// soon as the limit is passed: memory and work are bounded whatever the
+/// server sends (the caller bounds the time).
+async fn read_bounded_line<R: AsyncBufRead + Unpin>(
+    reader: &mut R,
+    line: &mut LineAccumulator,
+) -> std::io::Result<LineRead> {
+    line.clear();
+    loop {
+        let chunk = reader.fill_buf().await?;
+        if chunk.is_empty() {
+            return Ok(LineRead::Eof);
+        }
+        let taken = line.feed(chunk);
+        reader.consume(taken);
+        if line.too_long() {
+            return Ok(LineRead::TooLong);
+        }
+        if line.is_complete() {
+            return Ok(LineRead::Line);
+        }
+    }
+}
 
 /// What is wrong with a line.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -403,7 +439,7 @@ pub struct GazepointSource {
     port: u16,
     timeouts: GazepointTimeouts,
     conn: Option<Conn>,
-    line: String,
+    line: LineAccumulator,
     decoder: RecordDecoder,
     records: u64,
     errors: u64,
@@ -424,7 +460,7 @@ impl GazepointSource {
             port,
             timeouts,
             conn: None,
-            line: String::with_capacity(1024),
+            line: LineAccumulator::new(MAX_LINE_BYTES),
             decoder: RecordDecoder::new(),
             records: 0,
             errors: 0,
@@ -483,9 +519,11 @@ impl GazepointSource {
             }
             let deadline = tokio::time::Instant::now() + self.timeouts.ack;
             loop {
-                self.line.clear();
-                let read =
-                    tokio::time::timeout_at(deadline, reader.read_line(&mut self.line)).await;
+                let read = tokio::time::timeout_at(
+                    deadline,
+                    read_bounded_line(&mut reader, &mut self.line),
+                )
+                .await;
                 match read {
                     Err(_) => {
                         return Err(
@@ -493,12 +531,19 @@ impl GazepointSource {
                         );
                     }
                     Ok(Err(e)) => return Err(self.lost(format!("waiting for ACK of {id}: {e}"))),
-                    Ok(Ok(0)) => {
+                    Ok(Ok(LineRead::Eof)) => {
                         return Err(self.lost(format!("connection closed before ACK of {id}")));
                     }
-                    Ok(Ok(_)) => {}
+                    Ok(Ok(LineRead::TooLong)) => {
+                        return Err(self.lost(too_long_reason()));
+                    }
+                    Ok(Ok(LineRead::Line)) => {}
                 }
-                match parse_line(&self.line) {
+                let Ok(text) = std::str::from_utf8(self.line.bytes()) else {
+                    // Not an Open Gaze line; the ACK is still awaited.
+                    continue;
+                };
+                match parse_line(text) {
                     Ok(Line::Ack { id: got, state }) if got == id => {
                         if state.is_some_and(|s| s.trim() != "1") {
                             return Err(SourceError::Fatal {
@@ -535,29 +580,40 @@ impl GazepointSource {
             let Some(conn) = self.conn.as_mut() else {
                 continue;
             };
-            self.line.clear();
-            let read = tokio::time::timeout(idle, conn.reader.read_line(&mut self.line)).await;
+            let read =
+                tokio::time::timeout(idle, read_bounded_line(&mut conn.reader, &mut self.line))
+                    .await;
             match read {
                 Err(_) => return Err(self.lost(format!("no data for {idle:?}"))),
                 Ok(Err(e)) => return Err(self.lost(format!("read: {e}"))),
-                Ok(Ok(0)) => return Err(self.lost("connection closed by the server".to_owned())),
-                Ok(Ok(_)) => {}
-            }
-            if self.line.len() > MAX_LINE_BYTES {
-                let index = self.records;
-                self.records += 1;
-                self.errors += 1;
-                return Err(SourceError::Item {
-                    source_name: self.name(),
-                    index,
-                    error: Box::new(RecordError {
-                        offset: MAX_LINE_BYTES,
-                        reason: format!("line longer than {MAX_LINE_BYTES} bytes"),
-                    }),
-                });
+                Ok(Ok(LineRead::Eof)) => {
+                    return Err(self.lost("connection closed by the server".to_owned()));
+                }
+                Ok(Ok(LineRead::TooLong)) => {
+                    self.records += 1;
+                    self.errors += 1;
+                    return Err(self.lost(too_long_reason()));
+                }
+                Ok(Ok(LineRead::Line)) => {}
             }
             let arrival = now_secs();
-            match parse_line(&self.line) {
+            let text = match std::str::from_utf8(self.line.bytes()) {
+                Ok(text) => text,
+                Err(e) => {
+                    let index = self.records;
+                    self.records += 1;
+                    self.errors += 1;
+                    return Err(SourceError::Item {
+                        source_name: self.name(),
+                        index,
+                        error: Box::new(RecordError {
+                            offset: e.valid_up_to(),
+                            reason: "not UTF-8 text".to_owned(),
+                        }),
+                    });
+                }
+            };
+            match parse_line(text) {
                 Ok(Line::Rec(rec)) => {
                     self.records += 1;
                     self.decoder.push(&rec, arrival);
@@ -576,6 +632,14 @@ impl GazepointSource {
             }
         }
     }
+}
+
+/// Why a connection is dropped when a line passes [`MAX_LINE_BYTES`].
+fn too_long_reason() -> String {
+    format!(
+        "the server sent {MAX_LINE_BYTES} bytes without a newline (an Open Gaze record is under \
+         1 KiB): not an Open Gaze API stream; connection dropped"
+    )
 }
 
 impl SampleSource for GazepointSource {

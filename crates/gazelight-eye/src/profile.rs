@@ -285,12 +285,11 @@ impl PupilCalibration {
 
     /// Reads and validates a profile; errors name the file and field.
     pub fn load(path: &Path) -> Result<Self, ProfileError> {
-        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES).map_err(
-            |source| ProfileError::Io {
+        let text = gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Json)
+            .map_err(|source| ProfileError::Io {
                 path: path.to_owned(),
                 source,
-            },
-        )?;
+            })?;
         Self::parse(&text, path)
     }
 
@@ -301,6 +300,13 @@ impl PupilCalibration {
             field,
             reason,
         };
+        // Bounded by construction: a text with more values or deeper
+        // nesting than any profile is refused before a tree is built.
+        gazelight_input::check_config_structure(text, gazelight_input::ConfigSyntax::Json)
+            .map_err(|e| ProfileError::Json {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            })?;
         let value: serde_json::Value =
             serde_json::from_str(text).map_err(|e| ProfileError::Json {
                 path: path.to_owned(),

@@ -403,7 +403,7 @@ impl NeonImporter {
     pub fn open(dir: &Path) -> Result<Self, ImportError> {
         let info_path = dir.join("info.json");
         let info_text =
-            gazelight_input::read_to_string(&info_path, gazelight_input::MAX_TEXT_BYTES).map_err(
+            gazelight_input::read_config(&info_path, gazelight_input::ConfigSyntax::Json).map_err(
                 |source| ImportError::Io {
                     path: info_path.clone(),
                     source,

@@ -121,11 +121,12 @@ impl PupilCoreImporter {
         }
         let info_path = dir.join("info.player.json");
         let info = if info_path.is_file() {
-            let text = gazelight_input::read_to_string(&info_path, gazelight_input::MAX_TEXT_BYTES)
-                .map_err(|source| ImportError::Io {
-                    path: info_path.clone(),
-                    source,
-                })?;
+            let text =
+                gazelight_input::read_config(&info_path, gazelight_input::ConfigSyntax::Json)
+                    .map_err(|source| ImportError::Io {
+                        path: info_path.clone(),
+                        source,
+                    })?;
             let info: PupilCoreInfo =
                 serde_json::from_str(&text).map_err(|e| ImportError::Structure {
                     path: info_path.clone(),

@@ -16,6 +16,15 @@
 //!   the file grows).
 //! - [`read_line`] reads one line of a text file with a bounded length, so
 //!   that a 200 MB file without a newline never becomes a 200 MB `String`.
+//!   Its core, [`LineAccumulator`], takes the bytes chunk by chunk and
+//!   stops keeping them at the limit, *while* reading: the line readers of
+//!   network and serial sources (sync or async) use it the same way.
+//!
+//! - [`read_config`] reads a TOML or JSON config, profile or metadata file
+//!   bounded in memory by construction: at most [`MAX_CONFIG_BYTES`], and
+//!   a scan of its text ([`check_config_structure`]) refuses more values or
+//!   deeper nesting than any valid one holds before a parser builds
+//!   anything (a 20 M-element array would take gigabytes as a parsed tree).
 //!
 //! Every error is a [`std::io::Error`] whose message says what was wrong,
 //! so the callers' "cannot read {path}: {error}" messages stay as they are.
@@ -30,6 +39,17 @@ pub const MAX_SCENE_BYTES: u64 = 1 << 30;
 /// Largest small text/JSON/TOML file read whole (configs, `info.json`,
 /// `.dtype`, calibration profiles, traces).
 pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+/// Largest config, calibration profile or recording metadata file read
+/// (TOML or JSON). The largest valid one, a service config with every
+/// section and its comments, is under 8 KiB; a profile is under 1 KiB.
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+/// Most values a config may hold (array elements, table and object
+/// entries, dotted-key parts, counted from the text's separators): valid
+/// configs hold under 200.
+pub const MAX_CONFIG_VALUES: usize = 10_000;
+/// Deepest nesting of arrays, tables and objects (and dotted keys) in a
+/// config: valid configs nest 3 deep.
+pub const MAX_CONFIG_DEPTH: usize = 32;
 /// Longest line of a streamed text recording (CSV, ASC). Real lines are
 /// under 200 bytes.
 pub const MAX_LINE_BYTES: usize = 64 << 10;
@@ -143,6 +163,197 @@ pub fn read_to_string(path: &Path, max_bytes: u64) -> io::Result<String> {
     })
 }
 
+/// The syntax of a config file, for [`check_config_structure`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConfigSyntax {
+    /// TOML (render and service configs).
+    Toml,
+    /// JSON (calibration profiles, recording metadata).
+    Json,
+}
+
+/// Reads a whole config file (see [`read_to_string`]) of at most
+/// [`MAX_CONFIG_BYTES`] and checks its structure with
+/// [`check_config_structure`] before anyone parses it.
+pub fn read_config(path: &Path, syntax: ConfigSyntax) -> io::Result<String> {
+    let text = read_to_string(path, MAX_CONFIG_BYTES)?;
+    check_config_structure(&text, syntax)?;
+    Ok(text)
+}
+
+/// Refuses a config text with more values than [`MAX_CONFIG_VALUES`] or
+/// nesting deeper than [`MAX_CONFIG_DEPTH`], in one pass over the bytes
+/// with constant memory, so that a parser never builds the tree of a
+/// hostile file. Strings (with their escapes) and TOML comments are
+/// skipped; every structural separator outside them counts as a value
+/// (`,` `[` `{`, and `=` `.` in TOML or `:` in JSON), an upper bound on the
+/// values a parser would build. Malformed text passes (the parser reports
+/// it, naming the line).
+pub fn check_config_structure(text: &str, syntax: ConfigSyntax) -> io::Result<()> {
+    let b = text.as_bytes();
+    let mut values: usize = 0;
+    let mut depth: usize = 0;
+    // Dots since the last separator: a dotted key `a.b.c` nests tables.
+    let mut dots: usize = 0;
+    let mut i = 0;
+    let toml = syntax == ConfigSyntax::Toml;
+    let refuse = |what: String| io::Error::new(io::ErrorKind::InvalidData, what);
+    while i < b.len() {
+        let c = b[i];
+        match c {
+            b'"' | b'\'' => {
+                let literal = c == b'\'' && toml;
+                if c == b'\'' && !toml {
+                    i += 1;
+                    continue;
+                }
+                let triple = toml && b[i..].starts_with(if literal { b"'''" } else { b"\"\"\"" });
+                let quote: &[u8] = match (triple, literal) {
+                    (true, true) => b"'''",
+                    (true, false) => b"\"\"\"",
+                    (false, true) => b"'",
+                    (false, false) => b"\"",
+                };
+                i += quote.len();
+                while i < b.len() && !b[i..].starts_with(quote) {
+                    // A backslash escapes the next byte in basic strings.
+                    i += if b[i] == b'\\' && !literal { 2 } else { 1 };
+                }
+                i += quote.len();
+                continue;
+            }
+            b'#' if toml => {
+                while i < b.len() && b[i] != b'\n' {
+                    i += 1;
+                }
+                continue;
+            }
+            b'[' | b'{' => {
+                values += 1;
+                depth += 1;
+                dots = 0;
+            }
+            b']' | b'}' => {
+                depth = depth.saturating_sub(1);
+                dots = 0;
+            }
+            b',' | b'\n' => {
+                if c == b',' {
+                    values += 1;
+                }
+                dots = 0;
+            }
+            b'=' if toml => {
+                values += 1;
+                dots = 0;
+            }
+            b':' if !toml => values += 1,
+            b'.' if toml => {
+                values += 1;
+                dots += 1;
+            }
+            _ => {}
+        }
+        if values > MAX_CONFIG_VALUES {
+            return Err(refuse(format!(
+                "more than {MAX_CONFIG_VALUES} values (array elements, entries) by byte {i}; \
+                 no valid config holds that many"
+            )));
+        }
+        if depth + dots > MAX_CONFIG_DEPTH {
+            return Err(refuse(format!(
+                "nested deeper than {MAX_CONFIG_DEPTH} levels at byte {i}; no valid config is"
+            )));
+        }
+        i += 1;
+    }
+    Ok(())
+}
+
+/// One `\n`-terminated line collected from chunks of input, keeping at
+/// most `max_bytes` of it: the limit is enforced as each chunk arrives, so
+/// a peer or file that never sends a newline costs `max_bytes`, not its
+/// length. Feed it the reader's buffered chunk, consume what it took.
+#[derive(Clone, Debug)]
+pub struct LineAccumulator {
+    bytes: Vec<u8>,
+    total: u64,
+    too_long: bool,
+    done: bool,
+    max_bytes: usize,
+}
+
+impl LineAccumulator {
+    /// An empty line of at most `max_bytes` (newline included).
+    pub fn new(max_bytes: usize) -> Self {
+        Self {
+            bytes: Vec::new(),
+            total: 0,
+            too_long: false,
+            done: false,
+            max_bytes,
+        }
+    }
+
+    /// Starts a new line (keeps the allocation).
+    pub fn clear(&mut self) {
+        self.bytes.clear();
+        self.total = 0;
+        self.too_long = false;
+        self.done = false;
+    }
+
+    /// Takes bytes of `chunk` up to and including the first `\n`; returns
+    /// how many were taken (the caller consumes them from its reader).
+    /// Bytes past `max_bytes` are counted but not kept ([`Self::too_long`]).
+    /// Takes nothing once the line is complete.
+    pub fn feed(&mut self, chunk: &[u8]) -> usize {
+        if self.done {
+            return 0;
+        }
+        let (take, done) = match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => (i + 1, true),
+            None => (chunk.len(), false),
+        };
+        self.total += take as u64;
+        if !self.too_long {
+            if self.bytes.len() + take > self.max_bytes {
+                self.too_long = true;
+                self.bytes = Vec::new();
+            } else {
+                self.bytes.extend_from_slice(&chunk[..take]);
+            }
+        }
+        self.done = done;
+        take
+    }
+
+    /// Whether the newline has been taken.
+    pub fn is_complete(&self) -> bool {
+        self.done
+    }
+
+    /// Whether the line is longer than the limit (its bytes are dropped).
+    pub fn too_long(&self) -> bool {
+        self.too_long
+    }
+
+    /// Bytes taken for this line so far, kept or not.
+    pub fn total_bytes(&self) -> u64 {
+        self.total
+    }
+
+    /// The kept bytes (empty when [`Self::too_long`]).
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// The limit.
+    pub fn max_bytes(&self) -> usize {
+        self.max_bytes
+    }
+}
+
 /// The result of [`read_line`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Line {
@@ -166,59 +377,35 @@ pub fn read_line(
     max_bytes: usize,
 ) -> io::Result<Line> {
     buf.clear();
-    let mut bytes = std::mem::take(buf).into_bytes();
-    let mut total: u64 = 0;
-    let mut too_long = false;
+    let mut acc = LineAccumulator::new(max_bytes);
+    acc.bytes = std::mem::take(buf).into_bytes();
     loop {
         let chunk = match reader.fill_buf() {
             Ok(c) => c,
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-            Err(e) => {
-                bytes.clear();
-                *buf = String::from_utf8(bytes).unwrap_or_default();
-                return Err(e);
-            }
+            Err(e) => return Err(e),
         };
         if chunk.is_empty() {
             break;
         }
-        let (take, done) = match chunk.iter().position(|&b| b == b'\n') {
-            Some(i) => (i + 1, true),
-            None => (chunk.len(), false),
-        };
-        total += take as u64;
-        if !too_long {
-            if bytes.len() + take > max_bytes {
-                too_long = true;
-                bytes.clear();
-            } else {
-                bytes.extend_from_slice(&chunk[..take]);
-            }
-        }
+        let take = acc.feed(chunk);
         reader.consume(take);
-        if done {
+        if acc.is_complete() {
             break;
         }
     }
-    if too_long {
-        *buf = String::from_utf8(bytes).unwrap_or_default();
-        return Ok(Line::TooLong(total));
+    if acc.too_long() {
+        return Ok(Line::TooLong(acc.total_bytes()));
     }
-    if total == 0 {
-        *buf = String::from_utf8(bytes).unwrap_or_default();
+    if acc.total_bytes() == 0 {
         return Ok(Line::Eof);
     }
-    match String::from_utf8(bytes) {
+    match String::from_utf8(acc.bytes) {
         Ok(s) => {
             *buf = s;
             Ok(Line::Read)
         }
-        Err(e) => {
-            let mut b = e.into_bytes();
-            b.clear();
-            *buf = String::from_utf8(b).unwrap_or_default();
-            Ok(Line::NotUtf8)
-        }
+        Err(_) => Ok(Line::NotUtf8),
     }
 }
 
@@ -311,5 +498,103 @@ mod tests {
         assert_eq!(read_line(&mut r, &mut buf, 100).unwrap(), Line::Eof);
         let mut r = &b"\xff\xfe\n"[..];
         assert_eq!(read_line(&mut r, &mut buf, 100).unwrap(), Line::NotUtf8);
+    }
+
+    #[test]
+    fn accumulator_stops_keeping_at_the_limit_while_reading() {
+        // 1 MB without a newline, fed in 4 KiB chunks: never more than the
+        // limit kept, every byte counted, complete only at the newline.
+        let mut acc = LineAccumulator::new(8192);
+        let chunk = [b'x'; 4096];
+        for k in 1..=256u64 {
+            assert_eq!(acc.feed(&chunk), 4096);
+            assert!(acc.bytes().len() <= 8192);
+            assert_eq!(acc.too_long(), k * 4096 > 8192);
+            assert!(!acc.is_complete());
+        }
+        assert_eq!(acc.total_bytes(), 1 << 20);
+        assert_eq!(acc.feed(b"yz\nnext"), 3);
+        assert!(acc.is_complete() && acc.too_long());
+        assert_eq!(acc.feed(b"next"), 0, "nothing past the newline");
+        acc.clear();
+        assert_eq!(acc.feed(b"<ACK ID=\"X\" />\r\nrest"), 16);
+        assert_eq!(acc.bytes(), b"<ACK ID=\"X\" />\r\n");
+        assert!(acc.is_complete() && !acc.too_long());
+    }
+
+    /// The render config of `crates/gazelight/src/config.rs`'s doc comment.
+    const RENDER_CONFIG: &str = r#"
+# a comment, with, commas, [brackets] and = signs
+[scene]
+luminance_scale = { kind = "cd_m2_per_unit", factor = 1.0 }
+view = { yaw_deg = -78.0, pitch_deg = -4.0, hfov_deg = 90.0, width = 720, height = 800 }
+
+[pipeline]
+pooling = { model = "gaussian", sigma_deg = 2.0 }
+temporal = { model = "krawczyk", tau_rod_secs = 0.4, tau_cone_secs = 0.1 }
+glare = { window_px = 256 }
+"#;
+
+    #[test]
+    fn config_structure_counts_values_outside_strings_and_comments() {
+        check_config_structure(RENDER_CONFIG, ConfigSyntax::Toml).unwrap();
+        // Separators inside every kind of string and in comments are text.
+        let commas = ",[{=.".repeat(4000);
+        for text in [
+            format!("a = \"{commas}\\\"{commas}\"\n"),
+            format!("a = '{commas}'\n"),
+            format!("a = \"\"\"\n{commas}\n\"{commas}\"\"\"\n"),
+            format!("a = '''{commas}\n'{commas}'''\n"),
+            format!("# {commas}\na = 1\n"),
+        ] {
+            check_config_structure(&text, ConfigSyntax::Toml).unwrap();
+        }
+        check_config_structure(
+            &format!("{{\"d\": \"{commas}\\\"{commas}\", \"n\": 1}}"),
+            ConfigSyntax::Json,
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn config_structure_refuses_long_arrays_and_deep_nesting() {
+        let array = format!("a = [{}0]\n", "0,".repeat(MAX_CONFIG_VALUES));
+        let e = check_config_structure(&array, ConfigSyntax::Toml).unwrap_err();
+        assert!(e.to_string().contains("values"), "{e}");
+        // Just under the limit passes.
+        let ok = format!("a = [{}0]\n", "0,".repeat(MAX_CONFIG_VALUES - 10));
+        check_config_structure(&ok, ConfigSyntax::Toml).unwrap();
+        let json = format!("{{\"a\": [{}0]}}", "0,".repeat(MAX_CONFIG_VALUES));
+        let e = check_config_structure(&json, ConfigSyntax::Json).unwrap_err();
+        assert!(e.to_string().contains("values"), "{e}");
+        // Many tables (each `[t]` header counts).
+        let tables: String = (0..=MAX_CONFIG_VALUES)
+            .map(|k| format!("[t{k}]\n"))
+            .collect();
+        assert!(check_config_structure(&tables, ConfigSyntax::Toml).is_err());
+
+        let deep = format!("a = {}{}\n", "[".repeat(40), "]".repeat(40));
+        let e = check_config_structure(&deep, ConfigSyntax::Toml).unwrap_err();
+        assert!(e.to_string().contains("deeper"), "{e}");
+        let dotted = format!("{} = 1\n", vec!["k"; 40].join("."));
+        assert!(check_config_structure(&dotted, ConfigSyntax::Toml).is_err());
+        let deep_json = format!("{}{}", "[".repeat(40), "]".repeat(40));
+        assert!(check_config_structure(&deep_json, ConfigSyntax::Json).is_err());
+        // 30 levels pass.
+        let ok = format!("a = {}{}\n", "[".repeat(30), "]".repeat(30));
+        check_config_structure(&ok, ConfigSyntax::Toml).unwrap();
+    }
+
+    #[test]
+    fn read_config_refuses_a_large_file_by_its_size() {
+        let d = tmp("config-size");
+        let p = d.join("big.toml");
+        std::fs::write(&p, vec![b' '; MAX_CONFIG_BYTES as usize + 1]).unwrap();
+        let e = read_config(&p, ConfigSyntax::Toml).unwrap_err();
+        assert!(e.to_string().contains("limit"), "{e}");
+        let p = d.join("ok.toml");
+        std::fs::write(&p, RENDER_CONFIG).unwrap();
+        assert_eq!(read_config(&p, ConfigSyntax::Toml).unwrap(), RENDER_CONFIG);
+        std::fs::remove_dir_all(&d).ok();
     }
 }

@@ -21,6 +21,13 @@
 //! backoff; the sample channel, the counters and the caller's handles
 //! survive the reconnect.
 //!
+//! Both sockets bound what Pupil may send: a Remote reply or a bus message
+//! over [`PupilConfig::remote_max_message_bytes`] /
+//! [`PupilConfig::bus_max_message_bytes`] / `max_message_frames` (checked
+//! from each frame header, before anything is allocated for the frame)
+//! ends the connection like a lost one, with the reason logged, in
+//! [`PupilStats::last_error`] and counted in [`PupilStats::too_large`].
+//!
 //! Samples leave through a bounded channel with their times converted to
 //! host time; when the consumer lags, new samples are dropped and counted,
 //! the channel never grows. The client only decodes and aligns clocks: the
@@ -47,6 +54,9 @@ use gazelight_eye::source::{SampleSource, SourceError};
 
 /// Default Pupil Remote port.
 pub const DEFAULT_REMOTE_PORT: u16 = 50020;
+/// Default bound on one Pupil Remote reply: Capture answers with short
+/// text (a port, a time, a version, "Message forwarded.").
+pub const MAX_REMOTE_REPLY_BYTES: usize = 1 << 20;
 
 /// Errors of the Pupil client.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -102,6 +112,13 @@ pub struct PupilConfig {
     pub backoff_initial: Duration,
     /// Upper bound of the reconnect delay.
     pub backoff_max: Duration,
+    /// Largest Pupil Remote reply, bytes (replies are a few bytes of text).
+    pub remote_max_message_bytes: usize,
+    /// Largest bus message, bytes: a frame datum with its image when
+    /// `topics` asks for frames ([`crate::relay::MAX_DATUM_BYTES`]).
+    pub bus_max_message_bytes: usize,
+    /// Most frames of one message, on both sockets.
+    pub max_message_frames: usize,
 }
 
 impl Default for PupilConfig {
@@ -119,6 +136,9 @@ impl Default for PupilConfig {
             clock_interval: Duration::from_secs(10),
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
+            remote_max_message_bytes: MAX_REMOTE_REPLY_BYTES,
+            bus_max_message_bytes: crate::relay::MAX_DATUM_BYTES,
+            max_message_frames: crate::relay::MAX_MESSAGE_FRAMES,
         }
     }
 }
@@ -159,6 +179,9 @@ pub struct PupilStats {
     pub raw_dropped: u64,
     /// Successful re-connections after a lost connection.
     pub reconnects: u64,
+    /// Connections dropped because Pupil sent a frame or message over the
+    /// limits ([`PupilConfig::bus_max_message_bytes`] and the others).
+    pub too_large: u64,
     /// Whether a session is established now.
     pub connected: bool,
     /// Newest clock estimate (`offset_secs` = Pupil time − host time).
@@ -182,6 +205,7 @@ struct Counters {
     dropped: AtomicU64,
     raw_dropped: AtomicU64,
     reconnects: AtomicU64,
+    too_large: AtomicU64,
     connected: AtomicBool,
     slow: Mutex<SlowState>,
 }
@@ -321,6 +345,7 @@ impl PupilClient {
             dropped: c.dropped.load(Ordering::Relaxed),
             raw_dropped: c.raw_dropped.load(Ordering::Relaxed),
             reconnects: c.reconnects.load(Ordering::Relaxed),
+            too_large: c.too_large.load(Ordering::Relaxed),
             connected: c.connected.load(Ordering::Relaxed),
             clock: slow.clock,
             drift_secs_per_sec: slow.drift,
@@ -438,10 +463,18 @@ impl Worker {
         }
     }
 
-    fn socket_options(&self) -> SocketOptions {
-        let mut o = SocketOptions::default();
+    fn socket_options(&self, max_message_bytes: usize) -> SocketOptions {
+        let mut o =
+            crate::relay::limited_options(max_message_bytes, self.config.max_message_frames);
         o.connect_timeout(self.config.connect_timeout);
         o
+    }
+
+    /// Counts a receive error that means Pupil sent more than the limits.
+    fn note_receive_error(&self, e: &zeromq::ZmqError) {
+        if crate::relay::is_over_limit(e) {
+            self.counters.too_large.fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     async fn connect<S: Socket>(&self, socket: &mut S, endpoint: &str) -> Result<(), PupilError> {
@@ -471,9 +504,12 @@ impl Worker {
                 what: format!("sending {what}"),
                 reason: e.to_string(),
             })?;
-            req.recv().await.map_err(|e| PupilError::Socket {
-                what: format!("reply to {what}"),
-                reason: e.to_string(),
+            req.recv().await.map_err(|e| {
+                self.note_receive_error(&e);
+                PupilError::Socket {
+                    what: format!("reply to {what}"),
+                    reason: e.to_string(),
+                }
             })
         };
         match timeout(limit, exchange).await {
@@ -538,7 +574,8 @@ impl Worker {
         ever_connected: bool,
     ) -> Result<End, PupilError> {
         let remote = self.config.remote_endpoint();
-        let mut req = ReqSocket::with_options(self.socket_options());
+        let mut req =
+            ReqSocket::with_options(self.socket_options(self.config.remote_max_message_bytes));
         self.connect(&mut req, &remote).await?;
         let sub_port_reply = self.request_text(&mut req, "SUB_PORT").await?;
         let sub_port: u16 = std::str::from_utf8(&sub_port_reply)
@@ -554,7 +591,8 @@ impl Worker {
         self.tracker.clear();
         self.estimate_clock(&mut req).await?;
 
-        let mut sub = SubSocket::with_options(self.socket_options());
+        let mut sub =
+            SubSocket::with_options(self.socket_options(self.config.bus_max_message_bytes));
         let bus = format!("tcp://{}:{}", self.config.host, sub_port);
         self.connect(&mut sub, &bus).await?;
         for topic in &self.config.topics {
@@ -618,6 +656,7 @@ impl Worker {
                 r = timeout(self.config.idle_timeout, sub.recv()) => match r {
                     Ok(Ok(m)) => self.handle(m),
                     Ok(Err(e)) => {
+                        self.note_receive_error(&e);
                         return Err(PupilError::Socket { what: "receiving from the bus".to_owned(), reason: e.to_string() });
                     }
                     Err(_) => {

@@ -48,8 +48,16 @@
 //! estimate from `t` applies to the datums.
 //!
 //! All queues are bounded: requests are served one at a time, forwarded
-//! messages go through a bounded channel (dropped and counted when full),
-//! and the PUB socket drops messages for subscribers that do not keep up.
+//! messages go through a bounded channel (dropped and counted when full,
+//! in messages and in bytes), and the PUB socket drops messages for
+//! subscribers that do not keep up.
+//!
+//! **Receive limits.** Every socket bounds what one peer may send
+//! ([`RelayLimits`]: bytes of one frame or multipart message, frames of one
+//! message), checked from each frame header before anything is allocated
+//! for it (the patched `zeromq`, `vendor/zeromq/GAZELIGHT_PATCH.md`). A peer
+//! over a limit is disconnected with a logged reason and counted in
+//! [`RelayStats::peers_dropped`]; the relay keeps serving everyone else.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -60,9 +68,12 @@ use bytes::Bytes;
 use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::{EyeChannel, EyeState, PupilUnit, Sample};
 use serde::Serialize;
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore, broadcast, mpsc, watch};
 use tokio::task::JoinHandle;
-use zeromq::{PubSocket, RepSocket, Socket, SocketRecv, SocketSend, SubSocket, ZmqMessage};
+use zeromq::{
+    PubSocket, RepSocket, Socket, SocketEvent, SocketOptions, SocketRecv, SocketSend, SubSocket,
+    ZmqMessage,
+};
 
 use gazelight_eye::state::LiveEyeState;
 
@@ -131,6 +142,105 @@ pub const RELAY_METHOD: &str = "gazelight filtered";
 pub const ADAPTATION_TOPIC: &str = "gazelight.adaptation";
 /// Capacity of the channel of messages forwarded onto the bus.
 const FORWARD_CAPACITY: usize = 256;
+/// Bytes the channel of forwarded messages may hold at once (two of the
+/// largest legal messages); a message that does not fit is dropped and
+/// counted like one that finds the channel full.
+const FORWARD_MAX_BYTES: usize = 2 * MAX_DATUM_BYTES;
+
+/// Largest legal Pupil message a peer may send: a frame datum with its
+/// image, `[topic, msgpack, raw image]`, as Pupil Capture's Frame Publisher
+/// (format `bgr`) and hmd-eyes' screen cast send it. 32 MiB holds a
+/// 3840×2160 BGR image (24 883 200 bytes) with its header; Pupil's own
+/// cameras go to 1920×1080 (6.2 MB in BGR).
+pub const MAX_DATUM_BYTES: usize = 32 << 20;
+/// Largest subscription message a bus subscriber may send (`0x01` + topic
+/// prefix; Pupil's topics are tens of bytes).
+pub const MAX_SUBSCRIPTION_BYTES: usize = 64 << 10;
+/// Most frames of one multipart message: Pupil sends `[topic, payload]`
+/// plus one frame per `__raw_data__` item (one image); a REP request adds
+/// its envelope.
+pub const MAX_MESSAGE_FRAMES: usize = 64;
+
+/// What one peer may send to each of the relay's sockets. A frame whose
+/// header announces more, or a multipart message that grows past a limit,
+/// disconnects that peer (logged, counted in [`RelayStats::peers_dropped`])
+/// before the bytes are allocated; the relay keeps serving.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RelayLimits {
+    /// Pupil Remote (REP): bytes of one request (commands, notifications
+    /// and forwarded messages).
+    pub remote_max_message_bytes: usize,
+    /// PUB_PORT (SUB): bytes of one message a client publishes.
+    pub pub_port_max_message_bytes: usize,
+    /// The bus (PUB): bytes of one subscription message.
+    pub bus_max_message_bytes: usize,
+    /// Frames of one multipart message, on every socket.
+    pub max_message_frames: usize,
+}
+
+impl Default for RelayLimits {
+    fn default() -> Self {
+        Self {
+            remote_max_message_bytes: MAX_DATUM_BYTES,
+            pub_port_max_message_bytes: MAX_DATUM_BYTES,
+            bus_max_message_bytes: MAX_SUBSCRIPTION_BYTES,
+            max_message_frames: MAX_MESSAGE_FRAMES,
+        }
+    }
+}
+
+/// Socket options bounding what one peer may send (see [`RelayLimits`]).
+pub(crate) fn limited_options(
+    max_message_bytes: usize,
+    max_message_frames: usize,
+) -> SocketOptions {
+    let mut o = SocketOptions::default();
+    o.max_message_size(Some(max_message_bytes))
+        .max_message_frames(Some(max_message_frames.max(1)));
+    o
+}
+
+/// Whether a receive error means the peer sent more than the limits.
+pub(crate) fn is_over_limit(e: &zeromq::ZmqError) -> bool {
+    matches!(
+        e,
+        zeromq::ZmqError::Codec(zeromq::CodecError::MessageTooLarge { .. })
+    )
+}
+
+/// A message on its way onto the bus, holding its share of
+/// [`FORWARD_MAX_BYTES`] until it is published.
+struct Forwarded {
+    message: ZmqMessage,
+    _bytes: OwnedSemaphorePermit,
+}
+
+/// The sending side of the forward channel, bounded in messages and bytes.
+#[derive(Clone)]
+struct ForwardTx {
+    tx: mpsc::Sender<Forwarded>,
+    bytes: Arc<Semaphore>,
+}
+
+impl ForwardTx {
+    /// Queues `message`; `false` when the channel is full (in messages or
+    /// bytes).
+    fn try_send(&self, message: ZmqMessage) -> bool {
+        let size: usize = message.iter().map(|f| f.len()).sum();
+        let Ok(n) = u32::try_from(size.max(1)) else {
+            return false;
+        };
+        let Ok(permit) = self.bytes.clone().try_acquire_many_owned(n) else {
+            return false;
+        };
+        self.tx
+            .try_send(Forwarded {
+                message,
+                _bytes: permit,
+            })
+            .is_ok()
+    }
+}
 /// How often the adaptation topic is checked for a new frame (≥ a 90 Hz
 /// display's rate).
 const ADAPTATION_POLL: Duration = Duration::from_millis(10);
@@ -158,6 +268,9 @@ pub struct RelayStats {
     pub samples_lagged: u64,
     /// Messages the PUB socket refused.
     pub publish_errors: u64,
+    /// Peers disconnected for sending a frame or message over the limits
+    /// ([`RelayLimits`]) or a corrupt frame, on any socket.
+    pub peers_dropped: u64,
 }
 
 #[derive(Default)]
@@ -171,6 +284,7 @@ struct Counters {
     forward_dropped: AtomicU64,
     samples_lagged: AtomicU64,
     publish_errors: AtomicU64,
+    peers_dropped: AtomicU64,
 }
 
 fn bump(c: &AtomicU64, n: u64) {
@@ -241,6 +355,7 @@ impl RelayHandle {
             forward_dropped: l(&c.forward_dropped),
             samples_lagged: l(&c.samples_lagged),
             publish_errors: l(&c.publish_errors),
+            peers_dropped: l(&c.peers_dropped),
         }
     }
 
@@ -288,10 +403,20 @@ async fn bind<S: Socket>(
 /// Starts the relay: binds Pupil Remote at `remote_addr` (port 0 picks a
 /// free port) and the bus and PUB_PORT on free ports of the same host, and
 /// runs until [`RelayFeed::shutdown_signal`] turns true. A port in use is
-/// an error naming the address.
+/// an error naming the address. The sockets take the default
+/// [`RelayLimits`].
 pub async fn spawn(
     hub: Arc<dyn RelayFeed>,
     remote_addr: SocketAddr,
+) -> Result<RelayHandle, RelayError> {
+    spawn_with_limits(hub, remote_addr, RelayLimits::default()).await
+}
+
+/// [`spawn`] with the receive limits of each socket.
+pub async fn spawn_with_limits(
+    hub: Arc<dyn RelayFeed>,
+    remote_addr: SocketAddr,
+    limits: RelayLimits,
 ) -> Result<RelayHandle, RelayError> {
     let host = remote_addr.ip().to_string();
     let host = if remote_addr.is_ipv6() {
@@ -299,17 +424,24 @@ pub async fn spawn(
     } else {
         host
     };
-    let mut rep = RepSocket::new();
+    let frames = limits.max_message_frames;
+    let mut rep = RepSocket::with_options(limited_options(limits.remote_max_message_bytes, frames));
     let remote_port = bind(&mut rep, &host, remote_addr.port(), "Pupil Remote (REP)").await?;
-    let mut bus = PubSocket::new();
+    let mut bus = PubSocket::with_options(limited_options(limits.bus_max_message_bytes, frames));
+    let bus_events = bus.monitor();
     let sub_port = bind(&mut bus, &host, 0, "bus (PUB)").await?;
-    let mut inbound = SubSocket::new();
+    let mut inbound =
+        SubSocket::with_options(limited_options(limits.pub_port_max_message_bytes, frames));
     let pub_port = bind(&mut inbound, &host, 0, "PUB_PORT (SUB)").await?;
     inbound.subscribe("").await.map_err(RelayError::Subscribe)?;
 
     let counters = Arc::new(Counters::default());
     let clock = Arc::new(RelayClock::default());
-    let (fwd_tx, fwd_rx) = mpsc::channel::<ZmqMessage>(FORWARD_CAPACITY);
+    let (tx, fwd_rx) = mpsc::channel::<Forwarded>(FORWARD_CAPACITY);
+    let fwd_tx = ForwardTx {
+        tx,
+        bytes: Arc::new(Semaphore::new(FORWARD_MAX_BYTES)),
+    };
 
     let remote = Remote {
         rep,
@@ -325,6 +457,25 @@ pub async fn spawn(
         tokio::spawn(remote.run(hub.shutdown_signal())),
         tokio::spawn(publisher.run(hub.shutdown_signal())),
         tokio::spawn(forward_inbound(inbound, fwd_tx, counters.clone(), shutdown)),
+        tokio::spawn({
+            // The PUB socket's monitor (a futures channel): counts and logs
+            // the subscribers it dropped, whose receive errors never reach
+            // the relay otherwise.
+            let (mut events, counters, mut shutdown) =
+                (bus_events, counters.clone(), hub.shutdown_signal());
+            async move {
+                loop {
+                    let event = tokio::select! {
+                        _ = shutdown_requested(&mut shutdown) => break,
+                        e = events.recv() => e,
+                    };
+                    match event {
+                        Ok(e) => on_bus_event(&counters, e),
+                        Err(_) => break,
+                    }
+                }
+            }
+        }),
     ];
     let remote_addr = SocketAddr::new(remote_addr.ip(), remote_port);
     tracing::info!(%remote_addr, sub_port, pub_port, "Pupil relay listening");
@@ -350,7 +501,7 @@ struct Remote {
     pub_port: u16,
     clock: Arc<RelayClock>,
     counters: Arc<Counters>,
-    forward: mpsc::Sender<ZmqMessage>,
+    forward: ForwardTx,
 }
 
 impl Remote {
@@ -363,7 +514,10 @@ impl Remote {
             let request = match request {
                 Ok(m) => m,
                 Err(e) => {
-                    tracing::warn!(error = %e, "relay: Pupil Remote receive failed");
+                    if is_over_limit(&e) {
+                        bump(&self.counters.peers_dropped, 1);
+                    }
+                    tracing::warn!(error = %e, "relay: Pupil Remote receive failed; that client is disconnected");
                     continue;
                 }
             };
@@ -378,12 +532,11 @@ impl Remote {
     /// The reply to one request (Capture's `PupilRemote.on_recv`).
     fn answer(&self, request: ZmqMessage) -> String {
         if request.len() > 1 {
-            return match self.forward.try_send(request) {
-                Ok(()) => "Message forwarded.".to_owned(),
-                Err(_) => {
-                    bump(&self.counters.forward_dropped, 1);
-                    "Message dropped: the relay's bus queue is full.".to_owned()
-                }
+            return if self.forward.try_send(request) {
+                "Message forwarded.".to_owned()
+            } else {
+                bump(&self.counters.forward_dropped, 1);
+                "Message dropped: the relay's bus queue is full.".to_owned()
             };
         }
         let Some(frame) = request.get(0) else {
@@ -437,7 +590,7 @@ fn format_time(t_secs: f64) -> String {
 /// Forwards what clients publish on PUB_PORT onto the bus.
 async fn forward_inbound(
     mut inbound: SubSocket,
-    forward: mpsc::Sender<ZmqMessage>,
+    forward: ForwardTx,
     counters: Arc<Counters>,
     mut shutdown: watch::Receiver<bool>,
 ) {
@@ -448,14 +601,26 @@ async fn forward_inbound(
         };
         match m {
             Ok(m) => {
-                if forward.try_send(m).is_err() {
+                if !forward.try_send(m) {
                     bump(&counters.forward_dropped, 1);
                 }
             }
             Err(e) => {
-                tracing::warn!(error = %e, "relay: PUB_PORT receive failed");
+                if is_over_limit(&e) {
+                    bump(&counters.peers_dropped, 1);
+                }
+                tracing::warn!(error = %e, "relay: PUB_PORT receive failed; that client is disconnected");
             }
         }
+    }
+}
+
+/// Counts (and logs) a bus subscriber the PUB socket dropped for what it
+/// sent.
+fn on_bus_event(counters: &Counters, event: SocketEvent) {
+    if let SocketEvent::PeerDropped(_, reason) = event {
+        bump(&counters.peers_dropped, 1);
+        tracing::warn!(%reason, "relay: bus subscriber disconnected");
     }
 }
 
@@ -604,7 +769,7 @@ struct Publisher {
     bus: PubSocket,
     clock: Arc<RelayClock>,
     counters: Arc<Counters>,
-    forwarded: mpsc::Receiver<ZmqMessage>,
+    forwarded: mpsc::Receiver<Forwarded>,
     raw: RawFields,
     last: Option<LiveEyeState>,
     /// `updates` of the newest state seen.
@@ -618,7 +783,7 @@ impl Publisher {
         bus: PubSocket,
         clock: Arc<RelayClock>,
         counters: Arc<Counters>,
-        forwarded: mpsc::Receiver<ZmqMessage>,
+        forwarded: mpsc::Receiver<Forwarded>,
     ) -> Self {
         let mut eye = hub.eye();
         // Publish the state as it is now only once it changes: a state
@@ -659,7 +824,7 @@ impl Publisher {
                 }
                 m = self.forwarded.recv() => {
                     if let Some(m) = m {
-                        self.send(m).await;
+                        self.send(m.message).await;
                         bump(&self.counters.forwarded, 1);
                     }
                 }

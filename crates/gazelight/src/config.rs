@@ -42,7 +42,7 @@ pub struct RenderConfig {
 impl RenderConfig {
     /// Loads and validates a TOML file.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES)
+        let text = gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Toml)
             .with_context(|| format!("cannot read config {}", path.display()))?;
         let config: Self =
             toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;

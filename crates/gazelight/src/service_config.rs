@@ -192,7 +192,7 @@ pub fn parse_head(s: &str) -> anyhow::Result<HeadSpec> {
 impl ServiceConfig {
     /// Loads and validates a TOML file; errors name the file and the field.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = gazelight_input::read_to_string(path, gazelight_input::MAX_TEXT_BYTES)
+        let text = gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Toml)
             .with_context(|| format!("cannot read config {}", path.display()))?;
         let mut config: Self =
             toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
