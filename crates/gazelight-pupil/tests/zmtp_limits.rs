@@ -38,11 +38,7 @@ const RSS_BOUND_BYTES: u64 = 32 << 20;
 const MULTIPART_ATTACK_BYTES: usize = 48 << 20;
 
 /// One attack at a time: the resident set is the process's.
-static SERIAL: Mutex<()> = Mutex::new(());
-
-fn serial() -> std::sync::MutexGuard<'static, ()> {
-    SERIAL.lock().unwrap_or_else(|p| p.into_inner())
-}
+static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 fn vm_rss_bytes() -> u64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap();
@@ -367,7 +363,7 @@ async fn relay_still_serves(relay: &RelayHandle) {
 
 /// Runs every attack against one relay socket.
 async fn attack_relay_socket(which: &str, port_of: fn(&RelayHandle) -> u16, claim: &str) {
-    let _guard = serial();
+    let _guard = SERIAL.lock().await;
     let (hub, relay, _eye) = start_relay().await;
     for (k, attack) in Attack::ALL.into_iter().enumerate() {
         let port = port_of(&relay);
@@ -598,7 +594,7 @@ fn serve_bus(
 }
 
 async fn attack_client(target: Target) {
-    let _guard = serial();
+    let _guard = SERIAL.lock().await;
     let capture = FakeCapture::start(target);
     let rss = RssWatch::start();
     let (client, mut streams) = PupilClient::spawn(PupilConfig {
