@@ -25,7 +25,8 @@ use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::{DetectorMethod, PupilSample, PupilUnit, Sample};
 use gazelight_pupil::msg;
 use gazelight_pupil::relay::{self, FrameFigures, RelayFeed, RelayHandle};
-use gazelight_pupil::{LiveEyeState, PupilClient, PupilConfig};
+use gazelight_eye::LiveEyeState;
+use gazelight_pupil::{PupilClient, PupilConfig};
 use tokio::sync::{broadcast, watch};
 use zeromq::{PubSocket, ReqSocket, Socket, SocketRecv, SocketSend, SubSocket, ZmqMessage};
 
