@@ -53,7 +53,7 @@
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
-use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
+use gazelight_vision::kernel_policy::INITIAL_PUPIL_MM;
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FrameStats, PipelineConfig, StageTimings, srgb_encode,
 };
@@ -64,8 +64,8 @@ use gazelight_vision::{RgbImage, VisionError};
 use crate::acuity::{AcuityParams, AcuityPass};
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::fft::{FftDirection, GpuFft2d, read_mapped};
-use crate::glare::{GlareGeometry, GlareParams, GlarePass};
+use crate::fft::read_mapped;
+use crate::glare::GlareStage;
 use crate::pooling::{POOL_THREADS, PoolParams, PoolingPass};
 use crate::psf::GpuPsfBuilder;
 use crate::temporal::{TemporalParams, TemporalPass};
@@ -74,7 +74,7 @@ use crate::tone::{ToneParams, TonePass};
 /// Entries of the sRGB table (`SRGB_LUT_SIZE` in frame_state.wgsl and the CPU).
 pub(crate) const SRGB_LUT_SIZE: usize = 16384;
 /// Threads per side of the 8×8 per-pixel workgroups.
-const TILE: u32 = 8;
+pub(crate) const TILE: u32 = 8;
 
 /// Timestamps written by [`GpuFramePipeline::encode_timed`] into its frame
 /// query set: pairs (begin, end) for 0–1 pooling, 2–3 temporal, 4–5 kernel
@@ -133,29 +133,15 @@ pub struct FrameTimestamps<'a> {
     pub psf: &'a wgpu::QuerySet,
 }
 
-pub(crate) struct GlareStage {
-    psf: GpuPsfBuilder,
-    geometry: GlareGeometry,
-    fine: GpuFft2d,
-    coarse: GpuFft2d,
-    pass: GlarePass,
-    params: GlareParams,
-    uniform: wgpu::Buffer,
-    fine_spectrum: wgpu::Buffer,
-    coarse_spectrum: wgpu::Buffer,
-    group: wgpu::BindGroup,
-    policy: KernelPolicy,
-}
-
 /// The sizes fixed by the frame and the pooling downsample.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct FrameSizes {
-    width: u32,
-    height: u32,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
     /// Block plane, blocks.
-    small: [u32; 2],
+    pub(crate) small: [u32; 2],
     /// Block size, pixels.
-    ds: u32,
+    pub(crate) ds: u32,
     /// Workgroups of the first pooling reduction.
     partial_count: u32,
 }
@@ -222,15 +208,16 @@ struct FrameBuffers {
     image_staging: wgpu::Buffer,
 }
 
-const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+pub(crate) const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
     .union(wgpu::BufferUsages::COPY_DST)
     .union(wgpu::BufferUsages::COPY_SRC);
-const UNIFORM: wgpu::BufferUsages = wgpu::BufferUsages::UNIFORM.union(wgpu::BufferUsages::COPY_DST);
+pub(crate) const UNIFORM: wgpu::BufferUsages =
+    wgpu::BufferUsages::UNIFORM.union(wgpu::BufferUsages::COPY_DST);
 const STAGING: wgpu::BufferUsages =
     wgpu::BufferUsages::MAP_READ.union(wgpu::BufferUsages::COPY_DST);
 
 /// A buffer of at least 16 bytes, wgpu errors captured.
-fn create_buffer(
+pub(crate) fn create_buffer(
     ctx: &GpuContext,
     label: &'static str,
     size: u64,
@@ -340,7 +327,7 @@ impl FrameGroups {
 /// Timestamp writes at `begin` and/or `end` of a pass into `query_set`;
 /// none when neither is asked for (wgpu rejects timestamp writes with no
 /// index).
-fn timestamp_writes(
+pub(crate) fn timestamp_writes(
     query_set: Option<&wgpu::QuerySet>,
     begin: Option<u32>,
     end: Option<u32>,
@@ -356,174 +343,8 @@ fn timestamp_writes(
 }
 
 /// Workgroups of the 8×8 per-pixel passes over `x × y`.
-fn tiles(x: u32, y: u32) -> (u32, u32) {
+pub(crate) fn tiles(x: u32, y: u32) -> (u32, u32) {
     (x.div_ceil(TILE), y.div_ceil(TILE))
-}
-
-impl GlareStage {
-    /// The glare stage of `config` for the frame: the first PSF (4 mm),
-    /// the split geometry, both FFT plans, the kernel spectra buffers and
-    /// the bind group on the working frame `work`.
-    pub(crate) fn new(
-        ctx: &GpuContext,
-        config: &PipelineConfig,
-        deg_per_px: f64,
-        sizes: &FrameSizes,
-        work: &wgpu::Buffer,
-    ) -> Result<Self, GpuError> {
-        let mut params = config.glare.psf.clone();
-        params.ppd = 1.0 / deg_per_px;
-        params.pupil_mm = INITIAL_PUPIL_MM;
-        params.validate().map_err(invalid)?;
-        let psf = GpuPsfBuilder::new(ctx, &params)?;
-        let geometry = GlareGeometry::new(psf.kernel_size(), deg_per_px, config.glare.window())?;
-        let (wf, wc) = (geometry.wf as u32, geometry.wc as u32);
-        let fine = GpuFft2d::new(ctx, wf, wf, 3)?;
-        let coarse = GpuFft2d::new(ctx, wc, wc, 3)?;
-        let pass = GlarePass::new(ctx)?;
-        let glare_params = GlareParams::new(
-            &geometry,
-            psf.kernel_size() as u32,
-            sizes.width,
-            sizes.height,
-        );
-        let uniform = create_buffer(
-            ctx,
-            "glare params",
-            size_of::<GlareParams>() as u64,
-            UNIFORM,
-        )?;
-        let spectrum = |label, n: u32| create_buffer(ctx, label, u64::from(n * n) * 3 * 8, STORAGE);
-        let fine_spectrum = spectrum("glare fine kernel spectrum", wf)?;
-        let coarse_spectrum = spectrum("glare coarse kernel spectrum", wc)?;
-        let group = pass.layout.bind_buffers(
-            ctx,
-            &[
-                &uniform,
-                psf.kernel_buffer(),
-                fine.data_buffer(),
-                &fine_spectrum,
-                coarse.data_buffer(),
-                &coarse_spectrum,
-                work,
-            ],
-        )?;
-        ctx.queue()
-            .write_buffer(&uniform, 0, bytemuck::bytes_of(&glare_params));
-        Ok(Self {
-            psf,
-            geometry,
-            fine,
-            coarse,
-            pass,
-            params: glare_params,
-            uniform,
-            fine_spectrum,
-            coarse_spectrum,
-            group,
-            policy: KernelPolicy::new(&config.glare),
-        })
-    }
-
-    /// Records the split of the kernel in the PSF buffer into its fine and
-    /// coarse parts and their spectra (timestamps 4–5 of `timestamps`).
-    pub(crate) fn encode_kernel_spectrum(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        timestamps: Option<&wgpu::QuerySet>,
-    ) {
-        let (wf, wc) = (self.params.wf, self.params.wc);
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("glare kernel split: fine core, coarse wide field"),
-                timestamp_writes: timestamp_writes(timestamps, Some(4), None),
-            });
-            pass.set_bind_group(0, &self.group, &[]);
-            pass.set_pipeline(&self.pass.kernel_fine);
-            pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
-            pass.set_pipeline(&self.pass.kernel_coarse);
-            pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
-        }
-        self.fine.encode(encoder, FftDirection::Forward, None);
-        self.coarse.encode(
-            encoder,
-            FftDirection::Forward,
-            timestamp_writes(timestamps, None, Some(5)),
-        );
-        let copy = |encoder: &mut wgpu::CommandEncoder, from: &GpuFft2d, to: &wgpu::Buffer| {
-            encoder.copy_buffer_to_buffer(from.data_buffer(), 0, to, 0, to.size());
-        };
-        copy(encoder, &self.fine, &self.fine_spectrum);
-        copy(encoder, &self.coarse, &self.coarse_spectrum);
-    }
-
-    /// Records the glare of the windows placed at `gaze_px` (timestamps
-    /// 6–7); nothing when that applies no glare.
-    pub(crate) fn encode_window(
-        &mut self,
-        ctx: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        gaze_px: [f64; 2],
-        timestamps: Option<&wgpu::QuerySet>,
-    ) {
-        if !self.params.place(&self.geometry, gaze_px) {
-            return;
-        }
-        ctx.queue()
-            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
-        let (wf, wc) = (self.params.wf, self.params.wc);
-        let max = ctx.limits().max_compute_workgroups_per_dimension;
-        let linear = |n: u32| {
-            let groups = n.div_ceil(64);
-            let gx = groups.min(max);
-            (gx, groups.div_ceil(gx))
-        };
-        let steps: [(&str, Option<u32>, _); 2] = [
-            (
-                "stage 4: glare sources",
-                Some(6),
-                [
-                    (&self.pass.gather_fine, tiles(wf, wf)),
-                    (&self.pass.gather_coarse, tiles(wc, wc)),
-                ],
-            ),
-            (
-                "stage 4: glare spectrum products",
-                None,
-                [
-                    (&self.pass.multiply_fine, linear(3 * wf * wf)),
-                    (&self.pass.multiply_coarse, linear(3 * wc * wc)),
-                ],
-            ),
-        ];
-        for (direction, (label, begin, dispatches)) in
-            [FftDirection::Forward, FftDirection::Inverse]
-                .into_iter()
-                .zip(steps)
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(label),
-                timestamp_writes: timestamp_writes(timestamps, begin, None),
-            });
-            pass.set_bind_group(0, &self.group, &[]);
-            for (pipeline, (gx, gy)) in dispatches {
-                pass.set_pipeline(pipeline);
-                pass.dispatch_workgroups(gx, gy, 1);
-            }
-            drop(pass);
-            self.fine.encode(encoder, direction, None);
-            self.coarse.encode(encoder, direction, None);
-        }
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("stage 4: glare blend"),
-            timestamp_writes: timestamp_writes(timestamps, None, Some(7)),
-        });
-        pass.set_bind_group(0, &self.group, &[]);
-        pass.set_pipeline(&self.pass.blend);
-        let (ow, oh) = self.params.output_size();
-        let (gx, gy) = tiles(ow, oh);
-        pass.dispatch_workgroups(gx, gy, 1);
-    }
 }
 
 /// The frame pipeline on the GPU. Build once per display size; see the
@@ -564,7 +385,7 @@ impl std::fmt::Debug for GpuFramePipeline {
     }
 }
 
-fn invalid(source: VisionError) -> GpuError {
+pub(crate) fn invalid(source: VisionError) -> GpuError {
     GpuError::InvalidParams {
         what: "GPU frame pipeline",
         source,
@@ -1264,6 +1085,7 @@ mod tests {
     use gazelight_vision::tone::ToneModel;
 
     use super::*;
+    use crate::glare::GlareGeometry;
     use crate::testing::test_context;
 
     /// A perspective view `hfov_deg` wide into one of the shared panoramas,

@@ -27,8 +27,15 @@ use gazelight_vision::glare::{COARSE_PX_DEG, FINE_RADIUS_DEG, GlareWindow};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
+use crate::fft::{FftDirection, GpuFft2d};
+use crate::frame::{
+    FrameSizes, STORAGE, TILE, UNIFORM, create_buffer, invalid, tiles, timestamp_writes,
+};
 use crate::pass::{Binding, PassDescriptor, PassLayout};
+use crate::psf::GpuPsfBuilder;
 use crate::shaders;
+use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
+use gazelight_vision::pipeline::PipelineConfig;
 
 /// Largest GPU FFT window, samples per side ([`crate::fft`]).
 const MAX_GPU_WINDOW: usize = 2048;
@@ -290,6 +297,188 @@ impl GlarePass {
     }
 }
 
+/// Stage 4 of [`crate::frame::GpuFramePipeline`]: the PSF builder, the
+/// split geometry, both FFT plans and the glare pass with their buffers.
+pub(crate) struct GlareStage {
+    pub(crate) psf: GpuPsfBuilder,
+    geometry: GlareGeometry,
+    fine: GpuFft2d,
+    coarse: GpuFft2d,
+    pass: GlarePass,
+    params: GlareParams,
+    uniform: wgpu::Buffer,
+    fine_spectrum: wgpu::Buffer,
+    coarse_spectrum: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    pub(crate) policy: KernelPolicy,
+}
+
+impl GlareStage {
+    /// The glare stage of `config` for the frame: the first PSF (4 mm),
+    /// the split geometry, both FFT plans, the kernel spectra buffers and
+    /// the bind group on the working frame `work`.
+    pub(crate) fn new(
+        ctx: &GpuContext,
+        config: &PipelineConfig,
+        deg_per_px: f64,
+        sizes: &FrameSizes,
+        work: &wgpu::Buffer,
+    ) -> Result<Self, GpuError> {
+        let mut params = config.glare.psf.clone();
+        params.ppd = 1.0 / deg_per_px;
+        params.pupil_mm = INITIAL_PUPIL_MM;
+        params.validate().map_err(invalid)?;
+        let psf = GpuPsfBuilder::new(ctx, &params)?;
+        let geometry = GlareGeometry::new(psf.kernel_size(), deg_per_px, config.glare.window())?;
+        let (wf, wc) = (geometry.wf as u32, geometry.wc as u32);
+        let fine = GpuFft2d::new(ctx, wf, wf, 3)?;
+        let coarse = GpuFft2d::new(ctx, wc, wc, 3)?;
+        let pass = GlarePass::new(ctx)?;
+        let glare_params = GlareParams::new(
+            &geometry,
+            psf.kernel_size() as u32,
+            sizes.width,
+            sizes.height,
+        );
+        let uniform = create_buffer(
+            ctx,
+            "glare params",
+            size_of::<GlareParams>() as u64,
+            UNIFORM,
+        )?;
+        let spectrum = |label, n: u32| create_buffer(ctx, label, u64::from(n * n) * 3 * 8, STORAGE);
+        let fine_spectrum = spectrum("glare fine kernel spectrum", wf)?;
+        let coarse_spectrum = spectrum("glare coarse kernel spectrum", wc)?;
+        let group = pass.layout.bind_buffers(
+            ctx,
+            &[
+                &uniform,
+                psf.kernel_buffer(),
+                fine.data_buffer(),
+                &fine_spectrum,
+                coarse.data_buffer(),
+                &coarse_spectrum,
+                work,
+            ],
+        )?;
+        ctx.queue()
+            .write_buffer(&uniform, 0, bytemuck::bytes_of(&glare_params));
+        Ok(Self {
+            psf,
+            geometry,
+            fine,
+            coarse,
+            pass,
+            params: glare_params,
+            uniform,
+            fine_spectrum,
+            coarse_spectrum,
+            group,
+            policy: KernelPolicy::new(&config.glare),
+        })
+    }
+
+    /// Records the split of the kernel in the PSF buffer into its fine and
+    /// coarse parts and their spectra (timestamps 4–5 of `timestamps`).
+    pub(crate) fn encode_kernel_spectrum(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        let (wf, wc) = (self.params.wf, self.params.wc);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("glare kernel split: fine core, coarse wide field"),
+                timestamp_writes: timestamp_writes(timestamps, Some(4), None),
+            });
+            pass.set_bind_group(0, &self.group, &[]);
+            pass.set_pipeline(&self.pass.kernel_fine);
+            pass.dispatch_workgroups(wf.div_ceil(TILE), wf.div_ceil(TILE), 1);
+            pass.set_pipeline(&self.pass.kernel_coarse);
+            pass.dispatch_workgroups(wc.div_ceil(TILE), wc.div_ceil(TILE), 1);
+        }
+        self.fine.encode(encoder, FftDirection::Forward, None);
+        self.coarse.encode(
+            encoder,
+            FftDirection::Forward,
+            timestamp_writes(timestamps, None, Some(5)),
+        );
+        let copy = |encoder: &mut wgpu::CommandEncoder, from: &GpuFft2d, to: &wgpu::Buffer| {
+            encoder.copy_buffer_to_buffer(from.data_buffer(), 0, to, 0, to.size());
+        };
+        copy(encoder, &self.fine, &self.fine_spectrum);
+        copy(encoder, &self.coarse, &self.coarse_spectrum);
+    }
+
+    /// Records the glare of the windows placed at `gaze_px` (timestamps
+    /// 6–7); nothing when that applies no glare.
+    pub(crate) fn encode_window(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        gaze_px: [f64; 2],
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
+        if !self.params.place(&self.geometry, gaze_px) {
+            return;
+        }
+        ctx.queue()
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
+        let (wf, wc) = (self.params.wf, self.params.wc);
+        let max = ctx.limits().max_compute_workgroups_per_dimension;
+        let linear = |n: u32| {
+            let groups = n.div_ceil(64);
+            let gx = groups.min(max);
+            (gx, groups.div_ceil(gx))
+        };
+        let steps: [(&str, Option<u32>, _); 2] = [
+            (
+                "stage 4: glare sources",
+                Some(6),
+                [
+                    (&self.pass.gather_fine, tiles(wf, wf)),
+                    (&self.pass.gather_coarse, tiles(wc, wc)),
+                ],
+            ),
+            (
+                "stage 4: glare spectrum products",
+                None,
+                [
+                    (&self.pass.multiply_fine, linear(3 * wf * wf)),
+                    (&self.pass.multiply_coarse, linear(3 * wc * wc)),
+                ],
+            ),
+        ];
+        for (direction, (label, begin, dispatches)) in
+            [FftDirection::Forward, FftDirection::Inverse]
+                .into_iter()
+                .zip(steps)
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes: timestamp_writes(timestamps, begin, None),
+            });
+            pass.set_bind_group(0, &self.group, &[]);
+            for (pipeline, (gx, gy)) in dispatches {
+                pass.set_pipeline(pipeline);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            drop(pass);
+            self.fine.encode(encoder, direction, None);
+            self.coarse.encode(encoder, direction, None);
+        }
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("stage 4: glare blend"),
+            timestamp_writes: timestamp_writes(timestamps, None, Some(7)),
+        });
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.set_pipeline(&self.pass.blend);
+        let (ow, oh) = self.params.output_size();
+        let (gx, gy) = tiles(ow, oh);
+        pass.dispatch_workgroups(gx, gy, 1);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -332,7 +521,7 @@ mod tests {
     /// lamp and near a corner.
     #[test]
     fn glare_pass_matches_the_cpu_convolver() {
-        use crate::frame::{FrameSizes, GlareStage};
+        use crate::frame::FrameSizes;
         use crate::testing::pass_harness::{panorama_view, read, storage, texels};
         use gazelight_vision::pipeline::PipelineConfig;
         use gazelight_vision::psf::PsfBuilder;

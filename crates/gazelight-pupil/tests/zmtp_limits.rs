@@ -21,11 +21,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
+use gazelight_eye::LiveEyeState;
 use gazelight_eye::clock::host_now_secs;
 use gazelight_eye::{DetectorMethod, PupilSample, PupilUnit, Sample};
 use gazelight_pupil::msg;
 use gazelight_pupil::relay::{self, FrameFigures, RelayFeed, RelayHandle};
-use gazelight_eye::LiveEyeState;
 use gazelight_pupil::{PupilClient, PupilConfig};
 use tokio::sync::{broadcast, watch};
 use zeromq::{PubSocket, ReqSocket, Socket, SocketRecv, SocketSend, SubSocket, ZmqMessage};

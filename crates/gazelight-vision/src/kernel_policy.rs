@@ -85,7 +85,13 @@ impl KernelPolicy {
     /// Whether a kernel built for `kernel_mm` is too far from `wanted_mm`:
     /// more than the threshold, or no kernel yet (NaN).
     fn moved(&self, wanted_mm: f64, kernel_mm: f64) -> bool {
-        !((wanted_mm - kernel_mm).abs() <= self.threshold_mm)
+        // NaN (no kernel yet) compares as moved.
+        matches!(
+            (wanted_mm - kernel_mm)
+                .abs()
+                .partial_cmp(&self.threshold_mm),
+            None | Some(std::cmp::Ordering::Greater)
+        )
     }
 
     /// One view: the pupil to build a new kernel for, or `None` to keep the
