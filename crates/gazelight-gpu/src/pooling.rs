@@ -67,11 +67,12 @@ pub struct PoolParams {
     pub _pad2: u32,
 }
 
-/// `span` of `gazelight_vision::pooling`: the blocks in `[lo, hi)`, clamped.
+/// [`gazelight_vision::pooling::span`] (the blocks in `[lo, hi)`, clamped
+/// to `0..n`) as the shader's `u32`s; both ends are at most `n`, itself a
+/// `u32` block count, so the conversion is exact.
 fn span(lo: f64, hi: f64, n: usize) -> (u32, u32) {
-    let a = lo.floor().max(0.0).min(n as f64) as u32;
-    let b = hi.ceil().max(0.0).min(n as f64) as u32;
-    (a, b.max(a))
+    let (a, b) = gazelight_vision::pooling::span(lo, hi, n);
+    (a as u32, b as u32)
 }
 
 impl PoolParams {
@@ -113,7 +114,7 @@ impl PoolParams {
         match *model {
             PoolingModel::Gaussian { sigma_deg } => {
                 let sigma_px = sigma_deg / deg_per_block;
-                let reach = 6.0 * sigma_px + 1.0;
+                let reach = gazelight_vision::pooling::gaussian_reach_px(sigma_px);
                 (p.x0, p.x1) = span(gaze_px[0] - reach, gaze_px[0] + reach, w);
                 (p.y0, p.y1) = span(gaze_px[1] - reach, gaze_px[1] + reach, h);
                 p.p0 = (1.0 / (sigma_px * std::f64::consts::SQRT_2)) as f32;

@@ -267,9 +267,10 @@ fn sanitise(width: usize, height: usize, gaze_px: [f64; 2], deg_per_px: f64) -> 
     (gaze, deg_per_px)
 }
 
-/// How far from the gaze the Gaussian pool visits pixels: 6σ plus one
+/// How far from the gaze the Gaussian pool visits pixels (the GPU pooling
+/// pass takes it from here, so both visit the same blocks): 6σ plus one
 /// pixel (its weights beyond are < 1e-9 of the peak).
-fn gaussian_reach_px(sigma_px: f64) -> f64 {
+pub fn gaussian_reach_px(sigma_px: f64) -> f64 {
     6.0 * sigma_px + 1.0
 }
 
@@ -416,7 +417,7 @@ impl Plane<'_> {
 
 /// Index range of the pixels that intersect `[lo, hi]`, clipped to `0..n`.
 #[inline]
-fn span(lo: f64, hi: f64, n: usize) -> (usize, usize) {
+pub fn span(lo: f64, hi: f64, n: usize) -> (usize, usize) {
     let a = lo.floor().max(0.0).min(n as f64) as usize;
     let b = (hi.ceil().max(0.0).min(n as f64)) as usize;
     (a, b.max(a))
