@@ -9,8 +9,9 @@
 //! buffer after each PSF rebuild, transformed ([`crate::fft::GpuFft2d`],
 //! three planes each) and cached between rebuilds.
 //!
-//! [`GlareGeometry`] reproduces the CPU convolver's sizes (fine radius,
-//! block, source radius and the windows it needs) in f64 as the CPU does,
+//! [`GlareGeometry`] takes the CPU convolver's sizes (fine radius, block,
+//! source radius and the windows it needs) from
+//! [`gazelight_vision::glare::GlareSizes`], the one definition,
 //! and [`GlareParams::place`] its per-frame placement (origins, source box,
 //! output region). The GPU's FFT windows are the next powers of two of the
 //! sizes the CPU needs (the CPU also takes `3·2^k`, `5·2^k`): a larger
@@ -23,7 +24,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use gazelight_vision::VisionError;
-use gazelight_vision::glare::{COARSE_PX_DEG, FINE_RADIUS_DEG, GlareWindow};
+use gazelight_vision::glare::{GlareSizes, GlareWindow};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -81,19 +82,16 @@ impl GlareGeometry {
                 "a square kernel with a finite pixel size",
             )));
         }
-        let ppd = 1.0 / deg_per_px;
-        let r_kernel = kernel_size / 2;
-        let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
-        // The smallest odd block of at least COARSE_PX_DEG.
-        let half_b = ((COARSE_PX_DEG * ppd - 1.0) / 2.0).ceil().max(0.0) as usize;
-        let block = 2 * half_b + 1;
-        let r_coarse = (r_kernel + half_b).div_ceil(block);
-        let d_full = window.full_weight_deg * ppd;
-        let sigma = window.fade_sigma_deg * ppd;
-        let r_src = d_full + 3.0 * sigma;
-        let src_px = r_src.ceil() as usize + 1;
-        let fine_needed = 2 * (src_px + r_fine) + 2;
-        let coarse_needed = 2 * (src_px.div_ceil(block) + 1 + r_coarse) + 2;
+        let GlareSizes {
+            r_fine,
+            block,
+            d_full,
+            sigma,
+            r_src,
+            fine_needed,
+            coarse_needed,
+            ..
+        } = GlareSizes::new(kernel_size, deg_per_px, window);
         let (wf, wc) = (
             fine_needed.next_power_of_two(),
             coarse_needed.next_power_of_two(),

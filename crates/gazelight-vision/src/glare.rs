@@ -885,6 +885,65 @@ struct BlendPlan {
     xe: usize,
 }
 
+/// The split's geometry for a `kernel_size` kernel at `deg_per_px` and the
+/// weight `window`, in display pixels: the one definition the CPU
+/// convolver and its GPU twin (`gazelight-gpu/src/glare.rs`) share. Each
+/// rounds the needed window sizes to its own FFT sizes (the CPU to
+/// `2^k`, `3·2^k`, `5·2^k`, the GPU to `2^k`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GlareSizes {
+    /// Radius of the full-resolution core, pixels ([`FINE_RADIUS_DEG`],
+    /// at least 1, at most the kernel's radius).
+    pub r_fine: usize,
+    /// Half the coarse block, pixels.
+    pub half_b: usize,
+    /// Coarse block `b`: the smallest odd size of at least
+    /// [`COARSE_PX_DEG`], pixels.
+    pub block: usize,
+    /// The kernel's radius in blocks.
+    pub r_coarse: usize,
+    /// Full-weight radius, pixels.
+    pub d_full: f64,
+    /// Fade σ, pixels.
+    pub sigma: f64,
+    /// Source radius `d_full + 3σ`, pixels.
+    pub r_src: f64,
+    /// Fine window needed for a linear convolution, samples per side.
+    pub fine_needed: usize,
+    /// Coarse window needed, blocks per side.
+    pub coarse_needed: usize,
+}
+
+impl GlareSizes {
+    /// The geometry (no validation: callers check the window and the
+    /// kernel first).
+    pub fn new(kernel_size: usize, deg_per_px: f64, window: GlareWindow) -> Self {
+        let ppd = 1.0 / deg_per_px;
+        let r_kernel = kernel_size / 2;
+        let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
+        // The smallest odd block of at least COARSE_PX_DEG (0.4–0.6° above
+        // 5 ppd).
+        let half_b = (((COARSE_PX_DEG * ppd - 1.0) / 2.0).ceil().max(0.0)) as usize;
+        let block = 2 * half_b + 1;
+        let r_coarse = (r_kernel + half_b).div_ceil(block);
+        let d_full = window.full_weight_deg * ppd;
+        let sigma = window.fade_sigma_deg * ppd;
+        let r_src = d_full + 3.0 * sigma;
+        let src_px = r_src.ceil() as usize + 1;
+        Self {
+            r_fine,
+            half_b,
+            block,
+            r_coarse,
+            d_full,
+            sigma,
+            r_src,
+            fine_needed: 2 * (src_px + r_fine) + 2,
+            coarse_needed: 2 * (src_px.div_ceil(block) + 1 + r_coarse) + 2,
+        }
+    }
+}
+
 impl GlareConvolver {
     /// A convolver for `kernel` (at the display's pixels per degree) and the
     /// weight `window`. Errors name the setting when the windows would exceed
@@ -902,20 +961,19 @@ impl GlareConvolver {
                 "a square kernel with a finite pixel size",
             ));
         }
-        let ppd = 1.0 / dpp;
-        let r_kernel = kernel.size / 2;
-        let r_fine = ((FINE_RADIUS_DEG * ppd).round() as usize).clamp(1, r_kernel.max(1));
-        // The smallest odd block of at least COARSE_PX_DEG (0.4–0.6° above
-        // 5 ppd).
-        let half_b = (((COARSE_PX_DEG * ppd - 1.0) / 2.0).ceil().max(0.0)) as usize;
-        let block = 2 * half_b + 1;
-        let r_coarse = (r_kernel + half_b).div_ceil(block);
-        let d_full = window.full_weight_deg * ppd;
-        let sigma = window.fade_sigma_deg * ppd;
-        let r_src = d_full + 3.0 * sigma;
-        let src_px = r_src.ceil() as usize + 1;
-        let wf = good_fft_size(2 * (src_px + r_fine) + 2);
-        let wc = good_fft_size(2 * (src_px.div_ceil(block) + 1 + r_coarse) + 2);
+        let GlareSizes {
+            r_fine,
+            half_b,
+            block,
+            r_coarse,
+            d_full,
+            sigma,
+            r_src,
+            fine_needed,
+            coarse_needed,
+        } = GlareSizes::new(kernel.size, dpp, window);
+        let wf = good_fft_size(fine_needed);
+        let wc = good_fft_size(coarse_needed);
         if wf > MAX_WINDOW || wc > MAX_WINDOW {
             return Err(VisionError::invalid(
                 "glare.full_weight_deg",
