@@ -568,6 +568,49 @@ mod tests {
         );
     }
 
+    /// The pupils of [`crate::bad_pupils::SEQUENCE`] (NaN, ±∞, 0, −3, 20 mm,
+    /// f32::MAX among good ones) give the same kernels on the offline CPU
+    /// pipeline and the GPU frame: the table's, read back from each
+    /// backend's kernel as well as its frame statistics.
+    #[test]
+    fn bad_pupils_give_the_same_kernels_on_both_backends() {
+        let (w, h) = (64, 48);
+        let (view, deg_per_px) = demo_view(w, h);
+        let mut config = PipelineConfig::default();
+        // A small field keeps the eleven kernel builds quick.
+        config.glare.psf.field_deg = 8.0;
+        let gpu = test_context("bad_pupils_give_the_same_kernels_on_both_backends").is_some();
+        let choices: &[BackendChoice] = if gpu {
+            &[BackendChoice::Cpu, BackendChoice::Gpu]
+        } else {
+            &[BackendChoice::Cpu]
+        };
+        for &choice in choices {
+            let mut r = Renderer::new(choice, &config, w, h, deg_per_px).unwrap();
+            let mut out = DisplayFrame::new(w, h);
+            for (i, &(pupil_mm, want_mm)) in crate::bad_pupils::SEQUENCE.iter().enumerate() {
+                let input = FrameInput {
+                    gaze_uv: [0.5, 0.4],
+                    pupil_mm,
+                    dt_secs: 1.0 / 90.0,
+                };
+                let stats = r.process(&view, &input, &mut out).unwrap();
+                let kernel_mm = r.psf_kernel().unwrap().unwrap().pupil_mm;
+                assert!(
+                    (stats.psf_pupil_mm - want_mm).abs() < 1e-9
+                        && (kernel_mm - want_mm).abs() < 1e-9,
+                    "{choice}, step {i}: pupil {pupil_mm} mm gave kernel {kernel_mm} mm \
+                     (stats {}), want {want_mm} mm",
+                    stats.psf_pupil_mm
+                );
+                assert!(
+                    out.rgba8.iter().any(|&v| v > 0),
+                    "{choice}, step {i}: black frame"
+                );
+            }
+        }
+    }
+
     /// The GPU renderer's kernel is read back again after a rebuild (not the
     /// stale cached copy), matches the CPU's, and a set adaptation state
     /// carries over on both backends.

@@ -27,6 +27,7 @@ use gazelight_tracker::pupil::{PupilConfig, PupilSource, RemoteSink};
 use gazelight_tracker::source::SampleSource;
 use gazelight_tracker::{Sample, SourceError};
 
+use crate::service_config::ConfigUser;
 use crate::window::{self, Content, SolidColour, WindowOptions};
 
 fn parse_window_size(s: &str) -> Result<(u32, u32), String> {
@@ -61,11 +62,16 @@ pub enum StimulusKind {
 }
 
 /// Arguments of `gazelight calibrate`.
-#[derive(Args, Debug)]
+#[derive(Args, Clone, Debug)]
 pub struct CalibrateArgs {
-    /// Tracker source (Pupil Capture's Pupil Remote).
-    #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
-    pub source: String,
+    /// Tracker source (Pupil Capture's Pupil Remote) [default: the
+    /// configuration's `source.uri`, else pupil://127.0.0.1:50020].
+    #[arg(long, value_name = "URI")]
+    pub source: Option<String>,
+    /// Configuration file (the one schema of every command; `calibrate`
+    /// uses `source.uri` and reports the other keys as ignored).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Where the black/white stimulus is shown.
     #[arg(long, value_enum, default_value = "remote")]
     pub stimulus: StimulusKind,
@@ -127,7 +133,32 @@ impl StimulusSink for AnnouncingSink<'_> {
 }
 
 /// Runs `gazelight calibrate`.
-pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
+/// Pupil Remote's default address.
+const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
+
+impl CalibrateArgs {
+    /// The source: `--source`, else (after [`Self::apply_config`]) the
+    /// configuration's, else [`DEFAULT_SOURCE`].
+    pub fn source(&self) -> &str {
+        self.source.as_deref().unwrap_or(DEFAULT_SOURCE)
+    }
+
+    /// Loads `--config` (if any) and takes its `source.uri` where no
+    /// `--source` was given.
+    pub fn apply_config(&mut self) -> anyhow::Result<()> {
+        if let Some(path) = &self.config {
+            let (config, _ignored) =
+                crate::service_config::ServiceConfig::load_for(path, ConfigUser::Calibrate)?;
+            if self.source.is_none() {
+                self.source = config.source.uri;
+            }
+        }
+        Ok(())
+    }
+}
+
+pub fn run(mut args: CalibrateArgs) -> anyhow::Result<()> {
+    args.apply_config()?;
     let mut cfg = CalibrationConfig {
         phase_duration_s: args.phase_secs,
         settle_s: args.settle_secs,
@@ -151,8 +182,8 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             parent.display()
         );
     }
-    let pupil = gazelight_tracker::uri::pupil_config(&args.source)
-        .with_context(|| format!("--source {}", args.source))?;
+    let pupil = gazelight_tracker::uri::pupil_config(args.source())
+        .with_context(|| format!("--source {}", args.source()))?;
 
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -249,12 +280,12 @@ async fn calibrate(
     source.client().wait_connected(connect).await.with_context(|| {
         format!(
             "no tracker at {}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?",
-            args.source
+            args.source()
         )
     })?;
     eprintln!(
         "connected to {} ({}); calibrating: {:?} then {:?}, {:.1} s each, {:.1} s settle",
-        args.source,
+        args.source(),
         source.client().stats().version.unwrap_or_default(),
         cfg.order[0],
         cfg.order[1],
@@ -303,7 +334,7 @@ async fn calibrate(
             Err(_) => {
                 break Err(anyhow::anyhow!(
                     "{}: no samples for {:.1} s ({:?})",
-                    args.source,
+                    args.source(),
                     args.silence_secs,
                     session.progress()
                 ));
@@ -319,7 +350,7 @@ async fn calibrate(
             Ok(None) => {
                 break Err(anyhow::anyhow!(
                     "{} ended before the calibration finished",
-                    args.source
+                    args.source()
                 ));
             }
             Err(e @ (SourceError::Item { .. } | SourceError::Disconnected { .. })) => {
@@ -351,7 +382,8 @@ async fn calibrate(
     profile.description = args.description.clone().or_else(|| {
         Some(format!(
             "gazelight calibrate --source {} ({:?} stimulus)",
-            args.source, args.stimulus
+            args.source(),
+            args.stimulus
         ))
     });
     profile

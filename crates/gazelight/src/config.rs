@@ -1,7 +1,11 @@
-//! The render configuration file (TOML). Every field is optional; unknown
-//! fields are errors that name the field. Every section and key, with its
-//! default and unit: `docs/configuration.md`. The example below is loaded
-//! by the test `the_module_doc_example_loads`.
+//! The configuration of `render` and `replay`: the one configuration file
+//! of every command ([`crate::service_config::ServiceConfig`], the schema
+//! `run` reads), of which these two use `[scene]` (scene file, luminance
+//! scale, view), `display.size`, `[pipeline]`, `[filter]` and `[observer]`
+//! (and `replay` `source.calibration`); other keys are reported as ignored.
+//! Every section and key, with its default and unit:
+//! `docs/configuration.md`. The example below is loaded by the test
+//! `the_module_doc_example_loads`.
 //!
 //! ```toml
 //! [scene]
@@ -12,54 +16,75 @@
 //! pooling = { model = "gaussian", sigma_deg = 2.0 }
 //! temporal = { model = "krawczyk", tau_rod_secs = 0.4, tau_cone_secs = 0.1 }
 //! glare = { full_weight_deg = 12.0, fade_sigma_deg = 2.0, psf_rebuild_threshold_mm = 0.1 }
+//!
+//! [observer]
+//! age_years = 25.0
+//!
+//! [filter]
+//! dropout = { hold_s = 0.3 }
 //! ```
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::Context;
+use gazelight_tracker::filter::FilterConfig;
 use gazelight_vision::pipeline::PipelineConfig;
-use gazelight_vision::scene::{LuminanceScale, ViewParams};
-use serde::{Deserialize, Serialize};
+use gazelight_vision::scene::LuminanceScale;
 
-/// Scene settings.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SceneSettings {
-    /// cd/m² per file unit, or a median key.
-    pub luminance_scale: Option<LuminanceScale>,
-    /// Head orientation, field of view and display size.
-    pub view: Option<ViewParams>,
-}
+use crate::observer::ObserverSettings;
+use crate::service_config::{ConfigUser, ServiceConfig};
+use crate::view_args::ViewDefaults;
 
-/// The whole render configuration.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+/// What `render` and `replay` take from the configuration file.
+#[derive(Clone, Debug, Default)]
 pub struct RenderConfig {
-    pub scene: SceneSettings,
+    /// `scene.file`: the HDR scene when `--scene` is not given.
+    pub scene_file: Option<PathBuf>,
+    /// `scene.luminance_scale`.
+    pub luminance_scale: Option<LuminanceScale>,
+    /// `scene.yaw_deg`, `pitch_deg`, `hfov_deg` (or `scene.view`).
+    pub view: ViewDefaults,
+    /// `display.size` (or `scene.view`'s width and height).
+    pub size: Option<(usize, usize)>,
     pub pipeline: PipelineConfig,
+    /// `[filter]`: the tracker's filter chain the samples go through.
+    pub filter: FilterConfig,
+    /// `[observer]`.
+    pub observer: ObserverSettings,
+    /// `source.calibration` (`replay` only).
+    pub calibration: Option<PathBuf>,
+    /// The file's keys that do not apply (reported on load).
+    pub ignored: Vec<String>,
 }
 
 impl RenderConfig {
-    /// Loads and validates a TOML file.
-    pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text = gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Toml)
-            .with_context(|| format!("cannot read config {}", path.display()))?;
-        let config: Self =
-            toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
-        config
-            .pipeline
-            .validate()
-            .with_context(|| format!("config {}: [pipeline]", path.display()))?;
-        if let Some(scale) = &config.scene.luminance_scale {
-            scale
-                .validate()
-                .with_context(|| format!("config {}: [scene]", path.display()))?;
-        }
-        if let Some(view) = &config.scene.view {
-            view.validate()
-                .with_context(|| format!("config {}: [scene]", path.display()))?;
-        }
-        Ok(config)
+    /// Loads and validates the configuration file for `user` (`render` or
+    /// `replay`).
+    pub fn load(path: &Path, user: ConfigUser) -> anyhow::Result<Self> {
+        let (config, ignored) = ServiceConfig::load_for(path, user)?;
+        let size = config
+            .display
+            .size
+            .as_deref()
+            .map(crate::service_config::parse_size)
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("config {}: display.size = {e}", path.display()))?;
+        Ok(Self {
+            scene_file: config.scene.file,
+            luminance_scale: config.scene.luminance_scale,
+            view: ViewDefaults {
+                yaw_deg: config.scene.yaw_deg,
+                pitch_deg: config.scene.pitch_deg,
+                hfov_deg: config.scene.hfov_deg,
+            },
+            size,
+            pipeline: config.pipeline,
+            filter: config.filter,
+            observer: config.observer,
+            calibration: (user == ConfigUser::Replay)
+                .then_some(config.source.calibration)
+                .flatten(),
+            ignored,
+        })
     }
 }
 
@@ -91,12 +116,17 @@ pub(crate) mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("render.toml");
         std::fs::write(&path, &text).unwrap();
-        let loaded = RenderConfig::load(&path);
+        let loaded = RenderConfig::load(&path, ConfigUser::Render);
         let _ = std::fs::remove_dir_all(&dir);
         let config = loaded.unwrap();
         assert_eq!(config.pipeline.glare.full_weight_deg, 12.0);
+        assert_eq!(config.view.yaw_deg, Some(-78.0));
+        assert_eq!(config.size, Some((720, 800)));
+        assert_eq!(config.observer.age_years, Some(25.0));
+        assert_eq!(config.filter.dropout.hold_s, 0.3);
+        assert!(config.ignored.is_empty(), "{:?}", config.ignored);
         // The key the example used to show is refused (tests/cli.rs too).
         let bad = text.replace("glare = {", "glare = { window_px = 256,");
-        assert!(toml::from_str::<RenderConfig>(&bad).is_err());
+        assert!(toml::from_str::<ServiceConfig>(&bad).is_err());
     }
 }

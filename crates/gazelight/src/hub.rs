@@ -145,6 +145,9 @@ pub struct Hub {
     /// Whether a reader of the display frame (the status page) exists:
     /// without one the frame loop publishes no frame (and reads none back).
     display_wanted: std::sync::atomic::AtomicBool,
+    /// Every setting of the session and its source (set once at start;
+    /// served in the status JSON).
+    settings: std::sync::OnceLock<crate::session::SessionSettings>,
 }
 
 /// A frame's figures with the host time it was published at.
@@ -212,7 +215,18 @@ impl Hub {
             shutdown,
             frame_tap: std::sync::OnceLock::new(),
             display_wanted: std::sync::atomic::AtomicBool::new(false),
+            settings: std::sync::OnceLock::new(),
         })
+    }
+
+    /// Publishes the session's settings (the first call wins).
+    pub fn set_settings(&self, settings: crate::session::SessionSettings) {
+        let _ = self.settings.set(settings);
+    }
+
+    /// The session's settings, once published.
+    pub fn settings(&self) -> Option<&crate::session::SessionSettings> {
+        self.settings.get()
     }
 
     /// Registers a reader of the display frame (the status page).

@@ -11,9 +11,12 @@
 //! (`psf::PsfArgs`) and `run`; the other modules are what subcommands share.
 
 mod backend;
+#[cfg(test)]
+mod bad_pupils;
 mod bounds;
 mod calibrate;
 mod config;
+mod config_cmd;
 mod demo;
 mod devices;
 mod hub;
@@ -30,6 +33,7 @@ mod replay;
 mod run;
 mod serve;
 mod service_config;
+mod session;
 mod shutdown;
 mod stereo;
 mod view_args;
@@ -79,6 +83,9 @@ enum Command {
     /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
     /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
     Inspect(inspect::InspectArgs),
+    /// Print the default configuration (`--print-default`): the one TOML
+    /// schema every command's --config reads.
+    Config(config_cmd::ConfigArgs),
     /// List connected HID devices (page-0x12 eye trackers and known vendor
     /// profiles marked), USB devices and serial ports, with their source
     /// URIs.
@@ -106,20 +113,41 @@ fn parse_only() -> bool {
 /// opening anything.
 fn check(command: &Command) -> anyhow::Result<()> {
     match command {
-        Command::Render(args) => render::check(args),
+        Command::Render(args) => render::check(args, service_config::ConfigUser::Render),
         Command::Replay(args) => replay::check(args),
         Command::Run(args) => run::check(args),
-        Command::Calibrate(args) => gazelight_tracker::uri::pupil_config(&args.source)
-            .map(|_| ())
-            .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
+        Command::Calibrate(args) => {
+            let mut args = args.clone();
+            args.apply_config()?;
+            gazelight_tracker::uri::pupil_config(args.source())
+                .map(|_| ())
+                .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source()))
+        }
         Command::Record(args) => gazelight_tracker::uri::SourceUri::parse(&args.source)
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
-        Command::Psf(_) | Command::Inspect(_) | Command::Devices(_) => Ok(()),
+        Command::Psf(_) | Command::Inspect(_) | Command::Devices(_) | Command::Config(_) => Ok(()),
+    }
+}
+
+/// Mesa's implicit Vulkan layer `VK_LAYER_MESA_device_select` connects to
+/// Wayland while listing GPUs and, on a machine without a Wayland session,
+/// prints `error: XDG_RUNTIME_DIR is invalid or not set` on stderr — an
+/// error line on every successful GPU run. gazelight picks its adapter
+/// itself, so where no Wayland display is set and the user has not asked
+/// the layer for a device, the layer is switched off (`NODEVICE_SELECT=1`,
+/// its documented switch). Called first in `main`, before any thread.
+fn quiet_mesa_device_select() {
+    let unset = |k: &str| std::env::var_os(k).is_none();
+    if unset("WAYLAND_DISPLAY") && unset("NODEVICE_SELECT") && unset("MESA_VK_DEVICE_SELECT") {
+        // SAFETY: runs at the top of `main`, before any other thread
+        // exists, so nothing reads the environment concurrently.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }
 
 fn main() -> std::process::ExitCode {
+    quiet_mesa_device_select();
     // Negative numbers are values, not flags (`--yaw-deg -78`, `--secs -1`
     // reaches the range check that names the flag instead of clap's
     // "unexpected argument"), for every subcommand's options.
@@ -143,6 +171,8 @@ fn main() -> std::process::ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        // Colour codes only on a terminal: log files stay plain text.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let result = match cli.command {
         Command::Render(args) => render::run(args),
@@ -153,6 +183,7 @@ fn main() -> std::process::ExitCode {
         Command::Psf(args) => psf::run(args),
         Command::Inspect(args) => inspect::run(args),
         Command::Devices(args) => devices::run(args),
+        Command::Config(args) => config_cmd::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -8,6 +8,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_tracker::filter::{ChainStats, FilterChain};
 use gazelight_tracker::live::LiveChain;
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::trace_source;
 use gazelight_tracker::{EyeState, GazeTrace, Sample, TraceSample};
 use gazelight_vision::RgbImage;
@@ -18,7 +19,12 @@ use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
 use crate::demo;
 use crate::output::{self, TimelineRow};
+use crate::service_config::ConfigUser;
+use crate::session::{Origin, SessionSettings};
 use crate::stereo::{self, MONO, STEREO, StereoKernels, View};
+
+/// The frame rate of a rendered sequence unless `--fps` says otherwise.
+const DEFAULT_RENDER_FPS: f64 = 30.0;
 
 /// Arguments of `gazelight render`.
 #[derive(Args, Debug)]
@@ -28,7 +34,9 @@ pub struct RenderArgs {
     #[arg(long, value_name = "FILE")]
     pub scene: Option<PathBuf>,
     /// Gaze/pupil trace CSV (t_secs,gaze_u,gaze_v,pupil_mm[,confidence]).
-    /// Default: the built-in demo trace (ground → street lamp → ground).
+    /// Default: on the embedded scene the built-in demo trace (ground →
+    /// street lamp → ground); on a scene of your own a slow horizontal
+    /// gaze sweep across the view at a fixed 4 mm pupil over 12 s.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
     /// Output directory (created).
@@ -38,7 +46,7 @@ pub struct RenderArgs {
     #[arg(long, value_name = "N")]
     pub frames: Option<usize>,
     /// Frame rate of the rendered sequence.
-    #[arg(long, value_name = "HZ", default_value_t = 30.0)]
+    #[arg(long, value_name = "HZ", default_value_t = DEFAULT_RENDER_FPS)]
     pub fps: f64,
     /// Display size per eye, WIDTHxHEIGHT (default 720x800, half the Vive
     /// Pro's 1440x1600).
@@ -82,33 +90,44 @@ pub(crate) struct Setup {
     pub scene: Scene,
     pub view: ViewParams,
     pub view_img: RgbImage,
+    /// Every setting in effect and where it came from (printed after the
+    /// summary, written as `session.json`).
+    pub settings: SessionSettings,
 }
 
 /// The configuration (loaded and validated) with the observer flags
 /// applied, after the flag checks that need no file but the configuration.
-fn load_config(args: &RenderArgs) -> anyhow::Result<RenderConfig> {
+fn load_config(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<RenderConfig> {
     let mut config = match &args.config {
-        Some(p) => RenderConfig::load(p)?,
+        Some(p) => RenderConfig::load(p, user)?,
         None => RenderConfig::default(),
     };
-    crate::observer::apply(&mut config.pipeline.glare.psf, &args.observer, None, None)?;
+    let observer = config.observer;
+    crate::observer::apply(
+        &mut config.pipeline.glare.psf,
+        &args.observer,
+        Some(&observer),
+        None,
+    )?;
     crate::bounds::fps("--fps", args.fps)?;
     Ok(config)
 }
 
 /// `GAZELIGHT_PARSE_ONLY`: the configuration and flag checks of `render`
 /// (and `replay`), nothing loaded or written.
-pub(crate) fn check(args: &RenderArgs) -> anyhow::Result<()> {
-    load_config(args).map(|_| ())
+pub(crate) fn check(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<()> {
+    load_config(args, user).map(|_| ())
 }
 
-/// Loads the configuration and scene and renders the panorama view.
-pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
-    let config = load_config(args)?;
+/// Loads the configuration (for `user`: `render` or `replay`) and scene and
+/// renders the panorama view.
+pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Setup> {
+    let config = load_config(args, user)?;
 
     // Scene.
-    let scale = args.view.scale(config.scene.luminance_scale)?;
-    let scene = match &args.scene {
+    let scale = args.view.scale(config.luminance_scale)?;
+    let scene_path = args.scene.as_ref().or(config.scene_file.as_ref());
+    let scene = match scene_path {
         Some(path) => Scene::load(path, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
@@ -120,37 +139,150 @@ pub(crate) fn prepare(args: &RenderArgs) -> anyhow::Result<Setup> {
             scene.repaired_components
         );
     }
-    let (width, height) = args
-        .size
-        .or(config.scene.view.map(|v| (v.width, v.height)))
-        .unwrap_or((720, 800));
-    let base_view = config
-        .scene
-        .view
-        .unwrap_or_else(|| demo::default_view(width, height));
+    let (width, height) = args.size.or(config.size).unwrap_or((720, 800));
     let view = args.view.view(
-        crate::view_args::ViewDefaults::default(),
-        base_view,
+        config.view,
+        demo::default_view(width, height),
         (width, height),
     );
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(width, height);
     projection.render(&scene.image, &mut view_img);
+
+    let mut settings = SessionSettings::new(user.name(), args.config.as_deref(), &config.ignored);
+    let v = &args.view;
+    let c = &config;
+    let scene_origin = Origin::first(args.scene.as_ref(), c.scene_file.as_ref(), None);
+    settings.set("scene.file", &scene.name, scene_origin);
+    let scale_origin = Origin::first(
+        v.luminance_scale.or(v.scene_key_cd_m2),
+        c.luminance_scale.map(|_| 0.0),
+        None,
+    );
+    settings.set("scene.luminance_scale", scale, scale_origin);
+    let factor = settings.set("scene.cd_m2_per_unit", scene.cd_m2_per_unit, scale_origin);
+    if let Some(note) = unscaled_scene_note(scene_path.map(|p| p.as_path()), scale_origin, &scene) {
+        tracing::warn!(scene = %scene.name, "{note}");
+        factor.note = Some(note);
+    }
+    settings.set(
+        "view.yaw_deg",
+        view.yaw_deg,
+        Origin::first(v.yaw_deg, c.view.yaw_deg, None),
+    );
+    settings.set(
+        "view.pitch_deg",
+        view.pitch_deg,
+        Origin::first(v.pitch_deg, c.view.pitch_deg, None),
+    );
+    settings.set(
+        "view.hfov_deg",
+        view.hfov_deg,
+        Origin::first(v.hfov_deg, c.view.hfov_deg, None),
+    );
+    settings.set(
+        "view.size",
+        format!("{width}x{height}"),
+        Origin::first(args.size, c.size, None),
+    );
+    let observer = &args.observer;
+    let psf = &config.pipeline.glare.psf;
+    settings.set(
+        "observer.age_years",
+        psf.age_years,
+        Origin::first(observer.age_years, c.observer.age_years, None),
+    );
+    settings.set(
+        "observer.pigmentation",
+        psf.pigmentation,
+        Origin::first(observer.pigmentation, c.observer.pigmentation, None),
+    );
+    let from_file = |differs: bool| {
+        if args.config.is_some() && differs {
+            Origin::Config
+        } else {
+            Origin::Default
+        }
+    };
+    settings.set(
+        "pipeline",
+        &config.pipeline,
+        from_file(config.pipeline != PipelineConfig::default()),
+    );
+    settings.set(
+        "filter",
+        config.filter,
+        from_file(config.filter != gazelight_tracker::filter::FilterConfig::default()),
+    );
+    settings.set(
+        "render.fps",
+        args.fps,
+        if args.fps == DEFAULT_RENDER_FPS {
+            Origin::Default
+        } else {
+            Origin::Flag
+        },
+    );
+    settings.set(
+        "backend",
+        args.backend.to_string(),
+        if args.backend == BackendChoice::Auto {
+            Origin::Default
+        } else {
+            Origin::Flag
+        },
+    );
     Ok(Setup {
         config,
         scene,
         view,
         view_img,
+        settings,
     })
+}
+
+/// The note (and warning) for a scene file whose values are taken as
+/// cd/m² only because no scale was given: OpenEXR (and any non-Radiance
+/// file) carries no absolute unit, so a relative panorama would adapt to a
+/// meaningless level. `None` for Radiance files (absolute by their 179 lm/W
+/// convention), the embedded scene and any scale given by flag or
+/// configuration.
+fn unscaled_scene_note(
+    path: Option<&std::path::Path>,
+    origin: Origin,
+    scene: &Scene,
+) -> Option<String> {
+    let path = path?;
+    if origin != Origin::Default {
+        return None;
+    }
+    let radiance = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr") || e.eq_ignore_ascii_case("pic"));
+    if radiance {
+        return None;
+    }
+    let median = gazelight_vision::scene::median_luminance(&scene.image);
+    Some(format!(
+        "{} holds no absolute luminance scale and none was given: its values are taken \
+         as cd/m² (factor {}), median {median:.3} cd/m²; give --luminance-scale F \
+         (cd/m² per file unit) or --scene-key-cd-m2 L, or scene.luminance_scale in the \
+         configuration",
+        path.display(),
+        scene.cd_m2_per_unit
+    ))
 }
 
 /// Runs `gazelight render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    let setup = prepare(&args)?;
+    let setup = prepare(&args, ConfigUser::Render)?;
     let trace = match &args.trace {
         Some(path) => GazeTrace::load(path)?,
-        None if args.scene.is_none() => demo::demo_trace(&setup.view, &setup.view_img)?,
+        None if args.scene.is_none() && setup.config.scene_file.is_none() => {
+            demo::demo_trace(&setup.view, &setup.view_img)?
+        }
         None => sweep_trace(),
     };
     let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
@@ -159,7 +291,9 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         .samples
         .into_iter()
         .flat_map(|s| trace_source::expand(&s, s.t_secs));
-    let mut feeder = SampleFeed::new(samples, FilterChain::with_defaults());
+    let chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
+        .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
+    let mut feeder = SampleFeed::new(samples, chain);
     render_sequence(&args, &setup, &mut feeder, t0, duration, started)
 }
 
@@ -230,6 +364,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         scene,
         view,
         view_img,
+        settings,
     } = setup;
     let (width, height) = (view.width, view.height);
     let frames = match args.frames {
@@ -432,8 +567,10 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             .first()
             .map_or_else(String::new, Renderer::describe)
     );
+    settings.write(&args.out)?;
+    print!("{}", settings.summary());
     println!(
-        "wrote {}/{{{}contact_sheet.png, timeline.csv, plot.png}}",
+        "wrote {}/{{{}contact_sheet.png, timeline.csv, plot.png, session.json}}",
         args.out.display(),
         if args.no_frames { "" } else { "frames/, " }
     );

@@ -21,6 +21,8 @@ use gazelight_tracker::{PupilUnit, Sample};
 
 use crate::input_report;
 use crate::render::{self, RenderArgs, SampleFeed};
+use crate::service_config::ConfigUser;
+use crate::session::Origin;
 
 /// Arguments of `gazelight replay`.
 #[derive(Args, Debug)]
@@ -63,14 +65,21 @@ fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
 /// the recording is not opened.
 pub(crate) fn check(args: &ReplayArgs) -> anyhow::Result<()> {
     check_flags(args)?;
-    render::check(&args.render)
+    render::check(&args.render, ConfigUser::Replay)
 }
 
 /// Runs `gazelight replay`.
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     check_flags(&args)?;
-    let calibration = match &args.calibration {
+    // The configuration first: its `source.calibration` stands in for
+    // `--calibration`.
+    let mut setup = render::prepare(&args.render, ConfigUser::Replay)?;
+    let calibration_path = args
+        .calibration
+        .as_ref()
+        .or(setup.config.calibration.as_ref());
+    let calibration = match calibration_path {
         Some(path) => Some(PupilCalibration::load(path)?),
         None => None,
     };
@@ -110,16 +119,52 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     );
 
     // Pass 2: render, feeding the samples just ahead of the frame clock.
-    let mut setup = render::prepare(&args.render)?;
-    // The profile's observer where no flag names one.
+    // The profile's observer where neither a flag nor `[observer]` names one.
+    let observer = setup.config.observer;
     crate::observer::apply(
         &mut setup.config.pipeline.glare.psf,
         &args.render.observer,
-        None,
+        Some(&observer),
         calibration.as_ref().map(|c| &c.observer),
     )?;
+    let psf = &setup.config.pipeline.glare.psf;
+    let (age_years, pigmentation) = (psf.age_years, psf.pigmentation);
+    let profile_observer = calibration.as_ref().map(|c| c.observer);
+    setup.settings.set(
+        "observer.age_years",
+        age_years,
+        Origin::first(
+            args.render.observer.age_years,
+            observer.age_years,
+            profile_observer.map(|o| o.age_years),
+        ),
+    );
+    setup.settings.set(
+        "observer.pigmentation",
+        pigmentation,
+        Origin::first(
+            args.render.observer.pigmentation,
+            observer.pigmentation,
+            profile_observer.map(|o| o.pigmentation),
+        ),
+    );
+    setup.settings.set_calibration(
+        calibration_path.map(|p| p.as_path()),
+        calibration.as_ref(),
+        Origin::first(
+            args.calibration.as_ref(),
+            setup.config.calibration.as_ref(),
+            None,
+        ),
+    );
+    setup.settings.set(
+        "replay.recording",
+        args.recording.display().to_string(),
+        Origin::Flag,
+    );
     let importer = import::open(&args.recording)?;
-    let mut chain = FilterChain::with_defaults();
+    let mut chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
+        .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
     if let Some(c) = calibration {
         chain.set_calibration(c);
     }

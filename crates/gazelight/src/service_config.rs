@@ -48,7 +48,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use gazelight_tracker::filter::FilterConfig;
 use gazelight_vision::pipeline::PipelineConfig;
-use gazelight_vision::scene::LuminanceScale;
+use gazelight_vision::scene::{LuminanceScale, ViewParams};
 use serde::Deserialize;
 
 /// `[source]`.
@@ -87,6 +87,10 @@ pub struct SceneSettings {
     pub yaw_deg: Option<f64>,
     pub pitch_deg: Option<f64>,
     pub hfov_deg: Option<f64>,
+    /// The view in one table (`{ yaw_deg, pitch_deg, hfov_deg, width,
+    /// height }`): on load it becomes the three keys above and
+    /// `display.size`, which must then not be given as well.
+    pub view: Option<ViewParams>,
 }
 
 /// `[output]`.
@@ -189,16 +193,156 @@ pub fn parse_head(s: &str) -> anyhow::Result<HeadSpec> {
     }
 }
 
+/// The command reading a configuration file: every command reads the one
+/// schema ([`ServiceConfig`]) and uses the keys that apply to it; the others
+/// are reported as ignored, not refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConfigUser {
+    Run,
+    Render,
+    Replay,
+    Calibrate,
+}
+
+impl ConfigUser {
+    /// `gazelight NAME`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ConfigUser::Run => "run",
+            ConfigUser::Render => "render",
+            ConfigUser::Replay => "replay",
+            ConfigUser::Calibrate => "calibrate",
+        }
+    }
+
+    /// The sections (`"pipeline"`) and keys (`"scene.file"`) the command
+    /// uses.
+    fn applies(self) -> &'static [&'static str] {
+        const VIEW: [&str; 10] = [
+            "scene.file",
+            "scene.luminance_scale",
+            "scene.yaw_deg",
+            "scene.pitch_deg",
+            "scene.hfov_deg",
+            "scene.view",
+            "display.size",
+            "pipeline",
+            "filter",
+            "observer",
+        ];
+        const REPLAY: [&str; 11] = [
+            VIEW[0],
+            VIEW[1],
+            VIEW[2],
+            VIEW[3],
+            VIEW[4],
+            VIEW[5],
+            VIEW[6],
+            VIEW[7],
+            VIEW[8],
+            VIEW[9],
+            "source.calibration",
+        ];
+        match self {
+            ConfigUser::Run => &[
+                "source", "display", "scene", "pipeline", "filter", "output", "http", "relay",
+                "lsl", "observer",
+            ],
+            ConfigUser::Render => &VIEW,
+            ConfigUser::Replay => &REPLAY,
+            ConfigUser::Calibrate => &["source.uri"],
+        }
+    }
+
+    /// The keys of `table` (a parsed file) that do not apply: a section
+    /// none of whose keys applies by its name (`http`), else each key
+    /// dotted (`display.fps`), in file order.
+    fn ignored(self, table: &toml::Table) -> Vec<String> {
+        let applies = self.applies();
+        let mut out = Vec::new();
+        for (section, value) in table {
+            if applies.contains(&section.as_str()) {
+                continue;
+            }
+            let prefix = format!("{section}.");
+            let partly = applies.iter().any(|a| a.starts_with(&prefix));
+            match value.as_table() {
+                Some(keys) if partly => {
+                    for key in keys.keys() {
+                        let dotted = format!("{section}.{key}");
+                        if !applies.contains(&dotted.as_str()) {
+                            out.push(dotted);
+                        }
+                    }
+                }
+                _ => out.push(section.clone()),
+            }
+        }
+        out
+    }
+}
+
 impl ServiceConfig {
     /// Loads and validates a TOML file; errors name the file and the field.
     pub fn load(path: &Path) -> anyhow::Result<Self> {
+        Self::load_for(path, ConfigUser::Run).map(|(config, _)| config)
+    }
+
+    /// [`Self::load`] for `user`, with the keys that do not apply to it
+    /// (each also logged as a warning naming the file, the key and the
+    /// command).
+    pub fn load_for(path: &Path, user: ConfigUser) -> anyhow::Result<(Self, Vec<String>)> {
         let text = gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Toml)
             .with_context(|| format!("cannot read config {}", path.display()))?;
-        let mut config: Self =
+        let table: toml::Table =
             toml::from_str(&text).map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        let ignored = user.ignored(&table);
+        let mut config: Self = table
+            .try_into()
+            .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
         config
             .validate()
             .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        config
+            .expand_view()
+            .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        for key in &ignored {
+            tracing::warn!(
+                "config {}: `{key}` does not apply to `gazelight {}`; ignored",
+                path.display(),
+                user.name()
+            );
+        }
+        let config = config.resolved_against(path);
+        Ok((config, ignored))
+    }
+
+    /// `scene.view` into `scene.yaw_deg`, `pitch_deg`, `hfov_deg` and
+    /// `display.size`; an error when any of those is given as well.
+    fn expand_view(&mut self) -> anyhow::Result<()> {
+        let Some(view) = self.scene.view.take() else {
+            return Ok(());
+        };
+        for (key, set) in [
+            ("scene.yaw_deg", self.scene.yaw_deg.is_some()),
+            ("scene.pitch_deg", self.scene.pitch_deg.is_some()),
+            ("scene.hfov_deg", self.scene.hfov_deg.is_some()),
+            ("display.size", self.display.size.is_some()),
+        ] {
+            if set {
+                anyhow::bail!("scene.view and {key} both set: give the view one way");
+            }
+        }
+        self.scene.yaw_deg = Some(view.yaw_deg);
+        self.scene.pitch_deg = Some(view.pitch_deg);
+        self.scene.hfov_deg = Some(view.hfov_deg);
+        self.display.size = Some(format!("{}x{}", view.width, view.height));
+        Ok(())
+    }
+
+    /// Relative paths resolved against the directory of the file at `path`.
+    fn resolved_against(self, path: &Path) -> Self {
+        let mut config = self;
         let base = path.parent().unwrap_or(Path::new("."));
         let resolve = |p: &mut Option<PathBuf>| {
             if let Some(p) = p
@@ -217,7 +361,7 @@ impl ServiceConfig {
         {
             config.scene.head = Some(format!("trace:{}", base.join(rel).display()));
         }
-        Ok(config)
+        config
     }
 
     /// Checks every field; the error names it (`display.fps = …: …`).
@@ -261,6 +405,10 @@ impl ServiceConfig {
             return Err(anyhow::anyhow!(
                 "scene.hfov_deg = {f}: expected 0 < hfov < 179"
             ));
+        }
+        if let Some(view) = &self.scene.view {
+            view.validate()
+                .map_err(|e| anyhow::anyhow!("scene.view: {e}"))?;
         }
         self.pipeline
             .validate()

@@ -257,3 +257,42 @@ fn without_an_adapter_gpu_fails_clearly_and_auto_uses_the_cpu() {
         assert!(dir.join(f).is_file(), "auto did not write {f}");
     }
 }
+
+/// A successful GPU render on a headless machine (no `XDG_RUNTIME_DIR`)
+/// prints no line containing "error" (Mesa's device-select layer, which
+/// probes Wayland and complains, is switched off where no Wayland display
+/// is set), and its log on a pipe carries no ANSI colour codes.
+#[test]
+fn a_headless_render_prints_no_error_and_no_colour_codes() {
+    if test_context("a_headless_render_prints_no_error_and_no_colour_codes").is_none() {
+        return;
+    }
+    let dir = tmp("headless");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args(["render", "--backend", "gpu", "--out"])
+        .arg(&dir)
+        .args(["--size", "96x80", "--frames", "2"])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("NODEVICE_SELECT")
+        .env("RUST_LOG", "info")
+        .output()
+        .expect("run gazelight");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("{stderr}");
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("INFO"),
+        "the info log did not reach stderr: {stderr}"
+    );
+    let errors: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.to_lowercase().contains("error"))
+        .collect();
+    assert!(errors.is_empty(), "error lines on success: {errors:?}");
+    assert!(
+        !stderr.contains('\u{1b}'),
+        "colour codes on a pipe: {stderr:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -74,6 +74,11 @@ fn default_render_writes_everything_in_time() {
         at(2.0)[6]
     );
     assert!(at(11.5)[6] < at(6.0)[6] / 100.0);
+    // docs/perception.md: the pooled luminance (column 5) jumps by three and
+    // a half decades, 0.013 → 52 cd/m².
+    let decades = (at(6.0)[5] / at(2.0)[5]).log10();
+    assert!((3.3..3.9).contains(&decades), "{decades} decades");
+    assert!((0.010..0.016).contains(&at(2.0)[5]) && (45.0..60.0).contains(&at(6.0)[5]));
     assert!(
         at(6.0)[3] < at(2.0)[3] - 1.0,
         "the pupil constricts at the lamp"
@@ -249,4 +254,66 @@ fn inspect_summarises_a_live_peer() {
     // Nothing listening: a clear error, not a hang or a panic.
     let out = gazelight(&["inspect", "pupil://127.0.0.1:9", "--secs", "0.5"]);
     assert_clean_failure(&out, &["127.0.0.1:9"]);
+}
+
+/// One configuration file with `[observer]`, `[scene]`, `[pipeline]`,
+/// `[filter]` (and keys only `run` uses) is accepted by `render`,
+/// `replay`, `run` and `calibrate`; a real `render` with it runs and names
+/// the keys it ignores (and only those).
+#[test]
+fn one_config_file_serves_every_command() {
+    let dir = tmp("one-config");
+    let config = dir.join("study.toml");
+    std::fs::write(
+        &config,
+        "[source]\nuri = \"pupil://127.0.0.1:50020\"\n\
+         [display]\nsize = \"64x48\"\nfps = 60.0\n\
+         [scene]\nyaw_deg = -78.4\npitch_deg = -6.0\n\
+         [pipeline]\nglare = { full_weight_deg = 10.0 }\n\
+         [filter]\ndropout = { hold_s = 0.3 }\n\
+         [observer]\nage_years = 70.0\npigmentation = 1.0\n\
+         [http]\naddr = \"127.0.0.1:8080\"\n",
+    )
+    .expect("write");
+    let c = config.to_str().expect("utf-8");
+    let recording = shared("eye/neon-demo");
+    let r = recording.to_str().expect("utf-8");
+    let o = dir.join("o");
+    let o = o.to_str().expect("utf-8");
+    for args in [
+        vec!["render", "--config", c, "--out", o],
+        vec!["replay", r, "--config", c, "--out", o],
+        vec!["run", "--config", c],
+        vec!["calibrate", "--config", c, "--out", o],
+    ] {
+        let out = common::gazelight_env(&args, &[("GAZELIGHT_PARSE_ONLY", "1")]);
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    // A real render: the keys it does not use are named.
+    let out_dir = dir.join("render");
+    let out = gazelight(&[
+        "render",
+        "--config",
+        c,
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+        "--frames",
+        "2",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    for key in ["source", "display.fps", "http"] {
+        assert!(
+            stderr.contains(&format!("`{key}` does not apply to `gazelight render`")),
+            "{key} not reported as ignored: {stderr}"
+        );
+    }
+    assert!(!stderr.contains("observer"), "observer reported: {stderr}");
+    let timeline = std::fs::read_to_string(out_dir.join("timeline.csv")).expect("timeline");
+    assert_eq!(timeline.lines().count(), 3, "{timeline}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -536,11 +536,7 @@ fn a_broken_page_fails() {
             "window_px = 256",
             "a bad TOML key",
         ),
-        (
-            "config render",
-            "config run",
-            "a render config read as a run config",
-        ),
+        ("width = 64", "width = 0", "a view out of range"),
         (
             "gazelight psf --help",
             "gazelite psf --help",

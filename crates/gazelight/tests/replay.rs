@@ -156,3 +156,97 @@ fn replay_refuses_bad_input() {
     assert!(!late.status.success());
     assert!(stderr.contains("--from-secs 500"), "{stderr}");
 }
+
+/// Every setting in effect is named with its source: in `session.json`
+/// beside `timeline.csv` and in the printed summary. The EyeLink file (pupil
+/// in arbitrary area units) reaches millimetres through a calibration
+/// profile given in the configuration; the observer's age from a flag wins
+/// over the file's, its pigmentation comes from the file; a custom OpenEXR
+/// scene with no scale is warned about and its factor printed.
+#[test]
+fn replay_reports_every_setting_and_its_source() {
+    let dir = tmp("settings");
+    let profile = dir.join("eyelink-profile.json");
+    std::fs::write(
+        &profile,
+        r#"{ "schema": "gazelight.pupil-calibration/2",
+             "observer": { "age_years": 40, "pigmentation": 0.8 },
+             "eyes": {
+               "right": { "raw_unit": "arbitrary_area", "raw_black": 70.0, "raw_white": 25.0, "mm_min": 2.0, "mm_max": 8.0 },
+               "left":  { "raw_unit": "arbitrary_area", "raw_black": 70.0, "raw_white": 25.0, "mm_min": 2.0, "mm_max": 8.0 } } }"#,
+    )
+    .expect("profile");
+    let config = dir.join("study.toml");
+    std::fs::write(
+        &config,
+        "[source]\ncalibration = \"eyelink-profile.json\"\n[observer]\nage_years = 50.0\npigmentation = 1.0\n",
+    )
+    .expect("config");
+    let out_dir = dir.join("out");
+    let scene = shared_str("hdr/blender-world/city.exr");
+    let out = gazelight(&[
+        "replay",
+        &shared_str("eye/eyelink-psa/both_eyes.asc"),
+        "--config",
+        config.to_str().expect("utf-8"),
+        "--scene",
+        &scene,
+        "--age-years",
+        "70",
+        "--size",
+        "64x48",
+        "--fps",
+        "10",
+        "--secs",
+        "2",
+        "--no-frames",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let session: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join("session.json")).expect("session.json"),
+    )
+    .expect("JSON");
+    let s = &session["settings"];
+    assert_eq!(session["command"], "replay");
+    assert_eq!(s["observer.age_years"]["value"], 70.0, "{s}");
+    assert_eq!(s["observer.age_years"]["source"], "flag");
+    assert_eq!(s["observer.pigmentation"]["value"], 1.0);
+    assert_eq!(s["observer.pigmentation"]["source"], "config");
+    assert_eq!(s["calibration.profile"]["source"], "config");
+    let note = s["calibration.profile"]["note"].as_str().expect("note");
+    assert!(
+        note.contains("ArbitraryArea") && note.contains("8 mm"),
+        "{note}"
+    );
+    assert_eq!(s["scene.cd_m2_per_unit"]["source"], "default");
+    assert!(
+        s["scene.cd_m2_per_unit"]["note"]
+            .as_str()
+            .is_some_and(|n| n.contains("no absolute luminance scale")),
+        "{s}"
+    );
+    assert!(
+        stderr.contains("no absolute luminance scale"),
+        "no warning for the unscaled scene: {stderr}"
+    );
+    for line in [
+        "observer.age_years = 70.0 [flag]",
+        "observer.pigmentation = 1.0 [config]",
+        "calibration.profile = ",
+        "scene.cd_m2_per_unit = 1.0 [default]",
+    ] {
+        assert!(stdout.contains(line), "summary lacks `{line}`: {stdout}");
+    }
+    // The profile puts the pupil in mm: no model fallback, 2–8 mm.
+    assert!(!stderr.contains("not in millimetres"), "{stderr}");
+    let rows = model_rows(&out_dir);
+    let held = col(&rows, 4);
+    let pupil = col(&rows, 3);
+    assert!(held.contains(&0.0), "every pupil held/modelled");
+    assert!(pupil.iter().all(|p| (2.0..=8.0).contains(p)), "{pupil:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -47,6 +47,7 @@ fn status_page_of_a_live_session() {
             .args(["run", "--headless", "--size", "480x270", "--secs", "80"])
             .args(["--source", &format!("pupil://127.0.0.1:{peer_port}")])
             .args(["--http", &format!("127.0.0.1:{http_port}")])
+            .args(["--age-years", "70"])
             .env("RUST_LOG", "warn")
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
@@ -62,6 +63,23 @@ fn status_page_of_a_live_session() {
     let s2 = get_json(http_port, "/api/status");
     assert_eq!(s1["schema"], 1);
     assert_eq!(s2["source"]["health"], "live", "{s2}");
+    // Every setting in effect, with its source.
+    let settings = &s2["settings"]["settings"];
+    assert_eq!(settings["observer.age_years"]["value"], 70.0, "{settings}");
+    assert_eq!(
+        settings["observer.age_years"]["source"], "flag",
+        "{settings}"
+    );
+    assert_eq!(
+        settings["observer.pigmentation"]["source"], "default",
+        "{settings}"
+    );
+    assert_eq!(settings["source.uri"]["source"], "flag", "{settings}");
+    assert_eq!(settings["scene.cd_m2_per_unit"]["value"], 1.0, "{settings}");
+    assert_eq!(
+        settings["calibration.profile"]["value"],
+        serde_json::Value::Null
+    );
     assert!(
         s2["source"]["sample_rate_hz"].as_f64().unwrap() > 100.0,
         "{s2}"

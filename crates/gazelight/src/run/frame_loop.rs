@@ -1079,6 +1079,71 @@ mod tests {
         );
     }
 
+    /// The live path (PSF worker, one view and a stereo pair) ends up with
+    /// the kernels of [`crate::bad_pupils::SEQUENCE`]: each pupil is held
+    /// until the kernel it asks for is installed in every view (or, where
+    /// the table keeps the kernel, for ten frames).
+    #[test]
+    fn bad_pupils_give_the_table_kernels_live() {
+        for stereo in [false, true] {
+            let (mut fl, tx) = small_loop(live_state(0.0, 4.0, 0.5, 1), None, stereo);
+            let dt = 1.0 / 90.0;
+            let mut t = 0.0;
+            let mut updates = 2u64;
+            let mut kernel_mm = 4.0;
+            for (i, &(pupil_mm, want_mm)) in crate::bad_pupils::SEQUENCE.iter().enumerate() {
+                let installed = |fl: &mut FrameLoop| -> Vec<f64> {
+                    fl.eyes
+                        .iter_mut()
+                        .map(|e| {
+                            e.pipeline
+                                .psf_kernel()
+                                .ok()
+                                .flatten()
+                                .map_or(f64::NAN, |k| k.pupil_mm)
+                        })
+                        .collect()
+                };
+                let waited = Instant::now();
+                let mut frames = 0;
+                loop {
+                    tx.send_replace(live_state(t, pupil_mm, 0.5, updates));
+                    fl.step(t, t, dt as f32).expect("frame");
+                    t += dt;
+                    updates += 1;
+                    frames += 1;
+                    let got = installed(&mut fl);
+                    let targets: Vec<f64> = fl.eyes.iter().map(|e| e.psf_target_mm).collect();
+                    let settled = got
+                        .iter()
+                        .chain(&targets)
+                        .all(|&g| (g - want_mm).abs() < 1e-9);
+                    if want_mm == kernel_mm {
+                        // Kept: never anything else, for ten frames.
+                        assert!(
+                            settled,
+                            "stereo {stereo}, step {i}: pupil {pupil_mm} mm moved the kernel \
+                             to {got:?} (targets {targets:?}), want {want_mm} mm"
+                        );
+                        if frames == 10 {
+                            break;
+                        }
+                    } else if settled {
+                        break;
+                    } else {
+                        assert!(
+                            waited.elapsed() < Duration::from_secs(120),
+                            "stereo {stereo}, step {i}: pupil {pupil_mm} mm: kernels {got:?} \
+                             (targets {targets:?}) never reached {want_mm} mm"
+                        );
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                }
+                kernel_mm = want_mm;
+            }
+        }
+    }
+
     impl FrameLoop {
         fn run_summary_for_test(mut self) -> RunSummary {
             if let Some(w) = self.writer.take() {

@@ -41,6 +41,7 @@ use gazelight_vision::scene::{PanoramaView, Scene};
 use crate::backend::BackendChoice;
 use crate::demo;
 use crate::service_config::{self, HeadSpec, ServiceConfig};
+use crate::session::{Origin, SessionSettings};
 use crate::window::{self, Content, DisplaySlot, MouseGaze, WindowOptions};
 use frame_loop::{FrameLoop, FrameLoopSetup, MouseControl, RunSummary};
 use head::{Head, HeadTrace};
@@ -247,6 +248,129 @@ fn resolve(args: &RunArgs) -> anyhow::Result<Resolved> {
     })
 }
 
+/// Every setting of a run and where it came from (flag, `--config`, the
+/// calibration profile, default).
+fn run_settings(
+    args: &RunArgs,
+    r: &Resolved,
+    cfg: &ServiceConfig,
+    scene: &Scene,
+    scale: gazelight_vision::scene::LuminanceScale,
+    view: &gazelight_vision::scene::ViewParams,
+    calibration: &PupilCalibration,
+) -> SessionSettings {
+    let mut s = SessionSettings::new("run", args.config.as_deref(), &[]);
+    let c = cfg;
+    s.set(
+        "source.uri",
+        &r.uri,
+        Origin::first(args.source.as_ref(), c.source.uri.as_ref(), None),
+    );
+    s.set(
+        "display.fps",
+        r.fps,
+        Origin::first(args.fps, c.display.fps, None),
+    );
+    s.set(
+        "view.size",
+        format!("{}x{}", r.size.0, r.size.1),
+        Origin::first(args.size, c.display.size.as_ref().map(|_| (0, 0)), None),
+    );
+    s.set(
+        "scene.head",
+        format!("{:?}", r.head),
+        Origin::first(
+            args.head.as_ref(),
+            c.scene.head.as_ref().map(|_| &r.head),
+            None,
+        ),
+    );
+    s.set(
+        "scene.file",
+        &scene.name,
+        Origin::first(args.scene.as_ref(), c.scene.file.as_ref(), None),
+    );
+    let v = &args.view;
+    let scale_origin = Origin::first(
+        v.luminance_scale.or(v.scene_key_cd_m2),
+        c.scene.luminance_scale.map(|_| 0.0),
+        None,
+    );
+    s.set("scene.luminance_scale", scale, scale_origin);
+    s.set("scene.cd_m2_per_unit", scene.cd_m2_per_unit, scale_origin);
+    s.set(
+        "view.yaw_deg",
+        view.yaw_deg,
+        Origin::first(v.yaw_deg, c.scene.yaw_deg, None),
+    );
+    s.set(
+        "view.pitch_deg",
+        view.pitch_deg,
+        Origin::first(v.pitch_deg, c.scene.pitch_deg, None),
+    );
+    s.set(
+        "view.hfov_deg",
+        view.hfov_deg,
+        Origin::first(v.hfov_deg, c.scene.hfov_deg, None),
+    );
+    let psf = &cfg.pipeline.glare.psf;
+    let profile = r.calibration.as_ref().map(|_| calibration.observer);
+    s.set(
+        "observer.age_years",
+        psf.age_years,
+        Origin::first(
+            args.observer.age_years,
+            c.observer.age_years,
+            profile.map(|o| o.age_years),
+        ),
+    );
+    s.set(
+        "observer.pigmentation",
+        psf.pigmentation,
+        Origin::first(
+            args.observer.pigmentation,
+            c.observer.pigmentation,
+            profile.map(|o| o.pigmentation),
+        ),
+    );
+    s.set_calibration(
+        r.calibration.as_deref(),
+        r.calibration.as_ref().map(|_| calibration),
+        Origin::first(
+            args.calibration.as_ref(),
+            c.source.calibration.as_ref(),
+            None,
+        ),
+    );
+    let from_file = |differs: bool| {
+        if args.config.is_some() && differs {
+            Origin::Config
+        } else {
+            Origin::Default
+        }
+    };
+    s.set(
+        "pipeline",
+        &cfg.pipeline,
+        from_file(cfg.pipeline != gazelight_vision::pipeline::PipelineConfig::default()),
+    );
+    s.set(
+        "filter",
+        cfg.filter,
+        from_file(cfg.filter != gazelight_tracker::filter::FilterConfig::default()),
+    );
+    s.set(
+        "backend",
+        args.backend.to_string(),
+        if args.backend == BackendChoice::Auto {
+            Origin::Default
+        } else {
+            Origin::Flag
+        },
+    );
+    s
+}
+
 /// `GAZELIGHT_PARSE_ONLY`: the configuration file loaded and validated, the
 /// flags resolved against it as [`run`] does before it opens anything, and
 /// the source URI parsed.
@@ -330,6 +454,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         c
     };
     let cfg = &observed;
+    let settings = run_settings(&args, &r, cfg, &scene, scale, &view, &calibration);
     let chain = FilterChain::new(cfg.filter, calibration)
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
 
@@ -356,6 +481,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         None => None,
     };
 
+    if let Some(dir) = &r.out {
+        settings.write(dir)?;
+    }
+    print!("{}", settings.summary());
+
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -379,6 +509,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             &cfg.lsl,
         )?;
         let hub = source.hub.clone();
+        hub.set_settings(settings.clone());
         tracing::info!(
             source = %source.describe,
             scene = %scene.name,

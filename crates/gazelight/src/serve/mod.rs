@@ -318,6 +318,8 @@ pub struct Status {
     pub frame: FrameStatus,
     pub psf: PsfStatus,
     pub display: DisplayStatus,
+    /// Every setting in effect and where it came from (`session.json`).
+    pub settings: Option<crate::session::SessionSettings>,
 }
 
 impl Status {
@@ -356,6 +358,7 @@ impl Status {
                 width: d.width,
                 height: d.height,
             }),
+            settings: hub.settings().cloned(),
         }
     }
 }

@@ -1,0 +1,225 @@
+//! The settings in effect for one session, each with where it came from —
+//! a flag, the configuration file, the calibration profile or the
+//! default — so that nothing takes effect silently.
+//!
+//! `render`, `replay` and `run` print them after their summary, write them
+//! as `session.json` beside `timeline.csv`, and `run` serves them in its
+//! status JSON (`settings`). A calibration profile that replaces the
+//! tracker's own millimetres says so in its note.
+//!
+//! ```json
+//! {
+//!   "command": "replay",
+//!   "config_file": "study.toml",
+//!   "ignored_config_keys": ["http.addr"],
+//!   "settings": {
+//!     "observer.age_years": { "value": 70.0, "source": "config" },
+//!     "scene.cd_m2_per_unit": { "value": 1.0, "source": "default",
+//!                               "note": "OpenEXR holds no absolute luminance: …" }
+//!   }
+//! }
+//! ```
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use gazelight_tracker::PupilUnit;
+use gazelight_tracker::profile::PupilCalibration;
+use serde::Serialize;
+
+/// Where a setting's value came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Origin {
+    /// A command-line flag.
+    Flag,
+    /// The `--config` file.
+    Config,
+    /// The calibration profile.
+    Profile,
+    /// gazelight's default.
+    Default,
+}
+
+impl Origin {
+    /// `flag`, `config`, …
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Origin::Flag => "flag",
+            Origin::Config => "config",
+            Origin::Profile => "profile",
+            Origin::Default => "default",
+        }
+    }
+
+    /// The first of a flag, a configuration value and a profile value that
+    /// is present, else the default.
+    pub fn first<T>(flag: Option<T>, config: Option<T>, profile: Option<T>) -> Self {
+        if flag.is_some() {
+            Origin::Flag
+        } else if config.is_some() {
+            Origin::Config
+        } else if profile.is_some() {
+            Origin::Profile
+        } else {
+            Origin::Default
+        }
+    }
+}
+
+/// One setting.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Setting {
+    pub value: serde_json::Value,
+    pub source: Origin,
+    /// What the user should know about it (a replaced unit, an assumed
+    /// scale).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// Every setting of a session.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SessionSettings {
+    /// `render`, `replay` or `run`.
+    pub command: String,
+    /// The `--config` file, if any.
+    pub config_file: Option<PathBuf>,
+    /// Keys of that file the command does not use.
+    pub ignored_config_keys: Vec<String>,
+    /// By dotted key (`observer.age_years`).
+    pub settings: BTreeMap<String, Setting>,
+}
+
+impl SessionSettings {
+    /// An empty record for `command`.
+    pub fn new(command: &str, config_file: Option<&Path>, ignored: &[String]) -> Self {
+        Self {
+            command: command.to_owned(),
+            config_file: config_file.map(Path::to_path_buf),
+            ignored_config_keys: ignored.to_vec(),
+            settings: BTreeMap::new(),
+        }
+    }
+
+    /// Records `key = value` from `source`.
+    pub fn set(&mut self, key: &str, value: impl Serialize, source: Origin) -> &mut Setting {
+        let value = serde_json::to_value(value).unwrap_or(serde_json::Value::Null);
+        self.settings.insert(
+            key.to_owned(),
+            Setting {
+                value,
+                source,
+                note: None,
+            },
+        );
+        // Just inserted.
+        self.settings
+            .get_mut(key)
+            .unwrap_or_else(|| unreachable!("inserted above"))
+    }
+
+    /// Records the calibration profile (`None`: none given) and what it
+    /// does to each eye's pupil.
+    pub fn set_calibration(
+        &mut self,
+        path: Option<&Path>,
+        calibration: Option<&PupilCalibration>,
+        source: Origin,
+    ) {
+        let (Some(path), Some(c)) = (path, calibration) else {
+            self.set(
+                "calibration.profile",
+                serde_json::Value::Null,
+                Origin::Default,
+            )
+            .note = Some(
+                "none: pupils in mm pass through; other units fall back to the light model"
+                    .to_owned(),
+            );
+            return;
+        };
+        let mut notes = Vec::new();
+        for (eye, map) in [("right", &c.eyes.right), ("left", &c.eyes.left)] {
+            let Some(m) = map else { continue };
+            let replaces = if m.raw_unit == PupilUnit::Mm {
+                "; replaces the tracker's own millimetres"
+            } else {
+                ""
+            };
+            notes.push(format!(
+                "{eye} eye: raw {:?} black {:.3} → {} mm, white {:.3} → {} mm{replaces}",
+                m.raw_unit, m.raw_black, m.mm_max, m.raw_white, m.mm_min
+            ));
+        }
+        if notes.is_empty() {
+            notes.push("no eye maps: pupils in mm pass through".to_owned());
+        }
+        self.set("calibration.profile", path.display().to_string(), source)
+            .note = Some(notes.join("; "));
+    }
+
+    /// The settings as indented text lines (`observer.age_years = 70
+    /// (config)`), ignored configuration keys last.
+    pub fn summary(&self) -> String {
+        let mut out = String::from("settings in effect (source in brackets):\n");
+        for (key, s) in &self.settings {
+            out.push_str(&format!("  {key} = {} [{}]", s.value, s.source.as_str()));
+            if let Some(n) = &s.note {
+                out.push_str(&format!(" — {n}"));
+            }
+            out.push('\n');
+        }
+        if !self.ignored_config_keys.is_empty() {
+            out.push_str(&format!(
+                "  ignored in the configuration file: {}\n",
+                self.ignored_config_keys.join(", ")
+            ));
+        }
+        out
+    }
+
+    /// Writes `dir/session.json` (a temporary file renamed into place, so
+    /// a reader never sees half of it).
+    pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        let path = dir.join("session.json");
+        let tmp = dir.join(".session.json.tmp");
+        let text = serde_json::to_string_pretty(self).context("session settings as JSON")?;
+        std::fs::write(&tmp, text + "\n")
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn first_present_source_wins() {
+        assert_eq!(Origin::first(Some(1), Some(2), Some(3)), Origin::Flag);
+        assert_eq!(Origin::first(None, Some(2), Some(3)), Origin::Config);
+        assert_eq!(Origin::first(None, None, Some(3)), Origin::Profile);
+        assert_eq!(Origin::first::<i32>(None, None, None), Origin::Default);
+    }
+
+    #[test]
+    fn summary_and_json_name_value_and_source() {
+        let mut s =
+            SessionSettings::new("render", Some(Path::new("a.toml")), &["http.addr".into()]);
+        s.set("observer.age_years", 70.0, Origin::Config);
+        let text = s.summary();
+        assert!(
+            text.contains("observer.age_years = 70.0 [config]"),
+            "{text}"
+        );
+        assert!(
+            text.contains("ignored in the configuration file: http.addr"),
+            "{text}"
+        );
+        let json = serde_json::to_value(&s).unwrap();
+        assert_eq!(json["settings"]["observer.age_years"]["source"], "config");
+        assert_eq!(json["config_file"], "a.toml");
+    }
+}
