@@ -278,6 +278,10 @@ pub struct CalibrationSession {
     /// Samples in the analysis window per phase and eye.
     total: [[u64; 2]; 2],
     blink: [BlinkDetector; 2],
+    /// Phase windows on the samples' clock `[start, end)`, in the order of
+    /// `cfg.order` ([`Self::with_windows`]: a recording's own dark and
+    /// bright stretches); `None` for a timed, stimulus-driven session.
+    windows: Option<[(f64, f64); 2]>,
 }
 
 impl CalibrationSession {
@@ -296,7 +300,72 @@ impl CalibrationSession {
                 BlinkDetector::new(cfg.blink, 0),
                 BlinkDetector::new(cfg.blink, 1),
             ],
+            windows: None,
         })
+    }
+
+    /// A session over a recording's own dark (`black_secs`) and bright
+    /// (`white_secs`) stretches, `[start, end)` on the samples' clock: the
+    /// phases are these windows (no stimulus, no settling time; choose
+    /// windows after the pupil has settled), the rest as in a timed
+    /// session. [`Self::finish`] may be called once the samples are
+    /// exhausted. Windows that are empty, not finite or overlapping are an
+    /// error naming them.
+    pub fn with_windows(
+        cfg: CalibrationConfig,
+        black_secs: (f64, f64),
+        white_secs: (f64, f64),
+    ) -> Result<Self, CalibrationError> {
+        for (name, (a, b)) in [("black", black_secs), ("white", white_secs)] {
+            if !(a.is_finite() && b.is_finite() && a < b) {
+                return Err(CalibrationError::Config(SettingError::new(
+                    format!("{name} window"),
+                    format!("{a}..{b}: expected FROM..TO with FROM < TO, seconds"),
+                )));
+            }
+        }
+        if black_secs.0 < white_secs.1 && white_secs.0 < black_secs.1 {
+            return Err(CalibrationError::Config(SettingError::new(
+                "black and white windows",
+                format!(
+                    "{}..{} and {}..{} overlap",
+                    black_secs.0, black_secs.1, white_secs.0, white_secs.1
+                ),
+            )));
+        }
+        let mut cfg = cfg;
+        cfg.settle_s = 0.0;
+        let mut session = Self::new(cfg)?;
+        session.started = true;
+        session.windows = Some(if cfg.order[0] == Phase::Black {
+            [black_secs, white_secs]
+        } else {
+            [white_secs, black_secs]
+        });
+        Ok(session)
+    }
+
+    /// [`Self::feed`] of a windowed session.
+    fn feed_windowed(&mut self, p: &PupilSample, windows: [(f64, f64); 2]) -> Progress {
+        let e = p.eye as usize;
+        let raw = PupilCalibration::raw_value(p);
+        let valid_now = raw.is_finite() && raw > 0.0 && self.cfg.confidence.accept(p.confidence);
+        self.blink[e].update(p.t_secs, !valid_now);
+        if p.t_secs >= windows[0].1.max(windows[1].1) {
+            self.phase_idx = 2;
+        }
+        let Some(i) = (0..2).find(|&i| p.t_secs >= windows[i].0 && p.t_secs < windows[i].1) else {
+            return self.progress();
+        };
+        let unit = *self.unit[e].get_or_insert(p.unit);
+        if unit != p.unit {
+            return self.progress();
+        }
+        self.total[i][e] += 1;
+        if valid_now && !self.blink[e].is_closed() {
+            self.values[i][e].push(raw);
+        }
+        self.progress()
     }
 
     /// Where the session is.
@@ -354,6 +423,9 @@ impl CalibrationSession {
     ) -> Result<Progress, CalibrationError> {
         if !p.t_secs.is_finite() || p.eye > 1 {
             return Ok(self.progress());
+        }
+        if let Some(windows) = self.windows {
+            return Ok(self.feed_windowed(p, windows));
         }
         if !self.started {
             self.start(p.t_secs, sink)?;
@@ -419,7 +491,7 @@ impl CalibrationSession {
     /// fails with `TooFewValidSamples` for eye 0.
     #[allow(clippy::needless_range_loop)] // eye/phase index several arrays at once
     pub fn finish(mut self) -> Result<PupilCalibration, CalibrationError> {
-        if self.progress() != Progress::Done {
+        if self.windows.is_none() && self.progress() != Progress::Done {
             return Err(CalibrationError::NotFinished(
                 self.cfg.order[self.phase_idx.min(1)],
             ));
@@ -576,4 +648,66 @@ pub async fn run_calibration_source<S: SampleSource>(
         cal.save(path)?;
     }
     Ok(cal)
+}
+
+#[cfg(test)]
+mod window_tests {
+    use super::*;
+    use crate::sample::DetectorMethod;
+
+    fn sample(t_secs: f64, eye: u8, raw: f32) -> PupilSample {
+        PupilSample {
+            t_secs,
+            eye,
+            diameter_raw: raw,
+            unit: PupilUnit::Px,
+            diameter_mm: None,
+            confidence: 0.95,
+            norm_pos: [0.5, 0.5],
+            method: DetectorMethod::Pupil2d,
+        }
+    }
+
+    /// A recording's dark stretch (raw 60 px) and bright stretch (30 px),
+    /// with other values outside both windows: the windows alone give the
+    /// medians, mapped to 8 and 2 mm.
+    #[test]
+    fn windows_take_the_medians_of_their_stretches() {
+        let mut s = CalibrationSession::with_windows(
+            CalibrationConfig::default(),
+            (10.0, 15.0),
+            (20.0, 25.0),
+        )
+        .unwrap();
+        let mut sink = LogSink::default();
+        for i in 0..3000 {
+            let t = i as f64 * 0.01;
+            let raw = if (10.0..15.0).contains(&t) {
+                60.0
+            } else if (20.0..25.0).contains(&t) {
+                30.0
+            } else {
+                45.0
+            };
+            for eye in 0..2 {
+                s.feed(&sample(t, eye, raw), &mut sink).unwrap();
+            }
+        }
+        let p = s.finish().unwrap();
+        let right = p.eyes.right.unwrap();
+        assert_eq!((right.raw_black, right.raw_white), (60.0, 30.0));
+        assert!((right.map(45.0).unwrap() - 5.0).abs() < 1e-9);
+        assert!(
+            sink.shown.is_empty(),
+            "a windowed session shows no stimulus"
+        );
+    }
+
+    #[test]
+    fn bad_windows_are_refused() {
+        let cfg = CalibrationConfig::default();
+        assert!(CalibrationSession::with_windows(cfg, (15.0, 10.0), (20.0, 25.0)).is_err());
+        assert!(CalibrationSession::with_windows(cfg, (10.0, 21.0), (20.0, 25.0)).is_err());
+        assert!(CalibrationSession::with_windows(cfg, (f64::NAN, 1.0), (2.0, 3.0)).is_err());
+    }
 }

@@ -101,7 +101,9 @@ pub fn pupil_rejection(stats: &ChainStats) -> Option<String> {
             (
                 stats.uncalibrated[e],
                 "are in raw tracker units (px or area) and no calibration maps them to mm: \
-                 give --calibration FILE (calibration/schema.json)"
+                 give --calibration FILE, a profile made by `gazelight profile scale` (a known \
+                 mm per unit) or `gazelight profile phases` (the recording's dark and bright \
+                 stretches); `gazelight profile schema` prints its format"
                     .to_string(),
             ),
             (

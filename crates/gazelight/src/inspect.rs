@@ -27,6 +27,24 @@ pub struct InspectArgs {
     /// Print the summary as JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Calibration profile (JSON, `gazelight profile schema`) mapping raw
+    /// tracker pupils (px, area units) onto mm before the summary.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<std::path::PathBuf>,
+}
+
+impl InspectArgs {
+    /// The filter chain the summary runs: the defaults, with the
+    /// `--calibration` profile (loaded once per call; small).
+    fn chain(&self) -> anyhow::Result<FilterChain> {
+        let mut chain = FilterChain::with_defaults();
+        if let Some(path) = &self.calibration {
+            let profile = gazelight_tracker::profile::PupilCalibration::load(path)
+                .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?;
+            chain.set_calibration(profile);
+        }
+        Ok(chain)
+    }
 }
 
 /// `inspect lsl://?name=…`: reads the stream for `--secs` (from its first
@@ -38,7 +56,7 @@ fn inspect_lsl(uri: &str, args: &InspectArgs) -> anyhow::Result<()> {
         query,
         gazelight_tracker::lsl::LslConfig::default(),
         Duration::from_secs_f64(args.secs),
-        FilterChain::with_defaults(),
+        args.chain()?,
     ))?;
     if args.json {
         let mut v = serde_json::to_value(&summary)?;
@@ -79,7 +97,7 @@ fn inspect_source(uri: &str, format: &'static str, args: &InspectArgs) -> anyhow
             &mut source,
             Duration::from_secs_f64(args.secs),
             Duration::from_secs(10),
-            FilterChain::with_defaults(),
+            args.chain()?,
             format,
         )
         .await?;
@@ -127,11 +145,11 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
         runtime.block_on(summarize_live(
             config,
             Duration::from_secs_f64(args.secs),
-            FilterChain::with_defaults(),
+            args.chain()?,
         ))?
     } else {
         let mut importer = import::open(&args.path)?;
-        let summary = summarize_importer(importer.as_mut(), FilterChain::with_defaults())
+        let summary = summarize_importer(importer.as_mut(), args.chain()?)
             .with_context(|| format!("while reading {}", args.path.display()))?;
         let c = &summary.samples;
         if c.pupil == [0, 0] && c.gaze == 0 && c.gaze_per_eye == 0 && c.blink_events == 0 {

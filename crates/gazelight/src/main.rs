@@ -25,6 +25,7 @@ mod inspect;
 mod lsl_outlets;
 mod observer;
 mod output;
+mod profile_cmd;
 mod psf;
 mod record;
 mod relay;
@@ -83,6 +84,10 @@ enum Command {
     /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
     /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
     Inspect(inspect::InspectArgs),
+    /// Calibration profiles for trackers in arbitrary pupil units: from a
+    /// known scale (`scale`), from a recording's dark and bright stretches
+    /// (`phases`), or print the profile schema (`schema`).
+    Profile(profile_cmd::ProfileArgs),
     /// Print the default configuration (`--print-default`): the one TOML
     /// schema every command's --config reads.
     Config(config_cmd::ConfigArgs),
@@ -126,7 +131,11 @@ fn check(command: &Command) -> anyhow::Result<()> {
         Command::Record(args) => gazelight_tracker::uri::SourceUri::parse(&args.source)
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
-        Command::Psf(_) | Command::Inspect(_) | Command::Devices(_) | Command::Config(_) => Ok(()),
+        Command::Psf(_)
+        | Command::Inspect(_)
+        | Command::Devices(_)
+        | Command::Config(_)
+        | Command::Profile(_) => Ok(()),
     }
 }
 
@@ -184,6 +193,7 @@ fn main() -> std::process::ExitCode {
         Command::Inspect(args) => inspect::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Config(args) => config_cmd::run(args),
+        Command::Profile(args) => profile_cmd::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

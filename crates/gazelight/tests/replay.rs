@@ -250,3 +250,91 @@ fn replay_reports_every_setting_and_its_source() {
     assert!(pupil.iter().all(|p| (2.0..=8.0).contains(p)), "{pupil:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The EyeLink recording (pupil in arbitrary area units) reaches
+/// millimetres by the documented path: `gazelight profile scale` writes a
+/// profile (0.1 mm per unit of √area), `replay --calibration` uses it, and
+/// every measured (not held) frame's pupil is F·√area of the file's own
+/// samples at that time (both eyes' mean), read here straight from the
+/// `.asc` text.
+#[test]
+fn eyelink_reaches_millimetres_through_a_scale_profile() {
+    let dir = tmp("eyelink-mm");
+    let profile = dir.join("scale.json");
+    let out = gazelight(&[
+        "profile",
+        "scale",
+        "--unit",
+        "arbitrary-area",
+        "--mm-per-unit",
+        "0.1",
+        "--out",
+        profile.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let asc = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let out_dir = dir.join("out");
+    let out = gazelight(&[
+        "replay",
+        &asc,
+        "--calibration",
+        profile.to_str().expect("utf-8"),
+        "--size",
+        "64x48",
+        "--fps",
+        "10",
+        "--secs",
+        "30",
+        "--no-frames",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("not in millimetres"), "{stderr}");
+    // The file's binocular samples: `time xL yL areaL xR yR areaR …`.
+    let text = std::fs::read_to_string(&asc).expect("asc");
+    let samples: Vec<(f64, f64, f64)> = text
+        .lines()
+        .filter(|l| l.as_bytes().first().is_some_and(u8::is_ascii_digit))
+        .filter_map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let num = |i: usize| f.get(i)?.parse::<f64>().ok();
+            Some((num(0)? / 1000.0, num(3)?, num(6)?))
+        })
+        .collect();
+    let t0 = samples[0].0;
+    let rows = model_rows(&out_dir);
+    let (mut compared, mut close) = (0, 0);
+    for r in &rows {
+        let (t, pupil, held): (f64, f64, f64) = (
+            r[0].parse().expect("t"),
+            r[3].parse().expect("pupil"),
+            r[4].parse().expect("held"),
+        );
+        let i = samples.partition_point(|s| s.0 < t0 + t);
+        let Some(&(_, left, right)) = samples.get(i) else {
+            break;
+        };
+        if held != 0.0 || left <= 0.0 || right <= 0.0 {
+            continue;
+        }
+        let expected = 0.5 * (0.1 * left.sqrt() + 0.1 * right.sqrt());
+        compared += 1;
+        close += usize::from((pupil - expected).abs() < 0.05);
+    }
+    assert!(
+        compared > 250,
+        "only {compared} measured frames of {}",
+        rows.len()
+    );
+    assert!(
+        close as f64 >= 0.95 * compared as f64,
+        "{close} of {compared} frames within 0.05 mm of F·√area"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
