@@ -71,12 +71,27 @@ pub fn write_png(
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// A grid of downscaled frames.
+/// One tile of a [`ContactSheet`].
+struct Tile {
+    t_secs: f64,
+    pixels: Vec<u8>,
+    /// Gaze points, frame-normalised (`[0, 1]²`, one per view).
+    gaze_uv: Vec<[f32; 2]>,
+    /// What the tile says under its time (pupil, adaptation).
+    label: String,
+}
+
+/// Colour of the gaze marker on the contact sheet (saturated green: no
+/// rendered night or day pixel has it, so a test can find it).
+pub const GAZE_MARKER_RGB: [u8; 3] = [0, 255, 0];
+
+/// A grid of downscaled frames, each with its gaze marked and its time,
+/// pupil and adaptation written on a dark band (readable on bright sky).
 pub struct ContactSheet {
     factor: usize,
     tile_w: usize,
     tile_h: usize,
-    tiles: Vec<(f64, Vec<u8>)>,
+    tiles: Vec<Tile>,
 }
 
 impl ContactSheet {
@@ -91,8 +106,9 @@ impl ContactSheet {
         }
     }
 
-    /// Adds a frame (box-filtered down) if there is room.
-    pub fn add(&mut self, frame: &DisplayFrame, t_secs: f64) {
+    /// Adds a frame (box-filtered down) if there is room, with its gaze
+    /// points (frame-normalised, one per view) and a label.
+    pub fn add(&mut self, frame: &DisplayFrame, t_secs: f64, gaze_uv: &[[f32; 2]], label: String) {
         if self.tiles.len() >= SHEET_TILES {
             return;
         }
@@ -115,7 +131,29 @@ impl ContactSheet {
                 }
             }
         }
-        self.tiles.push((t_secs, tile));
+        self.tiles.push(Tile {
+            t_secs,
+            pixels: tile,
+            gaze_uv: gaze_uv.to_vec(),
+            label,
+        });
+    }
+
+    /// The pixel (sheet coordinates) of tile `i`'s gaze point `uv`, if it
+    /// is inside the tile.
+    pub fn gaze_pixel(&self, i: usize, uv: [f32; 2]) -> Option<(usize, usize)> {
+        let (u, v) = (f64::from(uv[0]), f64::from(uv[1]));
+        if !(0.0..1.0).contains(&u) || !(0.0..1.0).contains(&v) {
+            return None;
+        }
+        let (cx, cy) = (
+            (i % SHEET_COLUMNS) * self.tile_w,
+            (i / SHEET_COLUMNS) * self.tile_h,
+        );
+        Some((
+            cx + (u * self.tile_w as f64) as usize,
+            cy + (v * self.tile_h as f64) as usize,
+        ))
     }
 
     /// Writes the sheet with a time label on every tile.
@@ -123,13 +161,13 @@ impl ContactSheet {
         let rows = self.tiles.len().div_ceil(SHEET_COLUMNS).max(1);
         let (w, h) = (self.tile_w * SHEET_COLUMNS, self.tile_h * rows);
         let mut buf = vec![0u8; w * h * 3];
-        for (i, (_, tile)) in self.tiles.iter().enumerate() {
+        for (i, tile) in self.tiles.iter().enumerate() {
             let (cx, cy) = (
                 (i % SHEET_COLUMNS) * self.tile_w,
                 (i / SHEET_COLUMNS) * self.tile_h,
             );
             for y in 0..self.tile_h {
-                let src = &tile[y * self.tile_w * 3..(y + 1) * self.tile_w * 3];
+                let src = &tile.pixels[y * self.tile_w * 3..(y + 1) * self.tile_w * 3];
                 let o = ((cy + y) * w + cx) * 3;
                 buf[o..o + src.len()].copy_from_slice(src);
             }
@@ -138,18 +176,49 @@ impl ContactSheet {
         {
             let root =
                 BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
-            let style = ("sans-serif", 16).into_font().color(&WHITE);
-            for (i, (t, _)) in self.tiles.iter().enumerate() {
+            let err = |e| anyhow::anyhow!("drawing the contact sheet: {e}");
+            let style = ("sans-serif", 14).into_font().color(&WHITE);
+            let [r, g, b] = GAZE_MARKER_RGB;
+            let marker = RGBColor(r, g, b);
+            for (i, tile) in self.tiles.iter().enumerate() {
                 let (cx, cy) = (
                     (i % SHEET_COLUMNS) * self.tile_w,
                     (i / SHEET_COLUMNS) * self.tile_h,
                 );
+                // A dark band under the text: white on bright sky stays
+                // readable.
+                let band_h = 38.min(self.tile_h as i32);
+                root.draw(&Rectangle::new(
+                    [
+                        (cx as i32, cy as i32),
+                        (cx as i32 + self.tile_w as i32 - 1, cy as i32 + band_h),
+                    ],
+                    BLACK.mix(0.65).filled(),
+                ))
+                .map_err(err)?;
                 root.draw_text(
-                    &format!("t = {t:.2} s"),
+                    &format!("t = {:.2} s", tile.t_secs),
                     &style,
-                    (cx as i32 + 6, cy as i32 + 6),
+                    (cx as i32 + 6, cy as i32 + 3),
                 )
-                .map_err(|e| anyhow::anyhow!("drawing the contact sheet: {e}"))?;
+                .map_err(err)?;
+                root.draw_text(&tile.label, &style, (cx as i32 + 6, cy as i32 + 20))
+                    .map_err(err)?;
+                for &uv in &tile.gaze_uv {
+                    let Some((x, y)) = self.gaze_pixel(i, uv) else {
+                        continue;
+                    };
+                    let (x, y) = (x as i32, y as i32);
+                    for (a, b) in [
+                        ((x - 7, y), (x - 2, y)),
+                        ((x + 2, y), (x + 7, y)),
+                        ((x, y - 7), (x, y - 2)),
+                        ((x, y + 2), (x, y + 7)),
+                    ] {
+                        root.draw(&PathElement::new(vec![a, b], marker.stroke_width(2)))
+                            .map_err(err)?;
+                    }
+                }
             }
             root.present()
                 .map_err(|e| anyhow::anyhow!("drawing the contact sheet: {e}"))?;
@@ -269,23 +338,24 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
         for (k, (suffix, rows)) in views.iter().enumerate() {
             let eye = suffix.replace('_', " ");
             let dashed = k > 0;
+            let [target, adaptation, _, _] = eye_colours(k, views.len());
             chart
                 .draw_series(line(
                     rows.iter().map(|r| (r.t_secs, log(r.stats.target_cd_m2))),
-                    RED.stroke_width(1),
+                    target.stroke_width(1),
                     dashed,
                 ))?
                 .label(format!("pooled target{eye}"))
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], target));
             chart
                 .draw_series(line(
                     rows.iter()
                         .map(|r| (r.t_secs, log(r.stats.adaptation_cd_m2))),
-                    BLUE.stroke_width(2),
+                    adaptation.stroke_width(2),
                     dashed,
                 ))?
                 .label(format!("adaptation{eye}"))
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], adaptation));
         }
         chart
             .configure_series_labels()
@@ -300,25 +370,54 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
             .y_label_area_size(70)
             .build_cartesian_2d(0.0..t_max, 0.0..p_hi + 0.5)?;
         chart.configure_mesh().x_desc("t (s)").y_desc("mm").draw()?;
+        // Held pupils (blinks, dropouts) of the first view as grey bands.
+        if let Some((_, rows)) = views.first() {
+            let mut bands = Vec::new();
+            let mut start = None;
+            for w in rows.windows(2) {
+                match (start, w[0].pupil_held) {
+                    (None, true) => start = Some(w[0].t_secs),
+                    (Some(t), false) => {
+                        bands.push((t, w[0].t_secs));
+                        start = None;
+                    }
+                    _ => {}
+                }
+            }
+            if let (Some(t), Some(last)) = (start, rows.last()) {
+                bands.push((t, last.t_secs));
+            }
+            let grey = RGBColor(200, 200, 200);
+            chart
+                .draw_series(bands.iter().map(|&(a, b)| {
+                    Rectangle::new(
+                        [(a, 0.0), (b.max(a + 1e-3), p_hi + 0.5)],
+                        grey.mix(0.6).filled(),
+                    )
+                }))?
+                .label("pupil held (blink, dropout)")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 20, y + 4)], grey.filled()));
+        }
         for (k, (suffix, rows)) in views.iter().enumerate() {
             let eye = suffix.replace('_', " ");
             let dashed = k > 0;
+            let [_, _, pupil, psf] = eye_colours(k, views.len());
             chart
                 .draw_series(line(
                     rows.iter().map(|r| (r.t_secs, f64::from(r.pupil_mm))),
-                    BLACK.stroke_width(1),
+                    pupil.stroke_width(1),
                     dashed,
                 ))?
                 .label(format!("pupil{eye} (trace, dropouts held)"))
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], pupil));
             chart
                 .draw_series(line(
                     rows.iter().map(|r| (r.t_secs, r.stats.psf_pupil_mm)),
-                    GREEN.stroke_width(2),
+                    psf.stroke_width(2),
                     dashed,
                 ))?
                 .label(format!("PSF{eye} built for"))
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], psf));
         }
         chart
             .configure_series_labels()
@@ -330,6 +429,28 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
     };
     write_chart_png(path, (1000, 640), draw)
         .map_err(|e| anyhow::anyhow!("cannot draw {}: {e}", path.display()))
+}
+
+/// The colours of view `k` of `n`: pooled target, adaptation, pupil, PSF
+/// pupil. One view keeps the classic red/blue/black/green; in stereo the
+/// left eye (view 0) is drawn in blues and the right eye (view 1) in
+/// oranges, so the eyes differ by colour as well as by dash.
+fn eye_colours(k: usize, n: usize) -> [RGBColor; 4] {
+    match (n, k) {
+        (1, _) => [RED, BLUE, BLACK, GREEN],
+        (_, 0) => [
+            RGBColor(120, 160, 230),
+            RGBColor(20, 60, 200),
+            RGBColor(10, 30, 110),
+            RGBColor(0, 150, 200),
+        ],
+        _ => [
+            RGBColor(250, 170, 90),
+            RGBColor(220, 90, 0),
+            RGBColor(130, 50, 0),
+            RGBColor(200, 130, 0),
+        ],
+    }
 }
 
 /// A line through `points`, dashed (every other segment drawn) when

@@ -521,7 +521,21 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         if i % sheet_every == 0 {
-            sheet.add(out, t_secs - t0);
+            let rows: Vec<&TimelineRow> = timeline.iter().filter_map(|r| r.last()).collect();
+            let gaze: Vec<[f32; 2]> = rows
+                .iter()
+                .enumerate()
+                .map(|(k, r)| [(k as f32 + r.gaze_u) / n_views as f32, r.gaze_v])
+                .collect();
+            let join = |f: &dyn Fn(&TimelineRow) -> String| {
+                rows.iter().map(|r| f(r)).collect::<Vec<_>>().join(" / ")
+            };
+            let label = format!(
+                "pupil {} mm · adapt. {} cd/m²",
+                join(&|r| format!("{:.1}", r.pupil_mm)),
+                join(&|r| format!("{:.3}", r.stats.adaptation_cd_m2)),
+            );
+            sheet.add(out, t_secs - t0, &gaze, label);
         }
         rendered += 1;
         progress.inc(1);

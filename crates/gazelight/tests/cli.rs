@@ -317,3 +317,68 @@ fn one_config_file_serves_every_command() {
     assert_eq!(timeline.lines().count(), 3, "{timeline}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The contact sheet explains itself on a bright scene: every tile's gaze
+/// is marked (the sheet's marker green) and its time, pupil and adaptation
+/// are written white on a dark band, so the text keeps its contrast on a
+/// bright sky (band median ≤ 110 of 255 with text pixels ≥ 200).
+#[test]
+fn contact_sheet_marks_gaze_and_labels_readably_on_a_bright_sky() {
+    let dir = tmp("sheet");
+    let scene = shared("hdr/blender-world/city.exr");
+    let out = gazelight(&[
+        "render",
+        "--scene",
+        scene.to_str().expect("utf-8"),
+        "--scene-key-cd-m2",
+        "2000",
+        "--pitch-deg",
+        "25",
+        "--size",
+        "160x120",
+        "--frames",
+        "24",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let sheet = image::open(dir.join("contact_sheet.png"))
+        .expect("sheet")
+        .to_rgb8();
+    assert_eq!(sheet.dimensions(), (4 * 160, 3 * 120));
+    let luma = |p: &image::Rgb<u8>| {
+        (0.2126 * f64::from(p.0[0]) + 0.7152 * f64::from(p.0[1]) + 0.0722 * f64::from(p.0[2])) as u8
+    };
+    for tile in 0..12u32 {
+        let (cx, cy) = ((tile % 4) * 160, (tile / 4) * 120);
+        let mut band: Vec<u8> = (cy..cy + 38)
+            .flat_map(|y| (cx..cx + 160).map(move |x| (x, y)))
+            .map(|(x, y)| luma(sheet.get_pixel(x, y)))
+            .collect();
+        band.sort_unstable();
+        let (median, max) = (band[band.len() / 2], band[band.len() - 1]);
+        assert!(
+            median <= 110 && max >= 200,
+            "tile {tile}: band median {median}, max {max}"
+        );
+        let green = (cy..cy + 120)
+            .flat_map(|y| (cx..cx + 160).map(move |x| (x, y)))
+            .filter(|&(x, y)| sheet.get_pixel(x, y).0 == [0, 255, 0])
+            .count();
+        assert!(green >= 8, "tile {tile}: gaze marker {green} px");
+    }
+    // Without the band the sky under the text is bright: the view is.
+    let frame_mean = sheet
+        .enumerate_pixels()
+        .filter(|(_, y, _)| y % 120 >= 60)
+        .map(|(_, _, p)| f64::from(luma(p)))
+        .sum::<f64>()
+        / (4.0 * 160.0 * 3.0 * 60.0);
+    assert!(frame_mean >= 100.0, "not a bright scene: {frame_mean:.0}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -84,6 +84,15 @@ fn neon_replay_renders_each_eye_with_its_own_pupil_and_kernel() {
     let stdout = success(&out);
     assert!(stdout.contains("stereo frames (96x80 per eye"), "{stdout}");
     assert_eq!(png_size(&dir.join("frames/frame_00010.png")), (192, 80));
+    // plot.png: one colour per eye (left in blues, right in oranges; the
+    // adaptation lines' exact colours, output.rs `eye_colours`).
+    let plot = image::open(dir.join("plot.png")).expect("plot").to_rgb8();
+    let count = |c: [u8; 3]| plot.pixels().filter(|p| p.0 == c).count();
+    let (left, right) = (count([20, 60, 200]), count([220, 90, 0]));
+    assert!(
+        left > 200 && right > 200,
+        "eye colours in plot.png: left {left}, right {right} px"
+    );
 
     let csv = Csv::read(&dir.join("timeline.csv"));
     for column in [
