@@ -188,6 +188,10 @@ pub const NEAR_FIELD_MAX_PX: usize = 512;
 /// The CIE 146 term fades in (smoothstep) between these angles, degrees
 /// (CIE 146:2002 holds from 0.1°).
 pub const STRAY_LIGHT_FADE_DEG: (f64, f64) = (0.1, 0.3);
+/// Where the kernel's far taper begins, as a fraction of the kernel radius:
+/// the CIE 146 term and the particle lobes are whole within it and fall by
+/// a smoothstep to 0 at the radius ([`field_taper`]).
+pub const FIELD_TAPER_START: f64 = 0.6;
 /// Seed scale: the pupil-plane grid (001 gives none; these are the tree's
 /// earlier defaults, 8 mm pupils at 2.5× in the plane).
 const SEED_GRID: (usize, f64) = (512, 20.0);
@@ -996,6 +1000,23 @@ pub fn build_kernel(params: &PsfParams) -> Result<PsfKernel, VisionError> {
 /// Radial table step, display pixels.
 const TABLE_STEP_PX: f64 = 0.25;
 
+/// The far taper of the kernel's analytic terms (CIE 146 stray light,
+/// particle lobes) at `d_px` display pixels from the source, for a kernel
+/// of radius `radius_px`: 1 within [`FIELD_TAPER_START`] × the radius, then
+/// a smoothstep to 0 at the radius and 0 beyond it. The kernel is a square
+/// of `2r + 1` pixels; cut there, a source's veil would stop at straight
+/// edges `r` pixels away (issue 39: a step of several code values in a
+/// dark-adapted frame). Tapered, it falls to 0 continuously (with its
+/// slope) on the circle of radius `r`, and the square's corners are 0.
+pub fn field_taper(d_px: f64, radius_px: f64) -> f64 {
+    let start = FIELD_TAPER_START * radius_px;
+    if d_px <= start {
+        return 1.0;
+    }
+    let s = ((d_px - start) / (radius_px - start)).clamp(0.0, 1.0);
+    1.0 - s * s * (3.0 - 2.0 * s)
+}
+
 /// The pupil-independent part of a kernel build, made once per
 /// [`PsfParams`]: the sampling, the wavelength table with its colour
 /// matching weights, the particle positions, the spectrally summed particle
@@ -1050,15 +1071,16 @@ impl PsfSetup {
                             xyz[k] += c[k] * l;
                         }
                     }
-                    xyz_to_rgb(xyz)
+                    xyz_to_rgb(xyz).map(|v| v * field_taper(i as f64 * TABLE_STEP_PX, r as f64))
                 })
                 .collect()
         } else {
             Vec::new()
         };
 
-        // CIE 146 veil, faded in over STRAY_LIGHT_FADE_DEG; pixels near the
-        // source are averaged over 5 × 5 sub-samples.
+        // CIE 146 veil, faded in over STRAY_LIGHT_FADE_DEG and tapered to 0
+        // at the kernel's radius (`field_taper`); pixels near the source are
+        // averaged over 5 × 5 sub-samples.
         let mut cie = vec![0.0f64; size * size];
         if params.has_stray_light() {
             let dpp = sampling.deg_per_px;
@@ -1089,7 +1111,7 @@ impl PsfSetup {
                     } else {
                         veil(d * dpp)
                     };
-                    *out = per_sr * omega_px;
+                    *out = per_sr * omega_px * field_taper(d, r as f64);
                 }
             });
         }
