@@ -6,8 +6,9 @@
 //!
 //! The model is [`gazelight_vision::psf`]'s (issue 10): a wave-optics near
 //! field on a pupil-plane grid chosen per request, analytic particle lobes
-//! beyond it, and the CIE 146:2002 intraocular stray light out to the edge
-//! of the glare field, normalised as a whole. Its CPU builder splits into a
+//! beyond it, and the CIE 146:2002 intraocular stray light, the analytic
+//! terms tapered to 0 at the edge of the glare field (`field_taper`, in the
+//! tables the GPU uploads), normalised as a whole. Its CPU builder splits into a
 //! pupil-independent [`PsfSetup`] and a per-pupil build; the GPU twin makes
 //! the same split:
 //!

@@ -11,6 +11,8 @@
 //!   status page's state as the page shows it.
 //! - [`netns`]: a test re-run inside a private network namespace
 //!   (`unshare -n`, loopback up), so no discovery packet leaves the machine.
+//! - [`seam`]: straight seams in a glare veil, from frames rendered with
+//!   glare and without ([`seam::find_seams`]).
 //!
 //! Every harness follows the workspace's rule for missing tools: outside CI
 //! a test that lacks one prints a `SKIP` line and returns; with `CI` set it
@@ -19,6 +21,7 @@
 pub mod chromium;
 pub mod data;
 pub mod netns;
+pub mod seam;
 
 pub use data::{DATA_DIR_ENV, DataDirError, data_dir, data_path, try_data_dir};
 

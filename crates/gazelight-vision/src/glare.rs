@@ -1544,25 +1544,34 @@ mod tests {
             }
         }
         assert!(max_err < 1e-5, "core: max |out − kernel| = {max_err}");
-        // The wide field follows the kernel ring by ring within 10 %.
+        // The wide field follows the kernel ring by ring within 10 % out to
+        // 0.9 r. Beyond, the kernel's far taper takes it to 0 at r, and the
+        // coarse path's blur by a block (0.4°) is compared with the ring at
+        // 0.9 r: within 10 % of it.
         let r = k.centre();
-        let mut worst = 0.0f64;
+        let mut kimg = RgbImage::new(2 * r + 1, 2 * r + 1);
+        for (i, p) in kimg.pixels.iter_mut().enumerate() {
+            *p = k.rgb[i];
+        }
+        let d_tail = (0.9 * r as f64) as usize;
+        let tail_ref = ring_luminance(&kimg, r, r, d_tail);
+        let (mut worst, mut worst_tail) = (0.0f64, 0.0f64);
         for d in conv.fine_radius_px()..r - 2 {
-            let want = {
-                let mut kimg = RgbImage::new(2 * r + 1, 2 * r + 1);
-                for (i, p) in kimg.pixels.iter_mut().enumerate() {
-                    *p = k.rgb[i];
-                }
-                ring_luminance(&kimg, r, r, d)
-            };
+            let want = ring_luminance(&kimg, r, r, d);
             let got = ring_luminance(&img, cx, cy, d);
-            worst = worst.max((got / want - 1.0).abs());
+            if d <= d_tail {
+                worst = worst.max((got / want - 1.0).abs());
+            } else {
+                worst_tail = worst_tail.max((got - want).abs() / tail_ref);
+            }
         }
         eprintln!(
-            "wide field vs kernel, worst ring error {:.2} %",
-            worst * 100.0
+            "wide field vs kernel, worst ring error {:.2} % to 0.9 r, {:.2} % of the ring at 0.9 r beyond",
+            worst * 100.0,
+            worst_tail * 100.0
         );
         assert!(worst < 0.1, "{worst}");
+        assert!(worst_tail < 0.1, "{worst_tail}");
         for (c, t) in total(&img).iter().enumerate() {
             assert!((t - 1.0).abs() < 1e-3, "channel {c}: {t}");
         }

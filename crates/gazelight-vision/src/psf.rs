@@ -1,6 +1,6 @@
 //! The glare point spread function in physical units: wave optics near the
 //! source (001 §4.2, eq 5–10) and the eye's intraocular stray light
-//! calibrated to CIE 146:2002 out to the edge of the glare field.
+//! calibrated to CIE 146:2002, tapered to 0 at the edge of the glare field.
 //!
 //! # Public API (mirrored by the GPU twin)
 //!
@@ -33,15 +33,33 @@
 //! `Ω_px = (deg_per_px in rad)²` its solid angle, each channel `c`:
 //!
 //! ```text
-//! K_c = α_c · N_c + f(θ) · CIE146(θ; A, p) · Ω_px
-//! N_c = near field (FFT, θ ≤ near radius)  or  particle lobes (beyond it)
-//! α_c = (1 − Σ f·CIE146·Ω_px) / Σ N_c          (whole kernel: unit energy)
+//! K_c = α_c · N_c + f(θ) · t(d) · CIE146(θ; A, p) · Ω_px
+//! N_c = near field (FFT, θ ≤ near radius)  or  t(d) · particle lobes (beyond it)
+//! α_c = (1 − Σ f·t·CIE146·Ω_px) / Σ N_c          (whole kernel: unit energy)
 //! ```
 //!
 //! `f` is a smoothstep from 0 at 0.1° (where CIE 146 starts to hold) to 1 at
 //! 0.3° ([`STRAY_LIGHT_FADE_DEG`]); below 0.1° the kernel is wave optics
 //! alone. With `stray_light = false` the second term is absent and `α_c = 1 /
 //! Σ N_c`. CIE 146 is taken as achromatic (the same in R, G and B).
+//!
+//! ## Far taper
+//!
+//! `t(d)` ([`field_taper`]) is 1 out to [`FIELD_TAPER_START`] = 0.6 of the
+//! kernel radius `r` (`d` the distance in display pixels) and falls by a
+//! smoothstep to 0 at `r`. The kernel is a square of `2r + 1` pixels; cut
+//! there, a bright source's veil stopped at straight edges `r` pixels away,
+//! a step of several code values in a dark-adapted frame (issue 39).
+//! Tapered, it falls to 0 with its slope on the circle of radius `r`, and
+//! the square's corners are 0. At the default ±20° field the kernel is CIE
+//! 146 to 12°, then ×0.84 at 14°, ×0.5 at 16°, ×0.16 at 18°, 0 from 20°:
+//! 0.46 % of a source's light (3.1 % of the CIE 146 term inside the field, 0.1495 → 0.1449 at 13.85 ppd)
+//! moves from the taper into the near field through `α_c`. The veil
+//! beyond the field (CIE 146 holds to 100°; from 20° to 100° it holds
+//! 2.9 % of the light at age 25, p = 0.5) is not in the kernel, with or
+//! without the taper. The taper applies to the analytic terms only: the
+//! wave-optics near field (≤ 0.6°) ends inside any field wider than about
+//! 1.2°, and in seed scale (below) the FFT field fills the whole kernel.
 //!
 //! ## Near field: wave optics (001 eq 5–10)
 //!
@@ -116,7 +134,8 @@
 //! * beyond the near region the kernel is the incoherent sum of the lobes
 //!   ([`crate::stray_light::airy_lobe_per_sr`], spectrally summed like
 //!   `M`): `σ_p · lobe(θ) · Ω_px` with `σ_p = n_in a / (π D²/4)`, `n_in` the
-//!   particles inside the pupil. The power of the lobes is `σ_p`, linear in
+//!   particles inside the pupil (tapered as the CIE term, below: the table
+//!   holds `t · lobe`). The power of the lobes is `σ_p`, linear in
 //!   the covered area (the old kernel, which had only the FFT field, gave
 //!   the sub-sample particles' scatter ∝ area² and lost the rest).
 //!
@@ -188,6 +207,10 @@ pub const NEAR_FIELD_MAX_PX: usize = 512;
 /// The CIE 146 term fades in (smoothstep) between these angles, degrees
 /// (CIE 146:2002 holds from 0.1°).
 pub const STRAY_LIGHT_FADE_DEG: (f64, f64) = (0.1, 0.3);
+/// Where the kernel's far taper begins, as a fraction of the kernel radius:
+/// the CIE 146 term and the particle lobes are whole within it and fall by
+/// a smoothstep to 0 at the radius ([`field_taper`]).
+pub const FIELD_TAPER_START: f64 = 0.6;
 /// Seed scale: the pupil-plane grid (001 gives none; these are the tree's
 /// earlier defaults, 8 mm pupils at 2.5× in the plane).
 const SEED_GRID: (usize, f64) = (512, 20.0);
@@ -996,6 +1019,23 @@ pub fn build_kernel(params: &PsfParams) -> Result<PsfKernel, VisionError> {
 /// Radial table step, display pixels.
 const TABLE_STEP_PX: f64 = 0.25;
 
+/// The far taper of the kernel's analytic terms (CIE 146 stray light,
+/// particle lobes) at `d_px` display pixels from the source, for a kernel
+/// of radius `radius_px`: 1 within [`FIELD_TAPER_START`] × the radius, then
+/// a smoothstep to 0 at the radius and 0 beyond it. The kernel is a square
+/// of `2r + 1` pixels; cut there, a source's veil would stop at straight
+/// edges `r` pixels away (issue 39: a step of several code values in a
+/// dark-adapted frame). Tapered, it falls to 0 continuously (with its
+/// slope) on the circle of radius `r`, and the square's corners are 0.
+pub fn field_taper(d_px: f64, radius_px: f64) -> f64 {
+    let start = FIELD_TAPER_START * radius_px;
+    if d_px <= start {
+        return 1.0;
+    }
+    let s = ((d_px - start) / (radius_px - start)).clamp(0.0, 1.0);
+    1.0 - s * s * (3.0 - 2.0 * s)
+}
+
 /// The pupil-independent part of a kernel build, made once per
 /// [`PsfParams`]: the sampling, the wavelength table with its colour
 /// matching weights, the particle positions, the spectrally summed particle
@@ -1050,15 +1090,16 @@ impl PsfSetup {
                             xyz[k] += c[k] * l;
                         }
                     }
-                    xyz_to_rgb(xyz)
+                    xyz_to_rgb(xyz).map(|v| v * field_taper(i as f64 * TABLE_STEP_PX, r as f64))
                 })
                 .collect()
         } else {
             Vec::new()
         };
 
-        // CIE 146 veil, faded in over STRAY_LIGHT_FADE_DEG; pixels near the
-        // source are averaged over 5 × 5 sub-samples.
+        // CIE 146 veil, faded in over STRAY_LIGHT_FADE_DEG and tapered to 0
+        // at the kernel's radius (`field_taper`); pixels near the source are
+        // averaged over 5 × 5 sub-samples.
         let mut cie = vec![0.0f64; size * size];
         if params.has_stray_light() {
             let dpp = sampling.deg_per_px;
@@ -1089,7 +1130,7 @@ impl PsfSetup {
                     } else {
                         veil(d * dpp)
                     };
-                    *out = per_sr * omega_px;
+                    *out = per_sr * omega_px * field_taper(d, r as f64);
                 }
             });
         }
@@ -1520,13 +1561,21 @@ mod tests {
                         }
                         let r = k.centre();
                         let mut worst: f64 = 1.0;
-                        for d in 1..=r {
+                        // Whole CIE 146 within 0.6 r; beyond it the
+                        // kernel's far taper (module docs): ×1 at 0.6 r,
+                        // a smoothstep to 0 at r.
+                        for d in 1..r {
                             let theta = d as f64 * k.deg_per_px;
                             if theta < 0.3 {
                                 continue;
                             }
+                            let s = ((d as f64 / r as f64 - 0.6) / 0.4).clamp(0.0, 1.0);
+                            let taper = 1.0 - s * s * (3.0 - 2.0 * s);
+                            if taper < 0.05 {
+                                continue;
+                            }
                             let got = ring_mean(&k, d);
-                            let want = cie146(theta, age, pigmentation);
+                            let want = cie146(theta, age, pigmentation) * taper;
                             let ratio = got / want;
                             let tol = if theta < 1.0 { 3.0 } else { 2.0 };
                             assert!(
@@ -2223,8 +2272,52 @@ mod tests {
         );
         let c = k.at(0, 0);
         assert!(k.rgb.iter().all(|p| p[1] <= c[1]));
-        // Light reaches the field's edge.
-        assert!(k.at(k.centre() as isize, 0)[1] > 0.0);
+        // Light reaches the field's edge (one pixel inside the radius).
+        assert!(k.at(k.centre() as isize - 1, 0)[1] > 0.0);
+    }
+
+    /// Issue 39: the kernel is a square of 2r + 1 pixels; its veil used to
+    /// stop at the square's edges, r pixels from a source, a step in every
+    /// frame with a bright source. It must fall to 0 on the circle of
+    /// radius r, with no step on the way: 0 at and beyond r (the square's
+    /// corners included), and from 0.6 r on, where the taper starts, each
+    /// ring below the one inside it by less than the CIE 146 veil at 0.6 r
+    /// falls over one pixel of a 1/θ² law times 4.
+    #[test]
+    fn kernel_falls_to_zero_at_its_radius_without_a_step() {
+        for (ppd, field_deg) in [(13.85, 40.0), (6.28, 40.0), (14.0, 10.0)] {
+            let k = build_kernel(&PsfParams {
+                ppd,
+                field_deg,
+                ..PsfParams::default()
+            })
+            .unwrap();
+            let r = k.centre() as isize;
+            let mut beyond = 0.0f64;
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    if dx * dx + dy * dy >= r * r {
+                        beyond = beyond.max(f64::from(k.at(dx, dy)[1]));
+                    }
+                }
+            }
+            assert_eq!(beyond, 0.0, "{ppd} ppd ±{}°: light at or past r", field_deg / 2.0);
+            let start = (0.6 * r as f64).floor() as usize;
+            let at_start = ring_mean(&k, start);
+            assert!(at_start > 0.0);
+            let mut worst = 0.0f64;
+            for d in start..r as usize {
+                let drop = ring_mean(&k, d) - ring_mean(&k, d + 1);
+                worst = worst.max(drop / at_start);
+            }
+            // 1/θ²: the veil falls by 2/d of itself per pixel at d.
+            let bound = 4.0 * 2.0 / start as f64;
+            eprintln!(
+                "{ppd} ppd ±{}°: largest fall between neighbouring rings from 0.6 r to r: {worst:.4} of the veil at 0.6 r (bound {bound:.4})",
+                field_deg / 2.0
+            );
+            assert!(worst < bound, "{ppd} ppd: a step of {worst:.4} of the veil");
+        }
     }
 
     #[test]
