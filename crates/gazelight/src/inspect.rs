@@ -138,6 +138,7 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
             return Err(crate::input_report::no_samples(
                 &args.path,
                 importer.warnings(),
+                &importer.data_files(),
             ));
         }
         summary

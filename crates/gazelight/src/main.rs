@@ -21,6 +21,7 @@ mod input_report;
 mod inspect;
 mod lsl_outlets;
 mod observer;
+mod out_dir;
 mod output;
 mod psf;
 mod record;

@@ -70,6 +70,11 @@ pub(crate) fn check(args: &ReplayArgs) -> anyhow::Result<()> {
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     check_flags(&args)?;
+    render::check(&args.render)?;
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
+        .chain(args.calibration.as_deref())
+        .collect();
+    render::prepare_out("replay", &args.render, &inputs)?;
     let calibration = match &args.calibration {
         Some(path) => Some(PupilCalibration::load(path)?),
         None => None,
@@ -182,7 +187,7 @@ fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
         }
     }
     let Some((t_first, t_last)) = range else {
-        return Err(input_report::no_samples(path, importer.warnings()));
+        return Err(input_report::no_samples(path, importer.warnings(), &importer.data_files()));
     };
     if !part
         && let Some(stats) = importer.time_stats()
