@@ -45,7 +45,10 @@ pub fn no_samples(path: &Path, warnings: &ImportWarnings, data_files: &[PathBuf]
                         }
                     })
                     .collect();
-                format!("its data files hold no sample records: {}", files.join(", "))
+                format!(
+                    "its data files hold no sample records: {}",
+                    files.join(", ")
+                )
             }
             Ok(m) if m.is_file() && m.len() == 0 => "the file is empty (0 bytes)".to_string(),
             Ok(m) if m.is_file() => format!(

@@ -330,7 +330,8 @@ mod tests {
     use super::*;
 
     fn tmp(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("gazelight-outdir-{}-{name}", std::process::id()));
+        let d =
+            std::env::temp_dir().join(format!("gazelight-outdir-{}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d
@@ -351,10 +352,18 @@ mod tests {
     fn force_clears_only_what_the_command_writes() {
         let d = tmp("force");
         std::fs::create_dir_all(d.join("frames")).unwrap();
-        for f in ["timeline.csv", "plot.png", "notes.txt", "frames/frame_00007.png", "frames/keep.txt"] {
+        for f in [
+            "timeline.csv",
+            "plot.png",
+            "notes.txt",
+            "frames/frame_00007.png",
+            "frames/keep.txt",
+        ] {
             std::fs::write(d.join(f), "x").unwrap();
         }
-        let e = prepare("render", &d, OutKind::Frames, &[], false).unwrap_err().to_string();
+        let e = prepare("render", &d, OutKind::Frames, &[], false)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("--force") && e.contains("timeline.csv"), "{e}");
         prepare("render", &d, OutKind::Frames, &[], true).unwrap();
         assert!(!d.join("timeline.csv").exists() && !d.join("plot.png").exists());
@@ -368,10 +377,14 @@ mod tests {
         let d = tmp("held");
         std::fs::write(d.join("timeline.csv"), "t_secs\n").unwrap();
         let input = d.join("timeline.csv");
-        let e = prepare("replay", &d, OutKind::Frames, &[&input], true).unwrap_err().to_string();
+        let e = prepare("replay", &d, OutKind::Frames, &[&input], true)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("holds the input"), "{e}");
         std::fs::write(d.join("info.csv"), "key,value\n").unwrap();
-        let e = prepare("record", &d, OutKind::Recording, &[], true).unwrap_err().to_string();
+        let e = prepare("record", &d, OutKind::Recording, &[], true)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("Pupil Capture 1.x"), "{e}");
         let _ = std::fs::remove_dir_all(&d);
     }

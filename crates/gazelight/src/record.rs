@@ -156,8 +156,7 @@ impl Recording {
     fn keep_info_current(&mut self, source: &str) -> anyhow::Result<()> {
         let times = (self.first_pupil_t, self.last_pupil_t);
         let first_start = self.info_times.0.is_none() && times.0.is_some();
-        if times == self.info_times || !(first_start || self.info_written.elapsed() >= INFO_EVERY)
-        {
+        if times == self.info_times || !(first_start || self.info_written.elapsed() >= INFO_EVERY) {
             return Ok(());
         }
         for w in self.writers.values_mut() {

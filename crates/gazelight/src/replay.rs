@@ -187,7 +187,11 @@ fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
         }
     }
     let Some((t_first, t_last)) = range else {
-        return Err(input_report::no_samples(path, importer.warnings(), &importer.data_files()));
+        return Err(input_report::no_samples(
+            path,
+            importer.warnings(),
+            &importer.data_files(),
+        ));
     };
     if !part
         && let Some(stats) = importer.time_stats()

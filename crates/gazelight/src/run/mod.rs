@@ -636,7 +636,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     {
         bail!(
             "--out {}: {} output file(s) stopped early: {}",
-            r.out.as_deref().map_or_else(String::new, |d| d.display().to_string()),
+            r.out
+                .as_deref()
+                .map_or_else(String::new, |d| d.display().to_string()),
             w.errors.len(),
             w.errors.join("; ")
         );
