@@ -4,10 +4,13 @@
 //!
 //! Refused, whatever `--force` says:
 //!
-//! - an `--out` that **holds an input** of the command (the recording,
-//!   trace, scene, configuration, calibration profile or head trace lies in
-//!   it, or is it): `replay DIR/timeline.csv --out DIR` would overwrite the
-//!   timeline it is replaying;
+//! - an `--out` that **holds an input** of the command where the command
+//!   would overwrite or clear it (the recording, trace, scene,
+//!   configuration, calibration profile or head trace is `--out` itself, is
+//!   named like one of the command's outputs, or lies under `frames/`):
+//!   `replay DIR/timeline.csv --out DIR` would overwrite the timeline it is
+//!   replaying; an input of another name beside the outputs is untouched
+//!   and fine;
 //! - an `--out` that **holds another kind of recording**: a Pupil Capture
 //!   recording (1.x `info.csv`, an `info.player.json` another program wrote,
 //!   `.pldata` streams without a gazelight `info.player.json`) or a Neon
@@ -86,7 +89,7 @@ pub fn prepare(
     };
     // A symlink to a directory is followed, as `create_dir_all` would.
     let is_dir = out.is_dir();
-    if let Some(input) = held_input(out, inputs) {
+    if let Some(input) = held_input(out, kind, inputs) {
         bail!(
             "{command} --out {shown}: it holds the input {}; writing there would overwrite or clear it \
              (--force does not change this): choose another directory",
@@ -148,18 +151,53 @@ fn prepare_file(
     Ok(())
 }
 
-/// The first of `inputs` that lies in `out` (or is it).
-fn held_input<'a>(out: &Path, inputs: &[&'a Path]) -> Option<&'a Path> {
-    let out = std::fs::canonicalize(out).ok()?;
+/// The first of `inputs` that a run of `kind` into `out` would overwrite or
+/// clear: `out` itself, or a file of the names the command writes (for
+/// [`OutKind::Frames`] anything under `frames/`). Other files in `out` are
+/// never touched, so an input among them is fine.
+fn held_input<'a>(out: &Path, kind: OutKind, inputs: &[&'a Path]) -> Option<&'a Path> {
+    let out = canonical(out)?;
     inputs.iter().copied().find(|input| {
-        // A dangling symlink still names a path in `out`: its parent.
-        let resolved = std::fs::canonicalize(input).ok().or_else(|| {
-            let parent = input.parent().filter(|p| !p.as_os_str().is_empty());
-            let parent = std::fs::canonicalize(parent.unwrap_or(Path::new("."))).ok()?;
-            Some(parent.join(input.file_name()?))
-        });
-        resolved.is_some_and(|r| r.starts_with(&out))
+        let Some(input) = canonical(input) else {
+            return false;
+        };
+        if kind == OutKind::Profile {
+            return input == out;
+        }
+        let Ok(rel) = input.strip_prefix(&out) else {
+            return false;
+        };
+        let mut parts = rel.components();
+        let Some(first) = parts.next() else {
+            return true; // `out` itself
+        };
+        let name = first.as_os_str().to_string_lossy();
+        let top_level = parts.next().is_none();
+        match kind {
+            OutKind::Frames => name == FRAMES_DIR || (top_level && FRAMES_FILES.contains(&&*name)),
+            OutKind::Kernel => top_level && KERNEL_FILES.contains(&&*name),
+            OutKind::Recording => top_level && is_recording_file(&name),
+            OutKind::Profile => false,
+        }
     })
+}
+
+/// `path` with every symlink resolved; a path that does not exist (yet),
+/// or a dangling symlink, resolves through its parent.
+fn canonical(path: &Path) -> Option<PathBuf> {
+    std::fs::canonicalize(path).ok().or_else(|| {
+        let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+        let parent = std::fs::canonicalize(parent.unwrap_or(Path::new("."))).ok()?;
+        Some(parent.join(path.file_name()?))
+    })
+}
+
+/// The top-level names `record` writes (and `--force` clears).
+fn is_recording_file(name: &str) -> bool {
+    name == PLAYER_INFO
+        || name == PLAYER_INFO_TMP
+        || name.ends_with(".pldata")
+        || name.ends_with("_timestamps.npy")
 }
 
 /// A recording found in an output directory.
@@ -277,11 +315,7 @@ fn previous_outputs(out: &Path, kind: OutKind) -> anyhow::Result<Vec<PathBuf>> {
         }
         OutKind::Recording => {
             for name in entries(out)? {
-                if name == PLAYER_INFO
-                    || name == PLAYER_INFO_TMP
-                    || name.ends_with(".pldata")
-                    || name.ends_with("_timestamps.npy")
-                {
+                if is_recording_file(&name) {
                     found.push(PathBuf::from(name));
                 }
             }
@@ -381,6 +415,21 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("holds the input"), "{e}");
+        let e = prepare("replay", &d, OutKind::Frames, &[&d], true)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("holds the input"), "{e}");
+        // An input of another name beside the outputs is never touched.
+        std::fs::write(d.join("trace.csv"), "t_secs\n").unwrap();
+        std::fs::remove_file(&input).unwrap();
+        prepare(
+            "replay",
+            &d,
+            OutKind::Frames,
+            &[&d.join("trace.csv")],
+            false,
+        )
+        .unwrap();
         std::fs::write(d.join("info.csv"), "key,value\n").unwrap();
         let e = prepare("record", &d, OutKind::Recording, &[], true)
             .unwrap_err()

@@ -176,14 +176,14 @@ pub(crate) fn prepare_out(
 /// Runs `gazelight render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    load_config(&args)?;
-    prepare_out("render", &args, &[])?;
     let setup = prepare(&args)?;
     let trace = match &args.trace {
         Some(path) => GazeTrace::load(path)?,
         None if args.scene.is_none() => demo::demo_trace(&setup.view, &setup.view_img)?,
         None => sweep_trace(),
     };
+    // The inputs are checked; now where the outputs go.
+    prepare_out("render", &args, &[])?;
     let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
     let duration = trace.duration_secs();
     let samples = trace

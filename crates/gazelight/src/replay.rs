@@ -70,11 +70,6 @@ pub(crate) fn check(args: &ReplayArgs) -> anyhow::Result<()> {
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     check_flags(&args)?;
-    render::check(&args.render)?;
-    let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
-        .chain(args.calibration.as_deref())
-        .collect();
-    render::prepare_out("replay", &args.render, &inputs)?;
     let calibration = match &args.calibration {
         Some(path) => Some(PupilCalibration::load(path)?),
         None => None,
@@ -123,6 +118,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         None,
         calibration.as_ref().map(|c| &c.observer),
     )?;
+    // The inputs are checked; now where the outputs go.
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
+        .chain(args.calibration.as_deref())
+        .collect();
+    render::prepare_out("replay", &args.render, &inputs)?;
     let importer = import::open(&args.recording)?;
     let mut chain = FilterChain::with_defaults();
     if let Some(c) = calibration {

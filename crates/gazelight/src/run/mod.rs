@@ -10,7 +10,10 @@
 //!
 //! Ctrl-C or `--secs` ends the run: the hub's shutdown is requested, the
 //! frame loop finishes its frame, the outputs are flushed and a summary
-//! (frames, late frames, `EyeState` age median/p99) is printed.
+//! (frames, late frames, `EyeState` age median/p99) is printed. `--out` is
+//! checked first by the one `--out` rule ([`crate::out_dir`]); a write
+//! error during the run (a full disk) is printed when it happens, the
+//! summary still follows, and the run then exits with an error.
 //!
 //! Frames are shown in the service's window (winit + gazelight-gpu's presenter, vsync;
 //! see [`crate::window`]) unless `--headless`; the window takes the newest

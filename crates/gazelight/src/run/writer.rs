@@ -19,6 +19,13 @@
 //!
 //! The frame loop hands rows, frames and kernel events over bounded
 //! `sync_channel`s (preallocated ring buffers: sending does not allocate).
+//!
+//! The CSV files only ever hold whole rows (`RowFile`): rows are buffered
+//! whole and written at each flush (at least every second); a write error
+//! (a full disk) cuts the file back to its last complete row, stops that
+//! file only, and is printed at once. A frame image that cannot be written
+//! is removed and the images stop. The errors are in [`WriterReport::errors`]
+//! for the summary.
 
 use std::fmt::Write as _;
 use std::io::Write;

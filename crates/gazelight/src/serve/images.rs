@@ -273,3 +273,65 @@ fn lower_this_threads_priority() {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gazelight_tracker::LiveEyeState;
+
+    fn decoded(p: &Png) -> image::RgbaImage {
+        let bytes = p.bytes.as_ref().expect("encoded");
+        image::load_from_memory(bytes).expect("a PNG").to_rgba8()
+    }
+
+    /// 64 requests for one published frame cost one encoding and all get
+    /// the same bytes; a new frame costs one more; nothing is encoded
+    /// before a request, and a request before the first frame gets none.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn one_encoding_per_published_frame_whatever_the_requests() {
+        let (_tx, rx) = watch::channel(LiveEyeState::default());
+        let hub = Hub::new("test://", rx);
+        let cache = Arc::new(ImageCache::start(hub.clone()).unwrap());
+        assert!(cache.get(Image::Frame).await.is_none(), "no frame yet");
+        let (w, h) = (32usize, 24usize);
+        let px: Vec<u8> = (0..w * h * 4).map(|i| (i * 13 % 251) as u8).collect();
+        hub.publish_display(7, w, h, &px);
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        assert_eq!(cache.encodes(), 0, "encoded before anyone asked");
+
+        let requests: Vec<_> = (0..64)
+            .map(|_| {
+                let c = cache.clone();
+                tokio::spawn(async move { c.get(Image::Frame).await })
+            })
+            .collect();
+        let mut bodies = Vec::new();
+        for r in requests {
+            let png = r.await.unwrap().expect("an image");
+            assert_eq!(png.generation, 7);
+            bodies.push(png.bytes.clone().unwrap());
+        }
+        assert_eq!(cache.encodes(), 1, "64 requests, one frame");
+        assert!(bodies.windows(2).all(|b| b[0] == b[1]));
+        let png = cache.get(Image::Frame).await.unwrap();
+        assert_eq!(decoded(&png).as_raw(), &px, "lossless");
+
+        let px2: Vec<u8> = px.iter().map(|v| 255 - v).collect();
+        hub.publish_display(8, w, h, &px2);
+        for _ in 0..8 {
+            let png = cache.get(Image::Frame).await.unwrap();
+            assert_eq!(png.generation, 8);
+            assert_eq!(decoded(&png).as_raw(), &px2);
+        }
+        assert_eq!(cache.encodes(), 2);
+
+        // The kernel, once per rebuild.
+        let mut k = vec![0.0f32; 9];
+        k[4] = 1.0;
+        hub.publish_psf(3, 4.0, 3, &k);
+        for _ in 0..8 {
+            assert_eq!(cache.get(Image::Psf).await.unwrap().generation, 3);
+        }
+        assert_eq!(cache.encodes(), 3);
+    }
+}
