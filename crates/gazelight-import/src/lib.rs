@@ -131,6 +131,48 @@ impl ImportWarnings {
     }
 }
 
+/// Whether a recording's data file `path` is there: `Ok(true)` for a
+/// regular file (symlinks followed), `Ok(false)` when nothing has that
+/// name, and an error naming the file when something is there that cannot
+/// be read as one — a dangling symlink (and where it points), a directory,
+/// a device — so a broken stream is reported, never taken for a missing one.
+pub fn data_file(path: &Path) -> Result<bool, ImportError> {
+    let entry = match std::fs::symlink_metadata(path) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(source) => {
+            return Err(ImportError::Io {
+                path: path.to_owned(),
+                source,
+            });
+        }
+    };
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => Ok(true),
+        Ok(_) => Err(ImportError::Structure {
+            path: path.to_owned(),
+            position: Position::File,
+            reason: "not a regular file; the recording's data cannot be read from it".into(),
+        }),
+        Err(e) if entry.file_type().is_symlink() => {
+            let target = std::fs::read_link(path)
+                .map_or_else(|_| "?".to_owned(), |t| t.display().to_string());
+            Err(ImportError::Structure {
+                path: path.to_owned(),
+                position: Position::File,
+                reason: format!(
+                    "a symlink to {target}, which cannot be opened ({e}); the recording's data \
+                     is not there"
+                ),
+            })
+        }
+        Err(source) => Err(ImportError::Io {
+            path: path.to_owned(),
+            source,
+        }),
+    }
+}
+
 /// A streaming importer of a recording.
 pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     /// Warnings counted so far (complete once the iterator has ended).
@@ -147,6 +189,12 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     /// [`time_guard::TimeGuard`]).
     fn time_stats(&self) -> Option<&time_guard::TimeStats> {
         None
+    }
+    /// The data files a directory recording's samples come from (its
+    /// streams), to name them when they hold nothing; empty for a
+    /// one-file recording (the path given is the file).
+    fn data_files(&self) -> Vec<PathBuf> {
+        Vec::new()
     }
 }
 

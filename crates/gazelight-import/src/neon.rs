@@ -233,11 +233,11 @@ impl BinStream {
         let mut parts = Vec::new();
         for n in 1..=999u32 {
             let raw = dir.join(format!("{name} ps{n}.raw"));
-            if !raw.is_file() {
+            if !super::data_file(&raw)? {
                 break;
             }
             let time = dir.join(format!("{name} ps{n}.time"));
-            if !time.is_file() {
+            if !super::data_file(&time)? {
                 return Err(ImportError::Structure {
                     path: time,
                     position: Position::File,
@@ -250,7 +250,7 @@ impl BinStream {
             // Neon also writes some streams without a part suffix (`gaze_200hz.raw`).
             let raw = dir.join(format!("{name}.raw"));
             let time = dir.join(format!("{name}.time"));
-            if raw.is_file() && time.is_file() {
+            if super::data_file(&raw)? && super::data_file(&time)? {
                 parts.push((raw, time));
             }
         }
@@ -715,6 +715,13 @@ impl Iterator for NeonImporter {
 impl Importer for NeonImporter {
     fn warnings(&self) -> &ImportWarnings {
         &self.warnings
+    }
+    fn data_files(&self) -> Vec<PathBuf> {
+        [&self.eye, &self.gaze, &self.blinks]
+            .into_iter()
+            .flatten()
+            .flat_map(|s| s.parts.iter().map(|(raw, _)| raw.clone()))
+            .collect()
     }
     fn format(&self) -> &'static str {
         "neon"

@@ -85,8 +85,12 @@ pub struct PupilCoreImporter {
 impl PupilCoreImporter {
     /// Whether `dir` looks like a Pupil Core recording (holds
     /// `pupil.pldata` or `gaze.pldata`).
+    /// A stream file that is there but unreadable (a dangling symlink)
+    /// counts: [`Self::open`] then names it.
     pub fn detect(dir: &Path) -> bool {
-        STREAMS.iter().any(|s| stream_paths(dir, s).0.is_file())
+        STREAMS
+            .iter()
+            .any(|s| std::fs::symlink_metadata(stream_paths(dir, s).0).is_ok())
     }
 
     /// Opens the recording in `dir`.
@@ -94,7 +98,9 @@ impl PupilCoreImporter {
         let mut streams = Vec::with_capacity(STREAMS.len());
         for name in STREAMS {
             let (path, _) = stream_paths(dir, name);
-            if !path.is_file() {
+            // A dangling symlink or a directory in a stream's place is an
+            // error naming it, not a stream left out.
+            if !super::data_file(&path)? {
                 continue;
             }
             let reader = PldataReader::open(&path).map_err(|e| match e {
@@ -244,6 +250,10 @@ impl Iterator for PupilCoreImporter {
 impl Importer for PupilCoreImporter {
     fn warnings(&self) -> &ImportWarnings {
         &self.warnings
+    }
+
+    fn data_files(&self) -> Vec<PathBuf> {
+        self.streams.iter().map(|s| s.path.clone()).collect()
     }
 
     fn format(&self) -> &'static str {

@@ -338,6 +338,9 @@ impl<I: Importer> Importer for TimeGuard<I> {
     fn time_stats(&self) -> Option<&TimeStats> {
         Some(&self.stats)
     }
+    fn data_files(&self) -> Vec<PathBuf> {
+        self.inner.data_files()
+    }
 }
 
 #[cfg(test)]

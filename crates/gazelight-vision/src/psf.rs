@@ -2301,7 +2301,12 @@ mod tests {
                     }
                 }
             }
-            assert_eq!(beyond, 0.0, "{ppd} ppd ±{}°: light at or past r", field_deg / 2.0);
+            assert_eq!(
+                beyond,
+                0.0,
+                "{ppd} ppd ±{}°: light at or past r",
+                field_deg / 2.0
+            );
             let start = (0.6 * r as f64).floor() as usize;
             let at_start = ring_mean(&k, start);
             assert!(at_start > 0.0);

@@ -91,9 +91,14 @@ pub struct CalibrateArgs {
     /// Free-text description stored in the profile (tracker, operator).
     #[arg(long)]
     pub description: Option<String>,
-    /// Where the profile is written (JSON, `calibration/schema.json`).
+    /// Where the profile is written (JSON, `calibration/schema.json`). An
+    /// existing file is refused unless --force.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
+    /// Replace an existing profile at --out (it is replaced only once the
+    /// new profile is complete).
+    #[arg(long)]
+    pub force: bool,
     /// Size of the stimulus window when not full screen, WIDTHxHEIGHT.
     #[arg(long, value_name = "WxH", value_parser = parse_window_size, default_value = "800x600")]
     pub window_size: (u32, u32),
@@ -182,6 +187,14 @@ pub fn run(mut args: CalibrateArgs) -> anyhow::Result<()> {
             parent.display()
         );
     }
+    // Checked before the routine, so nobody calibrates for nothing.
+    crate::out_dir::prepare(
+        "calibrate",
+        &args.out,
+        crate::out_dir::OutKind::Profile,
+        &[],
+        args.force,
+    )?;
     let pupil = gazelight_tracker::uri::pupil_config(args.source())
         .with_context(|| format!("--source {}", args.source()))?;
 

@@ -2,7 +2,7 @@
 //! it is: no readable samples (and why), a time range that is mostly a
 //! gap, and pupils that the filter chain (nearly) all rejected.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use gazelight_tracker::filter::ChainStats;
 use gazelight_tracker::filter::physio::PUPIL_MM_RANGE;
@@ -20,8 +20,9 @@ const MIN_PUPIL_SAMPLES: u64 = 20;
 
 /// Why a recording gave no samples: an error naming the file and the
 /// cause (the importer's first skipped records, an empty file, a file of
-/// headers only).
-pub fn no_samples(path: &Path, warnings: &ImportWarnings) -> anyhow::Error {
+/// headers only). For a directory recording, `data_files` (the streams the
+/// importer read) are named with their sizes.
+pub fn no_samples(path: &Path, warnings: &ImportWarnings, data_files: &[PathBuf]) -> anyhow::Error {
     let what = if warnings.skipped_records > 0 {
         format!(
             "{} records were skipped as malformed; the first: {}",
@@ -30,6 +31,25 @@ pub fn no_samples(path: &Path, warnings: &ImportWarnings) -> anyhow::Error {
         )
     } else {
         match std::fs::metadata(path) {
+            Ok(m) if m.is_dir() && !data_files.is_empty() => {
+                let files: Vec<String> = data_files
+                    .iter()
+                    .map(|f| {
+                        let name = f.file_name().map_or_else(
+                            || f.display().to_string(),
+                            |n| n.to_string_lossy().into_owned(),
+                        );
+                        match std::fs::metadata(f) {
+                            Ok(m) => format!("{name} ({} bytes)", m.len()),
+                            Err(e) => format!("{name} ({e})"),
+                        }
+                    })
+                    .collect();
+                format!(
+                    "its data files hold no sample records: {}",
+                    files.join(", ")
+                )
+            }
             Ok(m) if m.is_file() && m.len() == 0 => "the file is empty (0 bytes)".to_string(),
             Ok(m) if m.is_file() => format!(
                 "the file ({} bytes) holds no sample records: only a header, comments or \

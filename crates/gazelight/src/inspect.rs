@@ -156,6 +156,7 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
             return Err(crate::input_report::no_samples(
                 &args.path,
                 importer.warnings(),
+                &importer.data_files(),
             ));
         }
         summary

@@ -24,6 +24,7 @@ mod input_report;
 mod inspect;
 mod lsl_outlets;
 mod observer;
+mod out_dir;
 mod output;
 mod profile_cmd;
 mod psf;

@@ -55,9 +55,13 @@ pub struct PsfArgs {
     /// against the CIE 146 equation to this PNG.
     #[arg(long, value_name = "PNG")]
     pub plot: Option<PathBuf>,
-    /// Output directory (created).
+    /// Output directory (created). A previous kernel in it (kernel.exr,
+    /// kernel.png, psf.json) is refused unless --force.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Clear a previous kernel's files in --out first.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `gazelight psf`.
@@ -90,6 +94,13 @@ pub fn run(args: PsfArgs) -> anyhow::Result<()> {
     if let Some(p) = args.pigmentation {
         params.pigmentation = p;
     }
+    crate::out_dir::prepare(
+        "psf",
+        &args.out,
+        crate::out_dir::OutKind::Kernel,
+        &[],
+        args.force,
+    )?;
     let started = std::time::Instant::now();
     let builder = PsfBuilder::new(params.clone())?;
     let build_ms = started.elapsed().as_secs_f64() * 1e3;

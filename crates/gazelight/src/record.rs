@@ -14,7 +14,10 @@
 //!
 //! Every received datum is kept: the writers flush at least every second
 //! (`PldataWriter` rewrites the `.npy` header in place, so the files are
-//! complete after every flush), Ctrl-C, SIGTERM and SIGHUP drain what is queued before closing,
+//! complete after every flush), `info.player.json` is rewritten (write, then
+//! rename) with the start time and duration so far at least every second
+//! ([`INFO_EVERY`]), so even a recording killed by SIGKILL is complete to
+//! within a second, Ctrl-C, SIGTERM and SIGHUP drain what is queued before closing,
 //! and a lost tracker only pauses the recording while the client reconnects.
 //! Datums the bounded raw queue had to drop (a disk slower than the tracker)
 //! are counted and reported, never silently lost.
@@ -42,9 +45,16 @@ pub struct RecordArgs {
     /// (its samples are written as Pupil datums).
     #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
     pub source: String,
-    /// Recording directory (created; must not already hold a recording).
+    /// Recording directory (created). Refused when it holds another
+    /// recording (a Pupil Capture or Neon one) or the replayed input, or a
+    /// previous `gazelight record` (unless --force).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Clear a previous `gazelight record` recording in --out first (its
+    /// .pldata, _timestamps.npy and info.player.json); a recording made by
+    /// another program is never cleared.
+    #[arg(long)]
+    pub force: bool,
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long, value_name = "S")]
     pub secs: Option<f64>,
@@ -77,12 +87,18 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
         }
         _ => None,
     };
-    if args.out.join("info.player.json").exists() {
-        bail!(
-            "--out {}: already holds a recording (info.player.json); choose a new directory",
-            args.out.display()
-        );
-    }
+    let replayed = match &uri {
+        SourceUri::Replay { path, .. } => Some(path.as_path()),
+        _ => None,
+    };
+    let inputs: Vec<&Path> = replayed.into_iter().collect();
+    crate::out_dir::prepare(
+        "record",
+        &args.out,
+        crate::out_dir::OutKind::Recording,
+        &inputs,
+        args.force,
+    )?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -105,7 +121,16 @@ struct Recording {
     start_system_s: f64,
     uuid: String,
     records: u64,
+    /// When `info.player.json` was last written, and with which
+    /// (start, last) datum times.
+    info_written: Instant,
+    info_times: (Option<f64>, Option<f64>),
 }
+
+/// `info.player.json` is rewritten at least this often while recording
+/// (when its times changed), so a recording killed by SIGKILL or a power
+/// cut has a start time and a duration within this of its data.
+const INFO_EVERY: Duration = Duration::from_secs(1);
 
 impl Recording {
     fn new(dir: &Path) -> Self {
@@ -119,7 +144,25 @@ impl Recording {
                 .map_or(0.0, |d| d.as_secs_f64()),
             uuid: new_uuid(),
             records: 0,
+            info_written: Instant::now(),
+            info_times: (None, None),
         }
+    }
+
+    /// Rewrites `info.player.json` when [`INFO_EVERY`] has passed since
+    /// the last time (or it has no start yet) and its times changed; the
+    /// streams are flushed first, so the file never claims data the
+    /// `.pldata` files do not hold.
+    fn keep_info_current(&mut self, source: &str) -> anyhow::Result<()> {
+        let times = (self.first_pupil_t, self.last_pupil_t);
+        let first_start = self.info_times.0.is_none() && times.0.is_some();
+        if times == self.info_times || !(first_start || self.info_written.elapsed() >= INFO_EVERY) {
+            return Ok(());
+        }
+        for w in self.writers.values_mut() {
+            w.flush()?;
+        }
+        self.write_info(source)
     }
 
     fn append(&mut self, d: &RawDatum) -> anyhow::Result<()> {
@@ -156,7 +199,9 @@ impl Recording {
     }
 
     /// `info.player.json` (Pupil Player recording format 2.x).
-    fn write_info(&self, source: &str) -> anyhow::Result<()> {
+    fn write_info(&mut self, source: &str) -> anyhow::Result<()> {
+        self.info_written = Instant::now();
+        self.info_times = (self.first_pupil_t, self.last_pupil_t);
         let start_synced = self.first_pupil_t.unwrap_or(0.0);
         let duration = match (self.first_pupil_t, self.last_pupil_t) {
             (Some(a), Some(b)) => (b - a).max(0.0),
@@ -167,7 +212,7 @@ impl Recording {
             "min_player_version": "2.0",
             "recording_uuid": self.uuid,
             "recording_name": self.dir.file_name().and_then(|n| n.to_str()).unwrap_or("gazelight"),
-            "recording_software_name": "gazelight",
+            "recording_software_name": crate::out_dir::SOFTWARE_NAME,
             "recording_software_version": env!("CARGO_PKG_VERSION"),
             "start_time_system_s": self.start_system_s,
             "start_time_synced_s": start_synced,
@@ -185,7 +230,10 @@ impl Recording {
 
     /// Writes the final `info.player.json` and closes every stream;
     /// returns the records written and a "stream: records, …" summary.
-    fn finish(self, source: &str) -> anyhow::Result<(u64, String)> {
+    fn finish(mut self, source: &str) -> anyhow::Result<(u64, String)> {
+        for w in self.writers.values_mut() {
+            w.flush()?;
+        }
         self.write_info(source)?;
         let total = self.records;
         let per_stream: Vec<String> = self
@@ -259,6 +307,7 @@ async fn record(args: RecordArgs, pupil: PupilConfig) -> anyhow::Result<()> {
             _ = streams.samples.recv() => {}
             _ = tick.tick() => {
                 rec.flush_if_due()?;
+                rec.keep_info_current(&source_info)?;
                 let stats = client.stats();
                 if was_connected && !stats.connected {
                     eprintln!(
@@ -320,7 +369,6 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
         ),
     };
     let mut rec = Recording::new(&args.out);
-    rec.write_info(&describe)?;
     eprintln!(
         "recording {describe} into {}{}",
         args.out.display(),
@@ -337,6 +385,7 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
         Ok(())
     };
     append(&mut rec, &first)?;
+    rec.write_info(&describe)?;
     let started = Instant::now();
     let deadline = deadline(args.secs)?;
     let mut tick = tokio::time::interval(Duration::from_millis(250));
@@ -355,7 +404,10 @@ async fn record_samples(args: RecordArgs, uri: SourceUri) -> anyhow::Result<()> 
                 }
                 Err(_) => bad += 1,
             },
-            _ = tick.tick() => rec.flush_if_due()?,
+            _ = tick.tick() => {
+                rec.flush_if_due()?;
+                rec.keep_info_current(&describe)?;
+            }
             _ = until(deadline) => break "duration reached",
             name = &mut signal => break if name == "SIGINT" { "Ctrl-C" } else { name },
         }

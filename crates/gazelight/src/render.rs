@@ -39,9 +39,16 @@ pub struct RenderArgs {
     /// gaze sweep across the view at a fixed 4 mm pupil over 12 s.
     #[arg(long, value_name = "FILE")]
     pub trace: Option<PathBuf>,
-    /// Output directory (created).
+    /// Output directory (created). Refused when it holds an input or a
+    /// recording, or a previous run's outputs (unless --force).
     #[arg(long, value_name = "DIR", default_value = "out")]
     pub out: PathBuf,
+    /// Clear a previous run's outputs in --out first (timeline.csv,
+    /// session.json, psf.csv, xr.csv, contact_sheet.png, plot.png,
+    /// frames/frame_*), so
+    /// none is left stale beside the new ones; other files are kept.
+    #[arg(long)]
+    pub force: bool,
     /// Number of frames (default: the trace's duration × fps).
     #[arg(long, value_name = "N")]
     pub frames: Option<usize>,
@@ -274,6 +281,29 @@ fn unscaled_scene_note(
     ))
 }
 
+/// Checks (and with `--force` clears) `--out` for `command` (`render` or
+/// `replay`) reading `inputs` besides the scene, trace and configuration.
+pub(crate) fn prepare_out(
+    command: &str,
+    args: &RenderArgs,
+    inputs: &[&std::path::Path],
+) -> anyhow::Result<()> {
+    let mut all: Vec<&std::path::Path> = inputs.to_vec();
+    all.extend(
+        [&args.scene, &args.trace, &args.config]
+            .into_iter()
+            .flatten()
+            .map(PathBuf::as_path),
+    );
+    crate::out_dir::prepare(
+        command,
+        &args.out,
+        crate::out_dir::OutKind::Frames,
+        &all,
+        args.force,
+    )
+}
+
 /// Runs `gazelight render`.
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let started = Instant::now();
@@ -285,6 +315,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         }
         None => sweep_trace(),
     };
+    // The inputs are checked; now where the outputs go.
+    prepare_out("render", &args, &[])?;
     let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
     let duration = trace.duration_secs();
     let samples = trace

@@ -162,6 +162,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         args.recording.display().to_string(),
         Origin::Flag,
     );
+    // The inputs are checked; now where the outputs go.
+    let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
+        .chain(calibration_path.map(|p| p.as_path()))
+        .collect();
+    render::prepare_out("replay", &args.render, &inputs)?;
     let importer = import::open(&args.recording)?;
     let mut chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
@@ -227,7 +232,11 @@ fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
         }
     }
     let Some((t_first, t_last)) = range else {
-        return Err(input_report::no_samples(path, importer.warnings()));
+        return Err(input_report::no_samples(
+            path,
+            importer.warnings(),
+            &importer.data_files(),
+        ));
     };
     if !part
         && let Some(stats) = importer.time_stats()

@@ -10,7 +10,10 @@
 //!
 //! Ctrl-C or `--secs` ends the run: the hub's shutdown is requested, the
 //! frame loop finishes its frame, the outputs are flushed and a summary
-//! (frames, late frames, `EyeState` age median/p99) is printed.
+//! (frames, late frames, `EyeState` age median/p99) is printed. `--out` is
+//! checked first by the one `--out` rule ([`crate::out_dir`]); a write
+//! error during the run (a full disk) is printed when it happens, the
+//! summary still follows, and the run then exits with an error.
 //!
 //! Frames are shown in the service's window (winit + gazelight-gpu's presenter, vsync;
 //! see [`crate::window`]) unless `--headless`; the window takes the newest
@@ -26,7 +29,7 @@ pub mod writer;
 pub mod xr;
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -80,9 +83,16 @@ pub struct RunArgs {
     /// Stop after this many seconds (default: run until Ctrl-C).
     #[arg(long, value_name = "S")]
     pub secs: Option<f64>,
-    /// Write frames, timeline.csv and psf.csv into this directory.
+    /// Write frames, timeline.csv and psf.csv into this directory. Refused
+    /// when it holds an input or a recording, or a previous run's outputs
+    /// (unless --force).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
+    /// Clear a previous run's outputs in --out first (timeline.csv,
+    /// psf.csv, xr.csv, contact_sheet.png, plot.png, frames/frame_*); other
+    /// files are kept.
+    #[arg(long)]
+    pub force: bool,
     /// With --out: write timeline.csv and psf.csv only, no frame images.
     #[arg(long)]
     pub no_frames: bool,
@@ -381,10 +391,47 @@ pub fn check(args: &RunArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("--source {}: {e}", r.uri))
 }
 
+/// Checks (and with `--force` clears) `--out` against the run's inputs:
+/// the scene, calibration, configuration, head trace and a `replay://`
+/// recording.
+fn prepare_out(args: &RunArgs, r: &Resolved, scene: Option<&Path>) -> anyhow::Result<()> {
+    let Some(out) = &r.out else { return Ok(()) };
+    let replayed = match gazelight_tracker::uri::SourceUri::parse(&r.uri) {
+        Ok(gazelight_tracker::uri::SourceUri::Replay { path, .. }) => Some(path),
+        _ => None,
+    };
+    let head = match &r.head {
+        HeadSpec::Trace(p) => Some(p.as_path()),
+        _ => None,
+    };
+    let inputs: Vec<&Path> = [
+        scene,
+        r.calibration.as_deref(),
+        args.config.as_deref(),
+        head,
+        replayed.as_deref(),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    crate::out_dir::prepare(
+        "run",
+        out,
+        crate::out_dir::OutKind::Frames,
+        &inputs,
+        args.force,
+    )
+}
+
 /// Runs `gazelight run`.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let r = resolve(&args)?;
     let cfg = &r.config;
+    prepare_out(
+        &args,
+        &r,
+        args.scene.as_deref().or(cfg.scene.file.as_deref()),
+    )?;
 
     // Scene and view.
     let scale = args.view.scale(cfg.scene.luminance_scale)?;
@@ -716,6 +763,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         print_xr(x, &summary);
     }
     print_display(&summary, window_stats.as_ref());
+    // A write error (a full disk) was printed when it happened and in the
+    // summary; the run still ends with an error, as its outputs are cut.
+    if let Some(w) = &summary.writer
+        && !w.errors.is_empty()
+    {
+        bail!(
+            "--out {}: {} output file(s) stopped early: {}",
+            r.out
+                .as_deref()
+                .map_or_else(String::new, |d| d.display().to_string()),
+            w.errors.len(),
+            w.errors.join("; ")
+        );
+    }
     Ok(())
 }
 
@@ -803,7 +864,7 @@ fn print_summary(
         source.samples_total,
         source.reconnects,
     );
-    if let (Some(dir), Some(w)) = (out, s.writer) {
+    if let (Some(dir), Some(w)) = (out, &s.writer) {
         println!(
             "wrote {}/{{timeline.csv ({} rows), psf.csv ({} kernels), frames/ ({} images, {} skipped while the encoder was busy)}}",
             dir.display(),
@@ -812,5 +873,8 @@ fn print_summary(
             w.frames_written,
             s.frames_not_written
         );
+        for e in &w.errors {
+            println!("write error: {e}");
+        }
     }
 }

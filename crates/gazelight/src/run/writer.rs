@@ -19,6 +19,13 @@
 //!
 //! The frame loop hands rows, frames and kernel events over bounded
 //! `sync_channel`s (preallocated ring buffers: sending does not allocate).
+//!
+//! The CSV files only ever hold whole rows (`RowFile`): rows are buffered
+//! whole and written at each flush (at least every second); a write error
+//! (a full disk) cuts the file back to its last complete row, stops that
+//! file only, and is printed at once. A frame image that cannot be written
+//! is removed and the images stop. The errors are in [`WriterReport::errors`]
+//! for the summary.
 
 use std::fmt::Write as _;
 use std::io::Write;
@@ -127,6 +134,9 @@ pub struct XrRow {
     pub view_mean_cd_m2: [f64; 2],
 }
 
+const PSF_HEADER: &str =
+    "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin,view";
+
 const XR_HEADER: &str = "frame,predicted_display_time_ns,display_host_secs,eye_state_age_ms,\
 left_x_m,left_y_m,left_z_m,left_qx,left_qy,left_qz,left_qw,\
 right_x_m,right_y_m,right_z_m,right_qx,right_qy,right_qz,right_qw,\
@@ -160,11 +170,152 @@ fn format_xr(w: &mut String, r: &XrRow) {
 }
 
 /// What the writer did.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct WriterReport {
+    /// `timeline.csv` rows on disk (whole rows).
     pub rows: u64,
     pub frames_written: u64,
+    /// `psf.csv` rows on disk.
     pub psf_rows: u64,
+    /// Write errors (a full disk): each names the file, the error and where
+    /// the file stops; each was printed when it happened.
+    pub errors: Vec<String>,
+}
+
+/// What the PNG encoder thread did.
+#[derive(Debug, Default)]
+struct FramesReport {
+    written: u64,
+    error: Option<String>,
+}
+
+/// Prints a write error when it happens (stderr and the log): the run
+/// goes on, so the user learns of it now, not at the end.
+fn report_write_error(msg: &str) {
+    tracing::error!("{msg}; the run goes on");
+    eprintln!("error: --out: {msg}; the run goes on");
+}
+
+/// Size of a [`RowFile`]'s buffer before it writes (it also writes at
+/// every flush).
+const ROW_BUFFER_BYTES: usize = 64 << 10;
+
+/// A CSV file that only ever holds whole rows. Rows are collected in a
+/// buffer and written at each flush; on a write error (a full disk) the
+/// file is cut back to its last complete row (`set_len`), the error is
+/// printed at once, and the file takes no more rows — the run and the other
+/// files go on.
+struct RowFile {
+    path: std::path::PathBuf,
+    file: Option<std::fs::File>,
+    buf: Vec<u8>,
+    /// Bytes and rows on disk, all of them whole rows (the header is not
+    /// a row).
+    bytes_on_disk: u64,
+    rows_on_disk: u64,
+    /// Rows waiting in `buf` (the header is not one).
+    rows_pending: u64,
+    failure: Option<String>,
+}
+
+impl RowFile {
+    /// Creates the file with its header line queued (written at the first
+    /// flush). A failure is kept (see [`Self::failure`]), not returned.
+    fn create(path: &Path, header: &str) -> Self {
+        let mut f = Self {
+            path: path.to_owned(),
+            file: None,
+            buf: Vec::with_capacity(ROW_BUFFER_BYTES),
+            bytes_on_disk: 0,
+            rows_on_disk: 0,
+            rows_pending: 0,
+            failure: None,
+        };
+        match std::fs::File::create(path) {
+            Ok(file) => {
+                f.file = Some(file);
+                f.buf.extend_from_slice(header.as_bytes());
+                f.buf.push(b'\n');
+            }
+            Err(e) => f.fail(&e),
+        }
+        f
+    }
+
+    /// Queues one formatted row (with its newline); writes when the
+    /// buffer is full.
+    fn push(&mut self, row: &str) {
+        if self.file.is_none() {
+            return;
+        }
+        self.buf.extend_from_slice(row.as_bytes());
+        self.rows_pending += 1;
+        if self.buf.len() >= ROW_BUFFER_BYTES {
+            self.flush();
+        }
+    }
+
+    /// Writes the buffered rows. On an error the file is cut back to its
+    /// last complete row and closed.
+    fn flush(&mut self) {
+        let Some(file) = &mut self.file else { return };
+        if self.buf.is_empty() {
+            return;
+        }
+        let mut written = 0usize;
+        while written < self.buf.len() {
+            match file.write(&self.buf[written..]) {
+                Ok(0) => {
+                    let e = std::io::Error::new(std::io::ErrorKind::WriteZero, "wrote 0 bytes");
+                    return self.cut_back(written, &e);
+                }
+                Ok(n) => written += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return self.cut_back(written, &e),
+            }
+        }
+        self.bytes_on_disk += written as u64;
+        self.rows_on_disk += self.rows_pending;
+        self.rows_pending = 0;
+        self.buf.clear();
+    }
+
+    /// After `written` bytes of the buffer reached the file and then
+    /// `error`: keeps the whole rows among them, truncates the rest.
+    fn cut_back(&mut self, written: usize, error: &std::io::Error) {
+        let done = &self.buf[..written];
+        let keep = done.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+        let mut rows = done[..keep].iter().filter(|&&b| b == b'\n').count() as u64;
+        if self.bytes_on_disk == 0 && keep > 0 {
+            rows -= 1; // the header
+        }
+        self.bytes_on_disk += keep as u64;
+        self.rows_on_disk += rows;
+        if let Some(file) = &self.file
+            && let Err(e) = file.set_len(self.bytes_on_disk)
+        {
+            tracing::warn!(file = %self.path.display(), error = %e, "cannot cut the file back to its last complete row");
+        }
+        self.fail(error);
+    }
+
+    fn fail(&mut self, error: &std::io::Error) {
+        let msg = format!(
+            "cannot write {}: {error}; it stops at its last complete row ({} rows)",
+            self.path.display(),
+            self.rows_on_disk
+        );
+        report_write_error(&msg);
+        self.failure = Some(msg);
+        self.file = None;
+        self.buf = Vec::new();
+        self.rows_pending = 0;
+    }
+
+    /// The error that stopped the file, if any.
+    fn failure(&self) -> Option<String> {
+        self.failure.clone()
+    }
 }
 
 /// The writer thread's handle (owned by the frame loop).
@@ -175,7 +326,7 @@ pub struct OutputWriter {
     frame_tx: Option<SyncSender<(u64, DisplayFrame)>>,
     pool: Receiver<DisplayFrame>,
     thread: Option<JoinHandle<anyhow::Result<WriterReport>>>,
-    encoder: Option<JoinHandle<anyhow::Result<u64>>>,
+    encoder: Option<JoinHandle<FramesReport>>,
     write_frames: bool,
     /// Rows or events dropped because the queue was full.
     pub dropped: u64,
@@ -200,22 +351,21 @@ impl OutputWriter {
             std::fs::create_dir_all(&frames_dir)
                 .with_context(|| format!("cannot create {}", frames_dir.display()))?;
         }
-        let open = |name: &str| -> anyhow::Result<std::io::BufWriter<std::fs::File>> {
-            let p = dir.join(name);
-            let f = std::fs::File::create(&p)
-                .with_context(|| format!("cannot write {}", p.display()))?;
-            Ok(std::io::BufWriter::new(f))
-        };
-        let mut timeline = open("timeline.csv")?;
-        let mut psf_csv = open("psf.csv")?;
-        writeln!(timeline, "{}", if stereo { STEREO_HEADER } else { HEADER })?;
-        writeln!(
-            psf_csv,
-            "generation,t_secs,pupil_mm,wavelength_nm,first_ring_rad,first_ring_arcmin,view"
-        )?;
-        // The headers are on disk before the session starts.
-        timeline.flush()?;
-        psf_csv.flush()?;
+        // The headers are on disk before the session starts; a file that
+        // cannot be created is an error now, before anything runs.
+        let timeline_path = dir.join("timeline.csv");
+        let mut timeline =
+            RowFile::create(&timeline_path, if stereo { STEREO_HEADER } else { HEADER });
+        timeline.flush();
+        let psf_path = dir.join("psf.csv");
+        let mut psf_csv = RowFile::create(&psf_path, PSF_HEADER);
+        psf_csv.flush();
+        for f in [&timeline, &psf_csv] {
+            if let Some(e) = f.failure() {
+                anyhow::bail!("{e}");
+            }
+        }
+        let xr_path = dir.join("xr.csv");
         let (tx, rx) = sync_channel::<Msg>(QUEUE);
         let (pool_tx, pool) = sync_channel::<DisplayFrame>(FRAME_POOL);
         for _ in 0..FRAME_POOL {
@@ -229,37 +379,45 @@ impl OutputWriter {
             Some(
                 std::thread::Builder::new()
                     .name("gazelight-png".into())
-                    .spawn(move || -> anyhow::Result<u64> {
+                    .spawn(move || -> FramesReport {
                         lower_this_threads_priority();
-                        let mut written = 0;
+                        let mut report = FramesReport::default();
                         for (i, frame) in frame_rx {
                             let p = frames_dir.join(format!("frame_{i:06}.png"));
                             let r = output::write_png(&p, &frame, output::PngCompression::Fast);
                             let _ = pool_tx.try_send(frame);
-                            r?;
-                            written += 1;
+                            if let Err(e) = r {
+                                // No torn image stays behind; the frames
+                                // stop here, the rest of the run goes on.
+                                let _ = std::fs::remove_file(&p);
+                                let msg = format!(
+                                    "{e:#}; frames/ stops after {} images (the partial {} removed)",
+                                    report.written,
+                                    p.display()
+                                );
+                                report_write_error(&msg);
+                                report.error = Some(msg);
+                                break;
+                            }
+                            report.written += 1;
                         }
-                        Ok(written)
+                        report
                     })
                     .context("cannot start the frame encoder thread")?,
             )
         } else {
             None
         };
-        let dir_owned = dir.to_path_buf();
         let thread = std::thread::Builder::new()
             .name("gazelight-writer".into())
             .spawn(move || -> anyhow::Result<WriterReport> {
                 let mut report = WriterReport::default();
-                let timeline_path = dir_owned.join("timeline.csv");
-                let psf_path = dir_owned.join("psf.csv");
-                let xr_path = dir_owned.join("xr.csv");
                 // Opened with the first OpenXR row.
-                let mut xr_csv: Option<std::io::BufWriter<std::fs::File>> = None;
+                let mut xr_csv: Option<RowFile> = None;
                 // Rows are formatted here and handed to the file whole, and
                 // the files are flushed at least every `FLUSH_EVERY`: the
                 // files only ever hold complete rows, up to a second old,
-                // whatever ends the process.
+                // whatever ends the process (a full disk included).
                 let mut line = String::with_capacity(256);
                 let mut last_flush = std::time::Instant::now();
                 loop {
@@ -270,15 +428,10 @@ impl OutputWriter {
                     };
                     if last_flush.elapsed() >= FLUSH_EVERY {
                         last_flush = std::time::Instant::now();
-                        timeline
-                            .flush()
-                            .with_context(|| format!("cannot write {}", timeline_path.display()))?;
-                        psf_csv
-                            .flush()
-                            .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                        timeline.flush();
+                        psf_csv.flush();
                         if let Some(x) = &mut xr_csv {
-                            x.flush()
-                                .with_context(|| format!("cannot write {}", xr_path.display()))?;
+                            x.flush();
                         }
                     }
                     let Some(msg) = msg else { continue };
@@ -286,10 +439,7 @@ impl OutputWriter {
                         Msg::Row(r) => {
                             line.clear();
                             format_row(&mut line, &r, stereo);
-                            timeline.write_all(line.as_bytes()).with_context(|| {
-                                format!("cannot write {}", timeline_path.display())
-                            })?;
-                            report.rows += 1;
+                            timeline.push(&line);
                         }
                         Msg::Psf(ev) => {
                             let ring = ev.first_ring_rad.unwrap_or_else(|| {
@@ -317,40 +467,33 @@ impl OutputWriter {
                                     View::Eye(_) => "right",
                                 }
                             );
-                            psf_csv
-                                .write_all(line.as_bytes())
-                                .with_context(|| format!("cannot write {}", psf_path.display()))?;
-                            report.psf_rows += 1;
+                            psf_csv.push(&line);
                         }
                         Msg::Xr(r) => {
                             let x = match &mut xr_csv {
                                 Some(x) => x,
-                                slot => {
-                                    let f = std::fs::File::create(&xr_path).with_context(|| {
-                                        format!("cannot write {}", xr_path.display())
-                                    })?;
-                                    let mut x = std::io::BufWriter::new(f);
-                                    writeln!(x, "{XR_HEADER}")?;
-                                    slot.insert(x)
-                                }
+                                slot => slot.insert(RowFile::create(&xr_path, XR_HEADER)),
                             };
                             line.clear();
                             format_xr(&mut line, &r);
-                            x.write_all(line.as_bytes())
-                                .with_context(|| format!("cannot write {}", xr_path.display()))?;
+                            x.push(&line);
                         }
                     }
                 }
-                if let Some(x) = &mut xr_csv {
-                    x.flush()
-                        .with_context(|| format!("cannot write {}", xr_path.display()))?;
+                for f in [Some(&mut timeline), Some(&mut psf_csv), xr_csv.as_mut()]
+                    .into_iter()
+                    .flatten()
+                {
+                    f.flush();
                 }
-                timeline
-                    .flush()
-                    .with_context(|| format!("cannot write {}", timeline_path.display()))?;
-                psf_csv
-                    .flush()
-                    .with_context(|| format!("cannot write {}", psf_path.display()))?;
+                report.rows = timeline.rows_on_disk;
+                report.psf_rows = psf_csv.rows_on_disk;
+                report.errors.extend(
+                    [Some(&timeline), Some(&psf_csv), xr_csv.as_ref()]
+                        .into_iter()
+                        .flatten()
+                        .filter_map(|f| f.failure()),
+                );
                 Ok(report)
             })
             .context("cannot start the writer thread")?;
@@ -406,18 +549,17 @@ impl OutputWriter {
         match self.pool.try_recv() {
             Ok(mut buf) if buf.rgba8.len() == frame.rgba8.len() => {
                 buf.rgba8.copy_from_slice(&frame.rgba8);
-                let sent = self
-                    .frame_tx
-                    .as_ref()
-                    .is_some_and(|tx| tx.try_send((index, buf)).is_ok());
-                if !sent {
-                    // No room or no encoder: the image is skipped.
-                    self.frames_skipped += 1;
+                match self.frame_tx.as_ref().map(|tx| tx.try_send((index, buf))) {
+                    Some(Ok(())) => {}
+                    // The encoder stopped (a write error, printed there):
+                    // no more images are taken, or read back.
+                    Some(Err(TrySendError::Disconnected(_))) | None => self.write_frames = false,
+                    // No room: the image is skipped.
+                    Some(Err(TrySendError::Full(_))) => self.frames_skipped += 1,
                 }
             }
-            Ok(_) | Err(TryRecvError::Empty) | Err(TryRecvError::Disconnected) => {
-                self.frames_skipped += 1
-            }
+            Err(TryRecvError::Disconnected) => self.write_frames = false,
+            Ok(_) | Err(TryRecvError::Empty) => self.frames_skipped += 1,
         }
     }
 
@@ -433,11 +575,12 @@ impl OutputWriter {
         });
         let images = self.encoder.take().map(|e| {
             e.join()
-                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))?
+                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))
         });
         let mut report = rows.transpose()?.unwrap_or_default();
-        if let Some(written) = images.transpose()? {
-            report.frames_written = written;
+        if let Some(frames) = images.transpose()? {
+            report.frames_written = frames.written;
+            report.errors.extend(frames.error);
         }
         Ok(report)
     }

@@ -8,6 +8,12 @@
 //! | `GET /api/history` | [`HistoryJson`]: the hub's history ring as arrays |
 //! | `GET /frame.png` | the latest display frame (404 before the first) |
 //! | `GET /psf.png` | the glare kernel in use, log-scaled over [`PSF_DECADES`] decades (404 before the first) |
+//!
+//! **Images off the session's threads.** `/frame.png` and `/psf.png` are
+//! encoded at most once per published frame or kernel, on the server's own
+//! low-priority encoder thread, and served from a cache of the newest
+//! encoding of each ([`images`]): however many clients poll them, the
+//! tracker's runtime and the frame loop do no encoding.
 //! | `GET /ws` | WebSocket pushing the status JSON every [`ServeOptions::push_interval`] (100 ms) |
 //!
 //! **Bounded WebSocket memory.** One task renders the status JSON per
@@ -21,6 +27,7 @@
 //! flight at any time ([`ServeStats::ws_in_flight_max`]).
 
 mod capped;
+pub mod images;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -89,6 +96,11 @@ pub struct ServeStats {
     pub ws_in_flight_max: u64,
     /// Status pushes rendered.
     pub pushes: u64,
+    /// PNG encodings of `/frame.png` and `/psf.png` (at most one per
+    /// published frame or kernel, whatever the number of requests).
+    pub png_encodes: u64,
+    /// `/frame.png` and `/psf.png` requests answered with an image.
+    pub png_served: u64,
 }
 
 #[derive(Default)]
@@ -100,6 +112,7 @@ struct Counters {
     ws_in_flight: AtomicU64,
     ws_in_flight_max: AtomicU64,
     pushes: AtomicU64,
+    png_served: AtomicU64,
 }
 
 impl Counters {
@@ -113,6 +126,8 @@ impl Counters {
             ws_in_flight: l(&self.ws_in_flight),
             ws_in_flight_max: l(&self.ws_in_flight_max),
             pushes: l(&self.pushes),
+            png_encodes: 0,
+            png_served: l(&self.png_served),
         }
     }
 }
@@ -121,6 +136,7 @@ impl Counters {
 pub struct ServeHandle {
     addr: SocketAddr,
     counters: Arc<Counters>,
+    images: Arc<images::ImageCache>,
     tasks: Vec<JoinHandle<()>>,
 }
 
@@ -132,7 +148,10 @@ impl ServeHandle {
 
     /// A snapshot of the counters.
     pub fn stats(&self) -> ServeStats {
-        self.counters.snapshot()
+        ServeStats {
+            png_encodes: self.images.encodes(),
+            ..self.counters.snapshot()
+        }
     }
 
     /// Waits for the server to end (after the hub's shutdown).
@@ -157,6 +176,7 @@ struct AppState {
     counters: Arc<Counters>,
     pushes: watch::Receiver<Utf8Bytes>,
     options: ServeOptions,
+    images: Arc<images::ImageCache>,
 }
 
 /// Starts the status server on `addr` (port 0 picks a free port) with the
@@ -183,11 +203,13 @@ pub async fn spawn_with(
     hub.want_display();
     let counters = Arc::new(Counters::default());
     let (push_tx, push_rx) = watch::channel(Utf8Bytes::from_static("{}"));
+    let images = Arc::new(images::ImageCache::start(hub.clone())?);
     let state = AppState {
         hub: hub.clone(),
         counters: counters.clone(),
         pushes: push_rx,
         options,
+        images: images.clone(),
     };
     let app = router(state);
     let mut shutdown = hub.shutdown_signal();
@@ -208,6 +230,7 @@ pub async fn spawn_with(
     Ok(ServeHandle {
         addr,
         counters,
+        images,
         tasks: vec![server, pusher],
     })
 }
@@ -440,37 +463,33 @@ async fn history_json(State(st): State<AppState>) -> Response {
     json_response(&HistoryJson::collect(&st.hub))
 }
 
-fn png_response(
-    width: usize,
-    height: usize,
-    color: image::ExtendedColorType,
-    data: &[u8],
-) -> Response {
-    use image::ImageEncoder as _;
-    let (Ok(w), Ok(h)) = (u32::try_from(width), u32::try_from(height)) else {
-        return (StatusCode::INTERNAL_SERVER_ERROR, "image too large").into_response();
-    };
-    let mut buf = Vec::new();
-    match image::codecs::png::PngEncoder::new(&mut buf).write_image(data, w, h, color) {
-        Ok(()) => no_store("image/png", buf),
-        Err(e) => (
-            StatusCode::INTERNAL_SERVER_ERROR,
-            format!("encoding PNG {width}x{height}: {e}"),
+/// Serves the newest encoding of `image` from the cache (see [`images`]).
+async fn image_response(st: &AppState, image: images::Image) -> Response {
+    match st.images.get(image).await {
+        Some(images::Png { bytes: Ok(png), .. }) => {
+            st.counters.png_served.fetch_add(1, Ordering::Relaxed);
+            no_store("image/png", png)
+        }
+        Some(images::Png { bytes: Err(e), .. }) => {
+            (StatusCode::INTERNAL_SERVER_ERROR, e).into_response()
+        }
+        None if matches!(image, images::Image::Frame) && st.hub.with_display(|d| d.frame) == 0 => {
+            (StatusCode::NOT_FOUND, "no frame yet").into_response()
+        }
+        None if matches!(image, images::Image::Psf) && st.hub.with_psf(|p| p.rebuild) == 0 => {
+            (StatusCode::NOT_FOUND, "no PSF yet").into_response()
+        }
+        None => (
+            StatusCode::SERVICE_UNAVAILABLE,
+            [(header::RETRY_AFTER, "1")],
+            "the image is being encoded; try again",
         )
             .into_response(),
     }
 }
 
 async fn frame_png(State(st): State<AppState>) -> Response {
-    // Copy under the lock, encode outside it.
-    let snap = st.hub.with_display(|d| {
-        (d.frame > 0 && d.rgba8.len() == d.width * d.height * 4 && d.width > 0)
-            .then(|| (d.width, d.height, d.rgba8.clone()))
-    });
-    match snap {
-        Some((w, h, px)) => png_response(w, h, image::ExtendedColorType::Rgba8, &px),
-        None => (StatusCode::NOT_FOUND, "no frame yet").into_response(),
-    }
+    image_response(&st, images::Image::Frame).await
 }
 
 /// The kernel as 8-bit grey, log-scaled: the peak is 255, a value
@@ -494,14 +513,7 @@ pub fn psf_log_gray(values: &[f32]) -> Vec<u8> {
 }
 
 async fn psf_png(State(st): State<AppState>) -> Response {
-    let snap = st.hub.with_psf(|p| {
-        (p.rebuild > 0 && p.size_px > 0 && p.values.len() == p.size_px * p.size_px)
-            .then(|| (p.size_px, psf_log_gray(&p.values)))
-    });
-    match snap {
-        Some((n, gray)) => png_response(n, n, image::ExtendedColorType::L8, &gray),
-        None => (StatusCode::NOT_FOUND, "no PSF yet").into_response(),
-    }
+    image_response(&st, images::Image::Psf).await
 }
 
 async fn ws_upgrade(State(st): State<AppState>, ws: WebSocketUpgrade) -> Response {
