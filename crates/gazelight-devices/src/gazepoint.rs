@@ -879,19 +879,33 @@ mod tests {
         assert_eq!(left.diameter_mm, Some(4.1));
         assert!((left.norm_pos[1] - 0.7).abs() < 1e-6);
         assert!(d.pop().is_none());
-        // 1/60 s later by the tracker clock, arriving 5 ms late: host time
-        // follows the tracker clock, not the arrival.
+        // 1/60 s later by the tracker clock, on time; another 1/60 s later,
+        // arriving 5 ms late: host time follows the tracker clock, not the
+        // arrival (the offset is the second-smallest arrival − time of the
+        // last second, so the first record alone does not set it).
+        for (time, arrival, want) in [
+            ("10.01667", 100.01667, 100.01667),
+            ("10.03333", 100.03833, 100.03333),
+        ] {
+            let line = format!("<REC TIME=\"{time}\" FPOGX=\"0.3\" FPOGY=\"0.3\" FPOGV=\"0\" />");
+            let Line::Rec(r) = parse_line(&line).unwrap() else {
+                panic!()
+            };
+            d.push(&r, arrival);
+            let Some(Sample::Gaze(g)) = d.pop() else {
+                panic!()
+            };
+            assert!((g.t_secs - want).abs() < 1e-9, "{} vs {want}", g.t_secs);
+            assert_eq!(g.confidence, 0.0);
+        }
+        // One record with an absurd time gives no samples (counted).
         let Line::Rec(r) =
-            parse_line("<REC TIME=\"10.01667\" FPOGX=\"0.3\" FPOGY=\"0.3\" FPOGV=\"0\" />")
-                .unwrap()
+            parse_line("<REC TIME=\"1e308\" FPOGX=\"0.3\" FPOGY=\"0.3\" />").unwrap()
         else {
             panic!()
         };
-        d.push(&r, 100.02167);
-        let Some(Sample::Gaze(g)) = d.pop() else {
-            panic!()
-        };
-        assert!((g.t_secs - 100.01667).abs() < 1e-9);
-        assert_eq!(g.confidence, 0.0);
+        d.push(&r, 100.05);
+        assert!(d.pop().is_none());
+        assert_eq!(d.clock_stats().snapshot().rejected, 1);
     }
 }

@@ -156,7 +156,6 @@ pub fn parse_csv_line(text: &str, line: u64) -> Result<Option<Sample>, LineError
     }
 }
 
-
 /// Decodes a byte stream in one of the [`SerialFormat`]s into samples on the
 /// host clock. Buffers are allocated once.
 pub struct StreamDecoder {
@@ -186,7 +185,8 @@ impl StreamDecoder {
         clock_stats: Arc<SharedClockStats>,
     ) -> Self {
         let name = name.into();
-        let clock = |stats| SourceClock::with_stats(name.clone(), SourceClockConfig::default(), stats);
+        let clock =
+            |stats| SourceClock::with_stats(name.clone(), SourceClockConfig::default(), stats);
         Self {
             format,
             line: Vec::with_capacity(MAX_LINE_BYTES),

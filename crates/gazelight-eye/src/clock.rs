@@ -47,7 +47,8 @@
 //! ends. A source that cannot measure (and any source after a jump, until
 //! its next accepted measurement) follows the lower envelope of the
 //! arrivals: the second-smallest `arrival − stamp` of the last one to two
-//! windows, so one early stamp cannot move it and clock drift is followed.
+//! windows (the smallest while they hold fewer than four stamps), so one
+//! early stamp cannot move it and clock drift is followed.
 //!
 //! Recovery, for stamps whose transport delays vary by less than `D/2`:
 //! after a step larger than `D` plus that jitter, every stamp from the
@@ -309,11 +310,7 @@ impl SourceClockConfig {
     fn sane(self) -> Self {
         let d = Self::default();
         let positive = |v: f64, default: f64| {
-            if v.is_finite() && v > 0.0 {
-                v
-            } else {
-                default
-            }
+            if v.is_finite() && v > 0.0 { v } else { default }
         };
         Self {
             max_age_secs: positive(self.max_age_secs, d.max_age_secs),
@@ -400,18 +397,23 @@ impl SharedClockStats {
 }
 
 /// The two smallest `arrival − stamp` values of the current and the
-/// previous window (fixed size: no allocation per stamp).
+/// previous window, and how many values each saw (fixed size: no
+/// allocation per stamp).
 #[derive(Clone, Copy, Debug)]
 struct Envelope {
     start: f64,
     cur: [f64; 2],
     prev: [f64; 2],
+    cur_n: u32,
+    prev_n: u32,
     /// The second-smallest value of the window that just ended, until
     /// taken.
     completed: Option<f64>,
 }
 
 const EMPTY: [f64; 2] = [f64::INFINITY; 2];
+/// Values the envelope needs before it leaves out its smallest.
+const ENVELOPE_ROBUST_FROM: u32 = 4;
 
 impl Envelope {
     fn new() -> Self {
@@ -419,6 +421,8 @@ impl Envelope {
             start: f64::NEG_INFINITY,
             cur: EMPTY,
             prev: EMPTY,
+            cur_n: 0,
+            prev_n: 0,
             completed: None,
         }
     }
@@ -426,19 +430,22 @@ impl Envelope {
     fn roll(&mut self, now: f64, window: f64) {
         let since = now - self.start;
         if since >= window || since.is_nan() {
-            self.completed = (since < 2.0 * window && self.cur[1].is_finite()).then_some(self.cur[1]);
-            self.prev = if since < 2.0 * window {
-                self.cur
+            self.completed =
+                (since < 2.0 * window && self.cur[1].is_finite()).then_some(self.cur[1]);
+            (self.prev, self.prev_n) = if since < 2.0 * window {
+                (self.cur, self.cur_n)
             } else {
-                EMPTY
+                (EMPTY, 0)
             };
             self.cur = EMPTY;
+            self.cur_n = 0;
             self.start = now;
         }
     }
 
     fn add(&mut self, now: f64, window: f64, c: f64) {
         self.roll(now, window);
+        self.cur_n = self.cur_n.saturating_add(1);
         if c < self.cur[0] {
             self.cur[1] = self.cur[0];
             self.cur[0] = c;
@@ -447,13 +454,15 @@ impl Envelope {
         }
     }
 
-    /// The second-smallest value of the last one to two windows (the
-    /// smallest when there is only one): one low outlier cannot set it.
+    /// The second-smallest value of the last one to two windows, so one
+    /// low outlier cannot set it; the smallest while they hold fewer than
+    /// [`ENVELOPE_ROBUST_FROM`] values (a young stream).
     fn estimate(&mut self, now: f64, window: f64) -> Option<f64> {
         self.roll(now, window);
         let mut v = [self.cur[0], self.cur[1], self.prev[0], self.prev[1]];
         v.sort_by(f64::total_cmp);
-        if v[1].is_finite() {
+        let robust = self.cur_n.saturating_add(self.prev_n) >= ENVELOPE_ROBUST_FROM;
+        if robust && v[1].is_finite() {
             Some(v[1])
         } else {
             v[0].is_finite().then_some(v[0])
@@ -661,7 +670,11 @@ impl SourceClock {
             self.run = SuspectRun::default();
             self.envelope = Envelope::new();
             self.envelope.add(arrival, w, new);
-            self.jump(offset, new, "time stamps in a row agree with each other, not with the mapping");
+            self.jump(
+                offset,
+                new,
+                "time stamps in a row agree with each other, not with the mapping",
+            );
             return Some(self.deliver(source_secs + new, arrival));
         }
         self.stats.rejected += 1;
@@ -745,7 +758,6 @@ impl SourceClock {
         self.shared.anchored.store(anchored, Ordering::Relaxed);
     }
 }
-
 
 #[cfg(test)]
 mod tests {
@@ -859,7 +871,10 @@ mod tests {
         let offset = c.offset_secs();
         // 1e308, its negative, 0 (1970 on a Unix clock) and a stamp 1e5 s
         // ahead, each alone between good stamps.
-        for (i, bad) in [1e308, -1e308, 0.0, 1.6 + AHEAD + 1e5].into_iter().enumerate() {
+        for (i, bad) in [1e308, -1e308, 0.0, 1.6 + AHEAD + 1e5]
+            .into_iter()
+            .enumerate()
+        {
             let at = 1.6 + i as f64 * 0.1;
             assert_eq!(c.to_host(bad, at), None, "{bad}");
             let good = stream(&mut c, at, 10, AHEAD);

@@ -10,6 +10,9 @@
 //!   right after each delivered sample is within `[0, D]`;
 //! - and, once good stamps come again (their delays varying by less than
 //!   `D/2`), every stamp delivered after at most two windows.
+//!
+//! 512 cases by default (0.4 s); `GAZELIGHT_FUZZ_CASES` sets more for
+//! longer local runs.
 
 use gazelight_eye::clock::{DEFAULT_MAX_AGE_SECS, SourceClock, SourceClockConfig};
 use gazelight_eye::filter::FilterChain;
@@ -78,7 +81,11 @@ impl Sim {
         let out = self.clock.to_host(stamp, self.arrival);
         if let Some(t) = out {
             prop_assert!(t >= self.last, "went back: {t} after {}", self.last);
-            prop_assert!(t <= self.arrival, "{t} later than its arrival {}", self.arrival);
+            prop_assert!(
+                t <= self.arrival,
+                "{t} later than its arrival {}",
+                self.arrival
+            );
             prop_assert!(
                 t >= self.arrival - D,
                 "{t} older than {D} s on arrival {}",
@@ -108,8 +115,15 @@ impl Sim {
     }
 }
 
+fn cases() -> u32 {
+    std::env::var("GAZELIGHT_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(512)
+}
+
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(), ..ProptestConfig::default() })]
 
     #[test]
     fn any_stamps_give_monotonic_bounded_host_times_and_recover(

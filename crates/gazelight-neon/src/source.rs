@@ -46,8 +46,7 @@ use crate::http::{direct_sensor, get_status, parse_status};
 use crate::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
 use crate::stream::{RtpStream, RtpTransport};
 use gazelight_eye::clock::{
-    ClockStats, SharedClockStats, SourceClock, SourceClockConfig,
-    host_now_secs,
+    ClockStats, SharedClockStats, SourceClock, SourceClockConfig, host_now_secs,
 };
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,

@@ -735,10 +735,10 @@ impl Worker {
                 let jumps = self.clock.stats().jumps;
                 // A datum whose time the mapping drops (not finite, or off
                 // by more than its bound) is still recorded raw below.
-                if let Some(t) = self.clock.to_host(datum.timestamp(), arrival) {
-                    if self.sample_tx.try_send(datum.sample_at(t)).is_err() {
-                        c.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
+                if let Some(t) = self.clock.to_host(datum.timestamp(), arrival)
+                    && self.sample_tx.try_send(datum.sample_at(t)).is_err()
+                {
+                    c.dropped.fetch_add(1, Ordering::Relaxed);
                 }
                 self.reprobe |= self.clock.stats().jumps > jumps;
                 if let Some(raw) = &self.raw_tx {

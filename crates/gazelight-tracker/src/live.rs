@@ -369,7 +369,13 @@ impl RateWindow {
 
     /// One sample: its confidence, whether its pupil was dropped (`None`:
     /// no pupil), and the state's age after it when that was stale.
-    fn add(&mut self, now: f64, confidence: f32, pupil_dropped: Option<bool>, stale_age: Option<f64>) {
+    fn add(
+        &mut self,
+        now: f64,
+        confidence: f32,
+        pupil_dropped: Option<bool>,
+        stale_age: Option<f64>,
+    ) {
         self.samples += 1;
         if confidence.is_finite() {
             self.confidence_sum += f64::from(confidence.clamp(0.0, 1.0));
@@ -897,5 +903,164 @@ mod tests {
             100,
             "the state never waits for a reader"
         );
+    }
+
+    /// A live source at 100 Hz in real time: pupils of 5 mm stamped
+    /// `lag_ms` before now, or (with `garbage`) stamps its clock mapping
+    /// rejects, so it delivers nothing.
+    struct LaggingSource {
+        lag_ms: Arc<AtomicU64>,
+        garbage: Arc<std::sync::atomic::AtomicBool>,
+        clock: gazelight_eye::clock::SourceClock,
+        n: u64,
+    }
+
+    impl SampleSource for LaggingSource {
+        async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+            loop {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+                self.n += 1;
+                let now = host_now_secs();
+                let lag = self.lag_ms.load(Ordering::Relaxed) as f64 * 1e-3;
+                // The source's clock is 1000 s ahead of the host's.
+                let stamp = if self.garbage.load(Ordering::Relaxed) {
+                    [1e308, -1e308, 0.0][(self.n % 3) as usize]
+                } else {
+                    now - lag + 1000.0
+                };
+                if let Some(t) = self.clock.to_host(stamp, now) {
+                    return Ok(Some(pupil(t, (self.n % 2) as u8, 5.0)));
+                }
+            }
+        }
+
+        fn describe(&self) -> String {
+            "lagging test source".to_owned()
+        }
+
+        fn clock_stats(&self) -> Option<Arc<gazelight_eye::clock::SharedClockStats>> {
+            Some(self.clock.shared_stats())
+        }
+    }
+
+    async fn wait_health(live: &LiveEye, want: SourceHealth, limit: Duration) -> SourceStatus {
+        tokio::time::timeout(limit, async {
+            loop {
+                let s = lock_status(&live.status).clone();
+                if s.health == want {
+                    return s;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await
+        .unwrap_or_else(|_| {
+            panic!(
+                "not {want:?} within {limit:?}: {:?}",
+                lock_status(&live.status)
+            )
+        })
+    }
+
+    /// A source whose clock mapping rejects every stamp (absurd stamps
+    /// that do not agree with each other) delivers nothing: it is degraded,
+    /// with the reason and the mapping's counters in the status, not lost;
+    /// with good stamps again it is live.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_source_whose_stamps_are_all_rejected_is_degraded_not_lost() {
+        let lag_ms = Arc::new(AtomicU64::new(0));
+        let garbage = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let source = LaggingSource {
+            lag_ms: lag_ms.clone(),
+            garbage: garbage.clone(),
+            clock: gazelight_eye::clock::SourceClock::new(
+                "lagging",
+                gazelight_eye::clock::SourceClockConfig::default(),
+            ),
+            n: 0,
+        };
+        let (_stop, shutdown) = watch::channel(false);
+        let live = spawn(
+            "test://lagging",
+            source,
+            FilterChain::with_defaults(),
+            AgeClock::SampleTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let s = wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        assert_eq!(s.degraded_reason, None);
+        // Every stamp rejected by the clock mapping: degraded, not lost,
+        // with the reason; the counters are published.
+        garbage.store(true, Ordering::Relaxed);
+        let s = wait_health(&live, SourceHealth::Degraded, Duration::from_secs(3)).await;
+        let reason = s.degraded_reason.unwrap_or_default();
+        assert!(reason.contains("rejected by the clock mapping"), "{reason}");
+        let clock = s.clock.unwrap_or_default();
+        assert!(clock.rejected >= 50 && clock.jumps == 0, "{clock:?}");
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(lock_status(&live.status).health, SourceHealth::Degraded);
+        // Good stamps again: live within about a second.
+        garbage.store(false, Ordering::Relaxed);
+        let s = wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        assert_eq!(s.degraded_reason, None);
+        drop(_stop);
+        let _ = tokio::time::timeout(Duration::from_secs(5), live.task).await;
+    }
+
+    /// A source (without a clock mapping) whose measured pupils all arrive
+    /// 0.4 s old: the state is stale, the pupils are not used, and the
+    /// source says so; when they arrive fresh again it is live.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn stale_measured_pupils_make_the_source_degraded() {
+        struct Stale {
+            lag_ms: Arc<AtomicU64>,
+            n: u64,
+        }
+        impl SampleSource for Stale {
+            async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+                self.n += 1;
+                let lag = self.lag_ms.load(Ordering::Relaxed) as f64 * 1e-3;
+                Ok(Some(pupil(host_now_secs() - lag, (self.n % 2) as u8, 5.0)))
+            }
+            fn describe(&self) -> String {
+                "stale test source".to_owned()
+            }
+        }
+        let lag_ms = Arc::new(AtomicU64::new(400));
+        let (_stop, shutdown) = watch::channel(false);
+        let live = spawn(
+            "test://stale",
+            Stale {
+                lag_ms: lag_ms.clone(),
+                n: 0,
+            },
+            FilterChain::with_defaults(),
+            AgeClock::SampleTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let s = wait_health(&live, SourceHealth::Degraded, Duration::from_secs(3)).await;
+        let reason = s.degraded_reason.unwrap_or_default();
+        assert!(
+            reason.contains("0.40 s old") && reason.contains("not used"),
+            "{reason}"
+        );
+        assert_eq!(s.clock, None);
+        let eye = *live.eye.borrow();
+        assert!(
+            eye.state
+                .eyes
+                .iter()
+                .all(|e| e.pupil_origin != PupilOrigin::Measured),
+            "{eye:?}"
+        );
+        lag_ms.store(5, Ordering::Relaxed);
+        wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        let eye = *live.eye.borrow();
+        assert!((eye.state.eyes[0].pupil_mm - 5.0).abs() < 0.5, "{eye:?}");
+        drop(_stop);
+        let _ = tokio::time::timeout(Duration::from_secs(5), live.task).await;
     }
 }

@@ -704,7 +704,9 @@ async fn the_pupil_follows_the_tracker_after_a_clock_step_and_an_absurd_stamp() 
         if std::env::var_os("CI").is_some() {
             panic!("clock fault test needs python3 with pyzmq and msgpack in CI: {why}");
         }
-        eprintln!("SKIPPED the_pupil_follows_the_tracker_after_a_clock_step_and_an_absurd_stamp: {why}");
+        eprintln!(
+            "SKIPPED the_pupil_follows_the_tracker_after_a_clock_step_and_an_absurd_stamp: {why}"
+        );
         return;
     }
     timeout(Duration::from_secs(25), clock_faults())
@@ -783,7 +785,9 @@ async fn clock_faults() {
     let status = gazelight_tracker::live::lock_status(&live.status).clone();
     eprintln!("status: {status:?}");
     assert_eq!(status.health, gazelight_tracker::live::SourceHealth::Live);
-    let clock = status.clock.expect("the Pupil source reports its clock mapping");
+    let clock = status
+        .clock
+        .expect("the Pupil source reports its clock mapping");
     assert_eq!(clock.jumps, 1, "{clock:?}");
     let step = clock.last_jump_secs.expect("the jump's size");
     assert!(

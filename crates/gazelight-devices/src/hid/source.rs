@@ -294,8 +294,11 @@ fn reader_loop(
     stop: &AtomicBool,
 ) {
     let mut buf = [0u8; 1024];
-    let mut clock =
-        SourceClock::with_stats(name.clone(), SourceClockConfig::default(), stats.clock.clone());
+    let mut clock = SourceClock::with_stats(
+        name.clone(),
+        SourceClockConfig::default(),
+        stats.clock.clone(),
+    );
     let mut index: u64 = 0;
     loop {
         if stop.load(Ordering::Relaxed) {

@@ -475,19 +475,10 @@ fn read_stream(
     tracing::info!(stream = %full.name(), layout = layout.kind, channels = inlet.channels(), "LSL inlet open");
     drop(full);
     drop(info);
-    match inlet.open(2.0) {
-        Ok(true) => {}
-        Ok(false) => {
-            let _ = send_blocking(tx, stop, lost(query, "could not subscribe within 2 s"));
-            return;
-        }
-        Err(e) => {
-            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
-            return;
-        }
-    }
     // host = sender stamp + correction − (lsl − host): the mapping's
-    // offset is correction − (lsl − host).
+    // offset is correction − (lsl − host). Measured before subscribing: the
+    // measurement takes up to a second, and samples queued meanwhile would
+    // arrive that old.
     let correction = match inlet.time_correction(2.0) {
         Ok(c) => c,
         Err(e) => {
@@ -500,6 +491,17 @@ fn read_stream(
     }
     if let Ok(mut f) = facts.lock() {
         f.time_correction_s = correction;
+    }
+    match inlet.open(2.0) {
+        Ok(true) => {}
+        Ok(false) => {
+            let _ = send_blocking(tx, stop, lost(query, "could not subscribe within 2 s"));
+            return;
+        }
+        Err(e) => {
+            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+            return;
+        }
     }
     let mut last_correction = Instant::now();
     let mut buf = vec![0.0f64; inlet.channels()];
