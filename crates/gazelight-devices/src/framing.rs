@@ -25,7 +25,7 @@
 //! | 2 pupil | `kind u8, t_us u64, eye u8, unit u8, diameter f32, confidence f32` | 19 |
 //!
 //! `t_us` is the device's timestamp in microseconds (mapped onto the host
-//! clock by [`super::ClockAligner`]); `u, v` are normalised display
+//! clock by [`gazelight_eye::clock::SourceClock`]); `u, v` are normalised display
 //! coordinates with the origin at the top-left; `eye` is 0 = right,
 //! 1 = left; `unit` is 0 = mm, 1 = camera pixels, 2 = arbitrary units.
 //!

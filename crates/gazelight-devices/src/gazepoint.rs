@@ -33,6 +33,7 @@
 //! call reconnects and repeats the handshake.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::Duration;
 
 use gazelight_input::LineAccumulator;
@@ -40,7 +41,8 @@ use tokio::io::{AsyncBufRead, AsyncBufReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 
-use super::{ClockAligner, now_secs};
+use super::now_secs;
+use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig};
 use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -326,9 +328,11 @@ pub fn parse_line(line: &str) -> Result<Line<'_>, RecordError> {
 }
 
 /// Turns records into samples (shared by the TCP and serial sources).
+/// The tracker's `TIME` goes to host time through a [`SourceClock`]; a
+/// record whose time the mapping drops gives no samples.
 #[derive(Debug)]
 pub struct RecordDecoder {
-    clock: ClockAligner,
+    clock: SourceClock,
     pending: VecDeque<Sample>,
 }
 
@@ -341,10 +345,20 @@ impl Default for RecordDecoder {
 impl RecordDecoder {
     /// A decoder with room for one record's samples.
     pub fn new() -> Self {
+        Self::with_clock(SourceClock::new("gazepoint", SourceClockConfig::default()))
+    }
+
+    /// A decoder mapping the tracker's time through `clock`.
+    pub fn with_clock(clock: SourceClock) -> Self {
         Self {
-            clock: ClockAligner::new(),
+            clock,
             pending: VecDeque::with_capacity(4),
         }
+    }
+
+    /// The counters of the clock mapping.
+    pub fn clock_stats(&self) -> Arc<SharedClockStats> {
+        self.clock.shared_stats()
     }
 
     /// Forget the clock offset (after a reconnect).
@@ -357,8 +371,12 @@ impl RecordDecoder {
     /// `arrival_host_secs`.
     pub fn push(&mut self, rec: &Record, arrival_host_secs: f64) {
         let t = match rec.time_secs {
-            Some(d) => self.clock.to_host(d, arrival_host_secs),
-            None => arrival_host_secs,
+            Some(d) => match self.clock.to_host(d, arrival_host_secs) {
+                Some(t) => t,
+                // Dropped and counted by the mapping.
+                None => return,
+            },
+            None => self.clock.arrival(arrival_host_secs),
         };
         if let Some([x, y]) = rec.fpog {
             self.pending.push_back(Sample::Gaze(GazeSample {
@@ -455,13 +473,18 @@ impl GazepointSource {
 
     /// As [`Self::new`] with explicit timeouts.
     pub fn with_timeouts(host: impl Into<String>, port: u16, timeouts: GazepointTimeouts) -> Self {
+        let host = host.into();
+        let clock = SourceClock::new(
+            format!("gazepoint://{host}:{port}"),
+            SourceClockConfig::default(),
+        );
         Self {
-            host: host.into(),
+            host,
             port,
             timeouts,
             conn: None,
             line: LineAccumulator::new(MAX_LINE_BYTES),
-            decoder: RecordDecoder::new(),
+            decoder: RecordDecoder::with_clock(clock),
             records: 0,
             errors: 0,
             connects: 0,
@@ -649,6 +672,10 @@ impl SampleSource for GazepointSource {
 
     fn describe(&self) -> String {
         format!("Gazepoint Open Gaze API at {}:{}", self.host, self.port)
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.decoder.clock_stats())
     }
 }
 
@@ -852,19 +879,33 @@ mod tests {
         assert_eq!(left.diameter_mm, Some(4.1));
         assert!((left.norm_pos[1] - 0.7).abs() < 1e-6);
         assert!(d.pop().is_none());
-        // 1/60 s later by the tracker clock, arriving 5 ms late: host time
-        // follows the tracker clock, not the arrival.
+        // 1/60 s later by the tracker clock, on time; another 1/60 s later,
+        // arriving 5 ms late: host time follows the tracker clock, not the
+        // arrival (the offset is the second-smallest arrival − time of the
+        // last second, so the first record alone does not set it).
+        for (time, arrival, want) in [
+            ("10.01667", 100.01667, 100.01667),
+            ("10.03333", 100.03833, 100.03333),
+        ] {
+            let line = format!("<REC TIME=\"{time}\" FPOGX=\"0.3\" FPOGY=\"0.3\" FPOGV=\"0\" />");
+            let Line::Rec(r) = parse_line(&line).unwrap() else {
+                panic!()
+            };
+            d.push(&r, arrival);
+            let Some(Sample::Gaze(g)) = d.pop() else {
+                panic!()
+            };
+            assert!((g.t_secs - want).abs() < 1e-9, "{} vs {want}", g.t_secs);
+            assert_eq!(g.confidence, 0.0);
+        }
+        // One record with an absurd time gives no samples (counted).
         let Line::Rec(r) =
-            parse_line("<REC TIME=\"10.01667\" FPOGX=\"0.3\" FPOGY=\"0.3\" FPOGV=\"0\" />")
-                .unwrap()
+            parse_line("<REC TIME=\"1e308\" FPOGX=\"0.3\" FPOGY=\"0.3\" />").unwrap()
         else {
             panic!()
         };
-        d.push(&r, 100.02167);
-        let Some(Sample::Gaze(g)) = d.pop() else {
-            panic!()
-        };
-        assert!((g.t_secs - 100.01667).abs() < 1e-9);
-        assert_eq!(g.confidence, 0.0);
+        d.push(&r, 100.05);
+        assert!(d.pop().is_none());
+        assert_eq!(d.clock_stats().snapshot().rejected, 1);
     }
 }

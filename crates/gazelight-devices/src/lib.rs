@@ -20,9 +20,13 @@
 //!
 //! Times: every sample these sources deliver is on the host clock
 //! ([`gazelight_eye::clock::host_now_secs`]). Where the device stamps its
-//! samples, the device clock is mapped onto the host clock by a
-//! [`ClockAligner`] (the offset with the smallest apparent transport delay
-//! seen so far); where it does not, the host time of arrival is used.
+//! samples, the device clock is mapped onto the host clock by the one
+//! source-clock mapping, [`gazelight_eye::clock::SourceClock`] (the lower
+//! envelope of `arrival − stamp` over the last second or two; a stamp that
+//! disagrees with it by more than its bound is dropped and counted, a clock
+//! that steps is followed after a few stamps); where it does not, the host
+//! time of arrival is used. Each source reports the mapping's counters
+//! through [`gazelight_eye::SampleSource::clock_stats`].
 //!
 //! Blocking device APIs (hidapi, serialport) run on one reader thread per
 //! open device that decodes into a bounded channel of ready [`Sample`]s
@@ -77,50 +81,6 @@ use gazelight_eye::sample::Sample;
 use gazelight_eye::source::SourceError;
 
 pub use target::{DEFAULT_BAUD, GAZEPOINT_DEFAULT_PORT, HidTarget, SerialFormat};
-
-/// Maps a device clock onto the host clock.
-///
-/// Each device-stamped sample arriving at host time `h` with device time
-/// `d` bounds the offset from above: `offset ≤ h − d` (the sample cannot
-/// arrive before it was taken). The aligner keeps the smallest `h − d`
-/// seen, i.e. the sample with the least transport delay, which is the
-/// lower-envelope estimate used by one-way clock synchronisation.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct ClockAligner {
-    offset_secs: Option<f64>,
-}
-
-impl ClockAligner {
-    /// A fresh aligner (no offset yet).
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Host time of a sample stamped `device_secs` that arrived at
-    /// `arrival_host_secs`. A non-finite device time yields the arrival time.
-    pub fn to_host(&mut self, device_secs: f64, arrival_host_secs: f64) -> f64 {
-        if !device_secs.is_finite() {
-            return arrival_host_secs;
-        }
-        let candidate = arrival_host_secs - device_secs;
-        let offset = match self.offset_secs {
-            Some(o) if o <= candidate => o,
-            _ => candidate,
-        };
-        self.offset_secs = Some(offset);
-        device_secs + offset
-    }
-
-    /// The current offset `host − device`, seconds.
-    pub fn offset_secs(&self) -> Option<f64> {
-        self.offset_secs
-    }
-
-    /// Forget the offset (after a reconnect the device clock may restart).
-    pub fn reset(&mut self) {
-        self.offset_secs = None;
-    }
-}
 
 /// What a reader thread delivers.
 pub(crate) type ThreadItem = Result<Sample, SourceError>;
@@ -226,24 +186,4 @@ pub(crate) fn send_blocking(
 /// Host time now, seconds (re-exported for the transports).
 pub(crate) fn now_secs() -> f64 {
     host_now_secs()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn aligner_keeps_the_least_delayed_offset() {
-        let mut a = ClockAligner::new();
-        // Device time 10 s arrives at host 100.05 s (50 ms late).
-        assert!((a.to_host(10.0, 100.05) - 100.05).abs() < 1e-12);
-        // Next sample only 10 ms late: offset tightens to 90.01.
-        assert!((a.to_host(10.1, 100.11) - 100.11).abs() < 1e-12);
-        // A late arrival does not move the offset back.
-        assert!((a.to_host(10.2, 100.5) - 100.21).abs() < 1e-12);
-        assert!((a.offset_secs().unwrap() - 90.01).abs() < 1e-12);
-        assert_eq!(a.to_host(f64::NAN, 7.0), 7.0);
-        a.reset();
-        assert_eq!(a.offset_secs(), None);
-    }
 }

@@ -21,13 +21,16 @@
 //!   follow this (wrong field count, a non-number, unknown unit) is an item
 //!   error naming the line number and the field.
 //!
-//! Device times are mapped onto the host clock with a
-//! [`super::ClockAligner`]. A lost line (read error, hang-up) is
+//! Device times are mapped onto the host clock by a
+//! [`gazelight_eye::clock::SourceClock`] (a line with an absurd time is
+//! dropped and counted; a device clock that steps is followed after a few
+//! lines). A lost line (read error, hang-up) is
 //! [`SourceError::Disconnected`]; a source opened from a path reopens it on
 //! the next call.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
@@ -35,7 +38,8 @@ use tokio::sync::mpsc;
 
 use super::framing::FrameDecoder;
 use super::gazepoint::{Line, RecordDecoder, parse_line};
-use super::{ClockAligner, READ_POLL_MS, ThreadItem, ThreadedSource, now_secs, send_blocking};
+use super::{READ_POLL_MS, ThreadItem, ThreadedSource, now_secs, send_blocking};
+use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig};
 use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -152,18 +156,6 @@ pub fn parse_csv_line(text: &str, line: u64) -> Result<Option<Sample>, LineError
     }
 }
 
-fn set_time(sample: &mut Sample, t: f64) {
-    match sample {
-        Sample::Gaze(g) => g.t_secs = t,
-        Sample::Pupil(p) => p.t_secs = t,
-        Sample::Blink(b) => {
-            let d = b.end_t_secs - b.start_t_secs;
-            b.start_t_secs = t;
-            b.end_t_secs = t + d;
-        }
-    }
-}
-
 /// Decodes a byte stream in one of the [`SerialFormat`]s into samples on the
 /// host clock. Buffers are allocated once.
 pub struct StreamDecoder {
@@ -174,23 +166,37 @@ pub struct StreamDecoder {
     overlong: bool,
     frames: FrameDecoder,
     records: RecordDecoder,
-    clock: ClockAligner,
+    /// The device clock → host time (CSV and framed; the Gazepoint format's
+    /// records have their own, counting into the same statistics).
+    clock: SourceClock,
     errors: u64,
 }
 
 impl StreamDecoder {
     /// A decoder for `format`; `name` appears in errors.
     pub fn new(format: SerialFormat, name: impl Into<String>) -> Self {
+        Self::with_clock_stats(format, name, Arc::default())
+    }
+
+    /// As [`Self::new`], counting the clock mapping into `clock_stats`.
+    pub fn with_clock_stats(
+        format: SerialFormat,
+        name: impl Into<String>,
+        clock_stats: Arc<SharedClockStats>,
+    ) -> Self {
+        let name = name.into();
+        let clock =
+            |stats| SourceClock::with_stats(name.clone(), SourceClockConfig::default(), stats);
         Self {
             format,
-            name: name.into(),
             line: Vec::with_capacity(MAX_LINE_BYTES),
             line_no: 0,
             overlong: false,
             frames: FrameDecoder::new(),
-            records: RecordDecoder::new(),
-            clock: ClockAligner::new(),
+            records: RecordDecoder::with_clock(clock(clock_stats.clone())),
+            clock: clock(clock_stats),
             errors: 0,
+            name,
         }
     }
 
@@ -230,8 +236,11 @@ impl StreamDecoder {
                         let item = match r {
                             Ok(fs) => {
                                 let mut s = fs.sample;
-                                let t = self.clock.to_host(s.t_secs(), arrival_host_secs);
-                                set_time(&mut s, t);
+                                match self.clock.to_host(s.t_secs(), arrival_host_secs) {
+                                    Some(t) => s.set_t_secs(t),
+                                    // Dropped and counted by the mapping.
+                                    None => continue,
+                                }
                                 Ok(s)
                             }
                             Err(e) => {
@@ -293,11 +302,14 @@ impl StreamDecoder {
         match self.format {
             SerialFormat::Csv => match parse_csv_line(text, line_no) {
                 Ok(None) => true,
-                Ok(Some(mut s)) => {
-                    let t = self.clock.to_host(s.t_secs(), arrival);
-                    set_time(&mut s, t);
-                    emit(Ok(s))
-                }
+                Ok(Some(mut s)) => match self.clock.to_host(s.t_secs(), arrival) {
+                    Some(t) => {
+                        s.set_t_secs(t);
+                        emit(Ok(s))
+                    }
+                    // Dropped and counted by the mapping.
+                    None => true,
+                },
                 Err(e) => {
                     let e = self.item_error(line_no, e);
                     emit(Err(e))
@@ -387,6 +399,8 @@ pub struct SerialSource {
     format: SerialFormat,
     name: String,
     reader: Option<ThreadedSource>,
+    /// The counters of the device clock's mapping (across reopens).
+    clock: Arc<SharedClockStats>,
 }
 
 fn format_name(format: SerialFormat) -> &'static str {
@@ -408,6 +422,7 @@ impl SerialSource {
             format,
             name,
             reader: None,
+            clock: Arc::default(),
         };
         s.reader = Some(s.start_from_path().map_err(|reason| SourceError::Fatal {
             source_name: s.name.clone(),
@@ -425,17 +440,20 @@ impl SerialSource {
         format: SerialFormat,
     ) -> Result<Self, SourceError> {
         let name = name.into();
-        let reader =
-            Self::start(port, name.clone(), format).map_err(|reason| SourceError::Fatal {
+        let clock = Arc::<SharedClockStats>::default();
+        let reader = Self::start(port, name.clone(), format, clock.clone()).map_err(|reason| {
+            SourceError::Fatal {
                 source_name: name.clone(),
                 reason,
-            })?;
+            }
+        })?;
         Ok(Self {
             path: None,
             baud: 0,
             format,
             name,
             reader: Some(reader),
+            clock,
         })
     }
 
@@ -455,18 +473,19 @@ impl SerialSource {
                 ),
                 _ => format!("cannot open {}: {e}", path.display()),
             })?;
-        Self::start(port, self.name.clone(), self.format)
+        Self::start(port, self.name.clone(), self.format, self.clock.clone())
     }
 
     fn start(
         mut port: serialport::TTYPort,
         name: String,
         format: SerialFormat,
+        clock: Arc<SharedClockStats>,
     ) -> Result<ThreadedSource, String> {
         use serialport::SerialPort;
         port.set_timeout(Duration::from_millis(READ_POLL_MS))
             .map_err(|e| format!("setting the read timeout: {e}"))?;
-        let decoder = StreamDecoder::new(format, name.clone());
+        let decoder = StreamDecoder::with_clock_stats(format, name.clone(), clock);
         let thread_name = format!("serial {name}");
         ThreadedSource::spawn(&thread_name, move |tx, stop| {
             reader_loop(port, decoder, name, tx, &stop)
@@ -496,6 +515,10 @@ impl SerialSource {
 impl SampleSource for SerialSource {
     fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send {
         self.next_inner()
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.clock.clone())
     }
 
     fn describe(&self) -> String {

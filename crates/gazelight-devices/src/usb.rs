@@ -18,12 +18,15 @@
 //! A lost device is [`SourceError::Disconnected`]; the next call looks
 //! for the device again.
 
+use std::sync::Arc;
+
 use nusb::MaybeFuture;
 use nusb::descriptors::{ConfigurationDescriptor, TransferType};
 use nusb::transfer::{Bulk, Direction, In};
 
 use super::framing::FrameDecoder;
-use super::{ClockAligner, now_secs};
+use super::now_secs;
+use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig};
 use gazelight_eye::sample::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -82,7 +85,8 @@ pub struct UsbSource {
     name: String,
     open: Option<Open>,
     frames: FrameDecoder,
-    clock: ClockAligner,
+    /// The device clock → host time.
+    clock: SourceClock,
     /// Bytes of the last transfer not yet pushed into the decoder.
     carry: Vec<u8>,
     carry_pos: usize,
@@ -115,7 +119,10 @@ impl UsbSource {
             name: format!("usb://{vendor_id:04x}:{product_id:04x}"),
             open: None,
             frames: FrameDecoder::new(),
-            clock: ClockAligner::new(),
+            clock: SourceClock::new(
+                format!("usb://{vendor_id:04x}:{product_id:04x}"),
+                SourceClockConfig::default(),
+            ),
             carry: Vec::with_capacity(TRANSFER_LEN),
             carry_pos: 0,
         };
@@ -185,13 +192,13 @@ impl UsbSource {
                 if let Some(r) = self.frames.next_frame() {
                     return match r {
                         Ok(fs) => {
-                            let t = self.clock.to_host(fs.t_us as f64 * 1e-6, now_secs());
+                            let Some(t) = self.clock.to_host(fs.t_us as f64 * 1e-6, now_secs())
+                            else {
+                                // Dropped and counted by the mapping.
+                                continue;
+                            };
                             let mut s = fs.sample;
-                            match &mut s {
-                                Sample::Gaze(g) => g.t_secs = t,
-                                Sample::Pupil(p) => p.t_secs = t,
-                                Sample::Blink(_) => {}
-                            }
+                            s.set_t_secs(t);
                             Ok(Some(s))
                         }
                         Err(e) => Err(SourceError::Item {
@@ -234,6 +241,10 @@ impl UsbSource {
 impl SampleSource for UsbSource {
     fn next(&mut self) -> impl Future<Output = Result<Option<Sample>, SourceError>> + Send {
         self.next_inner()
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.clock.shared_stats())
     }
 
     fn describe(&self) -> String {

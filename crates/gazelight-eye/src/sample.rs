@@ -104,4 +104,17 @@ impl Sample {
             Sample::Blink(b) => b.start_t_secs,
         }
     }
+
+    /// Sets the sample's time (a blink keeps its duration).
+    pub fn set_t_secs(&mut self, t_secs: f64) {
+        match self {
+            Sample::Pupil(p) => p.t_secs = t_secs,
+            Sample::Gaze(g) => g.t_secs = t_secs,
+            Sample::Blink(b) => {
+                let d = b.end_t_secs - b.start_t_secs;
+                b.start_t_secs = t_secs;
+                b.end_t_secs = t_secs + d;
+            }
+        }
+    }
 }

@@ -2,15 +2,17 @@
 //! client, a hardware transport or a replay.
 //!
 //! A [`SampleSource`] yields [`Sample`]s one at a time, asynchronously,
-//! with times on the host clock (live sources align the tracker's clock
-//! first, see [`crate::clock`]) or on the recording's clock (replays).
+//! with times on the host clock (live sources map the tracker's clock
+//! through a [`crate::clock::SourceClock`] first) or on the recording's clock (replays).
 //! `Ok(None)` is the end of the stream; an `Err` is one bad item or a lost
 //! connection and the caller may keep calling `next` (a replay skips to the
 //! following item). The trait names no runtime: implementations bring their
 //! own I/O.
 
 use std::future::Future;
+use std::sync::Arc;
 
+use crate::clock::SharedClockStats;
 use crate::sample::Sample;
 
 /// Why a source could not deliver a sample.
@@ -42,5 +44,12 @@ pub trait SampleSource: Send {
     /// 0 for sources without one.
     fn dropped(&self) -> u64 {
         0
+    }
+    /// The counters of the source's clock mapping
+    /// ([`crate::clock::SourceClock`]), the same handle for the source's
+    /// whole life (reconnects included); `None` for sources without one
+    /// (replays, which run on their recording's clock).
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        None
     }
 }

@@ -37,8 +37,11 @@
 //! connection the phone's clock is measured against the host's with Pupil
 //! Labs' Time Echo protocol ([`time_echo`], when the status names its port;
 //! else both clocks are assumed to follow NTP), and a sample's host time is
-//! its Unix time on the phone's clock mapped through that offset. Neons on
-//! the network are found by mDNS ([`discover`]).
+//! its Unix time on the phone's clock mapped through that offset by the
+//! source's [`gazelight_eye::clock::SourceClock`], which checks each
+//! packet's time against its arrival (a sender report or a Time Echo answer
+//! that lies is overruled by the packets, see [`source`]). Neons on the
+//! network are found by mDNS ([`discover`]).
 
 pub mod discover;
 pub mod http;

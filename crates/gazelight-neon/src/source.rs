@@ -15,6 +15,18 @@
 //!   1 for a finite positive diameter; 0 while the glasses are not worn;
 //! - a [`BlinkEvent`] (both eyes) for each blink on `eye_events`.
 //!
+//! Times: a packet's phone time (its RTP timestamp through the latest
+//! RTCP sender report, [`crate::rtp`]) goes to host time through the
+//! source's [`SourceClock`], anchored at each connection on the Time Echo
+//! offset (or on NTP when the phone offers none). The mapping checks every
+//! packet's time against its arrival: a sender report that is 1e5 s off
+//! moves the packets' times, which the mapping sees as a clock jump (and
+//! the next, correct report as another one) after
+//! [`gazelight_eye::clock::DEFAULT_JUMP_CONFIRM`]
+//! packets, and a Time Echo answer that lies (the phone 1e6 s ahead, or in
+//! 1970) is overruled by the packets' arrivals the same way, with a
+//! warning. Blinks use the offset the gaze packets established.
+//!
 //! A malformed packet is one [`SourceError::Item`] naming the stream and
 //! what is wrong; a lost connection is a [`SourceError::Disconnected`] and
 //! the task reconnects (status, DESCRIBE, SETUP, PLAY) with a backoff of
@@ -33,7 +45,9 @@ use crate::NeonError;
 use crate::http::{direct_sensor, get_status, parse_status};
 use crate::payload::{EyeEvent, GazeDatum, decode_eye_event, decode_gaze};
 use crate::stream::{RtpStream, RtpTransport};
-use gazelight_eye::clock::host_now_secs;
+use gazelight_eye::clock::{
+    ClockStats, SharedClockStats, SourceClock, SourceClockConfig, host_now_secs,
+};
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
 };
@@ -108,6 +122,8 @@ pub struct NeonStats {
     /// The Time Echo offset, ms, as f64 bits, once measured.
     time_echo_offset_ms_bits: AtomicU64,
     time_echo_measured: AtomicBool,
+    /// The clock mapping's counters.
+    clock: Arc<SharedClockStats>,
     last_error: Mutex<Option<String>>,
 }
 
@@ -132,6 +148,8 @@ pub struct NeonStatsSnapshot {
     /// Host clock − phone clock by Time Echo, ms (`None`: the phone offers
     /// no Time Echo port, or it failed; NTP is trusted then).
     pub time_echo_offset_ms: Option<f64>,
+    /// The clock mapping: packets mapped, time stamps dropped, jumps.
+    pub clock: ClockStats,
     pub last_error: Option<String>,
 }
 
@@ -153,6 +171,7 @@ impl NeonStats {
                 .time_echo_measured
                 .load(Ordering::Relaxed)
                 .then(|| f64::from_bits(l(&self.time_echo_offset_ms_bits))),
+            clock: self.clock.snapshot(),
             last_error: self.last_error.lock().map(|e| e.clone()).unwrap_or(None),
         }
     }
@@ -256,6 +275,10 @@ impl SampleSource for NeonSource {
     fn dropped(&self) -> u64 {
         self.stats.dropped_full.load(Ordering::Relaxed)
     }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.stats.clock.clone())
+    }
 }
 
 /// Unix time now, seconds (0 if the system clock is before 1970).
@@ -274,9 +297,14 @@ fn send(tx: &mpsc::Sender<Event>, stats: &NeonStats, ev: Event) {
 
 async fn run(cfg: NeonConfig, tx: mpsc::Sender<Event>, stats: Arc<NeonStats>) {
     let mut backoff = cfg.backoff_initial;
+    let mut clock = SourceClock::with_stats(
+        format!("neon://{}:{}", cfg.host, cfg.port),
+        SourceClockConfig::default(),
+        stats.clock.clone(),
+    );
     loop {
         let mut delivered = false;
-        let err = session(&cfg, &tx, &stats, &mut delivered).await;
+        let err = session(&cfg, &tx, &stats, &mut clock, &mut delivered).await;
         if tx.is_closed() {
             return;
         }
@@ -299,12 +327,14 @@ async fn session(
     cfg: &NeonConfig,
     tx: &mpsc::Sender<Event>,
     stats: &Arc<NeonStats>,
+    clock: &mut SourceClock,
     delivered: &mut bool,
 ) -> NeonError {
     let r: Result<std::convert::Infallible, NeonError> = async {
         let body = get_status(&cfg.host, cfg.port, cfg.io_timeout).await?;
         let sensors = parse_status(&body)?;
         // The phone's clock against ours (Time Echo), else trust NTP.
+        let mut time_echo = false;
         let offset_secs = match crate::http::time_echo_port(&body) {
             Some(port) => match crate::time_echo::estimate_offset(
                 &cfg.host,
@@ -325,6 +355,7 @@ async fn session(
                         .time_echo_offset_ms_bits
                         .store(e.offset_ms.to_bits(), Ordering::Relaxed);
                     stats.time_echo_measured.store(true, Ordering::Relaxed);
+                    time_echo = true;
                     e.offset_ms * 1e-3
                 }
                 Err(e) => {
@@ -356,17 +387,23 @@ async fn session(
         stats.connected.store(true, Ordering::Relaxed);
         tracing::info!(%url, clock_rate_hz = stream.clock_rate_hz(), "Neon gaze stream playing");
         // The phone's Unix time − host time; a sample's host time = its Unix
-        // time − this (phone time + offset = our Unix time).
+        // time − this (phone time + offset = our Unix time). The mapping
+        // holds host − phone time, and checks it against every packet.
         let unix_minus_host = unix_now_secs() - offset_secs - host_now_secs();
+        clock.reset();
+        clock.anchor(-unix_minus_host, host_now_secs());
+        // The offset the gaze packets establish, for the blinks (f64 bits).
+        let host_minus_phone = Arc::new(AtomicU64::new((-unix_minus_host).to_bits()));
         let _events = events_url.map(|u| {
             AbortOnDrop(tokio::spawn(events_loop(
                 u,
                 cfg.clone(),
                 tx.clone(),
                 stats.clone(),
-                unix_minus_host,
+                host_minus_phone.clone(),
             )))
         });
+        let jumps_at_start = clock.stats().jumps;
         let mut no_eye_state_run = 0u64;
         let mut out = [None; 3];
         loop {
@@ -379,7 +416,27 @@ async fn session(
                 }
                 Err(e) => return Err(e),
             };
-            let t_host = packet.unix_secs - unix_minus_host;
+            let arrival = host_now_secs();
+            let Some(t_host) = clock.to_host(packet.unix_secs, arrival) else {
+                // Dropped and counted by the mapping (an absurd time, or
+                // the first packets of a clock jump).
+                continue;
+            };
+            if let Some(o) = clock.offset_secs() {
+                host_minus_phone.store(o.to_bits(), Ordering::Relaxed);
+            }
+            if time_echo && !*delivered && clock.stats().jumps > jumps_at_start {
+                // The first packets of the connection already jumped: the
+                // Time Echo answer was wrong.
+                time_echo = false;
+                tracing::warn!(
+                    host = %cfg.host,
+                    time_echo_offset_ms = offset_secs * 1e3,
+                    step_s = clock.stats().last_jump_secs,
+                    "the phone's packets disagree with its Time Echo answer: their arrival times \
+                     are used instead"
+                );
+            }
             let datum = match decode_gaze(packet.payload) {
                 Ok(d) => d,
                 Err(e) => {
@@ -423,6 +480,25 @@ async fn session(
     }
 }
 
+/// The longest blink event taken as it is, s (a longer one is cut).
+const MAX_BLINK_SECS: f64 = 10.0;
+
+/// Host times of a blink from `start_ns` to `end_ns` on the phone's clock,
+/// reported at host time `arrival`: mapped by the gaze stream's offset
+/// `host − phone` (s); an end not within [`MAX_BLINK_SECS`] before its
+/// arrival (the offset is not yet known, or the event's times are absurd)
+/// is taken as the arrival.
+fn blink_host_secs(start_ns: i64, end_ns: i64, host_minus_phone: f64, arrival: f64) -> (f64, f64) {
+    let duration = ((end_ns as f64 - start_ns as f64) * 1e-9).clamp(0.0, MAX_BLINK_SECS);
+    let end = end_ns as f64 * 1e-9 + host_minus_phone;
+    let end = if (arrival - MAX_BLINK_SECS..=arrival).contains(&end) {
+        end
+    } else {
+        arrival
+    };
+    (end - duration, end)
+}
+
 /// Plays `eye_events` until the gaze session ends (the caller aborts this
 /// task), reconnecting on loss.
 async fn events_loop(
@@ -430,7 +506,7 @@ async fn events_loop(
     cfg: NeonConfig,
     tx: mpsc::Sender<Event>,
     stats: Arc<NeonStats>,
-    unix_minus_host: f64,
+    host_minus_phone: Arc<AtomicU64>,
 ) {
     let mut backoff = cfg.backoff_initial;
     loop {
@@ -453,12 +529,18 @@ async fn events_loop(
                     match decode_eye_event(p.payload) {
                         Ok(EyeEvent::Blink { start_ns, end_ns }) => {
                             stats.blinks.fetch_add(1, Ordering::Relaxed);
+                            let (start_t_secs, end_t_secs) = blink_host_secs(
+                                start_ns,
+                                end_ns,
+                                f64::from_bits(host_minus_phone.load(Ordering::Relaxed)),
+                                host_now_secs(),
+                            );
                             send(
                                 &tx,
                                 &stats,
                                 Event::Sample(Sample::Blink(BlinkEvent {
-                                    start_t_secs: start_ns as f64 * 1e-9 - unix_minus_host,
-                                    end_t_secs: end_ns as f64 * 1e-9 - unix_minus_host,
+                                    start_t_secs,
+                                    end_t_secs,
                                     eye: None,
                                 })),
                             );

@@ -22,6 +22,14 @@ refuse connections for --down-secs, then come back.
 time (packets, sender reports, blinks), and the Time Echo server (on the
 port /api/status names as Phone.time_echo_port) answers with that clock.
 
+--bad-sr-at N --bad-sr-secs X sends, with the N-th gaze packet of a
+connection, one RTCP sender report whose NTP time is X s off (the RTP
+timestamp right); the regular reports (--sr-every) are right.
+
+--time-echo-lie ahead-1e6 | 1970 makes the Time Echo server lie about the
+phone's clock: 1e6 s ahead of it, or a clock that says 1970 (the time since
+this machine booted); the packets keep the phone's true clock.
+
 --step-mm A,B replaces the recording's pupils by a square wave (both eyes,
 A then B mm, --step-secs each, starting at start_unix_ns) to check that
 the filters follow step changes.
@@ -268,6 +276,8 @@ def play_gaze(sink, args, recs, st, start_unix_ns):
         out = []
         if k == 0 or (args.sr_every > 0 and k % args.sr_every == 0):
             out.append((1, sender_report(unix_ns, ts)))
+        if args.bad_sr_at and k == args.bad_sr_at:
+            out.append((1, sender_report(unix_ns + int(args.bad_sr_secs * 1e9), ts)))
         if args.malformed_every and k % args.malformed_every == args.malformed_every - 1:
             out.append((0, rtp(i, ts, b"\x00" * 7)))  # a 7-byte gaze payload: no layout
             out.append((0, b"\x80\x63\x00"))  # a 3-byte RTP packet
@@ -369,6 +379,10 @@ def serve_time_echo(conn, args):
             if len(t1) < 8:
                 return
             phone_ms = time.time_ns() // 1_000_000 + args.clock_offset_ms
+            if args.time_echo_lie == "ahead-1e6":
+                phone_ms += 1_000_000_000
+            elif args.time_echo_lie == "1970":
+                phone_ms = time.monotonic_ns() // 1_000_000
             conn.sendall(t1 + struct.pack("!Q", phone_ms))
     except OSError:
         pass
@@ -407,6 +421,11 @@ def main():
                    help="the phone's clock runs this many ms ahead of the real time (its packets, "
                         "sender reports, blinks and Time Echo answers all say so)")
     p.add_argument("--no-time-echo", action="store_true", help="offer no Time Echo port")
+    p.add_argument("--time-echo-lie", choices=["none", "ahead-1e6", "1970"], default="none",
+                   help="the Time Echo answers say the phone is 1e6 s ahead, or in 1970")
+    p.add_argument("--bad-sr-at", type=int, default=0,
+                   help="with this gaze packet (of each connection) send one sender report --bad-sr-secs off")
+    p.add_argument("--bad-sr-secs", type=float, default=1e5)
     p.add_argument("--stamp-send", action="store_true",
                    help="time each gaze packet by when it is sent (for latency measurements), "
                         "not by its place in the recording")

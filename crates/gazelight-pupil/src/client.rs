@@ -12,10 +12,17 @@
 //!   with [`msg`]. Extra frames are ignored.
 //!
 //! The client runs as one tokio task owning both sockets. Every request and
-//! every receive is bounded by `tokio::time::timeout`. The clock offset to
-//! the host's monotonic clock is estimated from `t` round trips
-//! ([`gazelight_eye::clock`]), on connection and then every `clock_interval`; the `T`
-//! command (which resets Pupil's clock for every client) is never sent.
+//! every receive is bounded by `tokio::time::timeout`. Datum times go to
+//! host time through the client's [`SourceClock`] (the one mapping of
+//! [`gazelight_eye::clock`]): the offset is measured with `t` round trips
+//! on connection and then every `clock_interval`, and each datum's time is
+//! checked against its arrival. The client never sends `T` (which resets
+//! Pupil's clock for every client), but another client may (hmd-eyes syncs
+//! Pupil time to Unix time that way): the mapping sees the step as a clock
+//! jump after a few datums, re-anchors on their arrival, and the client
+//! measures the offset again at once. A single datum with an absurd time
+//! (1e308) is dropped and counted; the mapping's counters are in
+//! [`PupilStats::mapping`].
 //! When Remote stops answering or the bus goes silent and a `t` probe
 //! fails, the sockets are dropped and rebuilt with a bounded exponential
 //! backoff; the sample channel, the counters and the caller's handles
@@ -47,7 +54,8 @@ use zeromq::{ReqSocket, Socket, SocketOptions, SocketRecv, SocketSend, SubSocket
 
 use crate::msg;
 use gazelight_eye::clock::{
-    ClockEstimate, ClockProbe, ClockTracker, host_now_secs, parse_time_reply,
+    ClockEstimate, ClockProbe, ClockStats, ClockTracker, SharedClockStats, SourceClock,
+    SourceClockConfig, host_now_secs, parse_time_reply,
 };
 use gazelight_eye::sample::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
@@ -189,6 +197,9 @@ pub struct PupilStats {
     /// Drift of Pupil's clock against the host's, s/s, over recent
     /// estimates of this connection.
     pub drift_secs_per_sec: Option<f64>,
+    /// The clock mapping: datums mapped, time stamps dropped, jumps (a `T`
+    /// from another client), measurements refused.
+    pub mapping: ClockStats,
     /// Pupil's answer to `v`.
     pub version: Option<String>,
     /// Why the last connection was lost.
@@ -207,6 +218,7 @@ struct Counters {
     reconnects: AtomicU64,
     too_large: AtomicU64,
     connected: AtomicBool,
+    clock: Arc<SharedClockStats>,
     slow: Mutex<SlowState>,
 }
 
@@ -317,7 +329,12 @@ impl PupilClient {
             sample_tx,
             raw_tx,
             tracker: ClockTracker::new(32),
-            offset_secs: 0.0,
+            clock: SourceClock::with_stats(
+                format!("pupil://{}:{}", config.host, config.remote_port),
+                SourceClockConfig::default(),
+                counters.clock.clone(),
+            ),
+            reprobe: false,
             probes: Vec::with_capacity(config.clock_probes.max(1)),
         };
         let task = tokio::spawn(worker.run());
@@ -349,6 +366,7 @@ impl PupilClient {
             connected: c.connected.load(Ordering::Relaxed),
             clock: slow.clock,
             drift_secs_per_sec: slow.drift,
+            mapping: c.clock.snapshot(),
             version: slow.version.clone(),
             last_error: slow.last_error.clone(),
         }
@@ -424,7 +442,10 @@ struct Worker {
     sample_tx: mpsc::Sender<Sample>,
     raw_tx: Option<mpsc::Sender<RawDatum>>,
     tracker: ClockTracker,
-    offset_secs: f64,
+    /// Pupil time → host time.
+    clock: SourceClock,
+    /// The mapping found a jump: measure the offset again now.
+    reprobe: bool,
     probes: Vec<ClockProbe>,
 }
 
@@ -552,7 +573,14 @@ impl Worker {
             reply: "round trips with negative or non-finite times".to_owned(),
         })?;
         self.tracker.push(est);
-        self.offset_secs = est.offset_secs;
+        // offset = Pupil − host; the mapping holds host − Pupil.
+        if !self.clock.anchor(-est.offset_secs, host_now_secs()) {
+            tracing::warn!(
+                offset_s = est.offset_secs,
+                "Pupil's answer to `t` disagrees with the times of its datums; the datums' \
+                 arrivals keep the mapping"
+            );
+        }
         let drift = self.tracker.drift_secs_per_sec();
         {
             let mut slow = self.counters.slow();
@@ -587,8 +615,10 @@ impl Worker {
                 reply: String::from_utf8_lossy(&sub_port_reply).into_owned(),
             })?;
         let version = self.request_text(&mut req, "v").await?;
-        // A restarted Pupil may have a reset clock: drift restarts too.
+        // A restarted Pupil may have a reset clock: drift and the mapping
+        // restart too.
         self.tracker.clear();
+        self.clock.reset();
         self.estimate_clock(&mut req).await?;
 
         let mut sub =
@@ -654,7 +684,14 @@ impl Worker {
                     }
                 },
                 r = timeout(self.config.idle_timeout, sub.recv()) => match r {
-                    Ok(Ok(m)) => self.handle(m),
+                    Ok(Ok(m)) => {
+                        self.handle(m, host_now_secs());
+                        if std::mem::take(&mut self.reprobe) {
+                            // Pupil's clock jumped (a `T` from another
+                            // client): measure the new offset now.
+                            next_clock = Instant::now();
+                        }
+                    }
                     Ok(Err(e)) => {
                         self.note_receive_error(&e);
                         return Err(PupilError::Socket { what: "receiving from the bus".to_owned(), reason: e.to_string() });
@@ -672,7 +709,8 @@ impl Worker {
         }
     }
 
-    fn handle(&mut self, m: ZmqMessage) {
+    /// Decodes one bus message that arrived at host time `arrival`.
+    fn handle(&mut self, m: ZmqMessage, arrival: f64) {
         let c = &self.counters;
         let n = c.received.fetch_add(1, Ordering::Relaxed);
         let (Some(topic), Some(payload)) = (m.get(0), m.get(1)) else {
@@ -694,13 +732,15 @@ impl Worker {
                     c.unknown_fields
                         .fetch_add(u64::from(unknown), Ordering::Relaxed);
                 }
-                let sample = datum.to_sample(self.offset_secs);
-                match self.sample_tx.try_send(sample) {
-                    Ok(()) => {}
-                    Err(_) => {
-                        c.dropped.fetch_add(1, Ordering::Relaxed);
-                    }
+                let jumps = self.clock.stats().jumps;
+                // A datum whose time the mapping drops (not finite, or off
+                // by more than its bound) is still recorded raw below.
+                if let Some(t) = self.clock.to_host(datum.timestamp(), arrival)
+                    && self.sample_tx.try_send(datum.sample_at(t)).is_err()
+                {
+                    c.dropped.fetch_add(1, Ordering::Relaxed);
                 }
+                self.reprobe |= self.clock.stats().jumps > jumps;
                 if let Some(raw) = &self.raw_tx {
                     let r = RawDatum {
                         topic: String::from_utf8_lossy(topic).into_owned(),
@@ -861,6 +901,10 @@ impl SampleSource for PupilSource {
 
     fn dropped(&self) -> u64 {
         self.client.counters.dropped.load(Ordering::Relaxed)
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.client.counters.clock.clone())
     }
 }
 

@@ -236,6 +236,17 @@ impl Datum {
         }
     }
 
+    /// The sample at time `t_secs` (its host time, from the source's
+    /// clock mapping).
+    pub fn sample_at(&self, t_secs: f64) -> Sample {
+        let mut s = match self {
+            Datum::Pupil(p) => Sample::Pupil(p.sample),
+            Datum::Gaze(g) => Sample::Gaze(g.sample),
+        };
+        s.set_t_secs(t_secs);
+        s
+    }
+
     /// Unknown keys skipped while decoding.
     pub fn unknown_fields(&self) -> u32 {
         match self {

@@ -59,6 +59,6 @@ pub mod transport {
     pub use crate::uri;
     pub use crate::uri::{SourceUri, UriError};
     pub use gazelight_devices::{
-        ClockAligner, SerialFormat, discover, framing, gazepoint, hid, serial, target, usb,
+        SerialFormat, discover, framing, gazepoint, hid, serial, target, usb,
     };
 }

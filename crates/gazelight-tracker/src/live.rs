@@ -11,7 +11,17 @@
 //!   samples and learns how many (`RecvError::Lagged`), the sender never
 //!   waits;
 //! - the source's [`SourceStatus`] (health, rate, confidence, dropout rate
-//!   by the chain's own rule, counters).
+//!   by the chain's own rule, counters, and the counters of the source's
+//!   clock mapping, [`gazelight_eye::clock::SourceClock`]: jumps, rejected
+//!   time stamps).
+//!
+//! A source is [`SourceHealth::Degraded`] (with a reason in the status and
+//! a warning in the log) while its measured pupils are being discarded:
+//! when over the last second most of the pupils the chain measured arrived
+//! older than [`STALE_AFTER_SECS`] by their time stamps (so the state was
+//! stale and the pupil came from the fallback), or when its clock mapping
+//! rejected more time stamps than it delivered. It is `Live` again after a
+//! second without either.
 //!
 //! The stale → model fallback: when no sample has made the state fresh for
 //! [`STALE_AFTER_SECS`] (the tracker vanished), the pupil is filled the
@@ -30,7 +40,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use gazelight_eye::clock::host_now_secs;
+use gazelight_eye::clock::{ClockStats, host_now_secs};
 use gazelight_eye::filter::{
     ChainStats, ChainUpdate, DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterChain,
     SlewLimiter,
@@ -43,7 +53,10 @@ use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
 /// An `EyeState` older than this is stale: the tracker is not delivering.
-pub const STALE_AFTER_SECS: f64 = 0.25;
+/// The same bound as the oldest a live source's clock mapping delivers a
+/// sample ([`gazelight_eye::clock::DEFAULT_MAX_AGE_SECS`]), so a sample it
+/// delivers is fresh on arrival.
+pub const STALE_AFTER_SECS: f64 = gazelight_eye::clock::DEFAULT_MAX_AGE_SECS;
 /// Capacity of the sample broadcast (≈ 4 s at 1 kHz).
 pub const SAMPLE_BROADCAST_CAPACITY: usize = 4096;
 
@@ -103,6 +116,10 @@ pub enum SourceHealth {
     Connecting,
     /// Samples are arriving.
     Live,
+    /// Samples are arriving but their measured pupils are being discarded
+    /// (too old by their time stamps, or their time stamps rejected):
+    /// [`SourceStatus::degraded_reason`] says why.
+    Degraded,
     /// The source was connected and is gone (the service keeps running).
     Lost,
     /// A finite source (a replay) has ended.
@@ -130,6 +147,12 @@ pub struct SourceStatus {
     pub reconnects: u64,
     /// Why the source was last lost, if it was.
     pub last_error: Option<String>,
+    /// Why the source is [`SourceHealth::Degraded`], while it is.
+    pub degraded_reason: Option<String>,
+    /// The source's clock mapping (jumps, rejected and non-finite time
+    /// stamps, measurements); `None` for sources without one (replays, the
+    /// synthetic trace).
+    pub clock: Option<ClockStats>,
 }
 
 /// The source status, shared between the live task and its readers.
@@ -315,7 +338,8 @@ pub fn spawn<S: SampleSource + 'static>(
     }
 }
 
-/// Rate, confidence and dropout over a window of about a second.
+/// Rate, confidence, dropout and discarded pupils over a window of about
+/// a second.
 #[derive(Debug, Default)]
 struct RateWindow {
     start_secs: f64,
@@ -323,18 +347,35 @@ struct RateWindow {
     confidence_sum: f64,
     pupil: u64,
     pupil_dropped: u64,
+    /// Pupils the chain measured.
+    measured: u64,
+    /// Of those, the ones after which the state was stale (the pupil came
+    /// from the fallback), and the oldest of them, s.
+    measured_stale: u64,
+    stale_age_max_secs: f64,
+    /// The source's clock counters when the window started.
+    clock_at_start: Option<ClockStats>,
     last_sample_secs: Option<f64>,
 }
 
 impl RateWindow {
-    fn new(now: f64) -> Self {
+    fn new(now: f64, clock: Option<ClockStats>) -> Self {
         Self {
             start_secs: now,
+            clock_at_start: clock,
             ..Self::default()
         }
     }
 
-    fn add(&mut self, now: f64, confidence: f32, pupil_dropped: Option<bool>) {
+    /// One sample: its confidence, whether its pupil was dropped (`None`:
+    /// no pupil), and the state's age after it when that was stale.
+    fn add(
+        &mut self,
+        now: f64,
+        confidence: f32,
+        pupil_dropped: Option<bool>,
+        stale_age: Option<f64>,
+    ) {
         self.samples += 1;
         if confidence.is_finite() {
             self.confidence_sum += f64::from(confidence.clamp(0.0, 1.0));
@@ -342,17 +383,31 @@ impl RateWindow {
         if let Some(d) = pupil_dropped {
             self.pupil += 1;
             self.pupil_dropped += u64::from(d);
+            if !d {
+                self.measured += 1;
+                if let Some(age) = stale_age {
+                    self.measured_stale += 1;
+                    self.stale_age_max_secs = self.stale_age_max_secs.max(age);
+                }
+            }
         }
         self.last_sample_secs = Some(now);
     }
 
     /// Publishes the window into `s` when it has run ≥ 1 s (then restarts
-    /// it); always updates the running total.
-    fn publish(&mut self, now: f64, s: &mut SourceStatus, total: u64) {
+    /// it) and returns `Some(why the source is degraded, if it is)`; always
+    /// updates the running total.
+    fn publish(
+        &mut self,
+        now: f64,
+        s: &mut SourceStatus,
+        total: u64,
+        clock: Option<ClockStats>,
+    ) -> Option<Option<String>> {
         let elapsed = now - self.start_secs;
         s.samples_total = total;
         if elapsed < 1.0 {
-            return;
+            return None;
         }
         let n = self.samples;
         s.sample_rate_hz = n as f64 / elapsed;
@@ -368,9 +423,36 @@ impl RateWindow {
         } else {
             0.0
         };
+        let degraded = self.degraded_reason(clock);
         let last = self.last_sample_secs;
-        *self = Self::new(now);
+        *self = Self::new(now, clock);
         self.last_sample_secs = last;
+        Some(degraded)
+    }
+
+    /// Why the measured pupils of this window were discarded, if most were.
+    fn degraded_reason(&self, clock: Option<ClockStats>) -> Option<String> {
+        if self.measured > 0 && 2 * self.measured_stale > self.measured {
+            return Some(format!(
+                "{} of {} measured pupils in the last second were up to {:.2} s old by their \
+                 time stamps (older than {STALE_AFTER_SECS} s): not used, the pupil is held or \
+                 eased to the model",
+                self.measured_stale, self.measured, self.stale_age_max_secs
+            ));
+        }
+        if let (Some(a), Some(b)) = (self.clock_at_start, clock) {
+            let rejected = (b.rejected + b.non_finite).saturating_sub(a.rejected + a.non_finite);
+            let mapped = b.mapped.saturating_sub(a.mapped);
+            if rejected > 0 && rejected >= mapped {
+                return Some(format!(
+                    "{rejected} of {} time stamps in the last second were rejected by the clock \
+                     mapping (not finite, or off by more than {STALE_AFTER_SECS} s from their \
+                     arrival): their samples are dropped",
+                    rejected + mapped
+                ));
+            }
+        }
+        None
     }
 
     fn silent_for(&self, now: f64) -> Option<f64> {
@@ -400,6 +482,7 @@ struct Task<S> {
 
 /// Publishes `chain`'s state at host time `now` after `updates` samples;
 /// `published_host_secs` is when the newest sample's state was published.
+/// Returns the state's age, s.
 fn publish(
     chain: &mut LiveChain,
     eye_tx: &watch::Sender<LiveEyeState>,
@@ -407,7 +490,7 @@ fn publish(
     now: f64,
     updates: u64,
     published_host_secs: f64,
-) {
+) -> f64 {
     let last = LiveEyeState {
         state: *chain.chain().state(),
         updated_host_secs: published_host_secs,
@@ -422,6 +505,7 @@ fn publish(
         *cur = next;
         changed
     });
+    age
 }
 
 impl<S: SampleSource> Task<S> {
@@ -443,7 +527,9 @@ impl<S: SampleSource> Task<S> {
         let mut fallback_tick = tokio::time::interval(config.tick);
         fallback_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let tick_secs = config.tick.as_secs_f64();
-        let mut window = RateWindow::new(host_now_secs());
+        let clock = source.clock_stats();
+        let clock_now = || clock.as_ref().map(|c| c.snapshot());
+        let mut window = RateWindow::new(host_now_secs(), clock_now());
         let mut updates = 0u64;
         let mut published_host_secs = host_now_secs();
         let mut last_sample_host_secs = f64::NEG_INFINITY;
@@ -452,6 +538,8 @@ impl<S: SampleSource> Task<S> {
         let mut live = false;
         let mut was_lost = false;
         let mut ended = false;
+        // Why the source is degraded, while it is.
+        let mut degraded: Option<String> = None;
         let describe = source.describe();
         tracing::info!(source = %describe, "source started");
         loop {
@@ -478,13 +566,42 @@ impl<S: SampleSource> Task<S> {
                         }
                         _ = status_tick.tick() => {
                             let now = host_now_secs();
+                            let clock = clock_now();
+                            let mut closed = None;
                             update(&mut |s| {
-                                window.publish(now, s, updates);
+                                closed = window.publish(now, s, updates, clock);
                                 s.samples_dropped = dropped;
+                                s.clock = clock;
                             });
+                            match closed {
+                                Some(Some(reason)) if live => {
+                                    if degraded.is_none() {
+                                        tracing::warn!(source = %describe, "source degraded: {reason}");
+                                    }
+                                    update(&mut |s| {
+                                        s.health = SourceHealth::Degraded;
+                                        s.degraded_reason = Some(reason.clone());
+                                    });
+                                    degraded = Some(reason);
+                                }
+                                Some(None) if degraded.is_some() => {
+                                    degraded = None;
+                                    if live {
+                                        tracing::info!(source = %describe, "source healthy again: live");
+                                    }
+                                    update(&mut |s| {
+                                        s.degraded_reason = None;
+                                        if live {
+                                            s.health = SourceHealth::Live;
+                                        }
+                                    });
+                                }
+                                _ => {}
+                            }
                             if let Some(silent) = window.silent_for(now)
                                 && silent > config.silent_lost_secs
                                 && live
+                                && degraded.is_none()
                             {
                                 live = false;
                                 was_lost = true;
@@ -510,11 +627,12 @@ impl<S: SampleSource> Task<S> {
                     let now = host_now_secs();
                     published_host_secs = now;
                     last_sample_host_secs = now;
-                    publish(&mut chain, &eye_tx, age_clock, now, updates, now);
+                    let age = publish(&mut chain, &eye_tx, age_clock, now, updates, now);
                     window.add(
                         now,
                         sample_confidence(&sample),
                         up.pupil_eye.map(|_| !up.measured),
+                        (age > STALE_AFTER_SECS).then_some(age),
                     );
                     // No receiver is fine; a full ring drops its oldest.
                     let _ = samples.send(sample);
@@ -525,14 +643,22 @@ impl<S: SampleSource> Task<S> {
                         } else {
                             tracing::info!(source = %describe, "source live");
                         }
-                        update(&mut |s| s.health = SourceHealth::Live);
+                        let health = if degraded.is_some() {
+                            SourceHealth::Degraded
+                        } else {
+                            SourceHealth::Live
+                        };
+                        update(&mut |s| s.health = health);
                     }
                 }
                 Ok(None) => {
                     let now = host_now_secs();
+                    let clock = clock_now();
                     update(&mut |s| {
-                        window.publish(now, s, updates);
+                        window.publish(now, s, updates, clock);
                         s.health = SourceHealth::Ended;
+                        s.degraded_reason = None;
+                        s.clock = clock;
                     });
                     tracing::info!(source = %describe, samples = updates, "source ended; frames continue with the last state");
                     ended = true;
@@ -547,12 +673,14 @@ impl<S: SampleSource> Task<S> {
                 Err(SourceError::Disconnected { reason, .. }) => {
                     let was_live = std::mem::replace(&mut live, false);
                     was_lost |= was_live;
+                    degraded = None;
                     update(&mut |s| {
                         if was_live {
                             s.reconnects += 1;
                         }
                         s.health = SourceHealth::Lost;
                         s.last_error = Some(reason.clone());
+                        s.degraded_reason = None;
                     });
                     tokio::time::sleep(Duration::from_millis(50)).await;
                 }
@@ -561,6 +689,7 @@ impl<S: SampleSource> Task<S> {
                     update(&mut |s| {
                         s.health = SourceHealth::Lost;
                         s.last_error = Some(reason.clone());
+                        s.degraded_reason = None;
                     });
                     ended = true;
                     break;
@@ -774,5 +903,164 @@ mod tests {
             100,
             "the state never waits for a reader"
         );
+    }
+
+    /// A live source at 100 Hz in real time: pupils of 5 mm stamped
+    /// `lag_ms` before now, or (with `garbage`) stamps its clock mapping
+    /// rejects, so it delivers nothing.
+    struct LaggingSource {
+        lag_ms: Arc<AtomicU64>,
+        garbage: Arc<std::sync::atomic::AtomicBool>,
+        clock: gazelight_eye::clock::SourceClock,
+        n: u64,
+    }
+
+    impl SampleSource for LaggingSource {
+        async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+            loop {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+                self.n += 1;
+                let now = host_now_secs();
+                let lag = self.lag_ms.load(Ordering::Relaxed) as f64 * 1e-3;
+                // The source's clock is 1000 s ahead of the host's.
+                let stamp = if self.garbage.load(Ordering::Relaxed) {
+                    [1e308, -1e308, 0.0][(self.n % 3) as usize]
+                } else {
+                    now - lag + 1000.0
+                };
+                if let Some(t) = self.clock.to_host(stamp, now) {
+                    return Ok(Some(pupil(t, (self.n % 2) as u8, 5.0)));
+                }
+            }
+        }
+
+        fn describe(&self) -> String {
+            "lagging test source".to_owned()
+        }
+
+        fn clock_stats(&self) -> Option<Arc<gazelight_eye::clock::SharedClockStats>> {
+            Some(self.clock.shared_stats())
+        }
+    }
+
+    async fn wait_health(live: &LiveEye, want: SourceHealth, limit: Duration) -> SourceStatus {
+        tokio::time::timeout(limit, async {
+            loop {
+                let s = lock_status(&live.status).clone();
+                if s.health == want {
+                    return s;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await
+        .unwrap_or_else(|_| {
+            panic!(
+                "not {want:?} within {limit:?}: {:?}",
+                lock_status(&live.status)
+            )
+        })
+    }
+
+    /// A source whose clock mapping rejects every stamp (absurd stamps
+    /// that do not agree with each other) delivers nothing: it is degraded,
+    /// with the reason and the mapping's counters in the status, not lost;
+    /// with good stamps again it is live.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_source_whose_stamps_are_all_rejected_is_degraded_not_lost() {
+        let lag_ms = Arc::new(AtomicU64::new(0));
+        let garbage = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let source = LaggingSource {
+            lag_ms: lag_ms.clone(),
+            garbage: garbage.clone(),
+            clock: gazelight_eye::clock::SourceClock::new(
+                "lagging",
+                gazelight_eye::clock::SourceClockConfig::default(),
+            ),
+            n: 0,
+        };
+        let (_stop, shutdown) = watch::channel(false);
+        let live = spawn(
+            "test://lagging",
+            source,
+            FilterChain::with_defaults(),
+            AgeClock::SampleTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let s = wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        assert_eq!(s.degraded_reason, None);
+        // Every stamp rejected by the clock mapping: degraded, not lost,
+        // with the reason; the counters are published.
+        garbage.store(true, Ordering::Relaxed);
+        let s = wait_health(&live, SourceHealth::Degraded, Duration::from_secs(3)).await;
+        let reason = s.degraded_reason.unwrap_or_default();
+        assert!(reason.contains("rejected by the clock mapping"), "{reason}");
+        let clock = s.clock.unwrap_or_default();
+        assert!(clock.rejected >= 50 && clock.jumps == 0, "{clock:?}");
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(lock_status(&live.status).health, SourceHealth::Degraded);
+        // Good stamps again: live within about a second.
+        garbage.store(false, Ordering::Relaxed);
+        let s = wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        assert_eq!(s.degraded_reason, None);
+        drop(_stop);
+        let _ = tokio::time::timeout(Duration::from_secs(5), live.task).await;
+    }
+
+    /// A source (without a clock mapping) whose measured pupils all arrive
+    /// 0.4 s old: the state is stale, the pupils are not used, and the
+    /// source says so; when they arrive fresh again it is live.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn stale_measured_pupils_make_the_source_degraded() {
+        struct Stale {
+            lag_ms: Arc<AtomicU64>,
+            n: u64,
+        }
+        impl SampleSource for Stale {
+            async fn next(&mut self) -> Result<Option<Sample>, SourceError> {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+                self.n += 1;
+                let lag = self.lag_ms.load(Ordering::Relaxed) as f64 * 1e-3;
+                Ok(Some(pupil(host_now_secs() - lag, (self.n % 2) as u8, 5.0)))
+            }
+            fn describe(&self) -> String {
+                "stale test source".to_owned()
+            }
+        }
+        let lag_ms = Arc::new(AtomicU64::new(400));
+        let (_stop, shutdown) = watch::channel(false);
+        let live = spawn(
+            "test://stale",
+            Stale {
+                lag_ms: lag_ms.clone(),
+                n: 0,
+            },
+            FilterChain::with_defaults(),
+            AgeClock::SampleTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let s = wait_health(&live, SourceHealth::Degraded, Duration::from_secs(3)).await;
+        let reason = s.degraded_reason.unwrap_or_default();
+        assert!(
+            reason.contains("0.40 s old") && reason.contains("not used"),
+            "{reason}"
+        );
+        assert_eq!(s.clock, None);
+        let eye = *live.eye.borrow();
+        assert!(
+            eye.state
+                .eyes
+                .iter()
+                .all(|e| e.pupil_origin != PupilOrigin::Measured),
+            "{eye:?}"
+        );
+        lag_ms.store(5, Ordering::Relaxed);
+        wait_health(&live, SourceHealth::Live, Duration::from_secs(3)).await;
+        let eye = *live.eye.borrow();
+        assert!((eye.state.eyes[0].pupil_mm - 5.0).abs() < 0.5, "{eye:?}");
+        drop(_stop);
+        let _ = tokio::time::timeout(Duration::from_secs(5), live.task).await;
     }
 }

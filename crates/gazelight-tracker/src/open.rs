@@ -3,8 +3,11 @@
 //! synthetic demo, an LSL stream and the hardware transports of
 //! `gazelight-devices`.
 
+use std::sync::Arc;
+
 use gazelight_devices::lsl::{LslConfig, LslSource};
 use gazelight_devices::{gazepoint, hid, serial, usb};
+use gazelight_eye::clock::SharedClockStats;
 use gazelight_eye::source::{SampleSource, SourceError};
 use gazelight_eye::{Sample, TraceSample};
 use gazelight_import::Importer;
@@ -104,6 +107,19 @@ impl SampleSource for AnySource {
             AnySource::Pupil(s) => s.dropped(),
             AnySource::Neon(s) => s.dropped(),
             _ => 0,
+        }
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        match self {
+            AnySource::Pupil(s) => s.clock_stats(),
+            AnySource::Replay { .. } | AnySource::Synthetic(_) => None,
+            AnySource::Lsl(s) => s.clock_stats(),
+            AnySource::Hid(s) => s.clock_stats(),
+            AnySource::Usb(s) => s.clock_stats(),
+            AnySource::Serial(s) => s.clock_stats(),
+            AnySource::Gazepoint(s) => s.clock_stats(),
+            AnySource::Neon(s) => s.clock_stats(),
         }
     }
 }

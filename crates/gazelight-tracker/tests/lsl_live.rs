@@ -266,3 +266,110 @@ fn a_missing_library_says_how_to_get_it() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Issue 37: one LSL sample stamped +1e5 s froze the published pupil for
+/// the rest of the session (the state's time stayed at the outlier's),
+/// with the source still live. Now the stream's clock mapping drops that
+/// one sample and counts it; when the sender's pupils change 0.5 s later
+/// the published pupil follows them within 1 s.
+#[test]
+fn one_sample_stamped_1e5_s_ahead_does_not_freeze_the_pupil() {
+    if !in_netns("one_sample_stamped_1e5_s_ahead_does_not_freeze_the_pupil") {
+        return;
+    }
+    // 100 Hz for 6 s; one sample stamped +1e5 s at 1.5 s; every diameter
+    // ×1.3 from 2.0 s (3.75 → 4.875 mm right, 4.25 → 5.525 mm left).
+    let peer = Command::new("python3")
+        .arg(peer_script())
+        .args([
+            "relay",
+            "--name",
+            "t-outlier",
+            "--rate",
+            "100",
+            "--secs",
+            "6",
+            "--outlier-at",
+            "1.5",
+            "--outlier-secs",
+            "1e5",
+            "--scale-at",
+            "2.0",
+            "--scale",
+            "1.3",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let _peer = Kill(peer);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        use gazelight_tracker::live::{self, AgeClock, LiveConfig, SourceHealth, lock_status};
+        let src = LslSource::new(
+            LslQuery::parse("lsl://?name=t-outlier").unwrap(),
+            LslConfig::default(),
+        )
+        .unwrap();
+        let (stop, shutdown) = tokio::sync::watch::channel(false);
+        let live = live::spawn(
+            "lsl://?name=t-outlier",
+            src,
+            gazelight_tracker::filter::FilterChain::with_defaults(),
+            AgeClock::SampleTime,
+            shutdown,
+            LiveConfig::default(),
+        );
+        let mut samples = live.samples.subscribe();
+        let mut rx = live.eye.clone();
+        let want = [3.75f32 * 1.3, 4.25 * 1.3];
+        // Host time of the first sample with the new pupils, and of the
+        // first published state showing them.
+        let (mut changed_at, mut followed_at) = (None, None);
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(14);
+        while followed_at.is_none() && tokio::time::Instant::now() < deadline {
+            let wait = tokio::time::Instant::now() + Duration::from_millis(20);
+            let _ = tokio::time::timeout_at(wait, rx.changed()).await;
+            while let Ok(s) = samples.try_recv() {
+                if let Sample::Pupil(p) = s
+                    && changed_at.is_none()
+                    && p.diameter_mm.is_some_and(|d| (d - want[0]).abs() < 1e-3)
+                {
+                    changed_at = Some(p.t_secs);
+                }
+            }
+            let s = *rx.borrow_and_update();
+            if changed_at.is_some()
+                && (0..2).all(|e| {
+                    let ch = s.state.eyes[e];
+                    (ch.pupil_mm - want[e]).abs() < 0.05
+                        && ch.pupil_origin == gazelight_tracker::PupilOrigin::Measured
+                })
+            {
+                followed_at = Some(s.state.t_secs);
+            }
+        }
+        let status = lock_status(&live.status).clone();
+        let last = *rx.borrow();
+        eprintln!("changed at {changed_at:?}, followed at {followed_at:?}; {status:?}");
+        let changed_at = changed_at.expect("the sender's pupils changed");
+        let followed_at =
+            followed_at.unwrap_or_else(|| panic!("the pupil never followed: {last:?}"));
+        assert!(
+            followed_at - changed_at < 1.0,
+            "followed {:.3} s after the change",
+            followed_at - changed_at
+        );
+        assert_eq!(status.health, SourceHealth::Live);
+        let clock = status
+            .clock
+            .expect("the LSL source reports its clock mapping");
+        assert_eq!((clock.rejected, clock.jumps), (1, 0), "{clock:?}");
+        stop.send_replace(true);
+        let _ = tokio::time::timeout(Duration::from_secs(5), live.task).await;
+    });
+}

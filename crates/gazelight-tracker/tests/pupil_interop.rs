@@ -662,3 +662,147 @@ async fn live_summary() {
         "{e}"
     );
 }
+
+/// Waits until the published `EyeState` shows both eyes measured at
+/// `want_mm` (±0.05 mm); returns how long that took, or what it showed at
+/// `limit`.
+async fn follows(
+    rx: &mut tokio::sync::watch::Receiver<gazelight_tracker::LiveEyeState>,
+    want_mm: [f32; 2],
+    limit: Duration,
+) -> Result<Duration, String> {
+    let start = tokio::time::Instant::now();
+    loop {
+        let state = *rx.borrow_and_update();
+        let ok = (0..2).all(|e| {
+            let ch = state.state.eyes[e];
+            (ch.pupil_mm - want_mm[e]).abs() < 0.05
+                && ch.pupil_origin == gazelight_tracker::PupilOrigin::Measured
+        });
+        if ok {
+            return Ok(start.elapsed());
+        }
+        let left = limit.saturating_sub(start.elapsed());
+        if left.is_zero() || timeout(left, rx.changed()).await.is_err() {
+            return Err(format!(
+                "not at {want_mm:?} mm within {limit:?}: right {:.3} mm ({:?}), left {:.3} mm \
+                 ({:?}), state t {:.3} s, host now {:.3} s",
+                state.state.eyes[0].pupil_mm,
+                state.state.eyes[0].pupil_origin,
+                state.state.eyes[1].pupil_mm,
+                state.state.eyes[1].pupil_origin,
+                state.state.t_secs,
+                host_now_secs()
+            ));
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_pupil_follows_the_tracker_after_a_clock_step_and_an_absurd_stamp() {
+    if let Err(why) = python_ready() {
+        if std::env::var_os("CI").is_some() {
+            panic!("clock fault test needs python3 with pyzmq and msgpack in CI: {why}");
+        }
+        eprintln!(
+            "SKIPPED the_pupil_follows_the_tracker_after_a_clock_step_and_an_absurd_stamp: {why}"
+        );
+        return;
+    }
+    timeout(Duration::from_secs(25), clock_faults())
+        .await
+        .expect("clock fault test exceeded 25 s");
+}
+
+/// Issue 37: `T <unix time>` (what hmd-eyes does) and one datum stamped
+/// 1e308 froze the published pupil at its last value for the rest of the
+/// session, with the source still `live`. Now each fault costs at most a
+/// few datums: after each, the peer's pupils change (a stimulus) and the
+/// published pupil must follow them within 1 s; the status counts the
+/// jump and the dropped stamp.
+async fn clock_faults() {
+    // The peer's pupils move with a 80 ms time constant: each step below
+    // (1.9–2.1 mm) takes the 6 mm/s slew limiter ≈ 0.35 s.
+    let peer = start_peer((0, 0, 0), &["--tau", "0.08"]);
+    let port = peer.ports.0;
+    let (source, _raw) = PupilSource::spawn(local_config(port));
+    source
+        .client()
+        .wait_connected(Duration::from_secs(5))
+        .await
+        .expect("handshake with the peer");
+    let notifier = source.client().notifier();
+    let (stop, shutdown) = tokio::sync::watch::channel(false);
+    let live = gazelight_tracker::live::spawn(
+        "pupil://test",
+        source,
+        FilterChain::with_defaults(),
+        gazelight_tracker::live::AgeClock::SampleTime,
+        shutdown,
+        gazelight_tracker::live::LiveConfig::default(),
+    );
+    live.adaptation.set(50.0);
+    let mut rx = live.eye.clone();
+    follows(&mut rx, [3.75, 4.25], Duration::from_secs(5))
+        .await
+        .expect("the resting pupils");
+
+    // Another client syncs Pupil time to Unix time: Pupil's clock steps
+    // back by the peer's 1234.5 s offset.
+    let unix = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    assert_eq!(
+        ask_peer(port, &format!("T {unix}")).await,
+        "Timesync successful."
+    );
+    notifier
+        .send_notification("gazelight.stimulus", &[("color", "black".into())])
+        .await
+        .expect("stimulus");
+    let took = follows(&mut rx, [5.625, 6.375], Duration::from_secs(1))
+        .await
+        .expect("the pupil follows the tracker after `T`");
+    eprintln!("after `T {unix:.3}`: the published pupil followed in {took:?}");
+
+    // One datum stamped 1e308 (with an 8 mm pupil), then the pupils return
+    // to rest.
+    assert_eq!(ask_peer(port, "peer.outlier 1e308").await, "ok");
+    notifier
+        .send_notification("gazelight.stimulus", &[("color", "none".into())])
+        .await
+        .expect("stimulus");
+    let took = follows(&mut rx, [3.75, 4.25], Duration::from_secs(1))
+        .await
+        .expect("the pupil follows the tracker after a datum stamped 1e308");
+    eprintln!("after a datum stamped 1e308: the published pupil followed in {took:?}");
+
+    // The status (what the status page and its JSON show) reports the jump
+    // and the dropped stamps; the source stays live. It is published every
+    // 250 ms.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let status = gazelight_tracker::live::lock_status(&live.status).clone();
+    eprintln!("status: {status:?}");
+    assert_eq!(status.health, gazelight_tracker::live::SourceHealth::Live);
+    let clock = status
+        .clock
+        .expect("the Pupil source reports its clock mapping");
+    assert_eq!(clock.jumps, 1, "{clock:?}");
+    let step = clock.last_jump_secs.expect("the jump's size");
+    assert!(
+        (step + OFFSET_SECS).abs() < 0.1,
+        "Pupil's clock moved back by the peer's {OFFSET_SECS} s offset: {clock:?}"
+    );
+    // The 1e308 datum, and the two datums before the third confirmed the
+    // jump.
+    assert_eq!(clock.rejected, 3, "{clock:?}");
+    // The client measured the new offset at once after the jump.
+    assert!(clock.anchored, "{clock:?}");
+    stop.send_replace(true);
+    timeout(Duration::from_secs(5), live.task)
+        .await
+        .expect("the live task stops")
+        .expect("no panic");
+    drop(peer);
+}

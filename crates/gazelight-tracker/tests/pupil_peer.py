@@ -6,11 +6,15 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
 * Pupil Remote (REP, --remote-port): `SUB_PORT`, `PUB_PORT`, `t` (Pupil
   time as text), `v` (version); a two-frame request [topic, msgpack] is a
   notification: it is recorded, published on the bus and answered
-  "Message forwarded.". `T` is refused (the test asserts the client never
-  sends it). Test-only commands: `peer.notifications` (JSON list of the
+  "Message forwarded.". `T <time>` sets Pupil time to <time> now, as Pupil
+  Capture does (hmd-eyes and many scripts send `T <unix time>`); it is
+  counted like every command, so a test can assert that gazelight never
+  sends it. Test-only commands: `peer.notifications` (JSON list of the
   notifications received), `peer.counts` (JSON: commands seen, datums
   published), `peer.stimulus` (JSON: the `gazelight.stimulus` colours
-  received in order, the pupil targets of each colour, the time constant).
+  received in order, the pupil targets of each colour, the time constant),
+  `peer.outlier <time>` (publishes one `pupil.0.3d` datum stamped <time>,
+  with an 8 mm pupil, between the regular ones).
 * A simulated pupil light reflex: a `notify.gazelight.stimulus`
   notification with `color` = "black" | "white" | "none" sets the target
   of every published pupil diameter (2D px and 3D mm, both eyes) to its
@@ -205,8 +209,20 @@ def main():
             frames = rep.recv_multipart()
             if len(frames) == 1:
                 cmd = frames[0].decode("utf-8", "replace")
-                commands[cmd] = commands.get(cmd, 0) + 1
-                if cmd == "SUB_PORT":
+                name = cmd.split(" ", 1)[0]
+                commands[name] = commands.get(name, 0) + 1
+                if name == "T":
+                    try:
+                        args.offset = float(cmd.split(" ", 1)[1]) - time.time()
+                        reply = "Timesync successful."
+                    except (IndexError, ValueError):
+                        reply = "Timesync failed."
+                elif name == "peer.outlier":
+                    d3 = pupil_3d(0, float(cmd.split(" ", 1)[1]))
+                    d3["diameter_3d"] = 8.0
+                    send("pupil.0.3d", d3)
+                    reply = "ok"
+                elif cmd == "SUB_PORT":
                     reply = str(sub_port)
                 elif cmd == "PUB_PORT":
                     reply = str(pub_port)

@@ -271,6 +271,7 @@ impl LslOutlets {
                     if h != last {
                         let text = match h {
                             SourceHealth::Live => "tracker_found",
+                            SourceHealth::Degraded => "tracker_degraded",
                             SourceHealth::Lost => "tracker_lost",
                             SourceHealth::Ended => "tracker_ended",
                             SourceHealth::Connecting => "tracker_connecting",

@@ -14,7 +14,10 @@ relay: a pylsl outlet with Pupil Capture's LSL relay layout (name
        pupil_capture_lsl_relay publishes them), or Neon's (--layout neon),
        pushing the fixed values below at --rate Hz for --secs; with
        --vanish-at T --gap G the outlet is destroyed at T s and a new one
-       (same name) appears G s later. Prints READY when the outlet exists.
+       (same name) appears G s later; with --outlier-at T --outlier-secs X
+       the one sample pushed first after T s is stamped X s off (the others
+       keep the LSL clock); with --scale-at T --scale G every diameter is
+       multiplied by G from T s on. Prints READY when the outlet exists.
 
 Run with LSLAPICFG pointing at a machine-only configuration.
 """
@@ -172,6 +175,8 @@ def relay(args):
     next_t = start
     pushed = 0
     vanished = False
+    outlier_sent = False
+    scaled = False
     while time.monotonic() - start < args.secs:
         now = time.monotonic()
         if args.vanish_at and not vanished and now - start >= args.vanish_at:
@@ -182,7 +187,15 @@ def relay(args):
             next_t = time.monotonic()
             continue
         if now >= next_t:
-            outlet.push_sample(values, pylsl.local_clock())
+            if args.scale_at and not scaled and now - start >= args.scale_at:
+                scaled = True
+                values = [v * args.scale if l.startswith(("diameter", "pupil_diameter")) else v
+                          for l, v in zip(labels, values)]
+            stamp = pylsl.local_clock()
+            if args.outlier_at and not outlier_sent and now - start >= args.outlier_at:
+                outlier_sent = True
+                stamp += args.outlier_secs
+            outlet.push_sample(values, stamp)
             pushed += 1
             next_t += period
         else:
@@ -207,6 +220,10 @@ def main():
     p.add_argument("--secs", type=float, default=6.0)
     p.add_argument("--vanish-at", type=float, default=0.0)
     p.add_argument("--gap", type=float, default=1.5)
+    p.add_argument("--outlier-at", type=float, default=0.0)
+    p.add_argument("--outlier-secs", type=float, default=1e5)
+    p.add_argument("--scale-at", type=float, default=0.0)
+    p.add_argument("--scale", type=float, default=1.0)
     args = ap.parse_args()
     sys.exit(read(args) if args.cmd == "read" else relay(args))
 

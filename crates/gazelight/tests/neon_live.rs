@@ -490,3 +490,246 @@ kill $PEER
         "a non-Neon service was listed: {text}"
     );
 }
+
+/// What the live eye task saw of a Neon peer.
+struct LiveRun {
+    /// Every state published, with the host time it was seen.
+    states: Vec<(f64, gazelight_tracker::LiveEyeState)>,
+    /// The state published last.
+    last: gazelight_tracker::LiveEyeState,
+    status: gazelight_tracker::live::SourceStatus,
+    /// Unix time − host time, s.
+    unix_minus_host: f64,
+}
+
+/// Runs the live eye task on the peer for `secs`; with `stop_peer_after`,
+/// the peer is stopped (the phone leaves) that many seconds in.
+fn live_run(peer: NeonPeer, secs: f64, stop_peer_after: Option<f64>) -> LiveRun {
+    use gazelight_tracker::live::{self, LiveConfig};
+    use gazelight_tracker::pupil::clock::host_now_secs;
+    use gazelight_tracker::transport::{SourceUri, open};
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    let unix_minus_host = unix - host_now_secs();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let text = format!("neon://127.0.0.1:{}", peer.http_port);
+        let uri = SourceUri::parse(&text).unwrap();
+        let source = open(&uri).unwrap();
+        let age_clock = source.age_clock();
+        let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+        let live = live::spawn(
+            &text,
+            source,
+            gazelight_tracker::filter::FilterChain::with_defaults(),
+            age_clock,
+            stop_rx,
+            LiveConfig::default(),
+        );
+        let mut rx = live.eye.clone();
+        let start = tokio::time::Instant::now();
+        let end = start + Duration::from_secs_f64(secs);
+        let mut peer = Some(peer);
+        let mut states = Vec::new();
+        while tokio::time::Instant::now() < end {
+            if let Some(after) = stop_peer_after
+                && start.elapsed().as_secs_f64() >= after
+                && peer.take().is_some()
+            {
+                eprintln!("the phone is gone at host time {:.3} s", host_now_secs());
+            }
+            let wait = end.min(tokio::time::Instant::now() + Duration::from_millis(50));
+            if let Ok(Ok(())) = tokio::time::timeout_at(wait, rx.changed()).await {
+                states.push((host_now_secs(), *rx.borrow_and_update()));
+            }
+        }
+        let last = *rx.borrow();
+        let status = live::lock_status(&live.status).clone();
+        let _ = stop_tx.send(true);
+        let _ = tokio::time::timeout(Duration::from_secs(3), live.task).await;
+        LiveRun {
+            states,
+            last,
+            status,
+            unix_minus_host,
+        }
+    })
+}
+
+/// Checks every fresh state (seen less than 0.25 s after its newest
+/// sample's time: the samples were arriving) on a plateau of the peer's
+/// `--step-mm 3.2,4.0 --step-secs 2` square wave (phone clock `start_unix`
+/// at its start): within 0.05 mm and measured from 0.6 s into each plateau
+/// (the 6 mm/s rate limit). Returns the plateaus seen settled and how many
+/// states were.
+fn settled_plateaus(run: &LiveRun, start_unix: f64) -> (std::collections::BTreeSet<i64>, usize) {
+    let (a_mm, b_mm, step_secs) = (3.2f32, 4.0f32, 2.0f64);
+    let mut plateaus = std::collections::BTreeSet::new();
+    let mut settled = 0;
+    for (_, s) in run
+        .states
+        .iter()
+        .filter(|(seen, s)| s.updates > 0 && seen - s.state.t_secs < 0.25)
+    {
+        let rel = s.state.t_secs + run.unix_minus_host - start_unix;
+        let k = (rel / step_secs).floor();
+        let into = rel - k * step_secs;
+        if rel < 0.0 || !(0.6..step_secs - 0.05).contains(&into) {
+            continue;
+        }
+        let want = if (k as i64) % 2 == 0 { a_mm } else { b_mm };
+        for e in 0..2 {
+            let ch = s.state.eyes[e];
+            assert!(
+                (ch.pupil_mm - want).abs() < 0.05
+                    && ch.pupil_origin == gazelight_tracker::PupilOrigin::Measured,
+                "eye {e}: {} mm ({:?}) at {rel:.3} s, {into:.3} s into a {want} mm plateau",
+                ch.pupil_mm,
+                ch.pupil_origin
+            );
+        }
+        settled += 1;
+        plateaus.insert(k as i64);
+    }
+    (plateaus, settled)
+}
+
+/// Issue 37: one RTCP sender report 1e5 s off (the peer sends it with
+/// packet 300, 1.5 s in; the next regular report, packet 400, is right)
+/// froze the published pupil for the rest of the session. Now the
+/// source's clock mapping sees two jumps (to the bad report's time and
+/// back), drops the two packets before each is confirmed, and the pupil
+/// follows every later plateau.
+#[test]
+fn a_sender_report_1e5_s_off_does_not_freeze_the_pupil() {
+    let Some(peer) = neon_peer_with(&[
+        "--step-mm",
+        "3.2,4.0",
+        "--step-secs",
+        "2",
+        "--bad-sr-at",
+        "300",
+        "--bad-sr-secs",
+        "1e5",
+    ]) else {
+        return;
+    };
+    let start_unix = peer.start_unix_ns as f64 * 1e-9;
+    let run = live_run(peer, 6.5, None);
+    let (plateaus, settled) = settled_plateaus(&run, start_unix);
+    eprintln!(
+        "{settled} settled states on plateaus {plateaus:?}; status {:?}",
+        run.status
+    );
+    assert!(
+        plateaus.contains(&1) && plateaus.contains(&2),
+        "the plateaus after the bad report (2–4 s, 4–6 s) must be followed: {plateaus:?}"
+    );
+    assert_eq!(
+        run.status.health,
+        gazelight_tracker::live::SourceHealth::Live
+    );
+    let clock = run
+        .status
+        .clock
+        .expect("the Neon source reports its clock mapping");
+    assert_eq!((clock.jumps, clock.rejected), (2, 4), "{clock:?}");
+}
+
+/// Issue 37: a Time Echo answer saying the phone is 1e6 s ahead made every
+/// packet 1e6 s old, so every measured pupil was discarded without a word.
+/// Now the packets' arrivals overrule it (one jump, two packets dropped,
+/// a warning) and the pupil follows the peer's plateaus.
+#[test]
+fn a_time_echo_1e6_s_ahead_is_overruled_by_the_packets() {
+    let Some(peer) = neon_peer_with(&[
+        "--step-mm",
+        "3.2,4.0",
+        "--step-secs",
+        "2",
+        "--time-echo-lie",
+        "ahead-1e6",
+    ]) else {
+        return;
+    };
+    let start_unix = peer.start_unix_ns as f64 * 1e-9;
+    let run = live_run(peer, 4.5, None);
+    let (plateaus, settled) = settled_plateaus(&run, start_unix);
+    eprintln!(
+        "{settled} settled states on plateaus {plateaus:?}; status {:?}",
+        run.status
+    );
+    assert!(
+        settled > 200 && plateaus.len() >= 2,
+        "{settled} settled on {plateaus:?}"
+    );
+    assert_eq!(
+        run.status.health,
+        gazelight_tracker::live::SourceHealth::Live
+    );
+    let clock = run
+        .status
+        .clock
+        .expect("the Neon source reports its clock mapping");
+    assert_eq!((clock.jumps, clock.rejected), (1, 2), "{clock:?}");
+    let step = clock.last_jump_secs.unwrap_or(0.0);
+    assert!(
+        (step + 1e6).abs() < 1.0,
+        "the packets' clock is 1e6 s behind what the Time Echo said: {step}"
+    );
+}
+
+/// Issue 37: a Time Echo answer saying 1970 put every packet 1.7e9 s in the
+/// future, so the pupil stayed "measured" after the phone was gone. Now the
+/// packets overrule it, the pupil follows the plateaus while the phone is
+/// there, and within a second of it leaving the pupil is no longer
+/// measured and the source is lost.
+#[test]
+fn a_time_echo_in_1970_does_not_keep_the_pupil_live_after_the_phone_is_gone() {
+    let Some(peer) = neon_peer_with(&[
+        "--step-mm",
+        "3.2,4.0",
+        "--step-secs",
+        "2",
+        "--time-echo-lie",
+        "1970",
+    ]) else {
+        return;
+    };
+    let start_unix = peer.start_unix_ns as f64 * 1e-9;
+    let run = live_run(peer, 5.5, Some(3.5));
+    let (plateaus, settled) = settled_plateaus(&run, start_unix);
+    eprintln!(
+        "{settled} settled states on plateaus {plateaus:?}; last {:?}; status {:?}",
+        run.last, run.status
+    );
+    assert!(
+        settled > 200 && plateaus.len() >= 2,
+        "{settled} settled on {plateaus:?}"
+    );
+    // 2 s after the phone left: stale (0.25 s), held (0.5 s), then easing
+    // to the model.
+    for e in 0..2 {
+        assert_ne!(
+            run.last.state.eyes[e].pupil_origin,
+            gazelight_tracker::PupilOrigin::Measured,
+            "eye {e} still measured after the phone left: {:?}",
+            run.last
+        );
+    }
+    assert_eq!(
+        run.status.health,
+        gazelight_tracker::live::SourceHealth::Lost
+    );
+    let clock = run
+        .status
+        .clock
+        .expect("the Neon source reports its clock mapping");
+    assert_eq!((clock.jumps, clock.rejected), (1, 2), "{clock:?}");
+}

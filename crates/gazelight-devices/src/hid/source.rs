@@ -27,7 +27,8 @@ use super::descriptor::Descriptor;
 use super::livetrack::{self, LiveTrackMode, LiveTrackOptions};
 use super::page12::{MODE_ENABLE_EYE_POSITION, MODE_ENABLE_GAZE_POINT, Page12Layout, ScreenSize};
 use crate::target::HidTarget;
-use crate::{ClockAligner, READ_POLL_MS, ThreadItem, ThreadedSource, now_secs, send_blocking};
+use crate::{READ_POLL_MS, ThreadItem, ThreadedSource, now_secs, send_blocking};
+use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig};
 use gazelight_eye::sample::{GazeEyes, GazeSample, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -58,6 +59,8 @@ pub enum HidProfile {
 pub struct HidStats {
     reports: AtomicU64,
     invalid_reports: AtomicU64,
+    /// The counters of the device clock's mapping.
+    clock: Arc<SharedClockStats>,
 }
 
 impl HidStats {
@@ -291,7 +294,11 @@ fn reader_loop(
     stop: &AtomicBool,
 ) {
     let mut buf = [0u8; 1024];
-    let mut clock = ClockAligner::new();
+    let mut clock = SourceClock::with_stats(
+        name.clone(),
+        SourceClockConfig::default(),
+        stats.clock.clone(),
+    );
     let mut index: u64 = 0;
     loop {
         if stop.load(Ordering::Relaxed) {
@@ -332,8 +339,12 @@ fn reader_loop(
                             continue;
                         };
                         let t = match td.timestamp_us {
-                            Some(us) => clock.to_host(us as f64 * 1e-6, arrival),
-                            None => arrival,
+                            Some(us) => match clock.to_host(us as f64 * 1e-6, arrival) {
+                                Some(t) => t,
+                                // Dropped and counted by the mapping.
+                                None => continue,
+                            },
+                            None => clock.arrival(arrival),
                         };
                         let s = Sample::Gaze(GazeSample {
                             t_secs: t,
@@ -359,7 +370,8 @@ fn reader_loop(
             }
             HidProfile::LiveTrack(o) => match livetrack::decode(report) {
                 Ok(p) => {
-                    for s in livetrack::pupil_samples(&p, arrival, o.eye) {
+                    let t = clock.arrival(arrival);
+                    for s in livetrack::pupil_samples(&p, t, o.eye) {
                         if s.confidence == 0.0 {
                             stats.invalid_reports.fetch_add(1, Ordering::Relaxed);
                         }
@@ -393,5 +405,9 @@ impl SampleSource for HidSource {
 
     fn describe(&self) -> String {
         format!("{} at {}", self.profile_name, self.name)
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.stats.clock.clone())
     }
 }

@@ -9,7 +9,9 @@
 //! epoch difference once (the tightest of several back-to-back reads) and
 //! maps between them. An inlet's timestamps are on the sender's LSL clock;
 //! adding the inlet's `time_correction()` puts them on this machine's LSL
-//! clock, and [`LslClock`] then on the host clock.
+//! clock, and [`LslClock`] then on the host clock; [`LslSource`] holds that
+//! sum as the measured offset of its [`gazelight_eye::clock::SourceClock`],
+//! which checks each sample's stamp against its arrival.
 
 mod config;
 pub(crate) mod ffi;

@@ -7,9 +7,12 @@
 //! `diameter0_3d`, `diameter1_3d`), Neon's stream (`x`, `y` in scene
 //! camera pixels, `pupil_diameter_left`, `pupil_diameter_right` in mm), or
 //! the mapping in `[lsl.inlet]`. Every sample becomes gaze and per-eye
-//! pupil samples on the host clock: its timestamp plus the inlet's
-//! `time_correction()` (refreshed every few seconds) gives this machine's
-//! LSL clock, and [`LslClock`] the host clock.
+//! pupil samples on the host clock: its timestamp goes through the
+//! stream's [`SourceClock`], anchored on the inlet's `time_correction()`
+//! (refreshed every few seconds; it gives this machine's LSL clock) and
+//! [`LslClock`] (the host clock), and checked against the sample's arrival,
+//! so one sample stamped +1e5 s is dropped and counted, and a sender whose
+//! clock steps is followed after a few samples.
 //!
 //! A stream that vanishes (liblsl reports it lost) ends the reader with
 //! [`SourceError::Disconnected`]; the next [`SampleSource::next`] resolves
@@ -24,6 +27,7 @@ use tokio::sync::mpsc;
 
 use super::{Inlet, InletMapping, LslClock, LslConfig, LslError, Pulled, resolve};
 use crate::{ThreadItem, ThreadedSource, recv_reopenable, send_blocking};
+use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig, host_now_secs};
 use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -316,6 +320,8 @@ pub struct LslSource {
     clock: LslClock,
     reader: Option<ThreadedSource>,
     facts: Arc<std::sync::Mutex<StreamFacts>>,
+    /// The counters of the stream's clock mapping (across reopens).
+    mapping: Arc<SharedClockStats>,
 }
 
 impl LslSource {
@@ -329,6 +335,7 @@ impl LslSource {
             clock,
             reader: None,
             facts: Arc::default(),
+            mapping: Arc::default(),
         })
     }
 
@@ -342,8 +349,13 @@ impl LslSource {
         let config = self.config.clone();
         let clock = self.clock;
         let facts = self.facts.clone();
+        let mapping = SourceClock::with_stats(
+            self.query.to_string(),
+            SourceClockConfig::default(),
+            self.mapping.clone(),
+        );
         let reader = ThreadedSource::spawn("gazelight-lsl", move |tx, stop| {
-            read_stream(&query, &config, clock, &facts, &tx, &stop);
+            read_stream(&query, &config, clock, mapping, &facts, &tx, &stop);
         })
         .map_err(|e| SourceError::Fatal {
             source_name: self.query.to_string(),
@@ -364,6 +376,10 @@ impl SampleSource for LslSource {
                 return Ok(Some(s));
             }
         }
+    }
+
+    fn clock_stats(&self) -> Option<Arc<SharedClockStats>> {
+        Some(self.mapping.clone())
     }
 
     fn describe(&self) -> String {
@@ -402,6 +418,7 @@ fn read_stream(
     query: &LslQuery,
     config: &LslConfig,
     clock: LslClock,
+    mut mapping: SourceClock,
     facts: &std::sync::Mutex<StreamFacts>,
     tx: &mpsc::Sender<ThreadItem>,
     stop: &AtomicBool,
@@ -458,6 +475,23 @@ fn read_stream(
     tracing::info!(stream = %full.name(), layout = layout.kind, channels = inlet.channels(), "LSL inlet open");
     drop(full);
     drop(info);
+    // host = sender stamp + correction − (lsl − host): the mapping's
+    // offset is correction − (lsl − host). Measured before subscribing: the
+    // measurement takes up to a second, and samples queued meanwhile would
+    // arrive that old.
+    let correction = match inlet.time_correction(2.0) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
+            return;
+        }
+    };
+    if let Some(c) = correction {
+        mapping.anchor(c - clock.lsl_minus_host_secs, host_now_secs());
+    }
+    if let Ok(mut f) = facts.lock() {
+        f.time_correction_s = correction;
+    }
     match inlet.open(2.0) {
         Ok(true) => {}
         Ok(false) => {
@@ -469,16 +503,6 @@ fn read_stream(
             return;
         }
     }
-    let mut correction = match inlet.time_correction(2.0) {
-        Ok(c) => c.unwrap_or(0.0),
-        Err(e) => {
-            let _ = send_blocking(tx, stop, lost(query, e.to_string()));
-            return;
-        }
-    };
-    if let Ok(mut f) = facts.lock() {
-        f.time_correction_s = Some(correction);
-    }
     let mut last_correction = Instant::now();
     let mut buf = vec![0.0f64; inlet.channels()];
     let mut out = Vec::with_capacity(4);
@@ -487,7 +511,7 @@ fn read_stream(
             last_correction = Instant::now();
             match inlet.time_correction(0.2) {
                 Ok(Some(c)) => {
-                    correction = c;
+                    mapping.anchor(c - clock.lsl_minus_host_secs, host_now_secs());
                     if let Ok(mut f) = facts.lock() {
                         f.time_correction_s = Some(c);
                     }
@@ -501,7 +525,10 @@ fn read_stream(
         }
         match inlet.pull(&mut buf, PULL_TIMEOUT_SECS) {
             Ok(Pulled::Sample(ts)) => {
-                let host = clock.to_host(ts + correction);
+                // Dropped (and counted) when the mapping rejects the stamp.
+                let Some(host) = mapping.to_host(ts, host_now_secs()) else {
+                    continue;
+                };
                 out.clear();
                 layout.decode(&buf, host, &mut out);
                 for s in out.drain(..) {

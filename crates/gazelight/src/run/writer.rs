@@ -90,6 +90,7 @@ fn health_name(h: SourceHealth) -> &'static str {
     match h {
         SourceHealth::Connecting => "connecting",
         SourceHealth::Live => "live",
+        SourceHealth::Degraded => "degraded",
         SourceHealth::Lost => "lost",
         SourceHealth::Ended => "ended",
     }

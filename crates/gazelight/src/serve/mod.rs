@@ -675,9 +675,20 @@ mod tests {
             s.sample_rate_hz = 600.0;
             s.confidence = 0.93;
             s.dropout_rate = 0.02;
+            s.clock = Some(gazelight_tracker::pupil::clock::ClockStats {
+                jumps: 1,
+                last_jump_secs: Some(-1234.5),
+                rejected: 3,
+                ..Default::default()
+            });
         });
         hub.publish_frame(frame(9, 40.0, [3.5, 3.75]));
         let s1 = get_json(addr, "/api/status").await;
+        // The source's clock mapping, as the page shows it.
+        assert_eq!(s1["source"]["clock"]["jumps"], 1);
+        assert_eq!(s1["source"]["clock"]["last_jump_secs"], -1234.5);
+        assert_eq!(s1["source"]["clock"]["rejected"], 3);
+        assert!(s1["source"]["degraded_reason"].is_null());
         assert_eq!(s1["schema"], STATUS_SCHEMA);
         assert_eq!(s1["source"]["uri"], "pupil://127.0.0.1:50020");
         assert_eq!(s1["source"]["health"], "live");

@@ -90,6 +90,10 @@
     set("pupil-left", fmt(eye.pupil_mm[1], 3, "mm") + " (" + eye.pupil_origin[1] + ")");
     set("gaze", fmt(eye.gaze_uv[0], 3) + ", " + fmt(eye.gaze_uv[1], 3) + (eye.gaze_valid ? "" : " (invalid)"));
     set("eye-age", fmt(eye.age_ms, 1, "ms"));
+    const ck = src.clock;
+    set("clock", ck ? ck.jumps + " / " + (ck.rejected + ck.non_finite) +
+      (ck.last_jump_secs === null ? "" : " (last " + fmt(ck.last_jump_secs, 3, "s") + ")") : "–");
+    set("degraded", src.degraded_reason || "–");
     set("last-error", src.last_error || "–");
     set("frames", fr.frames + " / " + fr.frames_late);
     set("adaptation", fmt(fr.adaptation_cd_m2, 4, "cd/m²"));
@@ -105,6 +109,7 @@
       updates: updates, now_secs: s.now_secs, frames: fr.frames,
       adaptation_cd_m2: fr.adaptation_cd_m2, pupil_mm: eye.pupil_mm,
       eye_updates: eye.updates, health: src.health, psf_rebuild: s.psf.rebuild,
+      clock_jumps: src.clock ? src.clock.jumps : null,
     });
     if (fr.frames > 0) push(fr.t_secs, fr.pupil_mm[0], fr.pupil_mm[1], fr.adaptation_cd_m2);
     if (s.psf.rebuild > 0 && s.psf.rebuild !== lastPsf) {
