@@ -152,24 +152,28 @@ pub fn find_seams(on: Frame<'_>, off: Frame<'_>, rule: SeamRule) -> Vec<Seam> {
     // Boundaries between columns x and x + 1, along the rows.
     for x in 0..w.saturating_sub(1) {
         let steps = (0..h).map(|y| step(y * w + x, y * w + x + 1));
-        seams.extend(longest_run(steps, rule.run_px).map(|(start, len, mean_step)| Seam {
-            axis: SeamAxis::Column,
-            at: x,
-            start,
-            len,
-            mean_step,
-        }));
+        seams.extend(
+            longest_run(steps, rule.run_px).map(|(start, len, mean_step)| Seam {
+                axis: SeamAxis::Column,
+                at: x,
+                start,
+                len,
+                mean_step,
+            }),
+        );
     }
     // Boundaries between rows y and y + 1, along the columns.
     for y in 0..h.saturating_sub(1) {
         let steps = (0..w).map(|x| step(y * w + x, (y + 1) * w + x));
-        seams.extend(longest_run(steps, rule.run_px).map(|(start, len, mean_step)| Seam {
-            axis: SeamAxis::Row,
-            at: y,
-            start,
-            len,
-            mean_step,
-        }));
+        seams.extend(
+            longest_run(steps, rule.run_px).map(|(start, len, mean_step)| Seam {
+                axis: SeamAxis::Row,
+                at: y,
+                start,
+                len,
+                mean_step,
+            }),
+        );
     }
     seams
 }

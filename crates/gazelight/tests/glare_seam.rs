@@ -74,7 +74,12 @@ fn veil(on: &Path, off: &Path) -> Veil {
         assert_eq!(a.dimensions(), b.dimensions(), "{name}");
         let (w, h) = (a.width() as usize, a.height() as usize);
         for (p, q) in a.as_raw().chunks_exact(3).zip(b.as_raw().chunks_exact(3)) {
-            let d = p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
+            let d = p
+                .iter()
+                .zip(q)
+                .map(|(x, y)| x.abs_diff(*y))
+                .max()
+                .unwrap_or(0);
             v.max_diff = v.max_diff.max(d);
             v.changed_px += usize::from(d > 0);
         }
@@ -85,8 +90,7 @@ fn veil(on: &Path, off: &Path) -> Veil {
             channels: 3,
         };
         let seams = find_seams(frame(a.as_raw()), frame(b.as_raw()), SeamRule::default());
-        v.seams
-            .extend(seams.into_iter().map(|s| (name.clone(), s)));
+        v.seams.extend(seams.into_iter().map(|s| (name.clone(), s)));
     }
     v
 }
@@ -106,7 +110,11 @@ fn assert_no_seam(what: &str, v: &Veil, min_frames: usize) {
     assert!(v.frames >= min_frames, "{what}: {} frames", v.frames);
     // The street lamps are in the glare window: a strong veil (else the
     // test would pass for want of glare).
-    assert!(v.max_diff >= 50, "{what}: glare too weak to test: {}", v.max_diff);
+    assert!(
+        v.max_diff >= 50,
+        "{what}: glare too weak to test: {}",
+        v.max_diff
+    );
     assert!(
         v.seams.is_empty(),
         "{what}: {} straight seams in the glare veil, e.g. {}: {}",
