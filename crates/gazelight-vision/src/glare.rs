@@ -28,7 +28,10 @@
 //!   (`b` the smallest odd size ≥ [`COARSE_PX_DEG`] = 0.4°), the smooth wide field out to the
 //!   kernel's edge.
 //!
-//! `Σ K_f + Σ K_c = Σ K` exactly. The fine part convolves the weighted frame
+//! `Σ K_f + Σ K_c = Σ K` exactly. The kernel itself falls to 0 on the
+//! circle of its radius ([`crate::psf::field_taper`]), so the veil of a
+//! source ends there without a step instead of at the square's edges
+//! (issue 39). The fine part convolves the weighted frame
 //! in a window of `W_f ≥ 2 (R_src + r_fine) + 2` pixels. The coarse part
 //! box-sums the weighted frame into `b × b` blocks (block centred on the
 //! gaze pixel), convolves with `K_c` in a window of `W_c` blocks, and spreads

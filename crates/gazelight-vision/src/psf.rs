@@ -52,12 +52,12 @@
 //! a step of several code values in a dark-adapted frame (issue 39).
 //! Tapered, it falls to 0 with its slope on the circle of radius `r`, and
 //! the square's corners are 0. At the default ±20° field the kernel is CIE
-//! 146 to 12°, then ×0.84 at 14°, ×0.5 at 16°, ×0.16 at 18°, 0 from 20°:
-//! 0.46 % of a source's light (3.1 % of the CIE 146 term inside the field, 0.1495 → 0.1449 at 13.85 ppd)
-//! moves from the taper into the near field through `α_c`. The veil
-//! beyond the field (CIE 146 holds to 100°; from 20° to 100° it holds
-//! 2.9 % of the light at age 25, p = 0.5) is not in the kernel, with or
-//! without the taper. The taper applies to the analytic terms only: the
+//! 146 to 12°, then ×0.84 at 14°, ×0.5 at 16°, ×0.16 at 18°, 0 from 20°.
+//! The light the taper takes off, 0.46 % of a source's (3.1 % of the CIE
+//! 146 term inside the field: 0.1495 → 0.1449 at 13.85 ppd, age 25,
+//! p = 0.5), goes to the near field through `α_c`. The veil beyond the
+//! field (CIE 146 holds to 100°; from 20° to 100° it holds 2.9 % of the
+//! light) is not in the kernel, with or without the taper. The taper applies to the analytic terms only: the
 //! wave-optics near field (≤ 0.6°) ends inside any field wider than about
 //! 1.2°, and in seed scale (below) the FFT field fills the whole kernel.
 //!
@@ -2280,12 +2280,13 @@ mod tests {
     /// stop at the square's edges, r pixels from a source, a step in every
     /// frame with a bright source. It must fall to 0 on the circle of
     /// radius r, with no step on the way: 0 at and beyond r (the square's
-    /// corners included), and from 0.6 r on, where the taper starts, each
-    /// ring below the one inside it by less than the CIE 146 veil at 0.6 r
-    /// falls over one pixel of a 1/θ² law times 4.
+    /// corners included), and from 0.6 r on, where the taper starts, no
+    /// ring below the one inside it by more than 4 × what a 1/θ² veil
+    /// loses over one pixel at 0.6 r (2 / (0.6 r) of itself), as a
+    /// fraction of the ring at 0.6 r.
     #[test]
     fn kernel_falls_to_zero_at_its_radius_without_a_step() {
-        for (ppd, field_deg) in [(13.85, 40.0), (6.28, 40.0), (14.0, 10.0)] {
+        for (ppd, field_deg) in [(13.85, 40.0), (6.3, 40.0), (14.0, 10.0)] {
             let k = build_kernel(&PsfParams {
                 ppd,
                 field_deg,
