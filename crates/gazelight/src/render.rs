@@ -172,55 +172,19 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
         tracing::warn!(scene = %scene.name, "{note}");
         factor.note = Some(note);
     }
-    settings.set(
-        "view.yaw_deg",
-        view.yaw_deg,
-        Origin::first(v.yaw_deg, c.view.yaw_deg, None),
-    );
-    settings.set(
-        "view.pitch_deg",
-        view.pitch_deg,
-        Origin::first(v.pitch_deg, c.view.pitch_deg, None),
-    );
-    settings.set(
-        "view.hfov_deg",
-        view.hfov_deg,
-        Origin::first(v.hfov_deg, c.view.hfov_deg, None),
-    );
+    settings.set_view(&view, v, c.view);
     settings.set(
         "view.size",
         format!("{width}x{height}"),
         Origin::first(args.size, c.size, None),
     );
-    let observer = &args.observer;
-    let psf = &config.pipeline.glare.psf;
-    settings.set(
-        "observer.age_years",
-        psf.age_years,
-        Origin::first(observer.age_years, c.observer.age_years, None),
+    settings.set_observer(
+        &config.pipeline.glare.psf,
+        &args.observer,
+        &c.observer,
+        None,
     );
-    settings.set(
-        "observer.pigmentation",
-        psf.pigmentation,
-        Origin::first(observer.pigmentation, c.observer.pigmentation, None),
-    );
-    let from_file = |differs: bool| {
-        if args.config.is_some() && differs {
-            Origin::Config
-        } else {
-            Origin::Default
-        }
-    };
-    settings.set(
-        "pipeline",
-        &config.pipeline,
-        from_file(config.pipeline != PipelineConfig::default()),
-    );
-    settings.set(
-        "filter",
-        config.filter,
-        from_file(config.filter != gazelight_tracker::filter::FilterConfig::default()),
-    );
+    settings.set_models(&config.pipeline, config.filter, args.config.is_some());
     settings.set(
         "render.fps",
         args.fps,
@@ -230,15 +194,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
             Origin::Flag
         },
     );
-    settings.set(
-        "backend",
-        args.backend.to_string(),
-        if args.backend == BackendChoice::Auto {
-            Origin::Default
-        } else {
-            Origin::Flag
-        },
-    );
+    settings.set_backend(args.backend);
     Ok(Setup {
         config,
         scene,

@@ -127,26 +127,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         Some(&observer),
         calibration.as_ref().map(|c| &c.observer),
     )?;
-    let psf = &setup.config.pipeline.glare.psf;
-    let (age_years, pigmentation) = (psf.age_years, psf.pigmentation);
-    let profile_observer = calibration.as_ref().map(|c| c.observer);
-    setup.settings.set(
-        "observer.age_years",
-        age_years,
-        Origin::first(
-            args.render.observer.age_years,
-            observer.age_years,
-            profile_observer.map(|o| o.age_years),
-        ),
-    );
-    setup.settings.set(
-        "observer.pigmentation",
-        pigmentation,
-        Origin::first(
-            args.render.observer.pigmentation,
-            observer.pigmentation,
-            profile_observer.map(|o| o.pigmentation),
-        ),
+    setup.settings.set_observer(
+        &setup.config.pipeline.glare.psf,
+        &args.render.observer,
+        &observer,
+        calibration.as_ref().map(|c| c.observer),
     );
     setup.settings.set_calibration(
         calibration_path.map(|p| p.as_path()),

@@ -120,6 +120,99 @@ impl SessionSettings {
             .unwrap_or_else(|| unreachable!("inserted above"))
     }
 
+    /// Records the view's angles, each from the flag, else the
+    /// configuration, else the default.
+    pub fn set_view(
+        &mut self,
+        view: &gazelight_vision::scene::ViewParams,
+        flags: &crate::view_args::ViewArgs,
+        config: crate::view_args::ViewDefaults,
+    ) {
+        for (key, value, flag, configured) in [
+            ("view.yaw_deg", view.yaw_deg, flags.yaw_deg, config.yaw_deg),
+            (
+                "view.pitch_deg",
+                view.pitch_deg,
+                flags.pitch_deg,
+                config.pitch_deg,
+            ),
+            (
+                "view.hfov_deg",
+                view.hfov_deg,
+                flags.hfov_deg,
+                config.hfov_deg,
+            ),
+        ] {
+            self.set(key, value, Origin::first(flag, configured, None));
+        }
+    }
+
+    /// Records the observer in effect (`psf`'s age and pigmentation), each
+    /// from the flag, else `[observer]`, else the profile, else the default.
+    pub fn set_observer(
+        &mut self,
+        psf: &gazelight_vision::psf::PsfParams,
+        flags: &crate::observer::ObserverArgs,
+        config: &crate::observer::ObserverSettings,
+        profile: Option<gazelight_tracker::profile::Observer>,
+    ) {
+        self.set(
+            "observer.age_years",
+            psf.age_years,
+            Origin::first(
+                flags.age_years,
+                config.age_years,
+                profile.map(|o| o.age_years),
+            ),
+        );
+        self.set(
+            "observer.pigmentation",
+            psf.pigmentation,
+            Origin::first(
+                flags.pigmentation,
+                config.pigmentation,
+                profile.map(|o| o.pigmentation),
+            ),
+        );
+    }
+
+    /// Records `[pipeline]` and `[filter]`: from the configuration file
+    /// when one was given and differs from the defaults.
+    pub fn set_models(
+        &mut self,
+        pipeline: &gazelight_vision::pipeline::PipelineConfig,
+        filter: gazelight_tracker::filter::FilterConfig,
+        config_given: bool,
+    ) {
+        let from_file = |differs: bool| {
+            if config_given && differs {
+                Origin::Config
+            } else {
+                Origin::Default
+            }
+        };
+        self.set(
+            "pipeline",
+            pipeline,
+            from_file(*pipeline != gazelight_vision::pipeline::PipelineConfig::default()),
+        );
+        self.set(
+            "filter",
+            filter,
+            from_file(filter != gazelight_tracker::filter::FilterConfig::default()),
+        );
+    }
+
+    /// Records the backend choice (`auto` is the default).
+    pub fn set_backend(&mut self, choice: crate::backend::BackendChoice) {
+        let origin = if choice == crate::backend::BackendChoice::Auto {
+            Origin::Default
+        } else {
+            Origin::Flag
+        };
+        self.set("backend", choice.to_string(), origin);
+    }
+
     /// Records the calibration profile (`None`: none given) and what it
     /// does to each eye's pupil.
     pub fn set_calibration(

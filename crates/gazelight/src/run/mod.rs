@@ -308,40 +308,20 @@ fn run_settings(
     );
     s.set("scene.luminance_scale", scale, scale_origin);
     s.set("scene.cd_m2_per_unit", scene.cd_m2_per_unit, scale_origin);
-    s.set(
-        "view.yaw_deg",
-        view.yaw_deg,
-        Origin::first(v.yaw_deg, c.scene.yaw_deg, None),
+    s.set_view(
+        view,
+        v,
+        crate::view_args::ViewDefaults {
+            yaw_deg: c.scene.yaw_deg,
+            pitch_deg: c.scene.pitch_deg,
+            hfov_deg: c.scene.hfov_deg,
+        },
     );
-    s.set(
-        "view.pitch_deg",
-        view.pitch_deg,
-        Origin::first(v.pitch_deg, c.scene.pitch_deg, None),
-    );
-    s.set(
-        "view.hfov_deg",
-        view.hfov_deg,
-        Origin::first(v.hfov_deg, c.scene.hfov_deg, None),
-    );
-    let psf = &cfg.pipeline.glare.psf;
-    let profile = r.calibration.as_ref().map(|_| calibration.observer);
-    s.set(
-        "observer.age_years",
-        psf.age_years,
-        Origin::first(
-            args.observer.age_years,
-            c.observer.age_years,
-            profile.map(|o| o.age_years),
-        ),
-    );
-    s.set(
-        "observer.pigmentation",
-        psf.pigmentation,
-        Origin::first(
-            args.observer.pigmentation,
-            c.observer.pigmentation,
-            profile.map(|o| o.pigmentation),
-        ),
+    s.set_observer(
+        &cfg.pipeline.glare.psf,
+        &args.observer,
+        &c.observer,
+        r.calibration.as_ref().map(|_| calibration.observer),
     );
     s.set_calibration(
         r.calibration.as_deref(),
@@ -352,32 +332,8 @@ fn run_settings(
             None,
         ),
     );
-    let from_file = |differs: bool| {
-        if args.config.is_some() && differs {
-            Origin::Config
-        } else {
-            Origin::Default
-        }
-    };
-    s.set(
-        "pipeline",
-        &cfg.pipeline,
-        from_file(cfg.pipeline != gazelight_vision::pipeline::PipelineConfig::default()),
-    );
-    s.set(
-        "filter",
-        cfg.filter,
-        from_file(cfg.filter != gazelight_tracker::filter::FilterConfig::default()),
-    );
-    s.set(
-        "backend",
-        args.backend.to_string(),
-        if args.backend == BackendChoice::Auto {
-            Origin::Default
-        } else {
-            Origin::Flag
-        },
-    );
+    s.set_models(&cfg.pipeline, cfg.filter, args.config.is_some());
+    s.set_backend(args.backend);
     s
 }
 
