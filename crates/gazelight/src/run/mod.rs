@@ -11,7 +11,8 @@
 //! Ctrl-C or `--secs` ends the run: the hub's shutdown is requested, the
 //! frame loop finishes its frame, the outputs are flushed and a summary
 //! (frames, late frames, `EyeState` age median/p99) is printed. `--out` is
-//! checked first by the one `--out` rule ([`crate::out_dir`]); a write
+//! checked after the inputs, before anything starts, by the one `--out`
+//! rule ([`crate::out_dir`]); a write
 //! error during the run (a full disk) is printed when it happens, the
 //! summary still follows, and the run then exits with an error.
 //!
@@ -383,11 +384,6 @@ fn prepare_out(args: &RunArgs, r: &Resolved, scene: Option<&Path>) -> anyhow::Re
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let r = resolve(&args)?;
     let cfg = &r.config;
-    prepare_out(
-        &args,
-        &r,
-        args.scene.as_deref().or(cfg.scene.file.as_deref()),
-    )?;
 
     // Scene and view.
     let scale = args.view.scale(cfg.scene.luminance_scale)?;
@@ -461,7 +457,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let chain = FilterChain::new(cfg.filter, calibration)
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
 
-    // Outputs.
+    // Outputs: the inputs are checked; now where the outputs go.
+    prepare_out(&args, &r, scene_path.as_deref())?;
     let writer = match &r.out {
         Some(dir) => {
             let mut psf = cfg.pipeline.glare.psf.clone();
