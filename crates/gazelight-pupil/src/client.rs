@@ -130,7 +130,9 @@ pub struct PupilConfig {
 }
 
 impl Default for PupilConfig {
+    /// Message limits from [`crate::limits::process_limits`].
     fn default() -> Self {
+        let limits = crate::limits::process_limits();
         Self {
             host: "127.0.0.1".to_owned(),
             remote_port: DEFAULT_REMOTE_PORT,
@@ -144,9 +146,9 @@ impl Default for PupilConfig {
             clock_interval: Duration::from_secs(10),
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
-            remote_max_message_bytes: MAX_REMOTE_REPLY_BYTES,
-            bus_max_message_bytes: crate::relay::MAX_DATUM_BYTES,
-            max_message_frames: crate::relay::MAX_MESSAGE_FRAMES,
+            remote_max_message_bytes: limits.pupil_remote_max_message_bytes,
+            bus_max_message_bytes: limits.pupil_bus_max_message_bytes,
+            max_message_frames: limits.max_message_frames,
         }
     }
 }

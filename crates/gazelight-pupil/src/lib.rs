@@ -40,6 +40,7 @@
 //! ```
 
 pub mod client;
+pub mod limits;
 pub mod msg;
 pub mod recording;
 pub mod relay;

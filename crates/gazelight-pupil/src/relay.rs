@@ -179,12 +179,14 @@ pub struct RelayLimits {
 }
 
 impl Default for RelayLimits {
+    /// The relay's part of [`crate::limits::process_limits`].
     fn default() -> Self {
+        let limits = crate::limits::process_limits();
         Self {
-            remote_max_message_bytes: MAX_DATUM_BYTES,
-            pub_port_max_message_bytes: MAX_DATUM_BYTES,
-            bus_max_message_bytes: MAX_SUBSCRIPTION_BYTES,
-            max_message_frames: MAX_MESSAGE_FRAMES,
+            remote_max_message_bytes: limits.relay_remote_max_message_bytes,
+            pub_port_max_message_bytes: limits.relay_pub_port_max_message_bytes,
+            bus_max_message_bytes: limits.relay_bus_max_message_bytes,
+            max_message_frames: limits.max_message_frames,
         }
     }
 }

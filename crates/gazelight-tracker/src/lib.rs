@@ -49,7 +49,7 @@ pub use source::{Pacing, ReplaySource, SampleSource, SourceError};
 pub mod pupil {
     pub use gazelight_eye::clock;
     pub use gazelight_pupil::client::*;
-    pub use gazelight_pupil::{msg, relay, stimulus};
+    pub use gazelight_pupil::{limits, msg, relay, stimulus};
 }
 
 /// Hardware transports (`gazelight-devices`), the source URIs that name

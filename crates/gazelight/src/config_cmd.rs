@@ -76,6 +76,10 @@ pub fn default_toml() -> anyhow::Result<String> {
             ("pigmentation", DEFAULT_PIGMENTATION.into()),
         ]),
     );
+    table.insert(
+        "limits".into(),
+        toml::Value::try_from(gazelight_tracker::pupil::limits::ZmqLimits::default())?,
+    );
     Ok(format!("{HEADER}\n{}", toml::to_string(&table)?))
 }
 
@@ -110,6 +114,10 @@ mod tests {
         assert_eq!(config.filter, FilterConfig::default());
         assert_eq!(config.display.fps, Some(DEFAULT_FPS));
         assert_eq!(config.observer.age_years, Some(DEFAULT_AGE_YEARS));
+        assert_eq!(
+            config.limits,
+            gazelight_tracker::pupil::limits::ZmqLimits::default()
+        );
         let render = RenderConfig::load(&path, ConfigUser::Render).unwrap();
         assert_eq!(render.pipeline, PipelineConfig::default());
         assert_eq!(render.size, Some((720, 800)));
@@ -122,6 +130,51 @@ mod tests {
         );
         let (_, ignored) = ServiceConfig::load_for(&path, ConfigUser::Calibrate).unwrap();
         assert!(ignored.iter().any(|k| k == "pipeline"), "{ignored:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `[limits]` in a config reaches the sockets opened afterwards (the
+    /// relay's and the `pupil://` client's); a limit out of range is
+    /// refused with its key. Alone in a process: the limits are the
+    /// process's.
+    #[test]
+    fn limits_in_the_config_reach_the_sockets() {
+        if !crate::isolated::in_own_process(
+            "config_cmd::tests::limits_in_the_config_reach_the_sockets",
+        ) {
+            return;
+        }
+        use gazelight_tracker::pupil::PupilConfig;
+        use gazelight_tracker::pupil::relay::RelayLimits;
+        let dir = std::env::temp_dir().join(format!("gazelight-limits-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("limits.toml");
+        std::fs::write(
+            &path,
+            "[limits]\nrelay_bus_max_message_bytes = 4096\npupil_bus_max_message_bytes = 2000000\nmax_message_frames = 8\n",
+        )
+        .unwrap();
+        let (config, ignored) = ServiceConfig::load_for(&path, ConfigUser::Run).unwrap();
+        assert!(ignored.is_empty(), "{ignored:?}");
+        assert_eq!(config.limits.relay_bus_max_message_bytes, 4096);
+        let relay = RelayLimits::default();
+        assert_eq!(relay.bus_max_message_bytes, 4096);
+        assert_eq!(relay.max_message_frames, 8);
+        let client = PupilConfig::default();
+        assert_eq!(client.bus_max_message_bytes, 2_000_000);
+        assert_eq!(client.max_message_frames, 8);
+        // Render does not open sockets: its limits are ignored, not applied.
+        std::fs::write(&path, "[limits]\nmax_message_frames = 3\n").unwrap();
+        let (_, ignored) = ServiceConfig::load_for(&path, ConfigUser::Render).unwrap();
+        assert_eq!(ignored, vec!["limits".to_owned()]);
+        assert_eq!(RelayLimits::default().max_message_frames, 8);
+        std::fs::write(&path, "[limits]\nrelay_remote_max_message_bytes = 0\n").unwrap();
+        let e = ServiceConfig::load_for(&path, ConfigUser::Run).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("limits.relay_remote_max_message_bytes = 0"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -22,6 +22,8 @@ mod devices;
 mod hub;
 mod input_report;
 mod inspect;
+#[cfg(test)]
+mod isolated;
 mod lsl_outlets;
 mod observer;
 mod out_dir;

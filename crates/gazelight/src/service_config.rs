@@ -125,6 +125,9 @@ pub struct ServiceConfig {
     pub lsl: gazelight_tracker::lsl::LslConfig,
     /// The observer (CIE 146 age and pigmentation of the glare kernel).
     pub observer: crate::observer::ObserverSettings,
+    /// What one ZeroMQ peer may send, per socket kind (the `pupil://`
+    /// client and the relay); see `gazelight_pupil::limits`.
+    pub limits: gazelight_tracker::pupil::limits::ZmqLimits,
 }
 
 /// Largest display rate accepted, Hz.
@@ -246,11 +249,11 @@ impl ConfigUser {
         match self {
             ConfigUser::Run => &[
                 "source", "display", "scene", "pipeline", "filter", "output", "http", "relay",
-                "lsl", "observer",
+                "lsl", "observer", "limits",
             ],
             ConfigUser::Render => &VIEW,
             ConfigUser::Replay => &REPLAY,
-            ConfigUser::Calibrate => &["source.uri"],
+            ConfigUser::Calibrate => &["source.uri", "limits"],
         }
     }
 
@@ -306,6 +309,11 @@ impl ServiceConfig {
         config
             .expand_view()
             .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        if !ignored.iter().any(|k| k == "limits") {
+            // Every socket opened from here on uses them.
+            gazelight_tracker::pupil::limits::set_process_limits(config.limits)
+                .map_err(|e| anyhow::anyhow!("config {}: {e}", path.display()))?;
+        }
         for key in &ignored {
             tracing::warn!(
                 "config {}: `{key}` does not apply to `gazelight {}`; ignored",
@@ -366,6 +374,7 @@ impl ServiceConfig {
 
     /// Checks every field; the error names it (`display.fps = …: …`).
     pub fn validate(&self) -> anyhow::Result<()> {
+        self.limits.validate()?;
         if let Some(uri) = &self.source.uri
             && uri.trim().is_empty()
         {
