@@ -19,8 +19,8 @@ use std::time::Duration;
 use serde::Serialize;
 
 use crate::{ImportError, ImportWarnings, Importer};
-use gazelight_eye::filter::{ChainStats, FilterChain};
-use gazelight_eye::sample::{PupilUnit, Sample};
+use gazelight_eye::filter::{ChainStats, FilterChain, PupilOutcome};
+use gazelight_eye::sample::{DetectorMethod, PupilUnit, Sample};
 use gazelight_pupil::{PupilClient, PupilConfig};
 
 /// Intervals longer than this (s) are recording pauses, not sampling.
@@ -69,13 +69,31 @@ pub struct SampleCounts {
     pub blink_events: u64,
 }
 
-/// Sample rates per stream, Hz: intervals between consecutive samples over
-/// their summed duration, leaving out gaps longer than [`GAP_S`] (pauses
-/// between the trials of a recording).
+/// Sample rates, Hz: intervals between consecutive samples of one stream
+/// over their summed duration, leaving out gaps longer than [`GAP_S`]
+/// (pauses between the trials of a recording).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Rates {
+    /// Per eye: the rate of that eye's fastest pupil stream (a detector:
+    /// Pupil Core's 2D and 3D are two streams at the tracker's rate).
     pub pupil: [f64; 2],
+    /// Binocular gaze (or a monocular tracker's gaze).
     pub gaze: f64,
+}
+
+/// One stream of a recording: one eye's pupils from one detector.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StreamSummary {
+    /// `2d`, `3d` (Pupil Core's detectors) or `pupil` (any other).
+    pub detector: &'static str,
+    pub samples: u64,
+    pub rate_hz: f64,
+    /// Fraction of the samples rejected by the filter (blink, low
+    /// confidence, no pupil, out of range, too fast); `None` for a stream
+    /// in raw units without a calibration, which the chain cannot use.
+    pub dropout_fraction: Option<f64>,
+    /// Samples in raw units with no calibration for them.
+    pub uncalibrated: u64,
 }
 
 /// One eye's pupil statistics.
@@ -91,7 +109,11 @@ pub struct EyePupil {
     pub confidence_mean: f64,
     /// Fraction of samples below the confidence gate.
     pub low_confidence_fraction: f64,
-    /// Fraction of samples not accepted as measurements.
+    /// Fraction of the samples the chain could measure that it rejected
+    /// (blink, low confidence, no pupil, out of range, too fast); samples
+    /// in raw units without a calibration are not counted (Pupil Core's
+    /// 2D pixels beside its 3D millimetres), and with nothing measurable
+    /// it is 1.
     pub dropout_fraction: f64,
 }
 
@@ -113,6 +135,8 @@ pub struct RecordingSummary {
     pub samples: SampleCounts,
     pub rate_hz: Rates,
     pub pupil: [EyePupil; 2],
+    /// Per eye (0 right, 1 left), its pupil streams by detector.
+    pub streams: [Vec<StreamSummary>; 2],
     pub blinks: Blinks,
     /// Closures too short or too long to be blinks, per eye.
     pub dropouts: [u64; 2],
@@ -148,8 +172,11 @@ pub struct Summarizer {
     chain: FilterChain,
     first_t: f64,
     last_t: f64,
-    /// Per stream (pupil 0, pupil 1, gaze): last time, intervals, their sum.
-    intervals: [(f64, u64, f64); 3],
+    /// Per stream (eye × detector: 2D, 3D, other; then binocular and
+    /// per-eye gaze): last time, intervals, their sum.
+    intervals: [(f64, u64, f64); 8],
+    /// Per eye × detector: samples, measured, rejected, uncalibrated.
+    outcomes: [[u64; 4]; 6],
     counts: SampleCounts,
     unit: [Option<PupilUnit>; 2],
     raw: [Vec<f32>; 2],
@@ -164,7 +191,8 @@ impl Summarizer {
             chain,
             first_t: f64::INFINITY,
             last_t: f64::NEG_INFINITY,
-            intervals: [(f64::NAN, 0, 0.0); 3],
+            intervals: [(f64::NAN, 0, 0.0); 8],
+            outcomes: [[0; 4]; 6],
             counts: SampleCounts::default(),
             unit: [None; 2],
             raw: [Vec::new(), Vec::new()],
@@ -203,7 +231,21 @@ impl Summarizer {
         match s {
             Sample::Pupil(p) if p.eye <= 1 => {
                 let e = p.eye as usize;
-                span(e);
+                let k = 3 * e
+                    + match p.method {
+                        DetectorMethod::Pupil2d => 0,
+                        DetectorMethod::Pupil3d => 1,
+                        DetectorMethod::Other => 2,
+                    };
+                span(k);
+                let o = &mut self.outcomes[k];
+                o[0] += 1;
+                match up.pupil_outcome {
+                    Some(PupilOutcome::Measured) => o[1] += 1,
+                    Some(PupilOutcome::Rejected) => o[2] += 1,
+                    Some(PupilOutcome::Uncalibrated) => o[3] += 1,
+                    None => {}
+                }
                 self.counts.pupil[e] += 1;
                 self.unit[e].get_or_insert(p.unit);
                 if p.diameter_raw > 0.0 && p.diameter_raw.is_finite() {
@@ -220,7 +262,11 @@ impl Summarizer {
             }
             Sample::Pupil(_) => {}
             Sample::Gaze(g) => {
-                span(2);
+                span(if g.eyes == gazelight_eye::GazeEyes::Binocular {
+                    6
+                } else {
+                    7
+                });
                 if g.eyes == gazelight_eye::GazeEyes::Binocular {
                     self.counts.gaze += 1;
                 } else {
@@ -242,9 +288,33 @@ impl Summarizer {
         let stats = *self.chain.stats();
         let rate = |(_, n, sum): (f64, u64, f64)| if n > 0 { n as f64 / sum } else { 0.0 };
         let mut pupil = [EyePupil::default(); 2];
+        let mut streams: [Vec<StreamSummary>; 2] = [Vec::new(), Vec::new()];
+        let mut eye_rate = [0.0f64; 2];
         for (e, ep) in pupil.iter_mut().enumerate() {
             let n = self.counts.pupil[e];
             let nf = n.max(1) as f64;
+            // Dropouts among the samples of the streams the chain can use.
+            let (mut usable, mut rejected) = (0u64, 0u64);
+            for (m, detector) in ["2d", "3d", "pupil"].into_iter().enumerate() {
+                let [samples, measured, rej, uncalibrated] = self.outcomes[3 * e + m];
+                if samples == 0 {
+                    continue;
+                }
+                let r = rate(self.intervals[3 * e + m]);
+                eye_rate[e] = eye_rate[e].max(r);
+                let calibrated = uncalibrated == 0 && measured + rej > 0;
+                if calibrated {
+                    usable += measured + rej;
+                    rejected += rej;
+                }
+                streams[e].push(StreamSummary {
+                    detector,
+                    samples,
+                    rate_hz: r,
+                    dropout_fraction: calibrated.then(|| rej as f64 / (measured + rej) as f64),
+                    uncalibrated,
+                });
+            }
             *ep = EyePupil {
                 unit: self.unit[e],
                 raw: Range::of(&mut self.raw[e]),
@@ -253,8 +323,10 @@ impl Summarizer {
                 low_confidence_fraction: stats.rejected_confidence[e] as f64 / nf,
                 dropout_fraction: if n == 0 {
                     0.0
+                } else if usable == 0 {
+                    1.0
                 } else {
-                    1.0 - stats.measured[e] as f64 / nf
+                    rejected as f64 / usable as f64
                 },
             };
         }
@@ -267,10 +339,15 @@ impl Summarizer {
             },
             samples: self.counts,
             rate_hz: Rates {
-                pupil: [rate(self.intervals[0]), rate(self.intervals[1])],
-                gaze: rate(self.intervals[2]),
+                pupil: eye_rate,
+                gaze: if self.counts.gaze > 0 {
+                    rate(self.intervals[6])
+                } else {
+                    rate(self.intervals[7])
+                },
             },
             pupil,
+            streams,
             blinks: Blinks {
                 recording: stats.source_blinks,
                 detected: stats.blinks,
@@ -453,11 +530,29 @@ impl fmt::Display for RecordingSummary {
             )?;
             writeln!(
                 f,
-                "    confidence mean {:.3}, below gate {:.1} %, not measured {:.1} %",
+                "    confidence mean {:.3}, below gate {:.1} %, dropouts {:.1} %",
                 p.confidence_mean,
                 100.0 * p.low_confidence_fraction,
                 100.0 * p.dropout_fraction
             )?;
+            if self.streams[e].len() > 1 || self.streams[e].iter().any(|s| s.detector != "pupil") {
+                let parts: Vec<String> = self.streams[e]
+                    .iter()
+                    .map(|s| match s.dropout_fraction {
+                        Some(d) => format!(
+                            "{} {:.1} Hz, dropouts {:.1} %",
+                            s.detector,
+                            s.rate_hz,
+                            100.0 * d
+                        ),
+                        None => format!(
+                            "{} {:.1} Hz, raw units without a calibration (not used)",
+                            s.detector, s.rate_hz
+                        ),
+                    })
+                    .collect();
+                writeln!(f, "    streams: {}", parts.join("; "))?;
+            }
             if self.chain.uncalibrated[e] > 0 {
                 writeln!(
                     f,

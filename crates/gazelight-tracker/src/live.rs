@@ -43,11 +43,13 @@ use std::time::Duration;
 use gazelight_eye::clock::{ClockStats, host_now_secs};
 use gazelight_eye::filter::{
     ChainStats, ChainUpdate, DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterChain,
-    SlewLimiter,
+    PupilOutcome, SlewLimiter,
 };
 use gazelight_eye::pupil_model::PupilModel;
 use gazelight_eye::source::{SampleSource, SourceError};
-use gazelight_eye::{EYE_LEFT, EYE_RIGHT, EyeState, LiveEyeState, PupilOrigin, Sample};
+use gazelight_eye::{
+    DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeState, GazeEyes, LiveEyeState, PupilOrigin, Sample,
+};
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
@@ -132,13 +134,28 @@ pub struct SourceStatus {
     /// The source URI (`pupil://127.0.0.1:50020`, `replay://…`).
     pub uri: String,
     pub health: SourceHealth,
-    /// Samples per second over the last second.
+    /// The tracker's rate over the last second, as a user means it: the
+    /// rate of its fastest stream (one eye's pupils from one detector, or
+    /// one kind of gaze), so a 200 Hz tracker reads 200 Hz however many
+    /// streams it sends. Each stream's own rate is in [`Self::streams`].
     pub sample_rate_hz: f64,
     /// Mean confidence of the samples over the last second.
     pub confidence: f64,
-    /// Fraction of pupil samples over the last second that the filter
-    /// rejected or held (blink, low confidence, dropout).
+    /// Fraction of the pupil samples over the last second that were
+    /// dropouts: rejected by the filter (blink, low confidence, no pupil,
+    /// out of range, too fast). Samples in raw units without a
+    /// calibration are not dropouts (Pupil Core's 2D pixels beside its 3D
+    /// millimetres); 1 when no pupil could be measured at all.
     pub dropout_rate: f64,
+    /// Per eye (0 right, 1 left): the rate of that eye's fastest pupil
+    /// stream over the last second, Hz.
+    pub eye_rate_hz: [f64; 2],
+    /// Per eye: [`Self::dropout_rate`] of that eye's pupils; `None` when
+    /// it sent none the chain could measure.
+    pub eye_dropout_rate: [Option<f64>; 2],
+    /// Every stream seen in the last second, pupils by eye and detector,
+    /// then gaze.
+    pub streams: Vec<StreamStatus>,
     /// Samples received since start.
     pub samples_total: u64,
     /// Samples dropped by bounded queues since start.
@@ -153,6 +170,58 @@ pub struct SourceStatus {
     /// stamps, measurements); `None` for sources without one (replays, the
     /// synthetic trace).
     pub clock: Option<ClockStats>,
+}
+
+/// One stream of a source over the last second.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StreamStatus {
+    /// `pupil 3d right (0)`, `pupil 2d left (1)`, `pupil right (0)` (other
+    /// detectors), `gaze binocular`, `gaze right (0)`.
+    pub name: &'static str,
+    /// The eye (0 right, 1 left); `None` for binocular gaze.
+    pub eye: Option<u8>,
+    /// Samples per second.
+    pub rate_hz: f64,
+    /// Fraction of the samples rejected by the filter; `None` for gaze and
+    /// for a stream in raw units with no calibration.
+    pub dropout_rate: Option<f64>,
+    /// Samples in raw units with no calibration for them: the tracker
+    /// measured, the chain has no millimetres for them.
+    pub uncalibrated: u64,
+}
+
+/// Pupil streams per eye: detector Pupil 2D, Pupil 3D, other.
+const PUPIL_STREAM_NAMES: [[&str; 3]; 2] = [
+    ["pupil 2d right (0)", "pupil 3d right (0)", "pupil right (0)"],
+    ["pupil 2d left (1)", "pupil 3d left (1)", "pupil left (1)"],
+];
+/// Gaze streams: binocular, right, left.
+const GAZE_STREAM_NAMES: [&str; 3] = ["gaze binocular", "gaze right (0)", "gaze left (1)"];
+
+/// One pupil stream's counts in a window.
+#[derive(Clone, Copy, Debug, Default)]
+struct PupilCounts {
+    n: u64,
+    measured: u64,
+    rejected: u64,
+    uncalibrated: u64,
+}
+
+impl PupilCounts {
+    fn add(&mut self, o: &PupilCounts) {
+        self.n += o.n;
+        self.measured += o.measured;
+        self.rejected += o.rejected;
+        self.uncalibrated += o.uncalibrated;
+    }
+
+    /// Rejected among the samples the chain could measure; `None` for a
+    /// stream in raw units without a calibration (the chain can use none
+    /// of its samples, valid or not: a calibration holds per unit).
+    fn dropout_rate(&self) -> Option<f64> {
+        let usable = self.measured + self.rejected;
+        (usable > 0 && self.uncalibrated == 0).then(|| self.rejected as f64 / usable as f64)
+    }
 }
 
 /// The source status, shared between the live task and its readers.
@@ -345,8 +414,10 @@ struct RateWindow {
     start_secs: f64,
     samples: u64,
     confidence_sum: f64,
-    pupil: u64,
-    pupil_dropped: u64,
+    /// Per eye and detector (Pupil 2D, Pupil 3D, other).
+    pupil: [[PupilCounts; 3]; 2],
+    /// Gaze: binocular, right, left.
+    gaze: [u64; 3],
     /// Pupils the chain measured.
     measured: u64,
     /// Of those, the ones after which the state was stale (the pupil came
@@ -367,31 +438,103 @@ impl RateWindow {
         }
     }
 
-    /// One sample: its confidence, whether its pupil was dropped (`None`:
-    /// no pupil), and the state's age after it when that was stale.
-    fn add(
-        &mut self,
-        now: f64,
-        confidence: f32,
-        pupil_dropped: Option<bool>,
-        stale_age: Option<f64>,
-    ) {
+    /// One sample, what the chain made of it, and the state's age after it
+    /// when that was stale.
+    fn add(&mut self, now: f64, sample: &Sample, up: &ChainUpdate, stale_age: Option<f64>) {
         self.samples += 1;
+        let confidence = sample_confidence(sample);
         if confidence.is_finite() {
             self.confidence_sum += f64::from(confidence.clamp(0.0, 1.0));
         }
-        if let Some(d) = pupil_dropped {
-            self.pupil += 1;
-            self.pupil_dropped += u64::from(d);
-            if !d {
-                self.measured += 1;
-                if let Some(age) = stale_age {
-                    self.measured_stale += 1;
-                    self.stale_age_max_secs = self.stale_age_max_secs.max(age);
+        match sample {
+            Sample::Pupil(p) => {
+                if let (Some(outcome), Some(eye)) = (up.pupil_outcome, self.pupil.get_mut(usize::from(p.eye))) {
+                    let method = match p.method {
+                        DetectorMethod::Pupil2d => 0,
+                        DetectorMethod::Pupil3d => 1,
+                        DetectorMethod::Other => 2,
+                    };
+                    let c = &mut eye[method];
+                    c.n += 1;
+                    match outcome {
+                        PupilOutcome::Measured => {
+                            c.measured += 1;
+                            self.measured += 1;
+                            if let Some(age) = stale_age {
+                                self.measured_stale += 1;
+                                self.stale_age_max_secs = self.stale_age_max_secs.max(age);
+                            }
+                        }
+                        PupilOutcome::Rejected => c.rejected += 1,
+                        PupilOutcome::Uncalibrated => c.uncalibrated += 1,
+                    }
                 }
             }
+            Sample::Gaze(g) => {
+                let k = match g.eyes {
+                    GazeEyes::Binocular => 0,
+                    GazeEyes::Right => 1,
+                    GazeEyes::Left => 2,
+                };
+                self.gaze[k] += 1;
+            }
+            Sample::Blink(_) => {}
         }
         self.last_sample_secs = Some(now);
+    }
+
+    /// Rates and dropouts per stream, per eye and overall into `s`.
+    fn publish_streams(&self, elapsed: f64, s: &mut SourceStatus) {
+        let rate = |n: u64| n as f64 / elapsed;
+        s.streams.clear();
+        let mut all = PupilCounts::default();
+        let mut any_pupil = false;
+        let mut fastest = 0u64;
+        for (e, eye) in self.pupil.iter().enumerate() {
+            let mut this_eye = PupilCounts::default();
+            let mut eye_fastest = 0u64;
+            for (m, c) in eye.iter().enumerate() {
+                if c.n == 0 {
+                    continue;
+                }
+                if c.uncalibrated == 0 {
+                    this_eye.add(c);
+                }
+                eye_fastest = eye_fastest.max(c.n);
+                s.streams.push(StreamStatus {
+                    name: PUPIL_STREAM_NAMES[e][m],
+                    eye: Some(e as u8),
+                    rate_hz: rate(c.n),
+                    dropout_rate: c.dropout_rate(),
+                    uncalibrated: c.uncalibrated,
+                });
+            }
+            all.add(&this_eye);
+            any_pupil |= eye.iter().any(|c| c.n > 0);
+            fastest = fastest.max(eye_fastest);
+            s.eye_rate_hz[e] = rate(eye_fastest);
+            s.eye_dropout_rate[e] = this_eye.dropout_rate();
+        }
+        for (k, &n) in self.gaze.iter().enumerate() {
+            if n == 0 {
+                continue;
+            }
+            fastest = fastest.max(n);
+            s.streams.push(StreamStatus {
+                name: GAZE_STREAM_NAMES[k],
+                eye: [None, Some(EYE_RIGHT as u8), Some(EYE_LEFT as u8)][k],
+                rate_hz: rate(n),
+                dropout_rate: None,
+                uncalibrated: 0,
+            });
+        }
+        s.sample_rate_hz = rate(fastest);
+        s.dropout_rate = match all.dropout_rate() {
+            Some(d) => d,
+            // Pupils, none measurable; or nothing at all.
+            None if any_pupil || self.samples == 0 => 1.0,
+            None => 0.0,
+        };
     }
 
     /// Publishes the window into `s` when it has run ≥ 1 s (then restarts
@@ -410,19 +553,12 @@ impl RateWindow {
             return None;
         }
         let n = self.samples;
-        s.sample_rate_hz = n as f64 / elapsed;
         s.confidence = if n > 0 {
             self.confidence_sum / n as f64
         } else {
             0.0
         };
-        s.dropout_rate = if self.pupil > 0 {
-            self.pupil_dropped as f64 / self.pupil as f64
-        } else if n == 0 {
-            1.0
-        } else {
-            0.0
-        };
+        self.publish_streams(elapsed, s);
         let degraded = self.degraded_reason(clock);
         let last = self.last_sample_secs;
         *self = Self::new(now, clock);
@@ -628,12 +764,7 @@ impl<S: SampleSource> Task<S> {
                     published_host_secs = now;
                     last_sample_host_secs = now;
                     let age = publish(&mut chain, &eye_tx, age_clock, now, updates, now);
-                    window.add(
-                        now,
-                        sample_confidence(&sample),
-                        up.pupil_eye.map(|_| !up.measured),
-                        (age > STALE_AFTER_SECS).then_some(age),
-                    );
+                    window.add(now, &sample, &up, (age > STALE_AFTER_SECS).then_some(age));
                     // No receiver is fine; a full ring drops its oldest.
                     let _ = samples.send(sample);
                     if !live {
@@ -730,6 +861,96 @@ mod tests {
             norm_pos: [0.5, 0.5],
             method: DetectorMethod::Other,
         })
+    }
+
+    /// A Pupil Core at 200 Hz as a user sees it: per eye a 2D datum in
+    /// pixels (no calibration for them) and a 3D datum in mm, binocular
+    /// gaze and every fifth cycle a monocular one. It reads 200 Hz per eye
+    /// and overall and 0 % dropouts (before: every datum of every stream
+    /// was counted, ~1000 Hz, and the uncalibrated 2D half as dropouts);
+    /// every tenth datum below the confidence gate reads 10 % on the 3D
+    /// stream, per eye and overall (the 2D stream has nothing measurable).
+    #[test]
+    fn rates_and_dropouts_are_per_stream_as_a_user_means_them() {
+        use gazelight_eye::GazeSample;
+        let run = |low_confidence_every: Option<u32>| {
+            let mut chain = FilterChain::with_defaults();
+            let mut w = RateWindow::new(0.0, None);
+            let hz = 200.0;
+            for i in 0..200u32 {
+                let t = f64::from(i) / hz;
+                for eye in 0..2u8 {
+                    let mut two_d = PupilSample {
+                        t_secs: t,
+                        eye,
+                        diameter_raw: 31.5,
+                        unit: PupilUnit::Px,
+                        diameter_mm: None,
+                        confidence: 0.91,
+                        norm_pos: [0.4, 0.5],
+                        method: DetectorMethod::Pupil2d,
+                    };
+                    let mut three_d = PupilSample {
+                        diameter_raw: 3.75,
+                        unit: PupilUnit::Mm,
+                        diameter_mm: Some(3.75),
+                        method: DetectorMethod::Pupil3d,
+                        ..two_d
+                    };
+                    if low_confidence_every.is_some_and(|k| i % k == 0) {
+                        three_d.confidence = 0.1;
+                        two_d.confidence = 0.1;
+                    }
+                    for smp in [Sample::Pupil(two_d), Sample::Pupil(three_d)] {
+                        let up = chain.push(&smp);
+                        w.add(t, &smp, &up, None);
+                    }
+                }
+                let mut gazes = vec![GazeEyes::Binocular];
+                if i % 5 == 0 {
+                    gazes.push(GazeEyes::Right);
+                }
+                for eyes in gazes {
+                    let g = Sample::Gaze(GazeSample {
+                        t_secs: t,
+                        gaze_uv: [0.3, 0.8],
+                        confidence: 0.89,
+                        eyes,
+                    });
+                    let up = chain.push(&g);
+                    w.add(t, &g, &up, None);
+                }
+            }
+            let mut s = SourceStatus::default();
+            assert!(w.publish(1.0, &mut s, 0, None).is_some());
+            s
+        };
+        let s = run(None);
+        assert!((s.sample_rate_hz - 200.0).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.eye_rate_hz, [200.0, 200.0]);
+        assert_eq!(s.dropout_rate, 0.0, "{s:?}");
+        assert_eq!(s.eye_dropout_rate, [Some(0.0), Some(0.0)]);
+        let names: Vec<_> = s.streams.iter().map(|x| x.name).collect();
+        assert_eq!(
+            names,
+            [
+                "pupil 2d right (0)",
+                "pupil 3d right (0)",
+                "pupil 2d left (1)",
+                "pupil 3d left (1)",
+                "gaze binocular",
+                "gaze right (0)"
+            ]
+        );
+        let two_d = &s.streams[0];
+        assert_eq!((two_d.dropout_rate, two_d.uncalibrated), (None, 200));
+        assert_eq!(s.streams[5].rate_hz, 40.0);
+        // One datum in ten below the confidence gate, on both detectors.
+        let s = run(Some(10));
+        assert!((s.dropout_rate - 0.1).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.streams[1].dropout_rate, Some(0.1));
+        assert_eq!(s.eye_dropout_rate, [Some(0.1), Some(0.1)]);
+        assert_eq!(s.sample_rate_hz, 200.0);
     }
 
     /// Moved from the frame loop (which filtered on top of the chain until

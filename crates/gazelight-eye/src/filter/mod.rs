@@ -125,6 +125,21 @@ pub struct ChainStats {
     pub invalid_output: u64,
 }
 
+/// What the chain made of one pupil sample, as a user counts dropouts: a
+/// sample in raw units with no calibration for them is neither a
+/// measurement nor a dropout (the tracker measured; the chain has no mm
+/// for it), e.g. Pupil Core's 2D pixels beside its 3D millimetres.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PupilOutcome {
+    /// Accepted as a measurement.
+    Measured,
+    /// Rejected: below the confidence gate, no pupil (0, NaN), out of the
+    /// physiological range or too fast a change — a dropout.
+    Rejected,
+    /// In raw units with no calibration for them.
+    Uncalibrated,
+}
+
 /// What one [`FilterChain::push`] did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ChainUpdate {
@@ -134,6 +149,9 @@ pub struct ChainUpdate {
     pub pupil_eye: Option<u8>,
     /// For a pupil sample: whether it was accepted as a measurement.
     pub measured: bool,
+    /// For a pupil sample: what the chain made of it (`None` for other
+    /// samples and for ones with a bad eye id or time).
+    pub pupil_outcome: Option<PupilOutcome>,
     /// A closure of this eye that has just been finalised.
     pub closure: Option<Closure>,
 }
@@ -245,6 +263,7 @@ impl FilterChain {
             state: self.state,
             pupil_eye: None,
             measured: false,
+            pupil_outcome: None,
             closure: None,
         };
         match sample {
@@ -392,6 +411,7 @@ impl FilterChain {
                 }
                 Ok(None) => {
                     self.stats.uncalibrated[e] += 1;
+                    up.pupil_outcome = Some(PupilOutcome::Uncalibrated);
                     None
                 }
                 Ok(Some(mm)) => match self.physio[e].check(t, mm) {
@@ -412,6 +432,9 @@ impl FilterChain {
         if measured.is_some() {
             self.stats.measured[e] += 1;
             up.measured = true;
+            up.pupil_outcome = Some(PupilOutcome::Measured);
+        } else if up.pupil_outcome.is_none() {
+            up.pupil_outcome = Some(PupilOutcome::Rejected);
         }
         let model_mm = self.model_mm;
         self.advance_eye(e, t, measured, model_mm, p.confidence);
