@@ -359,7 +359,7 @@ impl ObserverRange {
             &EyeLight::both(EyeInput::uniform(white_luminance_cd_m2, field_area_deg2)),
             &adaptation,
         );
-        if !(black - white > 1e-6) {
+        if black - white <= 1e-6 || (black - white).is_nan() {
             return Err(ResponseError::Parameter {
                 what: "white_luminance_cd_m2",
                 reason: format!(
@@ -399,11 +399,36 @@ impl ResponseParams {
     pub fn validate(&self) -> Result<(), ResponseError> {
         let d = &self.dynamics;
         let checks: [(&'static str, f64, f64, f64); 7] = [
-            ("dynamics.latency_secs", d.latency_secs, 1e-3, MAX_LATENCY_SECS),
-            ("dynamics.constriction_tau_secs", d.constriction_tau_secs, 1e-3, 600.0),
-            ("dynamics.redilation_tau_secs", d.redilation_tau_secs, 1e-3, 600.0),
-            ("adaptation.gaze_weight", self.adaptation.gaze_weight, 0.0, 1.0),
-            ("adaptation.age_years", self.adaptation.age_years, 0.0, 120.0),
+            (
+                "dynamics.latency_secs",
+                d.latency_secs,
+                1e-3,
+                MAX_LATENCY_SECS,
+            ),
+            (
+                "dynamics.constriction_tau_secs",
+                d.constriction_tau_secs,
+                1e-3,
+                600.0,
+            ),
+            (
+                "dynamics.redilation_tau_secs",
+                d.redilation_tau_secs,
+                1e-3,
+                600.0,
+            ),
+            (
+                "adaptation.gaze_weight",
+                self.adaptation.gaze_weight,
+                0.0,
+                1.0,
+            ),
+            (
+                "adaptation.age_years",
+                self.adaptation.age_years,
+                0.0,
+                120.0,
+            ),
             ("range.scale", self.range.scale, 1e-3, 100.0),
             ("range.offset_mm", self.range.offset_mm, -100.0, 100.0),
         ];
@@ -435,10 +460,12 @@ pub enum ResponseError {
         rows: usize,
         required: usize,
     },
-    /// The rows go back in time.
+    /// A row's time is NaN or ±∞.
+    #[error("pupil response fit: row {row} has a non-finite t_secs ({t_secs})")]
+    TimeNotFinite { row: usize, t_secs: f64 },
+    /// The rows go back in time (`row` ≥ 1; the previous row is `row − 1`).
     #[error(
-        "pupil response fit: row {row} has t_secs = {t_secs}, not after row {}'s {previous}",
-        row - 1
+        "pupil response fit: row {row} has t_secs = {t_secs}, not after the previous row's {previous}"
     )]
     TimeNotIncreasing {
         row: usize,
@@ -452,7 +479,9 @@ pub enum ResponseError {
     )]
     NoLightVariation { spread_mm: f64 },
     /// The best fit has the pupil widen with light.
-    #[error("pupil response fit: the fitted range scale is {scale} (≤ 0): the pupil does not constrict with light in this block")]
+    #[error(
+        "pupil response fit: the fitted range scale is {scale} (≤ 0): the pupil does not constrict with light in this block"
+    )]
     NonPositiveScale { scale: f64 },
 }
 
@@ -679,7 +708,9 @@ pub fn residuals_mm(model: &mut PupilLightResponse, rows: &[PupilRow]) -> Vec<f6
 
 /// Runs `model` over `rows` and returns each row's prediction, mm.
 pub fn predictions_mm(model: &mut PupilLightResponse, rows: &[PupilRow]) -> Vec<f64> {
-    rows.iter().map(|r| model.step(r.t_secs, &r.light)).collect()
+    rows.iter()
+        .map(|r| model.step(r.t_secs, &r.light))
+        .collect()
 }
 
 /// What [`fit_observer`] fits.
@@ -740,23 +771,21 @@ pub fn fit_observer(
     options: &FitOptions,
 ) -> Result<FitResult, ResponseError> {
     initial.validate()?;
+    if let Some((row, r)) = rows.iter().enumerate().find(|(_, r)| !r.t_secs.is_finite()) {
+        return Err(ResponseError::TimeNotFinite {
+            row,
+            t_secs: r.t_secs,
+        });
+    }
     for (row, pair) in rows.windows(2).enumerate() {
-        if !(pair[1].t_secs > pair[0].t_secs) {
+        // Times are finite here: NaN ones were refused above.
+        if pair[1].t_secs <= pair[0].t_secs {
             return Err(ResponseError::TimeNotIncreasing {
                 row: row + 1,
                 t_secs: pair[1].t_secs,
                 previous: pair[0].t_secs,
             });
         }
-    }
-    if let Some(first) = rows.first()
-        && !first.t_secs.is_finite()
-    {
-        return Err(ResponseError::TimeNotIncreasing {
-            row: 0,
-            t_secs: first.t_secs,
-            previous: f64::NEG_INFINITY,
-        });
     }
     let used = rows.iter().filter(|r| valid_pupil(r.pupil_mm)).count();
     let required = options.min_samples.max(3);
@@ -816,7 +845,7 @@ pub fn fit_observer(
             best_sse = sse;
         }
     }
-    if !(best_range.scale > 0.0) {
+    if !best_range.scale.is_finite() || best_range.scale <= 0.0 {
         return Err(ResponseError::NonPositiveScale {
             scale: best_range.scale,
         });
@@ -867,9 +896,10 @@ fn linear_fit(rows: &[PupilRow], formula: &[f64]) -> Result<(ObserverRange, f64)
             sxy += (x - mx) * (r.pupil_mm - my);
         }
     }
-    if !(hi - lo > 1e-6) || !(sxx > 0.0) {
+    let spread = hi - lo;
+    if spread.is_nan() || spread <= 1e-6 || sxx.is_nan() || sxx <= 0.0 {
         return Err(ResponseError::NoLightVariation {
-            spread_mm: (hi - lo).max(0.0),
+            spread_mm: spread.max(0.0),
         });
     }
     let scale = sxy / sxx;
@@ -955,11 +985,12 @@ fn nelder_mead<F: FnMut(&[f64; 3]) -> f64>(
                 vals[N] = fc;
             } else {
                 // Shrink towards the best.
-                for i in 1..=N {
-                    for k in 0..N {
-                        pts[i][k] = pts[0][k] + 0.5 * (pts[i][k] - pts[0][k]);
+                let (best, rest) = pts.split_at_mut(1);
+                for (p, v) in rest.iter_mut().zip(vals.iter_mut().skip(1)) {
+                    for (pk, bk) in p.iter_mut().zip(best[0].iter()) {
+                        *pk = bk + 0.5 * (*pk - bk);
                     }
-                    vals[i] = f(&pts[i]);
+                    *v = f(p);
                 }
             }
         }
@@ -979,9 +1010,13 @@ mod tests {
 
     #[test]
     fn nelder_mead_finds_a_quadratic_minimum() {
-        let mut f = |x: &[f64; 3]| (x[0] - 1.0).powi(2) + 2.0 * (x[1] + 0.5).powi(2) + (x[2] - 3.0).powi(2);
+        let mut f =
+            |x: &[f64; 3]| (x[0] - 1.0).powi(2) + 2.0 * (x[1] + 0.5).powi(2) + (x[2] - 3.0).powi(2);
         let x = nelder_mead(&mut f, [0.0, 0.0, 0.0], 0.5, 2000);
-        assert!((x[0] - 1.0).abs() < 1e-4 && (x[1] + 0.5).abs() < 1e-4 && (x[2] - 3.0).abs() < 1e-4, "{x:?}");
+        assert!(
+            (x[0] - 1.0).abs() < 1e-4 && (x[1] + 0.5).abs() < 1e-4 && (x[2] - 3.0).abs() < 1e-4,
+            "{x:?}"
+        );
     }
 
     #[test]
@@ -995,6 +1030,30 @@ mod tests {
         }
         // No reallocation ever: same capacity.
         assert_eq!(m.times.len(), cap);
+    }
+
+    #[test]
+    fn fit_errors_name_the_row_and_the_count() {
+        let light = EyeLight::both(EyeInput::uniform(1.0, 100.0));
+        let row = |t_secs: f64, pupil_mm: f64| PupilRow {
+            t_secs,
+            pupil_mm,
+            light,
+        };
+        let back = [row(0.0, 4.0), row(1.0, 4.0), row(0.5, 4.0)];
+        let e =
+            fit_observer(&back, &ResponseParams::default(), &FitOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("row 2 has t_secs = 0.5"), "{e}");
+        let blinks: Vec<PupilRow> = (0..30)
+            .map(|k| row(f64::from(k) * 0.01, if k < 25 { f64::NAN } else { 4.0 }))
+            .collect();
+        let e =
+            fit_observer(&blinks, &ResponseParams::default(), &FitOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("only 5 of 30 rows"), "{e}");
+        let flat: Vec<PupilRow> = (0..30).map(|k| row(f64::from(k) * 0.01, 4.0)).collect();
+        let e =
+            fit_observer(&flat, &ResponseParams::default(), &FitOptions::default()).unwrap_err();
+        assert!(matches!(e, ResponseError::NoLightVariation { .. }), "{e}");
     }
 
     #[test]

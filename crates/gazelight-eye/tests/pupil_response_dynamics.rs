@@ -43,7 +43,10 @@ fn step_response_matches_published_latency_and_durations() {
     let dark = at(ON_SECS - 0.01);
     let lit = at(OFF_SECS - 0.001);
     let amplitude = dark - lit;
-    assert!(amplitude > 1.5, "a 3-decade step constricts by {amplitude} mm");
+    assert!(
+        amplitude > 1.5,
+        "a 3-decade step constricts by {amplitude} mm"
+    );
 
     // Onset: the pupil has moved by 0.01 mm (a 1 kHz pupillometer's
     // velocity-threshold onset, Bos 1991, resolves ~5 ms; 0.01 mm is ~5 ms
@@ -95,5 +98,8 @@ fn step_response_matches_published_latency_and_durations() {
         "default dynamics: latency {latency:.3} s, constriction to 90 % {constricted:.3} s \
          (10–90 % {rise:.3} s), redilation latency {redil_latency:.3} s, 95 % recovery {recovered:.3} s"
     );
-    assert!(recovered > 2.0 * constricted, "redilation is slower than constriction");
+    assert!(
+        recovered > 2.0 * constricted,
+        "redilation is slower than constriction"
+    );
 }

@@ -200,8 +200,12 @@ fn dynamics_fitted_on_the_first_flash_predict_the_later_ones() {
     let mut redilation_tau = Vec::new();
     for (kind, first, later, to) in [("red", 1, [3, 5], 10.0), ("blue", 0, [2, 4], 30.0)] {
         let fit_rows = rows(&tr, flashes[first], -2.0, to);
-        let fit = fit_observer(&fit_rows, &ResponseParams::default(), &FitOptions::default())
-            .unwrap();
+        let fit = fit_observer(
+            &fit_rows,
+            &ResponseParams::default(),
+            &FitOptions::default(),
+        )
+        .unwrap();
         let d = fit.params.dynamics;
         eprintln!(
             "{kind}: fit on flash {first} ({} samples): latency {:.3} s, τ constriction {:.3} s, \

@@ -212,8 +212,14 @@ fn the_baseline_fit_recovers_the_observer() {
     // Tolerances: latency ±20 ms (between two 125 Hz samples plus the
     // simulator's 1 ms grid), time constants ±10 %, scale ±3 %, offset ±0.1 mm.
     assert!((d.latency_secs - TRUE_LATENCY).abs() < 0.02, "{d:?}");
-    assert!((d.constriction_tau_secs / TRUE_TAU_C - 1.0).abs() < 0.10, "{d:?}");
-    assert!((d.redilation_tau_secs / TRUE_TAU_D - 1.0).abs() < 0.10, "{d:?}");
+    assert!(
+        (d.constriction_tau_secs / TRUE_TAU_C - 1.0).abs() < 0.10,
+        "{d:?}"
+    );
+    assert!(
+        (d.redilation_tau_secs / TRUE_TAU_D - 1.0).abs() < 0.10,
+        "{d:?}"
+    );
     assert!((r.scale / TRUE_SCALE - 1.0).abs() < 0.03, "{r:?}");
     assert!((r.offset_mm - TRUE_OFFSET).abs() < 0.1, "{r:?}");
     assert!(fit.r_squared > 0.99, "{}", fit.r_squared);
@@ -236,7 +242,10 @@ fn the_residual_recovers_task_evoked_dilations() {
         s.events.len()
     );
     assert!(r_res >= 0.9, "residual correlation {r_res}");
-    assert!(r_raw < 0.5, "the raw pupil should not show the bumps: {r_raw}");
+    assert!(
+        r_raw < 0.5,
+        "the raw pupil should not show the bumps: {r_raw}"
+    );
 
     // Amplitude of each bump: least squares of the residual on
     // [template, 1] over 0–3 s after its onset (valid samples only).
@@ -256,7 +265,10 @@ fn the_residual_recovers_task_evoked_dilations() {
         let est = (n * sxy - sx * sy) / (n * sxx - sx * sx);
         let err = (est / amp - 1.0).abs();
         worst = worst.max(err);
-        assert!(err < 0.2, "bump at {t0:.1} s: {amp:.3} mm true, {est:.3} mm recovered");
+        assert!(
+            err < 0.2,
+            "bump at {t0:.1} s: {amp:.3} mm true, {est:.3} mm recovered"
+        );
     }
     eprintln!("worst bump amplitude error {:.1} %", worst * 100.0);
 }
