@@ -3,7 +3,8 @@
 //! The eye, without I/O: eye-tracker [`Sample`]s, the [`EyeState`] the
 //! rest of gazelight reads, the [`filter`] chain that cleans samples, the
 //! black/white pupil [`calibration`] (001 §5) and its [`profile`]s, the
-//! luminance-driven [`pupil_model`], gaze [`trace`]s, [`synthetic`] sessions,
+//! luminance-driven [`pupil_model`] and its dynamics, the
+//! [`pupil_response`] to light, gaze [`trace`]s, [`synthetic`] sessions,
 //! the process-wide host [`clock`], and the [`SampleSource`] interface every
 //! live source and replay implements.
 //!
@@ -43,6 +44,7 @@ pub mod clock;
 pub mod filter;
 pub mod profile;
 pub mod pupil_model;
+pub mod pupil_response;
 pub mod sample;
 pub mod setting;
 pub mod source;

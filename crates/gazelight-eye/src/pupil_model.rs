@@ -35,7 +35,7 @@ const AGE_SLOPE_A: f64 = 0.02132;
 /// Age slope dependence on D_SD, 1/year (W&Y 2012 eq. 21).
 const AGE_SLOPE_B: f64 = 0.009562;
 /// Monocular attenuation of the effective flux M(1) (W&Y 2012, effective corneal flux density).
-const MONOCULAR_FACTOR: f64 = 0.1;
+pub const MONOCULAR_FACTOR: f64 = 0.1;
 
 /// Parameters of the unified formula.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -77,7 +77,17 @@ pub fn unified_mm(
     binocular: bool,
 ) -> f64 {
     let m = if binocular { 1.0 } else { MONOCULAR_FACTOR };
-    let d_sd = stanley_davies_mm(luminance_cd_m2.max(0.0) * field_area_deg2.max(0.0) * m);
+    unified_from_flux_mm(
+        luminance_cd_m2.max(0.0) * field_area_deg2.max(0.0) * m,
+        age_years,
+    )
+}
+
+/// The unified formula (W&Y 2012 eq. 21) from an effective corneal flux
+/// density `flux` = L·a·M(e) in cd·deg²/m² that the caller has already
+/// formed (e.g. from two eyes seeing different luminances).
+pub fn unified_from_flux_mm(flux: f64, age_years: f64) -> f64 {
+    let d_sd = stanley_davies_mm(flux);
     d_sd + (age_years - REFERENCE_AGE_YEARS) * (AGE_SLOPE_A - AGE_SLOPE_B * d_sd)
 }
 
