@@ -597,6 +597,58 @@ mod tests {
     use super::*;
     use gazelight_eye::synthetic::{SyntheticConfig, SyntheticTrace};
 
+    /// A Pupil Core at 200 Hz: per eye a 2D datum in pixels (no
+    /// calibration) and a 3D datum in mm, 1 ms apart. Per eye 200 Hz and
+    /// 0 % dropouts (before: the 2D half counted as "not measured", 50 %,
+    /// and the two detectors' interleaved stamps as one 400 Hz stream).
+    #[test]
+    fn a_pupil_core_reads_its_rate_per_eye_and_no_dropouts() {
+        use gazelight_eye::sample::PupilSample;
+        let mut samples = Vec::new();
+        for i in 0..2000 {
+            let t = f64::from(i) / 200.0;
+            for eye in 0..2u8 {
+                let two_d = PupilSample {
+                    t_secs: t,
+                    eye,
+                    diameter_raw: 31.5,
+                    unit: PupilUnit::Px,
+                    diameter_mm: None,
+                    confidence: 0.91,
+                    norm_pos: [0.4, 0.5],
+                    method: DetectorMethod::Pupil2d,
+                };
+                let three_d = PupilSample {
+                    t_secs: t + 0.001,
+                    diameter_raw: 3.75,
+                    unit: PupilUnit::Mm,
+                    diameter_mm: Some(3.75),
+                    method: DetectorMethod::Pupil3d,
+                    ..two_d
+                };
+                samples.push(Ok(Sample::Pupil(two_d)));
+                samples.push(Ok(Sample::Pupil(three_d)));
+            }
+        }
+        let s = summarize(samples, FilterChain::with_defaults()).unwrap();
+        for e in 0..2 {
+            assert!((s.rate_hz.pupil[e] - 200.0).abs() < 0.01, "{:?}", s.rate_hz);
+            assert_eq!(s.pupil[e].dropout_fraction, 0.0, "{:?}", s.pupil[e]);
+            let st = &s.streams[e];
+            assert_eq!(st.len(), 2, "{st:?}");
+            assert_eq!((st[0].detector, st[0].dropout_fraction), ("2d", None));
+            assert_eq!(st[0].uncalibrated, 2000);
+            assert_eq!((st[1].detector, st[1].dropout_fraction), ("3d", Some(0.0)));
+            assert!((st[1].rate_hz - 200.0).abs() < 0.01);
+        }
+        let text = s.to_string();
+        assert!(text.contains("dropouts 0.0 %"), "{text}");
+        assert!(
+            text.contains("streams: 2d 200.0 Hz, raw units without a calibration (not used); 3d 200.0 Hz, dropouts 0.0 %"),
+            "{text}"
+        );
+    }
+
     #[test]
     fn summary_of_a_synthetic_trace() {
         let cfg = SyntheticConfig {

@@ -41,6 +41,15 @@ pub struct FrameStatus {
     pub adaptation_cd_m2: f64,
     /// Pooled target luminance, cd/m².
     pub target_cd_m2: f64,
+    /// Views rendered per frame: 1, or 2 in stereo.
+    pub views: u32,
+    /// Adaptation luminance after the frame per view, cd/m²: [left, right]
+    /// in stereo; the one view's (as [`Self::adaptation_cd_m2`]) and NaN
+    /// (JSON null) otherwise.
+    pub view_adaptation_cd_m2: [f64; 2],
+    /// Pooled target luminance per view, cd/m², as
+    /// [`Self::view_adaptation_cd_m2`].
+    pub view_target_cd_m2: [f64; 2],
     /// Age of the `EyeState` the frame used, ms.
     pub eye_state_age_ms: f64,
     /// Whole-frame processing time, ms.
@@ -63,6 +72,8 @@ pub struct HistoryPoint {
     /// [right, left], mm.
     pub pupil_mm: [f32; 2],
     pub adaptation_cd_m2: f64,
+    /// Per view ([left, right] in stereo; the second NaN in mono).
+    pub view_adaptation_cd_m2: [f64; 2],
     pub eye_state_age_ms: f64,
     pub frame_ms: f64,
 }
@@ -267,6 +278,7 @@ impl Hub {
             t_secs: status.t_secs,
             pupil_mm: status.pupil_mm,
             adaptation_cd_m2: status.adaptation_cd_m2,
+            view_adaptation_cd_m2: status.view_adaptation_cd_m2,
             eye_state_age_ms: status.eye_state_age_ms,
             frame_ms: status.frame_ms,
         });

@@ -80,10 +80,18 @@ fn status_page_of_a_live_session() {
         settings["calibration.profile"]["value"],
         serde_json::Value::Null
     );
-    assert!(
-        s2["source"]["sample_rate_hz"].as_f64().unwrap() > 100.0,
-        "{s2}"
-    );
+    // The peer sends, per eye, a 2D datum in pixels and a 3D datum in mm at
+    // 200 Hz, all valid: 200 Hz per eye and 0 % dropouts (before: ~1040 Hz
+    // and 50 % "dropouts", every stream of both eyes counted together and
+    // the uncalibrated 2D pixels as dropouts).
+    let rate = s2["source"]["sample_rate_hz"].as_f64().unwrap();
+    assert!((170.0..230.0).contains(&rate), "{s2}");
+    for e in 0..2 {
+        let r = s2["source"]["eye_rate_hz"][e].as_f64().unwrap();
+        assert!((170.0..230.0).contains(&r), "eye {e}: {s2}");
+        assert_eq!(s2["source"]["eye_dropout_rate"][e], 0.0, "{s2}");
+    }
+    assert_eq!(s2["source"]["dropout_rate"], 0.0, "{s2}");
     let f1 = s1["frame"]["frames"].as_u64().unwrap();
     let f2 = s2["frame"]["frames"].as_u64().unwrap();
     assert!(f2 > f1, "frames {f1} → {f2}");
@@ -128,6 +136,28 @@ fn status_page_of_a_live_session() {
     assert_ne!(d1["now_secs"], d2["now_secs"]);
     assert_eq!(d2["health"], "live");
     assert!(d2["psf_rebuild"].as_u64().unwrap() >= 1);
+    // What the page shows: 200 Hz per eye, 0 % dropouts.
+    let shown_rate = d2["shown"]["eye_rate"].as_str().unwrap();
+    let hz: Vec<f64> = shown_rate
+        .split(" / ")
+        .map(|x| x.trim_end_matches(" Hz").parse().unwrap())
+        .collect();
+    assert!(hz.iter().all(|r| (170.0..230.0).contains(r)), "{shown_rate}");
+    assert_eq!(d2["shown"]["dropout"], "0.0 % / 0.0 %", "{d2}");
+
+    // inspect against the same peer: 200 Hz per eye, 0 % dropouts.
+    let out = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args(["inspect", &format!("pupil://127.0.0.1:{peer_port}")])
+        .args(["--secs", "2", "--json"])
+        .output()
+        .expect("gazelight inspect");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    for e in 0..2 {
+        let r = summary["rate_hz"]["pupil"][e].as_f64().unwrap();
+        assert!((190.0..210.0).contains(&r), "eye {e}: {summary}");
+        assert_eq!(summary["pupil"][e]["dropout_fraction"], 0.0, "{summary}");
+    }
 
     // A screenshot renders. With GAZELIGHT_UPDATE_DOCS=1 it replaces the
     // README's docs/status_page.png; otherwise it goes to a temp file, so a

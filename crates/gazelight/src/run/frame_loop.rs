@@ -640,6 +640,13 @@ impl FrameLoop {
             psf_rebuilds: self.psf_rebuilds,
             ..FrameStatus::default()
         };
+        status.views = n as u32;
+        status.view_adaptation_cd_m2 = [f64::NAN; 2];
+        status.view_target_cd_m2 = [f64::NAN; 2];
+        for (k, s) in all_stats.iter().enumerate().take(n.min(2)) {
+            status.view_adaptation_cd_m2[k] = s.adaptation_cd_m2;
+            status.view_target_cd_m2[k] = s.target_cd_m2;
+        }
         status.frames_read_back = self
             .eyes
             .iter()
@@ -1077,6 +1084,39 @@ mod tests {
             (summary.eye_state_age_median_ms - 4.0).abs() < 0.5,
             "{summary:?}"
         );
+    }
+
+    /// The status page's figures per eye: in stereo the frame status and
+    /// the history carry each view's adaptation (the page plots both), in
+    /// mono one.
+    #[test]
+    fn frame_status_and_history_carry_each_views_adaptation() {
+        for stereo in [false, true] {
+            let (mut fl, tx) = small_loop(live_state(0.0, 4.0, 0.3, 1), None, stereo);
+            let dt = 1.0 / 90.0;
+            for i in 0..5u64 {
+                let t = i as f64 * dt;
+                tx.send_replace(live_state(t, 4.0, 0.3, i + 2));
+                fl.step(t, t, dt as f32).expect("frame");
+            }
+            let status = fl.hub.frame();
+            let history = crate::serve::HistoryJson::collect(&fl.hub);
+            if stereo {
+                assert_eq!(status.views, 2);
+                assert!(
+                    status.view_adaptation_cd_m2.iter().all(|a| a.is_finite() && *a > 0.0),
+                    "{status:?}"
+                );
+                assert!(status.view_target_cd_m2.iter().all(|a| a.is_finite()));
+                assert_eq!(history.adaptation_left_cd_m2.len(), history.t_secs.len());
+                assert_eq!(history.adaptation_right_cd_m2.len(), 5);
+            } else {
+                assert_eq!(status.views, 1);
+                assert_eq!(status.view_adaptation_cd_m2[0], status.adaptation_cd_m2);
+                assert!(status.view_adaptation_cd_m2[1].is_nan());
+                assert!(history.adaptation_left_cd_m2.is_empty());
+            }
+        }
     }
 
     /// The live path (PSF worker, one view and a stereo pair) ends up with

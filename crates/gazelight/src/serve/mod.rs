@@ -394,6 +394,9 @@ pub struct HistoryJson {
     pub pupil_right_mm: Vec<f32>,
     pub pupil_left_mm: Vec<f32>,
     pub adaptation_cd_m2: Vec<f64>,
+    /// Per view in stereo: left, right (empty in mono).
+    pub adaptation_left_cd_m2: Vec<f64>,
+    pub adaptation_right_cd_m2: Vec<f64>,
     pub eye_state_age_ms: Vec<f64>,
     pub frame_ms: Vec<f64>,
 }
@@ -409,6 +412,8 @@ impl HistoryJson {
                 pupil_right_mm: Vec::with_capacity(n),
                 pupil_left_mm: Vec::with_capacity(n),
                 adaptation_cd_m2: Vec::with_capacity(n),
+                adaptation_left_cd_m2: Vec::new(),
+                adaptation_right_cd_m2: Vec::new(),
                 eye_state_age_ms: Vec::with_capacity(n),
                 frame_ms: Vec::with_capacity(n),
             };
@@ -417,6 +422,10 @@ impl HistoryJson {
                 out.pupil_right_mm.push(p.pupil_mm[0]);
                 out.pupil_left_mm.push(p.pupil_mm[1]);
                 out.adaptation_cd_m2.push(p.adaptation_cd_m2);
+                if p.view_adaptation_cd_m2[1].is_finite() {
+                    out.adaptation_left_cd_m2.push(p.view_adaptation_cd_m2[0]);
+                    out.adaptation_right_cd_m2.push(p.view_adaptation_cd_m2[1]);
+                }
                 out.eye_state_age_ms.push(p.eye_state_age_ms);
                 out.frame_ms.push(p.frame_ms);
             }
@@ -436,8 +445,24 @@ fn no_store<T: IntoResponse>(content_type: &'static str, body: T) -> Response {
         .into_response()
 }
 
-async fn page() -> Response {
-    no_store("text/html; charset=utf-8", PAGE_HTML)
+/// Where [`page`] puts the status and history the page shows at once.
+const INITIAL_PLACEHOLDER: &str = "__GAZELIGHT_INITIAL__";
+
+/// The page with the current status and history inside it (a JSON
+/// `<script>` the page script applies before its first WebSocket update),
+/// so it has content on first load.
+fn page_html(hub: &Hub) -> String {
+    let initial = serde_json::json!({
+        "status": Status::collect(hub),
+        "history": HistoryJson::collect(hub),
+    });
+    // Inside <script>, "</" would end the element; JSON allows "<\/".
+    let json = initial.to_string().replace("</", "<\\/");
+    PAGE_HTML.replacen(INITIAL_PLACEHOLDER, &json, 1)
+}
+
+async fn page(State(st): State<AppState>) -> Response {
+    no_store("text/html; charset=utf-8", page_html(&st.hub))
 }
 
 async fn script() -> Response {
@@ -719,6 +744,19 @@ mod tests {
         assert_eq!(h["adaptation_cd_m2"], serde_json::json!([40.0, 12.5]));
         assert_eq!(h["pupil_left_mm"], serde_json::json!([3.75, 4.25]));
         assert_eq!(h["t_secs"].as_array().unwrap().len(), 2);
+
+        // The page itself carries the state and history at load (content
+        // before the first WebSocket update), in a JSON script element.
+        let (_, body) = get(addr, "/").await;
+        let html = String::from_utf8(body).unwrap();
+        let start = html.find(r#"<script id="initial" type="application/json">"#).unwrap();
+        let json = &html[start..];
+        let json = &json[json.find('>').unwrap() + 1..json.find("</script>").unwrap()];
+        let initial: serde_json::Value = serde_json::from_str(json).unwrap();
+        assert_eq!(initial["status"]["eye"]["updates"], 11, "{initial}");
+        assert_eq!(initial["status"]["frame"]["frames"], 10);
+        assert_eq!(initial["history"]["pupil_left_mm"], serde_json::json!([3.75, 4.25]));
+        assert!(!html.contains("__GAZELIGHT_INITIAL__"));
 
         // The latest frame, exactly.
         let (w, hgt) = (6usize, 4usize);

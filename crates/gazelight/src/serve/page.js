@@ -1,5 +1,7 @@
-// gazelight status page: plain JS, no dependencies. Seeds the plots from
-// /api/history, then follows the WebSocket /ws (status JSON, ~10 Hz).
+// gazelight status page: plain JS, no dependencies. Shows the status and
+// history the server put into the page (#initial) at once, then follows
+// the WebSocket /ws (status JSON, ~10 Hz); /api/history only when the page
+// came without them.
 // Errors are caught into #errors (and body[data-errors]) so a headless
 // test can see them; the newest status is mirrored into #state.
 "use strict";
@@ -16,16 +18,18 @@
   window.addEventListener("error", (e) => reportError("error: " + e.message));
   window.addEventListener("unhandledrejection", (e) => reportError("unhandled rejection: " + e.reason));
 
-  const hist = { t: [], r: [], l: [], a: [] };
+  const hist = { t: [], r: [], l: [], a: [], al: [], ar: [] };
+  let stereo = false;
   let updates = 0;
   let lastFrameT = null;
   let lastPsf = 0;
   let lastFrameImgAt = 0;
 
-  function push(t, r, l, a) {
+  function push(t, r, l, a, al, ar) {
     if (lastFrameT !== null && t <= lastFrameT) return;
     lastFrameT = t;
     hist.t.push(t); hist.r.push(r); hist.l.push(l); hist.a.push(a);
+    hist.al.push(al === undefined ? null : al); hist.ar.push(ar === undefined ? null : ar);
     if (hist.t.length > MAX_POINTS) {
       for (const k of Object.keys(hist)) hist[k].shift();
     }
@@ -44,6 +48,7 @@
     if (t.length < 2) { ctx.fillText("waiting for frames…", pad, h / 2); return; }
     let lo = Infinity, hi = -Infinity;
     for (const s of series) for (const v of s.data) {
+      if (v === null) continue;
       const y = opts.log ? Math.log10(Math.max(v, 1e-6)) : v;
       if (isFinite(y)) { lo = Math.min(lo, y); hi = Math.max(hi, y); }
     }
@@ -61,7 +66,8 @@
       ctx.strokeStyle = s.color; ctx.lineWidth = 1.5; ctx.beginPath();
       let started = false;
       for (let i = 0; i < t.length; i++) {
-        const v = opts.log ? Math.log10(Math.max(s.data[i], 1e-6)) : s.data[i];
+        const d = s.data[i];
+        const v = d === null ? NaN : (opts.log ? Math.log10(Math.max(d, 1e-6)) : d);
         if (!isFinite(v)) { started = false; continue; }
         if (started) ctx.lineTo(X(t[i]), Y(v)); else { ctx.moveTo(X(t[i]), Y(v)); started = true; }
       }
@@ -72,19 +78,39 @@
   function redraw() {
     plot(document.getElementById("plot-pupil"), [
       { data: hist.r, color: "#5aa9e6" }, { data: hist.l, color: "#e6a15a" }], { log: false, minSpan: 0.5 });
-    plot(document.getElementById("plot-adapt"), [{ data: hist.a, color: "#b8e65a" }], { log: true, minSpan: 0.2 });
+    const adapt = stereo
+      ? [{ data: hist.ar, color: "#5aa9e6" }, { data: hist.al, color: "#e6a15a" }]
+      : [{ data: hist.a, color: "#b8e65a" }];
+    plot(document.getElementById("plot-adapt"), adapt, { log: true, minSpan: 0.2 });
   }
 
-  function apply(s) {
-    updates += 1;
-    document.body.dataset.updates = String(updates);
-    set("updates", String(updates));
+  // One value per eye, "right / left".
+  const perEye = (v, f) => f(v[0]) + " / " + f(v[1]);
+  const pct = (v) => (v === null || v === undefined) ? "–" : fmt(v * 100, 1, "%");
+
+  // `fromSocket`: a WebSocket update (counted), not the page's initial state.
+  function apply(s, fromSocket) {
+    if (fromSocket) {
+      updates += 1;
+      document.body.dataset.updates = String(updates);
+      set("updates", String(updates));
+    }
     const src = s.source, eye = s.eye, fr = s.frame, tm = fr.timings;
     set("source-uri", src.uri);
     set("source-health", src.health);
     set("sample-rate", fmt(src.sample_rate_hz, 1, "Hz"));
+    set("eye-rate", perEye(src.eye_rate_hz || [null, null], (v) => fmt(v, 1, "Hz")));
     set("confidence", fmt(src.confidence, 3));
-    set("dropout", fmt(src.dropout_rate * 100, 1, "%"));
+    set("dropout", perEye(src.eye_dropout_rate || [null, null], pct));
+    set("streams", (src.streams || []).map((x) =>
+      x.name + " " + fmt(x.rate_hz, 0, "Hz") +
+      (x.dropout_rate === null ? (x.uncalibrated > 0 ? " (no calibration)" : "") : " " + pct(x.dropout_rate))).join(" · ") || "–");
+    if ((fr.views === 2) !== stereo) {
+      stereo = fr.views === 2;
+      document.getElementById("adapt-legend").innerHTML = stereo
+        ? '<span class="r">■ right</span><span class="l">■ left</span>'
+        : '<span class="a">■ adaptation</span>';
+    }
     set("samples", src.samples_total + " / " + src.samples_dropped);
     set("pupil-right", fmt(eye.pupil_mm[0], 3, "mm") + " (" + eye.pupil_origin[0] + ")");
     set("pupil-left", fmt(eye.pupil_mm[1], 3, "mm") + " (" + eye.pupil_origin[1] + ")");
@@ -110,8 +136,12 @@
       adaptation_cd_m2: fr.adaptation_cd_m2, pupil_mm: eye.pupil_mm,
       eye_updates: eye.updates, health: src.health, psf_rebuild: s.psf.rebuild,
       clock_jumps: src.clock ? src.clock.jumps : null,
+      eye_rate_hz: src.eye_rate_hz, eye_dropout_rate: src.eye_dropout_rate,
+      shown: { eye_rate: document.getElementById("eye-rate").textContent,
+               dropout: document.getElementById("dropout").textContent },
     });
-    if (fr.frames > 0) push(fr.t_secs, fr.pupil_mm[0], fr.pupil_mm[1], fr.adaptation_cd_m2);
+    const va = fr.view_adaptation_cd_m2 || [null, null];
+    if (fr.frames > 0) push(fr.t_secs, fr.pupil_mm[0], fr.pupil_mm[1], fr.adaptation_cd_m2, va[0], va[1]);
     if (s.psf.rebuild > 0 && s.psf.rebuild !== lastPsf) {
       lastPsf = s.psf.rebuild;
       document.getElementById("psf").src = "/psf.png?rebuild=" + lastPsf;
@@ -126,12 +156,29 @@
     redraw();
   }
 
+  function seedFrom(h) {
+    const al = h.adaptation_left_cd_m2 || [], ar = h.adaptation_right_cd_m2 || [];
+    for (let i = 0; i < h.t_secs.length; i++) push(h.t_secs[i], h.pupil_right_mm[i], h.pupil_left_mm[i], h.adaptation_cd_m2[i], al[i], ar[i]);
+  }
+
   async function seed() {
     const r = await fetch("/api/history", { cache: "no-store" });
     if (!r.ok) throw new Error("/api/history: HTTP " + r.status);
-    const h = await r.json();
-    for (let i = 0; i < h.t_secs.length; i++) push(h.t_secs[i], h.pupil_right_mm[i], h.pupil_left_mm[i], h.adaptation_cd_m2[i]);
+    seedFrom(await r.json());
     redraw();
+  }
+
+  // The state the server put into the page: shown before any update.
+  function initial() {
+    const el = document.getElementById("initial");
+    let init = null;
+    try { init = JSON.parse(el.textContent); } catch (e) { return false; }
+    if (!init || !init.status || !init.history) return false;
+    seedFrom(init.history);
+    apply(init.status, false);
+    const conn = document.getElementById("conn");
+    conn.textContent = "connecting… (showing the state at load)";
+    return true;
   }
 
   function connect() {
@@ -139,7 +186,7 @@
     const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
     ws.onopen = () => { conn.textContent = "live"; conn.className = "live"; };
     ws.onmessage = (ev) => {
-      try { apply(JSON.parse(ev.data)); } catch (e) { reportError("status update: " + e); }
+      try { apply(JSON.parse(ev.data), true); } catch (e) { reportError("status update: " + e); }
     };
     ws.onclose = () => {
       conn.textContent = "disconnected — retrying"; conn.className = "down";
@@ -147,5 +194,6 @@
     };
   }
 
-  seed().catch((e) => reportError("history: " + e)).finally(connect);
+  if (initial()) connect();
+  else seed().catch((e) => reportError("history: " + e)).finally(connect);
 })();
