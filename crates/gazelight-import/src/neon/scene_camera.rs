@@ -21,7 +21,7 @@
 //!
 //! The distortion coefficients are OpenCV's rational model
 //! `(k1, k2, p1, p2, k3, k4, k5, k6)`; Neon's gaze pixels live in the
-//! *distorted* (raw) scene image, so [`SceneCamera::project`] applies the
+//! *distorted* (raw) scene image, so [`SceneCamera::project_normalized`] applies the
 //! distortion as `cv2.projectPoints` does. The scene camera frame is
 //! OpenCV's: x right, y down, z forward (out of the wearer's face); the
 //! scene extrinsics are the identity (the eye-state geometry is already
