@@ -120,6 +120,16 @@ pub struct ImportWarnings {
 }
 
 impl ImportWarnings {
+    /// Keeps a warning about the recording as a whole (a missing optional
+    /// file, say) without counting a skipped record; logged as a warning.
+    pub fn note(&mut self, path: &Path, position: Position, reason: impl std::fmt::Display) {
+        if self.messages.len() < KEPT_WARNING_MESSAGES {
+            self.messages
+                .push(format!("{} ({position}): {reason}", path.display()));
+        }
+        tracing::warn!(path = %path.display(), %position, %reason, "recording warning");
+    }
+
     /// Counts a skipped record and keeps its message if there is room.
     pub fn skip(&mut self, path: &Path, position: Position, reason: impl std::fmt::Display) {
         self.skipped_records += 1;
@@ -173,6 +183,31 @@ pub fn data_file(path: &Path) -> Result<bool, ImportError> {
     }
 }
 
+/// What an importer says about per-eye gaze ([`GazeEyes::Left`] /
+/// [`GazeEyes::Right`] samples) beside its binocular gaze.
+///
+/// [`GazeEyes::Left`]: gazelight_eye::sample::GazeEyes::Left
+/// [`GazeEyes::Right`]: gazelight_eye::sample::GazeEyes::Right
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct EyeGazeReport {
+    /// Whether the importer emits per-eye gaze. `false`: all its gaze is
+    /// binocular, and whatever needs a gaze per eye (the filter's per-eye
+    /// gaze, the stereo renderer) gets the binocular gaze for both eyes.
+    pub per_eye: bool,
+    /// Why there is no per-eye gaze, when `per_eye` is false.
+    pub reason: Option<String>,
+    /// Per-eye gaze samples emitted so far, `[right, left]` (gazelight's
+    /// eye ids: 0 = right, 1 = left).
+    pub emitted: [u64; 2],
+    /// Records that gave that eye no gaze (NaN or zero eye geometry, or a
+    /// direction the scene camera cannot image), `[right, left]`.
+    pub missing: [u64; 2],
+    /// The constant correction added to each eye's gaze, `[right, left]`,
+    /// each `[horizontal, vertical]` in degrees (positive = right, down in
+    /// the scene image), where one was applied.
+    pub correction_deg: [Option<[f64; 2]>; 2],
+}
+
 /// A streaming importer of a recording.
 pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     /// Warnings counted so far (complete once the iterator has ended).
@@ -195,6 +230,13 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     /// one-file recording (the path given is the file).
     fn data_files(&self) -> Vec<PathBuf> {
         Vec::new()
+    }
+    /// Whether (and how) the importer produces per-eye gaze, for formats
+    /// where that is decided per recording (Neon); `None` where each gaze
+    /// sample's `eyes` says all there is (EyeLink, Pupil Core, CSV).
+    /// Counts are complete once the iterator has ended.
+    fn eye_gaze(&self) -> Option<&EyeGazeReport> {
+        None
     }
 }
 

@@ -23,19 +23,30 @@
 //!   normalised coordinates; binocular, confidence 1 when finite.
 //! - `blinks` (optional): `start_timestamp_ns`, `end_timestamp_ns` become
 //!   [`BlinkEvent`]s covering both eyes.
+//! - per-eye gaze: each `eye_state` row's `optical_axis_{left,right}_*`
+//!   (with `eyeball_center_*` checked) becomes a [`GazeEyes::Left`] /
+//!   [`GazeEyes::Right`] [`GazeSample`] at the row's time, projected into
+//!   the scene image with the intrinsics of `calibration.bin`
+//!   ([`scene_camera`]) — see [`PerEyeGaze`] for what is projected and why.
+//!   Without `calibration.bin` (a warning) or without the geometry fields
+//!   there is binocular gaze only; [`Importer::eye_gaze`] says which.
 //!
 //! Times are seconds since `info.json`'s `start_time` (or since the first
 //! eye-state record when that is missing). The three streams are merged in
-//! time order.
+//! time order; one `eye_state` row gives the right then the left pupil,
+//! then the left and right gaze.
+
+pub mod scene_camera;
 
 use std::fs::File;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
 
-use super::{ImportError, ImportWarnings, Importer, Pending, Position};
+use super::{EyeGazeReport, ImportError, ImportWarnings, Importer, Pending, Position};
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
 };
+pub use scene_camera::SceneCamera;
 
 /// Neon scene camera resolution (px), for gaze normalisation.
 pub const SCENE_CAMERA_PX: [f32; 2] = [1600.0, 1200.0];
@@ -372,11 +383,202 @@ fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     Ok(n)
 }
 
-/// Offsets of the fields the importer reads from `eye_state`.
+/// Offsets of the fields the importer reads from `eye_state`, each pair
+/// `[right, left]`.
 #[derive(Clone, Copy, Debug)]
 struct EyeLayout {
     pupil: [(FieldType, usize); 2],
     aperture: Option<[(FieldType, usize); 2]>,
+    /// `eyeball_center_*_{x,y,z}` then `optical_axis_*_{x,y,z}` per eye.
+    geometry: Option<[[(FieldType, usize); 6]; 2]>,
+}
+
+impl EyeLayout {
+    fn read(dtype: &Dtype, path: &Path) -> Result<Self, ImportError> {
+        let geometry = |side: &str| -> Option<[(FieldType, usize); 6]> {
+            let mut g = [(FieldType::F32, 0); 6];
+            for (i, name) in ["eyeball_center", "optical_axis"]
+                .iter()
+                .flat_map(|what| ["x", "y", "z"].map(|a| format!("{what}_{side}_{a}")))
+                .enumerate()
+            {
+                g[i] = dtype.field(&name)?;
+            }
+            Some(g)
+        };
+        Ok(Self {
+            pupil: [
+                dtype.require("pupil_diameter_right_mm", path)?,
+                dtype.require("pupil_diameter_left_mm", path)?,
+            ],
+            aperture: match (
+                dtype.field("eyelid_aperture_right_mm"),
+                dtype.field("eyelid_aperture_left_mm"),
+            ) {
+                (Some(r), Some(l)) => Some([r, l]),
+                _ => None,
+            },
+            geometry: geometry("right").zip(geometry("left")).map(|(r, l)| [r, l]),
+        })
+    }
+
+    /// One eye's `(pupil mm, lid confidence, geometry)` from a record.
+    fn eye(&self, rec: &[u8], eye: usize) -> EyeRow {
+        let (ty, off) = self.pupil[eye];
+        let lid_confidence = match self.aperture {
+            Some(a) => aperture_confidence(a[eye].0.read_f64(&rec[a[eye].1..]) as f32),
+            None => 1.0,
+        };
+        let aperture = self
+            .aperture
+            .map(|a| a[eye].0.read_f64(&rec[a[eye].1..]) as f32);
+        let geometry = self.geometry.map(|g| {
+            let v = |i: usize| g[eye][i].0.read_f64(&rec[g[eye][i].1..]);
+            ([v(0), v(1), v(2)], [v(3), v(4), v(5)])
+        });
+        EyeRow {
+            pupil_mm: ty.read_f64(&rec[off..]) as f32,
+            aperture,
+            lid_confidence,
+            geometry,
+        }
+    }
+}
+
+/// One eye of an `eye_state` row.
+#[derive(Clone, Copy, Debug)]
+struct EyeRow {
+    pupil_mm: f32,
+    aperture: Option<f32>,
+    /// From the eyelid aperture; 1 without eyelid fields.
+    lid_confidence: f32,
+    /// `(eyeball centre mm, optical axis)` in the scene camera frame.
+    geometry: Option<([f64; 3], [f64; 3])>,
+}
+
+impl EyeRow {
+    /// The optical axis, when the row's geometry is usable: all six values
+    /// finite, the eyeball centre not the zero vector, the axis of unit
+    /// length (±10 %; Neon writes unit vectors, a zero vector means "no
+    /// estimate").
+    fn axis(&self) -> Option<[f64; 3]> {
+        let (c, a) = self.geometry?;
+        let finite = c.iter().chain(&a).all(|v| v.is_finite());
+        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        (finite && norm(c) > 0.0 && (norm(a) - 1.0).abs() < 0.1).then_some(a)
+    }
+}
+
+/// Pupil (and per-eye gaze) confidence from the eyelid aperture, mm.
+fn aperture_confidence(a: f32) -> f32 {
+    if a.is_finite() {
+        ((a - APERTURE_CLOSED_MM) / (APERTURE_OPEN_MM - APERTURE_CLOSED_MM)).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// How the importer makes per-eye gaze from each eye's optical axis.
+///
+/// Neon's `eye_state` gives each eye's **optical axis** (a unit vector from
+/// the eyeball centre, scene camera frame: x right, y down, z forward). A
+/// ray from an eyeball centre ~35 mm behind and ~31 mm beside the scene
+/// camera images as a line in the scene image whose point depends on the
+/// (unknown) viewing distance; the importer projects the axis's **vanishing
+/// point** (the direction alone, i.e. the ray at infinity). That is
+/// parallax-free and, on the demo recording, the choice that agrees best
+/// with Neon's binocular gaze (the mean of both eyes lies a median 4.2°
+/// from it at infinity, 4.9° at 1 m, 5.7° at 0.5 m). The eyeball centre
+/// is only checked (a NaN or zero centre means no eye model: no gaze).
+///
+/// The optical axis is not the line of sight: the visual axis through the
+/// fovea differs from it by the angle kappa (~5°, nasal and often a little
+/// up), so the raw optical axes of two eyes fixating one point diverge
+/// (on the demo recording the left eye's axis projects a median 6.0° and
+/// the right one's 3.0° from the binocular gaze, both below it). For a
+/// renderer that places each eye's fovea that is too much, hence the
+/// default [`PerEyeGaze::KappaCorrected`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PerEyeGaze {
+    /// The optical axis plus a constant per-eye offset: the median, over
+    /// the recording's rows where the eye is open and the binocular gaze is
+    /// valid, of (binocular gaze − this eye's optical axis) in undistorted
+    /// normalised scene coordinates (x/z, y/z). A first streaming pass over
+    /// `eye_state` and `gaze` collects the offsets into fixed histograms
+    /// ([`KAPPA_BIN`] wide, bounded memory whatever the length) before any
+    /// sample is emitted. A constant offset per eye is what kappa is (a
+    /// property of the eye, fixed in the eye's frame, nearly fixed in the
+    /// scene camera's for gaze within ±30°); it removes each eye's mean
+    /// disagreement with Neon's own binocular gaze (which carries the
+    /// wearer's offset correction, `info.json` `gaze_offset`) but keeps the
+    /// eyes' relative movement, vergence included. With fewer than
+    /// [`KAPPA_MIN_ROWS`] usable rows an eye stays uncorrected (reported in
+    /// [`EyeGazeReport::correction_deg`]). On the demo recording the
+    /// offsets are right (+0.9°, −2.6°), left (+5.0°, −3.4°) (x right,
+    /// y down), and the mean of the two eyes then lies a median 1.3° (95th
+    /// percentile 3.5°) from the binocular gaze, against 4.2° (6.2°)
+    /// uncorrected.
+    ///
+    /// A median over the whole recording, not a running one, so that early
+    /// samples are corrected like late ones; the price is the extra pass at
+    /// open (the recording's `eye_state` and `gaze` files read twice).
+    #[default]
+    KappaCorrected,
+    /// The optical axis's vanishing point as Neon reports it.
+    OpticalAxis,
+    /// Binocular gaze only.
+    Off,
+}
+
+/// Histogram bin of the kappa offsets, undistorted normalised units
+/// (0.0005 ≈ 0.03° ≈ 0.44 px at the image centre).
+pub const KAPPA_BIN: f64 = 0.0005;
+/// Offsets are histogrammed within ±this (≈ ±31°); beyond it they count in
+/// the end bins.
+pub const KAPPA_RANGE: f64 = 0.6;
+/// Rows an eye needs (open, valid binocular gaze) for a kappa correction.
+pub const KAPPA_MIN_ROWS: u64 = 200;
+/// An `eye_state` row and a `gaze` row this close in time are one frame, ns.
+pub const PAIR_TOLERANCE_NS: u64 = 2_500_000;
+
+/// A fixed histogram for a median of bounded memory.
+struct MedianHistogram {
+    bins: Vec<u32>,
+    count: u64,
+}
+
+impl MedianHistogram {
+    fn new() -> Self {
+        Self {
+            bins: vec![0; (2.0 * KAPPA_RANGE / KAPPA_BIN).round() as usize],
+            count: 0,
+        }
+    }
+
+    fn push(&mut self, v: f64) {
+        let n = self.bins.len();
+        let i = ((v + KAPPA_RANGE) / KAPPA_BIN)
+            .floor()
+            .clamp(0.0, (n - 1) as f64) as usize;
+        self.bins[i] = self.bins[i].saturating_add(1);
+        self.count += 1;
+    }
+
+    /// The median (centre of the bin holding it).
+    fn median(&self) -> Option<f64> {
+        if self.count == 0 {
+            return None;
+        }
+        let half = self.count.div_ceil(2);
+        let mut seen = 0u64;
+        for (i, &c) in self.bins.iter().enumerate() {
+            seen += u64::from(c);
+            if seen >= half {
+                return Some((i as f64 + 0.5) * KAPPA_BIN - KAPPA_RANGE);
+            }
+        }
+        None
+    }
 }
 
 /// Streaming importer of a Neon native recording directory.
@@ -389,18 +591,30 @@ pub struct NeonImporter {
     gaze_xy: [(FieldType, usize); 2],
     blinks: Option<BinStream>,
     blink_fields: [(FieldType, usize); 2],
-    peek_eye: Option<(f64, [PupilSample; 2])>,
+    peek_eye: Option<(f64, [PupilSample; 2], [Option<GazeSample>; 2])>,
+    /// Scene camera and per-eye offset (normalised units) `[right, left]`,
+    /// when per-eye gaze is produced.
+    eye_gaze_model: Option<EyeGazeModel>,
+    eye_gaze: EyeGazeReport,
     peek_gaze: Option<GazeSample>,
     peek_blink: Option<BlinkEvent>,
     duration_secs: Option<f64>,
-    pending: Pending<2>,
+    pending: Pending<4>,
     warnings: ImportWarnings,
     failed: bool,
 }
 
 impl NeonImporter {
-    /// Opens a Neon recording directory: reads `info.json` and the layouts.
+    /// Opens a Neon recording directory: reads `info.json` and the layouts;
+    /// per-eye gaze [`PerEyeGaze::KappaCorrected`].
     pub fn open(dir: &Path) -> Result<Self, ImportError> {
+        Self::open_with(dir, PerEyeGaze::default())
+    }
+
+    /// Opens a Neon recording directory with per-eye gaze made as `mode`
+    /// says. A `calibration.bin` that is there but unreadable is an error
+    /// naming it; one that is missing is a warning (binocular gaze only).
+    pub fn open_with(dir: &Path, mode: PerEyeGaze) -> Result<Self, ImportError> {
         let info_path = dir.join("info.json");
         let info_text =
             gazelight_input::read_config(&info_path, gazelight_input::ConfigSyntax::Json).map_err(
@@ -423,19 +637,7 @@ impl NeonImporter {
 
         let eye_dtype_path = dir.join("eye_state.dtype");
         let eye_dtype = Dtype::load(&eye_dtype_path)?;
-        let eye_layout = EyeLayout {
-            pupil: [
-                eye_dtype.require("pupil_diameter_right_mm", &eye_dtype_path)?,
-                eye_dtype.require("pupil_diameter_left_mm", &eye_dtype_path)?,
-            ],
-            aperture: match (
-                eye_dtype.field("eyelid_aperture_right_mm"),
-                eye_dtype.field("eyelid_aperture_left_mm"),
-            ) {
-                (Some(r), Some(l)) => Some([r, l]),
-                _ => None,
-            },
-        };
+        let eye_layout = EyeLayout::read(&eye_dtype, &eye_dtype_path)?;
         let eye = BinStream::find(dir, "eye_state", eye_dtype.record_size)?;
         if eye.is_none() {
             return Err(ImportError::Structure {
@@ -452,14 +654,20 @@ impl NeonImporter {
                 d.require("x", &gaze_dtype_path)?,
                 d.require("y", &gaze_dtype_path)?,
             ];
-            let mut s = BinStream::find(dir, "gaze", d.record_size)?;
-            if s.is_none() {
-                s = BinStream::find(dir, "gaze_200hz", d.record_size)?;
-            }
-            (s, xy)
+            (find_gaze(dir, d.record_size)?, xy)
         } else {
             (None, [(FieldType::F32, 0), (FieldType::F32, 4)])
         };
+
+        let mut warnings = ImportWarnings::default();
+        let (eye_gaze_model, eye_gaze) = eye_gaze_model(
+            dir,
+            mode,
+            &eye_layout,
+            eye_dtype.record_size,
+            gaze.as_ref().map(|g| (g.record_size, gaze_xy)),
+            &mut warnings,
+        )?;
 
         let blinks_dtype_path = dir.join("blinks.dtype");
         let (blinks, blink_fields) = if blinks_dtype_path.is_file() {
@@ -483,11 +691,13 @@ impl NeonImporter {
             blinks,
             blink_fields,
             peek_eye: None,
+            eye_gaze_model,
+            eye_gaze,
             peek_gaze: None,
             peek_blink: None,
             duration_secs,
             pending: Pending::new(),
-            warnings: ImportWarnings::default(),
+            warnings,
             failed: false,
         })
     }
@@ -515,34 +725,21 @@ impl NeonImporter {
             return Ok(());
         };
         let layout = self.eye_layout;
-        let rec = match stream.next_record(&mut self.warnings) {
+        let (ns, rows) = match stream.next_record(&mut self.warnings) {
             None => {
                 self.eye = None;
                 return Ok(());
             }
             Some(Err(e)) => return Err(e),
-            Some(Ok((ns, rec))) => {
-                let mut vals = [(0.0f32, None::<f32>); 2];
-                for (eye, v) in vals.iter_mut().enumerate() {
-                    let (ty, off) = layout.pupil[eye];
-                    v.0 = ty.read_f64(&rec[off..]) as f32;
-                    v.1 = layout
-                        .aperture
-                        .map(|a| a[eye].0.read_f64(&rec[a[eye].1..]) as f32);
-                }
-                (ns, vals)
-            }
+            Some(Ok((ns, rec))) => (ns, [layout.eye(rec, 0), layout.eye(rec, 1)]),
         };
-        let (ns, vals) = rec;
         let t = self.secs(ns);
-        let mk = |eye: u8, (d, aperture): (f32, Option<f32>)| {
+        let mk = |eye: u8, row: &EyeRow| {
+            let d = row.pupil_mm;
             let valid = d.is_finite() && d > 0.0;
-            let confidence = match aperture {
+            let confidence = match row.aperture {
                 _ if !valid => 0.0,
-                Some(a) if a.is_finite() => ((a - APERTURE_CLOSED_MM)
-                    / (APERTURE_OPEN_MM - APERTURE_CLOSED_MM))
-                    .clamp(0.0, 1.0),
-                Some(_) => 0.0,
+                Some(a) => aperture_confidence(a),
                 None => 1.0,
             };
             PupilSample {
@@ -556,7 +753,30 @@ impl NeonImporter {
                 method: DetectorMethod::Other,
             }
         };
-        self.peek_eye = Some((t, [mk(0, vals[0]), mk(1, vals[1])]));
+        let mut gaze = [None; 2];
+        if let Some((cam, offsets)) = &self.eye_gaze_model {
+            for (eye, which) in [(0usize, GazeEyes::Right), (1, GazeEyes::Left)] {
+                let px = rows[eye]
+                    .axis()
+                    .and_then(|a| eye_gaze_px(cam, a, offsets[eye]));
+                match px {
+                    Some(px) => {
+                        self.eye_gaze.emitted[eye] += 1;
+                        gaze[eye] = Some(GazeSample {
+                            t_secs: t,
+                            gaze_uv: [
+                                (px[0] as f32) / SCENE_CAMERA_PX[0],
+                                (px[1] as f32) / SCENE_CAMERA_PX[1],
+                            ],
+                            confidence: rows[eye].lid_confidence,
+                            eyes: which,
+                        });
+                    }
+                    None => self.eye_gaze.missing[eye] += 1,
+                }
+            }
+        }
+        self.peek_eye = Some((t, [mk(0, &rows[0]), mk(1, &rows[1])], gaze));
         Ok(())
     }
 
@@ -636,10 +856,16 @@ impl NeonImporter {
             )
         };
         let mut dropped = false;
-        if let Some((t, _)) = self.peek_eye
+        if let Some((t, _, gaze)) = self.peek_eye
             && bad(t)
         {
             self.peek_eye = None;
+            // Its per-eye gaze is not delivered after all.
+            for (eye, g) in gaze.iter().enumerate() {
+                if g.is_some() {
+                    self.eye_gaze.emitted[eye] -= 1;
+                }
+            }
             let p = self.dir.join("eye_state ps1.time");
             self.warnings.skip(&p, Position::File, why(t));
             dropped = true;
@@ -704,8 +930,11 @@ impl Iterator for NeonImporter {
             return self.peek_blink.take().map(|b| Ok(Sample::Blink(b)));
         }
         if te <= tg {
-            let (_, [r, l]) = self.peek_eye.take()?;
+            let (_, [r, l], [gr, gl]) = self.peek_eye.take()?;
             self.pending.push(Sample::Pupil(l));
+            for g in [gl, gr].into_iter().flatten() {
+                self.pending.push(Sample::Gaze(g));
+            }
             return Some(Ok(Sample::Pupil(r)));
         }
         self.peek_gaze.take().map(|g| Ok(Sample::Gaze(g)))
@@ -726,6 +955,181 @@ impl Importer for NeonImporter {
     fn format(&self) -> &'static str {
         "neon"
     }
+    fn eye_gaze(&self) -> Option<&EyeGazeReport> {
+        Some(&self.eye_gaze)
+    }
+}
+
+/// The gaze stream's parts: `gaze psN.raw`, else `gaze_200hz.raw`.
+fn find_gaze(dir: &Path, record_size: usize) -> Result<Option<BinStream>, ImportError> {
+    let mut s = BinStream::find(dir, "gaze", record_size)?;
+    if s.is_none() {
+        s = BinStream::find(dir, "gaze_200hz", record_size)?;
+    }
+    Ok(s)
+}
+
+/// Scene pixel of an eye's gaze: the optical axis `a` as undistorted
+/// normalised coordinates, plus `offset`, through the camera model.
+fn eye_gaze_px(cam: &SceneCamera, a: [f64; 3], offset: [f64; 2]) -> Option<[f64; 2]> {
+    if a[2] <= 1e-9 {
+        return None;
+    }
+    cam.project_normalized([a[0] / a[2] + offset[0], a[1] / a[2] + offset[1]])
+}
+
+/// The scene camera and each eye's offset (undistorted normalised units),
+/// `[right, left]`.
+type EyeGazeModel = (SceneCamera, [[f64; 2]; 2]);
+
+/// Decides per-eye gaze at open: loads `calibration.bin` and, for
+/// [`PerEyeGaze::KappaCorrected`], runs the offset pass.
+fn eye_gaze_model(
+    dir: &Path,
+    mode: PerEyeGaze,
+    layout: &EyeLayout,
+    eye_record_size: usize,
+    gaze: Option<(usize, [(FieldType, usize); 2])>,
+    warnings: &mut ImportWarnings,
+) -> Result<(Option<EyeGazeModel>, EyeGazeReport), ImportError> {
+    let none = |reason: String| {
+        Ok((
+            None,
+            EyeGazeReport {
+                per_eye: false,
+                reason: Some(reason),
+                ..EyeGazeReport::default()
+            },
+        ))
+    };
+    if mode == PerEyeGaze::Off {
+        return none("per-eye gaze turned off".into());
+    }
+    if layout.geometry.is_none() {
+        return none("eye_state.dtype has no eyeball_center_* / optical_axis_* fields".into());
+    }
+    let calib_path = dir.join("calibration.bin");
+    if !super::data_file(&calib_path)? {
+        let reason = "no calibration.bin (the scene camera intrinsics): per-eye gaze cannot be \
+                      projected; the binocular gaze stands in for both eyes";
+        warnings.note(&calib_path, Position::File, reason);
+        return none(reason.into());
+    }
+    let cam = SceneCamera::load(&calib_path)?;
+    let mut offsets = [[0.0; 2]; 2];
+    let mut correction_deg = [None; 2];
+    if mode == PerEyeGaze::KappaCorrected {
+        match gaze {
+            Some((size, xy)) => {
+                let found = kappa_offsets(dir, layout, eye_record_size, size, xy, &cam)?;
+                for eye in 0..2 {
+                    if let Some(o) = found[eye] {
+                        offsets[eye] = o;
+                        correction_deg[eye] = Some(o.map(|v| v.atan().to_degrees()));
+                    } else {
+                        let side = ["right", "left"][eye];
+                        warnings.note(
+                            &dir.join("eye_state ps1.raw"),
+                            Position::File,
+                            format!(
+                                "fewer than {KAPPA_MIN_ROWS} rows with the {side} eye open and \
+                                 a valid binocular gaze: its per-eye gaze is the uncorrected \
+                                 optical axis"
+                            ),
+                        );
+                    }
+                }
+            }
+            None => warnings.note(
+                &dir.join("gaze.dtype"),
+                Position::File,
+                "no binocular gaze to correct the per-eye gaze by: it is the uncorrected \
+                 optical axis",
+            ),
+        }
+    }
+    Ok((
+        Some((cam, offsets)),
+        EyeGazeReport {
+            per_eye: true,
+            correction_deg,
+            ..EyeGazeReport::default()
+        },
+    ))
+}
+
+/// The first pass of [`PerEyeGaze::KappaCorrected`]: per eye `[right,
+/// left]`, the median of (binocular − optical axis) in undistorted
+/// normalised coordinates over rows paired in time with a gaze record,
+/// where the eye is open (lid confidence 1) and both are valid. Streams
+/// both files once more; its own warnings are dropped (the main pass
+/// counts the same records).
+fn kappa_offsets(
+    dir: &Path,
+    layout: &EyeLayout,
+    eye_record_size: usize,
+    gaze_record_size: usize,
+    [(tx, ox), (ty, oy)]: [(FieldType, usize); 2],
+    cam: &SceneCamera,
+) -> Result<[Option<[f64; 2]>; 2], ImportError> {
+    let mut scratch = ImportWarnings::default();
+    let (Some(mut eyes), Some(mut gaze)) = (
+        BinStream::find(dir, "eye_state", eye_record_size)?,
+        find_gaze(dir, gaze_record_size)?,
+    ) else {
+        return Ok([None, None]);
+    };
+    let mut hist: [[MedianHistogram; 2]; 2] =
+        std::array::from_fn(|_| [MedianHistogram::new(), MedianHistogram::new()]);
+    let mut next_gaze =
+        |scratch: &mut ImportWarnings| -> Result<Option<(u64, [f64; 2])>, ImportError> {
+            match gaze.next_record(scratch) {
+                None => Ok(None),
+                Some(Err(e)) => Err(e),
+                Some(Ok((ns, rec))) => Ok(Some((
+                    ns,
+                    [tx.read_f64(&rec[ox..]), ty.read_f64(&rec[oy..])],
+                ))),
+            }
+        };
+    let mut g = next_gaze(&mut scratch)?;
+    loop {
+        let (ns, rows) = match eyes.next_record(&mut scratch) {
+            None => break,
+            Some(Err(e)) => return Err(e),
+            Some(Ok((ns, rec))) => (ns, [layout.eye(rec, 0), layout.eye(rec, 1)]),
+        };
+        // Skip gaze records older than this row.
+        while let Some((gns, _)) = g {
+            if gns + PAIR_TOLERANCE_NS < ns {
+                g = next_gaze(&mut scratch)?;
+            } else {
+                break;
+            }
+        }
+        let Some((gns, px)) = g else { break };
+        if gns > ns + PAIR_TOLERANCE_NS {
+            continue;
+        }
+        let Some(nb) = cam.unproject(px) else {
+            continue;
+        };
+        for (eye, row) in rows.iter().enumerate() {
+            let Some(a) = row.axis() else { continue };
+            if row.lid_confidence < 1.0 || a[2] <= 1e-9 {
+                continue;
+            }
+            hist[eye][0].push(nb[0] - a[0] / a[2]);
+            hist[eye][1].push(nb[1] - a[1] / a[2]);
+        }
+    }
+    Ok(std::array::from_fn(|eye| {
+        let [hx, hy] = &hist[eye];
+        if hx.count < KAPPA_MIN_ROWS {
+            return None;
+        }
+        Some([hx.median()?, hy.median()?])
+    }))
 }
 
 #[cfg(test)]

@@ -148,6 +148,10 @@ pub struct RecordingSummary {
     /// Records the importer skipped.
     pub skipped_records: u64,
     pub warnings: Vec<String>,
+    /// Per-eye gaze as the importer reports it (Neon: from the eye state
+    /// and calibration.bin, or binocular only); `None` for formats whose
+    /// samples say it themselves, and for live summaries.
+    pub eye_gaze: Option<crate::EyeGazeReport>,
     /// The chain's counters.
     pub chain: ChainStats,
 }
@@ -357,6 +361,7 @@ impl Summarizer {
             clock_offset_s: None,
             skipped_records: warnings.skipped_records,
             warnings: warnings.messages.clone(),
+            eye_gaze: None,
             chain: stats,
         }
     }
@@ -385,7 +390,9 @@ pub fn summarize_importer(
         s.push(&sample?);
     }
     let format = importer.format();
-    Ok(s.finish(Some(format), importer.warnings()))
+    let mut summary = s.finish(Some(format), importer.warnings());
+    summary.eye_gaze = importer.eye_gaze().cloned();
+    Ok(summary)
 }
 
 /// Why a live summary failed.
@@ -501,6 +508,31 @@ impl fmt::Display for RecordingSummary {
             write!(f, " (+{} per-eye samples)", self.samples.gaze_per_eye)?;
         }
         writeln!(f)?;
+        match &self.eye_gaze {
+            Some(g) if !g.per_eye => writeln!(
+                f,
+                "  per-eye gaze: none ({}); the binocular gaze stands in for both eyes",
+                g.reason.as_deref().unwrap_or("not in the recording")
+            )?,
+            Some(g) => {
+                write!(
+                    f,
+                    "  per-eye gaze: right {}, left {} (rows without: right {}, left {})",
+                    g.emitted[0], g.emitted[1], g.missing[0], g.missing[1]
+                )?;
+                for (e, c) in g.correction_deg.iter().enumerate() {
+                    if let Some([x, y]) = c {
+                        write!(
+                            f,
+                            "; {} corrected by ({x:+.2}°, {y:+.2}°)",
+                            ["right", "left"][e]
+                        )?;
+                    }
+                }
+                writeln!(f)?;
+            }
+            None => {}
+        }
         for e in 0..2 {
             let p = &self.pupil[e];
             if self.samples.pupil[e] == 0 {

@@ -341,6 +341,9 @@ impl<I: Importer> Importer for TimeGuard<I> {
     fn data_files(&self) -> Vec<PathBuf> {
         self.inner.data_files()
     }
+    fn eye_gaze(&self) -> Option<&super::EyeGazeReport> {
+        self.inner.eye_gaze()
+    }
 }
 
 #[cfg(test)]

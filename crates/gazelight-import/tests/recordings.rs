@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use gazelight_eye::filter::{FilterChain, FilterConfig};
 use gazelight_eye::profile::{EyeCalibration, EyeCalibrations, PupilCalibration, SCHEMA};
-use gazelight_eye::{PupilUnit, Sample};
+use gazelight_eye::{GazeEyes, PupilUnit, Sample};
 use gazelight_import::{self as import, Importer};
 
 fn data(rel: &str) -> PathBuf {
@@ -81,7 +81,12 @@ fn neon_blinks_match_the_recordings_blinks_file() {
     let gaze = r
         .samples
         .iter()
-        .filter(|s| matches!(s, Sample::Gaze(_)))
+        .filter(|s| matches!(s, Sample::Gaze(g) if g.eyes == GazeEyes::Binocular))
+        .count();
+    let per_eye_gaze = r
+        .samples
+        .iter()
+        .filter(|s| matches!(s, Sample::Gaze(g) if g.eyes != GazeEyes::Binocular))
         .count();
     assert_eq!(
         pupils,
@@ -89,6 +94,8 @@ fn neon_blinks_match_the_recordings_blinks_file() {
         "eye_state: 143040 B / 80 B per record, 2 eyes"
     );
     assert_eq!(gaze, 1788);
+    // One gaze per eye and eye_state row (from the optical axes).
+    assert_eq!(per_eye_gaze, 2 * 1788);
     // The recording's own blinks: 2, both eyes.
     let stats = *chain.stats();
     eprintln!("neon: {stats:?}");
