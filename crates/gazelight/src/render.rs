@@ -433,6 +433,8 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     );
     let dt_secs = 1.0 / args.fps;
     let mut rendered = 0usize;
+    // Stereo: frames in which each view (left, right) had its eye's own gaze.
+    let mut own_gaze_frames = [0usize; 2];
     for i in 0..frames {
         if stop.as_ref().is_some_and(|s| s.requested()) {
             break;
@@ -441,6 +443,13 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         let state = eye.state(t_secs, last_adaptation);
         let dt = if i == 0 { 0.0 } else { dt_secs as f32 };
         let inputs: Vec<(FrameInput, bool)> = views.iter().map(|v| v.input(&state, dt)).collect();
+        for (k, v) in views.iter().enumerate().take(2) {
+            if let View::Eye(e) = v
+                && state.eyes.get(*e).is_some_and(|c| c.gaze_valid)
+            {
+                own_gaze_frames[k] += 1;
+            }
+        }
         let new_kernel = match (&mut kernels, inputs.as_slice()) {
             (Some(k), [(left, _), (right, _)]) => k.update([left, right], &mut pipelines)?,
             _ => [false; 2],
@@ -569,6 +578,12 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             .first()
             .map_or_else(String::new, Renderer::describe)
     );
+    let mut settings = settings.clone();
+    if n_views == 2 {
+        // Said once: in the settings summary below and session.json.
+        let (value, note) = per_eye_gaze_setting(own_gaze_frames, rendered);
+        settings.set("gaze.per_eye", value, Origin::Source).note = Some(note);
+    }
     settings.write(&args.out)?;
     print!("{}", settings.summary());
     println!(
@@ -582,6 +597,24 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         );
     }
     Ok(())
+}
+
+/// What a stereo render says of its gaze: whether each eye had its own
+/// (the source's per-eye gaze) or the binocular gaze stood in, as the
+/// `gaze.per_eye` setting (frames with each eye's own gaze, [left, right])
+/// and a sentence.
+fn per_eye_gaze_setting(own: [usize; 2], frames: usize) -> (serde_json::Value, String) {
+    let value = serde_json::json!({ "own_gaze_frames": own, "frames": frames });
+    let note = if own == [0, 0] {
+        "the source gives no per-eye gaze: the binocular gaze stood in for both eyes".to_owned()
+    } else {
+        format!(
+            "each eye's own gaze from the source in {} (left) and {} (right) of {frames} frames, \
+             the binocular gaze in the others",
+            own[0], own[1]
+        )
+    };
+    (value, note)
 }
 
 /// A slow horizontal gaze sweep at a 4 mm pupil: the default trace for a

@@ -168,6 +168,12 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             w.skipped_records,
             w.messages.first().map_or("-", String::as_str)
         );
+    } else {
+        // Notes that skipped nothing (e.g. a Neon recording without its
+        // calibration.bin: no per-eye gaze).
+        for m in w.messages.iter().take(5) {
+            eprintln!("warning: {}: {m}", args.recording.display());
+        }
     }
     if let Some(warning) = input_report::pupil_rejection(feeder.stats()) {
         tracing::warn!(recording = %args.recording.display(), "{warning}");

@@ -40,6 +40,8 @@ pub enum Origin {
     Profile,
     /// gazelight's default.
     Default,
+    /// What the tracker or recording gave (e.g. per-eye gaze).
+    Source,
 }
 
 impl Origin {
@@ -50,6 +52,7 @@ impl Origin {
             Origin::Config => "config",
             Origin::Profile => "profile",
             Origin::Default => "default",
+            Origin::Source => "source",
         }
     }
 

@@ -142,7 +142,10 @@ fn status_page_of_a_live_session() {
         .split(" / ")
         .map(|x| x.trim_end_matches(" Hz").parse().unwrap())
         .collect();
-    assert!(hz.iter().all(|r| (170.0..230.0).contains(r)), "{shown_rate}");
+    assert!(
+        hz.iter().all(|r| (170.0..230.0).contains(r)),
+        "{shown_rate}"
+    );
     assert_eq!(d2["shown"]["dropout"], "0.0 % / 0.0 %", "{d2}");
 
     // inspect against the same peer: 200 Hz per eye, 0 % dropouts.
@@ -151,7 +154,11 @@ fn status_page_of_a_live_session() {
         .args(["--secs", "2", "--json"])
         .output()
         .expect("gazelight inspect");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     for e in 0..2 {
         let r = summary["rate_hz"]["pupil"][e].as_f64().unwrap();

@@ -83,6 +83,23 @@ fn neon_replay_renders_each_eye_with_its_own_pupil_and_kernel() {
     ]);
     let stdout = success(&out);
     assert!(stdout.contains("stereo frames (96x80 per eye"), "{stdout}");
+    // Each eye's own gaze (Neon's eye states), said in the summary and in
+    // session.json.
+    assert!(
+        stdout.contains("each eye's own gaze from the source in"),
+        "{stdout}"
+    );
+    let session: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).expect("session.json"))
+            .expect("JSON");
+    let per_eye = &session["settings"]["gaze.per_eye"];
+    assert_eq!(per_eye["source"], "source", "{session}");
+    let own = &per_eye["value"]["own_gaze_frames"];
+    let frames = per_eye["value"]["frames"].as_u64().unwrap();
+    assert!(
+        own[0].as_u64().unwrap() * 10 >= frames * 9 && own[1].as_u64().unwrap() * 10 >= frames * 9,
+        "{per_eye}"
+    );
     assert_eq!(png_size(&dir.join("frames/frame_00010.png")), (192, 80));
     // plot.png: one colour per eye (left in blues, right in oranges; the
     // adaptation lines' exact colours, output.rs `eye_colours`).
@@ -106,6 +123,20 @@ fn neon_replay_renders_each_eye_with_its_own_pupil_and_kernel() {
             csv.col(&format!("{column}_{eye}"));
         }
     }
+    // The two views' gazes differ where the recording's eyes differ: the
+    // per-eye gaze from each eye state (kappa-corrected optical axes, about
+    // 1° apart at the median) against the binocular gaze that stood in for
+    // both before (identical in all frames).
+    let (gl, gr) = (csv.f64s("gaze_u_left"), csv.f64s("gaze_u_right"));
+    let (vl, vr) = (csv.f64s("gaze_v_left"), csv.f64s("gaze_v_right"));
+    let apart = (0..gl.len())
+        .filter(|&i| (gl[i] - gr[i]).abs() > 1e-3 || (vl[i] - vr[i]).abs() > 1e-3)
+        .count();
+    assert!(
+        apart * 10 >= gl.len() * 8,
+        "left and right gaze differ in {apart} of {} frames",
+        gl.len()
+    );
     let pl = csv.f64s("pupil_mm_left");
     let pr = csv.f64s("pupil_mm_right");
     // Each eye's column follows that eye (the first second eases from the
@@ -305,5 +336,47 @@ fn stereo_run_follows_each_eye() {
         .collect();
     assert!(!frames.is_empty());
     assert_eq!(png_size(&frames[0].path()), (192, 80));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A source with only a binocular gaze (the demo's synthetic trace) in
+/// stereo: said once in the summary and in session.json.
+#[test]
+fn a_binocular_only_source_is_reported_in_stereo() {
+    let dir = tmp("stereo-binocular");
+    let out = gazelight(&[
+        "render",
+        "--stereo",
+        "--size",
+        "64x48",
+        "--frames",
+        "6",
+        "--backend",
+        "cpu",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    let stdout = success(&out);
+    let said = stdout
+        .lines()
+        .filter(|l| l.contains("the binocular gaze stood in for both eyes"))
+        .count();
+    assert_eq!(said, 1, "{stdout}");
+    let session: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("session.json")).expect("session.json"))
+            .expect("JSON");
+    let per_eye = &session["settings"]["gaze.per_eye"];
+    assert_eq!(
+        per_eye["value"]["own_gaze_frames"],
+        serde_json::json!([0, 0]),
+        "{per_eye}"
+    );
+    assert!(
+        per_eye["note"]
+            .as_str()
+            .is_some_and(|n| n.contains("no per-eye gaze")),
+        "{per_eye}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

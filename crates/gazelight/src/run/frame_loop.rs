@@ -1104,7 +1104,10 @@ mod tests {
             if stereo {
                 assert_eq!(status.views, 2);
                 assert!(
-                    status.view_adaptation_cd_m2.iter().all(|a| a.is_finite() && *a > 0.0),
+                    status
+                        .view_adaptation_cd_m2
+                        .iter()
+                        .all(|a| a.is_finite() && *a > 0.0),
                     "{status:?}"
                 );
                 assert!(status.view_target_cd_m2.iter().all(|a| a.is_finite()));

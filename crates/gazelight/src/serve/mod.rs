@@ -749,13 +749,18 @@ mod tests {
         // before the first WebSocket update), in a JSON script element.
         let (_, body) = get(addr, "/").await;
         let html = String::from_utf8(body).unwrap();
-        let start = html.find(r#"<script id="initial" type="application/json">"#).unwrap();
+        let start = html
+            .find(r#"<script id="initial" type="application/json">"#)
+            .unwrap();
         let json = &html[start..];
         let json = &json[json.find('>').unwrap() + 1..json.find("</script>").unwrap()];
         let initial: serde_json::Value = serde_json::from_str(json).unwrap();
         assert_eq!(initial["status"]["eye"]["updates"], 11, "{initial}");
         assert_eq!(initial["status"]["frame"]["frames"], 10);
-        assert_eq!(initial["history"]["pupil_left_mm"], serde_json::json!([3.75, 4.25]));
+        assert_eq!(
+            initial["history"]["pupil_left_mm"],
+            serde_json::json!([3.75, 4.25])
+        );
         assert!(!html.contains("__GAZELIGHT_INITIAL__"));
 
         // The latest frame, exactly.
