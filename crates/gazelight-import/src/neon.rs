@@ -1064,6 +1064,33 @@ fn eye_gaze_model(
 /// where the eye is open (lid confidence 1) and both are valid. Streams
 /// both files once more; its own warnings are dropped (the main pass
 /// counts the same records).
+/// Largest step between consecutive stamps of one stream that the kappa
+/// pass takes as time passing (a Neon recording runs without pauses).
+const KAPPA_MAX_STEP_NS: u64 = 10_000_000_000;
+
+/// Drops single stamps that step more than [`KAPPA_MAX_STEP_NS`] from the
+/// last accepted one; two in a row that agree with each other are a real
+/// step and re-anchor it.
+#[derive(Debug, Default)]
+struct StepFilter {
+    last: Option<u64>,
+    pending: Option<u64>,
+}
+
+impl StepFilter {
+    fn accept(&mut self, ns: u64) -> bool {
+        let near = |a: u64| a.abs_diff(ns) <= KAPPA_MAX_STEP_NS;
+        let ok = self.last.is_none_or(near) || self.pending.is_some_and(near);
+        if ok {
+            self.last = Some(ns);
+            self.pending = None;
+        } else {
+            self.pending = Some(ns);
+        }
+        ok
+    }
+}
+
 fn kappa_offsets(
     dir: &Path,
     layout: &EyeLayout,
@@ -1081,17 +1108,25 @@ fn kappa_offsets(
     };
     let mut hist: [[MedianHistogram; 2]; 2] =
         std::array::from_fn(|_| [MedianHistogram::new(), MedianHistogram::new()]);
+    let mut gaze_steps = StepFilter::default();
     let mut next_gaze =
         |scratch: &mut ImportWarnings| -> Result<Option<(u64, [f64; 2])>, ImportError> {
-            match gaze.next_record(scratch) {
-                None => Ok(None),
-                Some(Err(e)) => Err(e),
-                Some(Ok((ns, rec))) => Ok(Some((
-                    ns,
-                    [tx.read_f64(&rec[ox..]), ty.read_f64(&rec[oy..])],
-                ))),
+            loop {
+                match gaze.next_record(scratch) {
+                    None => return Ok(None),
+                    Some(Err(e)) => return Err(e),
+                    Some(Ok((ns, rec))) => {
+                        if gaze_steps.accept(ns) {
+                            return Ok(Some((
+                                ns,
+                                [tx.read_f64(&rec[ox..]), ty.read_f64(&rec[oy..])],
+                            )));
+                        }
+                    }
+                }
             }
         };
+    let mut eye_steps = StepFilter::default();
     let mut g = next_gaze(&mut scratch)?;
     loop {
         let (ns, rows) = match eyes.next_record(&mut scratch) {
@@ -1099,6 +1134,11 @@ fn kappa_offsets(
             Some(Err(e)) => return Err(e),
             Some(Ok((ns, rec))) => (ns, [layout.eye(rec, 0), layout.eye(rec, 1)]),
         };
+        // A row with a corrupt stamp (one flipped bit: years ahead) must
+        // not make the pairing skip every gaze record.
+        if !eye_steps.accept(ns) {
+            continue;
+        }
         // Skip gaze records older than this row.
         while let Some((gns, _)) = g {
             if gns + PAIR_TOLERANCE_NS < ns {
@@ -1135,6 +1175,23 @@ fn kappa_offsets(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The kappa pass's stamp filter: a single flipped-bit stamp (years
+    /// ahead) is dropped, the stream goes on; a real step (two stamps that
+    /// agree) is taken.
+    #[test]
+    fn kappa_step_filter_drops_single_outliers_and_follows_steps() {
+        let mut f = StepFilter::default();
+        let ms = 1_000_000u64;
+        assert!(f.accept(1_000 * ms));
+        assert!(f.accept(1_005 * ms));
+        assert!(!f.accept(1_010 * ms + (1 << 56)));
+        assert!(f.accept(1_015 * ms));
+        let later = 1_015 * ms + 3_600_000 * ms;
+        assert!(!f.accept(later));
+        assert!(f.accept(later + 5 * ms));
+        assert!(f.accept(later + 10 * ms));
+    }
 
     #[test]
     fn dtype_parses_neon_layout_with_offsets() {

@@ -168,12 +168,16 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             w.skipped_records,
             w.messages.first().map_or("-", String::as_str)
         );
-    } else {
-        // Notes that skipped nothing (e.g. a Neon recording without its
-        // calibration.bin: no per-eye gaze).
-        for m in w.messages.iter().take(5) {
-            eprintln!("warning: {}: {m}", args.recording.display());
-        }
+    }
+    // Every note, whether or not records were skipped (e.g. a Neon
+    // recording without its calibration.bin: no per-eye gaze).
+    for m in w
+        .messages
+        .iter()
+        .skip(usize::from(w.skipped_records > 0))
+        .take(5)
+    {
+        eprintln!("warning: {}: {m}", args.recording.display());
     }
     if let Some(warning) = input_report::pupil_rejection(feeder.stats()) {
         tracing::warn!(recording = %args.recording.display(), "{warning}");
