@@ -19,8 +19,8 @@ use std::time::Duration;
 use serde::Serialize;
 
 use crate::{ImportError, ImportWarnings, Importer};
-use gazelight_eye::filter::{ChainStats, FilterChain, PupilOutcome};
-use gazelight_eye::sample::{DetectorMethod, PupilUnit, Sample};
+use gazelight_eye::filter::{ChainStats, FilterChain, PupilStreamCounts};
+use gazelight_eye::sample::{PupilUnit, Sample};
 use gazelight_pupil::{PupilClient, PupilConfig};
 
 /// Intervals longer than this (s) are recording pauses, not sampling.
@@ -179,8 +179,8 @@ pub struct Summarizer {
     /// Per stream (eye × detector: 2D, 3D, other; then binocular and
     /// per-eye gaze): last time, intervals, their sum.
     intervals: [(f64, u64, f64); 8],
-    /// Per eye × detector: samples, measured, rejected, uncalibrated.
-    outcomes: [[u64; 4]; 6],
+    /// Per eye and detector.
+    outcomes: [[PupilStreamCounts; PupilStreamCounts::DETECTORS]; 2],
     counts: SampleCounts,
     unit: [Option<PupilUnit>; 2],
     raw: [Vec<f32>; 2],
@@ -196,7 +196,7 @@ impl Summarizer {
             first_t: f64::INFINITY,
             last_t: f64::NEG_INFINITY,
             intervals: [(f64::NAN, 0, 0.0); 8],
-            outcomes: [[0; 4]; 6],
+            outcomes: Default::default(),
             counts: SampleCounts::default(),
             unit: [None; 2],
             raw: [Vec::new(), Vec::new()],
@@ -235,20 +235,10 @@ impl Summarizer {
         match s {
             Sample::Pupil(p) if p.eye <= 1 => {
                 let e = p.eye as usize;
-                let k = 3 * e
-                    + match p.method {
-                        DetectorMethod::Pupil2d => 0,
-                        DetectorMethod::Pupil3d => 1,
-                        DetectorMethod::Other => 2,
-                    };
-                span(k);
-                let o = &mut self.outcomes[k];
-                o[0] += 1;
-                match up.pupil_outcome {
-                    Some(PupilOutcome::Measured) => o[1] += 1,
-                    Some(PupilOutcome::Rejected) => o[2] += 1,
-                    Some(PupilOutcome::Uncalibrated) => o[3] += 1,
-                    None => {}
+                let m = PupilStreamCounts::detector_index(p.method);
+                span(PupilStreamCounts::DETECTORS * e + m);
+                if let Some(outcome) = up.pupil_outcome {
+                    self.outcomes[e][m].add(outcome);
                 }
                 self.counts.pupil[e] += 1;
                 self.unit[e].get_or_insert(p.unit);
@@ -298,25 +288,21 @@ impl Summarizer {
             let n = self.counts.pupil[e];
             let nf = n.max(1) as f64;
             // Dropouts among the samples of the streams the chain can use.
-            let (mut usable, mut rejected) = (0u64, 0u64);
+            let mut usable = PupilStreamCounts::default();
             for (m, detector) in ["2d", "3d", "pupil"].into_iter().enumerate() {
-                let [samples, measured, rej, uncalibrated] = self.outcomes[3 * e + m];
-                if samples == 0 {
+                let c = self.outcomes[e][m];
+                if c.samples == 0 {
                     continue;
                 }
-                let r = rate(self.intervals[3 * e + m]);
+                let r = rate(self.intervals[PupilStreamCounts::DETECTORS * e + m]);
                 eye_rate[e] = eye_rate[e].max(r);
-                let calibrated = uncalibrated == 0 && measured + rej > 0;
-                if calibrated {
-                    usable += measured + rej;
-                    rejected += rej;
-                }
+                usable.add_usable(&c);
                 streams[e].push(StreamSummary {
                     detector,
-                    samples,
+                    samples: c.samples,
                     rate_hz: r,
-                    dropout_fraction: calibrated.then(|| rej as f64 / (measured + rej) as f64),
-                    uncalibrated,
+                    dropout_fraction: c.dropout_rate(),
+                    uncalibrated: c.uncalibrated,
                 });
             }
             *ep = EyePupil {
@@ -327,10 +313,8 @@ impl Summarizer {
                 low_confidence_fraction: stats.rejected_confidence[e] as f64 / nf,
                 dropout_fraction: if n == 0 {
                     0.0
-                } else if usable == 0 {
-                    1.0
                 } else {
-                    rejected as f64 / usable as f64
+                    usable.dropout_rate().unwrap_or(1.0)
                 },
             };
         }
@@ -635,7 +619,7 @@ mod tests {
     /// and the two detectors' interleaved stamps as one 400 Hz stream).
     #[test]
     fn a_pupil_core_reads_its_rate_per_eye_and_no_dropouts() {
-        use gazelight_eye::sample::PupilSample;
+        use gazelight_eye::sample::{DetectorMethod, PupilSample};
         let mut samples = Vec::new();
         for i in 0..2000 {
             let t = f64::from(i) / 200.0;

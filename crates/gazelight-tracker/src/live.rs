@@ -43,13 +43,11 @@ use std::time::Duration;
 use gazelight_eye::clock::{ClockStats, host_now_secs};
 use gazelight_eye::filter::{
     ChainStats, ChainUpdate, DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterChain,
-    PupilOutcome, SlewLimiter,
+    PupilOutcome, PupilStreamCounts, SlewLimiter,
 };
 use gazelight_eye::pupil_model::PupilModel;
 use gazelight_eye::source::{SampleSource, SourceError};
-use gazelight_eye::{
-    DetectorMethod, EYE_LEFT, EYE_RIGHT, EyeState, GazeEyes, LiveEyeState, PupilOrigin, Sample,
-};
+use gazelight_eye::{EYE_LEFT, EYE_RIGHT, EyeState, GazeEyes, LiveEyeState, PupilOrigin, Sample};
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
@@ -201,32 +199,6 @@ const PUPIL_STREAM_NAMES: [[&str; 3]; 2] = [
 ];
 /// Gaze streams: binocular, right, left.
 const GAZE_STREAM_NAMES: [&str; 3] = ["gaze binocular", "gaze right (0)", "gaze left (1)"];
-
-/// One pupil stream's counts in a window.
-#[derive(Clone, Copy, Debug, Default)]
-struct PupilCounts {
-    n: u64,
-    measured: u64,
-    rejected: u64,
-    uncalibrated: u64,
-}
-
-impl PupilCounts {
-    fn add(&mut self, o: &PupilCounts) {
-        self.n += o.n;
-        self.measured += o.measured;
-        self.rejected += o.rejected;
-        self.uncalibrated += o.uncalibrated;
-    }
-
-    /// Rejected among the samples the chain could measure; `None` for a
-    /// stream in raw units without a calibration (the chain can use none
-    /// of its samples, valid or not: a calibration holds per unit).
-    fn dropout_rate(&self) -> Option<f64> {
-        let usable = self.measured + self.rejected;
-        (usable > 0 && self.uncalibrated == 0).then(|| self.rejected as f64 / usable as f64)
-    }
-}
 
 /// The source status, shared between the live task and its readers.
 pub type SharedStatus = Arc<Mutex<SourceStatus>>;
@@ -419,7 +391,7 @@ struct RateWindow {
     samples: u64,
     confidence_sum: f64,
     /// Per eye and detector (Pupil 2D, Pupil 3D, other).
-    pupil: [[PupilCounts; 3]; 2],
+    pupil: [[PupilStreamCounts; PupilStreamCounts::DETECTORS]; 2],
     /// Gaze: binocular, right, left.
     gaze: [u64; 3],
     /// Pupils the chain measured.
@@ -455,24 +427,13 @@ impl RateWindow {
                 if let (Some(outcome), Some(eye)) =
                     (up.pupil_outcome, self.pupil.get_mut(usize::from(p.eye)))
                 {
-                    let method = match p.method {
-                        DetectorMethod::Pupil2d => 0,
-                        DetectorMethod::Pupil3d => 1,
-                        DetectorMethod::Other => 2,
-                    };
-                    let c = &mut eye[method];
-                    c.n += 1;
-                    match outcome {
-                        PupilOutcome::Measured => {
-                            c.measured += 1;
-                            self.measured += 1;
-                            if let Some(age) = stale_age {
-                                self.measured_stale += 1;
-                                self.stale_age_max_secs = self.stale_age_max_secs.max(age);
-                            }
+                    eye[PupilStreamCounts::detector_index(p.method)].add(outcome);
+                    if outcome == PupilOutcome::Measured {
+                        self.measured += 1;
+                        if let Some(age) = stale_age {
+                            self.measured_stale += 1;
+                            self.stale_age_max_secs = self.stale_age_max_secs.max(age);
                         }
-                        PupilOutcome::Rejected => c.rejected += 1,
-                        PupilOutcome::Uncalibrated => c.uncalibrated += 1,
                     }
                 }
             }
@@ -493,30 +454,28 @@ impl RateWindow {
     fn publish_streams(&self, elapsed: f64, s: &mut SourceStatus) {
         let rate = |n: u64| n as f64 / elapsed;
         s.streams.clear();
-        let mut all = PupilCounts::default();
+        let mut all = PupilStreamCounts::default();
         let mut any_pupil = false;
         let mut fastest = 0u64;
         for (e, eye) in self.pupil.iter().enumerate() {
-            let mut this_eye = PupilCounts::default();
+            let mut this_eye = PupilStreamCounts::default();
             let mut eye_fastest = 0u64;
             for (m, c) in eye.iter().enumerate() {
-                if c.n == 0 {
+                if c.samples == 0 {
                     continue;
                 }
-                if c.uncalibrated == 0 {
-                    this_eye.add(c);
-                }
-                eye_fastest = eye_fastest.max(c.n);
+                this_eye.add_usable(c);
+                eye_fastest = eye_fastest.max(c.samples);
                 s.streams.push(StreamStatus {
                     name: PUPIL_STREAM_NAMES[e][m],
                     eye: Some(e as u8),
-                    rate_hz: rate(c.n),
+                    rate_hz: rate(c.samples),
                     dropout_rate: c.dropout_rate(),
                     uncalibrated: c.uncalibrated,
                 });
             }
-            all.add(&this_eye);
-            any_pupil |= eye.iter().any(|c| c.n > 0);
+            all.add_usable(&this_eye);
+            any_pupil |= eye.iter().any(|c| c.samples > 0);
             fastest = fastest.max(eye_fastest);
             s.eye_rate_hz[e] = rate(eye_fastest);
             s.eye_dropout_rate[e] = this_eye.dropout_rate();

@@ -42,7 +42,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::profile::{BadRawPupil, PupilCalibration};
 use crate::pupil_model::PupilModel;
-use crate::sample::{GazeEyes, GazeSample, PupilSample, Sample};
+use crate::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, Sample};
 use crate::state::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
 
 pub use binocular::{BinocularConfig, BinocularPairing};
@@ -138,6 +138,65 @@ pub enum PupilOutcome {
     Rejected,
     /// In raw units with no calibration for them.
     Uncalibrated,
+}
+
+/// The outcomes of one pupil stream (one eye, one detector): the one rule
+/// for sample rates and dropouts "as a user means them", shared by the
+/// live status and `inspect`'s summary.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PupilStreamCounts {
+    pub samples: u64,
+    pub measured: u64,
+    pub rejected: u64,
+    pub uncalibrated: u64,
+}
+
+impl PupilStreamCounts {
+    /// Detectors a stream table tells apart: Pupil 2D, Pupil 3D, other.
+    pub const DETECTORS: usize = 3;
+
+    /// The index of `method` among [`Self::DETECTORS`].
+    pub fn detector_index(method: DetectorMethod) -> usize {
+        match method {
+            DetectorMethod::Pupil2d => 0,
+            DetectorMethod::Pupil3d => 1,
+            DetectorMethod::Other => 2,
+        }
+    }
+
+    /// Counts one sample.
+    pub fn add(&mut self, outcome: PupilOutcome) {
+        self.samples += 1;
+        match outcome {
+            PupilOutcome::Measured => self.measured += 1,
+            PupilOutcome::Rejected => self.rejected += 1,
+            PupilOutcome::Uncalibrated => self.uncalibrated += 1,
+        }
+    }
+
+    /// Whether the chain can use this stream: no sample in raw units
+    /// without a calibration (a calibration holds per unit, so a stream
+    /// is usable whole or not at all) and something measured or rejected.
+    pub fn usable(&self) -> bool {
+        self.uncalibrated == 0 && self.measured + self.rejected > 0
+    }
+
+    /// Adds `other` when it is [usable](Self::usable) (an eye's or a
+    /// source's total over its usable streams).
+    pub fn add_usable(&mut self, other: &Self) {
+        if other.usable() {
+            self.samples += other.samples;
+            self.measured += other.measured;
+            self.rejected += other.rejected;
+        }
+    }
+
+    /// Fraction rejected among the samples the chain could measure; `None`
+    /// for a stream it cannot use.
+    pub fn dropout_rate(&self) -> Option<f64> {
+        self.usable()
+            .then(|| self.rejected as f64 / (self.measured + self.rejected) as f64)
+    }
 }
 
 /// What one [`FilterChain::push`] did.
