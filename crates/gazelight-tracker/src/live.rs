@@ -192,7 +192,11 @@ pub struct StreamStatus {
 
 /// Pupil streams per eye: detector Pupil 2D, Pupil 3D, other.
 const PUPIL_STREAM_NAMES: [[&str; 3]; 2] = [
-    ["pupil 2d right (0)", "pupil 3d right (0)", "pupil right (0)"],
+    [
+        "pupil 2d right (0)",
+        "pupil 3d right (0)",
+        "pupil right (0)",
+    ],
     ["pupil 2d left (1)", "pupil 3d left (1)", "pupil left (1)"],
 ];
 /// Gaze streams: binocular, right, left.
@@ -448,7 +452,9 @@ impl RateWindow {
         }
         match sample {
             Sample::Pupil(p) => {
-                if let (Some(outcome), Some(eye)) = (up.pupil_outcome, self.pupil.get_mut(usize::from(p.eye))) {
+                if let (Some(outcome), Some(eye)) =
+                    (up.pupil_outcome, self.pupil.get_mut(usize::from(p.eye)))
+                {
                     let method = match p.method {
                         DetectorMethod::Pupil2d => 0,
                         DetectorMethod::Pupil3d => 1,

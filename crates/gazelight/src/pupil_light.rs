@@ -82,9 +82,9 @@ impl SceneLight {
         let mut total = 0.0f64;
         for (y, row) in view_img.pixels.chunks_exact(w.max(1)).enumerate() {
             for (x, p) in row.iter().enumerate() {
-                let l = f64::from(luminance(p.map(|c| {
-                    if c.is_finite() { c.max(0.0) } else { 0.0 }
-                })));
+                let l = f64::from(luminance(
+                    p.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
+                ));
                 total += l;
                 let i = (y / ds) * small_w + x / ds;
                 sums[i] += l;
@@ -94,7 +94,13 @@ impl SceneLight {
         let small_lum = sums
             .iter()
             .zip(&counts)
-            .map(|(s, &n)| if n > 0 { (s / f64::from(n)) as f32 } else { 0.0 })
+            .map(|(s, &n)| {
+                if n > 0 {
+                    (s / f64::from(n)) as f32
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let n = (w * h).max(1) as f64;
         Self {
@@ -114,7 +120,13 @@ impl SceneLight {
     /// The pooled luminance at `gaze_uv` (clamped onto the view, as the
     /// pipeline does), cd/m².
     pub(crate) fn pooled_at(&self, gaze_uv: [f32; 2]) -> f64 {
-        let c = |v: f32| if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.5 };
+        let c = |v: f32| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.5
+            }
+        };
         let gaze_px = [
             f64::from(c(gaze_uv[0])) * self.width as f64 / self.ds as f64,
             f64::from(c(gaze_uv[1])) * self.height as f64 / self.ds as f64,

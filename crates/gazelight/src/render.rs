@@ -474,7 +474,10 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             Some(plr) => {
                 let mut pupils = [(f32::NAN, false); 2];
                 for (p, ((input, _), v)) in pupils.iter_mut().zip(inputs.iter().zip(views)) {
-                    *p = (input.pupil_mm, crate::pupil_light::view_measured(*v, &state));
+                    *p = (
+                        input.pupil_mm,
+                        crate::pupil_light::view_measured(*v, &state),
+                    );
                 }
                 plr.step(
                     t_secs - t0,

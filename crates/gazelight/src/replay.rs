@@ -25,10 +25,10 @@ use gazelight_tracker::pupil_response::ObserverRange;
 
 use crate::input_report;
 use crate::pupil_light::{self, ParamSource, PupilLight, SceneLight};
-use crate::stereo::{MONO, STEREO, View};
 use crate::render::{self, RenderArgs, SampleFeed};
 use crate::service_config::ConfigUser;
 use crate::session::Origin;
+use crate::stereo::{MONO, STEREO, View};
 
 /// Arguments of `gazelight replay`.
 #[derive(Args, Debug)]
@@ -195,7 +195,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         }
         Ok(SampleFeed::new(ImporterSamples::new(importer), chain))
     };
-    let mut plr = pupil_light_setup(&args, &mut setup, calibration.as_ref(), t_first, t_last, &new_feed)?;
+    let mut plr = pupil_light_setup(
+        &args,
+        &mut setup,
+        calibration.as_ref(),
+        t_first,
+        t_last,
+        &new_feed,
+    )?;
     let mut feeder = new_feed()?;
     render::render_sequence(
         &args.render,
@@ -298,7 +305,12 @@ fn pupil_light_setup(
             &params,
             &format!("--pupil-fit {range}"),
         )?;
-        for ((v, fit), (p, s)) in fits.iter().zip(views).map(|(f, v)| (v, f)).zip(params.iter_mut().zip(sources.iter_mut())) {
+        for ((v, fit), (p, s)) in fits
+            .iter()
+            .zip(views)
+            .map(|(f, v)| (v, f))
+            .zip(params.iter_mut().zip(sources.iter_mut()))
+        {
             let d = &fit.params.dynamics;
             let r = &fit.params.range;
             println!(
@@ -371,20 +383,32 @@ fn pupil_light_setup(
             Origin::Default
         };
         let d = &p.dynamics;
-        setup.settings.set(&key("latency_secs"), d.latency_secs, dyn_origin);
         setup
             .settings
-            .set(&key("constriction_tau_secs"), d.constriction_tau_secs, dyn_origin);
+            .set(&key("latency_secs"), d.latency_secs, dyn_origin);
+        setup.settings.set(
+            &key("constriction_tau_secs"),
+            d.constriction_tau_secs,
+            dyn_origin,
+        );
+        setup.settings.set(
+            &key("redilation_tau_secs"),
+            d.redilation_tau_secs,
+            dyn_origin,
+        );
         setup
             .settings
-            .set(&key("redilation_tau_secs"), d.redilation_tau_secs, dyn_origin);
-        setup.settings.set(&key("range_scale"), p.range.scale, origin);
+            .set(&key("range_scale"), p.range.scale, origin);
         setup
             .settings
             .set(&key("range_offset_mm"), p.range.offset_mm, origin);
         if let ParamSource::Fit(f) = s {
-            setup.settings.set(&key("fit_r_squared"), f.r_squared, Origin::Flag);
-            setup.settings.set(&key("fit_rms_mm"), f.rms_mm, Origin::Flag);
+            setup
+                .settings
+                .set(&key("fit_r_squared"), f.r_squared, Origin::Flag);
+            setup
+                .settings
+                .set(&key("fit_rms_mm"), f.rms_mm, Origin::Flag);
             setup
                 .settings
                 .set(&key("fit_samples_used"), f.samples_used, Origin::Flag);
