@@ -33,7 +33,7 @@ pub use gazelight_eye::{
     GazeTrace, LiveEyeState, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
 };
 pub use gazelight_eye::{
-    calibration, filter, profile, pupil_model, sample, state, synthetic, trace,
+    calibration, filter, profile, pupil_model, pupil_response, sample, state, synthetic, trace,
 };
 pub use gazelight_import as import;
 pub use gazelight_import::summary;

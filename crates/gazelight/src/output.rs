@@ -26,6 +26,12 @@ pub struct TimelineRow {
     pub pupil_mm: f32,
     pub pupil_held: bool,
     pub stats: FrameStats,
+    /// The pupil the light predicts, mm (`replay`'s pupil light response;
+    /// NaN where it is not computed: then the column is not written).
+    pub pupil_light_mm: f32,
+    /// Measured pupil − `pupil_light_mm`, mm; NaN (an empty cell) where
+    /// the pupil is not measured (a blink, held, the model's fill-in).
+    pub pupil_residual_mm: f32,
 }
 
 /// How hard [`write_png`] compresses.
@@ -248,9 +254,15 @@ const TIMELINE_COLUMNS: [&str; 16] = [
     "total_ms",
 ];
 
+/// The per-view columns of the pupil light response (`replay`), written
+/// after every view's [`TIMELINE_COLUMNS`] when any row has a prediction.
+const PUPIL_LIGHT_COLUMNS: [&str; 2] = ["pupil_light_mm", "pupil_residual_mm"];
+
 /// Writes `timeline.csv`: `t_secs`, then each view's columns with its
-/// suffix (`""` for a mono frame; `_left`, `_right` for stereo). The views'
-/// rows are frame by frame, so row `i` of every view is frame `i`.
+/// suffix (`""` for a mono frame; `_left`, `_right` for stereo); then, when
+/// the pupil light response was computed (`replay`), each view's
+/// `pupil_light_mm` and `pupil_residual_mm` (empty where not defined). The
+/// views' rows are frame by frame, so row `i` of every view is frame `i`.
 pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
@@ -259,6 +271,16 @@ pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::
     for (suffix, _) in views {
         for c in TIMELINE_COLUMNS {
             write!(w, ",{c}{suffix}")?;
+        }
+    }
+    let pupil_light = views
+        .iter()
+        .any(|(_, rows)| rows.iter().any(|r| r.pupil_light_mm.is_finite()));
+    if pupil_light {
+        for (suffix, _) in views {
+            for c in PUPIL_LIGHT_COLUMNS {
+                write!(w, ",{c}{suffix}")?;
+            }
         }
     }
     writeln!(w)?;
@@ -291,6 +313,18 @@ pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::
                 t.tone_colour_encode_ms,
                 t.total_ms
             )?;
+        }
+        if pupil_light {
+            for (_, rows) in views {
+                let r = &rows[i];
+                for v in [r.pupil_light_mm, r.pupil_residual_mm] {
+                    if v.is_finite() {
+                        write!(w, ",{v:.4}")?;
+                    } else {
+                        write!(w, ",")?;
+                    }
+                }
+            }
         }
         writeln!(w)?;
     }

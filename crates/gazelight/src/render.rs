@@ -19,6 +19,7 @@ use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
 use crate::demo;
 use crate::output::{self, TimelineRow};
+use crate::pupil_light::PupilLight;
 use crate::service_config::ConfigUser;
 use crate::session::{Origin, SessionSettings};
 use crate::stereo::{self, MONO, STEREO, StereoKernels, View};
@@ -282,7 +283,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
     let mut feeder = SampleFeed::new(samples, chain);
-    render_sequence(&args, &setup, &mut feeder, t0, duration, started)
+    render_sequence(&args, &setup, &mut feeder, t0, duration, started, None)
 }
 
 /// Feeds samples (in time order) through the tracker's one chain
@@ -338,7 +339,8 @@ impl<I: Iterator<Item = Sample>> SampleFeed<I> {
 }
 
 /// Renders frames from `t0` over `duration_secs` (or `--frames`) and writes
-/// the outputs.
+/// the outputs; with `pupil_light` (`replay`), each view's predicted pupil
+/// and residual too.
 pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     args: &RenderArgs,
     setup: &Setup,
@@ -346,6 +348,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     t0: f64,
     duration_secs: f64,
     started: Instant,
+    mut pupil_light: Option<&mut PupilLight>,
 ) -> anyhow::Result<()> {
     let Setup {
         config,
@@ -474,6 +477,25 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 pipeline.read_frame(out)?;
             }
         }
+        // The pupil light response: fed every frame with each view's
+        // pooled luminance (no allocation).
+        let light = match pupil_light.as_deref_mut() {
+            Some(plr) => {
+                let mut pupils = [(f32::NAN, false); 2];
+                for (p, ((input, _), v)) in pupils.iter_mut().zip(inputs.iter().zip(views)) {
+                    *p = (
+                        input.pupil_mm,
+                        crate::pupil_light::view_measured(*v, &state),
+                    );
+                }
+                plr.step(
+                    t_secs - t0,
+                    [all_stats[0].target_cd_m2, all_stats[1].target_cd_m2],
+                    pupils,
+                )
+            }
+            None => [(f32::NAN, f32::NAN); 2],
+        };
         for (k, ((input, held), pipeline)) in inputs.iter().zip(&mut pipelines).enumerate() {
             let mut stats = all_stats[k];
             stats.psf_rebuilt |= new_kernel.get(k).copied().unwrap_or(false) && n_views > 1;
@@ -504,6 +526,8 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 pupil_mm: input.pupil_mm,
                 pupil_held: *held,
                 stats,
+                pupil_light_mm: light[k].0,
+                pupil_residual_mm: light[k].1,
             });
         }
         last_adaptation = Some(log_adaptation.exp());
@@ -583,6 +607,21 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         // Said once: in the settings summary below and session.json.
         let (value, note) = per_eye_gaze_setting(own_gaze_frames, rendered);
         settings.set("gaze.per_eye", value, Origin::Source).note = Some(note);
+    }
+    if let Some(plr) = pupil_light.as_deref() {
+        for s in plr.spreads() {
+            println!(
+                "pupil light response{}: residual SD {:.3} mm vs raw pupil SD {:.3} mm over {} measured frames",
+                if s.suffix.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({} eye)", s.suffix.trim_start_matches('_'))
+                },
+                s.residual_sd_mm,
+                s.raw_sd_mm,
+                s.frames
+            );
+        }
     }
     settings.write(&args.out)?;
     print!("{}", settings.summary());

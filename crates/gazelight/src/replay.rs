@@ -19,10 +19,16 @@ use gazelight_tracker::import::{self, Importer};
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::{PupilUnit, Sample};
 
+use gazelight_tracker::EYE_RIGHT;
+use gazelight_tracker::profile::EyeCalibration;
+use gazelight_tracker::pupil_response::ObserverRange;
+
 use crate::input_report;
+use crate::pupil_light::{self, ParamSource, PupilLight, SceneLight};
 use crate::render::{self, RenderArgs, SampleFeed};
 use crate::service_config::ConfigUser;
 use crate::session::Origin;
+use crate::stereo::{MONO, STEREO, View};
 
 /// Arguments of `gazelight replay`.
 #[derive(Args, Debug)]
@@ -43,6 +49,20 @@ pub struct ReplayArgs {
     /// Replay at most this many seconds.
     #[arg(long, value_name = "S")]
     pub secs: Option<f64>,
+    /// Fit the observer's pupil light response on a baseline block of the
+    /// recording, FROM..TO seconds from its first sample (a first pass
+    /// over the block), and use the fitted parameters for the whole
+    /// replay (docs/pupil-light-response.md).
+    #[arg(long, value_name = "FROM..TO")]
+    pub pupil_fit: Option<String>,
+    /// Luminance of the display's black phase when the calibration profile
+    /// was made, cd/m² (maps the profile's pupils onto the light model).
+    #[arg(long, value_name = "CD_M2")]
+    pub pupil_black_cd_m2: Option<f64>,
+    /// Luminance of the display's white phase when the calibration profile
+    /// was made, cd/m².
+    #[arg(long, value_name = "CD_M2")]
+    pub pupil_white_cd_m2: Option<f64>,
     #[command(flatten)]
     pub render: RenderArgs,
 }
@@ -57,6 +77,19 @@ fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     }
     if let Some(s) = args.secs {
         crate::bounds::secs("--secs", s)?;
+    }
+    if let Some(r) = &args.pupil_fit {
+        pupil_light::parse_fit_range(r)?;
+    }
+    for (flag, v) in [
+        ("--pupil-black-cd-m2", args.pupil_black_cd_m2),
+        ("--pupil-white-cd-m2", args.pupil_white_cd_m2),
+    ] {
+        if let Some(v) = v
+            && !(v.is_finite() && v >= 0.0)
+        {
+            bail!("{flag} {v}: expected a luminance ≥ 0 in cd/m²");
+        }
     }
     Ok(())
 }
@@ -152,14 +185,34 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         .chain(calibration_path.map(|p| p.as_path()))
         .collect();
     render::prepare_out("replay", &args.render, &inputs)?;
-    let importer = import::open(&args.recording)?;
-    let mut chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
-        .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
-    if let Some(c) = calibration {
-        chain.set_calibration(c);
-    }
-    let mut feeder = SampleFeed::new(ImporterSamples::new(importer), chain);
-    render::render_sequence(&args.render, &setup, &mut feeder, t0, duration, started)?;
+    let filter = setup.config.filter;
+    let new_feed = || -> anyhow::Result<SampleFeed<ImporterSamples>> {
+        let importer = import::open(&args.recording)?;
+        let mut chain = FilterChain::new(filter, PupilCalibration::identity())
+            .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
+        if let Some(c) = &calibration {
+            chain.set_calibration(c.clone());
+        }
+        Ok(SampleFeed::new(ImporterSamples::new(importer), chain))
+    };
+    let mut plr = pupil_light_setup(
+        &args,
+        &mut setup,
+        calibration.as_ref(),
+        t_first,
+        t_last,
+        &new_feed,
+    )?;
+    let mut feeder = new_feed()?;
+    render::render_sequence(
+        &args.render,
+        &setup,
+        &mut feeder,
+        t0,
+        duration,
+        started,
+        Some(&mut plr),
+    )?;
     let w = feeder.samples().importer.warnings();
     if w.skipped_records > 0 {
         println!(
@@ -184,6 +237,202 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         eprintln!("warning: {}: {warning}", args.recording.display());
     }
     Ok(())
+}
+
+/// The pupil light response of this replay: each view's parameters (a
+/// `--pupil-fit` block, else the calibration profile, else W&Y with the
+/// observer's age), recorded in the session settings.
+fn pupil_light_setup(
+    args: &ReplayArgs,
+    setup: &mut render::Setup,
+    calibration: Option<&PupilCalibration>,
+    t_first: f64,
+    t_last: f64,
+    new_feed: &dyn Fn() -> anyhow::Result<SampleFeed<ImporterSamples>>,
+) -> anyhow::Result<PupilLight> {
+    let views: &[View] = if args.render.stereo { &STEREO } else { &MONO };
+    let scene = SceneLight::new(&setup.view_img, &setup.view, &setup.config.pipeline);
+    let age = setup.config.pipeline.glare.psf.age_years;
+    let black = args
+        .pupil_black_cd_m2
+        .unwrap_or(pupil_light::DEFAULT_CALIBRATION_BLACK_CD_M2);
+    let white = args
+        .pupil_white_cd_m2
+        .unwrap_or(pupil_light::DEFAULT_CALIBRATION_WHITE_CD_M2);
+    // Each view's range from the profile: the eye's own map, the mean of
+    // both for a mono view.
+    let eye_cal = |v: View| -> Option<EyeCalibration> {
+        let eyes = &calibration?.eyes;
+        let (r, l) = (eyes.right, eyes.left);
+        match v {
+            View::Eye(EYE_RIGHT) => r.or(l),
+            View::Eye(_) => l.or(r),
+            View::Both => match (r, l) {
+                (Some(a), Some(b)) => Some(EyeCalibration {
+                    mm_min: 0.5 * (a.mm_min + b.mm_min),
+                    mm_max: 0.5 * (a.mm_max + b.mm_max),
+                    ..a
+                }),
+                (a, b) => a.or(b),
+            },
+        }
+    };
+    let mut params = Vec::with_capacity(views.len());
+    let mut sources = Vec::with_capacity(views.len());
+    for v in views {
+        let (range, source) = match eye_cal(*v) {
+            Some(c) => (
+                ObserverRange::from_calibration(&c, black, white, scene.field_area_deg2, age)
+                    .map_err(|e| {
+                        anyhow::anyhow!(
+                            "the calibration profile's pupils cannot be mapped onto the pupil light \
+                             model (--pupil-black-cd-m2 {black}, --pupil-white-cd-m2 {white}): {e}"
+                        )
+                    })?,
+                ParamSource::Profile,
+            ),
+            None => (ObserverRange::IDENTITY, ParamSource::Default),
+        };
+        params.push(pupil_light::params(age, range));
+        sources.push(source);
+    }
+    if let Some(range) = &args.pupil_fit {
+        let (from, to) = pupil_light::parse_fit_range(range)?;
+        let length = t_last - t_first;
+        if from >= length {
+            bail!(
+                "--pupil-fit {range}: the block starts after the recording's end ({length:.3} s)"
+            );
+        }
+        let to_clamped = to.min(length);
+        let mut feed = new_feed()?;
+        let fits = pupil_light::fit_block(
+            &mut feed,
+            views,
+            &scene,
+            (t_first + from, t_first + to_clamped),
+            args.render.fps,
+            &params,
+            &format!("--pupil-fit {range}"),
+        )?;
+        for ((v, fit), (p, s)) in fits
+            .iter()
+            .zip(views)
+            .map(|(f, v)| (v, f))
+            .zip(params.iter_mut().zip(sources.iter_mut()))
+        {
+            let d = &fit.params.dynamics;
+            let r = &fit.params.range;
+            println!(
+                "pupil light fit{} over {from}..{to_clamped} s: latency {:.3} s, constriction τ {:.3} s, \
+                 redilation τ {:.3} s, range {:.4}·W&Y + {:.4} mm; R² = {:.4}, rms {:.4} mm, {} samples used",
+                which_eye(*v),
+                d.latency_secs,
+                d.constriction_tau_secs,
+                d.redilation_tau_secs,
+                r.scale,
+                r.offset_mm,
+                fit.r_squared,
+                fit.rms_mm,
+                fit.samples_used
+            );
+            *p = fit.params;
+            *s = ParamSource::Fit(*fit);
+        }
+        setup.settings.set(
+            "pupil_light.fit_block_secs",
+            [from, to_clamped],
+            Origin::Flag,
+        );
+    }
+    let field = setup.settings.set(
+        "pupil_light.field_mean_cd_m2",
+        scene.field_mean_cd_m2,
+        Origin::Default,
+    );
+    field.note = Some(
+        "the plain pixel mean of the view's luminance (the head does not move in a replay)"
+            .to_owned(),
+    );
+    setup.settings.set(
+        "pupil_light.field_area_deg2",
+        scene.field_area_deg2,
+        Origin::Default,
+    );
+    setup.settings.set(
+        "pupil_light.age_years",
+        age,
+        setup
+            .settings
+            .settings
+            .get("observer.age_years")
+            .map_or(Origin::Default, |s| s.source),
+    );
+    if calibration.is_some() {
+        setup.settings.set(
+            "pupil_light.calibration_black_cd_m2",
+            black,
+            Origin::first(args.pupil_black_cd_m2, None, None),
+        );
+        setup.settings.set(
+            "pupil_light.calibration_white_cd_m2",
+            white,
+            Origin::first(args.pupil_white_cd_m2, None, None),
+        );
+    }
+    for ((v, p), s) in views.iter().zip(&params).zip(&sources) {
+        let key = |k: &str| format!("pupil_light{}.{k}", v.suffix());
+        let origin = match s {
+            ParamSource::Default => Origin::Default,
+            ParamSource::Profile => Origin::Profile,
+            ParamSource::Fit(_) => Origin::Flag,
+        };
+        let dyn_origin = if matches!(s, ParamSource::Fit(_)) {
+            Origin::Flag
+        } else {
+            Origin::Default
+        };
+        let d = &p.dynamics;
+        setup
+            .settings
+            .set(&key("latency_secs"), d.latency_secs, dyn_origin);
+        setup.settings.set(
+            &key("constriction_tau_secs"),
+            d.constriction_tau_secs,
+            dyn_origin,
+        );
+        setup.settings.set(
+            &key("redilation_tau_secs"),
+            d.redilation_tau_secs,
+            dyn_origin,
+        );
+        setup
+            .settings
+            .set(&key("range_scale"), p.range.scale, origin);
+        setup
+            .settings
+            .set(&key("range_offset_mm"), p.range.offset_mm, origin);
+        if let ParamSource::Fit(f) = s {
+            setup
+                .settings
+                .set(&key("fit_r_squared"), f.r_squared, Origin::Flag);
+            setup
+                .settings
+                .set(&key("fit_rms_mm"), f.rms_mm, Origin::Flag);
+            setup
+                .settings
+                .set(&key("fit_samples_used"), f.samples_used, Origin::Flag);
+        }
+    }
+    PupilLight::new(views, &params, scene)
+}
+
+/// " (left eye)", " (right eye)" or "" for a mono view.
+fn which_eye(v: View) -> String {
+    match v.suffix() {
+        "" => String::new(),
+        s => format!(" ({} eye)", s.trim_start_matches('_')),
+    }
 }
 
 /// What the first pass found.

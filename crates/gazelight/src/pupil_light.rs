@@ -1,0 +1,438 @@
+//! The pupil light response in `replay`: per view, the pupil the light
+//! predicts (`pupil_light_mm`) and what is left of the measured pupil
+//! (`pupil_residual_mm`), with the model of
+//! [`gazelight_tracker::pupil_response`] (docs/pupil-light-response.md).
+//!
+//! What each eye sees, every frame:
+//!
+//! * **Luminance at the gaze**: the pipeline's pooled luminance of that
+//!   eye's view (`FrameStats::target_cd_m2`, the same value as the
+//!   `target_cd_m2` column: the configured pooling model over the
+//!   block-mean luminance plane, at the gaze clamped onto the view).
+//! * **Field mean luminance and field area**: a replay's head does not
+//!   move, so each eye sees the same panorama view for the whole replay
+//!   (both eyes of a stereo replay see the same view of a panorama at
+//!   infinity, see `stereo.rs`). Its mean luminance (the plain pixel mean
+//!   of the view's luminance, `Y = 0.2126 R + 0.7152 G + 0.0722 B`, in
+//!   cd/m²) and the view's solid angle (the exact solid angle of the
+//!   rectilinear view, in deg²) are computed once, before the first frame,
+//!   so the per-frame cost is a few multiplications.
+//!
+//! Both eyes' light drives both pupils (the consensual response); each
+//! view has its own [`PupilLightResponse`] (its own observer range), all
+//! fed the same [`EyeLight`]. A mono replay's one view stands for both
+//! eyes (`EyeLight::both`); a stereo replay's views are the left and the
+//! right eye. Stepping allocates nothing.
+//!
+//! `--pupil-fit FROM..TO` fits the observer on a baseline block first: a
+//! pass over the block with the same filter chain and the same light
+//! (the pooling model evaluated on the view's block-mean plane, as the
+//! pipeline does, without rendering), then [`fit_observer`].
+
+use anyhow::{Context, bail};
+use gazelight_tracker::pupil_response::{
+    Adaptation, DEFAULT_GAZE_WEIGHT, Dynamics, EyeInput, EyeLight, FitOptions, FitResult,
+    ObserverRange, PupilLightResponse, PupilRow, ResponseParams, fit_observer, residual_mm,
+};
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, Sample};
+use gazelight_vision::RgbImage;
+use gazelight_vision::image::luminance;
+use gazelight_vision::pipeline::PipelineConfig;
+use gazelight_vision::pooling::PoolingModel;
+use gazelight_vision::scene::ViewParams;
+
+use crate::render::SampleFeed;
+use crate::stereo::View;
+
+/// The display's black during the calibration's black phase, cd/m²,
+/// unless `--pupil-black-cd-m2` says otherwise (an assumption: an LCD
+/// headset's black; the profile does not record it).
+pub(crate) const DEFAULT_CALIBRATION_BLACK_CD_M2: f64 = 0.1;
+/// The display's white during the calibration's white phase, cd/m², unless
+/// `--pupil-white-cd-m2` says otherwise (000 §3.3: headset luminance
+/// 100 cd/m², the tone mapper's default display peak).
+pub(crate) const DEFAULT_CALIBRATION_WHITE_CD_M2: f64 = 100.0;
+
+/// The light a static view offers: its mean luminance and solid angle, and
+/// the block-mean luminance plane the pooling model reads.
+pub(crate) struct SceneLight {
+    /// Plain pixel mean of the view's luminance, cd/m².
+    pub field_mean_cd_m2: f64,
+    /// Solid angle of the view, deg².
+    pub field_area_deg2: f64,
+    pooling: PoolingModel,
+    small_lum: Vec<f32>,
+    small_w: usize,
+    small_h: usize,
+    ds: usize,
+    width: usize,
+    height: usize,
+    deg_per_small_px: f64,
+}
+
+impl SceneLight {
+    /// From the rendered view (`view_img`, cd/m²) and the pipeline's
+    /// pooling settings.
+    pub(crate) fn new(view_img: &RgbImage, view: &ViewParams, pipeline: &PipelineConfig) -> Self {
+        let (w, h) = (view_img.width, view_img.height);
+        let ds = pipeline.pooling_downsample.unwrap_or(8).max(1);
+        let (small_w, small_h) = (w.div_ceil(ds), h.div_ceil(ds));
+        let mut sums = vec![0.0f64; small_w * small_h];
+        let mut counts = vec![0u32; small_w * small_h];
+        let mut total = 0.0f64;
+        for (y, row) in view_img.pixels.chunks_exact(w.max(1)).enumerate() {
+            for (x, p) in row.iter().enumerate() {
+                let l = f64::from(luminance(
+                    p.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
+                ));
+                total += l;
+                let i = (y / ds) * small_w + x / ds;
+                sums[i] += l;
+                counts[i] += 1;
+            }
+        }
+        let small_lum = sums
+            .iter()
+            .zip(&counts)
+            .map(|(s, &n)| {
+                if n > 0 {
+                    (s / f64::from(n)) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let n = (w * h).max(1) as f64;
+        Self {
+            field_mean_cd_m2: total / n,
+            field_area_deg2: view_solid_angle_deg2(view),
+            pooling: pipeline.pooling,
+            small_lum,
+            small_w,
+            small_h,
+            ds,
+            width: w,
+            height: h,
+            deg_per_small_px: view.deg_per_px() * ds as f64,
+        }
+    }
+
+    /// The pooled luminance at `gaze_uv` (clamped onto the view, as the
+    /// pipeline does), cd/m².
+    pub(crate) fn pooled_at(&self, gaze_uv: [f32; 2]) -> f64 {
+        let c = |v: f32| {
+            if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.5
+            }
+        };
+        let gaze_px = [
+            f64::from(c(gaze_uv[0])) * self.width as f64 / self.ds as f64,
+            f64::from(c(gaze_uv[1])) * self.height as f64 / self.ds as f64,
+        ];
+        self.pooling
+            .pool(
+                &self.small_lum,
+                self.small_w,
+                self.small_h,
+                gaze_px,
+                self.deg_per_small_px,
+            )
+            .max(0.0)
+    }
+
+    /// What an eye looking at `gaze_cd_m2` in this view sees.
+    pub(crate) fn input(&self, gaze_cd_m2: f64) -> EyeInput {
+        EyeInput {
+            gaze_luminance_cd_m2: gaze_cd_m2,
+            field_mean_luminance_cd_m2: self.field_mean_cd_m2,
+            field_area_deg2: self.field_area_deg2,
+            lit: true,
+        }
+    }
+
+    /// Both eyes' light from each view's pooled luminance.
+    pub(crate) fn light(&self, views: &[View], gaze_cd_m2: &[f64]) -> EyeLight {
+        let mut light = EyeLight::both(self.input(gaze_cd_m2.first().copied().unwrap_or(0.0)));
+        for (v, &l) in views.iter().zip(gaze_cd_m2) {
+            match *v {
+                View::Both => light = EyeLight::both(self.input(l)),
+                View::Eye(e) => light.eyes[e.min(1)] = self.input(l),
+            }
+        }
+        light
+    }
+}
+
+/// The solid angle of a rectilinear view, deg²: `4·asin(sin α · sin β)` sr
+/// with α, β the half-angles of its horizontal and vertical field.
+pub(crate) fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
+    let half_h = (view.hfov_deg.to_radians() * 0.5).clamp(0.0, std::f64::consts::FRAC_PI_2);
+    let aspect = view.height as f64 / (view.width.max(1)) as f64;
+    let half_v = (half_h.tan() * aspect).atan();
+    let sr = 4.0 * (half_h.sin() * half_v.sin()).asin();
+    sr * (180.0 / std::f64::consts::PI).powi(2)
+}
+
+/// Whether the pupil a view uses this frame is a measurement (not held
+/// over a blink or dropout, not the model's fill-in, not the default):
+/// the eyes whose value the view's pupil is made of must all be measured.
+pub(crate) fn view_measured(view: View, state: &EyeState) -> bool {
+    let origin = |e: usize| state.eyes[e].pupil_origin;
+    let used = |o: PupilOrigin| matches!(o, PupilOrigin::Measured | PupilOrigin::Held);
+    match view {
+        View::Both => {
+            let contributing = [EYE_RIGHT, EYE_LEFT]
+                .into_iter()
+                .filter(|&e| used(origin(e)));
+            let mut any = false;
+            for e in contributing {
+                if origin(e) != PupilOrigin::Measured {
+                    return false;
+                }
+                any = true;
+            }
+            any
+        }
+        View::Eye(e) => {
+            let e = e.min(1);
+            match origin(e) {
+                PupilOrigin::Measured => true,
+                PupilOrigin::Held => false,
+                // The view falls back to the other eye's pupil.
+                _ => origin(1 - e) == PupilOrigin::Measured,
+            }
+        }
+    }
+}
+
+/// Where a view's parameters came from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum ParamSource {
+    /// W&Y's formula as it is, with the observer's age.
+    Default,
+    /// The black/white calibration profile.
+    Profile,
+    /// `--pupil-fit` on a baseline block.
+    Fit(FitResult),
+}
+
+/// The per-view models of a replay.
+pub(crate) struct PupilLight {
+    views: [View; 2],
+    n_views: usize,
+    models: [Option<PupilLightResponse>; 2],
+    scene: SceneLight,
+    /// Per view: sums for the spreads of the raw pupil and the residual
+    /// over frames where both are defined.
+    spread: [Spread; 2],
+}
+
+/// Running sums of two series over the same frames.
+#[derive(Clone, Copy, Debug, Default)]
+struct Spread {
+    n: u64,
+    raw: [f64; 2],
+    residual: [f64; 2],
+}
+
+impl Spread {
+    fn add(&mut self, raw: f64, residual: f64) {
+        self.n += 1;
+        self.raw[0] += raw;
+        self.raw[1] += raw * raw;
+        self.residual[0] += residual;
+        self.residual[1] += residual * residual;
+    }
+
+    fn sd(n: u64, s: [f64; 2]) -> f64 {
+        if n < 2 {
+            return f64::NAN;
+        }
+        let n = n as f64;
+        ((s[1] - s[0] * s[0] / n) / (n - 1.0)).max(0.0).sqrt()
+    }
+}
+
+/// One view's spreads (for the summary).
+pub(crate) struct ViewSpread {
+    pub suffix: &'static str,
+    pub frames: u64,
+    pub raw_sd_mm: f64,
+    pub residual_sd_mm: f64,
+}
+
+impl PupilLight {
+    /// Models for `views` (1 or 2) with each view's parameters.
+    pub(crate) fn new(
+        views: &[View],
+        params: &[ResponseParams],
+        scene: SceneLight,
+    ) -> anyhow::Result<Self> {
+        if views.is_empty() || views.len() > 2 || params.len() != views.len() {
+            bail!("pupil light response: 1 or 2 views, one set of parameters each");
+        }
+        let mut models = [None, None];
+        for (m, p) in models.iter_mut().zip(params) {
+            *m = Some(
+                PupilLightResponse::new(*p)
+                    .map_err(|e| anyhow::anyhow!("pupil light response: {e}"))?,
+            );
+        }
+        Ok(Self {
+            views: [views[0], views.get(1).copied().unwrap_or(views[0])],
+            n_views: views.len(),
+            models,
+            scene,
+            spread: [Spread::default(); 2],
+        })
+    }
+
+    /// One frame: each view's pooled luminance (`FrameStats::target_cd_m2`)
+    /// and its pupil (mm, and whether it is measured) in; each view's
+    /// (`pupil_light_mm`, `pupil_residual_mm`) out, the residual NaN where
+    /// the pupil is not measured. Allocates nothing.
+    pub(crate) fn step(
+        &mut self,
+        t_secs: f64,
+        gaze_cd_m2: [f64; 2],
+        pupils: [(f32, bool); 2],
+    ) -> [(f32, f32); 2] {
+        let n = self.n_views;
+        let light = self.scene.light(&self.views[..n], &gaze_cd_m2[..n]);
+        let mut out = [(f32::NAN, f32::NAN); 2];
+        for k in 0..n {
+            let Some(model) = self.models[k].as_mut() else {
+                continue;
+            };
+            let predicted = model.step(t_secs, &light);
+            let (pupil, measured) = pupils[k];
+            let residual = if measured {
+                residual_mm(f64::from(pupil), predicted)
+            } else {
+                f64::NAN
+            };
+            if residual.is_finite() {
+                self.spread[k].add(f64::from(pupil), residual);
+            }
+            out[k] = (predicted as f32, residual as f32);
+        }
+        out
+    }
+
+    /// The spread (SD) of the raw pupil and of the residual per view, over
+    /// the frames with a measured pupil.
+    pub(crate) fn spreads(&self) -> Vec<ViewSpread> {
+        (0..self.n_views)
+            .map(|k| {
+                let s = &self.spread[k];
+                ViewSpread {
+                    suffix: self.views[k].suffix(),
+                    frames: s.n,
+                    raw_sd_mm: Spread::sd(s.n, s.raw),
+                    residual_sd_mm: Spread::sd(s.n, s.residual),
+                }
+            })
+            .collect()
+    }
+}
+
+/// The adaptation (gaze weight, the observer's age) every view uses.
+pub(crate) fn adaptation(age_years: f64) -> Adaptation {
+    Adaptation {
+        gaze_weight: DEFAULT_GAZE_WEIGHT,
+        age_years,
+    }
+}
+
+/// Default dynamics and the range given.
+pub(crate) fn params(age_years: f64, range: ObserverRange) -> ResponseParams {
+    ResponseParams {
+        adaptation: adaptation(age_years),
+        dynamics: Dynamics::default(),
+        range,
+    }
+}
+
+/// Parses `--pupil-fit FROM..TO` (seconds, `0 ≤ FROM < TO`, finite).
+pub(crate) fn parse_fit_range(s: &str) -> anyhow::Result<(f64, f64)> {
+    let bad = |why: &str| anyhow::anyhow!("--pupil-fit {s}: {why}");
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| bad("expected FROM..TO in seconds of the recording, e.g. 10..40"))?;
+    let num = |v: &str| -> anyhow::Result<f64> {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|_| bad(&format!("`{v}` is not a number of seconds")))
+    };
+    let (a, b) = (num(a)?, num(b)?);
+    if !(a.is_finite() && b.is_finite() && a >= 0.0) {
+        return Err(bad("FROM and TO must be finite and FROM ≥ 0"));
+    }
+    if b <= a {
+        return Err(bad("TO must be after FROM"));
+    }
+    Ok((a, b))
+}
+
+/// The first pass of `--pupil-fit`: frames at `fps` over the block
+/// `t_from..t_to` (recording clock) through `feed`, each view's pupil
+/// (NaN unless measured) and the light at its gaze; then one fit per
+/// view, started from `initial[k]`.
+pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
+    feed: &mut SampleFeed<I>,
+    views: &[View],
+    scene: &SceneLight,
+    (t_from, t_to): (f64, f64),
+    fps: f64,
+    initial: &[ResponseParams],
+    flag: &str,
+) -> anyhow::Result<Vec<FitResult>> {
+    let dt = 1.0 / fps;
+    let frames = ((t_to - t_from) * fps).floor() as usize + 1;
+    let mut rows: Vec<Vec<PupilRow>> = views.iter().map(|_| Vec::with_capacity(frames)).collect();
+    let mut gaze_cd_m2 = [0.0f64; 2];
+    for i in 0..frames {
+        let t = t_from + i as f64 * dt;
+        let state = feed.state(t, None);
+        for (k, v) in views.iter().enumerate() {
+            let (input, _) = v.input(&state, 0.0);
+            gaze_cd_m2[k] = scene.pooled_at(input.gaze_uv);
+        }
+        let light = scene.light(views, &gaze_cd_m2[..views.len()]);
+        for (k, v) in views.iter().enumerate() {
+            let (input, _) = v.input(&state, 0.0);
+            let pupil = if view_measured(*v, &state) {
+                f64::from(input.pupil_mm)
+            } else {
+                f64::NAN
+            };
+            rows[k].push(PupilRow {
+                t_secs: t - t_from,
+                pupil_mm: pupil,
+                light,
+            });
+        }
+    }
+    let options = FitOptions::default();
+    views
+        .iter()
+        .zip(&rows)
+        .zip(initial)
+        .map(|((v, rows), init)| {
+            let which = match v.suffix() {
+                "" => String::new(),
+                s => format!(" ({} eye)", s.trim_start_matches('_')),
+            };
+            fit_observer(rows, init, &options)
+                .with_context(|| {
+                    format!(
+                        "{flag}: cannot fit the observer on this block{which} ({} frames at {fps} fps)",
+                        rows.len()
+                    )
+                })
+                .map_err(|e| anyhow::anyhow!("{e:#}"))
+        })
+        .collect()
+}

@@ -1,0 +1,400 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
+//! `replay`'s pupil light response on real recordings: the timeline's
+//! `pupil_light_mm` / `pupil_residual_mm` columns, the spreads the summary
+//! prints, `--pupil-fit` (printed, recorded in session.json, refused with
+//! the reason for a bad block).
+
+mod common;
+
+use std::path::Path;
+
+use common::{Csv, gazelight, shared_str, tmp};
+use gazelight_tracker::pupil_response::{
+    EyeInput, EyeLight, FitOptions, PupilRow, ResponseParams, fit_observer,
+};
+
+/// The EyeLink recording's phases, seconds from its first sample (its
+/// `TRIALID` messages; the mean pupil area per 5 s is ~1300–1400 in the
+/// first and ~3600–3900 in the second): a bright screen, then a dark one.
+const BRIGHT: (f64, f64) = (0.0, 35.3);
+const DARK: (f64, f64) = (47.8, 82.9);
+
+fn run_ok(args: &[&str]) -> (String, String) {
+    let out = gazelight(args);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{args:?}: {stdout}\n{stderr}");
+    (stdout, stderr)
+}
+
+fn run_err(args: &[&str]) -> String {
+    let out = gazelight(args);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "{args:?} should fail: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    stderr
+}
+
+/// The numbers after "residual SD" and "raw pupil SD" on the summary line
+/// of `view` ("" for mono, "left", "right").
+fn spreads(stdout: &str, view: &str) -> (f64, f64, usize) {
+    let tag = if view.is_empty() {
+        "pupil light response:".to_owned()
+    } else {
+        format!("pupil light response ({view} eye):")
+    };
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with(&tag))
+        .unwrap_or_else(|| panic!("no `{tag}` line in {stdout}"));
+    let num_after = |key: &str| -> f64 {
+        let rest = &line[line.find(key).expect(key) + key.len()..];
+        rest.split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap_or_else(|_| panic!("{line}"))
+    };
+    let frames = line
+        .split(" over ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .expect("frames");
+    (
+        num_after("residual SD "),
+        num_after("raw pupil SD "),
+        frames,
+    )
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    s / n as f64
+}
+
+/// Per row: t, pupil, held, predicted, residual (NaN for an empty cell).
+fn plr_rows(dir: &Path, suffix: &str) -> Vec<[f64; 5]> {
+    let csv = Csv::read(&dir.join("timeline.csv"));
+    let c = |n: &str| csv.col(&format!("{n}{suffix}"));
+    let (t, p, h, l, r) = (
+        csv.col("t_secs"),
+        c("pupil_mm"),
+        c("pupil_held"),
+        c("pupil_light_mm"),
+        c("pupil_residual_mm"),
+    );
+    let num = |s: &str| {
+        if s.is_empty() {
+            f64::NAN
+        } else {
+            s.parse().expect("number")
+        }
+    };
+    csv.rows
+        .iter()
+        .map(|row| {
+            [
+                num(&row[t]),
+                num(&row[p]),
+                num(&row[h]),
+                num(&row[l]),
+                num(&row[r]),
+            ]
+        })
+        .collect()
+}
+
+#[test]
+fn eyelink_pupil_light_columns_and_the_light_the_replay_cannot_see() {
+    let dir = tmp("plr-eyelink");
+    let asc = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let profile = dir.join("phases.json");
+    let profile_s = profile.to_str().expect("utf-8");
+    // A profile from the recording's own dark and bright phases, after the
+    // pupil settled.
+    run_ok(&[
+        "profile", "phases", &asc, "--black", "55..80", "--white", "5..30", "--out", profile_s,
+    ]);
+    let out_dir = dir.join("out");
+    let (stdout, _) = run_ok(&[
+        "replay",
+        &asc,
+        "--calibration",
+        profile_s,
+        "--size",
+        "64x48",
+        "--fps",
+        "10",
+        "--secs",
+        "85",
+        "--no-frames",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    let rows = plr_rows(&out_dir, "");
+    assert!(rows.len() > 800, "{} frames", rows.len());
+    // Every frame has a prediction in the model's bounds; the residual is
+    // measured − predicted where the pupil is measured, empty where held.
+    // (`pupil_held` = 0: both eyes measured. A frame with one eye lost
+    // may still have a residual: the mono pupil is then the other eye's.)
+    let (mut defined, mut empty) = (0, 0);
+    for [t, pupil, held, light, residual] in &rows {
+        assert!(
+            light.is_finite() && (1.5..=9.0).contains(light),
+            "t {t}: predicted {light}"
+        );
+        if *held == 0.0 {
+            assert!(residual.is_finite(), "t {t}: measured pupil, no residual");
+        }
+        if residual.is_finite() {
+            defined += 1;
+            assert!(
+                (residual - (pupil - light)).abs() < 2e-3,
+                "t {t}: residual {residual} ≠ {pupil} − {light}"
+            );
+        } else {
+            empty += 1;
+        }
+    }
+    eprintln!("EyeLink replay: {defined} frames with a residual, {empty} empty");
+    assert!(defined > 600, "only {defined} frames with a residual");
+    // The gap between the phases has no samples: no residual there.
+    assert!(empty > 50, "only {empty} frames without a residual");
+
+    // The measured pupil follows the phases (the profile maps them onto
+    // 2 and 8 mm) ...
+    let in_phase = |(a, b): (f64, f64), i: usize| {
+        mean(
+            rows.iter()
+                .filter(|r| r[0] >= a + 5.0 && r[0] <= b - 2.0 && r[4].is_finite())
+                .map(|r| r[i]),
+        )
+    };
+    let measured_step = in_phase(DARK, 1) - in_phase(BRIGHT, 1);
+    let predicted_step = in_phase(DARK, 3) - in_phase(BRIGHT, 3);
+    let residual_step = in_phase(DARK, 4) - in_phase(BRIGHT, 4);
+    eprintln!(
+        "EyeLink dark − bright: measured {measured_step:.3} mm, predicted {predicted_step:.3} mm, \
+         residual {residual_step:.3} mm"
+    );
+    assert!(measured_step > 3.0, "measured step {measured_step} mm");
+    // ... but the replay's light is the scene's, which does not change
+    // with the lab monitor: the prediction cannot follow the phases, and
+    // the step stays in the residual. (What the light-driven part does
+    // when it is given the phases' light is the next test.)
+    // (The prediction moves only with where the EyeLink gaze lands on the
+    // panorama: measured 5.6 mm, predicted −0.6 mm, the wrong way.)
+    assert!(
+        predicted_step.abs() < 0.2 * measured_step,
+        "predicted step {predicted_step} mm"
+    );
+    assert!(
+        residual_step > 0.8 * measured_step,
+        "residual step {residual_step} mm vs measured {measured_step} mm"
+    );
+    // The summary's spreads: the residual's is the raw pupil's, nearly.
+    let (residual_sd, raw_sd, frames) = spreads(&stdout, "");
+    eprintln!(
+        "EyeLink replay: residual SD {residual_sd} mm vs raw SD {raw_sd} mm, {frames} frames"
+    );
+    assert!(
+        frames as f64 >= 0.9 * defined as f64,
+        "{frames} vs {defined}"
+    );
+    assert!(raw_sd > 1.0, "raw SD {raw_sd}");
+    assert!(
+        residual_sd > 0.8 * raw_sd && residual_sd < 1.2 * raw_sd,
+        "residual SD {residual_sd} vs raw {raw_sd}"
+    );
+    // The parameters came from the profile, recorded in session.json.
+    let session: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("session.json")).unwrap())
+            .unwrap();
+    let s = &session["settings"];
+    assert_eq!(s["pupil_light.range_scale"]["source"], "profile", "{s}");
+    assert!(s["pupil_light.field_area_deg2"]["value"].as_f64().unwrap() > 100.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn eyelink_light_driven_part_follows_the_phases_given_their_light() {
+    // What the replay cannot see, given: the model fed the phases' light
+    // (a uniform field, bright 100 cd/m², dark 0.1 cd/m², the gap between
+    // them dark) fitted on the replayed pupil (mm by the phases profile).
+    let dir = tmp("plr-eyelink-phases");
+    let asc = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let profile = dir.join("phases.json");
+    let profile_s = profile.to_str().expect("utf-8");
+    run_ok(&[
+        "profile", "phases", &asc, "--black", "55..80", "--white", "5..30", "--out", profile_s,
+    ]);
+    let out_dir = dir.join("out");
+    run_ok(&[
+        "replay",
+        &asc,
+        "--calibration",
+        profile_s,
+        "--size",
+        "64x48",
+        "--fps",
+        "10",
+        "--secs",
+        "85",
+        "--no-frames",
+        "--out",
+        out_dir.to_str().expect("utf-8"),
+    ]);
+    let rows = plr_rows(&out_dir, "");
+    let area = 2827.0; // a 60° disc
+    let model_rows: Vec<PupilRow> = rows
+        .iter()
+        .map(|[t, pupil, held, _, _]| {
+            let l = if (BRIGHT.0..BRIGHT.1).contains(t) {
+                100.0
+            } else {
+                0.1
+            };
+            PupilRow {
+                t_secs: *t,
+                pupil_mm: if *held == 0.0 { *pupil } else { f64::NAN },
+                light: EyeLight::both(EyeInput::uniform(l, area)),
+            }
+        })
+        .collect();
+    let fit = fit_observer(
+        &model_rows,
+        &ResponseParams::default(),
+        &FitOptions::default(),
+    )
+    .expect("fit");
+    let raw: Vec<f64> = model_rows
+        .iter()
+        .map(|r| r.pupil_mm)
+        .filter(|p| p.is_finite())
+        .collect();
+    let m = mean(raw.iter().copied());
+    let raw_sd = (raw.iter().map(|p| (p - m).powi(2)).sum::<f64>() / (raw.len() - 1) as f64).sqrt();
+    eprintln!(
+        "EyeLink phases' light: R² {:.3}, residual rms {:.3} mm vs raw SD {raw_sd:.3} mm, {} samples; {:?}",
+        fit.r_squared, fit.rms_mm, fit.samples_used, fit.params.dynamics
+    );
+    assert!(fit.r_squared > 0.8, "R² {}", fit.r_squared);
+    assert!(
+        fit.rms_mm < 0.5 * raw_sd,
+        "rms {} vs raw SD {raw_sd}",
+        fit.rms_mm
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn stereo_replay_has_both_eyes_columns() {
+    let dir = tmp("plr-stereo");
+    let rec = shared_str("eye/neon-demo");
+    let (stdout, _) = run_ok(&[
+        "replay",
+        &rec,
+        "--stereo",
+        "--size",
+        "64x48",
+        "--fps",
+        "20",
+        "--secs",
+        "3",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    for suffix in ["_left", "_right"] {
+        let rows = plr_rows(&dir, suffix);
+        assert!(rows.len() >= 60);
+        let with_residual = rows.iter().filter(|r| r[4].is_finite()).count();
+        assert!(with_residual > rows.len() / 2, "{suffix}: {with_residual}");
+        for r in &rows {
+            assert!((1.5..=9.0).contains(&r[3]), "{suffix}: {r:?}");
+        }
+        let (res, raw, n) = spreads(&stdout, suffix.trim_start_matches('_'));
+        eprintln!("Neon stereo{suffix}: residual SD {res} mm vs raw SD {raw} mm, {n} frames");
+        assert!(res.is_finite() && raw.is_finite() && n > 30);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn pupil_fit_where_the_light_does_not_explain_the_pupil_is_refused() {
+    // The Neon demo's pupil on a sunset panorama: over its first 8 s the
+    // gaze's light and the pupil do not move together (the best range
+    // widens the pupil with light), which the fit refuses with the reason.
+    // (A fit that succeeds end to end needs a recording whose gaze moves
+    // between light and dark with the pupil following: not in the shared
+    // data; the fit itself is tested in gazelight-eye.)
+    let dir = tmp("plr-fit");
+    let rec = shared_str("eye/neon-demo");
+    let scene = shared_str("hdr/blender-world/sunset.exr");
+    let err = run_err(&[
+        "replay",
+        &rec,
+        "--scene",
+        &scene,
+        "--luminance-scale",
+        "1000",
+        "--pupil-fit",
+        "0..8",
+        "--size",
+        "96x80",
+        "--fps",
+        "30",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        err.contains("--pupil-fit 0..8: cannot fit the observer on this block")
+            && err.contains("does not constrict with light"),
+        "{err}"
+    );
+    assert!(
+        !dir.join("timeline.csv").exists(),
+        "nothing written on a failed fit"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn pupil_fit_refuses_a_bad_block_naming_the_flag() {
+    let rec = shared_str("eye/neon-demo");
+    let asc = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let dir = tmp("plr-fit-bad");
+    let out = dir.to_str().expect("utf-8");
+    for (recording, range, why) in [
+        (&rec, "5..3", "TO must be after FROM"),
+        (&rec, "abc", "expected FROM..TO"),
+        (&rec, "1..x", "`x` is not a number"),
+        (&rec, "-2..3", "FROM ≥ 0"),
+        (&rec, "100..110", "starts after the recording's end"),
+        // The EyeLink recording has no samples between its phases.
+        (&asc, "36.5..46.5", "at least 20 are needed"),
+    ] {
+        let flag = format!("--pupil-fit={range}");
+        let err = run_err(&[
+            "replay",
+            recording,
+            &flag,
+            "--size",
+            "32x24",
+            "--fps",
+            "10",
+            "--secs",
+            "1",
+            "--no-frames",
+            "--out",
+            out,
+        ]);
+        assert!(
+            err.contains(&format!("--pupil-fit {range}")) && err.contains(why),
+            "{range}: {err}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
