@@ -27,7 +27,11 @@
 //!     origin), `confidence`, `timestamp`, `base_data` (the two pupil
 //!     datums);
 //!   - `gazelight.adaptation`: the frame loop's adaptation luminance,
-//!     pooled target luminance and pupils (from [`RelayFeed::frame`]).
+//!     pooled target luminance and pupils (from [`RelayFeed::frame`]);
+//!   - `gazelight.pupil_light`: per eye the pupil the light predicts
+//!     (`pupil_light_mm`), the measured pupil (`pupil_mm`) and their
+//!     difference (`pupil_residual_mm`, NaN where the pupil is not
+//!     measured), per frame (docs/pupil-light-response.md).
 //! - **PUB_PORT** (SUB, bound, subscribed to everything): what clients'
 //!   PUB sockets send is forwarded onto the bus, as Capture's IPC does.
 //!
@@ -108,6 +112,11 @@ pub struct FrameFigures {
     pub pupil_mm: [f32; 2],
     /// Age of the `EyeState` the frame used, ms.
     pub eye_state_age_ms: f64,
+    /// The pupil the light predicts per eye [right, left], mm.
+    pub pupil_light_mm: [f32; 2],
+    /// Measured − predicted pupil per eye [right, left], mm; NaN where
+    /// the pupil is not measured.
+    pub pupil_residual_mm: [f32; 2],
 }
 
 /// Why the relay could not start.
@@ -140,6 +149,8 @@ pub const PUPIL_API_VERSION: &str = "3.5.0";
 pub const RELAY_METHOD: &str = "gazelight filtered";
 /// Topic of the adaptation state.
 pub const ADAPTATION_TOPIC: &str = "gazelight.adaptation";
+/// Topic of the pupil light response (predicted and residual pupil).
+pub const PUPIL_LIGHT_TOPIC: &str = "gazelight.pupil_light";
 /// Capacity of the channel of messages forwarded onto the bus.
 const FORWARD_CAPACITY: usize = 256;
 /// Bytes the channel of forwarded messages may hold at once (two of the
@@ -258,6 +269,8 @@ pub struct RelayStats {
     pub gaze_published: u64,
     /// `gazelight.adaptation` datums published.
     pub adaptation_published: u64,
+    /// `gazelight.pupil_light` datums published.
+    pub pupil_light_published: u64,
     /// Source updates that coalesced into a later wake (not published one
     /// by one).
     pub coalesced_updates: u64,
@@ -281,6 +294,7 @@ struct Counters {
     pupil_published: AtomicU64,
     gaze_published: AtomicU64,
     adaptation_published: AtomicU64,
+    pupil_light_published: AtomicU64,
     coalesced_updates: AtomicU64,
     forwarded: AtomicU64,
     forward_dropped: AtomicU64,
@@ -352,6 +366,7 @@ impl RelayHandle {
             pupil_published: l(&c.pupil_published),
             gaze_published: l(&c.gaze_published),
             adaptation_published: l(&c.adaptation_published),
+            pupil_light_published: l(&c.pupil_light_published),
             coalesced_updates: l(&c.coalesced_updates),
             forwarded: l(&c.forwarded),
             forward_dropped: l(&c.forward_dropped),
@@ -693,6 +708,25 @@ pub struct GazeOut {
     pub base_data: [PupilOut; 2],
 }
 
+/// The pupil light response as the relay publishes it, per eye [right,
+/// left].
+#[derive(Serialize, Clone, Copy, Debug, PartialEq)]
+pub struct PupilLightOut {
+    pub topic: &'static str,
+    /// The relay's clock when the frame was observed, s.
+    pub timestamp: f64,
+    /// Session time of the frame, s.
+    pub frame_t_secs: f64,
+    /// Frame counter.
+    pub frame: u64,
+    /// The pupil the light predicts, mm.
+    pub pupil_light_mm: [f64; 2],
+    /// The calibrated, filtered pupil, mm.
+    pub pupil_mm: [f64; 2],
+    /// `pupil_mm − pupil_light_mm` where the pupil is measured, else NaN.
+    pub pupil_residual_mm: [f64; 2],
+}
+
 /// The adaptation state as the relay publishes it.
 #[derive(Serialize, Clone, Copy, Debug, PartialEq)]
 pub struct AdaptationOut {
@@ -900,6 +934,18 @@ impl Publisher {
         };
         if self.publish(ADAPTATION_TOPIC, &d).await {
             bump(&self.counters.adaptation_published, 1);
+        }
+        let d = PupilLightOut {
+            topic: PUPIL_LIGHT_TOPIC,
+            timestamp: d.timestamp,
+            frame_t_secs: f.t_secs,
+            frame: f.frames,
+            pupil_light_mm: f.pupil_light_mm.map(f64::from),
+            pupil_mm: f.pupil_mm.map(f64::from),
+            pupil_residual_mm: f.pupil_residual_mm.map(f64::from),
+        };
+        if self.publish(PUPIL_LIGHT_TOPIC, &d).await {
+            bump(&self.counters.pupil_light_published, 1);
         }
     }
 
@@ -1295,6 +1341,8 @@ mod tests {
             adaptation_cd_m2: 12.5,
             target_cd_m2: 80.0,
             eye_state_age_ms: 3.25,
+            pupil_light_mm: [3.5, 3.625],
+            pupil_residual_mm: [0.75, f32::NAN],
         };
         hub.publish_frame(frame);
         let m = tokio::time::timeout(Duration::from_secs(2), bus.recv())
@@ -1309,9 +1357,40 @@ mod tests {
         assert_eq!(v["pupil_eye_mm"][1], 4.5);
         assert_eq!(v["frame"], 17);
         assert!(v["timestamp"].as_f64().unwrap() <= host_now_secs());
+        // Then the pupil light response of the same frame.
+        let m = tokio::time::timeout(Duration::from_secs(2), bus.recv())
+            .await
+            .expect("pupil light datum")
+            .unwrap();
+        assert_eq!(m.get(0).unwrap().as_ref(), PUPIL_LIGHT_TOPIC.as_bytes());
+        let v: rmpv::Value = rmp_serde::from_slice(m.get(1).unwrap()).unwrap();
+        let field = |k: &str| {
+            v.as_map()
+                .unwrap()
+                .iter()
+                .find(|(key, _)| key.as_str() == Some(k))
+                .unwrap()
+                .1
+                .clone()
+        };
+        let arr = |k: &str| -> Vec<f64> {
+            field(k)
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect()
+        };
+        assert_eq!(arr("pupil_light_mm"), [3.5, 3.625]);
+        assert_eq!(arr("pupil_mm"), [4.25, 4.5]);
+        let r = arr("pupil_residual_mm");
+        assert_eq!(r[0], 0.75);
+        assert!(r[1].is_nan(), "not measured: NaN");
+        assert_eq!(field("frame").as_u64(), Some(17));
         // The same frame is not published twice.
         tokio::time::sleep(Duration::from_millis(100)).await;
         assert_eq!(relay.stats().adaptation_published, 1);
+        assert_eq!(relay.stats().pupil_light_published, 1);
         hub.request_shutdown();
         relay.join().await;
     }

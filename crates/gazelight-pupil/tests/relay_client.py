@@ -49,12 +49,14 @@ def main():
     ap.add_argument("--port", type=int, required=True, help="Pupil Remote port of the relay")
     ap.add_argument("--pupil", type=int, default=100, help="pupil datums to collect")
     ap.add_argument("--gaze", type=int, default=50, help="gaze datums to collect")
+    ap.add_argument("--light", type=int, default=0, help="gazelight.pupil_light datums to collect")
+    ap.add_argument("--topics", default="pupil.,gaze.", help="comma-separated topic prefixes to subscribe to")
     ap.add_argument("--timeout", type=float, default=20.0)
     args = ap.parse_args()
 
     device = pcnc.Device(args.host, args.port)
     stats = device.clock_offset_statistics
-    sub = device.subscribe(["pupil.", "gaze."])
+    sub = device.subscribe([t for t in args.topics.split(",") if t])
     print(
         json.dumps(
             {
@@ -69,17 +71,23 @@ def main():
         ),
         flush=True,
     )
-    counts = {"pupil": 0, "gaze": 0}
+    counts = {"pupil": 0, "gaze": 0, "gazelight": 0}
     deadline = time.monotonic() + args.timeout
-    while time.monotonic() < deadline and (counts["pupil"] < args.pupil or counts["gaze"] < args.gaze):
+
+    def done():
+        return counts["pupil"] >= args.pupil and counts["gaze"] >= args.gaze and counts["gazelight"] >= args.light
+
+    while time.monotonic() < deadline and not done():
         msg = sub.recv_new_message(timeout_ms=200)
         if msg is None:
             continue
         kind = msg.topic.split(".")[0]
         if kind in counts:
             counts[kind] += 1
-        print(json.dumps({"kind": "datum", "topic": msg.topic, "payload": plain(msg.payload)}), flush=True)
-    complete = counts["pupil"] >= args.pupil and counts["gaze"] >= args.gaze
+        # JSON has no NaN (a residual where the pupil is not measured): null.
+        payload = json.loads(json.dumps(plain(msg.payload)).replace("NaN", "null"))
+        print(json.dumps({"kind": "datum", "topic": msg.topic, "payload": payload}), flush=True)
+    complete = done()
     t = device.request_current_pupil_time()
     print(json.dumps({"kind": "end", "t": t, "complete": complete, "counts": counts}), flush=True)
     sub.disconnect()

@@ -50,6 +50,13 @@ pub struct FrameStatus {
     /// Pooled target luminance per view, cd/m², as
     /// [`Self::view_adaptation_cd_m2`].
     pub view_target_cd_m2: [f64; 2],
+    /// The pupil the light predicts per view, mm (the pupil light
+    /// response, docs/pupil-light-response.md), as
+    /// [`Self::view_adaptation_cd_m2`].
+    pub view_pupil_light_mm: [f32; 2],
+    /// The view's measured pupil minus the prediction, mm; NaN (null)
+    /// where the pupil is not measured (held, modelled).
+    pub view_pupil_residual_mm: [f32; 2],
     /// Age of the `EyeState` the frame used, ms.
     pub eye_state_age_ms: f64,
     /// Whole-frame processing time, ms.
@@ -65,6 +72,38 @@ pub struct FrameStatus {
     pub frames_presented: u64,
 }
 
+impl FrameStatus {
+    /// A per-view pair as per eye [right, left]: stereo views are [left,
+    /// right]; one view stands for both eyes.
+    fn per_eye<T: Copy>(&self, per_view: [T; 2]) -> [T; 2] {
+        if self.views == 2 {
+            [per_view[1], per_view[0]]
+        } else {
+            [per_view[0], per_view[0]]
+        }
+    }
+
+    /// The pupil the light predicts per eye [right, left], mm.
+    pub fn eye_pupil_light_mm(&self) -> [f32; 2] {
+        self.per_eye(self.view_pupil_light_mm)
+    }
+
+    /// Measured − predicted pupil per eye [right, left], mm: in stereo
+    /// each eye's view's; with one view, each eye's own pupil minus the
+    /// one prediction where the view's pupil is measured (else NaN).
+    pub fn eye_pupil_residual_mm(&self) -> [f32; 2] {
+        if self.views == 2 {
+            return self.per_eye(self.view_pupil_residual_mm);
+        }
+        let light = self.view_pupil_light_mm[0];
+        if self.view_pupil_residual_mm[0].is_finite() {
+            self.pupil_mm.map(|p| p - light)
+        } else {
+            [f32::NAN; 2]
+        }
+    }
+}
+
 /// One point of the plotted history.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct HistoryPoint {
@@ -74,6 +113,8 @@ pub struct HistoryPoint {
     pub adaptation_cd_m2: f64,
     /// Per view ([left, right] in stereo; the second NaN in mono).
     pub view_adaptation_cd_m2: [f64; 2],
+    /// The pupil the light predicts per eye [right, left], mm.
+    pub pupil_light_mm: [f32; 2],
     pub eye_state_age_ms: f64,
     pub frame_ms: f64,
 }
@@ -279,6 +320,7 @@ impl Hub {
             pupil_mm: status.pupil_mm,
             adaptation_cd_m2: status.adaptation_cd_m2,
             view_adaptation_cd_m2: status.view_adaptation_cd_m2,
+            pupil_light_mm: status.eye_pupil_light_mm(),
             eye_state_age_ms: status.eye_state_age_ms,
             frame_ms: status.frame_ms,
         });

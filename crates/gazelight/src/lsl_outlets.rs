@@ -62,7 +62,7 @@ pub const EYE_CHANNELS: [(&str, &str, &str, Option<&str>); 10] = [
 ];
 
 /// Channels of `gazelight-frame`, in order.
-pub const FRAME_CHANNELS: [(&str, &str, &str); 10] = [
+pub const FRAME_CHANNELS: [(&str, &str, &str); 14] = [
     ("frame", "count", "FrameIndex"),
     ("display_t_secs", "s", "SessionTime"),
     ("adaptation_cd_m2", "cd/m^2", "Luminance"),
@@ -73,6 +73,12 @@ pub const FRAME_CHANNELS: [(&str, &str, &str); 10] = [
     ("eye_state_age_ms", "ms", "Latency"),
     ("frame_ms", "ms", "Duration"),
     ("psf_rebuilds", "count", "Counter"),
+    // The pupil light response (docs/pupil-light-response.md): the pupil
+    // the light predicts, and measured − predicted (NaN: not measured).
+    ("pupil_light_right_mm", "mm", "Diameter"),
+    ("pupil_light_left_mm", "mm", "Diameter"),
+    ("pupil_residual_right_mm", "mm", "Diameter"),
+    ("pupil_residual_left_mm", "mm", "Diameter"),
 ];
 
 /// What the outlets did, for the log at the end.
@@ -414,6 +420,7 @@ fn frame_and_marker_loop(
         }
         match frames.recv_timeout(Duration::from_millis(2)) {
             Ok((host_t, f)) => {
+                let (light, residual) = (f.eye_pupil_light_mm(), f.eye_pupil_residual_mm());
                 let values = [
                     f.frames as f64,
                     f.t_secs,
@@ -425,6 +432,10 @@ fn frame_and_marker_loop(
                     f.eye_state_age_ms,
                     f.frame_ms,
                     f.psf_rebuilds as f64,
+                    f64::from(light[EYE_RIGHT]),
+                    f64::from(light[EYE_LEFT]),
+                    f64::from(residual[EYE_RIGHT]),
+                    f64::from(residual[EYE_LEFT]),
                 ];
                 if frame.push(&values, clock.to_lsl(host_t)).is_ok() {
                     counters.frames.fetch_add(1, Ordering::Relaxed);

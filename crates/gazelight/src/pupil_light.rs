@@ -53,13 +53,44 @@ pub(crate) const DEFAULT_CALIBRATION_BLACK_CD_M2: f64 = 0.1;
 /// 100 cd/m², the tone mapper's default display peak).
 pub(crate) const DEFAULT_CALIBRATION_WHITE_CD_M2: f64 = 100.0;
 
-/// The light a static view offers: its mean luminance and solid angle, and
-/// the block-mean luminance plane the pooling model reads.
-pub(crate) struct SceneLight {
-    /// Plain pixel mean of the view's luminance, cd/m².
+/// The field an eye sees besides its gaze: the view's mean luminance and
+/// its solid angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct FieldLight {
+    /// Mean of the view's luminance, cd/m².
     pub field_mean_cd_m2: f64,
     /// Solid angle of the view, deg².
     pub field_area_deg2: f64,
+}
+
+impl FieldLight {
+    /// What an eye looking at `gaze_cd_m2` in this field sees.
+    pub(crate) fn input(&self, gaze_cd_m2: f64) -> EyeInput {
+        EyeInput {
+            gaze_luminance_cd_m2: gaze_cd_m2,
+            field_mean_luminance_cd_m2: self.field_mean_cd_m2,
+            field_area_deg2: self.field_area_deg2,
+            lit: true,
+        }
+    }
+
+    /// Both eyes' light from each view's pooled luminance.
+    pub(crate) fn light(&self, views: &[View], gaze_cd_m2: &[f64]) -> EyeLight {
+        let mut light = EyeLight::both(self.input(gaze_cd_m2.first().copied().unwrap_or(0.0)));
+        for (v, &l) in views.iter().zip(gaze_cd_m2) {
+            match *v {
+                View::Both => light = EyeLight::both(self.input(l)),
+                View::Eye(e) => light.eyes[e.min(1)] = self.input(l),
+            }
+        }
+        light
+    }
+}
+
+/// The light a static view offers: its field, and the block-mean
+/// luminance plane the pooling model reads.
+pub(crate) struct SceneLight {
+    pub field: FieldLight,
     pooling: PoolingModel,
     small_lum: Vec<f32>,
     small_w: usize,
@@ -104,8 +135,10 @@ impl SceneLight {
             .collect();
         let n = (w * h).max(1) as f64;
         Self {
-            field_mean_cd_m2: total / n,
-            field_area_deg2: view_solid_angle_deg2(view),
+            field: FieldLight {
+                field_mean_cd_m2: total / n,
+                field_area_deg2: view_solid_angle_deg2(view),
+            },
             pooling: pipeline.pooling,
             small_lum,
             small_w,
@@ -140,28 +173,6 @@ impl SceneLight {
                 self.deg_per_small_px,
             )
             .max(0.0)
-    }
-
-    /// What an eye looking at `gaze_cd_m2` in this view sees.
-    pub(crate) fn input(&self, gaze_cd_m2: f64) -> EyeInput {
-        EyeInput {
-            gaze_luminance_cd_m2: gaze_cd_m2,
-            field_mean_luminance_cd_m2: self.field_mean_cd_m2,
-            field_area_deg2: self.field_area_deg2,
-            lit: true,
-        }
-    }
-
-    /// Both eyes' light from each view's pooled luminance.
-    pub(crate) fn light(&self, views: &[View], gaze_cd_m2: &[f64]) -> EyeLight {
-        let mut light = EyeLight::both(self.input(gaze_cd_m2.first().copied().unwrap_or(0.0)));
-        for (v, &l) in views.iter().zip(gaze_cd_m2) {
-            match *v {
-                View::Both => light = EyeLight::both(self.input(l)),
-                View::Eye(e) => light.eyes[e.min(1)] = self.input(l),
-            }
-        }
-        light
     }
 }
 
@@ -223,7 +234,7 @@ pub(crate) struct PupilLight {
     views: [View; 2],
     n_views: usize,
     models: [Option<PupilLightResponse>; 2],
-    scene: SceneLight,
+    field: FieldLight,
     /// Per view: sums for the spreads of the raw pupil and the residual
     /// over frames where both are defined.
     spread: [Spread; 2],
@@ -268,7 +279,7 @@ impl PupilLight {
     pub(crate) fn new(
         views: &[View],
         params: &[ResponseParams],
-        scene: SceneLight,
+        field: FieldLight,
     ) -> anyhow::Result<Self> {
         if views.is_empty() || views.len() > 2 || params.len() != views.len() {
             bail!("pupil light response: 1 or 2 views, one set of parameters each");
@@ -284,7 +295,7 @@ impl PupilLight {
             views: [views[0], views.get(1).copied().unwrap_or(views[0])],
             n_views: views.len(),
             models,
-            scene,
+            field,
             spread: [Spread::default(); 2],
         })
     }
@@ -300,7 +311,7 @@ impl PupilLight {
         pupils: [(f32, bool); 2],
     ) -> [(f32, f32); 2] {
         let n = self.n_views;
-        let light = self.scene.light(&self.views[..n], &gaze_cd_m2[..n]);
+        let light = self.field.light(&self.views[..n], &gaze_cd_m2[..n]);
         let mut out = [(f32::NAN, f32::NAN); 2];
         for k in 0..n {
             let Some(model) = self.models[k].as_mut() else {
@@ -319,6 +330,11 @@ impl PupilLight {
             out[k] = (predicted as f32, residual as f32);
         }
         out
+    }
+
+    /// A new field (the view moved: a head turn), from the next frame on.
+    pub(crate) fn set_field(&mut self, field: FieldLight) {
+        self.field = field;
     }
 
     /// The spread (SD) of the raw pupil and of the residual per view, over
@@ -400,7 +416,7 @@ pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
             let (input, _) = v.input(&state, 0.0);
             gaze_cd_m2[k] = scene.pooled_at(input.gaze_uv);
         }
-        let light = scene.light(views, &gaze_cd_m2[..views.len()]);
+        let light = scene.field.light(views, &gaze_cd_m2[..views.len()]);
         for (k, v) in views.iter().enumerate() {
             let (input, _) = v.input(&state, 0.0);
             let pupil = if view_measured(*v, &state) {

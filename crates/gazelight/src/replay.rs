@@ -282,7 +282,7 @@ fn pupil_light_setup(
     for v in views {
         let (range, source) = match eye_cal(*v) {
             Some(c) => (
-                ObserverRange::from_calibration(&c, black, white, scene.field_area_deg2, age)
+                ObserverRange::from_calibration(&c, black, white, scene.field.field_area_deg2, age)
                     .map_err(|e| {
                         anyhow::anyhow!(
                             "the calibration profile's pupils cannot be mapped onto the pupil light \
@@ -347,7 +347,7 @@ fn pupil_light_setup(
     }
     let field = setup.settings.set(
         "pupil_light.field_mean_cd_m2",
-        scene.field_mean_cd_m2,
+        scene.field.field_mean_cd_m2,
         Origin::Default,
     );
     field.note = Some(
@@ -356,7 +356,7 @@ fn pupil_light_setup(
     );
     setup.settings.set(
         "pupil_light.field_area_deg2",
-        scene.field_area_deg2,
+        scene.field.field_area_deg2,
         Origin::Default,
     );
     setup.settings.set(
@@ -424,7 +424,7 @@ fn pupil_light_setup(
                 .set(&key("fit_samples_used"), f.samples_used, Origin::Flag);
         }
     }
-    PupilLight::new(views, &params, scene)
+    PupilLight::new(views, &params, scene.field)
 }
 
 /// " (left eye)", " (right eye)" or "" for a mono view.

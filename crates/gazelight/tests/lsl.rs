@@ -260,6 +260,23 @@ fn run_lsl_outlets_are_read_by_pylsl() {
         col("psf_pupil_mm"),
         col("eye_state_age_ms"),
     );
+    let (c_light, c_residual) = (col("pupil_light_mm"), col("pupil_residual_mm"));
+    // The frame stream's channels name the pupil light response.
+    let flabels: Vec<&str> = frame["info"]["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        &flabels[10..],
+        [
+            "pupil_light_right_mm",
+            "pupil_light_left_mm",
+            "pupil_residual_right_mm",
+            "pupil_residual_left_mm"
+        ]
+    );
     let rows: Vec<Vec<f64>> = lines
         .map(|l| {
             l.split(',')
@@ -277,6 +294,18 @@ fn run_lsl_outlets_are_read_by_pylsl() {
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-3 * b.abs().max(1e-3);
         assert!(close(f(&s[2]), row[c_adapt]), "adaptation {s} vs {row:?}");
         assert!(close(f(&s[4]), row[c_psf]), "psf pupil {s} vs {row:?}");
+        // One view stands for both eyes: both channels are the timeline's.
+        assert!(
+            (f(&s[10]) - row[c_light]).abs() <= 1e-4 && (f(&s[11]) - row[c_light]).abs() <= 1e-4,
+            "pupil light {s} vs {row:?}"
+        );
+        assert!((1.5..=9.0).contains(&row[c_light]), "pupil light {row:?}");
+        // Each eye's residual: its own pupil minus the prediction, where
+        // the view's pupil is measured.
+        if row[c_residual].is_finite() {
+            let right = row[col("pupil_right_mm")] - row[c_light];
+            assert!((f(&s[12]) - right).abs() <= 2e-4, "residual {s} vs {row:?}");
+        }
         // timeline.csv writes the age with 3 decimals (ms): half a unit of that.
         assert!(
             (f(&s[7]) - row[c_age]).abs() <= 5e-4 + 1e-6,

@@ -24,6 +24,7 @@ Run with LSLAPICFG pointing at a machine-only configuration.
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -118,7 +119,9 @@ def read(args):
                     break
                 got = True
                 o = out[n]
-                o["values"].append(s)
+                # JSON has no NaN: a not-a-number channel (a residual where
+                # the pupil is not measured) becomes null.
+                o["values"].append([None if isinstance(x, float) and not math.isfinite(x) else x for x in s])
                 o["t"].append(ts)
                 o["rx"].append(pylsl.local_clock())
         if sub is not None:

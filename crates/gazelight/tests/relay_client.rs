@@ -138,6 +138,55 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
         "t {t}, newest datum {newest}"
     );
 
+    // 1b. The pupil light response on its own topic, through the same
+    // official client: per eye the predicted pupil (within W&Y's range),
+    // the peer's pupil, and their difference.
+    let out = Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-pupil/tests/relay_client.py"))
+        .args(["--port", &relay_port.to_string()])
+        .args([
+            "--topics",
+            "gazelight.pupil_light",
+            "--pupil",
+            "0",
+            "--gaze",
+            "0",
+        ])
+        .args(["--light", "20", "--timeout", "20"])
+        .output()
+        .expect("python3");
+    assert!(
+        out.status.success(),
+        "relay_client.py (pupil light): {}; {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let light: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["kind"] == "datum")
+        .collect();
+    assert!(light.len() >= 20, "{} pupil light datums", light.len());
+    for v in &light {
+        assert_eq!(v["topic"], "gazelight.pupil_light");
+        let p = &v["payload"];
+        for e in 0..2 {
+            let predicted = p["pupil_light_mm"][e].as_f64().unwrap();
+            assert!((1.5..=9.0).contains(&predicted), "{p}");
+            let measured = p["pupil_mm"][e].as_f64().unwrap();
+            assert!((measured - PEER_MM[e]).abs() < 0.05, "{p}");
+            if let Some(r) = p["pupil_residual_mm"][e].as_f64() {
+                assert!((r - (measured - predicted)).abs() < 1e-4, "{p}");
+            }
+        }
+    }
+    assert!(
+        light
+            .iter()
+            .any(|v| v["payload"]["pupil_residual_mm"][0].as_f64().is_some()),
+        "the peer's pupils are measured: residuals present"
+    );
+
     // 2. gazelight's own Pupil client decodes it like Pupil Capture.
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -92,6 +92,13 @@ fn status_page_of_a_live_session() {
         assert_eq!(s2["source"]["eye_dropout_rate"][e], 0.0, "{s2}");
     }
     assert_eq!(s2["source"]["dropout_rate"], 0.0, "{s2}");
+    // The pupil the light predicts (W&Y's range) and the measured pupil's
+    // residual, in one view.
+    let light_mm = s2["frame"]["view_pupil_light_mm"][0].as_f64().unwrap();
+    assert!((1.5..=9.0).contains(&light_mm), "{s2}");
+    let residual = s2["frame"]["view_pupil_residual_mm"][0].as_f64().unwrap();
+    let binocular = s2["frame"]["frame_pupil_mm"].as_f64().unwrap();
+    assert!((residual - (binocular - light_mm)).abs() < 1e-3, "{s2}");
     let f1 = s1["frame"]["frames"].as_u64().unwrap();
     let f2 = s2["frame"]["frames"].as_u64().unwrap();
     assert!(f2 > f1, "frames {f1} → {f2}");
@@ -111,6 +118,10 @@ fn status_page_of_a_live_session() {
     assert!((psf_mm - binocular_mm).abs() <= 0.1 + 1e-6, "{s2}");
     let h = get_json(http_port, "/api/history");
     assert!(h["t_secs"].as_array().unwrap().len() > 10);
+    assert_eq!(
+        h["pupil_light_right_mm"].as_array().unwrap().len(),
+        h["t_secs"].as_array().unwrap().len()
+    );
 
     // The page in headless Chromium, twice.
     let url = format!("http://127.0.0.1:{http_port}/");
@@ -147,6 +158,13 @@ fn status_page_of_a_live_session() {
         "{shown_rate}"
     );
     assert_eq!(d2["shown"]["dropout"], "0.0 % / 0.0 %", "{d2}");
+    // The light-driven pupil shown per eye.
+    let shown_light = d2["pupil_light"].as_str().unwrap();
+    let mm: Vec<f64> = shown_light
+        .split(" / ")
+        .map(|x| x.trim_end_matches(" mm").parse().unwrap())
+        .collect();
+    assert!(mm.iter().all(|m| (1.5..=9.0).contains(m)), "{shown_light}");
 
     // inspect against the same peer: 200 Hz per eye, 0 % dropouts.
     let out = Command::new(env!("CARGO_BIN_EXE_gazelight"))

@@ -32,6 +32,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use gazelight_tracker::pupil::clock::host_now_secs;
+use gazelight_tracker::pupil_response::ObserverRange;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
 use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
@@ -44,6 +45,7 @@ use super::psf_worker::PsfWorker;
 use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub};
+use crate::pupil_light::{self, FieldLight, PupilLight};
 use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
 use gazelight_tracker::live::SourceHealth;
@@ -161,6 +163,9 @@ pub struct FrameLoop {
     psf_policy: KernelPolicy,
     /// Per view: mean luminance of its own image ([`Self::view_means`]).
     view_means: [f64; 2],
+    /// The pupil light response per view (W&Y with the observer's age; the
+    /// field is the view's, updated when the head turns).
+    pupil_light: PupilLight,
     ages_ms: Vec<f32>,
     age_next: usize,
     frame_ms_sum: f64,
@@ -282,6 +287,12 @@ impl FrameLoop {
             None => 0,
         };
         let psf_worker = start_psf_worker(&mut eyes, &config, &view)?;
+        let age_years = config.glare.psf.age_years;
+        let pupil_light = PupilLight::new(
+            views,
+            &[pupil_light::params(age_years, ObserverRange::IDENTITY); 2][..views.len()],
+            field_of(&view, &view_img),
+        )?;
         let pace_builds = psf_worker.is_some() && eyes.iter().all(|e| !e.pipeline.is_gpu());
         let n = eyes.len();
         let mut this = Self {
@@ -309,6 +320,7 @@ impl FrameLoop {
             pace_builds,
             psf_worker,
             view_means: [f64::NAN; 2],
+            pupil_light,
             psf_policy: KernelPolicy::new(&config.glare),
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
@@ -521,6 +533,11 @@ impl FrameLoop {
                 p.render(&self.pano, &mut eye.view_img);
                 *mean = sparse_mean_luminance(&eye.view_img);
             }
+            let n = self.eyes.len().min(2) as f64;
+            self.pupil_light.set_field(FieldLight {
+                field_mean_cd_m2: self.view_means.iter().take(self.eyes.len()).sum::<f64>() / n,
+                field_area_deg2: pupil_light::view_solid_angle_deg2(&self.view),
+            });
         }
 
         let mouse_head = match (&self.mouse, cursor) {
@@ -542,6 +559,8 @@ impl FrameLoop {
             self.view.yaw_deg = yaw;
             self.view.pitch_deg = pitch;
             PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
+            self.pupil_light
+                .set_field(field_of(&self.view, &self.view_img));
         }
 
         let building = self.psf_worker.as_ref().is_some_and(PsfWorker::building);
@@ -577,6 +596,20 @@ impl FrameLoop {
         // The pupil model of the live eye task adapts to the eyes' mean
         // adaptation (geometric: luminances compare on a log scale).
         self.adaptation_cell.set(log_adaptation.exp());
+        // The pupil the light predicts per view, and the measured pupil's
+        // residual.
+        let mut pupils = [(f32::NAN, false); 2];
+        for (k, eye) in self.eyes.iter().enumerate().take(2) {
+            pupils[k] = (
+                inputs[k].0.pupil_mm,
+                pupil_light::view_measured(eye.view, &state),
+            );
+        }
+        let plr = self.pupil_light.step(
+            t_secs,
+            [all_stats[0].target_cd_m2, all_stats[1].target_cd_m2],
+            pupils,
+        );
         if self_rebuilt {
             self.psf_rebuilds += 1;
             self.publish_kernel(t_secs);
@@ -643,9 +676,15 @@ impl FrameLoop {
         status.views = n as u32;
         status.view_adaptation_cd_m2 = [f64::NAN; 2];
         status.view_target_cd_m2 = [f64::NAN; 2];
+        status.view_pupil_light_mm = [f32::NAN; 2];
+        status.view_pupil_residual_mm = [f32::NAN; 2];
         for (k, s) in all_stats.iter().enumerate().take(n.min(2)) {
             status.view_adaptation_cd_m2[k] = s.adaptation_cd_m2;
             status.view_target_cd_m2[k] = s.target_cd_m2;
+            (
+                status.view_pupil_light_mm[k],
+                status.view_pupil_residual_mm[k],
+            ) = plr[k];
         }
         status.frames_read_back = self
             .eyes
@@ -675,6 +714,8 @@ impl FrameLoop {
                     adaptation_cd_m2: s.adaptation_cd_m2,
                     psf_pupil_mm: s.psf_pupil_mm,
                     psf_rebuilt: s.psf_rebuilt,
+                    pupil_light_mm: plr[k].0,
+                    pupil_residual_mm: plr[k].1,
                 };
             }
             w.row(Row {
@@ -823,6 +864,15 @@ impl FrameLoop {
 }
 
 /// Mean Rec. 709 luminance of every 8th pixel of every 8th row.
+/// The field of a view for the pupil light response: its (sparse) mean
+/// luminance and its solid angle.
+fn field_of(view: &ViewParams, img: &RgbImage) -> FieldLight {
+    FieldLight {
+        field_mean_cd_m2: sparse_mean_luminance(img),
+        field_area_deg2: pupil_light::view_solid_angle_deg2(view),
+    }
+}
+
 fn sparse_mean_luminance(img: &RgbImage) -> f64 {
     let (mut sum, mut n) = (0.0f64, 0u64);
     for row in img.pixels.chunks_exact(img.width.max(1)).step_by(8) {
@@ -1111,6 +1161,14 @@ mod tests {
                     "{status:?}"
                 );
                 assert!(status.view_target_cd_m2.iter().all(|a| a.is_finite()));
+                // Each view's light-driven pupil, within W&Y's range.
+                assert!(
+                    status
+                        .view_pupil_light_mm
+                        .iter()
+                        .all(|p| (1.5..=9.0).contains(p)),
+                    "{status:?}"
+                );
                 assert_eq!(history.adaptation_left_cd_m2.len(), history.t_secs.len());
                 assert_eq!(history.adaptation_right_cd_m2.len(), 5);
             } else {

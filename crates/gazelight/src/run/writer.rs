@@ -78,13 +78,19 @@ pub struct ViewRow {
     pub adaptation_cd_m2: f64,
     pub psf_pupil_mm: f64,
     pub psf_rebuilt: bool,
+    /// The pupil the light predicts, mm (docs/pupil-light-response.md).
+    pub pupil_light_mm: f32,
+    /// Measured − predicted pupil, mm; NaN (a blank cell) where the pupil
+    /// is not measured.
+    pub pupil_residual_mm: f32,
 }
 
-const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,pupil_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms";
+const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,pupil_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms,pupil_light_mm,pupil_residual_mm";
 /// A stereo run's header: per-view columns suffixed `_left`, `_right`.
 const STEREO_HEADER: &str = "frame,t_secs,pupil_right_mm,pupil_left_mm,pupil_held,eye_state_age_ms,source_health,\
 gaze_u_left,gaze_v_left,pupil_mm_left,target_cd_m2_left,adaptation_cd_m2_left,psf_pupil_mm_left,psf_rebuilt_left,\
-gaze_u_right,gaze_v_right,pupil_mm_right,target_cd_m2_right,adaptation_cd_m2_right,psf_pupil_mm_right,psf_rebuilt_right,frame_ms";
+gaze_u_right,gaze_v_right,pupil_mm_right,target_cd_m2_right,adaptation_cd_m2_right,psf_pupil_mm_right,psf_rebuilt_right,frame_ms,\
+pupil_light_mm_left,pupil_residual_mm_left,pupil_light_mm_right,pupil_residual_mm_right";
 
 fn health_name(h: SourceHealth) -> &'static str {
     match h {
@@ -594,7 +600,7 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
     if !stereo {
         let _ = writeln!(
             w,
-            "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3}",
+            "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3},{},{}",
             r.frame,
             r.t_secs,
             v.gaze_u,
@@ -609,7 +615,9 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
             v.adaptation_cd_m2,
             v.psf_pupil_mm,
             u8::from(v.psf_rebuilt),
-            r.frame_ms
+            r.frame_ms,
+            Mm(v.pupil_light_mm),
+            Mm(v.pupil_residual_mm),
         );
         return;
     }
@@ -637,7 +645,24 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
             u8::from(v.psf_rebuilt),
         );
     }
-    let _ = writeln!(w, ",{:.3}", r.frame_ms);
+    let _ = write!(w, ",{:.3}", r.frame_ms);
+    for v in [v, right] {
+        let _ = write!(w, ",{},{}", Mm(v.pupil_light_mm), Mm(v.pupil_residual_mm));
+    }
+    let _ = writeln!(w);
+}
+
+/// A pupil cell: 4 decimals, blank when not finite (no allocation).
+struct Mm(f32);
+
+impl std::fmt::Display for Mm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.is_finite() {
+            write!(f, "{:.4}", self.0)
+        } else {
+            Ok(())
+        }
+    }
 }
 
 /// Puts the calling thread (the PNG encoder) in Linux's `SCHED_IDLE`

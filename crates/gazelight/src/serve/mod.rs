@@ -397,6 +397,9 @@ pub struct HistoryJson {
     /// Per view in stereo: left, right (empty in mono).
     pub adaptation_left_cd_m2: Vec<f64>,
     pub adaptation_right_cd_m2: Vec<f64>,
+    /// The pupil the light predicts per eye, mm.
+    pub pupil_light_right_mm: Vec<f32>,
+    pub pupil_light_left_mm: Vec<f32>,
     pub eye_state_age_ms: Vec<f64>,
     pub frame_ms: Vec<f64>,
 }
@@ -414,6 +417,8 @@ impl HistoryJson {
                 adaptation_cd_m2: Vec::with_capacity(n),
                 adaptation_left_cd_m2: Vec::new(),
                 adaptation_right_cd_m2: Vec::new(),
+                pupil_light_right_mm: Vec::with_capacity(n),
+                pupil_light_left_mm: Vec::with_capacity(n),
                 eye_state_age_ms: Vec::with_capacity(n),
                 frame_ms: Vec::with_capacity(n),
             };
@@ -422,6 +427,8 @@ impl HistoryJson {
                 out.pupil_right_mm.push(p.pupil_mm[0]);
                 out.pupil_left_mm.push(p.pupil_mm[1]);
                 out.adaptation_cd_m2.push(p.adaptation_cd_m2);
+                out.pupil_light_right_mm.push(p.pupil_light_mm[0]);
+                out.pupil_light_left_mm.push(p.pupil_light_mm[1]);
                 if p.view_adaptation_cd_m2[1].is_finite() {
                     out.adaptation_left_cd_m2.push(p.view_adaptation_cd_m2[0]);
                     out.adaptation_right_cd_m2.push(p.view_adaptation_cd_m2[1]);

@@ -18,18 +18,19 @@
   window.addEventListener("error", (e) => reportError("error: " + e.message));
   window.addEventListener("unhandledrejection", (e) => reportError("unhandled rejection: " + e.reason));
 
-  const hist = { t: [], r: [], l: [], a: [], al: [], ar: [] };
+  const hist = { t: [], r: [], l: [], a: [], al: [], ar: [], pr: [], pl: [] };
   let stereo = false;
   let updates = 0;
   let lastFrameT = null;
   let lastPsf = 0;
   let lastFrameImgAt = 0;
 
-  function push(t, r, l, a, al, ar) {
+  function push(t, r, l, a, al, ar, pr, pl) {
     if (lastFrameT !== null && t <= lastFrameT) return;
     lastFrameT = t;
     hist.t.push(t); hist.r.push(r); hist.l.push(l); hist.a.push(a);
     hist.al.push(al === undefined ? null : al); hist.ar.push(ar === undefined ? null : ar);
+    hist.pr.push(pr === undefined ? null : pr); hist.pl.push(pl === undefined ? null : pl);
     if (hist.t.length > MAX_POINTS) {
       for (const k of Object.keys(hist)) hist[k].shift();
     }
@@ -63,7 +64,7 @@
     ctx.fillText(label(hi), 2, 14); ctx.fillText(label(lo), 2, h - 16);
     ctx.fillText((t1 - t0).toFixed(1) + " s", w - 46, h - 2);
     for (const s of series) {
-      ctx.strokeStyle = s.color; ctx.lineWidth = 1.5; ctx.beginPath();
+      ctx.strokeStyle = s.color; ctx.lineWidth = 1.5; ctx.setLineDash(s.dash || []); ctx.beginPath();
       let started = false;
       for (let i = 0; i < t.length; i++) {
         const d = s.data[i];
@@ -77,7 +78,8 @@
 
   function redraw() {
     plot(document.getElementById("plot-pupil"), [
-      { data: hist.r, color: "#5aa9e6" }, { data: hist.l, color: "#e6a15a" }], { log: false, minSpan: 0.5 });
+      { data: hist.r, color: "#5aa9e6" }, { data: hist.l, color: "#e6a15a" },
+      { data: hist.pr, color: "#5aa9e6", dash: [4, 3] }, { data: hist.pl, color: "#e6a15a", dash: [4, 3] }], { log: false, minSpan: 0.5 });
     const adapt = stereo
       ? [{ data: hist.ar, color: "#5aa9e6" }, { data: hist.al, color: "#e6a15a" }]
       : [{ data: hist.a, color: "#b8e65a" }];
@@ -131,17 +133,23 @@
     set("t-glare", fmt(tm.psf_ms, 2) + " / " + fmt(tm.glare_ms, 2) + " ms");
     set("t-tone", fmt(tm.acuity_ms, 2) + " / " + fmt(tm.tone_colour_encode_ms, 2) + " ms");
     set("psf-rebuilds", String(fr.psf_rebuilds));
+    const va = fr.view_adaptation_cd_m2 || [null, null];
+    // Per view → per eye [right, left]: stereo views are [left, right].
+    const eyes = (v) => !v ? [null, null] : (fr.views === 2 ? [v[1], v[0]] : [v[0], v[0]]);
+    const light = eyes(fr.view_pupil_light_mm), residual = eyes(fr.view_pupil_residual_mm);
+    set("pupil-light", perEye(light, (v) => fmt(v, 3, "mm")));
+    set("pupil-residual", perEye(residual, (v) => fmt(v, 3, "mm")));
     document.getElementById("state").textContent = JSON.stringify({
       updates: updates, now_secs: s.now_secs, frames: fr.frames,
       adaptation_cd_m2: fr.adaptation_cd_m2, pupil_mm: eye.pupil_mm,
       eye_updates: eye.updates, health: src.health, psf_rebuild: s.psf.rebuild,
       clock_jumps: src.clock ? src.clock.jumps : null,
       eye_rate_hz: src.eye_rate_hz, eye_dropout_rate: src.eye_dropout_rate,
+      pupil_light: document.getElementById("pupil-light").textContent,
       shown: { eye_rate: document.getElementById("eye-rate").textContent,
                dropout: document.getElementById("dropout").textContent },
     });
-    const va = fr.view_adaptation_cd_m2 || [null, null];
-    if (fr.frames > 0) push(fr.t_secs, fr.pupil_mm[0], fr.pupil_mm[1], fr.adaptation_cd_m2, va[0], va[1]);
+    if (fr.frames > 0) push(fr.t_secs, fr.pupil_mm[0], fr.pupil_mm[1], fr.adaptation_cd_m2, va[0], va[1], light[0], light[1]);
     if (s.psf.rebuild > 0 && s.psf.rebuild !== lastPsf) {
       lastPsf = s.psf.rebuild;
       document.getElementById("psf").src = "/psf.png?rebuild=" + lastPsf;
@@ -158,7 +166,8 @@
 
   function seedFrom(h) {
     const al = h.adaptation_left_cd_m2 || [], ar = h.adaptation_right_cd_m2 || [];
-    for (let i = 0; i < h.t_secs.length; i++) push(h.t_secs[i], h.pupil_right_mm[i], h.pupil_left_mm[i], h.adaptation_cd_m2[i], al[i], ar[i]);
+    const pr = h.pupil_light_right_mm || [], pl = h.pupil_light_left_mm || [];
+    for (let i = 0; i < h.t_secs.length; i++) push(h.t_secs[i], h.pupil_right_mm[i], h.pupil_left_mm[i], h.adaptation_cd_m2[i], al[i], ar[i], pr[i], pl[i]);
   }
 
   async function seed() {
