@@ -1,6 +1,8 @@
 //! `gazelight inspect`: a summary of a recording (Neon native directory,
 //! Pupil Core recording, EyeLink ASC, pupil CSV) or of a live Pupil Remote: rates, pupil ranges per eye, confidence,
-//! dropouts, blinks (the recording's own and the filter chain's), warnings.
+//! dropouts, blinks (the recording's own and the filter chain's), warnings;
+//! or of a `timeline.csv` gazelight wrote (`inspect_timeline`: the
+//! pupil light response's spreads).
 
 use std::path::PathBuf;
 
@@ -138,6 +140,15 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
     }
     if let Some(kind) = live_source_kind(&uri) {
         return inspect_source(&uri, kind, &args);
+    }
+    if crate::inspect_timeline::is_timeline(&args.path) {
+        let summary = crate::inspect_timeline::summarize(&args.path)?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&summary)?);
+        } else {
+            println!("{}: {summary}", args.path.display());
+        }
+        return Ok(());
     }
     let summary = if uri.starts_with("pupil://") {
         let runtime = live_runtime(&uri, &args)?;

@@ -22,6 +22,7 @@ mod devices;
 mod hub;
 mod input_report;
 mod inspect;
+mod inspect_timeline;
 #[cfg(test)]
 mod isolated;
 mod lsl_outlets;

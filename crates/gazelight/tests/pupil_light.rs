@@ -565,5 +565,24 @@ fn pupil_fit_recovers_a_synthetic_observer_end_to_end() {
         residual_sd < 0.2 * raw_sd,
         "residual {residual_sd} vs raw {raw_sd}"
     );
+    // `inspect` of the timeline reports the same spreads from its columns.
+    let (json, _) = run_ok(&[
+        "inspect",
+        out_dir.join("timeline.csv").to_str().expect("utf-8"),
+        "--json",
+    ]);
+    let summary: serde_json::Value = serde_json::from_str(&json).expect("JSON");
+    let view = &summary["views"][0];
+    assert_eq!(
+        view["measured_frames"].as_u64(),
+        Some(frames as u64),
+        "{summary}"
+    );
+    let sd = |k: &str| view[k].as_f64().unwrap();
+    assert!(
+        (sd("residual_sd_mm") - residual_sd).abs() < 2e-3,
+        "{summary}"
+    );
+    assert!((sd("pupil_sd_mm") - raw_sd).abs() < 2e-3, "{summary}");
     let _ = std::fs::remove_dir_all(&dir);
 }
