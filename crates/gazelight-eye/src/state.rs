@@ -44,6 +44,13 @@ pub struct EyeChannel {
     /// Whether `gaze_uv` comes from a valid recent monocular sample.
     #[serde(default)]
     pub gaze_valid: bool,
+    /// Whether `pupil_mm` is still moving towards its target at the
+    /// physiological rate limit (at the start, after a blink or a
+    /// dropout): then it is not yet the measurement, whatever
+    /// `pupil_origin` says (the pupil light response leaves such frames'
+    /// residual out).
+    #[serde(default)]
+    pub settling: bool,
 }
 
 fn centre_uv() -> [f32; 2] {
@@ -60,6 +67,7 @@ impl Default for EyeChannel {
             last_valid_t_secs: None,
             gaze_uv: centre_uv(),
             gaze_valid: false,
+            settling: false,
         }
     }
 }

@@ -190,7 +190,16 @@ pub(crate) fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
 /// over a blink or dropout, not the model's fill-in, not the default):
 /// the eyes whose value the view's pupil is made of must all be measured.
 pub(crate) fn view_measured(view: View, state: &EyeState) -> bool {
-    let origin = |e: usize| state.eyes[e].pupil_origin;
+    // A pupil still settling towards its measurement (after a blink or a
+    // dropout, at the start) is not the measurement yet.
+    let origin = |e: usize| {
+        let c = &state.eyes[e];
+        if c.settling && c.pupil_origin == PupilOrigin::Measured {
+            PupilOrigin::Held
+        } else {
+            c.pupil_origin
+        }
+    };
     let used = |o: PupilOrigin| matches!(o, PupilOrigin::Measured | PupilOrigin::Held);
     match view {
         View::Both => {

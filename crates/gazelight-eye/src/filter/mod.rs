@@ -125,6 +125,12 @@ pub struct ChainStats {
     pub invalid_output: u64,
 }
 
+/// How far the output may be from its target and count as settled, mm:
+/// a tenth of a millimetre (the glare kernel's rebuild threshold), above
+/// the lag the rate limit gives measurement noise (0.02 mm SD samples at
+/// 500 Hz stay within ~0.05 mm) and below a blink's or dropout's gap.
+const SETTLED_MM: f32 = 0.1;
+
 /// What the chain made of one pupil sample, as a user counts dropouts: a
 /// sample in raw units with no calibration for them is neither a
 /// measurement nor a dropout (the tracker measured; the chain has no mm
@@ -415,6 +421,7 @@ impl FilterChain {
             }
             self.state.eyes[e].pupil_mm = out;
             self.state.eyes[e].pupil_origin = origin;
+            self.state.eyes[e].settling = (out - target).abs() > SETTLED_MM;
         }
     }
 
