@@ -535,7 +535,7 @@ fn pupil_fit_recovers_a_synthetic_observer_end_to_end() {
     eprintln!("{line}");
     let after = |key: &str| -> f64 {
         let rest = &line[line.find(key).expect(key) + key.len()..];
-        rest.split(|c: char| c == ' ' || c == ',' || c == ';')
+        rest.split([' ', ',', ';'])
             .find(|s| !s.is_empty())
             .unwrap()
             .parse()
