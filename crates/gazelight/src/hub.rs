@@ -57,6 +57,12 @@ pub struct FrameStatus {
     /// The view's measured pupil minus the prediction, mm; NaN (null)
     /// where the pupil is not measured (held, modelled).
     pub view_pupil_residual_mm: [f32; 2],
+    /// The same per eye [right, left] ([`Self::eye_pupil_light_mm`]), as
+    /// the status page, the relay and LSL show them.
+    pub pupil_light_mm: [f32; 2],
+    /// Measured − predicted per eye [right, left]
+    /// ([`Self::eye_pupil_residual_mm`]).
+    pub pupil_residual_mm: [f32; 2],
     /// Age of the `EyeState` the frame used, ms.
     pub eye_state_age_ms: f64,
     /// Whole-frame processing time, ms.
@@ -320,7 +326,7 @@ impl Hub {
             pupil_mm: status.pupil_mm,
             adaptation_cd_m2: status.adaptation_cd_m2,
             view_adaptation_cd_m2: status.view_adaptation_cd_m2,
-            pupil_light_mm: status.eye_pupil_light_mm(),
+            pupil_light_mm: status.pupil_light_mm,
             eye_state_age_ms: status.eye_state_age_ms,
             frame_ms: status.frame_ms,
         });

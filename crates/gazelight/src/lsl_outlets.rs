@@ -420,7 +420,7 @@ fn frame_and_marker_loop(
         }
         match frames.recv_timeout(Duration::from_millis(2)) {
             Ok((host_t, f)) => {
-                let (light, residual) = (f.eye_pupil_light_mm(), f.eye_pupil_residual_mm());
+                let (light, residual) = (f.pupil_light_mm, f.pupil_residual_mm);
                 let values = [
                     f.frames as f64,
                     f.t_secs,

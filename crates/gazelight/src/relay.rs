@@ -30,8 +30,8 @@ impl RelayFeed for Hub {
             frame_pupil_mm: f.frame_pupil_mm,
             pupil_mm: f.pupil_mm,
             eye_state_age_ms: f.eye_state_age_ms,
-            pupil_light_mm: f.eye_pupil_light_mm(),
-            pupil_residual_mm: f.eye_pupil_residual_mm(),
+            pupil_light_mm: f.pupil_light_mm,
+            pupil_residual_mm: f.pupil_residual_mm,
         }
     }
 

@@ -60,7 +60,19 @@ fn status_page_of_a_live_session() {
     // The JSON follows the session.
     let s1 = get_json(http_port, "/api/status");
     std::thread::sleep(Duration::from_millis(500));
-    let s2 = get_json(http_port, "/api/status");
+    // The rates are over the last whole second: wait (bounded) until that
+    // second lies after the source went live (its connection, with the
+    // clock probes, may take seconds on a loaded machine).
+    let mut s2 = get_json(http_port, "/api/status");
+    for _ in 0..20 {
+        let live = s2["source"]["health"] == "live";
+        let rate = s2["source"]["eye_rate_hz"][1].as_f64().unwrap_or(0.0);
+        if live && (170.0..230.0).contains(&rate) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(500));
+        s2 = get_json(http_port, "/api/status");
+    }
     assert_eq!(s1["schema"], 1);
     assert_eq!(s2["source"]["health"], "live", "{s2}");
     // Every setting in effect, with its source.
@@ -99,6 +111,16 @@ fn status_page_of_a_live_session() {
     let residual = s2["frame"]["view_pupil_residual_mm"][0].as_f64().unwrap();
     let binocular = s2["frame"]["frame_pupil_mm"].as_f64().unwrap();
     assert!((residual - (binocular - light_mm)).abs() < 1e-3, "{s2}");
+    // Per eye, as the page shows them: each eye's pupil less the one
+    // prediction (the peer's eyes differ by 0.5 mm).
+    for e in 0..2 {
+        let eye_res = s2["frame"]["pupil_residual_mm"][e].as_f64().unwrap();
+        let eye_mm = s2["eye"]["pupil_mm"][e].as_f64().unwrap();
+        assert!(
+            (eye_res - (eye_mm - light_mm)).abs() < 0.05,
+            "eye {e}: {s2}"
+        );
+    }
     let f1 = s1["frame"]["frames"].as_u64().unwrap();
     let f2 = s2["frame"]["frames"].as_u64().unwrap();
     assert!(f2 > f1, "frames {f1} → {f2}");

@@ -686,6 +686,8 @@ impl FrameLoop {
                 status.view_pupil_residual_mm[k],
             ) = plr[k];
         }
+        status.pupil_light_mm = status.eye_pupil_light_mm();
+        status.pupil_residual_mm = status.eye_pupil_residual_mm();
         status.frames_read_back = self
             .eyes
             .iter()

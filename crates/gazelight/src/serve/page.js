@@ -105,8 +105,8 @@
     set("confidence", fmt(src.confidence, 3));
     set("dropout", perEye(src.eye_dropout_rate || [null, null], pct));
     set("streams", (src.streams || []).map((x) =>
-      x.name + " " + fmt(x.rate_hz, 0, "Hz") +
-      (x.dropout_rate === null ? (x.uncalibrated > 0 ? " (no calibration)" : "") : " " + pct(x.dropout_rate))).join(" · ") || "–");
+      x.name + ": " + fmt(x.rate_hz, 0, "Hz") +
+      (x.dropout_rate === null ? (x.uncalibrated > 0 ? ", no calibration" : "") : ", " + pct(x.dropout_rate))).join("\n") || "–");
     if ((fr.views === 2) !== stereo) {
       stereo = fr.views === 2;
       document.getElementById("adapt-legend").innerHTML = stereo
@@ -134,9 +134,7 @@
     set("t-tone", fmt(tm.acuity_ms, 2) + " / " + fmt(tm.tone_colour_encode_ms, 2) + " ms");
     set("psf-rebuilds", String(fr.psf_rebuilds));
     const va = fr.view_adaptation_cd_m2 || [null, null];
-    // Per view → per eye [right, left]: stereo views are [left, right].
-    const eyes = (v) => !v ? [null, null] : (fr.views === 2 ? [v[1], v[0]] : [v[0], v[0]]);
-    const light = eyes(fr.view_pupil_light_mm), residual = eyes(fr.view_pupil_residual_mm);
+    const light = fr.pupil_light_mm || [null, null], residual = fr.pupil_residual_mm || [null, null];
     set("pupil-light", perEye(light, (v) => fmt(v, 3, "mm")));
     set("pupil-residual", perEye(residual, (v) => fmt(v, 3, "mm")));
     document.getElementById("state").textContent = JSON.stringify({
