@@ -16,7 +16,9 @@
 //
 // The weight w(x, y) of block (x, y) follows the model:
 //   0 Gaussian (001 §4.1): pixel-integrated Gaussian, (erf differences) in x
-//     times y, inside the host-computed span of ±(6σ + 1);
+//     times y, inside the host-computed span of ±(6σ + 1); on a rectilinear
+//     plane between block edges mapped to angles, times the exact-angle and
+//     solid-angle corrections at the block centre;
 //   1 centre weight 1 − 4d² (000 eq 5–6), d normalised by the half sizes;
 //   2 eccentricity e2/(e2 + d°) (003 eq 1);
 //   3 gaze window (004 §3.1): pixel overlap with the window, in x times y;
@@ -52,8 +54,21 @@ struct PoolParams {
     p1: f32,
     p2: f32,
     p3: f32,
+    // The block plane's geometry: 0 uniform (the weights in blocks, p1 of
+    // model 2 = ° per block), 1 rectilinear (angles through the view, as
+    // gazelight_vision::pooling::Axes): the gaze's azimuth and elevation
+    // (rad), cos elevation, k = √(1 + s_gx²); the tangent at x = 0, per
+    // block in x, at y = 0, per block in y.
+    geo: u32,
     _pad1: u32,
-    _pad2: u32,
+    azimuth: f32,
+    elevation: f32,
+    cos_elevation: f32,
+    k: f32,
+    tan_x0: f32,
+    tan_per_x: f32,
+    tan_y0: f32,
+    tan_per_y: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: PoolParams;
@@ -93,6 +108,34 @@ fn overlap(i: u32, lo: f32, hi: f32) -> f32 {
     return max(b - a, 0.0);
 }
 
+// Rectilinear plane: the angle of column edge x and row edge y from the
+// gaze along the view's azimuth and elevation, degrees.
+fn x_deg(x: f32) -> f32 {
+    return degrees(params.cos_elevation * (atan(params.tan_x0 + x * params.tan_per_x) - params.azimuth));
+}
+
+fn y_deg(y: f32) -> f32 {
+    return degrees(params.elevation - atan((params.tan_y0 - y * params.tan_per_y) / params.k));
+}
+
+// Rectilinear plane: the great-circle angle from the gaze to point (x, y), degrees.
+fn exact_deg(x: f32, y: f32) -> f32 {
+    let s = vec2<f32>(params.tan_x0 + x * params.tan_per_x, params.tan_y0 - y * params.tan_per_y);
+    let ce = cos(params.elevation);
+    let g = vec3<f32>(ce * sin(params.azimuth), sin(params.elevation), -ce * cos(params.azimuth));
+    let p = normalize(vec3<f32>(s.x, s.y, -1.0));
+    return degrees(atan2(length(cross(g, p)), dot(g, p)));
+}
+
+// Rectilinear plane: a block's solid angle over its separable sides.
+fn solid_angle_ratio(x: f32, y: f32) -> f32 {
+    let sx = params.tan_x0 + x * params.tan_per_x;
+    let sy = params.tan_y0 - y * params.tan_per_y;
+    let k = params.k;
+    let r2 = 1.0 + sx * sx + sy * sy;
+    return (1.0 + sx * sx) * (k * k + sy * sy) / (params.cos_elevation * k * r2 * sqrt(r2));
+}
+
 fn in_span(x: u32, y: u32) -> bool {
     return x >= params.x0 && x < params.x1 && y >= params.y0 && y < params.y1;
 }
@@ -106,6 +149,20 @@ fn weight(x: u32, y: u32) -> f32 {
                 return 0.0;
             }
             let inv = params.p0;
+            if params.geo == 1u {
+                let fy = f32(y);
+                let wy = 0.5 * (erf_nr(y_deg(fy + 1.0) * inv) - erf_nr(y_deg(fy) * inv));
+                if wy <= 0.0 {
+                    return 0.0;
+                }
+                let fx = f32(x);
+                let wx = 0.5 * (erf_nr(x_deg(fx + 1.0) * inv) - erf_nr(x_deg(fx) * inv));
+                let dx = x_deg(fx + 0.5);
+                let dy = y_deg(fy + 0.5);
+                let d = exact_deg(fx + 0.5, fy + 0.5);
+                let excess = d * d - dx * dx - dy * dy;
+                return wx * wy * exp(-excess * inv * inv) * solid_angle_ratio(fx + 0.5, fy + 0.5);
+            }
             let wy = 0.5 * (erf_nr((f32(y) + 1.0 - gy) * inv) - erf_nr((f32(y) - gy) * inv));
             if wy <= 0.0 {
                 return 0.0;
@@ -125,7 +182,10 @@ fn weight(x: u32, y: u32) -> f32 {
         case 2u: {
             let dx = f32(x) + 0.5 - gx;
             let dy = f32(y) + 0.5 - gy;
-            let d_deg = sqrt(dx * dx + dy * dy) * params.p1;
+            var d_deg = sqrt(dx * dx + dy * dy) * params.p1;
+            if params.geo == 1u {
+                d_deg = exact_deg(f32(x) + 0.5, f32(y) + 0.5);
+            }
             return params.p0 / (params.p0 + d_deg);
         }
         case 3u: {

@@ -57,6 +57,7 @@ use gazelight_vision::kernel_policy::INITIAL_PUPIL_MM;
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FrameStats, PipelineConfig, StageTimings, srgb_encode,
 };
+use gazelight_vision::pooling::PlaneAngles;
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::temporal::AdaptationState;
 use gazelight_vision::{RgbImage, VisionError};
@@ -354,6 +355,9 @@ pub struct GpuFramePipeline {
     config: PipelineConfig,
     sizes: FrameSizes,
     deg_per_px: f64,
+    /// How the frame's pixels map to angles for pooling (uniform at
+    /// `deg_per_px` until [`GpuFramePipeline::set_view_frustum`]).
+    angles: PlaneAngles,
     has_state: bool,
     psf_pupil_mm: f64,
     /// Rebuild the PSF in the frame when the pupil moves (off: the host
@@ -500,6 +504,7 @@ impl GpuFramePipeline {
             ctx: ctx.clone(),
             sizes,
             deg_per_px,
+            angles: PlaneAngles::Uniform { deg_per_px },
             has_state: false,
             psf_pupil_mm: INITIAL_PUPIL_MM,
             psf_auto_rebuild: true,
@@ -512,7 +517,9 @@ impl GpuFramePipeline {
                 sizes.ds,
                 sizes.partial_count,
                 [0.0, 0.0],
-                deg_per_px * f64::from(sizes.ds),
+                PlaneAngles::Uniform {
+                    deg_per_px: deg_per_px * f64::from(sizes.ds),
+                },
             ),
             temporal_params: TemporalParams::new(&config.temporal),
             buffers,
@@ -548,6 +555,27 @@ impl GpuFramePipeline {
     /// Angular size of a display pixel, degrees.
     pub fn deg_per_px(&self) -> f64 {
         self.deg_per_px
+    }
+
+    /// The frame is a rectilinear view whose left, right, up and down edges
+    /// lie at the tangents `tan_lrud`: pooling measures angles through that
+    /// projection, as the CPU's
+    /// [`FramePipeline::set_view_frustum`](gazelight_vision::pipeline::FramePipeline::set_view_frustum).
+    /// Fails (and keeps the old geometry) on tangents that are not finite
+    /// or ordered.
+    pub fn set_view_frustum(&mut self, tan_lrud: [f64; 4]) -> Result<(), GpuError> {
+        let angles = PlaneAngles::Rectilinear {
+            tan_lrud,
+            extent_px: [f64::from(self.sizes.width), f64::from(self.sizes.height)],
+        };
+        angles
+            .validate()
+            .map_err(|source| GpuError::InvalidParams {
+                what: "the view frustum",
+                source,
+            })?;
+        self.angles = angles;
+        Ok(())
     }
 
     /// The scene input buffer: `width·height` RGBA f32 texels, cd/m²
@@ -801,7 +829,7 @@ impl GpuFramePipeline {
             s.ds,
             s.partial_count,
             [gaze_px[0] / ds, gaze_px[1] / ds],
-            self.deg_per_px * ds,
+            self.angles.downsampled(s.ds as usize),
         );
         self.temporal_params.dt_secs = dt_secs;
         self.temporal_params.reset = u32::from(!self.has_state);

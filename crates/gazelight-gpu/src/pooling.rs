@@ -10,7 +10,7 @@
 //! f64 exactly as the CPU does ([`PoolParams::for_frame`]).
 
 use bytemuck::{Pod, Zeroable};
-use gazelight_vision::pooling::PoolingModel;
+use gazelight_vision::pooling::{PlaneAngles, PoolingModel};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -61,23 +61,34 @@ pub struct PoolParams {
     pub p2: f32,
     /// Model parameters.
     pub p3: f32,
+    /// The block plane's geometry: 0 uniform (`deg_per_block` per block),
+    /// 1 rectilinear (`axes`, `tans`: angles measured through the view).
+    pub geo: u32,
     /// Padding.
     pub _pad1: u32,
-    /// Padding.
-    pub _pad2: u32,
-}
-
-/// [`gazelight_vision::pooling::span`] (the blocks in `[lo, hi)`, clamped
-/// to `0..n`) as the shader's `u32`s; both ends are at most `n`, itself a
-/// `u32` block count, so the conversion is exact.
-fn span(lo: f64, hi: f64, n: usize) -> (u32, u32) {
-    let (a, b) = gazelight_vision::pooling::span(lo, hi, n);
-    (a as u32, b as u32)
+    /// Rectilinear: the gaze's azimuth, rad
+    /// ([`gazelight_vision::pooling::rectilinear_terms`]).
+    pub azimuth: f32,
+    /// Rectilinear: the gaze's elevation, rad.
+    pub elevation: f32,
+    /// Rectilinear: cos of the gaze's elevation.
+    pub cos_elevation: f32,
+    /// Rectilinear: √(1 + s_gx²).
+    pub k: f32,
+    /// Rectilinear: the tangent at x = 0.
+    pub tan_x0: f32,
+    /// Rectilinear: the tangent per block in x.
+    pub tan_per_x: f32,
+    /// Rectilinear: the tangent at y = 0.
+    pub tan_y0: f32,
+    /// Rectilinear: the tangent per block in y (downwards).
+    pub tan_per_y: f32,
 }
 
 impl PoolParams {
     /// The uniforms of one frame: `gaze_px` on the block plane (finite),
-    /// `deg_per_block` the angular size of one block.
+    /// `angles` the block plane's geometry (uniform: the angular size of
+    /// one block; rectilinear: the view's tangents).
     #[allow(clippy::too_many_arguments)]
     pub fn for_frame(
         model: &PoolingModel,
@@ -86,9 +97,18 @@ impl PoolParams {
         ds: u32,
         partial_count: u32,
         gaze_px: [f64; 2],
-        deg_per_block: f64,
+        angles: PlaneAngles,
     ) -> Self {
         let (w, h) = (small[0] as usize, small[1] as usize);
+        let rect = gazelight_vision::pooling::rectilinear_terms(w, h, gaze_px, angles);
+        let deg_per_block = match angles {
+            PlaneAngles::Uniform { deg_per_px } if deg_per_px.is_finite() && deg_per_px > 0.0 => {
+                deg_per_px
+            }
+            _ => 1.0,
+        };
+        // The blocks with weight, and the window's edges, as the CPU's.
+        let spans = model.span_in(w, h, gaze_px, angles);
         let mut p = Self {
             width: frame[0],
             height: frame[1],
@@ -108,16 +128,35 @@ impl PoolParams {
             p1: 0.0,
             p2: 0.0,
             p3: 0.0,
+            geo: 0,
             _pad1: 0,
-            _pad2: 0,
+            azimuth: 0.0,
+            elevation: 0.0,
+            cos_elevation: 0.0,
+            k: 0.0,
+            tan_x0: 0.0,
+            tan_per_x: 0.0,
+            tan_y0: 0.0,
+            tan_per_y: 0.0,
         };
+        if let Some((axes, tans)) = rect {
+            p.geo = 1;
+            [p.azimuth, p.elevation, p.cos_elevation, p.k] = axes.map(|v| v as f32);
+            [p.tan_x0, p.tan_per_x, p.tan_y0, p.tan_per_y] = tans.map(|v| v as f32);
+        }
+        if let Some(([x0, x1, y0, y1], _)) = spans {
+            // Both ends are at most the block counts, themselves `u32`s.
+            (p.x0, p.x1, p.y0, p.y1) = (x0 as u32, x1 as u32, y0 as u32, y1 as u32);
+        }
         match *model {
             PoolingModel::Gaussian { sigma_deg } => {
-                let sigma_px = sigma_deg / deg_per_block;
-                let reach = gazelight_vision::pooling::gaussian_reach_px(sigma_px);
-                (p.x0, p.x1) = span(gaze_px[0] - reach, gaze_px[0] + reach, w);
-                (p.y0, p.y1) = span(gaze_px[1] - reach, gaze_px[1] + reach, h);
-                p.p0 = (1.0 / (sigma_px * std::f64::consts::SQRT_2)) as f32;
+                // 1/(σ√2) in blocks (uniform) or in degrees (rectilinear).
+                let sigma = if p.geo == 1 {
+                    sigma_deg
+                } else {
+                    sigma_deg / deg_per_block
+                };
+                p.p0 = (1.0 / (sigma * std::f64::consts::SQRT_2)) as f32;
             }
             PoolingModel::CentreWeight { follow_gaze } => {
                 p.model = 1;
@@ -136,17 +175,14 @@ impl PoolParams {
                 p.p0 = e2_deg as f32;
                 p.p1 = deg_per_block as f32;
             }
-            PoolingModel::GazeWindow { size_deg } => {
+            PoolingModel::GazeWindow { .. } => {
                 p.model = 3;
-                let half = size_deg / deg_per_block / 2.0;
-                let (lo_x, hi_x) = (gaze_px[0] - half, gaze_px[0] + half);
-                let (lo_y, hi_y) = (gaze_px[1] - half, gaze_px[1] + half);
-                (p.x0, p.x1) = span(lo_x, hi_x, w);
-                (p.y0, p.y1) = span(lo_y, hi_y, h);
-                p.p0 = lo_x as f32;
-                p.p1 = hi_x as f32;
-                p.p2 = lo_y as f32;
-                p.p3 = hi_y as f32;
+                if let Some((_, [lo_x, hi_x, lo_y, hi_y])) = spans {
+                    p.p0 = lo_x as f32;
+                    p.p1 = hi_x as f32;
+                    p.p2 = lo_y as f32;
+                    p.p3 = hi_y as f32;
+                }
             }
             PoolingModel::PanoramaMean => p.model = 4,
         }
@@ -237,10 +273,26 @@ mod tests {
         let partials = storage(ctx, &vec![[0.0f32; 2]; partial_count as usize]);
         let state = storage(ctx, &[FrameState::default()]);
         let mut worst = 0.0f64;
-        for model in every_pooling_model() {
+        // The view's own geometry (60° wide, through its projection) and
+        // the planar one.
+        let geometries = [
+            PlaneAngles::Uniform { deg_per_px: dpp },
+            PlaneAngles::symmetric(60.0, w as usize, h as usize),
+        ];
+        for (model, angles) in every_pooling_model()
+            .into_iter()
+            .flat_map(|m| geometries.map(|a| (m, a)))
+        {
             for gaze_px in [[48.0, 32.0], [10.5, 55.25], [90.0, 3.0]] {
-                let params =
-                    PoolParams::for_frame(&model, [w, h], [w, h], 1, partial_count, gaze_px, dpp);
+                let params = PoolParams::for_frame(
+                    &model,
+                    [w, h],
+                    [w, h],
+                    1,
+                    partial_count,
+                    gaze_px,
+                    angles,
+                );
                 let params_buf = uniform(ctx, &params);
                 run_pass(
                     ctx,
@@ -254,10 +306,15 @@ mod tests {
                     ],
                 );
                 let gpu = f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2);
-                let cpu = model.pool(&lum, w as usize, h as usize, gaze_px, dpp);
+                let cpu = model.pool_in(&lum, w as usize, h as usize, gaze_px, angles);
                 let e = (gpu - cpu).abs() / cpu.abs().max(1e-9);
-                println!("{model:?} at {gaze_px:?}: GPU {gpu:.5} cd/m², CPU {cpu:.5}, rel {e:.1e}");
-                assert!(e < 1e-4, "{model:?} at {gaze_px:?}: GPU {gpu}, CPU {cpu}");
+                println!(
+                    "{model:?} {angles:?} at {gaze_px:?}: GPU {gpu:.5} cd/m², CPU {cpu:.5}, rel {e:.1e}"
+                );
+                assert!(
+                    e < 1e-4,
+                    "{model:?} {angles:?} at {gaze_px:?}: GPU {gpu}, CPU {cpu}"
+                );
                 worst = worst.max(e);
             }
         }

@@ -46,7 +46,7 @@ use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
 use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
-use crate::pooling::PoolingModel;
+use crate::pooling::{PlaneAngles, PoolingModel};
 use crate::psf::{PsfBuilder, PsfParams};
 use crate::simd::{LANES, Simd, Tier};
 use crate::temporal::{AdaptationState, TemporalModel};
@@ -238,6 +238,9 @@ pub struct FramePipeline {
     width: usize,
     height: usize,
     deg_per_px: f64,
+    /// How the frame's pixels map to angles for pooling (uniform at
+    /// `deg_per_px` until [`FramePipeline::set_view_frustum`]).
+    angles: PlaneAngles,
     state: Option<AdaptationState>,
     work: RgbImage,
     display: RgbImage,
@@ -320,6 +323,7 @@ impl FramePipeline {
             width,
             height,
             deg_per_px,
+            angles: PlaneAngles::Uniform { deg_per_px },
             state: None,
             // Only kept on request (the band pass otherwise works in rings
             // of rows).
@@ -360,6 +364,26 @@ impl FramePipeline {
     /// Angular size of a display pixel, degrees.
     pub fn deg_per_px(&self) -> f64 {
         self.deg_per_px
+    }
+
+    /// The frame is a rectilinear view whose left, right, up and down edges
+    /// lie at the tangents `tan_lrud`: pooling measures the angle from the
+    /// gaze through that projection ([`PlaneAngles::Rectilinear`]) instead
+    /// of `deg_per_px` per pixel. Fails (and keeps the old geometry) on
+    /// tangents that are not finite or ordered.
+    pub fn set_view_frustum(&mut self, tan_lrud: [f64; 4]) -> Result<(), VisionError> {
+        let angles = PlaneAngles::Rectilinear {
+            tan_lrud,
+            extent_px: [self.width as f64, self.height as f64],
+        };
+        angles.validate()?;
+        self.angles = angles;
+        Ok(())
+    }
+
+    /// How the frame's pixels map to angles for pooling.
+    pub fn plane_angles(&self) -> PlaneAngles {
+        self.angles
     }
 
     /// The current adaptation state (`None` before the first frame).
@@ -580,11 +604,11 @@ impl FramePipeline {
             }
         } else {
             // Only the blocks the pooling model reads.
-            let blocks = self.config.pooling.reach(
+            let blocks = self.config.pooling.reach_in(
                 self.small_w,
                 self.small_h,
                 small_gaze,
-                self.deg_per_px * ds as f64,
+                self.angles.downsampled(ds),
             );
             pass_a(
                 self.simd,
@@ -598,12 +622,12 @@ impl FramePipeline {
         let target_cd_m2 = self
             .config
             .pooling
-            .pool(
+            .pool_in(
                 &self.small_lum,
                 self.small_w,
                 self.small_h,
                 small_gaze,
-                self.deg_per_px * ds as f64,
+                self.angles.downsampled(ds),
             )
             .max(0.0);
         let t_pool = Instant::now();

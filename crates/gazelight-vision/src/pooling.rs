@@ -42,9 +42,30 @@
 //!   equirectangular panorama.
 //!
 //! Coordinates: `gaze_px` is continuous, with pixel `(i, j)` covering
-//! `[i, i+1) × [j, j+1)` (its centre at `i + ½`). Distances in degrees are
-//! the planar pixel distance times `deg_per_px` (no wrap-around and no
-//! projection correction). Pooling never allocates.
+//! `[i, i+1) × [j, j+1)` (its centre at `i + ½`). How far a pixel is from
+//! the gaze, in degrees, depends on the plane's [`PlaneAngles`]:
+//!
+//! * [`PlaneAngles::Uniform`] ([`PoolingModel::pool`]): the planar pixel
+//!   distance times `deg_per_px` (no wrap-around, no projection).
+//! * [`PlaneAngles::Rectilinear`] ([`PoolingModel::pool_in`]): the plane is
+//!   a pinhole view whose edges lie at the given tangents (a display view:
+//!   its pixels subtend less angle away from the axis, by cos²θ along the
+//!   radius at θ off axis). Each pixel edge is mapped to its angle from the
+//!   gaze along the view's azimuth `a = atan(s_x)` and elevation
+//!   `b = atan(s_y / √(1 + s_gx²))` (`s` the tangent coordinates, `s_g` the
+//!   gaze's): `Δx° = cos b_g · (a − a_g)`, `Δy° = b − b_g`, the local
+//!   metric of the sphere (`ds² = cos²b·da² + db²`) at the gaze. The
+//!   Gaussian's weights stay separable (erf differences between mapped
+//!   edges), so they still integrate over pixels bigger than σ. Measured
+//!   on a night panorama seen through a 90° view (the `rectilinear_*`
+//!   tests): within 2 % of the exact angular Gaussian over the sphere
+//!   where the planar distance is off by up to 2× in the dark next to a
+//!   lamp (the Gaussian's far tail weighs a lamp 10⁴× brighter than the
+//!   dark around it, and a 4 % error in distance at 7° changes that weight
+//!   by 40 %).
+//!
+//! The centre-weight (000) and panorama-mean models are defined on the
+//! plane itself and ignore the geometry. Pooling never allocates.
 
 use std::ops::Range;
 
@@ -93,6 +114,306 @@ pub const DEFAULT_E2_DEG: f64 = 3.118;
 /// §4.3.2, HTC Vive Pro).
 pub const DEFAULT_GAZE_WINDOW_DEG: f64 = 40.0 / 13.85;
 
+/// How a plane's pixel coordinates map to visual angles (see the module
+/// docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PlaneAngles {
+    /// Every pixel `deg_per_px` wide: the planar approximation.
+    Uniform {
+        /// Angular size of a pixel, degrees.
+        deg_per_px: f64,
+    },
+    /// A rectilinear (pinhole) view: plane x = 0 and x = `extent_px[0]` lie
+    /// at the tangents `tan_lrud[0]` (left) and `tan_lrud[1]` (right),
+    /// y = 0 and y = `extent_px[1]` at `tan_lrud[2]` (up) and `tan_lrud[3]`
+    /// (down). `extent_px` is the view's size in plane pixels (fractional
+    /// for a block plane whose last block is partial).
+    Rectilinear {
+        /// Tangents of the left, right, up and down edges (left and down
+        /// negative for a view around its axis).
+        tan_lrud: [f64; 4],
+        /// The view's width and height in plane pixels.
+        extent_px: [f64; 2],
+    },
+}
+
+impl PlaneAngles {
+    /// A symmetric rectilinear view `hfov_deg` wide over a `width ×
+    /// height` plane with square pixels.
+    pub fn symmetric(hfov_deg: f64, width: usize, height: usize) -> Self {
+        let tx = (hfov_deg.to_radians() * 0.5).tan();
+        let ty = tx * height as f64 / width.max(1) as f64;
+        Self::Rectilinear {
+            tan_lrud: [-tx, tx, ty, -ty],
+            extent_px: [width as f64, height as f64],
+        }
+    }
+
+    /// The same geometry on the plane of `ds × ds` pixel blocks.
+    pub fn downsampled(self, ds: usize) -> Self {
+        let ds = ds.max(1) as f64;
+        match self {
+            Self::Uniform { deg_per_px } => Self::Uniform {
+                deg_per_px: deg_per_px * ds,
+            },
+            Self::Rectilinear {
+                tan_lrud,
+                extent_px,
+            } => Self::Rectilinear {
+                tan_lrud,
+                extent_px: [extent_px[0] / ds, extent_px[1] / ds],
+            },
+        }
+    }
+
+    /// Checks the geometry: a finite positive pixel size, or finite
+    /// tangents with left < right and down < up and a positive extent.
+    pub fn validate(&self) -> Result<(), VisionError> {
+        match *self {
+            Self::Uniform { deg_per_px } => {
+                if !(deg_per_px.is_finite() && deg_per_px > 0.0) {
+                    return Err(VisionError::invalid(
+                        "deg_per_px",
+                        deg_per_px,
+                        "a finite number of degrees > 0",
+                    ));
+                }
+            }
+            Self::Rectilinear {
+                tan_lrud: [l, r, u, d],
+                extent_px,
+            } => {
+                let finite = [l, r, u, d, extent_px[0], extent_px[1]]
+                    .iter()
+                    .all(|v| v.is_finite());
+                if !(finite && l < r && d < u && extent_px[0] > 0.0 && extent_px[1] > 0.0) {
+                    return Err(VisionError::invalid(
+                        "view frustum",
+                        format!("tangents {:?} over {:?} px", [l, r, u, d], extent_px),
+                        "finite tangents, left < right, down < up, a positive size",
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Angles from the gaze along the plane's axes, degrees, for one gaze.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Axes {
+    Uniform {
+        gaze: [f64; 2],
+        deg_per_px: f64,
+    },
+    Rectilinear {
+        /// Tangent at x = 0 and per plane pixel (x), at y = 0 and per
+        /// plane pixel downwards (y).
+        tan_x0: f64,
+        tan_per_px_x: f64,
+        tan_y0: f64,
+        tan_per_px_y: f64,
+        /// The gaze's azimuth and elevation, radians; cos of its
+        /// elevation; √(1 + s_gx²).
+        azimuth_rad: f64,
+        elevation_rad: f64,
+        cos_elevation: f64,
+        k: f64,
+    },
+}
+
+/// A tangent's angle, kept inside ±(90° − 1e-6 rad) for the inverses.
+const MAX_AXIS_RAD: f64 = std::f64::consts::FRAC_PI_2 - 1e-6;
+
+impl Axes {
+    /// The axes around `gaze` (sanitised plane coordinates). An invalid
+    /// geometry falls back to 1° pixels (as `pool` always has).
+    pub(crate) fn new(angles: PlaneAngles, gaze: [f64; 2]) -> Self {
+        if angles.validate().is_err() {
+            return Self::Uniform {
+                gaze,
+                deg_per_px: 1.0,
+            };
+        }
+        match angles {
+            PlaneAngles::Uniform { deg_per_px } => Self::Uniform { gaze, deg_per_px },
+            PlaneAngles::Rectilinear {
+                tan_lrud: [l, r, u, d],
+                extent_px,
+            } => {
+                let tan_per_px_x = (r - l) / extent_px[0];
+                let tan_per_px_y = (u - d) / extent_px[1];
+                let sgx = l + gaze[0] * tan_per_px_x;
+                let sgy = u - gaze[1] * tan_per_px_y;
+                let k = (1.0 + sgx * sgx).sqrt();
+                let elevation_rad = (sgy / k).atan();
+                Self::Rectilinear {
+                    tan_x0: l,
+                    tan_per_px_x,
+                    tan_y0: u,
+                    tan_per_px_y,
+                    azimuth_rad: sgx.atan(),
+                    elevation_rad,
+                    cos_elevation: elevation_rad.cos(),
+                    k,
+                }
+            }
+        }
+    }
+
+    /// Angle of plane column edge `x` from the gaze, degrees (increasing
+    /// with `x`).
+    #[inline]
+    pub(crate) fn x_deg(&self, x: f64) -> f64 {
+        match *self {
+            Self::Uniform { gaze, deg_per_px } => (x - gaze[0]) * deg_per_px,
+            Self::Rectilinear {
+                tan_x0,
+                tan_per_px_x,
+                azimuth_rad,
+                cos_elevation,
+                ..
+            } => (cos_elevation * ((tan_x0 + x * tan_per_px_x).atan() - azimuth_rad)).to_degrees(),
+        }
+    }
+
+    /// Angle of plane row edge `y` from the gaze, degrees (increasing with
+    /// `y`, i.e. downwards).
+    #[inline]
+    pub(crate) fn y_deg(&self, y: f64) -> f64 {
+        match *self {
+            Self::Uniform { gaze, deg_per_px } => (y - gaze[1]) * deg_per_px,
+            Self::Rectilinear {
+                tan_y0,
+                tan_per_px_y,
+                elevation_rad,
+                k,
+                ..
+            } => (elevation_rad - ((tan_y0 - y * tan_per_px_y) / k).atan()).to_degrees(),
+        }
+    }
+
+    /// The plane column whose edge is `deg` degrees from the gaze (the
+    /// inverse of [`Self::x_deg`], clamped to the view's ±90°).
+    pub(crate) fn x_of_deg(&self, deg: f64) -> f64 {
+        match *self {
+            Self::Uniform { gaze, deg_per_px } => gaze[0] + deg / deg_per_px,
+            Self::Rectilinear {
+                tan_x0,
+                tan_per_px_x,
+                azimuth_rad,
+                cos_elevation,
+                ..
+            } => {
+                let a = (azimuth_rad + deg.to_radians() / cos_elevation.max(1e-9))
+                    .clamp(-MAX_AXIS_RAD, MAX_AXIS_RAD);
+                (a.tan() - tan_x0) / tan_per_px_x
+            }
+        }
+    }
+
+    /// The plane row whose edge is `deg` degrees from the gaze (the inverse
+    /// of [`Self::y_deg`], clamped to the view's ±90°).
+    pub(crate) fn y_of_deg(&self, deg: f64) -> f64 {
+        match *self {
+            Self::Uniform { gaze, deg_per_px } => gaze[1] + deg / deg_per_px,
+            Self::Rectilinear {
+                tan_y0,
+                tan_per_px_y,
+                elevation_rad,
+                k,
+                ..
+            } => {
+                let b = (elevation_rad - deg.to_radians()).clamp(-MAX_AXIS_RAD, MAX_AXIS_RAD);
+                (tan_y0 - k * b.tan()) / tan_per_px_y
+            }
+        }
+    }
+
+    /// The great-circle angle, degrees, between the gaze and the plane
+    /// point `(x, y)` (a pixel centre); for a uniform plane the planar
+    /// distance.
+    #[inline]
+    pub(crate) fn exact_deg(&self, x: f64, y: f64) -> f64 {
+        match *self {
+            Self::Uniform { gaze, deg_per_px } => {
+                ((x - gaze[0]).powi(2) + (y - gaze[1]).powi(2)).sqrt() * deg_per_px
+            }
+            Self::Rectilinear {
+                tan_x0,
+                tan_per_px_x,
+                tan_y0,
+                tan_per_px_y,
+                azimuth_rad,
+                elevation_rad,
+                ..
+            } => {
+                let (sx, sy) = (tan_x0 + x * tan_per_px_x, tan_y0 - y * tan_per_px_y);
+                // The gaze's direction from its azimuth and elevation (view
+                // space, −z forward).
+                let (se, ce) = elevation_rad.sin_cos();
+                let (sa, ca) = azimuth_rad.sin_cos();
+                let g = [ce * sa, se, -ce * ca];
+                let n = (sx * sx + sy * sy + 1.0).sqrt();
+                let p = [sx / n, sy / n, -1.0 / n];
+                let cross = [
+                    g[1] * p[2] - g[2] * p[1],
+                    g[2] * p[0] - g[0] * p[2],
+                    g[0] * p[1] - g[1] * p[0],
+                ];
+                let sin = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+                let cos = g[0] * p[0] + g[1] * p[1] + g[2] * p[2];
+                sin.atan2(cos).to_degrees()
+            }
+        }
+    }
+
+    /// A pixel's solid angle over the product of its separable angular
+    /// sides, at plane point `(x, y)` (1 at the gaze; 1 on a uniform
+    /// plane): `(1 + s_x²)(k² + s_y²) / (cos b_g · k · (1 + s_x² + s_y²)^{3/2})`,
+    /// the tangent plane's `dΩ = ds_x ds_y / (1 + s_x² + s_y²)^{3/2}` over
+    /// `d(Δx) d(Δy)`.
+    #[inline]
+    pub(crate) fn solid_angle_ratio(&self, x: f64, y: f64) -> f64 {
+        match *self {
+            Self::Uniform { .. } => 1.0,
+            Self::Rectilinear {
+                tan_x0,
+                tan_per_px_x,
+                tan_y0,
+                tan_per_px_y,
+                cos_elevation,
+                k,
+                ..
+            } => {
+                let (sx, sy) = (tan_x0 + x * tan_per_px_x, tan_y0 - y * tan_per_px_y);
+                let (sx2, sy2) = (sx * sx, sy * sy);
+                (1.0 + sx2) * (k * k + sy2) / (cos_elevation * k * (1.0 + sx2 + sy2).powf(1.5))
+            }
+        }
+    }
+
+    /// The angular size of a plane pixel at the gaze, degrees (the larger
+    /// of its two sides).
+    pub(crate) fn deg_per_px_at_gaze(&self, gaze: [f64; 2]) -> f64 {
+        let dx = (self.x_deg(gaze[0] + 0.5) - self.x_deg(gaze[0] - 0.5)).abs();
+        let dy = (self.y_deg(gaze[1] + 0.5) - self.y_deg(gaze[1] - 0.5)).abs();
+        let d = dx.max(dy);
+        if d.is_finite() && d > 0.0 { d } else { 1.0 }
+    }
+
+    /// The plane columns `[lo, hi]` and rows within `deg` of the gaze along
+    /// each axis: `[x_lo, x_hi, y_lo, y_hi]`.
+    pub(crate) fn bounds(&self, deg: f64) -> [f64; 4] {
+        [
+            self.x_of_deg(-deg),
+            self.x_of_deg(deg),
+            self.y_of_deg(-deg),
+            self.y_of_deg(deg),
+        ]
+    }
+}
+
 impl Default for PoolingModel {
     fn default() -> Self {
         Self::Gaussian {
@@ -139,7 +460,8 @@ impl PoolingModel {
 
     /// Adaptation luminance, cd/m², of the row-major luminance plane
     /// `luminance_cd_m2` (`width × height`), with the gaze at `gaze_px`
-    /// (plane pixels, continuous) and pixels `deg_per_px` degrees wide.
+    /// (plane pixels, continuous) and pixels `deg_per_px` degrees wide
+    /// ([`PlaneAngles::Uniform`]; [`Self::pool_in`] takes any geometry).
     ///
     /// Returns 0 for an empty plane or one whose length is not
     /// `width·height` (a programming error). A
@@ -154,6 +476,25 @@ impl PoolingModel {
         gaze_px: [f64; 2],
         deg_per_px: f64,
     ) -> f64 {
+        self.pool_in(
+            luminance_cd_m2,
+            width,
+            height,
+            gaze_px,
+            PlaneAngles::Uniform { deg_per_px },
+        )
+    }
+
+    /// [`Self::pool`] on a plane whose pixels map to angles by `angles`
+    /// (an invalid geometry is taken as 1° pixels). Never allocates.
+    pub fn pool_in(
+        &self,
+        luminance_cd_m2: &[f32],
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        angles: PlaneAngles,
+    ) -> f64 {
         if width == 0 || height == 0 || luminance_cd_m2.len() != width * height {
             return 0.0;
         }
@@ -162,9 +503,10 @@ impl PoolingModel {
             width,
             height,
         };
-        let (gaze, deg_per_px) = sanitise(width, height, gaze_px, deg_per_px);
+        let gaze = sanitise(width, height, gaze_px);
+        let axes = Axes::new(angles, gaze);
         let (sum, weight) = match *self {
-            Self::Gaussian { sigma_deg } => plane.gaussian(gaze, sigma_deg / deg_per_px),
+            Self::Gaussian { sigma_deg } => plane.gaussian(&axes, gaze, sigma_deg),
             Self::CentreWeight { follow_gaze } => {
                 let c = if follow_gaze {
                     gaze
@@ -173,8 +515,8 @@ impl PoolingModel {
                 };
                 plane.centre_weight(c)
             }
-            Self::Eccentricity { e2_deg } => plane.eccentricity(gaze, e2_deg, deg_per_px),
-            Self::GazeWindow { size_deg } => plane.window(gaze, size_deg / deg_per_px),
+            Self::Eccentricity { e2_deg } => plane.eccentricity(&axes, e2_deg),
+            Self::GazeWindow { size_deg } => plane.window(axes.bounds(size_deg / 2.0)),
             Self::PanoramaMean => plane.panorama(),
         };
         if weight > 0.0 && weight.is_finite() && sum.is_finite() {
@@ -211,14 +553,26 @@ impl PoolingModel {
         gaze_px: [f64; 2],
         deg_per_px: f64,
     ) -> PlaneRect {
+        self.reach_in(width, height, gaze_px, PlaneAngles::Uniform { deg_per_px })
+    }
+
+    /// [`Self::reach`] for [`Self::pool_in`]: the same with any geometry.
+    pub fn reach_in(
+        &self,
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        angles: PlaneAngles,
+    ) -> PlaneRect {
         if width == 0 || height == 0 {
             return PlaneRect { x: 0..0, y: 0..0 };
         }
-        let (gaze, deg_per_px) = sanitise(width, height, gaze_px, deg_per_px);
-        let half = match *self {
-            Self::Gaussian { sigma_deg } => gaussian_reach_px(sigma_deg / deg_per_px),
-            // `Plane::window`'s half side.
-            Self::GazeWindow { size_deg } => size_deg / deg_per_px / 2.0,
+        let gaze = sanitise(width, height, gaze_px);
+        let axes = Axes::new(angles, gaze);
+        let [lo_x, hi_x, lo_y, hi_y] = match *self {
+            Self::Gaussian { sigma_deg } => axes.bounds(gaussian_reach_deg(&axes, gaze, sigma_deg)),
+            // `Plane::window`'s box.
+            Self::GazeWindow { size_deg } => axes.bounds(size_deg / 2.0),
             Self::CentreWeight { .. } | Self::Eccentricity { .. } | Self::PanoramaMean => {
                 return PlaneRect {
                     x: 0..width,
@@ -226,8 +580,8 @@ impl PoolingModel {
                 };
             }
         };
-        let (x0, x1) = span(gaze[0] - half, gaze[0] + half, width);
-        let (y0, y1) = span(gaze[1] - half, gaze[1] + half, height);
+        let (x0, x1) = span(lo_x, hi_x, width);
+        let (y0, y1) = span(lo_y, hi_y, height);
         // With the pixel `Plane::nearest` falls back to.
         let (nx, ny) = nearest_pixel(width, height, gaze);
         let join = |a: usize, b: usize, n: usize| {
@@ -242,12 +596,69 @@ impl PoolingModel {
             y: join(y0, y1, ny),
         }
     }
+
+    /// The blocks `[x0, x1) × [y0, y1)` with weight for the Gaussian and
+    /// gaze-window models (the GPU pass takes them from here, so both
+    /// visit the same blocks), and the window's edges `[lo_x, hi_x, lo_y,
+    /// hi_y]` in plane pixels; `None` for the models that weight every
+    /// pixel.
+    pub fn span_in(
+        &self,
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        angles: PlaneAngles,
+    ) -> Option<([usize; 4], [f64; 4])> {
+        let gaze = sanitise(width, height, gaze_px);
+        let axes = Axes::new(angles, gaze);
+        let edges = match *self {
+            Self::Gaussian { sigma_deg } => axes.bounds(gaussian_reach_deg(&axes, gaze, sigma_deg)),
+            Self::GazeWindow { size_deg } => axes.bounds(size_deg / 2.0),
+            _ => return None,
+        };
+        let (x0, x1) = span(edges[0], edges[1], width);
+        let (y0, y1) = span(edges[2], edges[3], height);
+        Some(([x0, x1, y0, y1], edges))
+    }
 }
 
-/// `pool`'s gaze (a non-finite coordinate → the plane centre) and pixel
-/// size (not finite and positive → 1°).
-fn sanitise(width: usize, height: usize, gaze_px: [f64; 2], deg_per_px: f64) -> ([f64; 2], f64) {
-    let gaze = [
+/// The gaze's angles for a GPU twin: `[azimuth, elevation, cos elevation,
+/// √(1 + s_gx²)]` (radians) and the tangent at x = 0, per plane pixel in
+/// x, at y = 0 and per plane pixel in y, for a [`PlaneAngles::Rectilinear`]
+/// plane; `None` for a uniform one.
+pub fn rectilinear_terms(
+    width: usize,
+    height: usize,
+    gaze_px: [f64; 2],
+    angles: PlaneAngles,
+) -> Option<([f64; 4], [f64; 4])> {
+    match Axes::new(angles, sanitise(width, height, gaze_px)) {
+        Axes::Uniform { .. } => None,
+        Axes::Rectilinear {
+            tan_x0,
+            tan_per_px_x,
+            tan_y0,
+            tan_per_px_y,
+            azimuth_rad,
+            elevation_rad,
+            cos_elevation,
+            k,
+        } => Some((
+            [azimuth_rad, elevation_rad, cos_elevation, k],
+            [tan_x0, tan_per_px_x, tan_y0, tan_per_px_y],
+        )),
+    }
+}
+
+/// How far from the gaze the Gaussian pool reaches, degrees: 6σ plus one
+/// pixel at the gaze (its weights beyond are < 1e-9 of the peak).
+fn gaussian_reach_deg(axes: &Axes, gaze: [f64; 2], sigma_deg: f64) -> f64 {
+    6.0 * sigma_deg + axes.deg_per_px_at_gaze(gaze)
+}
+
+/// `pool`'s gaze (a non-finite coordinate → the plane centre).
+fn sanitise(width: usize, height: usize, gaze_px: [f64; 2]) -> [f64; 2] {
+    [
         if gaze_px[0].is_finite() {
             gaze_px[0]
         } else {
@@ -258,20 +669,7 @@ fn sanitise(width: usize, height: usize, gaze_px: [f64; 2], deg_per_px: f64) -> 
         } else {
             height as f64 / 2.0
         },
-    ];
-    let deg_per_px = if deg_per_px.is_finite() && deg_per_px > 0.0 {
-        deg_per_px
-    } else {
-        1.0
-    };
-    (gaze, deg_per_px)
-}
-
-/// How far from the gaze the Gaussian pool visits pixels (the GPU pooling
-/// pass takes it from here, so both visit the same blocks): 6σ plus one
-/// pixel (its weights beyond are < 1e-9 of the peak).
-pub fn gaussian_reach_px(sigma_px: f64) -> f64 {
-    6.0 * sigma_px + 1.0
+    ]
 }
 
 /// The pixel nearest to `gaze` in a non-empty plane.
@@ -308,28 +706,45 @@ impl Plane<'_> {
         clean(self.lum[y * self.width + x])
     }
 
-    /// Gaussian integrated over each pixel; only pixels within 6σ (plus one)
-    /// are visited, their weights beyond that are < 1e-9 of the peak.
-    fn gaussian(&self, gaze: [f64; 2], sigma_px: f64) -> (f64, f64) {
-        let reach = gaussian_reach_px(sigma_px);
-        let (x0, x1) = span(gaze[0] - reach, gaze[0] + reach, self.width);
-        let (y0, y1) = span(gaze[1] - reach, gaze[1] + reach, self.height);
-        let inv = 1.0 / (sigma_px * std::f64::consts::SQRT_2);
+    /// Gaussian integrated over each pixel (erf differences between the
+    /// pixel's edges mapped to angles by `axes`); only pixels within 6σ
+    /// (plus one) are visited, their weights beyond that are < 1e-9 of the
+    /// peak.
+    fn gaussian(&self, axes: &Axes, gaze: [f64; 2], sigma_deg: f64) -> (f64, f64) {
+        let [lo_x, hi_x, lo_y, hi_y] = axes.bounds(gaussian_reach_deg(axes, gaze, sigma_deg));
+        let (x0, x1) = span(lo_x, hi_x, self.width);
+        let (y0, y1) = span(lo_y, hi_y, self.height);
+        let inv = 1.0 / (sigma_deg * std::f64::consts::SQRT_2);
+        let curved = matches!(axes, Axes::Rectilinear { .. });
         let (mut sum, mut weight) = (0.0, 0.0);
         for y in y0..y1 {
             let wy =
-                0.5 * (erf((y as f64 + 1.0 - gaze[1]) * inv) - erf((y as f64 - gaze[1]) * inv));
+                0.5 * (erf(axes.y_deg(y as f64 + 1.0) * inv) - erf(axes.y_deg(y as f64) * inv));
             if wy <= 0.0 {
                 continue;
             }
+            let dy_sep = axes.y_deg(y as f64 + 0.5);
             let row = self.row(y);
             let mut row_sum = 0.0;
             let mut row_w = 0.0;
-            let mut e_lo = erf((x0 as f64 - gaze[0]) * inv);
+            let mut e_lo = erf(axes.x_deg(x0 as f64) * inv);
             for (x, &v) in row.iter().enumerate().take(x1).skip(x0) {
-                let e_hi = erf((x as f64 + 1.0 - gaze[0]) * inv);
-                let wx = 0.5 * (e_hi - e_lo);
+                let e_hi = erf(axes.x_deg(x as f64 + 1.0) * inv);
+                let mut wx = 0.5 * (e_hi - e_lo);
                 e_lo = e_hi;
+                if curved {
+                    // The separable axes are the sphere's metric at the
+                    // gaze; away from it the exact angle and the pixel's
+                    // solid angle differ, and the Gaussian's tail is steep:
+                    // correct each pixel by the ratio of the Gaussian at its
+                    // centre's exact angle to the one at its separable
+                    // angle, times the ratio of the solid angles.
+                    let (xc, yc) = (x as f64 + 0.5, y as f64 + 0.5);
+                    let dx_sep = axes.x_deg(xc);
+                    let d_exact = axes.exact_deg(xc, yc);
+                    let excess = d_exact * d_exact - dx_sep * dx_sep - dy_sep * dy_sep;
+                    wx *= (-excess * inv * inv).exp() * axes.solid_angle_ratio(xc, yc);
+                }
                 row_sum += wx * clean(v);
                 row_w += wx;
             }
@@ -362,13 +777,11 @@ impl Plane<'_> {
         (sum, weight)
     }
 
-    fn eccentricity(&self, gaze: [f64; 2], e2_deg: f64, deg_per_px: f64) -> (f64, f64) {
+    fn eccentricity(&self, axes: &Axes, e2_deg: f64) -> (f64, f64) {
         let (mut sum, mut weight) = (0.0, 0.0);
         for y in 0..self.height {
-            let dy = y as f64 + 0.5 - gaze[1];
             for (x, &v) in self.row(y).iter().enumerate() {
-                let dx = x as f64 + 0.5 - gaze[0];
-                let d_deg = (dx * dx + dy * dy).sqrt() * deg_per_px;
+                let d_deg = axes.exact_deg(x as f64 + 0.5, y as f64 + 0.5);
                 // 003 eq 1: f_c = 43.1·E2/(E2 + d); 43.1 cancels in the mean
                 let w = e2_deg / (e2_deg + d_deg);
                 sum += w * clean(v);
@@ -378,10 +791,9 @@ impl Plane<'_> {
         (sum, weight)
     }
 
-    fn window(&self, gaze: [f64; 2], size_px: f64) -> (f64, f64) {
-        let half = size_px / 2.0;
-        let (lo_x, hi_x) = (gaze[0] - half, gaze[0] + half);
-        let (lo_y, hi_y) = (gaze[1] - half, gaze[1] + half);
+    /// The pixels' overlap with the box `[lo_x, hi_x] × [lo_y, hi_y]`
+    /// (plane pixels).
+    fn window(&self, [lo_x, hi_x, lo_y, hi_y]: [f64; 4]) -> (f64, f64) {
         let (x0, x1) = span(lo_x, hi_x, self.width);
         let (y0, y1) = span(lo_y, hi_y, self.height);
         let (mut sum, mut weight) = (0.0, 0.0);
@@ -521,6 +933,197 @@ pub(crate) mod night {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The exact angular Gaussian over the sphere, evaluated here on the
+    /// panorama itself (independently of the view and of `Axes`): each
+    /// panorama pixel weighted by its solid angle (∝ cos latitude) and by
+    /// `exp(−θ²/2σ²)` of its great-circle angle θ from `gaze_dir` (unit
+    /// vector, the panorama's frame: −z at longitude 0, +y up), out to 12σ.
+    fn sphere_gaussian(pano: &crate::RgbImage, gaze_dir: [f64; 3], sigma_deg: f64) -> f64 {
+        use std::f64::consts::{PI, TAU};
+        let (pw, ph) = (pano.width, pano.height);
+        let sigma = sigma_deg.to_radians();
+        let reach = 12.0 * sigma;
+        let (mut s, mut w) = (0.0, 0.0);
+        for y in 0..ph {
+            let lat = (0.5 - (y as f64 + 0.5) / ph as f64) * PI;
+            for x in 0..pw {
+                let lon = ((x as f64 + 0.5) / pw as f64 - 0.5) * TAU;
+                let d = [lat.cos() * lon.sin(), lat.sin(), -lat.cos() * lon.cos()];
+                let c = d[0] * gaze_dir[0] + d[1] * gaze_dir[1] + d[2] * gaze_dir[2];
+                let ang = c.clamp(-1.0, 1.0).acos();
+                if ang > reach {
+                    continue;
+                }
+                let wt = (-(ang * ang) / (2.0 * sigma * sigma)).exp() * lat.cos();
+                s += wt
+                    * f64::from(crate::image::luminance(
+                        pano.pixels[y * pw + x].map(clean_f32),
+                    ));
+                w += wt;
+            }
+        }
+        s / w
+    }
+
+    fn clean_f32(v: f32) -> f32 {
+        if v.is_finite() && v > 0.0 { v } else { 0.0 }
+    }
+
+    /// A 90° view into the night panorama (yaw −78.4°, pitch −6°: street
+    /// lamps and dark road and sky), 480×270 px, as a luminance plane, with
+    /// its view.
+    fn night_view() -> (crate::scene::PanoramaView, crate::RgbImage, Vec<f32>) {
+        let scene = crate::scene::Scene::load(
+            &night::shared_hdr("night.exr"),
+            crate::scene::LuminanceScale::default(),
+        )
+        .expect("night.exr");
+        let params = crate::scene::ViewParams {
+            yaw_deg: -78.4,
+            pitch_deg: -6.0,
+            hfov_deg: 90.0,
+            width: 480,
+            height: 270,
+        };
+        let view = crate::scene::PanoramaView::new(params).expect("view");
+        let mut img = crate::RgbImage::new(480, 270);
+        view.render(&scene.image, &mut img);
+        let lum = img
+            .pixels
+            .iter()
+            .map(|p| crate::image::luminance(p.map(clean_f32)))
+            .collect();
+        (view, scene.image, lum)
+    }
+
+    /// Pooling through the view's projection agrees with the exact angular
+    /// Gaussian over the sphere (computed from the panorama, not the view)
+    /// within 3 % at gazes from the centre to 35° off axis, next to lamps
+    /// and in the dark around them, on the full-resolution plane and on 2×2
+    /// blocks; the planar distance (`deg_per_px` at the centre) is off by
+    /// more than 25 % at some of them (measured up to 2×: in the dark next
+    /// to a lamp the Gaussian's far tail carries the lamp).
+    #[test]
+    fn rectilinear_pooling_agrees_with_the_angular_gaussian_on_the_sphere() {
+        let (view, pano, lum) = night_view();
+        let (w, h) = (480usize, 270usize);
+        let model = PoolingModel::default();
+        let PoolingModel::Gaussian { sigma_deg } = model else {
+            panic!("the default is the Gaussian")
+        };
+        let rect = PlaneAngles::Rectilinear {
+            tan_lrud: view.frustum_tans(),
+            extent_px: [w as f64, h as f64],
+        };
+        let uniform = PlaneAngles::Uniform {
+            deg_per_px: view.params().deg_per_px(),
+        };
+        let gazes = [
+            (0.5, 0.5),
+            (0.608, 0.404),
+            (0.689, 0.359),
+            (0.682, 0.371),
+            (0.167, 0.352),
+            (0.703, 0.309),
+            (0.626, 0.305),
+            (0.228, 0.280),
+            (0.85, 0.7),
+        ];
+        let mut worst_planar = 0.0f64;
+        for (u, v) in gazes {
+            let g = view.direction((u * w as f64) as f32, (v * h as f64) as f32);
+            let truth = sphere_gaussian(
+                &pano,
+                [f64::from(g.x), f64::from(g.y), f64::from(g.z)],
+                sigma_deg,
+            );
+            let gaze = [u * w as f64, v * h as f64];
+            let full = model.pool_in(&lum, w, h, gaze, rect);
+            // 2×2 blocks, as the pipeline's pass A makes them.
+            let (sw, sh) = (w / 2, h / 2);
+            let small: Vec<f32> = (0..sw * sh)
+                .map(|i| {
+                    let (bx, by) = (2 * (i % sw), 2 * (i / sw));
+                    (lum[by * w + bx]
+                        + lum[by * w + bx + 1]
+                        + lum[(by + 1) * w + bx]
+                        + lum[(by + 1) * w + bx + 1])
+                        / 4.0
+                })
+                .collect();
+            let blocks = model.pool_in(
+                &small,
+                sw,
+                sh,
+                [gaze[0] / 2.0, gaze[1] / 2.0],
+                rect.downsampled(2),
+            );
+            let planar = model.pool_in(&lum, w, h, gaze, uniform);
+            eprintln!(
+                "gaze ({u}, {v}): sphere {truth:.4} cd/m², rectilinear {full:.4} (2×2 blocks {blocks:.4}), planar {planar:.4}"
+            );
+            for (what, got) in [("full", full), ("2×2 blocks", blocks)] {
+                assert!(
+                    (got / truth - 1.0).abs() < 0.03,
+                    "gaze ({u}, {v}) {what}: {got} vs the sphere's {truth}"
+                );
+            }
+            worst_planar = worst_planar.max((planar / truth - 1.0).abs());
+        }
+        assert!(
+            worst_planar > 0.25,
+            "the planar distance was off by only {worst_planar}"
+        );
+    }
+
+    /// The mapped axes: a pixel edge's angle from the gaze equals the
+    /// great-circle angle between their view directions along the axis
+    /// through the gaze (checked with the view's own `direction`), and the
+    /// inverses return the columns and rows.
+    #[test]
+    fn rectilinear_axes_measure_angles_through_the_view() {
+        let (view, _, _) = night_view();
+        let (w, h) = (480f64, 270f64);
+        let rect = PlaneAngles::Rectilinear {
+            tan_lrud: view.frustum_tans(),
+            extent_px: [w, h],
+        };
+        for (gx, gy) in [(240.0, 135.0), (400.0, 60.0), (30.0, 250.0)] {
+            let axes = Axes::new(rect, [gx, gy]);
+            let g = view.direction(gx as f32, gy as f32);
+            for (dx, dy) in [
+                (-40.0, 0.0),
+                (-5.0, 7.0),
+                (3.0, -2.0),
+                (25.0, 30.0),
+                (0.5, 0.0),
+            ] {
+                let d = view.direction((gx + dx) as f32, (gy + dy) as f32);
+                let truth = f64::from(g.dot(d).clamp(-1.0, 1.0)).acos().to_degrees();
+                let got = axes.exact_deg(gx + dx, gy + dy);
+                // The view's f32 directions: acos near 1 is good to ~0.02°.
+                assert!((got - truth).abs() < 0.03, "({dx}, {dy}): {got} vs {truth}");
+                let x = axes.x_deg(gx + dx);
+                assert!((axes.x_of_deg(x) - (gx + dx)).abs() < 1e-6);
+                if dy == 0.0 && gx == 240.0 {
+                    // Along the horizon of a centred gaze the axis is exact.
+                    assert!((x.abs() - truth).abs() < 0.03, "x {dx}: {x} vs {truth}");
+                }
+            }
+            for dy in [-30.0, -4.0, 6.0, 20.0] {
+                // Along the vertical through the gaze's azimuth: the great
+                // circle of constant azimuth.
+                let axes_y = axes.y_deg(gy + dy);
+                assert!((axes.y_of_deg(axes_y) - (gy + dy)).abs() < 1e-6);
+                assert!(axes_y.signum() == dy.signum(), "y {dy}: {axes_y}");
+            }
+        }
+        // A uniform plane is the planar distance.
+        let axes = Axes::new(PlaneAngles::Uniform { deg_per_px: 0.5 }, [10.0, 20.0]);
+        assert_eq!(axes.x_deg(14.0), 2.0);
+        assert_eq!(axes.y_deg(16.0), -2.0);
+    }
 
     fn all_models() -> [PoolingModel; 6] {
         [

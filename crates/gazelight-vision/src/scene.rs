@@ -512,6 +512,18 @@ impl PanoramaView {
         &self.params
     }
 
+    /// Tangents of the view's left, right, up and down edges (left and
+    /// down negative for a frustum around its axis): the geometry the
+    /// pipeline pools through ([`crate::pipeline::FramePipeline::set_view_frustum`]).
+    pub fn frustum_tans(&self) -> [f64; 4] {
+        [
+            f64::from(self.tan_left),
+            f64::from(self.tan_right),
+            f64::from(self.tan_up),
+            f64::from(self.tan_down),
+        ]
+    }
+
     /// World direction through the centre of view pixel (x, y) (pixel units,
     /// may be fractional).
     pub fn direction(&self, x_px: f32, y_px: f32) -> Vec3 {

@@ -253,6 +253,18 @@ impl Renderer {
         }
     }
 
+    /// The frames are a rectilinear view with these edge tangents (left,
+    /// right, up, down): pooling measures angles through the projection
+    /// (`FramePipeline::set_view_frustum`). Fails on tangents that are not
+    /// finite or ordered, keeping the old geometry.
+    pub fn set_view_frustum(&mut self, tan_lrud: [f64; 4]) -> anyhow::Result<()> {
+        match self {
+            Renderer::Cpu(p, _) => p.set_view_frustum(tan_lrud)?,
+            Renderer::Gpu(g, _) => g.pipeline.set_view_frustum(tan_lrud)?,
+        }
+        Ok(())
+    }
+
     /// Whether the GPU pipeline renders.
     #[allow(dead_code)] // for `run`, being wired
     pub fn is_gpu(&self) -> bool {

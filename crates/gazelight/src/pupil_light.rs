@@ -38,7 +38,7 @@ use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, Sample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::luminance;
 use gazelight_vision::pipeline::PipelineConfig;
-use gazelight_vision::pooling::PoolingModel;
+use gazelight_vision::pooling::{PlaneAngles, PoolingModel};
 use gazelight_vision::scene::ViewParams;
 
 use crate::render::SampleFeed;
@@ -98,7 +98,9 @@ pub(crate) struct SceneLight {
     ds: usize,
     width: usize,
     height: usize,
-    deg_per_small_px: f64,
+    /// The block plane's geometry: the view's projection, as the
+    /// pipeline pools through it.
+    small_angles: PlaneAngles,
 }
 
 impl SceneLight {
@@ -110,13 +112,11 @@ impl SceneLight {
         let (small_w, small_h) = (w.div_ceil(ds), h.div_ceil(ds));
         let mut sums = vec![0.0f64; small_w * small_h];
         let mut counts = vec![0u32; small_w * small_h];
-        let mut total = 0.0f64;
         for (y, row) in view_img.pixels.chunks_exact(w.max(1)).enumerate() {
             for (x, p) in row.iter().enumerate() {
                 let l = f64::from(luminance(
                     p.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
                 ));
-                total += l;
                 let i = (y / ds) * small_w + x / ds;
                 sums[i] += l;
                 counts[i] += 1;
@@ -133,10 +133,13 @@ impl SceneLight {
                 }
             })
             .collect();
-        let n = (w * h).max(1) as f64;
+        let tans = match PlaneAngles::symmetric(view.hfov_deg, w, h) {
+            PlaneAngles::Rectilinear { tan_lrud, .. } => tan_lrud,
+            PlaneAngles::Uniform { .. } => [-1.0, 1.0, 1.0, -1.0],
+        };
         Self {
             field: FieldLight {
-                field_mean_cd_m2: total / n,
+                field_mean_cd_m2: field_mean_cd_m2(view_img, tans, 1),
                 field_area_deg2: view_solid_angle_deg2(view),
             },
             pooling: pipeline.pooling,
@@ -146,7 +149,7 @@ impl SceneLight {
             ds,
             width: w,
             height: h,
-            deg_per_small_px: view.deg_per_px() * ds as f64,
+            small_angles: PlaneAngles::symmetric(view.hfov_deg, w, h).downsampled(ds),
         }
     }
 
@@ -165,15 +168,46 @@ impl SceneLight {
             f64::from(c(gaze_uv[1])) * self.height as f64 / self.ds as f64,
         ];
         self.pooling
-            .pool(
+            .pool_in(
                 &self.small_lum,
                 self.small_w,
                 self.small_h,
                 gaze_px,
-                self.deg_per_small_px,
+                self.small_angles,
             )
             .max(0.0)
     }
+}
+
+/// The mean luminance of a rectilinear view's image over its solid angle,
+/// cd/m²: `Σ L·ω / Σ ω` with each pixel's solid angle `ω ∝ (1 + s_x² +
+/// s_y²)^{−3/2}` (`s` its tangent coordinates, the view's edges at
+/// `tan_lrud`: left, right, up, down), over every `step`-th pixel of every
+/// `step`-th row; negative and non-finite pixels count as 0. (A plain mean
+/// of the pixels would weigh the corners of a 90° view 4× too much.) NaN
+/// for an empty image.
+pub(crate) fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) -> f64 {
+    let (w, h) = (img.width, img.height);
+    if w == 0 || h == 0 || img.pixels.len() != w * h {
+        return f64::NAN;
+    }
+    let step = step.max(1);
+    let [l, r, u, d] = tan_lrud;
+    let (mut sum, mut weight) = (0.0f64, 0.0f64);
+    for y in (0..h).step_by(step) {
+        let sy = u - (y as f64 + 0.5) / h as f64 * (u - d);
+        let row = &img.pixels[y * w..(y + 1) * w];
+        for x in (0..w).step_by(step) {
+            let sx = l + (x as f64 + 0.5) / w as f64 * (r - l);
+            let omega = (1.0 + sx * sx + sy * sy).powf(-1.5);
+            let lum = f64::from(luminance(
+                row[x].map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
+            ));
+            sum += omega * lum;
+            weight += omega;
+        }
+    }
+    if weight > 0.0 { sum / weight } else { f64::NAN }
 }
 
 /// The solid angle of a rectilinear view, deg²: `4·asin(sin α · sin β)` sr

@@ -404,6 +404,11 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 height,
                 view.deg_per_px(),
             )
+            .and_then(|mut r| {
+                // Pooling measures angles through the view's projection.
+                r.set_view_frustum(PanoramaView::new(*view)?.frustum_tans())?;
+                Ok(r)
+            })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let mut kernels = if n_views == 2 {

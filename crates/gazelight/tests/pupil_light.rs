@@ -603,16 +603,6 @@ fn luminance_of(p: [f32; 3]) -> f64 {
     0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2])
 }
 
-/// The panorama's luminance in a world direction given as longitude and
-/// latitude, radians (longitude 0 = the panorama's centre column, positive
-/// to the right; nearest pixel).
-fn pano_luminance(p: &gazelight_vision::RgbImage, lon: f64, lat: f64) -> f64 {
-    let (w, h) = (p.width as f64, p.height as f64);
-    let x = ((lon / std::f64::consts::TAU + 0.5) * w).rem_euclid(w) as usize;
-    let y = (((0.5 - lat / std::f64::consts::PI) * h) as usize).min(p.height - 1);
-    luminance_of(p.pixels[y * p.width + x.min(p.width - 1)])
-}
-
 /// The world direction (longitude, latitude) of view point (u, v) of a
 /// rectilinear view looking at (yaw, pitch), square pixels.
 fn view_direction(u: f64, v: f64, yaw: f64, pitch: f64, hfov: f64, aspect: f64) -> (f64, f64) {
@@ -633,7 +623,8 @@ fn view_direction(u: f64, v: f64, yaw: f64, pitch: f64, hfov: f64, aspect: f64) 
 /// observer whose gaze wanders over the night panorama (`hdr/night.exr`,
 /// lamps and dark sky: the pooled luminance changes by decades), whose
 /// pupil follows the light (W&Y at the eye's light, half its 2° Gaussian
-/// pool and half the view's mean, computed here from the panorama; delay
+/// pool and half the view's mean over its solid angle, both computed here
+/// from the panorama's pixels by their angles, not through the view; delay
 /// 0.28 s, constriction τ 0.35 s, redilation τ 1.8 s, an observer range
 /// 0.85·W&Y + 0.4 mm) plus task-evoked dilations of 0.2–0.4 mm (Hoeks &
 /// Levelt 1993's pupil response function, n = 10.1, t_max = 0.93 s) at known
@@ -665,22 +656,37 @@ fn the_residual_recovers_task_dilations_over_a_real_panorama() {
             aspect,
         )
     };
-    // The view's mean luminance (a 96×54 grid of view directions) and
-    // solid angle, 4·asin(sin α·sin β).
-    let mut sum = 0.0;
-    for j in 0..54 {
-        for i in 0..96 {
-            let (lon, lat) = dir_of((i as f64 + 0.5) / 96.0, (j as f64 + 0.5) / 54.0);
-            sum += pano_luminance(&pano, lon, lat);
-        }
-    }
-    let field_mean = sum / (96.0 * 54.0);
+    // The view's mean luminance over its solid angle: every panorama pixel
+    // whose direction lies inside the view's frustum, weighted by its solid
+    // angle (∝ cos latitude); the view's solid angle, 4·asin(sin α·sin β).
     let half_h = (hfov_deg / 2.0).to_radians();
     let half_v = (half_h.tan() * aspect).atan();
+    let field_mean = {
+        let (tx, ty) = (half_h.tan(), half_v.tan());
+        let (sp, cp) = pitch_deg.to_radians().sin_cos();
+        let (sy, cy) = yaw_deg.to_radians().sin_cos();
+        let (pw, ph) = (pano.width, pano.height);
+        let (mut s, mut wsum) = (0.0, 0.0);
+        for y in 0..ph {
+            let lat = (0.5 - (y as f64 + 0.5) / ph as f64) * std::f64::consts::PI;
+            for x in 0..pw {
+                let lon = ((x as f64 + 0.5) / pw as f64 - 0.5) * std::f64::consts::TAU;
+                let d = [lat.cos() * lon.sin(), lat.sin(), -lat.cos() * lon.cos()];
+                // Undo the yaw, then the pitch (`view_direction`'s inverse).
+                let (vx, vz) = (d[0] * cy + d[2] * sy, -d[0] * sy + d[2] * cy);
+                let (vy, vz) = (d[1] * cp + vz * sp, -d[1] * sp + vz * cp);
+                if vz < 0.0 && (vx / -vz).abs() <= tx && (vy / -vz).abs() <= ty {
+                    s += lat.cos() * luminance_of(pano.pixels[y * pw + x].map(|c| c.max(0.0)));
+                    wsum += lat.cos();
+                }
+            }
+        }
+        s / wsum
+    };
     let area_deg2 =
         4.0 * (half_h.sin() * half_v.sin()).asin() * (180.0 / std::f64::consts::PI).powi(2);
     // The eye's pooled luminance: a 2° Gaussian of the angle from the gaze
-    // direction, integrated over the panorama's pixels within 8° (each
+    // direction, integrated over the panorama's pixels within 12° (each
     // weighted by its solid angle, ∝ cos latitude).
     let (pw, ph) = (pano.width, pano.height);
     let pooled = |u: f64, v: f64| {
@@ -691,7 +697,7 @@ fn the_residual_recovers_task_dilations_over_a_real_panorama() {
             -lat0.cos() * lon0.cos(),
         ];
         let sigma = 2f64.to_radians();
-        let reach = 8f64.to_radians();
+        let reach = 12f64.to_radians();
         let row_of = |lat: f64| ((0.5 - lat / std::f64::consts::PI) * ph as f64).floor() as i64;
         let (r0, r1) = (
             row_of(lat0 + reach).max(0),
@@ -831,11 +837,11 @@ fn the_residual_recovers_task_dilations_over_a_real_panorama() {
         "--out",
         profile.to_str().expect("utf-8"),
     ]);
-    // The pipeline pools on blocks of 2×2 px (0.4°) here instead of its
-    // default 8×8 (1.5° at this size), so its pooled luminance is the
-    // Gaussian's, not a block-quantised one (measured: with 8×8 blocks the
-    // pooled luminance at a lamp is 0.58–1.9× the exact pool at the 5th and
-    // 95th percentile, which alone spreads the residual by ~0.1 mm).
+    // The pipeline pools on blocks of 2×2 px (0.375° at this 480 px view)
+    // instead of its default 8×8, the block size in degrees that the
+    // default gives an HMD's 1440 px, 100° view (0.55°). With 8×8 blocks
+    // (1.5°) here, r is 0.81 (measured): a lamp's light smeared over a
+    // 1.5° block moves the 2° Gaussian's steep tail in the dark next to it.
     let config = dir.join("pooling.toml");
     std::fs::write(&config, "[pipeline]\npooling_downsample = 2\n").expect("config");
     let out_dir = dir.join("out");
@@ -927,20 +933,20 @@ fn the_residual_recovers_task_dilations_over_a_real_panorama() {
     eprintln!(
         "residual vs task dilations: r = {r_res:.3} (raw pupil r = {r_raw:.3}); amplitudes {amp_errors:.3?}"
     );
-    // Measured: r = 0.79 (raw pupil 0.19); amplitudes within 1.5–21 %;
-    // the fit on the baseline: latency 0.250 s (true 0.28), τ 0.373 / 1.59 s
-    // (0.35 / 1.8), R² 0.987. The issue asks r ≥ 0.9 and 20 %: not reached
-    // end to end. The floor is the residual's 0.045 mm SD over the baseline
-    // (no task there): the frames sample the light at 30 Hz behind the gaze
-    // filter, so the model sees each fixation's light a frame or two late
-    // and through the smoothed saccade (the library test with exact light
-    // reaches r 0.95). The asserted bounds are what this shows, with margin.
-    assert!(r_res >= 0.75, "residual correlation {r_res:.3}");
+    // Measured: r = 0.983 (raw pupil 0.25); amplitudes within 0.3–10 %;
+    // the fit on the baseline: latency 0.238 s (true 0.28), τ 0.349 /
+    // 1.815 s (0.35 / 1.8), range 0.857·W&Y + 0.366 mm (0.85, 0.4),
+    // R² 0.9986. Before the pipeline pooled through the view's projection
+    // and weighted the field by solid angle, r was 0.79 and the worst
+    // amplitude 21 % (the planar pooling was off by up to 2× in the dark
+    // next to the lamps; the per-pixel field mean weighted the view's
+    // corners 4× too much).
+    assert!(r_res >= 0.9, "residual correlation {r_res:.3}");
     assert!(r_raw < r_res - 0.4, "raw pupil correlation {r_raw:.3}");
     assert!(amp_errors.len() >= 8, "{amp_errors:?}");
     for (on, a, peak, err) in &amp_errors {
         assert!(
-            *err <= 0.25,
+            *err <= 0.2,
             "dilation at {on} s: {peak:.3} mm found, {a} mm true"
         );
     }

@@ -37,6 +37,7 @@ use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
 use gazelight_vision::RgbImage;
 use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
+use gazelight_vision::pooling::PlaneAngles;
 use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::scene::{PanoramaView, ViewParams};
 
@@ -200,12 +201,14 @@ impl EyePipe {
         device: Option<&gazelight_gpu::GpuContext>,
     ) -> anyhow::Result<Self> {
         let (w, h, dpp) = (params.width, params.height, params.deg_per_px());
-        let pipeline = match device {
+        let mut pipeline = match device {
             Some(ctx) => {
                 Renderer::on_device(ctx, config, w, h, dpp, "the OpenXR runtime's device")?
             }
             None => Renderer::new(backend, config, w, h, dpp)?,
         };
+        // Pooling measures angles through the view's projection.
+        pipeline.set_view_frustum(PanoramaView::new(*params)?.frustum_tans())?;
         Ok(Self {
             view,
             pipeline,
@@ -531,7 +534,8 @@ impl FrameLoop {
                 .zip(&mut self.view_means)
             {
                 p.render(&self.pano, &mut eye.view_img);
-                *mean = sparse_mean_luminance(&eye.view_img);
+                eye.pipeline.set_view_frustum(p.frustum_tans())?;
+                *mean = pupil_light::field_mean_cd_m2(&eye.view_img, p.frustum_tans(), 8);
             }
             let n = self.eyes.len().min(2) as f64;
             self.pupil_light.set_field(FieldLight {
@@ -865,25 +869,22 @@ impl FrameLoop {
     }
 }
 
-/// Mean Rec. 709 luminance of every 8th pixel of every 8th row.
-/// The field of a view for the pupil light response: its (sparse) mean
-/// luminance and its solid angle.
+/// The field of a view for the pupil light response: its mean luminance
+/// over its solid angle (every 8th pixel of every 8th row, each weighted by
+/// its solid angle) and its solid angle.
 fn field_of(view: &ViewParams, img: &RgbImage) -> FieldLight {
     FieldLight {
-        field_mean_cd_m2: sparse_mean_luminance(img),
+        field_mean_cd_m2: pupil_light::field_mean_cd_m2(img, view_tans(view), 8),
         field_area_deg2: pupil_light::view_solid_angle_deg2(view),
     }
 }
 
-fn sparse_mean_luminance(img: &RgbImage) -> f64 {
-    let (mut sum, mut n) = (0.0f64, 0u64);
-    for row in img.pixels.chunks_exact(img.width.max(1)).step_by(8) {
-        for p in row.iter().step_by(8) {
-            sum += f64::from(0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]);
-            n += 1;
-        }
+/// A symmetric view's edge tangents (left, right, up, down).
+fn view_tans(view: &ViewParams) -> [f64; 4] {
+    match PlaneAngles::symmetric(view.hfov_deg, view.width, view.height) {
+        PlaneAngles::Rectilinear { tan_lrud, .. } => tan_lrud,
+        PlaneAngles::Uniform { .. } => [-1.0, 1.0, 1.0, -1.0],
     }
-    if n == 0 { f64::NAN } else { sum / n as f64 }
 }
 
 /// A kernel to publish.
