@@ -391,11 +391,11 @@ fn a_killed_batch_resumes_without_redoing_finished_rows() {
     );
     let a_timeline = mtime(&out.join("a/timeline.csv"));
     let a_record = mtime(&rec("a"));
-    // The replay of b got SIGTERM from the batch's death: wait until its
-    // process is gone (it writes what it rendered), so nothing else
-    // writes into b.
+    // The replay of b got SIGTERM from the batch's death: wait until it
+    // has written what it rendered (session.json is its last file), so
+    // nothing else writes into b.
     let t = Instant::now();
-    while !out.join("b/timeline.csv").exists() {
+    while !out.join("b/session.json").exists() {
         assert!(
             t.elapsed() < Duration::from_secs(30),
             "b's replay never stopped"
