@@ -13,6 +13,7 @@
 mod backend;
 #[cfg(test)]
 mod bad_pupils;
+mod batch;
 mod bounds;
 mod calibrate;
 mod config;
@@ -69,6 +70,10 @@ enum Command {
     /// .asc, pupil .csv) on a scene: the same outputs as `render`, streamed,
     /// deterministic, faster than real time.
     Replay(replay::ReplayArgs),
+    /// Many replays from a CSV/TOML manifest: one output folder per row, a
+    /// summary table, resumable, `--jobs N` at once, or a Slurm job array
+    /// (`--slurm`, `--collect`); docs/batch.md.
+    Batch(batch::BatchArgs),
     /// A live session: a tracker source (default Pupil Capture at
     /// pupil://127.0.0.1:50020) through the filter chain, the frame loop at
     /// the display rate on a panorama for the head orientation; frames,
@@ -136,6 +141,7 @@ fn check(command: &Command) -> anyhow::Result<()> {
         Command::Record(args) => gazelight_tracker::uri::SourceUri::parse(&args.source)
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
+        Command::Batch(args) => batch::manifest::load(&args.manifest).map(|_| ()),
         Command::Psf(_)
         | Command::Inspect(_)
         | Command::Devices(_)
@@ -191,6 +197,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Render(args) => render::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Batch(args) => batch::run(args),
         Command::Run(args) => run::run(args),
         Command::Calibrate(args) => calibrate::run(args),
         Command::Record(args) => record::run(args),

@@ -68,7 +68,7 @@ pub struct ReplayArgs {
 }
 
 /// The flag checks of `replay` that need no file.
-fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
+pub(crate) fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     if args.render.trace.is_some() {
         bail!("replay takes the recording as its argument; --trace belongs to `render`");
     }

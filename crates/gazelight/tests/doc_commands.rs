@@ -3,8 +3,10 @@
 //!
 //! Blocks run: ```` ```sh ```` and ```` ```console ```` (commands; in a
 //! console block only the `$ ` lines are commands, the rest is output) and
-//! ```` ```toml ```` (configuration files). Other fences (`text`, `rust`, …)
-//! are prose and not run.
+//! ```` ```toml ```` (configuration files; with `config batch`, a batch
+//! manifest) and ```` ```csv ```` (batch manifests, checked by `gazelight
+//! batch` parse-only). Other fences (`text`, `rust`, …) are prose and not
+//! run.
 //!
 //! Commands understood: `gazelight ARGS` and `cargo run -p gazelight -- ARGS`
 //! (both: the built binary with ARGS), with leading `VAR=value` assignments
@@ -22,8 +24,8 @@
 //! | `<!-- doc-test: set FLAG VALUE -->` | every gazelight command of the block gets `FLAG VALUE` (replacing its own value of FLAG, or appended), e.g. `set --frames 2` |
 //! | `<!-- doc-test: append ARGS… -->` | ARGS appended to every gazelight command of the block |
 //! | `<!-- doc-test: data NAME=REL -->` | before the block, `NAME` in the working directory links to `REL` under the shared test data; without the data the block is skipped (SKIP) outside CI and fails in CI |
-//! | `<!-- doc-test: config run\|render -->` | a toml block is loaded by that command's loader (`--config`, parse-only); default `run` |
-//! | `<!-- doc-test: save NAME -->` | a toml block is also saved as `NAME` in the working directory, for later blocks of the same page |
+//! | `<!-- doc-test: config run\|render\|batch -->` | a toml block is loaded by that command's loader (`--config`, parse-only; `batch`: as its manifest); default `run` |
+//! | `<!-- doc-test: save NAME -->` | a toml or csv block is also saved as `NAME` in the working directory, for later blocks of the same page |
 //!
 //! Each page runs in its own temporary working directory, its blocks in
 //! page order. `a_broken_page_fails` shows that a misspelt flag, a bad TOML
@@ -45,6 +47,8 @@ enum Lang {
     Shell,
     Console,
     Toml,
+    /// A batch manifest (CSV).
+    Csv,
 }
 
 /// One fenced block to run.
@@ -82,6 +86,7 @@ fn extract(markdown: &str) -> Vec<Block> {
             "sh" | "bash" | "shell" => Some(Lang::Shell),
             "console" => Some(Lang::Console),
             "toml" => Some(Lang::Toml),
+            "csv" => Some(Lang::Csv),
             _ => None,
         };
         let mut body = String::new();
@@ -295,6 +300,7 @@ fn run_block(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Resu
     }
     match block.lang {
         Lang::Toml => run_toml(env, block, work, report),
+        Lang::Csv => run_manifest(env, block, work, report, "csv"),
         Lang::Shell | Lang::Console => {
             let commands = commands(block);
             if commands.is_empty() {
@@ -312,8 +318,13 @@ fn run_block(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Resu
 fn run_toml(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Result<(), String> {
     let command = match directive(block, "config").next() {
         None => "run",
+        Some([c]) if c == "batch" => return run_manifest(env, block, work, report, "toml"),
         Some([c]) if c == "run" || c == "render" => c.as_str(),
-        Some(other) => return Err(format!("`config` takes run or render, got {other:?}")),
+        Some(other) => {
+            return Err(format!(
+                "`config` takes run, render or batch, got {other:?}"
+            ));
+        }
     };
     let file = format!("block-{}.toml", block.line);
     std::fs::write(work.join(&file), &block.body).map_err(|e| e.to_string())?;
@@ -325,6 +336,29 @@ fn run_toml(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Resul
     }
     let argv = vec![command.to_owned(), "--config".to_owned(), file];
     invoke(env, &argv, &[], true, work).map_err(|e| format!("[{command} config] {e}"))?;
+    report.ran += 1;
+    Ok(())
+}
+
+/// A batch manifest block (`ext`: csv or toml): saved, then checked by
+/// `gazelight batch FILE` parse-only.
+fn run_manifest(
+    env: &Env,
+    block: &Block,
+    work: &Path,
+    report: &mut Report,
+    ext: &str,
+) -> Result<(), String> {
+    let file = format!("block-{}.{ext}", block.line);
+    std::fs::write(work.join(&file), &block.body).map_err(|e| e.to_string())?;
+    for args in directive(block, "save") {
+        let [name] = args else {
+            return Err(format!("`save` takes one NAME, got {args:?}"));
+        };
+        std::fs::write(work.join(name), &block.body).map_err(|e| e.to_string())?;
+    }
+    let argv = vec!["batch".to_owned(), file];
+    invoke(env, &argv, &[], true, work).map_err(|e| format!("[batch manifest] {e}"))?;
     report.ran += 1;
     Ok(())
 }
@@ -522,11 +556,15 @@ fn a_broken_page_fails() {
         ```console\n\
         $ gazelight psf --help\n\
         Build one glare point spread function …\n\
+        ```\n\n\
+        ```csv\n\
+        recording,fps\n\
+        rec.asc,25\n\
         ```\n";
     let work = common::tmp_path("broken");
     let report = check_page(&env, "good.md", good, &work);
     assert!(report.failures.is_empty(), "{:?}", report.failures);
-    assert_eq!(report.ran, 3);
+    assert_eq!(report.ran, 4);
 
     let broken = [
         ("--fps 90", "--fsp 90", "a misspelt flag"),
@@ -543,6 +581,7 @@ fn a_broken_page_fails() {
             "an unknown command",
         ),
         ("parse-only", "parse-onyl", "an unknown directive"),
+        ("rec.asc,25", "rec.asc,fast", "a bad batch manifest row"),
     ];
     for (from, to, what) in broken {
         assert!(good.contains(from), "{from}");

@@ -1,0 +1,536 @@
+//! `gazelight batch MANIFEST`: many replays from one list (docs/batch.md).
+//!
+//! Each manifest row ([`manifest`]) runs what a single `gazelight replay`
+//! with the row's options would — the same binary as a child process
+//! (`gazelight replay REC … --out OUT/ID`), so its outputs are that
+//! replay's, byte for byte — into its own folder `OUT/ID`. When it ends
+//! well, its line of the summary ([`summary`]) and a completion record
+//! ([`state`]) are written; `OUT/summary.csv` holds one line per row.
+//!
+//! - Resumable: a row whose record matches its options is skipped; a
+//!   half-written one (no record) is run again with `--force`, which
+//!   clears what it left.
+//! - `--jobs N`: N replays at once, each in its own process.
+//! - SIGINT, SIGTERM, SIGHUP: no new row starts, the running replays are
+//!   asked to stop (SIGTERM), and the batch exits; finished rows keep
+//!   their records, the interrupted ones run again next time. A replay's
+//!   process also gets SIGTERM when the batch dies (even by SIGKILL).
+//! - A failing row is recorded (`status` = `failed`, its error in
+//!   `message`, its log in `OUT/_batch/ID.log`) and the others go on; the
+//!   batch then exits with status 1.
+//! - Slurm ([`slurm`]): `--slurm` writes a job-array script whose task K
+//!   runs `--task K --tasks N` (rows K, K + N, …), `--submit` submits it,
+//!   `--collect` merges the records into `summary.csv`.
+
+pub mod manifest;
+pub mod slurm;
+pub mod state;
+pub mod summary;
+
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus, Stdio};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::Args;
+
+use manifest::Row;
+use state::{Record, State, Status};
+
+/// Most replays at once.
+const MAX_JOBS: usize = 256;
+/// How often a waiting worker looks at its replay and the stop flag.
+const POLL: Duration = Duration::from_millis(50);
+/// Longest error message kept from a failed replay's log, characters.
+const MAX_MESSAGE_CHARS: usize = 300;
+
+/// Arguments of `gazelight batch`.
+#[derive(Args, Debug)]
+pub struct BatchArgs {
+    /// The manifest: a CSV or TOML list of recordings with per-row replay
+    /// options (docs/batch.md).
+    #[arg(value_name = "MANIFEST")]
+    pub manifest: PathBuf,
+    /// Output folder: one folder per row (`OUT/ID`), `OUT/summary.csv`,
+    /// and the batch's records and logs in `OUT/_batch/`. Default: beside
+    /// the manifest, its name with `-out` (`study.csv` → `study-out/`).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Replays run at once (each its own process).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub jobs: usize,
+    /// Run only slice K of `--tasks N` (rows K, K + N, K + 2N, … counted
+    /// from 0): one task of a Slurm job array. No summary is written; run
+    /// `--collect` when every task has ended.
+    #[arg(long, value_name = "K", requires = "tasks", conflicts_with_all = ["slurm", "collect"])]
+    pub task: Option<usize>,
+    /// The number of slices (`--task`), or of the array's tasks (`--slurm`;
+    /// default one per row, at most 1000).
+    #[arg(long, value_name = "N")]
+    pub tasks: Option<usize>,
+    /// Write a Slurm job-array script (`OUT/_batch/batch.sbatch`) whose
+    /// tasks run the slices; nothing is replayed here.
+    #[arg(long, conflicts_with = "collect")]
+    pub slurm: bool,
+    /// With `--slurm`: submit the script with `sbatch`.
+    #[arg(long, requires = "slurm")]
+    pub submit: bool,
+    /// With `--slurm`: an extra `#SBATCH` option for the script (e.g.
+    /// `--sbatch=--partition=short`); repeatable.
+    #[arg(
+        long = "sbatch",
+        value_name = "OPTION",
+        requires = "slurm",
+        allow_hyphen_values = true
+    )]
+    pub sbatch: Vec<String>,
+    /// Merge the rows' records into `OUT/summary.csv` (after a Slurm
+    /// array); nothing is replayed. Exits with status 1 when a row failed
+    /// or has not run.
+    #[arg(long)]
+    pub collect: bool,
+}
+
+/// The default output folder: `DIR/STEM-out` for `DIR/STEM.EXT`.
+fn default_out(manifest: &Path) -> PathBuf {
+    let stem = manifest
+        .file_stem()
+        .map_or_else(|| "batch".to_owned(), |s| s.to_string_lossy().into_owned());
+    manifest.with_file_name(format!("{stem}-out"))
+}
+
+/// Runs `gazelight batch`.
+pub fn run(args: BatchArgs) -> anyhow::Result<()> {
+    let rows = manifest::load(&args.manifest)?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_out(&args.manifest));
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let state = State::open(&out)?;
+    if args.collect {
+        return collect(&rows, &out, &state);
+    }
+    if args.slurm {
+        return slurm::write_and_submit(&args, &rows, &out, &state);
+    }
+    if !(1..=MAX_JOBS).contains(&args.jobs) {
+        bail!("--jobs {}: expected 1 to {MAX_JOBS}", args.jobs);
+    }
+    let slice: Vec<&Row> = match (args.task, args.tasks) {
+        (Some(k), Some(n)) => {
+            if n == 0 || k >= n {
+                bail!("--task {k} --tasks {n}: expected 0 ≤ K < N");
+            }
+            rows.iter().skip(k).step_by(n).collect()
+        }
+        (None, Some(n)) => bail!("--tasks {n} without --task (or --slurm): which slice?"),
+        _ => rows.iter().collect(),
+    };
+    let outcome = run_rows(&slice, &out, &state, args.jobs)?;
+    if args.task.is_none() {
+        let path = write_summary(&rows, &out, &state)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(sig) = outcome.interrupted {
+        bail!(
+            "{sig}: stopped; {} of {} recordings finished, the interrupted ones run again when the \
+             same command is given again",
+            outcome.finished,
+            slice.len()
+        );
+    }
+    if outcome.failed > 0 {
+        bail!(
+            "{} of {} recordings failed (status and message in the summary, the replay's log in {})",
+            outcome.failed,
+            slice.len(),
+            state.dir().display()
+        );
+    }
+    Ok(())
+}
+
+/// What a run of some rows came to.
+#[derive(Debug, Default)]
+struct Outcome {
+    finished: usize,
+    failed: usize,
+    interrupted: Option<&'static str>,
+}
+
+/// Whether `row` is finished (its record says ok for its options and its
+/// timeline is there).
+fn finished(row: &Row, out: &Path, state: &State) -> bool {
+    state
+        .read(&row.id)
+        .is_some_and(|r| r.status == Status::Ok && r.options_hash == state::options_hash(&row.argv))
+        && out.join(&row.id).join("timeline.csv").is_file()
+}
+
+/// The progress counters, printed as one line on stderr after each row.
+struct Progress {
+    total: usize,
+    done: usize,
+    skipped: usize,
+    failed: usize,
+    /// Rows run (not skipped) that have ended, and their frames.
+    ran: usize,
+    frames: u64,
+    to_run: usize,
+    started: Instant,
+}
+
+impl Progress {
+    fn line(&self) -> String {
+        let secs = self.started.elapsed().as_secs_f64();
+        let fps = if secs > 0.0 {
+            self.frames as f64 / secs
+        } else {
+            0.0
+        };
+        let eta = if self.ran > 0 && self.to_run >= self.ran {
+            let left = secs / self.ran as f64 * (self.to_run - self.ran) as f64;
+            hms(left)
+        } else {
+            "-".to_owned()
+        };
+        format!(
+            "batch: {}/{} recordings done ({} skipped, {} failed) · {} frames at {fps:.1} frames/s · ETA {eta}",
+            self.done, self.total, self.skipped, self.failed, self.frames
+        )
+    }
+}
+
+fn hms(secs: f64) -> String {
+    let s = secs.round().max(0.0) as u64;
+    format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+/// Runs the unfinished `rows`, `jobs` at a time.
+fn run_rows(rows: &[&Row], out: &Path, state: &State, jobs: usize) -> anyhow::Result<Outcome> {
+    let exe = std::env::current_exe().context("cannot find gazelight's own executable")?;
+    let stop = crate::shutdown::stop_flag();
+    let mut todo = Vec::new();
+    let mut skipped = 0;
+    for row in rows {
+        if finished(row, out, state) {
+            eprintln!("batch: skip {}: finished earlier", row.id);
+            skipped += 1;
+        } else {
+            todo.push(*row);
+        }
+    }
+    let progress = Mutex::new(Progress {
+        total: rows.len(),
+        done: skipped,
+        skipped,
+        failed: 0,
+        ran: 0,
+        frames: 0,
+        to_run: todo.len(),
+        started: Instant::now(),
+    });
+    if let Ok(p) = progress.lock() {
+        eprintln!("{}", p.line());
+    }
+    let next = AtomicUsize::new(0);
+    let outcome = Mutex::new(Outcome {
+        finished: skipped,
+        ..Outcome::default()
+    });
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.min(todo.len()) {
+            scope.spawn(|| {
+                loop {
+                    if stop.as_ref().is_some_and(|s| s.requested()) {
+                        break;
+                    }
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(row) = todo.get(i) else { break };
+                    let ended = run_row(&exe, row, out, state, stop.as_deref());
+                    let (Ok(mut p), Ok(mut o)) = (progress.lock(), outcome.lock()) else {
+                        break;
+                    };
+                    match ended {
+                        RowEnd::Done(r) => {
+                            eprintln!(
+                                "batch: done {}: {} frames in {:.1} s",
+                                row.id, r.frames, r.wall_secs
+                            );
+                            p.done += 1;
+                            p.ran += 1;
+                            p.frames += r.frames;
+                            o.finished += 1;
+                        }
+                        RowEnd::Failed(msg) => {
+                            eprintln!(
+                                "batch: FAILED {}: {msg} (log: {})",
+                                row.id,
+                                state.log_path(&row.id).display()
+                            );
+                            p.done += 1;
+                            p.ran += 1;
+                            p.failed += 1;
+                            o.failed += 1;
+                        }
+                        RowEnd::Interrupted => {
+                            eprintln!("batch: interrupted {}: it runs again next time", row.id);
+                        }
+                    }
+                    eprintln!("{}", p.line());
+                }
+            });
+        }
+    });
+    let mut outcome = outcome
+        .into_inner()
+        .map_err(|_| anyhow::anyhow!("a batch worker panicked"))?;
+    outcome.interrupted = stop.as_ref().and_then(|s| s.signal());
+    if let Ok(p) = progress.lock() {
+        let secs = p.started.elapsed().as_secs_f64();
+        println!(
+            "batch: ran {} recordings ({} skipped, {} failed): {} frames in {secs:.1} s, {:.2} frames/s with --jobs {jobs}",
+            p.ran,
+            p.skipped,
+            p.failed,
+            p.frames,
+            if secs > 0.0 {
+                p.frames as f64 / secs
+            } else {
+                0.0
+            }
+        );
+    }
+    Ok(outcome)
+}
+
+/// How one row's run ended.
+enum RowEnd {
+    Done(Record),
+    Failed(String),
+    Interrupted,
+}
+
+/// Runs one row's replay as a child process, then writes its record.
+fn run_row(
+    exe: &Path,
+    row: &Row,
+    out: &Path,
+    state: &State,
+    stop: Option<&crate::shutdown::StopFlag>,
+) -> RowEnd {
+    let hash = state::options_hash(&row.argv);
+    let fail = |msg: String| -> RowEnd {
+        let record = Record {
+            id: row.id.clone(),
+            options_hash: hash.clone(),
+            status: Status::Failed,
+            message: msg.clone(),
+            values: Vec::new(),
+            frames: 0,
+            wall_secs: 0.0,
+        };
+        match state.write(&record) {
+            Ok(()) => RowEnd::Failed(msg),
+            Err(e) => RowEnd::Failed(format!("{msg}; and its record: {e:#}")),
+        }
+    };
+    if let Err(e) = state.forget(&row.id) {
+        return fail(format!("{e:#}"));
+    }
+    let dir = out.join(&row.id);
+    let started = Instant::now();
+    let status = match spawn_and_wait(exe, row, &dir, &state.log_path(&row.id), stop) {
+        Ok(s) => s,
+        Err(e) => return fail(format!("{e:#}")),
+    };
+    let wall_secs = started.elapsed().as_secs_f64();
+    if !status.success() {
+        if stop.is_some_and(|s| s.requested()) {
+            return RowEnd::Interrupted;
+        }
+        return fail(error_of(&state.log_path(&row.id), status));
+    }
+    let values = match row_values(row, &dir) {
+        Ok(v) => v,
+        Err(e) => return fail(format!("summary: {e:#}")),
+    };
+    let frames = values
+        .first()
+        .and_then(|f| f.parse().ok())
+        .unwrap_or_default();
+    let record = Record {
+        id: row.id.clone(),
+        options_hash: hash,
+        status: Status::Ok,
+        message: String::new(),
+        values,
+        frames,
+        wall_secs,
+    };
+    match state.write(&record) {
+        Ok(()) => RowEnd::Done(record),
+        Err(e) => RowEnd::Failed(format!("{e:#}")),
+    }
+}
+
+/// The row's summary values from its outputs and recording.
+fn row_values(row: &Row, dir: &Path) -> anyhow::Result<Vec<String>> {
+    let args = row.replay_args(dir)?;
+    let timeline = summary::read_timeline(&dir.join("timeline.csv"))?;
+    let recording = summary::read_recording(&args, timeline.duration_secs)?;
+    Ok(summary::values(&timeline, &recording))
+}
+
+/// Starts `gazelight replay` for `row` into `dir` (with `--force` when
+/// `dir` exists: what an interrupted run left is cleared), its output to
+/// `log`, in its own process group (a Ctrl-C reaches the batch, which
+/// passes it on once), with SIGTERM as its parent-death signal; waits for
+/// it, passing a stop request on as SIGTERM.
+fn spawn_and_wait(
+    exe: &Path,
+    row: &Row,
+    dir: &Path,
+    log: &Path,
+    stop: Option<&crate::shutdown::StopFlag>,
+) -> anyhow::Result<ExitStatus> {
+    let log_file =
+        std::fs::File::create(log).with_context(|| format!("cannot write {}", log.display()))?;
+    let err_file = log_file
+        .try_clone()
+        .with_context(|| format!("cannot write {}", log.display()))?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("replay")
+        .args(&row.argv)
+        .arg(format!("--out={}", dir.display()));
+    if dir.exists() {
+        cmd.arg("--force");
+    }
+    cmd.stdin(Stdio::null())
+        .stdout(log_file)
+        .stderr(err_file)
+        .process_group(0);
+    // SAFETY: getpid before the fork; in the child only prctl and getppid,
+    // both async-signal-safe, run between fork and exec.
+    let parent = unsafe { libc::getpid() };
+    // SAFETY: see above.
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The batch died before the signal was set: do not run orphaned.
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("the batch ended"));
+            }
+            Ok(())
+        });
+    }
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {}", exe.display()))?;
+    let mut passed_on = false;
+    loop {
+        if let Some(status) = child.try_wait().context("waiting for the replay")? {
+            return Ok(status);
+        }
+        if !passed_on && stop.is_some_and(|s| s.requested()) {
+            if let Ok(pid) = i32::try_from(child.id()) {
+                // SAFETY: kill on our own child's pid (not yet reaped).
+                unsafe { libc::kill(pid, libc::SIGTERM) };
+            }
+            passed_on = true;
+        }
+        std::thread::sleep(POLL);
+    }
+}
+
+/// The replay's error from its log (its last `error:` line), or its exit
+/// status.
+fn error_of(log: &Path, status: ExitStatus) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let line = text
+        .lines()
+        .rev()
+        .find_map(|l| l.strip_prefix("error: "))
+        .map_or_else(|| format!("the replay ended with {status}"), str::to_owned);
+    line.chars().take(MAX_MESSAGE_CHARS).collect()
+}
+
+/// Writes `OUT/summary.csv` (atomically) from the rows' records: one line
+/// per manifest row in manifest order; a row without a record for its
+/// current options is `pending`.
+fn write_summary(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<PathBuf> {
+    let mut text = String::from("id,recording,status,message");
+    for c in summary::COLUMNS {
+        text.push(',');
+        text.push_str(c);
+    }
+    text.push('\n');
+    for row in rows {
+        let record = state
+            .read(&row.id)
+            .filter(|r| r.options_hash == state::options_hash(&row.argv));
+        let (status, message, values) = match record {
+            Some(r) if r.status == Status::Ok && r.values.len() == summary::COLUMNS.len() => {
+                ("ok", String::new(), r.values)
+            }
+            Some(r) if r.status == Status::Failed => ("failed", r.message, Vec::new()),
+            _ => ("pending", String::new(), Vec::new()),
+        };
+        let mut cells = vec![
+            summary::csv_cell(&row.id),
+            summary::csv_cell(&row.recording),
+            status.to_owned(),
+            summary::csv_cell(&message),
+        ];
+        cells.extend(
+            (0..summary::COLUMNS.len()).map(|i| summary::csv_cell(values.get(i).map_or("", |v| v))),
+        );
+        text.push_str(&cells.join(","));
+        text.push('\n');
+    }
+    let path = out.join("summary.csv");
+    let tmp = out.join(".summary.csv.tmp");
+    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
+/// `--collect`: the summary from the records; an error when a row failed
+/// or has not run.
+fn collect(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<()> {
+    let path = write_summary(rows, out, state)?;
+    let mut ok = 0;
+    let mut failed = Vec::new();
+    let mut pending = Vec::new();
+    for row in rows {
+        match state
+            .read(&row.id)
+            .filter(|r| r.options_hash == state::options_hash(&row.argv))
+        {
+            Some(r) if r.status == Status::Ok => ok += 1,
+            Some(_) => failed.push(row.id.as_str()),
+            None => pending.push(row.id.as_str()),
+        }
+    }
+    println!(
+        "collected {} rows into {}: {ok} ok, {} failed, {} pending",
+        rows.len(),
+        path.display(),
+        failed.len(),
+        pending.len()
+    );
+    if !failed.is_empty() || !pending.is_empty() {
+        bail!(
+            "not every row finished: failed [{}], pending [{}]",
+            failed.join(", "),
+            pending.join(", ")
+        );
+    }
+    Ok(())
+}

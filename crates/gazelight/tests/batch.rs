@@ -1,0 +1,472 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test and bench code may panic on a failed setup
+//! `gazelight batch` end to end on the shipped recordings: each row's
+//! outputs are a single `replay`'s, the summary holds one line per row
+//! (a failing row reported, the others run), a Slurm-style slice run
+//! collects to the same summary, and a batch killed midway resumes
+//! without redoing its finished rows.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant, SystemTime};
+
+use common::{gazelight, shared_str, tmp};
+
+/// timeline.csv without its wall-clock timing columns (they differ
+/// between any two runs of the same replay).
+fn model_timeline(path: &Path) -> String {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let timing = |h: &str| {
+        [
+            "pooling_ms",
+            "temporal_ms",
+            "psf_ms",
+            "glare_ms",
+            "acuity_ms",
+            "tone_colour_encode_ms",
+            "total_ms",
+        ]
+        .iter()
+        .any(|t| h.starts_with(t))
+    };
+    let keep: Vec<bool> = header.iter().map(|h| !timing(h)).collect();
+    assert!(keep.iter().filter(|k| !**k).count() >= 7, "{header:?}");
+    std::iter::once(header.join(","))
+        .chain(lines.map(|l| {
+            l.split(',')
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(c, _)| c)
+                .collect::<Vec<_>>()
+                .join(",")
+        }))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Every file under `dir`, relative, sorted.
+fn files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push(p.strip_prefix(dir).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// `a` and `b` hold the same files with the same bytes (timeline.csv:
+/// the same model columns).
+fn assert_same_outputs(a: &Path, b: &Path) {
+    let fa = files(a);
+    assert_eq!(fa, files(b), "{} vs {}", a.display(), b.display());
+    assert!(fa.iter().any(|f| f.ends_with("timeline.csv")), "{fa:?}");
+    for f in &fa {
+        if f.ends_with("timeline.csv") {
+            assert_eq!(
+                model_timeline(&a.join(f)),
+                model_timeline(&b.join(f)),
+                "{f:?}"
+            );
+        } else {
+            assert!(
+                std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+                "{} differs from a single replay's",
+                f.display()
+            );
+        }
+    }
+}
+
+/// The summary as (header, rows of cells); no cell holds a comma here.
+fn summary(out: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap().split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(String::from).collect())
+        .collect();
+    (header, rows)
+}
+
+fn cell<'a>(header: &[String], row: &'a [String], name: &str) -> &'a str {
+    let i = header
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no {name}"));
+    &row[i]
+}
+
+/// Rows: (id, recording, replay options).
+fn rows() -> Vec<(&'static str, String, Vec<&'static str>)> {
+    vec![
+        (
+            "neon",
+            shared_str("eye/neon-demo"),
+            vec!["--secs=2", "--size=64x48", "--fps=20", "--backend=cpu"],
+        ),
+        (
+            "eyelink",
+            shared_str("eye/eyelink-psa/both_eyes.asc"),
+            vec![
+                "--from-secs=2",
+                "--secs=2",
+                "--size=64x48",
+                "--fps=20",
+                "--backend=cpu",
+                "--stereo",
+            ],
+        ),
+        (
+            "piprkit",
+            shared_str("eye/piprkit-plr/pupil_trace.csv"),
+            vec![
+                "--secs=20",
+                "--from-secs=10",
+                "--size=48x32",
+                "--fps=4",
+                "--backend=cpu",
+                "--no-frames",
+            ],
+        ),
+    ]
+}
+
+#[test]
+fn batch_rows_are_single_replays_and_the_summary_collects() {
+    let dir = tmp("outputs");
+    let manifest = dir.join("study.csv");
+    // The same rows as CSV, plus a recording that does not exist.
+    let mut csv = String::from("id,recording,secs,from_secs,size,fps,backend,stereo,no_frames\n");
+    csv.push_str(&format!(
+        "neon,{},2,,64x48,20,cpu,,\n",
+        shared_str("eye/neon-demo")
+    ));
+    csv.push_str(&format!(
+        "eyelink,{},2,2,64x48,20,cpu,true,no\n",
+        shared_str("eye/eyelink-psa/both_eyes.asc")
+    ));
+    csv.push_str("missing,nowhere/rec.asc,1,,64x48,20,cpu,,\n");
+    csv.push_str(&format!(
+        "piprkit,{},20,10,48x32,4,cpu,false,yes\n",
+        shared_str("eye/piprkit-plr/pupil_trace.csv")
+    ));
+    std::fs::write(&manifest, csv).unwrap();
+    let out = dir.join("out");
+    let o = out.to_str().unwrap();
+    let run = gazelight(&[
+        "batch",
+        manifest.to_str().unwrap(),
+        "--out",
+        o,
+        "--jobs",
+        "2",
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    // The missing recording fails the batch, after the others ran.
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("1 of 4 recordings failed"), "{stderr}");
+    assert!(
+        stderr.contains("batch: 4/4 recordings done (0 skipped, 1 failed)"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("frames/s · ETA"), "{stderr}");
+
+    // Each row's outputs are a single replay's with the same options.
+    for (id, rec, opts) in rows() {
+        let single = dir.join(format!("single-{id}"));
+        let mut argv = vec!["replay", rec.as_str()];
+        argv.extend(opts.iter().copied());
+        let out_flag = format!("--out={}", single.display());
+        argv.push(&out_flag);
+        let r = gazelight(&argv);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        assert_same_outputs(&out.join(id), &single);
+    }
+
+    // The summary: one line per row in manifest order.
+    let (header, lines) = summary(&out);
+    assert_eq!(&header[..4], ["id", "recording", "status", "message"]);
+    let ids: Vec<&str> = lines.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(ids, ["neon", "eyelink", "missing", "piprkit"]);
+    let status: Vec<&str> = lines.iter().map(|r| cell(&header, r, "status")).collect();
+    assert_eq!(status, ["ok", "ok", "failed", "ok"]);
+    assert!(
+        cell(&header, &lines[2], "message").contains("nowhere/rec.asc"),
+        "{:?}",
+        lines[2]
+    );
+    assert!(out.join("_batch/missing.log").is_file());
+    // 2 s at 20 fps: frames at 0, 0.05, …, 2.0 s.
+    assert_eq!(cell(&header, &lines[0], "frames"), "41");
+    assert_eq!(cell(&header, &lines[0], "duration_secs"), "2.0000");
+    assert_eq!(cell(&header, &lines[1], "views"), "2");
+    // The pupil figures are the timeline's: measured frames (held = 0).
+    let text = std::fs::read_to_string(out.join("neon/timeline.csv")).unwrap();
+    let measured: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(4) == Some("0"))
+        .map(|l| l.split(',').nth(3).unwrap().parse().unwrap())
+        .collect();
+    let mean = measured.iter().sum::<f64>() / measured.len() as f64;
+    assert_eq!(
+        cell(&header, &lines[0], "pupil_measured_frames"),
+        measured.len().to_string()
+    );
+    let got: f64 = cell(&header, &lines[0], "pupil_mean_mm").parse().unwrap();
+    assert!((got - mean).abs() < 1e-4, "{got} vs {mean}");
+    // piprkit's pupil rate over the replayed window, from the CSV itself:
+    // samples 5 ms apart with no pauses, so (n − 1) / (t_last − t_first).
+    let text = std::fs::read_to_string(shared_str("eye/piprkit-plr/pupil_trace.csv")).unwrap();
+    let times: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    let t0 = times.iter().cloned().fold(f64::MAX, f64::min) + 10.0;
+    let t1 = t0
+        + cell(&header, &lines[3], "duration_secs")
+            .parse::<f64>()
+            .unwrap();
+    let window: Vec<f64> = times.into_iter().filter(|t| *t >= t0 && *t <= t1).collect();
+    let rate = (window.len() - 1) as f64 / (window[window.len() - 1] - window[0]);
+    assert!((190.0..210.0).contains(&rate), "{rate}");
+    for col in ["pupil_rate_right_hz", "pupil_rate_left_hz"] {
+        assert_eq!(cell(&header, &lines[3], col), format!("{rate:.3}"), "{col}");
+    }
+    assert_eq!(cell(&header, &lines[3], "frames"), "81");
+    // The light-driven pupil and residual are there for a replay.
+    assert!(!cell(&header, &lines[0], "pupil_light_mean_mm").is_empty());
+
+    // A Slurm array's slices, then --collect: the same summary.
+    let sliced = dir.join("sliced");
+    let s = sliced.to_str().unwrap();
+    for k in ["0", "1"] {
+        let r = gazelight(&[
+            "batch",
+            manifest.to_str().unwrap(),
+            "--out",
+            s,
+            "--task",
+            k,
+            "--tasks",
+            "2",
+        ]);
+        let code = r.status.code();
+        // Task 0 has rows 0 and 2 (the missing recording): status 1.
+        assert_eq!(
+            code,
+            Some(if k == "0" { 1 } else { 0 }),
+            "{}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        assert!(
+            !sliced.join("summary.csv").exists(),
+            "a task writes no summary"
+        );
+    }
+    let c = gazelight(&["batch", manifest.to_str().unwrap(), "--out", s, "--collect"]);
+    assert_eq!(c.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&c.stderr).contains("failed [missing]"));
+    assert_eq!(
+        std::fs::read_to_string(sliced.join("summary.csv")).unwrap(),
+        std::fs::read_to_string(out.join("summary.csv")).unwrap()
+    );
+
+    // A bad row stops the batch before anything runs, naming the place.
+    let bad = dir.join("bad.csv");
+    std::fs::write(&bad, "recording,fps\nx.asc,20\ny.asc,fast\n").unwrap();
+    let r = gazelight(&[
+        "batch",
+        bad.to_str().unwrap(),
+        "--out",
+        dir.join("bad-out").to_str().unwrap(),
+    ]);
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(
+        e.contains("bad.csv: line 3: field fps: invalid value 'fast'"),
+        "{e}"
+    );
+    assert!(!dir.join("bad-out/_batch/001-x.log").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn mtime(p: &Path) -> SystemTime {
+    std::fs::metadata(p).unwrap().modified().unwrap()
+}
+
+/// Starts the batch on `manifest`, waits until `ready` exists (a frame of
+/// the row to interrupt), then sends `signal`; returns the batch's exit
+/// status and stderr.
+fn interrupt_after(
+    manifest: &Path,
+    out: &Path,
+    ready: &Path,
+    signal: i32,
+) -> (Option<i32>, String) {
+    let err = out.with_extension(format!("err{signal}"));
+    let child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "batch",
+            manifest.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&err).unwrap())
+        .spawn()
+        .unwrap();
+    let mut child = common::Proc(child);
+    let t = Instant::now();
+    while !ready.exists() {
+        assert!(
+            t.elapsed() < Duration::from_secs(300),
+            "{} never came",
+            ready.display()
+        );
+        assert!(
+            child.0.try_wait().unwrap().is_none(),
+            "the batch ended early"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: a signal to our own child.
+    unsafe { libc::kill(child.0.id() as i32, signal) };
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = child.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "the batch did not stop"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    (status.code(), std::fs::read_to_string(&err).unwrap())
+}
+
+#[test]
+fn a_killed_batch_resumes_without_redoing_finished_rows() {
+    let dir = tmp("resume");
+    let manifest = dir.join("study.toml");
+    // Four rows of a few seconds each, run one at a time.
+    let neon = shared_str("eye/neon-demo");
+    let eyelink = shared_str("eye/eyelink-psa/both_eyes.asc");
+    std::fs::write(
+        &manifest,
+        format!(
+            "[defaults]\nsize = \"96x80\"\nfps = 20\nbackend = \"cpu\"\n\n\
+             [[row]]\nid = \"a\"\nrecording = \"{neon}\"\nsecs = 2\n\n\
+             [[row]]\nid = \"b\"\nrecording = \"{eyelink}\"\nsecs = 6\n\n\
+             [[row]]\nid = \"c\"\nrecording = \"{neon}\"\nfrom_secs = 3\nsecs = 6\n\n\
+             [[row]]\nid = \"d\"\nrecording = \"{eyelink}\"\nfrom_secs = 5\nsecs = 1\n"
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let rec = |id: &str| out.join(format!("_batch/{id}.json"));
+
+    let frame = |id: &str| out.join(format!("{id}/frames/frame_00005.png"));
+    // SIGKILL while row b renders (a is finished): b is half-written.
+    let (code, _) = interrupt_after(&manifest, &out, &frame("b"), 9);
+    assert!(rec("a").exists());
+    assert_eq!(code, None, "killed by the signal");
+    assert!(
+        !rec("b").exists(),
+        "row b finished before the kill: make it longer"
+    );
+    let a_timeline = mtime(&out.join("a/timeline.csv"));
+    let a_record = mtime(&rec("a"));
+    // The replay of b got SIGTERM from the batch's death: wait until it
+    // has written what it rendered (session.json is its last file), so
+    // nothing else writes into b.
+    let t = Instant::now();
+    while !out.join("b/session.json").exists() {
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "b's replay never stopped"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let b_partial = std::fs::read_to_string(out.join("b/timeline.csv")).unwrap();
+    assert!(b_partial.lines().count() < 122, "b was cut short");
+
+    // SIGTERM while row c renders: a is skipped, b redone, c interrupted.
+    let (code, stderr) = interrupt_after(&manifest, &out, &frame("c"), 15);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("batch: skip a: finished earlier"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("SIGTERM: stopped"), "{stderr}");
+    assert!(stderr.contains("batch: interrupted c"), "{stderr}");
+    assert!(!rec("c").exists());
+    let (header, lines) = summary(&out);
+    let status: Vec<&str> = lines.iter().map(|r| cell(&header, r, "status")).collect();
+    assert_eq!(status, ["ok", "ok", "pending", "pending"]);
+    let b_record = mtime(&rec("b"));
+
+    // Run to the end: a and b are not redone.
+    let r = gazelight(&[
+        "batch",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("batch: skip a: finished earlier"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("batch: skip b: finished earlier"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("batch: done c"), "{stderr}");
+    assert!(
+        stderr.contains("batch: 4/4 recordings done (2 skipped, 0 failed)"),
+        "{stderr}"
+    );
+    assert_eq!(mtime(&out.join("a/timeline.csv")), a_timeline);
+    assert_eq!(mtime(&rec("a")), a_record);
+    assert_eq!(mtime(&rec("b")), b_record);
+    let (header, lines) = summary(&out);
+    assert!(
+        lines.iter().all(|r| cell(&header, r, "status") == "ok"),
+        "{lines:?}"
+    );
+    // b, redone after the kill, is whole: 6 s at 20 fps.
+    assert_eq!(cell(&header, &lines[1], "frames"), "121");
+    // Row c's outputs (interrupted once, then redone) are a single
+    // replay's.
+    let single = dir.join("single-c");
+    let r = gazelight(&[
+        "replay",
+        &neon,
+        "--size=96x80",
+        "--fps=20",
+        "--backend=cpu",
+        "--from-secs=3",
+        "--secs=6",
+        &format!("--out={}", single.display()),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert_same_outputs(&out.join("c"), &single);
+    let _ = std::fs::remove_dir_all(&dir);
+}
