@@ -22,7 +22,9 @@
 //! - [`csv`]: pupil-diameter CSV traces (`time,left,right` in mm, as the
 //!   piprkit PLR recordings);
 //! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
-//!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them.
+//!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them;
+//! - [`xdf`]: one eye stream of an XDF file (Lab Streaming Layer's
+//!   LabRecorder), `FILE.xdf?stream=NAME` or the first `Gaze`/`Pupil` stream.
 //!
 //! [`open`] picks the importer from the path; [`summary`] condenses a
 //! recording (or a stretch of a live Pupil stream) into counts, rates,
@@ -57,6 +59,7 @@ pub mod neon;
 pub mod pupil_core;
 pub mod summary;
 pub mod time_guard;
+pub mod xdf;
 
 use std::path::{Path, PathBuf};
 
@@ -243,7 +246,8 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
 /// Opens a recording, picking the importer from the path: a directory with
 /// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
 /// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
-/// EyeLink ASC export, `*.csv` a pupil CSV trace.
+/// EyeLink ASC export, `*.csv` a pupil CSV trace, `*.xdf` (optionally
+/// `*.xdf?stream=NAME`) an XDF file.
 ///
 /// Every importer comes wrapped in a [`time_guard::TimeGuard`]: samples
 /// with absurd or isolated out-of-line timestamps are skipped and counted,
@@ -270,6 +274,12 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
                 .into(),
         });
     }
+    if let Some((file, _)) = xdf::split_query(path) {
+        return Ok(Box::new(TimeGuard::new(
+            xdf::XdfImporter::open(path)?,
+            &file,
+        )));
+    }
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -285,7 +295,8 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
         ))),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "expected a Neon or Pupil Core directory, an .asc or a .csv file".into(),
+            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv or an .xdf file"
+                .into(),
         }),
     }
 }
