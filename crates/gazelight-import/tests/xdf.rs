@@ -319,3 +319,161 @@ fn truncated_and_damaged_copies_name_the_chunk() {
     let peak = peak_rss_bytes();
     assert!(peak < 512 << 20, "peak resident memory {peak} bytes");
 }
+
+/// The stand-in eye XDF of `layout` (tests/xdf/write_eye_xdf.py: the real
+/// piprkit pupil recording's first `rows` rows, LabRecorder's layout),
+/// written into `dir`; `None` when python3 or the shared data is missing.
+fn stand_in(layout: &str, rows: usize, dir: &Path) -> Option<PathBuf> {
+    let plr = gazelight_test_support::data_path("eye").join("piprkit-plr");
+    let out = dir.join(format!("{layout}.xdf"));
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/xdf/write_eye_xdf.py");
+    let status = match Command::new("python3")
+        .arg(&script)
+        .arg(layout)
+        .arg(plr.join("pupil_trace.csv"))
+        .arg(plr.join("stimuli.csv"))
+        .arg(rows.to_string())
+        .arg(&out)
+        .status()
+    {
+        Ok(s) => s,
+        Err(e) => {
+            skip_or_fail(&format!("python3 not runnable: {e}"));
+            return None;
+        }
+    };
+    assert!(status.success(), "write_eye_xdf.py {layout} failed");
+    Some(out)
+}
+
+/// The piprkit rows as (right, left) mm, NaN where empty.
+fn piprkit_rows(rows: usize) -> Vec<[f32; 2]> {
+    let path = gazelight_test_support::data_path("eye").join("piprkit-plr/pupil_trace.csv");
+    let text = std::fs::read_to_string(path).expect("pupil_trace.csv");
+    text.lines()
+        .skip(1)
+        .take(rows)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let v = |s: &str| s.parse::<f32>().unwrap_or(f32::NAN);
+            [v(f[2]), v(f[1])]
+        })
+        .collect()
+}
+
+#[test]
+fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
+    use gazelight_eye::sample::{PupilUnit, Sample};
+    const ROWS: usize = 3000;
+    let dir = std::env::temp_dir().join(format!("gazelight-xdf-eye-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let rows = piprkit_rows(ROWS);
+    for layout in ["pupil-capture-relay", "gazelight-eye", "neon"] {
+        let Some(path) = stand_in(layout, ROWS, &dir) else {
+            return;
+        };
+        let Some(py) = pyxdf_dump(&path) else { return };
+        let eye = &py["streams"][0];
+        assert_eq!(eye["type"], "Gaze");
+        let py_t: Vec<f64> = eye["time_stamps"]
+            .as_array()
+            .expect("stamps")
+            .iter()
+            .map(|v| v.as_f64().expect("a stamp"))
+            .collect();
+        assert_eq!(py_t.len(), ROWS);
+        let mut imp = gazelight_import::open(&path).unwrap_or_else(|e| panic!("{layout}: {e}"));
+        assert_eq!(imp.format(), "xdf");
+        // Every row's pupils, in order, at pyxdf's stamps.
+        let mut next = [0usize; 2];
+        let mut pupils = [0usize; 2];
+        let mut gaze = 0;
+        for s in imp.by_ref() {
+            match s.unwrap_or_else(|e| panic!("{layout}: {e}")) {
+                Sample::Pupil(p) => {
+                    let e = p.eye as usize;
+                    pupils[e] += 1;
+                    // Layouts without a validity channel leave lost pupils
+                    // out; gazelight's own marks them lost.
+                    let k = (next[e]..ROWS)
+                        .find(|&k| {
+                            let v = rows[k][e];
+                            layout == "gazelight-eye" || (v.is_finite() && v > 0.0)
+                        })
+                        .unwrap_or_else(|| panic!("{layout}: more eye {e} pupils than rows"));
+                    next[e] = k + 1;
+                    let v = rows[k][e];
+                    assert!(
+                        (p.t_secs - py_t[k]).abs() <= MAX_STAMP_DIFF_SECS,
+                        "{layout} {k}"
+                    );
+                    assert_eq!(p.unit, PupilUnit::Mm);
+                    if v.is_finite() && v > 0.0 {
+                        assert_eq!(p.diameter_mm, Some(v), "{layout} row {k} eye {e}");
+                        assert!(p.confidence > 0.0);
+                    } else {
+                        assert_eq!((p.diameter_mm, p.confidence), (None, 0.0));
+                    }
+                }
+                Sample::Gaze(g) => {
+                    gaze += 1;
+                    assert_eq!(g.gaze_uv, [0.5, 0.5], "{layout}");
+                }
+                Sample::Blink(_) => panic!("{layout}: the recording has no blink channel set"),
+            }
+        }
+        let valid = |e: usize| {
+            rows.iter()
+                .filter(|r| r[e].is_finite() && r[e] > 0.0)
+                .count()
+        };
+        for e in 0..2 {
+            let want = if layout == "gazelight-eye" {
+                ROWS
+            } else {
+                valid(e)
+            };
+            assert_eq!(pupils[e], want, "{layout} eye {e}");
+        }
+        // The relay's gaze is NaN (the recording has none): no gaze.
+        let want_gaze = if layout == "pupil-capture-relay" {
+            0
+        } else {
+            ROWS
+        };
+        assert_eq!(gaze, want_gaze, "{layout}");
+        let note = imp.warnings().messages[0].clone();
+        assert!(note.contains(&format!("layout {layout}")), "{note}");
+        assert!(note.contains("`stimuli` (type Markers"), "{note}");
+        eprintln!("{layout}: {ROWS} rows → pupils {pupils:?}, gaze {gaze}; {note}");
+    }
+
+    // A stream by name; a marker stream refused; an unknown layout named.
+    let Some(path) = stand_in("unknown", 200, &dir) else {
+        return;
+    };
+    let err = gazelight_import::open(&path)
+        .err()
+        .expect("an unknown layout")
+        .to_string();
+    assert!(err.contains("channels [a, b]"), "{err}");
+    let markers = PathBuf::from(format!("{}?stream=stimuli", path.display()));
+    let err = gazelight_import::open(&markers)
+        .err()
+        .expect("markers")
+        .to_string();
+    assert!(
+        err.contains("markers") && err.contains("no events"),
+        "{err}"
+    );
+    let nope = PathBuf::from(format!("{}?stream=nope", path.display()));
+    let err = gazelight_import::open(&nope)
+        .err()
+        .expect("no such stream")
+        .to_string();
+    assert!(
+        err.contains("no stream named `nope`") && err.contains("`mystery`"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
