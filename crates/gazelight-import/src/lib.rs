@@ -23,6 +23,9 @@
 //!   piprkit PLR recordings);
 //! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
 //!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them;
+//! - [`bids`]: BIDS eye-tracking recordings (`*_physio.tsv.gz` + `.json`,
+//!   `PhysioType: "eyetrack"`, the per-eye files merged), and the BIDS
+//!   export;
 //! - [`xdf`]: one eye stream of an XDF file (Lab Streaming Layer's
 //!   LabRecorder), `FILE.xdf?stream=NAME` or the first `Gaze`/`Pupil` stream.
 //!
@@ -52,6 +55,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod bids;
 pub mod csv;
 pub mod eyelink;
 mod lines;
@@ -247,7 +251,8 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
 /// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
 /// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
 /// EyeLink ASC export, `*.csv` a pupil CSV trace, `*.xdf` (optionally
-/// `*.xdf?stream=NAME`) an XDF file.
+/// `*.xdf?stream=NAME`) an XDF file, `*_physio.tsv.gz` or `*_physio.json`
+/// a BIDS eye-tracking recording.
 ///
 /// Every importer comes wrapped in a [`time_guard::TimeGuard`]: samples
 /// with absurd or isolated out-of-line timestamps are skipped and counted,
@@ -274,6 +279,12 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
                 .into(),
         });
     }
+    if bids::is_physio(path) {
+        return Ok(Box::new(TimeGuard::new(
+            bids::BidsImporter::open(path)?,
+            path,
+        )));
+    }
     if let Some((file, _)) = xdf::split_query(path) {
         return Ok(Box::new(TimeGuard::new(
             xdf::XdfImporter::open(path)?,
@@ -295,7 +306,8 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
         ))),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv or an .xdf file"
+            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv, an .xdf or a BIDS \
+                     *_physio.tsv.gz file"
                 .into(),
         }),
     }

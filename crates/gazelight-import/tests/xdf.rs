@@ -427,13 +427,13 @@ fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
                 .filter(|r| r[e].is_finite() && r[e] > 0.0)
                 .count()
         };
-        for e in 0..2 {
+        for (e, &n) in pupils.iter().enumerate() {
             let want = if layout == "gazelight-eye" {
                 ROWS
             } else {
                 valid(e)
             };
-            assert_eq!(pupils[e], want, "{layout} eye {e}");
+            assert_eq!(n, want, "{layout} eye {e}");
         }
         // The relay's gaze is NaN (the recording has none): no gaze.
         let want_gaze = if layout == "pupil-capture-relay" {
