@@ -174,3 +174,126 @@ fn validate(root: &Path) {
     );
     assert!(errors.is_empty(), "{}: {errors:#?}", root.display());
 }
+
+/// The rows of a gzipped TSV.
+fn tsv_gz(path: &Path) -> Vec<Vec<String>> {
+    use std::io::Read;
+    let mut text = String::new();
+    flate2::read::GzDecoder::new(std::fs::File::open(path).unwrap())
+        .read_to_string(&mut text)
+        .unwrap();
+    text.lines()
+        .map(|l| l.split('\t').map(str::to_owned).collect())
+        .collect()
+}
+
+#[test]
+fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
+    // A stereo replay's timeline.csv as `gazelight replay` writes it
+    // (output.rs: t_secs, each view's 16 columns, then each view's
+    // pupil_light_mm and pupil_residual_mm; an empty cell where the pupil
+    // is not measured). Three frames, values typed in.
+    let cols = [
+        "gaze_u",
+        "gaze_v",
+        "pupil_mm",
+        "pupil_held",
+        "target_cd_m2",
+        "adaptation_cd_m2",
+        "psf_pupil_mm",
+        "psf_rebuilt",
+        "acuity_sigma_px",
+        "pooling_ms",
+        "temporal_ms",
+        "psf_ms",
+        "glare_ms",
+        "acuity_ms",
+        "tone_colour_encode_ms",
+        "total_ms",
+    ];
+    let mut header = vec!["t_secs".to_owned()];
+    for v in ["_left", "_right"] {
+        header.extend(cols.iter().map(|c| format!("{c}{v}")));
+    }
+    for v in ["_left", "_right"] {
+        header.push(format!("pupil_light_mm{v}"));
+        header.push(format!("pupil_residual_mm{v}"));
+    }
+    let view = |u: f32, p: f32, lum: f32| {
+        format!("{u},0.5,{p},0,{lum},{},{p},0,1.0,1,1,1,1,1,1,6", lum * 0.9)
+    };
+    let rows = [
+        format!(
+            "12.0000,{},{},4.10,0.25,4.20,-0.15",
+            view(0.4, 4.35, 120.0),
+            view(0.6, 4.45, 80.0)
+        ),
+        format!(
+            "12.0111,{},{},4.11,,4.21,0.01",
+            view(0.41, 4.30, 125.0),
+            view(0.61, 4.22, 82.0)
+        ),
+        format!(
+            "12.0222,{},{},4.12,0.10,4.22,",
+            view(0.42, 4.22, 130.0),
+            view(0.62, 4.20, 84.0)
+        ),
+    ];
+    let root = temp("timeline");
+    std::fs::create_dir_all(&root).unwrap();
+    let timeline = root.join("timeline.csv");
+    std::fs::write(
+        &timeline,
+        format!("{}\n{}\n", header.join(","), rows.join("\n")),
+    )
+    .unwrap();
+    let names = BidsNames {
+        subject: "01".into(),
+        session: Some("a".into()),
+        task: "night".into(),
+        run: Some(2),
+    };
+    // The raw side from the piprkit recording, so the derivative has a
+    // source; the timeline's frames are typed in above.
+    let csv = data("piprkit-plr/pupil_trace.csv");
+    let mut imp = gazelight_import::open(&csv).unwrap();
+    let meta = RecordingMeta {
+        format: "csv".into(),
+        source: csv.display().to_string(),
+    };
+    export_raw(&mut imp, &root.join("ds"), &names, &meta).unwrap();
+    let mut again = gazelight_import::open(&csv).unwrap();
+    let mut chain = FilterChain::with_defaults();
+    let report = export_derivative(
+        &mut again,
+        &mut chain,
+        &root.join("ds"),
+        &names,
+        Some(&timeline),
+    )
+    .unwrap();
+    let dir = root.join("ds/derivatives/gazelight/sub-01/ses-a/beh");
+    let left =
+        tsv_gz(&dir.join("sub-01_ses-a_task-night_run-2_recording-eye2replay_physio.tsv.gz"));
+    let right =
+        tsv_gz(&dir.join("sub-01_ses-a_task-night_run-2_recording-eye1replay_physio.tsv.gz"));
+    // timestamp, x, y, pupil, luminance at gaze, adaptation, light, residual.
+    assert_eq!(
+        left[0],
+        ["12", "0.4", "0.5", "4.35", "120", "108", "4.1", "0.25"]
+    );
+    assert_eq!(left[1][7], "n/a", "an empty residual is n/a");
+    assert_eq!(
+        right[2],
+        ["12.0222", "0.62", "0.5", "4.2", "84", "75.6", "4.22", "n/a"]
+    );
+    assert_eq!(right[0][7], "-0.15");
+    assert!(
+        report.files.iter().any(
+            |f| f.ends_with("sub-01_ses-a_task-night_run-2_recording-eye1replay_physio.tsv.gz")
+        )
+    );
+    validate(&root.join("ds"));
+    validate(&root.join("ds/derivatives/gazelight"));
+    let _ = std::fs::remove_dir_all(&root);
+}
