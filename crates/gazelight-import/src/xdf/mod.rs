@@ -100,15 +100,19 @@ pub struct EyeLayout {
 
 /// Why an eye stream's channels match no layout.
 fn layout_error(info: &StreamInfo) -> String {
+    let labels = info.labels();
+    let channels = if labels.iter().all(String::is_empty) {
+        format!("{} channels without labels", labels.len())
+    } else {
+        format!("channels [{}]", labels.join(", "))
+    };
     format!(
-        "stream `{}` (type {}) has channels [{}], none of the layouts gazelight reads: \
+        "stream `{}` (type {}) has {channels}, none of the layouts gazelight reads: \
          gazelight's gazelight-eye (gaze_x, gaze_y, pupil_right_mm, pupil_left_mm, …), \
          Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, diameter0_3d, …), Neon's \
          (x, y in scene pixels, pupil_diameter_left, pupil_diameter_right) or the generic \
          x, y, pupil (normalised gaze, origin top-left)",
-        info.name,
-        info.kind,
-        info.labels().join(", ")
+        info.name, info.kind,
     )
 }
 
@@ -424,7 +428,6 @@ impl XdfImporter {
                 String::new()
             },
         );
-        tracing::info!(path = %file_path.display(), "{note}");
         warnings.note(&file_path, Position::File, note);
         if info.samples_kept < info.sample_count {
             warnings.note(
