@@ -22,7 +22,12 @@
 //! - [`csv`]: pupil-diameter CSV traces (`time,left,right` in mm, as the
 //!   piprkit PLR recordings);
 //! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
-//!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them.
+//!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them;
+//! - [`bids`]: BIDS eye-tracking recordings (`*_physio.tsv.gz` + `.json`,
+//!   `PhysioType: "eyetrack"`, the per-eye files merged), and the BIDS
+//!   export;
+//! - [`xdf`]: one eye stream of an XDF file (Lab Streaming Layer's
+//!   LabRecorder), `FILE.xdf?stream=NAME` or the first `Gaze`/`Pupil` stream.
 //!
 //! [`open`] picks the importer from the path; [`summary`] condenses a
 //! recording (or a stretch of a live Pupil stream) into counts, rates,
@@ -50,6 +55,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod bids;
 pub mod csv;
 pub mod eyelink;
 mod lines;
@@ -57,6 +63,7 @@ pub mod neon;
 pub mod pupil_core;
 pub mod summary;
 pub mod time_guard;
+pub mod xdf;
 
 use std::path::{Path, PathBuf};
 
@@ -243,7 +250,9 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
 /// Opens a recording, picking the importer from the path: a directory with
 /// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
 /// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
-/// EyeLink ASC export, `*.csv` a pupil CSV trace.
+/// EyeLink ASC export, `*.csv` a pupil CSV trace, `*.xdf` (optionally
+/// `*.xdf?stream=NAME`) an XDF file, `*_physio.tsv.gz` or `*_physio.json`
+/// a BIDS eye-tracking recording.
 ///
 /// Every importer comes wrapped in a [`time_guard::TimeGuard`]: samples
 /// with absurd or isolated out-of-line timestamps are skipped and counted,
@@ -270,6 +279,18 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
                 .into(),
         });
     }
+    if bids::is_physio(path) {
+        return Ok(Box::new(TimeGuard::new(
+            bids::BidsImporter::open(path)?,
+            path,
+        )));
+    }
+    if let Some((file, _)) = xdf::split_query(path) {
+        return Ok(Box::new(TimeGuard::new(
+            xdf::XdfImporter::open(path)?,
+            &file,
+        )));
+    }
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -285,7 +306,9 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
         ))),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "expected a Neon or Pupil Core directory, an .asc or a .csv file".into(),
+            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv, an .xdf or a BIDS \
+                     *_physio.tsv.gz file"
+                .into(),
         }),
     }
 }

@@ -20,6 +20,7 @@ mod config;
 mod config_cmd;
 mod demo;
 mod devices;
+mod export;
 mod hub;
 mod input_report;
 mod inspect;
@@ -94,6 +95,12 @@ enum Command {
     /// Summarise a recording (Neon directory, EyeLink .asc, pupil .csv):
     /// rates, pupil per eye, confidence, dropouts, blinks, warnings.
     Inspect(inspect::InspectArgs),
+    /// Write a recording as a BIDS eye-tracking dataset (`--bids DIR`):
+    /// per-eye physio files and sidecars (BIDS 1.11, PhysioType
+    /// eyetrack), with gazelight's filtered pupil and blinks (and, with
+    /// --timeline, a replay's light-driven pupil and luminance at gaze) in
+    /// DIR/derivatives/gazelight/.
+    Export(export::ExportArgs),
     /// Calibration profiles for trackers in arbitrary pupil units: from a
     /// known scale (`scale`), from a recording's dark and bright stretches
     /// (`phases`), or print the profile schema (`schema`).
@@ -144,6 +151,7 @@ fn check(command: &Command) -> anyhow::Result<()> {
         Command::Batch(args) => batch::manifest::load(&args.manifest).map(|_| ()),
         Command::Psf(_)
         | Command::Inspect(_)
+        | Command::Export(_)
         | Command::Devices(_)
         | Command::Config(_)
         | Command::Profile(_) => Ok(()),
@@ -203,6 +211,7 @@ fn main() -> std::process::ExitCode {
         Command::Record(args) => record::run(args),
         Command::Psf(args) => psf::run(args),
         Command::Inspect(args) => inspect::run(args),
+        Command::Export(args) => export::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Profile(args) => profile_cmd::run(args),

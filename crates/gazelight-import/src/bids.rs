@@ -1,0 +1,1433 @@
+//! BIDS eye-tracking (BIDS 1.11, the eye-tracking extension of
+//! physiological recordings, BEP020): read a recording's per-eye
+//! `*_recording-<label>_physio.tsv.gz` + `.json` pairs as gazelight
+//! samples, and write a recording as a BIDS dataset with a
+//! `derivatives/gazelight/` folder.
+//!
+//! A physio file has no header: its columns are the sidecar's `Columns`
+//! (`timestamp`, `x_coordinate`, `y_coordinate` first, then `pupil_size`
+//! and any other), `n/a` where a value is missing. The sidecar says
+//! `PhysioType: "eyetrack"`, `RecordedEye` (`right`, `left`,
+//! `cyclopean`), `SampleCoordinateSystem`, `SamplingFrequency`,
+//! `StartTime`, and each column's `Units`.
+//!
+//! What gazelight writes ([`export_raw`]): per eye a file —
+//! `recording-eye1` the right eye (gazelight's eye 0), `recording-eye2` the
+//! left (eye 1), `recording-eye3` the binocular (`cyclopean`) gaze — with
+//! the columns `timestamp` (s, the recording's clock), `x_coordinate`,
+//! `y_coordinate` (gaze normalised to the scene/display image, 0..1,
+//! origin top-left: `SampleCoordinateSystem: "custom"`, units
+//! `arbitrary`), `pupil_size` (in the recording's own pupil unit: `mm`,
+//! `pixel`, or `arbitrary` area or diameter) and two extra columns that
+//! make the file a lossless copy of the samples: `pupil_confidence` and
+//! `gaze_confidence` (`n/a` where the row has no pupil or no gaze sample).
+//! Blinks the tracker reported go to `*_physioevents.tsv.gz` (`onset`,
+//! `duration`, `trial_type` = `blink`, `eyes`).
+//!
+//! Reading ([`BidsImporter`]): the file given and its siblings that differ
+//! only in the `recording-` label are merged by time. Files written
+//! elsewhere are read too: without the confidence columns a row is a
+//! pupil sample when it has a `pupil_size` column (a lost pupil when
+//! `n/a`) and a gaze sample when x and y are numbers; gaze in `pixel` is
+//! normalised by `ScreenResolution` (from the sidecar or the recording's
+//! `*_events.json` `StimulusPresentation`), other gaze units are taken as
+//! normalised already.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+use flate2::Compression;
+use flate2::read::MultiGzDecoder;
+use flate2::write::GzEncoder;
+use serde_json::{Value, json};
+
+use super::{ImportError, ImportWarnings, Importer, Pending, Position};
+use gazelight_eye::filter::FilterChain;
+use gazelight_eye::sample::{
+    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
+};
+
+/// The BIDS version the files follow.
+pub const BIDS_VERSION: &str = "1.11.0";
+/// Largest sidecar, bytes.
+const MAX_SIDECAR_BYTES: u64 = 1 << 20;
+/// Most files in one recording group (eyes + events).
+const MAX_GROUP_FILES: usize = 16;
+/// The columns gazelight writes, in order.
+pub const COLUMNS: [&str; 6] = [
+    "timestamp",
+    "x_coordinate",
+    "y_coordinate",
+    "pupil_size",
+    "pupil_confidence",
+    "gaze_confidence",
+];
+
+fn structure(path: &Path, position: Position, reason: impl Into<String>) -> ImportError {
+    ImportError::Structure {
+        path: path.to_owned(),
+        position,
+        reason: reason.into(),
+    }
+}
+
+fn io_err(path: &Path, source: std::io::Error) -> ImportError {
+    ImportError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Whether `path` names a BIDS physio file or its sidecar.
+pub fn is_physio(path: &Path) -> bool {
+    path.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.ends_with("_physio.tsv.gz") || n.ends_with("_physio.json"))
+}
+
+/// The part of a physio file name before `_physio…`, and its
+/// `recording-` label if any.
+fn stem_of(name: &str) -> Option<&str> {
+    name.strip_suffix("_physio.tsv.gz")
+        .or_else(|| name.strip_suffix("_physio.json"))
+}
+
+/// `stem` around its `recording-<label>` entity: (before, the label's
+/// kind — the label without its digits, `eye1` → `eye`, `eye2filtered` →
+/// `eyefiltered` — after).
+fn split_recording(stem: &str) -> Option<(&str, String, &str)> {
+    let k = stem.find("_recording-")?;
+    let rest = &stem[k + "_recording-".len()..];
+    let end = rest.find('_').unwrap_or(rest.len());
+    let kind = rest[..end]
+        .chars()
+        .filter(|c| !c.is_ascii_digit())
+        .collect();
+    Some((&stem[..k + "_recording-".len()], kind, &rest[end..]))
+}
+
+fn read_json(path: &Path) -> Result<Value, ImportError> {
+    let text =
+        gazelight_input::read_to_string(path, MAX_SIDECAR_BYTES).map_err(|e| io_err(path, e))?;
+    serde_json::from_str(&text).map_err(|e| {
+        structure(
+            path,
+            Position::Line(e.line() as u64),
+            format!("not JSON: {e}"),
+        )
+    })
+}
+
+/// How a physio file's columns are read.
+#[derive(Clone, Debug)]
+struct ColumnMap {
+    t: usize,
+    t_scale: f64,
+    x: Option<usize>,
+    y: Option<usize>,
+    /// Divide x, y by this to normalise.
+    gaze_range: [f64; 2],
+    pupil: Option<usize>,
+    pupil_unit: PupilUnit,
+    pupil_conf: Option<usize>,
+    gaze_conf: Option<usize>,
+    eye: Recorded,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Recorded {
+    Right,
+    Left,
+    Cyclopean,
+}
+
+fn time_scale(units: &str) -> Option<f64> {
+    Some(match units.trim() {
+        "s" | "sec" | "seconds" => 1.0,
+        "ms" => 1e-3,
+        "us" | "µs" | "μs" => 1e-6,
+        "ns" => 1e-9,
+        _ => return None,
+    })
+}
+
+/// The pupil unit of a `pupil_size` column's `Units` and `Description`.
+fn pupil_unit(units: &str, description: &str) -> PupilUnit {
+    match units.trim().to_ascii_lowercase().as_str() {
+        "mm" => PupilUnit::Mm,
+        "pixel" | "pixels" | "px" => PupilUnit::Px,
+        _ if description.to_ascii_lowercase().contains("area") => PupilUnit::ArbitraryArea,
+        _ => PupilUnit::Arbitrary,
+    }
+}
+
+fn unit_name(unit: PupilUnit) -> (&'static str, &'static str) {
+    match unit {
+        PupilUnit::Mm => ("mm", "Pupil diameter of the recorded eye, mm."),
+        PupilUnit::Px => (
+            "pixel",
+            "Pupil diameter of the recorded eye in eye-camera pixels.",
+        ),
+        PupilUnit::ArbitraryArea => (
+            "arbitrary",
+            "Pupil area of the recorded eye as the eye tracker reports it, arbitrary units.",
+        ),
+        PupilUnit::Arbitrary => (
+            "arbitrary",
+            "Pupil diameter of the recorded eye as the eye tracker reports it, arbitrary units.",
+        ),
+    }
+}
+
+/// The screen resolution in pixels a `pixel` gaze is normalised by: the
+/// sidecar's own `ScreenResolution`, else `StimulusPresentation` of the
+/// recording's events sidecar.
+fn screen_resolution(sidecar: &Value, events_json: Option<&Value>) -> Option<[f64; 2]> {
+    let read = |v: &Value| {
+        let a = v.as_array()?;
+        Some([a.first()?.as_f64()?, a.get(1)?.as_f64()?]).filter(|r| r[0] > 0.0 && r[1] > 0.0)
+    };
+    sidecar.get("ScreenResolution").and_then(read).or_else(|| {
+        events_json?
+            .get("StimulusPresentation")?
+            .get("ScreenResolution")
+            .and_then(read)
+    })
+}
+
+impl ColumnMap {
+    fn from_sidecar(
+        path: &Path,
+        sidecar: &Value,
+        events_json: Option<&Value>,
+        warnings: &mut ImportWarnings,
+    ) -> Result<Self, ImportError> {
+        let bad = |reason: String| structure(path, Position::File, reason);
+        if sidecar.get("PhysioType").and_then(Value::as_str) != Some("eyetrack") {
+            return Err(bad(
+                "the sidecar's PhysioType is not \"eyetrack\": not an eye-tracking recording"
+                    .into(),
+            ));
+        }
+        let cols: Vec<&str> = sidecar
+            .get("Columns")
+            .and_then(Value::as_array)
+            .map(|a| a.iter().filter_map(Value::as_str).collect())
+            .unwrap_or_default();
+        let idx = |n: &str| cols.iter().position(|c| *c == n);
+        let t = idx("timestamp").ok_or_else(|| {
+            bad(format!(
+                "the sidecar's Columns [{}] have no `timestamp`",
+                cols.join(", ")
+            ))
+        })?;
+        let units = |n: &str| {
+            sidecar
+                .get(n)
+                .and_then(|c| c.get("Units"))
+                .and_then(Value::as_str)
+                .unwrap_or("")
+                .to_owned()
+        };
+        let t_units = units("timestamp");
+        let t_scale = if t_units.is_empty() {
+            warnings.note(
+                path,
+                Position::File,
+                "timestamp has no Units: taken as seconds",
+            );
+            1.0
+        } else {
+            time_scale(&t_units).ok_or_else(|| {
+                bad(format!(
+                    "timestamp Units `{t_units}` is not s, ms, us or ns"
+                ))
+            })?
+        };
+        let eye = match sidecar.get("RecordedEye").and_then(Value::as_str) {
+            Some("right") => Recorded::Right,
+            Some("left") => Recorded::Left,
+            Some("cyclopean") => Recorded::Cyclopean,
+            other => {
+                return Err(bad(format!(
+                    "RecordedEye {other:?} is not \"right\", \"left\" or \"cyclopean\""
+                )));
+            }
+        };
+        let (mut x, mut y) = (idx("x_coordinate"), idx("y_coordinate"));
+        let gaze_units = units("x_coordinate").to_ascii_lowercase();
+        let gaze_range = if matches!(gaze_units.as_str(), "pixel" | "pixels" | "px") {
+            match screen_resolution(sidecar, events_json) {
+                Some(r) => r,
+                None => {
+                    warnings.note(
+                        path,
+                        Position::File,
+                        "gaze is in pixels but no ScreenResolution is given (sidecar or \
+                         events.json StimulusPresentation): gaze left out",
+                    );
+                    x = None;
+                    y = None;
+                    [1.0, 1.0]
+                }
+            }
+        } else {
+            [1.0, 1.0]
+        };
+        let description = sidecar
+            .get("pupil_size")
+            .and_then(|c| c.get("Description"))
+            .and_then(Value::as_str)
+            .unwrap_or("");
+        Ok(Self {
+            t,
+            t_scale,
+            x,
+            y,
+            gaze_range,
+            pupil: idx("pupil_size"),
+            pupil_unit: pupil_unit(&units("pupil_size"), description),
+            pupil_conf: idx("pupil_confidence"),
+            gaze_conf: idx("gaze_confidence"),
+            eye,
+        })
+    }
+}
+
+/// Parses one TSV field: `None` for `n/a` or empty.
+fn field(fields: &[&str], i: Option<usize>) -> Result<Option<f64>, String> {
+    let Some(i) = i else { return Ok(None) };
+    match fields.get(i).map(|f| f.trim()) {
+        None | Some("" | "n/a") => Ok(None),
+        Some(f) => f
+            .parse::<f64>()
+            .map(Some)
+            .map_err(|_| format!("column {}: `{f}` is not a number", i + 1)),
+    }
+}
+
+/// Parses one TSV field as f32 (values gazelight wrote from f32 come back
+/// bit for bit): `None` for `n/a` or empty.
+fn field32(fields: &[&str], i: Option<usize>) -> Result<Option<f32>, String> {
+    let Some(i) = i else { return Ok(None) };
+    match fields.get(i).map(|f| f.trim()) {
+        None | Some("" | "n/a") => Ok(None),
+        Some(f) => f
+            .parse::<f32>()
+            .map(Some)
+            .map_err(|_| format!("column {}: `{f}` is not a number", i + 1)),
+    }
+}
+
+/// One gzipped TSV of a recording group, read line by line.
+struct TsvSource {
+    path: PathBuf,
+    reader: BufReader<MultiGzDecoder<BufReader<File>>>,
+    line: String,
+    line_no: u64,
+    kind: SourceKind,
+    /// The next item: its time and samples.
+    peeked: Option<(f64, Pending<2>)>,
+    done: bool,
+}
+
+enum SourceKind {
+    Physio(ColumnMap),
+    /// physioevents: onset, duration, trial_type, eyes columns and the eye.
+    Events {
+        onset: usize,
+        duration: Option<usize>,
+        trial_type: Option<usize>,
+        eyes: Option<usize>,
+        t_scale: f64,
+        eye: Option<u8>,
+    },
+}
+
+impl TsvSource {
+    fn open(path: &Path, kind: SourceKind) -> Result<Self, ImportError> {
+        let f = gazelight_input::open(path).map_err(|e| io_err(path, e))?;
+        Ok(Self {
+            path: path.to_owned(),
+            reader: BufReader::new(MultiGzDecoder::new(BufReader::new(f))),
+            line: String::new(),
+            line_no: 0,
+            kind,
+            peeked: None,
+            done: false,
+        })
+    }
+
+    /// Fills `peeked` with the next row that gives samples.
+    fn fill(&mut self, warnings: &mut ImportWarnings) -> Result<(), ImportError> {
+        while self.peeked.is_none() && !self.done {
+            let read = gazelight_input::read_line(
+                &mut self.reader,
+                &mut self.line,
+                gazelight_input::MAX_LINE_BYTES,
+            )
+            .map_err(|e| {
+                structure(
+                    &self.path,
+                    Position::Line(self.line_no + 1),
+                    format!("cannot read the gzipped TSV: {e}"),
+                )
+            })?;
+            match read {
+                gazelight_input::Line::Eof => {
+                    self.done = true;
+                    return Ok(());
+                }
+                gazelight_input::Line::TooLong(n) => {
+                    self.line_no += 1;
+                    warnings.skip_long_line(&self.path, self.line_no, n, "a row");
+                    continue;
+                }
+                gazelight_input::Line::NotUtf8 => {
+                    self.line_no += 1;
+                    warnings.skip_not_utf8(&self.path, self.line_no);
+                    continue;
+                }
+                gazelight_input::Line::Read => self.line_no += 1,
+            }
+            let line = self.line.trim_end_matches(['\n', '\r']);
+            if line.is_empty() {
+                continue;
+            }
+            let fields: Vec<&str> = line.split('\t').collect();
+            match self.row(&fields) {
+                Ok(item) => self.peeked = item,
+                Err(reason) => {
+                    warnings.skip(&self.path, Position::Line(self.line_no), reason);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn row(&self, f: &[&str]) -> Result<Option<(f64, Pending<2>)>, String> {
+        let mut out = Pending::new();
+        match &self.kind {
+            SourceKind::Physio(m) => {
+                let t = field(f, Some(m.t))?.ok_or("no timestamp")? * m.t_scale;
+                let pupil = field32(f, m.pupil)?;
+                let pconf = field32(f, m.pupil_conf)?;
+                let has_pupil = if m.pupil_conf.is_some() {
+                    pconf.is_some()
+                } else {
+                    m.pupil.is_some()
+                };
+                let eyes: &[u8] = match m.eye {
+                    Recorded::Right => &[0],
+                    Recorded::Left => &[1],
+                    Recorded::Cyclopean => &[],
+                };
+                if has_pupil {
+                    for &eye in eyes {
+                        let raw = pupil.filter(|p| p.is_finite()).unwrap_or(0.0);
+                        let valid = raw > 0.0;
+                        let confidence = pconf.unwrap_or(if valid { 1.0 } else { 0.0 });
+                        out.push(Sample::Pupil(PupilSample {
+                            t_secs: t,
+                            eye,
+                            diameter_raw: raw,
+                            unit: m.pupil_unit,
+                            diameter_mm: (valid && m.pupil_unit == PupilUnit::Mm).then_some(raw),
+                            confidence,
+                            norm_pos: [f32::NAN; 2],
+                            method: DetectorMethod::Other,
+                        }));
+                    }
+                }
+                let (x, y) = (field32(f, m.x)?, field32(f, m.y)?);
+                let gconf = field32(f, m.gaze_conf)?;
+                let has_gaze = if m.gaze_conf.is_some() {
+                    gconf.is_some()
+                } else {
+                    x.is_some() && y.is_some()
+                };
+                if has_gaze {
+                    let (u, v) = match (x, y) {
+                        (Some(x), Some(y)) if m.gaze_range == [1.0, 1.0] => (x, y),
+                        (Some(x), Some(y)) => (
+                            (f64::from(x) / m.gaze_range[0]) as f32,
+                            (f64::from(y) / m.gaze_range[1]) as f32,
+                        ),
+                        _ => (f32::NAN, f32::NAN),
+                    };
+                    out.push(Sample::Gaze(GazeSample {
+                        t_secs: t,
+                        gaze_uv: [u, v],
+                        confidence: gconf.unwrap_or(1.0),
+                        eyes: match m.eye {
+                            Recorded::Right => GazeEyes::Right,
+                            Recorded::Left => GazeEyes::Left,
+                            Recorded::Cyclopean => GazeEyes::Binocular,
+                        },
+                    }));
+                }
+                Ok(Some((t, out)))
+            }
+            SourceKind::Events {
+                onset,
+                duration,
+                trial_type,
+                eyes,
+                t_scale,
+                eye,
+            } => {
+                let kind = trial_type.and_then(|i| f.get(i)).map_or("", |s| s.trim());
+                if kind != "blink" {
+                    return Ok(None);
+                }
+                let t = field(f, Some(*onset))?.ok_or("no onset")? * t_scale;
+                let d = field(f, *duration)?.unwrap_or(0.0) * t_scale;
+                let both = eyes
+                    .and_then(|i| f.get(i))
+                    .is_some_and(|s| s.trim() == "both");
+                out.push(Sample::Blink(BlinkEvent {
+                    start_t_secs: t,
+                    end_t_secs: t + d,
+                    eye: if both { None } else { *eye },
+                }));
+                Ok(Some((t, out)))
+            }
+        }
+    }
+}
+
+/// Streaming importer of a BIDS eye-tracking recording: its per-eye physio
+/// files (and physioevents) merged by time.
+pub struct BidsImporter {
+    sources: Vec<TsvSource>,
+    pending: Pending<2>,
+    warnings: ImportWarnings,
+    position: Position,
+    done: bool,
+}
+
+impl BidsImporter {
+    /// Opens the recording of `path` (a `*_physio.tsv.gz` or `*_physio.json`)
+    /// with its sibling eyes.
+    pub fn open(path: &Path) -> Result<Self, ImportError> {
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .ok_or_else(|| structure(path, Position::File, "not a file name"))?;
+        let stem = stem_of(name).ok_or_else(|| {
+            structure(
+                path,
+                Position::File,
+                "not a BIDS *_physio.tsv.gz or *_physio.json",
+            )
+        })?;
+        let dir = path
+            .parent()
+            .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+        let mut stems: Vec<String> = vec![stem.to_owned()];
+        if let Some((before, kind, after)) = split_recording(stem) {
+            let entries = std::fs::read_dir(&dir).map_err(|e| io_err(&dir, e))?;
+            for entry in entries.flatten() {
+                let n = entry.file_name();
+                let Some(n) = n.to_str() else { continue };
+                if let Some(s) = n.strip_suffix("_physio.json")
+                    && s != stem
+                    && s.starts_with(before)
+                    && split_recording(s)
+                        .is_some_and(|(b, k, a)| b == before && k == kind && a == after)
+                {
+                    stems.push(s.to_owned());
+                }
+            }
+        }
+        stems.sort();
+        stems.truncate(MAX_GROUP_FILES);
+        // The recording's events sidecar: the stem without the recording
+        // entity, `_events.json`.
+        let events_json = {
+            let base = split_recording(stem).map_or(stem.to_owned(), |(b, _, a)| {
+                format!("{}{a}", b.trim_end_matches("_recording-"))
+            });
+            let p = dir.join(format!("{base}_events.json"));
+            if p.is_file() {
+                Some(read_json(&p)?)
+            } else {
+                None
+            }
+        };
+        let mut warnings = ImportWarnings::default();
+        let mut sources = Vec::new();
+        for s in &stems {
+            let json_path = dir.join(format!("{s}_physio.json"));
+            let tsv_path = dir.join(format!("{s}_physio.tsv.gz"));
+            let sidecar = read_json(&json_path)?;
+            if sidecar.get("PhysioType").and_then(Value::as_str) != Some("eyetrack") && s != stem {
+                continue;
+            }
+            let map =
+                ColumnMap::from_sidecar(&json_path, &sidecar, events_json.as_ref(), &mut warnings)?;
+            let eye = match map.eye {
+                Recorded::Right => Some(0),
+                Recorded::Left => Some(1),
+                Recorded::Cyclopean => None,
+            };
+            let t_scale = map.t_scale;
+            sources.push(TsvSource::open(&tsv_path, SourceKind::Physio(map))?);
+            let ev_json = dir.join(format!("{s}_physioevents.json"));
+            let ev_tsv = dir.join(format!("{s}_physioevents.tsv.gz"));
+            if ev_json.is_file() && ev_tsv.is_file() {
+                let ev = read_json(&ev_json)?;
+                let cols: Vec<&str> = ev
+                    .get("Columns")
+                    .and_then(Value::as_array)
+                    .map(|a| a.iter().filter_map(Value::as_str).collect())
+                    .unwrap_or_default();
+                let idx = |n: &str| cols.iter().position(|c| *c == n);
+                if let Some(onset) = idx("onset") {
+                    sources.push(TsvSource::open(
+                        &ev_tsv,
+                        SourceKind::Events {
+                            onset,
+                            duration: idx("duration"),
+                            trial_type: idx("trial_type"),
+                            eyes: idx("eyes"),
+                            t_scale,
+                            eye,
+                        },
+                    )?);
+                }
+            }
+        }
+        if sources.is_empty() {
+            return Err(structure(
+                path,
+                Position::File,
+                "no eye-tracking physio file",
+            ));
+        }
+        let files: Vec<String> = stems.iter().map(|s| format!("{s}_physio.tsv.gz")).collect();
+        tracing::info!(path = %path.display(), files = ?files, "BIDS eye-tracking recording");
+        Ok(Self {
+            sources,
+            pending: Pending::new(),
+            warnings,
+            position: Position::File,
+            done: false,
+        })
+    }
+
+    /// The next row of the earliest source, into `pending`.
+    fn step(&mut self) -> Result<bool, ImportError> {
+        for s in &mut self.sources {
+            s.fill(&mut self.warnings)?;
+        }
+        let next = self
+            .sources
+            .iter()
+            .enumerate()
+            .filter_map(|(k, s)| s.peeked.as_ref().map(|(t, _)| (k, *t)))
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        let Some((k, _)) = next else { return Ok(false) };
+        let src = &mut self.sources[k];
+        if let Some((_, mut samples)) = src.peeked.take() {
+            while let Some(s) = samples.pop() {
+                self.pending.push(s);
+            }
+        }
+        self.position = Position::Line(src.line_no);
+        Ok(true)
+    }
+}
+
+impl Iterator for BidsImporter {
+    type Item = Result<Sample, ImportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(s) = self.pending.pop() {
+                return Some(Ok(s));
+            }
+            if self.done {
+                return None;
+            }
+            match self.step() {
+                Ok(true) => {}
+                Ok(false) => self.done = true,
+                Err(e) => {
+                    self.done = true;
+                    return Some(Err(e));
+                }
+            }
+        }
+    }
+}
+
+impl Importer for BidsImporter {
+    fn warnings(&self) -> &ImportWarnings {
+        &self.warnings
+    }
+    fn format(&self) -> &'static str {
+        "bids-eyetrack"
+    }
+    fn position(&self) -> Position {
+        self.position
+    }
+    fn data_files(&self) -> Vec<PathBuf> {
+        self.sources.iter().map(|s| s.path.clone()).collect()
+    }
+}
+
+// ---------------------------------------------------------------- writing
+
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error("cannot write {path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Import(#[from] ImportError),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+fn wio(path: &Path) -> impl Fn(std::io::Error) -> ExportError + '_ {
+    move |source| ExportError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Where a recording goes in a BIDS dataset: `sub-<subject>[/ses-<session>]/beh/`
+/// and `sub-<subject>[_ses-<session>]_task-<task>[_run-<run>]_…`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BidsNames {
+    pub subject: String,
+    pub session: Option<String>,
+    pub task: String,
+    pub run: Option<u32>,
+}
+
+/// Whether `label` is a BIDS label (letters and digits only).
+pub fn is_label(label: &str) -> bool {
+    !label.is_empty() && label.chars().all(|c| c.is_ascii_alphanumeric())
+}
+
+impl BidsNames {
+    fn check(&self) -> Result<(), ExportError> {
+        for (what, v) in [
+            ("subject", Some(self.subject.as_str())),
+            ("session", self.session.as_deref()),
+            ("task", Some(self.task.as_str())),
+        ] {
+            if let Some(v) = v
+                && !is_label(v)
+            {
+                return Err(ExportError::Invalid(format!(
+                    "{what} label `{v}`: BIDS labels are letters and digits only"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The folder of the files, relative to a dataset root.
+    pub fn dir(&self) -> PathBuf {
+        let mut p = PathBuf::from(format!("sub-{}", self.subject));
+        if let Some(s) = &self.session {
+            p.push(format!("ses-{s}"));
+        }
+        p.push("beh");
+        p
+    }
+
+    /// The files' common name start.
+    pub fn prefix(&self) -> String {
+        let mut s = format!("sub-{}", self.subject);
+        if let Some(ses) = &self.session {
+            s.push_str(&format!("_ses-{ses}"));
+        }
+        s.push_str(&format!("_task-{}", self.task));
+        if let Some(r) = self.run {
+            s.push_str(&format!("_run-{r}"));
+        }
+        s
+    }
+}
+
+/// The eye files: eye1 right (eye 0), eye2 left (eye 1), eye3 binocular.
+const EYE_FILES: [(&str, &str); 3] = [("eye1", "right"), ("eye2", "left"), ("eye3", "cyclopean")];
+
+/// One row being assembled (samples of the same time and file share it).
+#[derive(Clone, Copy, Debug, Default)]
+struct Row {
+    t: f64,
+    x: f32,
+    y: f32,
+    pupil: Option<f32>,
+    pupil_conf: Option<f32>,
+    gaze_conf: Option<f32>,
+}
+
+fn num(v: Option<f32>) -> String {
+    match v {
+        Some(v) if v.is_finite() => format!("{v}"),
+        _ => "n/a".into(),
+    }
+}
+
+/// A gzipped TSV being written with its row statistics.
+struct TsvOut {
+    path: PathBuf,
+    w: GzEncoder<std::io::BufWriter<File>>,
+    rows: u64,
+    first_t: f64,
+    last_t: f64,
+}
+
+impl TsvOut {
+    fn create(path: &Path) -> Result<Self, ExportError> {
+        let f = File::create(path).map_err(wio(path))?;
+        Ok(Self {
+            path: path.to_owned(),
+            w: GzEncoder::new(std::io::BufWriter::new(f), Compression::default()),
+            rows: 0,
+            first_t: f64::NAN,
+            last_t: f64::NAN,
+        })
+    }
+
+    fn line(&mut self, t: f64, cells: &[String]) -> Result<(), ExportError> {
+        let mut line = format!("{t}");
+        for c in cells {
+            line.push('\t');
+            line.push_str(c);
+        }
+        line.push('\n');
+        self.w.write_all(line.as_bytes()).map_err(wio(&self.path))?;
+        if self.rows == 0 {
+            self.first_t = t;
+        }
+        self.last_t = t;
+        self.rows += 1;
+        Ok(())
+    }
+
+    fn finish(self) -> Result<(u64, f64), ExportError> {
+        let path = self.path.clone();
+        let mut inner = self.w.finish().map_err(wio(&path))?;
+        inner.flush().map_err(wio(&path))?;
+        let rate = if self.rows > 1 && self.last_t > self.first_t {
+            (self.rows - 1) as f64 / (self.last_t - self.first_t)
+        } else {
+            0.0
+        };
+        Ok((self.rows, rate))
+    }
+}
+
+fn write_json(path: &Path, v: &Value) -> Result<(), ExportError> {
+    let text = serde_json::to_string_pretty(v).map_err(|e| ExportError::Invalid(e.to_string()))?;
+    std::fs::write(path, text + "\n").map_err(wio(path))
+}
+
+/// What [`export_raw`] wrote.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct RawExport {
+    /// Per written eye file: (path, rows, sampling frequency Hz).
+    pub files: Vec<(PathBuf, u64, f64)>,
+    /// Blink events written.
+    pub blinks: u64,
+    /// Pupil samples left out because their unit differs from the first
+    /// one of that eye (one unit per column).
+    pub unit_mismatch: u64,
+}
+
+/// Describes the recording in the eye sidecars.
+#[derive(Clone, Debug, Default)]
+pub struct RecordingMeta {
+    /// The importer's format (`eyelink-asc`, `neon`, …).
+    pub format: String,
+    /// The source recording's path, for the sidecar's description.
+    pub source: String,
+}
+
+/// Writes a recording's samples as the raw per-eye physio files (and
+/// physioevents with the tracker's blinks) of `names` under `root`, and the
+/// dataset's top-level files if missing (`dataset_description.json`,
+/// `README`, `participants.tsv`/`.json`, the participant added).
+pub fn export_raw(
+    samples: &mut dyn Iterator<Item = Result<Sample, ImportError>>,
+    root: &Path,
+    names: &BidsNames,
+    meta: &RecordingMeta,
+) -> Result<RawExport, ExportError> {
+    names.check()?;
+    let dir = root.join(names.dir());
+    std::fs::create_dir_all(&dir).map_err(wio(&dir))?;
+    write_dataset_files(root, names)?;
+    let prefix = names.prefix();
+    let mut outs: [Option<TsvOut>; 3] = [None, None, None];
+    let mut rows: [Option<Row>; 3] = [None; 3];
+    let mut units: [Option<PupilUnit>; 3] = [None; 3];
+    let mut events: [Option<TsvOut>; 3] = [None, None, None];
+    let mut report = RawExport::default();
+    let flush = |outs: &mut [Option<TsvOut>; 3], k: usize, row: Row| -> Result<(), ExportError> {
+        if outs[k].is_none() {
+            let p = dir.join(format!(
+                "{prefix}_recording-{}_physio.tsv.gz",
+                EYE_FILES[k].0
+            ));
+            outs[k] = Some(TsvOut::create(&p)?);
+        }
+        let has_gaze = row.gaze_conf.is_some();
+        let cells = [
+            if has_gaze {
+                num(Some(row.x))
+            } else {
+                "n/a".into()
+            },
+            if has_gaze {
+                num(Some(row.y))
+            } else {
+                "n/a".into()
+            },
+            num(row.pupil.filter(|p| *p != 0.0)),
+            num(row.pupil_conf),
+            num(row.gaze_conf),
+        ];
+        match outs[k].as_mut() {
+            Some(o) => o.line(row.t, &cells),
+            None => Ok(()),
+        }
+    };
+    for item in samples {
+        let s = item?;
+        match s {
+            Sample::Pupil(p) => {
+                let k = match p.eye {
+                    0 => 0,
+                    1 => 1,
+                    _ => continue,
+                };
+                if *units[k].get_or_insert(p.unit) != p.unit {
+                    report.unit_mismatch += 1;
+                    continue;
+                }
+                let fits = rows[k].is_some_and(|r| r.t == p.t_secs && r.pupil_conf.is_none());
+                if !fits {
+                    if let Some(r) = rows[k].take() {
+                        flush(&mut outs, k, r)?;
+                    }
+                    rows[k] = Some(Row {
+                        t: p.t_secs,
+                        ..Row::default()
+                    });
+                }
+                if let Some(r) = rows[k].as_mut() {
+                    r.pupil = Some(p.diameter_raw);
+                    r.pupil_conf = Some(p.confidence);
+                }
+            }
+            Sample::Gaze(g) => {
+                let k = match g.eyes {
+                    GazeEyes::Right => 0,
+                    GazeEyes::Left => 1,
+                    GazeEyes::Binocular => 2,
+                };
+                let fits = rows[k].is_some_and(|r| r.t == g.t_secs && r.gaze_conf.is_none());
+                if !fits {
+                    if let Some(r) = rows[k].take() {
+                        flush(&mut outs, k, r)?;
+                    }
+                    rows[k] = Some(Row {
+                        t: g.t_secs,
+                        ..Row::default()
+                    });
+                }
+                if let Some(r) = rows[k].as_mut() {
+                    r.x = g.gaze_uv[0];
+                    r.y = g.gaze_uv[1];
+                    r.gaze_conf = Some(g.confidence);
+                }
+            }
+            Sample::Blink(b) => {
+                let k = match b.eye {
+                    Some(0) | None => 0,
+                    Some(1) => 1,
+                    Some(_) => continue,
+                };
+                if events[k].is_none() {
+                    let p = dir.join(format!(
+                        "{prefix}_recording-{}_physioevents.tsv.gz",
+                        EYE_FILES[k].0
+                    ));
+                    events[k] = Some(TsvOut::create(&p)?);
+                }
+                if let Some(e) = events[k].as_mut() {
+                    e.line(
+                        b.start_t_secs,
+                        &[
+                            format!("{}", b.end_t_secs - b.start_t_secs),
+                            "blink".into(),
+                            if b.eye.is_none() {
+                                "both"
+                            } else {
+                                EYE_FILES[k].1
+                            }
+                            .into(),
+                        ],
+                    )?;
+                }
+                report.blinks += 1;
+            }
+        }
+    }
+    for (k, row) in rows.iter_mut().enumerate() {
+        if let Some(r) = row.take() {
+            flush(&mut outs, k, r)?;
+        }
+    }
+    // A blink file needs its eye's physio file beside it.
+    for (k, ev) in events.iter().enumerate() {
+        if ev.is_some() && outs[k].is_none() {
+            return Err(ExportError::Invalid(format!(
+                "blinks of the {} eye but no samples of it",
+                EYE_FILES[k].1
+            )));
+        }
+    }
+    for (k, out) in outs.into_iter().enumerate() {
+        let Some(out) = out else { continue };
+        let path = out.path.clone();
+        let (n, rate) = out.finish()?;
+        let (label, eye) = EYE_FILES[k];
+        let (pupil_units, pupil_desc) = unit_name(units[k].unwrap_or(PupilUnit::Mm));
+        let sidecar = json!({
+            "TaskName": names.task,
+            "PhysioType": "eyetrack",
+            "RecordedEye": eye,
+            "SamplingFrequency": rate,
+            "StartTime": 0.0,
+            "Columns": COLUMNS,
+            "SampleCoordinateSystem": "custom",
+            "SampleCoordinateSystemDescription": "gazelight's gaze: normalised to the scene (or display) image the eye looked at, x 0 = left edge, 1 = right edge, y 0 = top edge, 1 = bottom edge",
+            "Manufacturer": meta.format,
+            "SoftwareVersions": format!("gazelight {}", env!("CARGO_PKG_VERSION")),
+            "RecordingSource": meta.source,
+            "timestamp": {"LongName": "Time stamp", "Description": "Time of the sample on the recording's own clock (the tracker's, as the recording holds it).", "Units": "s"},
+            "x_coordinate": {"LongName": "Gaze position (x)", "Description": format!("Gaze x of the {eye} eye{}, normalised to the image width (0 left, 1 right).", if k == 2 { "s together" } else { "" }), "Units": "arbitrary"},
+            "y_coordinate": {"LongName": "Gaze position (y)", "Description": "Gaze y, normalised to the image height (0 top, 1 bottom).", "Units": "arbitrary"},
+            "pupil_size": {"Description": pupil_desc, "Units": pupil_units},
+            "pupil_confidence": {"Description": "The tracker's confidence in the pupil value, 0..1; n/a where the row holds no pupil sample (a lost pupil has pupil_size n/a and confidence 0).", "Units": "arbitrary"},
+            "gaze_confidence": {"Description": "The tracker's confidence in the gaze, 0..1; n/a where the row holds no gaze sample.", "Units": "arbitrary"},
+        });
+        let json_path = dir.join(format!("{prefix}_recording-{label}_physio.json"));
+        write_json(&json_path, &sidecar)?;
+        report.files.push((path, n, rate));
+    }
+    for (k, ev) in events.into_iter().enumerate() {
+        let Some(ev) = ev else { continue };
+        ev.finish()?;
+        let sidecar = json!({
+            "Columns": ["onset", "duration", "trial_type", "eyes"],
+            "OnsetSource": "timestamp",
+            "Description": "Blinks the eye tracker reported.",
+            "onset": {"Description": "Blink start on the clock of the physio file's timestamp column.", "Units": "s"},
+            "duration": {"Description": "Blink duration.", "Units": "s"},
+            "trial_type": {"Description": "Event kind.", "Levels": {"blink": "a blink the tracker reported"}},
+            "eyes": {"Description": "Which eyes the event covers.", "Levels": {"right": "right eye", "left": "left eye", "both": "both eyes"}},
+        });
+        let p = dir.join(format!(
+            "{prefix}_recording-{}_physioevents.json",
+            EYE_FILES[k].0
+        ));
+        write_json(&p, &sidecar)?;
+    }
+    if report.files.is_empty() {
+        return Err(ExportError::Invalid(
+            "the recording has no samples to write".into(),
+        ));
+    }
+    Ok(report)
+}
+
+/// The dataset's top-level files, written when missing; the participant
+/// is added to `participants.tsv`.
+fn write_dataset_files(root: &Path, names: &BidsNames) -> Result<(), ExportError> {
+    std::fs::create_dir_all(root).map_err(wio(root))?;
+    let desc = root.join("dataset_description.json");
+    if !desc.exists() {
+        write_json(
+            &desc,
+            &json!({
+                "Name": "gazelight eye-tracking export",
+                "BIDSVersion": BIDS_VERSION,
+                "DatasetType": "raw",
+                "Authors": ["gazelight"],
+                "GeneratedBy": [{"Name": "gazelight", "Version": env!("CARGO_PKG_VERSION"), "Description": "gazelight export --bids"}],
+            }),
+        )?;
+    }
+    let readme = root.join("README");
+    if !readme.exists() {
+        std::fs::write(
+            &readme,
+            "Eye-tracking recordings written by `gazelight export --bids` (BIDS eye-tracking, \
+             PhysioType eyetrack). derivatives/gazelight/ holds gazelight's filtered pupil \
+             and blinks.\n",
+        )
+        .map_err(wio(&readme))?;
+    }
+    let parts = root.join("participants.tsv");
+    let id = format!("sub-{}", names.subject);
+    let mut text = if parts.exists() {
+        gazelight_input::read_to_string(&parts, gazelight_input::MAX_TEXT_BYTES)
+            .map_err(wio(&parts))?
+    } else {
+        "participant_id\n".to_owned()
+    };
+    if !text
+        .lines()
+        .any(|l| l.split('\t').next() == Some(id.as_str()))
+    {
+        if !text.ends_with('\n') {
+            text.push('\n');
+        }
+        text.push_str(&id);
+        text.push('\n');
+        std::fs::write(&parts, text).map_err(wio(&parts))?;
+    }
+    let pj = root.join("participants.json");
+    if !pj.exists() {
+        write_json(
+            &pj,
+            &json!({"participant_id": {"Description": "Participant label, as given to gazelight export."}}),
+        )?;
+    }
+    Ok(())
+}
+
+/// What [`export_derivative`] wrote.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct DerivativeExport {
+    pub files: Vec<PathBuf>,
+    /// Blinks and dropouts the filter chain closed.
+    pub closures: u64,
+}
+
+/// Writes gazelight's derivatives of a recording under
+/// `root/derivatives/gazelight/`: per eye the filtered, calibrated pupil
+/// (mm) and gaze after every pupil sample of that eye
+/// (`*_recording-eyeNfiltered_physio.tsv.gz`), the blinks and dropouts
+/// the filter chain found (`…_recording-eye1filtered_physioevents.tsv.gz`),
+/// and, from a replay's `timeline.csv` when given, the per-frame pupil,
+/// light-driven pupil, residual and luminances
+/// (`…_recording-eyeNreplay_physio.tsv.gz`). BIDS 1.11 has no derivative
+/// rule for physio files (a `desc-` entity is refused by the validator),
+/// so the derivative kind is in the `recording-` label.
+pub fn export_derivative(
+    samples: &mut dyn Iterator<Item = Result<Sample, ImportError>>,
+    chain: &mut FilterChain,
+    root: &Path,
+    names: &BidsNames,
+    timeline: Option<&Path>,
+) -> Result<DerivativeExport, ExportError> {
+    names.check()?;
+    let droot = root.join("derivatives").join("gazelight");
+    let dir = droot.join(names.dir());
+    std::fs::create_dir_all(&dir).map_err(wio(&dir))?;
+    let desc = droot.join("dataset_description.json");
+    write_json(
+        &desc,
+        &json!({
+            "Name": "gazelight derivatives",
+            "BIDSVersion": BIDS_VERSION,
+            "DatasetType": "derivative",
+            "GeneratedBy": [{
+                "Name": "gazelight",
+                "Version": env!("CARGO_PKG_VERSION"),
+                "Description": "The filter chain (confidence gate, blink and dropout detection and hold, 1€ smoothing, physiological rate limit, per-eye calibration) over the raw recording; from a replay, the pupil light response and the luminance at gaze."
+            }],
+            "SourceDatasets": [{"URL": "../../"}],
+        }),
+    )?;
+    let readme = droot.join("README");
+    if !readme.exists() {
+        std::fs::write(
+            &readme,
+            "gazelight's derivatives of the raw eye-tracking recordings two folders up: the \
+             filtered pupil and gaze (recording-eyeNfiltered), the filter chain's blinks and \
+             dropouts, and a replay's per-frame values (recording-eyeNreplay).\n",
+        )
+        .map_err(wio(&readme))?;
+    }
+    let prefix = names.prefix();
+    let mut report = DerivativeExport::default();
+    let mut outs: [Option<TsvOut>; 2] = [None, None];
+    let mut events: Option<TsvOut> = None;
+    let closure_row = |events: &mut Option<TsvOut>,
+                       c: gazelight_eye::filter::blink::Closure|
+     -> Result<(), ExportError> {
+        if events.is_none() {
+            let p = dir.join(format!(
+                "{prefix}_recording-eye1filtered_physioevents.tsv.gz"
+            ));
+            *events = Some(TsvOut::create(&p)?);
+        }
+        if let Some(e) = events.as_mut() {
+            let kind = match c.kind {
+                gazelight_eye::filter::blink::ClosureKind::Blink => "blink",
+                gazelight_eye::filter::blink::ClosureKind::Dropout => "dropout",
+            };
+            let eye = if c.eye == 0 { "right" } else { "left" };
+            e.line(
+                c.start_t_secs,
+                &[
+                    format!("{}", c.end_t_secs - c.start_t_secs),
+                    kind.into(),
+                    eye.into(),
+                ],
+            )?;
+        }
+        Ok(())
+    };
+    let mut last_t = f64::NAN;
+    for item in samples {
+        let s = item?;
+        let up = chain.push(&s);
+        last_t = s
+            .t_secs()
+            .max(if last_t.is_nan() { s.t_secs() } else { last_t });
+        if let Some(c) = up.closure {
+            report.closures += 1;
+            closure_row(&mut events, c)?;
+        }
+        let Some(e) = up.pupil_eye.map(usize::from).filter(|e| *e < 2) else {
+            continue;
+        };
+        if outs[e].is_none() {
+            let p = dir.join(format!(
+                "{prefix}_recording-{}filtered_physio.tsv.gz",
+                EYE_FILES[e].0
+            ));
+            outs[e] = Some(TsvOut::create(&p)?);
+        }
+        let st = &up.state;
+        let ch = &st.eyes[e];
+        let [gx, gy] = st.eye_gaze_uv(e);
+        let origin = match ch.pupil_origin {
+            gazelight_eye::state::PupilOrigin::Measured => 0,
+            gazelight_eye::state::PupilOrigin::Held => 1,
+            gazelight_eye::state::PupilOrigin::Model => 2,
+            gazelight_eye::state::PupilOrigin::Default => 3,
+        };
+        if let Some(o) = outs[e].as_mut() {
+            o.line(
+                s.t_secs(),
+                &[
+                    num(Some(gx)),
+                    num(Some(gy)),
+                    num(Some(ch.pupil_mm)),
+                    format!("{origin}"),
+                    format!("{}", u8::from(st.blink)),
+                ],
+            )?;
+        }
+    }
+    if last_t.is_finite() {
+        for c in chain.finish(last_t).into_iter().flatten() {
+            report.closures += 1;
+            closure_row(&mut events, c)?;
+        }
+    }
+    for (k, out) in outs.into_iter().enumerate() {
+        let Some(out) = out else { continue };
+        let path = out.path.clone();
+        let (_, rate) = out.finish()?;
+        let (label, eye) = EYE_FILES[k];
+        write_json(
+            &dir.join(format!("{prefix}_recording-{label}filtered_physio.json")),
+            &json!({
+                "Description": "gazelight's filtered, calibrated eye state after each pupil sample of this eye.",
+                "PhysioType": "eyetrack",
+                "RecordedEye": eye,
+                "SamplingFrequency": rate,
+                "StartTime": 0.0,
+                "SampleCoordinateSystem": "custom",
+                "Columns": ["timestamp", "x_coordinate", "y_coordinate", "pupil_size", "pupil_origin", "blink"],
+                "timestamp": {"Description": "Time of the raw pupil sample, the recording's clock.", "Units": "s"},
+                "x_coordinate": {"Description": "Filtered gaze x of this eye (its own gaze where the tracker gives one, else the fused gaze), normalised (0 left, 1 right).", "Units": "arbitrary"},
+                "y_coordinate": {"Description": "Filtered gaze y, normalised (0 top, 1 bottom).", "Units": "arbitrary"},
+                "pupil_size": {"Description": "Filtered, calibrated pupil diameter.", "Units": "mm"},
+                "pupil_origin": {"Description": "Where the pupil value comes from.", "Levels": {"0": "measured", "1": "held through a blink or dropout", "2": "the pupil model", "3": "the default, nothing measured yet"}},
+                "blink": {"Description": "Whether the eye is closed (a blink).", "Levels": {"0": "open", "1": "closed"}},
+            }),
+        )?;
+        report.files.push(path);
+    }
+    if let Some(ev) = events {
+        report.files.push(ev.path.clone());
+        ev.finish()?;
+        write_json(
+            &dir.join(format!("{prefix}_recording-eye1filtered_physioevents.json")),
+            &json!({
+                "Columns": ["onset", "duration", "trial_type", "eyes"],
+                "OnsetSource": "timestamp",
+                "Description": "Closures the filter chain found, both eyes in one file (the eyes column).",
+                "onset": {"Units": "s"}, "duration": {"Units": "s"},
+                "trial_type": {"Levels": {"blink": "a blink (a short closure)", "dropout": "the pupil lost for longer than a blink"}},
+                "eyes": {"Levels": {"right": "right eye", "left": "left eye"}},
+            }),
+        )?;
+    }
+    if let Some(tl) = timeline {
+        report.files.extend(timeline_derivative(tl, &dir, &prefix)?);
+    }
+    Ok(report)
+}
+
+/// The per-frame values of a replay's `timeline.csv` as derivative
+/// physio files, one per view (`""` mono → eye3, `_right` → eye1,
+/// `_left` → eye2).
+fn timeline_derivative(
+    timeline: &Path,
+    dir: &Path,
+    prefix: &str,
+) -> Result<Vec<PathBuf>, ExportError> {
+    let f = gazelight_input::open(timeline).map_err(wio(timeline))?;
+    let mut r = BufReader::new(f);
+    let mut line = String::new();
+    let bad = |what: String| ExportError::Invalid(format!("{}: {what}", timeline.display()));
+    r.read_line(&mut line).map_err(wio(timeline))?;
+    let header: Vec<String> = line.trim_end().split(',').map(str::to_owned).collect();
+    let t_col = header
+        .iter()
+        .position(|h| h == "t_secs")
+        .ok_or_else(|| bad("no t_secs column: not a gazelight timeline".into()))?;
+    // Per view: the columns wanted, by name.
+    const WANT: [(&str, &str, &str, &str); 7] = [
+        (
+            "gaze_u",
+            "x_coordinate",
+            "Gaze x the frame was rendered for, normalised (0 left, 1 right).",
+            "arbitrary",
+        ),
+        (
+            "gaze_v",
+            "y_coordinate",
+            "Gaze y the frame was rendered for, normalised (0 top, 1 bottom).",
+            "arbitrary",
+        ),
+        (
+            "pupil_mm",
+            "pupil_size",
+            "Filtered pupil diameter the frame used.",
+            "mm",
+        ),
+        (
+            "target_cd_m2",
+            "luminance_at_gaze",
+            "Gaze-weighted luminance the eye saw (the adaptation target).",
+            "cd/m^2",
+        ),
+        (
+            "adaptation_cd_m2",
+            "adaptation_luminance",
+            "Adaptation luminance after temporal adaptation.",
+            "cd/m^2",
+        ),
+        (
+            "pupil_light_mm",
+            "pupil_light",
+            "Pupil diameter the light predicts (the pupil light response).",
+            "mm",
+        ),
+        (
+            "pupil_residual_mm",
+            "pupil_residual",
+            "Measured minus light-driven pupil; n/a where not measured.",
+            "mm",
+        ),
+    ];
+    let mut views: BTreeMap<String, Vec<Option<usize>>> = BTreeMap::new();
+    for suffix in ["", "_right", "_left"] {
+        let cols: Vec<Option<usize>> = WANT
+            .iter()
+            .map(|(c, ..)| header.iter().position(|h| *h == format!("{c}{suffix}")))
+            .collect();
+        if cols[2].is_some() {
+            views.insert(suffix.to_owned(), cols);
+        }
+    }
+    if views.is_empty() {
+        return Err(bad("no pupil_mm column".into()));
+    }
+    let mut outs: Vec<(String, Vec<Option<usize>>, TsvOut)> = Vec::new();
+    for (suffix, cols) in views {
+        let label = match suffix.as_str() {
+            "_right" => "eye1",
+            "_left" => "eye2",
+            _ => "eye3",
+        };
+        let p = dir.join(format!("{prefix}_recording-{label}replay_physio.tsv.gz"));
+        outs.push((label.to_owned(), cols, TsvOut::create(&p)?));
+    }
+    let mut line_no = 1u64;
+    loop {
+        let read = gazelight_input::read_line(&mut r, &mut line, gazelight_input::MAX_LINE_BYTES)
+            .map_err(wio(timeline))?;
+        line_no += 1;
+        match read {
+            gazelight_input::Line::Eof => break,
+            gazelight_input::Line::Read => {}
+            _ => return Err(bad(format!("line {line_no} is not a timeline row"))),
+        }
+        let f: Vec<&str> = line.trim_end().split(',').collect();
+        let Some(t) = f.get(t_col).and_then(|v| v.parse::<f64>().ok()) else {
+            return Err(bad(format!("line {line_no}: no time")));
+        };
+        for (_, cols, out) in &mut outs {
+            let cells: Vec<String> = cols
+                .iter()
+                .map(|c| {
+                    c.and_then(|i| f.get(i))
+                        .and_then(|v| v.parse::<f32>().ok())
+                        .map_or_else(|| "n/a".to_owned(), |v| num(Some(v)))
+                })
+                .collect();
+            out.line(t, &cells)?;
+        }
+    }
+    let mut files = Vec::new();
+    for (label, _, out) in outs {
+        let path = out.path.clone();
+        let (_, rate) = out.finish()?;
+        let mut sidecar = json!({
+            "Description": "Per frame of a gazelight replay (timeline.csv): the gaze and pupil it rendered for, the luminance at gaze, and the pupil light response.",
+            "PhysioType": "eyetrack",
+            "RecordedEye": match label.as_str() { "eye1" => "right", "eye2" => "left", _ => "cyclopean" },
+            "SamplingFrequency": rate,
+            "StartTime": 0.0,
+            "SampleCoordinateSystem": "custom",
+            "Columns": std::iter::once("timestamp").chain(WANT.iter().map(|w| w.1)).collect::<Vec<_>>(),
+            "timestamp": {"Description": "Frame time on the recording's clock.", "Units": "s"},
+        });
+        if let Some(obj) = sidecar.as_object_mut() {
+            for (_, name, d, u) in WANT {
+                obj.insert(name.into(), json!({"Description": d, "Units": u}));
+            }
+        }
+        write_json(
+            &dir.join(format!("{prefix}_recording-{label}replay_physio.json")),
+            &sidecar,
+        )?;
+        files.push(path);
+    }
+    Ok(files)
+}

@@ -1,0 +1,543 @@
+//! XDF recordings (Lab Streaming Layer's LabRecorder): one eye stream of
+//! a multi-stream file, replayed as gazelight samples.
+//!
+//! - [`reader`]: the container, read from the XDF 1.0 specification,
+//!   streamed with bounded memory ([`XdfFile::scan`] reads the headers,
+//!   footers and clock offsets; [`XdfFile::samples`] streams one stream's
+//!   samples);
+//! - [`clock`]: the time stamps pyxdf's `load_xdf` gives with its default
+//!   options (clock offsets by robust linear fit, clock resets, dejitter);
+//! - [`XdfImporter`]: picks the eye stream (`FILE.xdf?stream=NAME`, else
+//!   the first stream of type `Gaze` or `Pupil`) and maps its channels
+//!   ([`EyeLayout`]) onto [`Sample`]s.
+//!
+//! Marker (string) streams are listed in the import's notes with their
+//! counts; gazelight's [`Sample`] has no event kind, so their strings are
+//! not replayed (read them with [`XdfFile::samples`]). See
+//! `docs/xdf-bids.md`.
+
+pub mod clock;
+pub mod reader;
+pub mod xml;
+
+use std::path::{Path, PathBuf};
+
+pub use reader::{ChannelFormat, ChannelInfo, StreamInfo, StreamSamples, XdfFile};
+
+use super::{ImportError, ImportWarnings, Importer, Pending, Position};
+use gazelight_eye::sample::{
+    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
+};
+
+/// Neon's scene camera, pixels (1600 × 1200; Pupil Labs Neon
+/// specifications): Neon's LSL gaze x/y are in these pixels.
+pub const NEON_SCENE_PX: [f64; 2] = [1600.0, 1200.0];
+
+/// The stream types picked when no `?stream=` is given, in this order of
+/// preference (the first stream of either type wins).
+pub const EYE_STREAM_TYPES: [&str; 2] = ["Gaze", "Pupil"];
+
+/// A path to an XDF recording with an optional `?stream=NAME`: the file
+/// and the stream name.
+pub fn split_query(path: &Path) -> Option<(PathBuf, Option<String>)> {
+    let s = path.to_str()?;
+    let lower = s.to_ascii_lowercase();
+    if lower.ends_with(".xdf") {
+        return Some((path.to_owned(), None));
+    }
+    let k = lower.rfind(".xdf?")?;
+    let (file, query) = s.split_at(k + 4);
+    let query = &query[1..];
+    let stream = query
+        .split('&')
+        .find_map(|kv| kv.strip_prefix("stream="))
+        .map(percent_decode);
+    Some((PathBuf::from(file), stream))
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%'
+            && let Some(Ok(v)) = s.get(i + 1..i + 3).map(|h| u8::from_str_radix(h, 16))
+        {
+            out.push(v);
+            i += 3;
+            continue;
+        }
+        out.push(if b[i] == b'+' { b' ' } else { b[i] });
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// How an eye stream's channels become samples.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct EyeLayout {
+    /// `gazelight-eye`, `pupil-capture-relay`, `neon` or `generic`.
+    pub kind: &'static str,
+    pub gaze_x: Option<usize>,
+    pub gaze_y: Option<usize>,
+    /// Gaze value range: divided by it → normalised.
+    pub gaze_range: [f64; 2],
+    /// Whether gaze y = 0 is the bottom (Pupil's `norm_pos`).
+    pub gaze_y_up: bool,
+    /// A channel that says whether the gaze is valid (> 0.5).
+    pub gaze_valid: Option<usize>,
+    /// One confidence for the sample.
+    pub confidence: Option<usize>,
+    /// [right, left]: (channel, unit) in order of preference.
+    pub pupil: [Vec<(usize, PupilUnit)>; 2],
+    /// [right, left]: per-eye confidence channels.
+    pub eye_confidence: [Option<usize>; 2],
+    /// [right, left]: per-eye validity channels (> 0.5 valid).
+    pub eye_valid: [Option<usize>; 2],
+    /// A blink channel (> 0.5 during a blink).
+    pub blink: Option<usize>,
+}
+
+/// Why an eye stream's channels match no layout.
+fn layout_error(info: &StreamInfo) -> String {
+    let labels = info.labels();
+    let channels = if labels.iter().all(String::is_empty) {
+        format!("{} channels without labels", labels.len())
+    } else {
+        format!("channels [{}]", labels.join(", "))
+    };
+    format!(
+        "stream `{}` (type {}) has {channels}, none of the layouts gazelight reads: \
+         gazelight's gazelight-eye (gaze_x, gaze_y, pupil_right_mm, pupil_left_mm, …), \
+         Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, diameter0_3d, …), Neon's \
+         (x, y in scene pixels, pupil_diameter_left, pupil_diameter_right) or the generic \
+         x, y, pupil (normalised gaze, origin top-left)",
+        info.name, info.kind,
+    )
+}
+
+fn unit_of(unit: &str) -> PupilUnit {
+    match unit.trim().to_ascii_lowercase().as_str() {
+        "mm" | "millimeters" | "millimetres" => PupilUnit::Mm,
+        "px" | "pixel" | "pixels" => PupilUnit::Px,
+        _ => PupilUnit::Arbitrary,
+    }
+}
+
+impl EyeLayout {
+    /// Picks the layout from the stream's channel labels.
+    pub fn detect(info: &StreamInfo) -> Result<Self, String> {
+        let labels = info.labels();
+        let idx = |l: &str| labels.iter().position(|x| x.eq_ignore_ascii_case(l));
+        let none = Self {
+            kind: "generic",
+            gaze_x: None,
+            gaze_y: None,
+            gaze_range: [1.0, 1.0],
+            gaze_y_up: false,
+            gaze_valid: None,
+            confidence: None,
+            pupil: [Vec::new(), Vec::new()],
+            eye_confidence: [None, None],
+            eye_valid: [None, None],
+            blink: None,
+        };
+        if let (Some(x), Some(y), Some(r), Some(l)) = (
+            idx("gaze_x"),
+            idx("gaze_y"),
+            idx("pupil_right_mm"),
+            idx("pupil_left_mm"),
+        ) {
+            // gazelight's own outlet (crates/gazelight/src/lsl_outlets.rs).
+            return Ok(Self {
+                kind: "gazelight-eye",
+                gaze_x: Some(x),
+                gaze_y: Some(y),
+                gaze_valid: idx("gaze_valid"),
+                pupil: [vec![(r, PupilUnit::Mm)], vec![(l, PupilUnit::Mm)]],
+                eye_confidence: [idx("confidence_right"), idx("confidence_left")],
+                eye_valid: [idx("pupil_valid_right"), idx("pupil_valid_left")],
+                blink: idx("blink"),
+                ..none
+            });
+        }
+        if let (Some(x), Some(y)) = (idx("norm_pos_x"), idx("norm_pos_y")) {
+            // Pupil Capture's LSL relay: eye 0 = right, 1 = left; the 3D
+            // diameter (mm) first, the 2D one (px) as the fallback.
+            let eye = |e: u8| {
+                let mut v = Vec::new();
+                if let Some(i) = idx(&format!("diameter{e}_3d")) {
+                    v.push((i, PupilUnit::Mm));
+                }
+                if let Some(i) = idx(&format!("diameter{e}_2d")) {
+                    v.push((i, PupilUnit::Px));
+                }
+                v
+            };
+            return Ok(Self {
+                kind: "pupil-capture-relay",
+                gaze_x: Some(x),
+                gaze_y: Some(y),
+                gaze_y_up: true,
+                confidence: idx("confidence"),
+                pupil: [eye(0), eye(1)],
+                ..none
+            });
+        }
+        let x = idx("x");
+        let y = idx("y");
+        let px = |i: Option<usize>| {
+            i.and_then(|i| info.channels.get(i))
+                .is_some_and(|c| unit_of(&c.unit) == PupilUnit::Px)
+        };
+        let neon_pupils = [idx("pupil_diameter_right"), idx("pupil_diameter_left")];
+        if x.is_some() && y.is_some() && (px(x) || neon_pupils.iter().any(Option::is_some)) {
+            return Ok(Self {
+                kind: "neon",
+                gaze_x: x,
+                gaze_y: y,
+                gaze_range: NEON_SCENE_PX,
+                pupil: neon_pupils.map(|i| i.map(|i| vec![(i, PupilUnit::Mm)]).unwrap_or_default()),
+                ..none
+            });
+        }
+        let pupil = idx("pupil");
+        if (x.is_some() && y.is_some()) || pupil.is_some() {
+            let unit = pupil
+                .and_then(|i| info.channels.get(i))
+                .map_or(PupilUnit::Arbitrary, |c| unit_of(&c.unit));
+            let p = pupil.map(|i| vec![(i, unit)]).unwrap_or_default();
+            return Ok(Self {
+                kind: "generic",
+                gaze_x: x.and(y).and(x),
+                gaze_y: x.and(y),
+                confidence: idx("confidence"),
+                // One pupil for the stream: given to both eyes.
+                pupil: [p.clone(), p],
+                ..none
+            });
+        }
+        Err(layout_error(info))
+    }
+
+    /// The samples of one stream sample (values `v` at time `t_secs`).
+    fn decode(&self, v: &[f64], t_secs: f64, out: &mut Pending<4>) {
+        let get = |i: Option<usize>| i.and_then(|i| v.get(i).copied());
+        let flag = |i: Option<usize>| get(i).map(|x| x > 0.5);
+        let confidence = get(self.confidence)
+            .filter(|c| c.is_finite())
+            .map_or(1.0, |c| c.clamp(0.0, 1.0)) as f32;
+        let mut valid = [false; 2];
+        for (e, prefs) in self.pupil.iter().enumerate() {
+            let found = prefs.iter().find_map(|&(i, u)| {
+                v.get(i)
+                    .copied()
+                    .filter(|d| d.is_finite() && *d > 0.0)
+                    .map(|d| (d, u))
+            });
+            let eye_valid = flag(self.eye_valid[e]).unwrap_or(true);
+            let conf = get(self.eye_confidence[e])
+                .filter(|c| c.is_finite())
+                .map_or(confidence, |c| c.clamp(0.0, 1.0) as f32);
+            let method = match (self.kind, prefs.first().map(|p| p.1)) {
+                ("pupil-capture-relay", Some(PupilUnit::Mm))
+                    if found.is_some_and(|f| f.1 == PupilUnit::Mm) =>
+                {
+                    DetectorMethod::Pupil3d
+                }
+                ("pupil-capture-relay", _) => DetectorMethod::Pupil2d,
+                _ => DetectorMethod::Other,
+            };
+            match found {
+                Some((d, unit)) if eye_valid => {
+                    valid[e] = true;
+                    out.push(Sample::Pupil(PupilSample {
+                        t_secs,
+                        eye: e as u8,
+                        diameter_raw: d as f32,
+                        unit,
+                        diameter_mm: (unit == PupilUnit::Mm).then_some(d as f32),
+                        confidence: conf,
+                        norm_pos: [f32::NAN; 2],
+                        method,
+                    }));
+                }
+                // A layout that says the pupil is lost (gazelight's own
+                // validity channel): a lost pupil, confidence 0.
+                _ if self.eye_valid[e].is_some() => out.push(Sample::Pupil(PupilSample {
+                    t_secs,
+                    eye: e as u8,
+                    diameter_raw: 0.0,
+                    unit: prefs.first().map_or(PupilUnit::Mm, |p| p.1),
+                    diameter_mm: None,
+                    confidence: 0.0,
+                    norm_pos: [f32::NAN; 2],
+                    method,
+                })),
+                _ => {}
+            }
+        }
+        if flag(self.gaze_valid) == Some(false) {
+            return;
+        }
+        if let (Some(x), Some(y)) = (get(self.gaze_x), get(self.gaze_y))
+            && x.is_finite()
+            && y.is_finite()
+        {
+            let u = x / self.gaze_range[0];
+            let v = y / self.gaze_range[1];
+            let v = if self.gaze_y_up { 1.0 - v } else { v };
+            out.push(Sample::Gaze(GazeSample {
+                t_secs,
+                gaze_uv: [u as f32, v as f32],
+                confidence,
+                eyes: match valid {
+                    [true, false] => GazeEyes::Right,
+                    [false, true] => GazeEyes::Left,
+                    _ => GazeEyes::Binocular,
+                },
+            }));
+        }
+    }
+}
+
+/// Streaming importer of one eye stream of an XDF file.
+pub struct XdfImporter {
+    path: PathBuf,
+    samples: StreamSamples,
+    layout: EyeLayout,
+    pending: Pending<4>,
+    blink_start: Option<f64>,
+    last_t: f64,
+    warnings: ImportWarnings,
+    done: bool,
+}
+
+/// A one-line description of a stream for notes and errors.
+fn describe(s: &StreamInfo) -> String {
+    let what = if s.format == ChannelFormat::String {
+        format!("{} markers", s.sample_count)
+    } else {
+        format!("{} samples", s.sample_count)
+    };
+    format!(
+        "`{}` (type {}, {} {} channels, {} Hz, {what})",
+        s.name,
+        if s.kind.is_empty() { "-" } else { &s.kind },
+        s.channel_count,
+        s.format.name(),
+        s.nominal_srate_hz
+    )
+}
+
+/// Which stream of `file` to replay: by name, else the first of type
+/// Gaze, else the first of type Pupil.
+pub fn choose_stream(file: &XdfFile, name: Option<&str>) -> Result<usize, String> {
+    let list = || {
+        file.streams
+            .iter()
+            .map(describe)
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if file.streams.is_empty() {
+        return Err("the file holds no stream".into());
+    }
+    if let Some(name) = name {
+        return file
+            .streams
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| format!("no stream named `{name}`; the file has {}", list()));
+    }
+    EYE_STREAM_TYPES
+        .iter()
+        .find_map(|t| {
+            file.streams
+                .iter()
+                .position(|s| s.kind.eq_ignore_ascii_case(t))
+        })
+        .ok_or_else(|| {
+            format!(
+                "no stream of type Gaze or Pupil (pick one with FILE.xdf?stream=NAME); the file has {}",
+                list()
+            )
+        })
+}
+
+impl XdfImporter {
+    /// Opens `path` (`FILE.xdf` or `FILE.xdf?stream=NAME`).
+    pub fn open(path: &Path) -> Result<Self, ImportError> {
+        let (file_path, stream) = split_query(path).unwrap_or_else(|| (path.to_owned(), None));
+        let file = XdfFile::scan(&file_path)?;
+        let structure = |reason: String| ImportError::Structure {
+            path: file_path.clone(),
+            position: Position::File,
+            reason,
+        };
+        let index = choose_stream(&file, stream.as_deref()).map_err(structure)?;
+        let info = &file.streams[index];
+        if info.format == ChannelFormat::String {
+            return Err(structure(format!(
+                "stream {} holds strings (markers), not eye samples; gazelight's samples \
+                 carry no events",
+                describe(info)
+            )));
+        }
+        let layout = EyeLayout::detect(info).map_err(structure)?;
+        let mut warnings = ImportWarnings::default();
+        let others: Vec<String> = file
+            .streams
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| *k != index)
+            .map(|(_, s)| describe(s))
+            .collect();
+        let markers: u64 = file
+            .streams
+            .iter()
+            .filter(|s| s.format == ChannelFormat::String)
+            .map(|s| s.sample_count)
+            .sum();
+        let note = format!(
+            "XDF stream {} chosen{} (layout {}, {} clock offsets, {} clock range(s), {}){}{}",
+            describe(info),
+            if stream.is_some() {
+                " by name"
+            } else {
+                " by type"
+            },
+            layout.kind,
+            info.clock_offsets.len(),
+            info.clock_ranges,
+            if info.dejittered() {
+                "dejittered"
+            } else {
+                "not dejittered"
+            },
+            if others.is_empty() {
+                String::new()
+            } else {
+                format!("; the other streams: {}", others.join(", "))
+            },
+            if markers > 0 {
+                format!(
+                    "; the {markers} markers are not replayed (gazelight's samples carry no events)"
+                )
+            } else {
+                String::new()
+            },
+        );
+        warnings.note(&file_path, Position::File, note);
+        if info.samples_kept < info.sample_count {
+            warnings.note(
+                &file_path,
+                Position::File,
+                format!(
+                    "stream `{}`: {} samples past the footer's count dropped with a corrupted \
+                     last clock offset (as pyxdf does)",
+                    info.name,
+                    info.sample_count - info.samples_kept
+                ),
+            );
+        }
+        let samples = file.samples(index)?;
+        Ok(Self {
+            path: file_path,
+            samples,
+            layout,
+            pending: Pending::new(),
+            blink_start: None,
+            last_t: f64::NAN,
+            warnings,
+            done: false,
+        })
+    }
+
+    /// The chosen stream.
+    pub fn stream(&self) -> &StreamInfo {
+        self.samples.info()
+    }
+
+    /// The channel layout in use.
+    pub fn layout(&self) -> &EyeLayout {
+        &self.layout
+    }
+
+    fn step(&mut self) -> Result<bool, ImportError> {
+        let Some(t) = self.samples.next_sample()? else {
+            if let Some(start) = self.blink_start.take() {
+                self.pending.push(Sample::Blink(BlinkEvent {
+                    start_t_secs: start,
+                    end_t_secs: self.last_t,
+                    eye: None,
+                }));
+            }
+            return Ok(false);
+        };
+        let v = self.samples.numeric();
+        self.layout.decode(v, t, &mut self.pending);
+        if let Some(b) = self.layout.blink {
+            let on = v.get(b).is_some_and(|x| *x > 0.5);
+            match (on, self.blink_start) {
+                (true, None) => self.blink_start = Some(t),
+                (false, Some(start)) => {
+                    self.blink_start = None;
+                    self.pending.push(Sample::Blink(BlinkEvent {
+                        start_t_secs: start,
+                        end_t_secs: t,
+                        eye: None,
+                    }));
+                }
+                _ => {}
+            }
+        }
+        self.last_t = t;
+        Ok(true)
+    }
+}
+
+impl Iterator for XdfImporter {
+    type Item = Result<Sample, ImportError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            if let Some(s) = self.pending.pop() {
+                return Some(Ok(s));
+            }
+            if self.done {
+                return None;
+            }
+            match self.step() {
+                Ok(true) => {}
+                Ok(false) => self.done = true,
+                Err(e) => {
+                    self.done = true;
+                    return Some(Err(e));
+                }
+            }
+        }
+    }
+}
+
+impl Importer for XdfImporter {
+    fn warnings(&self) -> &ImportWarnings {
+        &self.warnings
+    }
+    fn format(&self) -> &'static str {
+        "xdf"
+    }
+    fn position(&self) -> Position {
+        self.samples.position()
+    }
+}
+
+impl std::fmt::Debug for XdfImporter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("XdfImporter")
+            .field("path", &self.path)
+            .field("stream", &self.stream().name)
+            .field("layout", &self.layout.kind)
+            .finish()
+    }
+}
