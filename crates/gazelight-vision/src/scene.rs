@@ -648,6 +648,98 @@ impl PanoramaView {
     }
 }
 
+impl PanoramaView {
+    /// Renders the view from a scene of any projection (bilinear, from the
+    /// pixels inside the scene's field only); view pixels whose direction
+    /// falls outside the scene's field are "no data": they are set to
+    /// [`NO_DATA_RGB`] and counted. An unknown projection is read as an
+    /// equirectangular panorama ([`Self::render`]).
+    pub fn render_scene(&self, scene: &Scene, out: &mut RgbImage) -> usize {
+        let Some(proj) = scene
+            .projection
+            .filter(|p| p.kind != ProjectionKind::Equirectangular)
+        else {
+            self.render(&scene.image, out);
+            return 0;
+        };
+        use rayon::prelude::*;
+        let (w, h) = (self.params.width, self.params.height);
+        if out.width != w || out.height != h {
+            *out = RgbImage::new(w, h);
+        }
+        out.pixels
+            .par_chunks_mut(w)
+            .enumerate()
+            .map(|(y, row)| {
+                let mut missing = 0;
+                for (x, px) in row.iter_mut().enumerate() {
+                    let d = self.direction(x as f32 + 0.5, y as f32 + 0.5);
+                    match sample_projected(&scene.image, &proj, d.as_dvec3()) {
+                        Some(v) => *px = v,
+                        None => {
+                            *px = NO_DATA_RGB;
+                            missing += 1;
+                        }
+                    }
+                }
+                missing
+            })
+            .sum()
+    }
+}
+
+/// The value a view pixel gets where the scene has no data (outside a
+/// fisheye's circle or a perspective image's frame): black, counted apart.
+pub const NO_DATA_RGB: [f32; 3] = [0.0; 3];
+
+/// Bilinear sample of a scene image through its projection in a direction
+/// (camera frame), from the neighbours inside the field (re-weighted);
+/// `None` where the direction is outside the field.
+pub fn sample_projected(
+    image: &RgbImage,
+    proj: &SceneProjection,
+    dir: glam::DVec3,
+) -> Option<[f32; 3]> {
+    let [fx, fy] = proj.pixel(dir)?;
+    let (w, h) = (image.width, image.height);
+    if w == 0 || h == 0 || w != proj.width_px || h != proj.height_px {
+        return None;
+    }
+    let x = fx - 0.5;
+    let y = fy - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (tx, ty) = (x - x0, y - y0);
+    let mut acc = [0.0f64; 3];
+    let mut wsum = 0.0;
+    for (dx, dy, wgt) in [
+        (0, 0, (1.0 - tx) * (1.0 - ty)),
+        (1, 0, tx * (1.0 - ty)),
+        (0, 1, (1.0 - tx) * ty),
+        (1, 1, tx * ty),
+    ] {
+        let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
+        if wgt <= 0.0 || xi < 0 || yi < 0 || xi >= w as i64 || yi >= h as i64 {
+            continue;
+        }
+        let (xu, yu) = (xi as usize, yi as usize);
+        if proj.pixel_direction(xu, yu).is_none() {
+            continue;
+        }
+        let p = image.get(xu, yu);
+        for i in 0..3 {
+            acc[i] += wgt * f64::from(p[i]);
+        }
+        wsum += wgt;
+    }
+    if wsum <= 0.0 {
+        // At the field's edge: the nearest pixel.
+        let xu = (fx.floor().max(0.0) as usize).min(w - 1);
+        let yu = (fy.floor().max(0.0) as usize).min(h - 1);
+        return Some(image.get(xu, yu));
+    }
+    Some(acc.map(|a| (a / wsum) as f32))
+}
+
 /// Equirectangular panorama pixel coordinates (continuous, pixel centres at
 /// +0.5) of a world direction.
 pub fn equirect_px(pano_width: usize, pano_height: usize, dir: Vec3) -> [f32; 2] {

@@ -30,7 +30,7 @@
 //! corners (as evalglare's `pict_get_sangle`), or, when a corner has no
 //! direction, the projection's Jacobian at the pixel centre.
 
-use glam::DVec3;
+pub use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::VisionError;
@@ -188,6 +188,26 @@ impl SceneProjection {
         };
         p.validate()?;
         Ok(p)
+    }
+
+    /// A projection of `kind` with the horizontal field `hfov_deg` and
+    /// square pixels: the vertical field maps the image's height with the
+    /// same image-plane scale, `v = 2 f⁻¹(f(h/2) · H/W)`.
+    pub fn with_square_pixels(
+        kind: ProjectionKind,
+        hfov_deg: f64,
+        width_px: usize,
+        height_px: usize,
+    ) -> Result<Self, VisionError> {
+        if kind == ProjectionKind::Equirectangular {
+            return Ok(Self::equirectangular(width_px, height_px));
+        }
+        let f = kind.radial((hfov_deg * 0.5).to_radians());
+        let aspect = height_px as f64 / width_px.max(1) as f64;
+        let vfov_deg = kind
+            .inverse_radial(f * aspect)
+            .map_or(f64::NAN, |t| 2.0 * t.to_degrees());
+        Self::new(kind, hfov_deg, vfov_deg, width_px, height_px)
     }
 
     /// Checks the fields and the size.

@@ -38,7 +38,7 @@ use gazelight_vision::RgbImage;
 use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::psf::PsfKernel;
-use gazelight_vision::scene::{PanoramaView, ViewParams};
+use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use super::head::Head;
 use super::psf_worker::PsfWorker;
@@ -66,8 +66,8 @@ pub struct FrameLoopSetup {
     pub pipeline: PipelineConfig,
     /// Which frame pipeline renders (CPU reference or GPU).
     pub backend: BackendChoice,
-    /// The panorama, cd/m².
-    pub pano: RgbImage,
+    /// The scene (cd/m²) and its projection.
+    pub pano: Scene,
     pub view: ViewParams,
     pub head: Head,
     pub fps: f64,
@@ -136,7 +136,7 @@ pub struct FrameLoop {
     adaptation_cell: Arc<AdaptationCell>,
     /// One pipeline per view: one (both eyes), or left and right.
     eyes: Vec<EyePipe>,
-    pano: RgbImage,
+    pano: Scene,
     view: ViewParams,
     view_img: RgbImage,
     head: Head,
@@ -281,7 +281,7 @@ impl FrameLoop {
             view.pitch_deg = pitch;
         }
         let mut view_img = RgbImage::new(view.width, view.height);
-        PanoramaView::new(view)?.render(&pano, &mut view_img);
+        PanoramaView::new(view)?.render_scene(&pano, &mut view_img);
         let kernel_len = match eyes.first_mut() {
             Some(e) => e.pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size),
             None => 0,
@@ -530,7 +530,7 @@ impl FrameLoop {
                 .zip(projections)
                 .zip(&mut self.view_means)
             {
-                p.render(&self.pano, &mut eye.view_img);
+                p.render_scene(&self.pano, &mut eye.view_img);
                 *mean = sparse_mean_luminance(&eye.view_img);
             }
             let n = self.eyes.len().min(2) as f64;
@@ -558,7 +558,7 @@ impl FrameLoop {
         {
             self.view.yaw_deg = yaw;
             self.view.pitch_deg = pitch;
-            PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
+            PanoramaView::new(self.view)?.render_scene(&self.pano, &mut self.view_img);
             self.pupil_light
                 .set_field(field_of(&self.view, &self.view_img));
         }
@@ -1025,7 +1025,7 @@ mod tests {
             adaptation: Arc::new(AdaptationCell::default()),
             pipeline: config,
             backend: BackendChoice::Cpu,
-            pano: scene.image,
+            pano: scene,
             view,
             head: Head::Fixed,
             fps: 90.0,
