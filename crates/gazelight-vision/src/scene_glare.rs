@@ -24,7 +24,10 @@
 //!   sources of their own, `-y`) and smoothing (`-s`) are not done.
 //! * Stiles–Holladay veil (evalglare's `Lveil_cie`):
 //!   `L_v = Σ_i 10 E_i / θ_i²`, θ_i in degrees between g and source i's
-//!   position (evalglare 2.10, detailed output);
+//!   position (evalglare 2.10, detailed output). evalglare takes the
+//!   position as the pixel its truncated mean pixel index names, up to a
+//!   pixel off the centroid (5 % of the veil for a source 13° from the gaze
+//!   at 0.7°/px); both are reported, the centroid's as the veil;
 //! * CIE 146:2002 veil of the whole image at the observer's age and
 //!   pigmentation: `L_v = Σ L ω (d·g) f_CIE146(θ)` over the pixels with
 //!   θ ≥ [`GlareOptions::cie146_inner_deg`] (the central disc is what the
@@ -125,6 +128,13 @@ pub struct GlareSource {
     pub illuminance_lux: f64,
     /// Its Stiles–Holladay veil, 10 E / θ², cd/m².
     pub veil_stiles_holladay_cd_m2: f64,
+    /// The angle from the gaze as evalglare 2.10 takes it: to the centre
+    /// of the pixel its truncated mean pixel index names (its `x2 =
+    /// (int)av_posx`, rows counted from the bottom), degrees. Up to a
+    /// pixel off the source's centroid.
+    pub angle_from_gaze_evalglare_deg: f64,
+    /// 10 E / θ² with that angle: evalglare's own `Lveil_cie` term.
+    pub veil_stiles_holladay_evalglare_cd_m2: f64,
 }
 
 /// The glare numbers at one gaze.
@@ -151,9 +161,12 @@ pub struct GazeGlare {
     pub luminance_at_gaze_with_veil_cd_m2: Option<f64>,
     /// CIE 146:2002 veil of the whole image, cd/m².
     pub veil_cie146_cd_m2: f64,
-    /// Stiles–Holladay veil of the glare sources (evalglare's Lveil_cie),
-    /// cd/m².
+    /// Stiles–Holladay veil of the glare sources, Σ 10 E_i / θ_i², θ_i to
+    /// each source's centroid, cd/m².
     pub veil_stiles_holladay_cd_m2: f64,
+    /// The same with evalglare's source positions (whole pixels, see
+    /// [`GlareSource::angle_from_gaze_evalglare_deg`]): its `Lveil_cie`.
+    pub veil_stiles_holladay_evalglare_cd_m2: f64,
     /// The glare sources' illuminance at the eye, lux.
     pub source_illuminance_lux: f64,
     /// Background (adaptation) luminance, (E_v − Σ E_i)/π, cd/m².
@@ -251,6 +264,10 @@ impl SceneGlare {
         };
         let sources = self.sources(&front, g, threshold, opts.search_radius_rad);
         let veil_sh: f64 = sources.iter().map(|s| s.veil_stiles_holladay_cd_m2).sum();
+        let veil_sh_eg: f64 = sources
+            .iter()
+            .map(|s| s.veil_stiles_holladay_evalglare_cd_m2)
+            .sum();
         let e_sources: f64 = sources.iter().map(|s| s.illuminance_lux).sum();
         let gaze_px = self.projection.pixel(g);
         let gaze_in_field = gaze_px.is_some();
@@ -275,6 +292,7 @@ impl SceneGlare {
             luminance_at_gaze_with_veil_cd_m2: at_gaze.map(|l| l + veil_cie),
             veil_cie146_cd_m2: veil_cie,
             veil_stiles_holladay_cd_m2: veil_sh,
+            veil_stiles_holladay_evalglare_cd_m2: veil_sh_eg,
             source_illuminance_lux: e_sources,
             background_luminance_cd_m2: background,
             threshold_increment_pct: threshold_increment_pct(veil_cie, background),
@@ -328,6 +346,14 @@ impl SceneGlare {
                 let pos = [a.x_om / a.om, a.y_om / a.om];
                 let dir = self.projection.direction_any(pos).unwrap_or(DVec3::NEG_Z);
                 let theta_deg = dir.dot(g).clamp(-1.0, 1.0).acos().to_degrees();
+                // evalglare: the mean integer column and row-from-bottom
+                // index, truncated; here in top-down continuous pixels.
+                let (mean_col, mean_row) = (pos[0] - 0.5, pos[1] - 0.5);
+                let eg_px = [mean_col.floor() + 0.5, mean_row.ceil() + 0.5];
+                let theta_eg_deg = self
+                    .projection
+                    .direction_any(eg_px)
+                    .map_or(theta_deg, |d| d.dot(g).clamp(-1.0, 1.0).acos().to_degrees());
                 GlareSource {
                     pixels: a.n,
                     position_px: pos,
@@ -340,6 +366,9 @@ impl SceneGlare {
                     illuminance_lux: a.e,
                     // evalglare 2.10: Lveil_cie = 10 Eglare / (θ² + 1e-16), θ in degrees
                     veil_stiles_holladay_cd_m2: 10.0 * a.e / (theta_deg * theta_deg + 1e-16),
+                    angle_from_gaze_evalglare_deg: theta_eg_deg,
+                    veil_stiles_holladay_evalglare_cd_m2: 10.0 * a.e
+                        / (theta_eg_deg * theta_eg_deg + 1e-16),
                 }
             })
             .collect();

@@ -12,9 +12,12 @@
 //! * the vertical illuminance at the eye from the fisheye agrees with
 //!   `rtrace -I` at the viewpoint within 5 %;
 //! * gazelight's Stiles–Holladay veil agrees with evalglare's `Lveil_cie`
-//!   within 5 %, on the same image and, for gazes off the image's axis,
-//!   against evalglare on the fisheye rendered along the gaze; its glare
-//!   sources match evalglare's in direction and solid angle;
+//!   on the fisheye rendered along each gaze within 5 % with evalglare's
+//!   whole-pixel source positions, within 10 % with the sources' centroids
+//!   (evalglare's truncation moves a source up to a pixel); read at the
+//!   gaze from the forward fisheye it agrees within 5 % with the fisheye
+//!   along the gaze; the glare sources match evalglare's within 1° (its
+//!   whole pixel) and their solid angles within 10 %;
 //! * the CIE 146 veil agrees within 2 % with the sum this test makes over
 //!   the fisheye's pixels with its own equidistant-projection geometry.
 //!
@@ -279,21 +282,29 @@ fn radiance_views_illuminance_and_evalglare_agree() {
         let veil_eg = eg.values["Lveil_cie"];
         let veil_fish = f(ours_on_fish, "veil_stiles_holladay_cd_m2");
         let veil_same = f(ours_same, "veil_stiles_holladay_cd_m2");
+        let veil_same_eg = f(ours_same, "veil_stiles_holladay_evalglare_cd_m2");
         println!(
-            "gaze {g:?}: S-H veil evalglare {veil_eg:.4}, gazelight same image {veil_same:.4} ({:+.2} %), \
-             gazelight on the forward fisheye {veil_fish:.4} ({:+.2} %) cd/m²; E_v evalglare {:.2}, gazelight {:.2} lx",
+            "gaze {g:?}: S-H veil evalglare {veil_eg:.4}; gazelight on the same image with evalglare's whole-pixel \
+             source positions {veil_same_eg:.4} ({:+.2} %), with the centroids {veil_same:.4} ({:+.2} %); \
+             gazelight on the forward fisheye {veil_fish:.4} cd/m² ({:+.2} % from the same image's); \
+             E_v evalglare {:.2}, gazelight {:.2} lx",
+            100.0 * (veil_same_eg / veil_eg - 1.0),
             100.0 * (veil_same / veil_eg - 1.0),
-            100.0 * (veil_fish / veil_eg - 1.0),
+            100.0 * (veil_fish / veil_same - 1.0),
             eg.values["E_v"],
             f(ours_same, "vertical_illuminance_lux")
         );
         assert!(
-            (veil_same / veil_eg - 1.0).abs() < 0.05,
-            "gaze {g:?}: same image {veil_same} vs evalglare {veil_eg}"
+            (veil_same_eg / veil_eg - 1.0).abs() < 0.05,
+            "gaze {g:?}: same image {veil_same_eg} vs evalglare {veil_eg}"
         );
         assert!(
-            (veil_fish / veil_eg - 1.0).abs() < 0.05,
-            "gaze {g:?}: forward fisheye {veil_fish} vs evalglare {veil_eg}"
+            (veil_same / veil_eg - 1.0).abs() < 0.10,
+            "gaze {g:?}: centroids {veil_same} vs evalglare {veil_eg}"
+        );
+        assert!(
+            (veil_fish / veil_same - 1.0).abs() < 0.05,
+            "gaze {g:?}: forward fisheye {veil_fish} vs along the gaze {veil_same}"
         );
         // Sources: each of evalglare's has one of ours within 1° with the
         // solid angle within 10 %.
@@ -383,8 +394,7 @@ fn radiance_views_illuminance_and_evalglare_agree() {
                     continue;
                 }
                 let p = scene.image.get(x, y);
-                let l =
-                    (0.265 * f64::from(p[0]) + 0.670 * f64::from(p[1]) + 0.065 * f64::from(p[2]));
+                let l = 0.265 * f64::from(p[0]) + 0.670 * f64::from(p[1]) + 0.065 * f64::from(p[2]);
                 veil += l * omega * c * cie146(off, 25.0, 0.5);
             }
         }
