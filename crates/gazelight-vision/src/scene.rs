@@ -1030,6 +1030,34 @@ mod tests {
         assert!(geometry_warning(&RgbImage::new(1024, 512)).is_none());
     }
 
+    /// A Radiance header's VIEW= (two lines, the later refining the
+    /// earlier, as rpict then pfilt write them) gives the projection and
+    /// PIXASPECT= is kept; a view type gazelight cannot map is refused by
+    /// name; no VIEW= leaves the projection unknown (the 2:1 warning's
+    /// case).
+    #[test]
+    fn radiance_view_header_gives_the_projection() {
+        let hdr = "VIEW= -vtv -vp 0 0 1.5 -vd 0 1 0 -vu 0 0 1 -vh 60 -vv 60\n\
+                   VIEW= -vta -vh 180 -vv 180\nPIXASPECT=1.0";
+        let bytes = radiance_file(hdr, 32, 32, [128, 128, 128, 129]);
+        let s =
+            Scene::from_bytes(&bytes, Path::new("fish.hdr"), LuminanceScale::default()).unwrap();
+        let p = s.projection.unwrap();
+        assert_eq!(
+            (p.kind, p.hfov_deg, p.vfov_deg),
+            (ProjectionKind::Angular, 180.0, 180.0)
+        );
+        assert_eq!(s.radiance_view.unwrap().vp, [0.0, 0.0, 1.5]);
+        assert_eq!(s.pixel_aspect, Some(1.0));
+        let cyl = radiance_file("VIEW= -vtc -vh 360 -vv 90", 16, 8, [128, 128, 128, 129]);
+        let e =
+            Scene::from_bytes(&cyl, Path::new("cyl.hdr"), LuminanceScale::default()).unwrap_err();
+        assert!(e.to_string().contains("-vtc"), "{e}");
+        let plain = radiance_file("", 16, 16, [128, 128, 128, 129]);
+        let s = Scene::from_bytes(&plain, Path::new("p.hdr"), LuminanceScale::default()).unwrap();
+        assert!(s.projection.is_none());
+    }
+
     #[test]
     fn radiance_round_trip() {
         let mut buf = Vec::new();
