@@ -1038,7 +1038,7 @@ mod tests {
     #[test]
     fn radiance_view_header_gives_the_projection() {
         let hdr = "VIEW= -vtv -vp 0 0 1.5 -vd 0 1 0 -vu 0 0 1 -vh 60 -vv 60\n\
-                   VIEW= -vta -vh 180 -vv 180\nPIXASPECT=1.0";
+                   VIEW= -vta -vh 180 -vv 180\nPIXASPECT=1.0\n";
         let bytes = radiance_file(hdr, 32, 32, [128, 128, 128, 129]);
         let s =
             Scene::from_bytes(&bytes, Path::new("fish.hdr"), LuminanceScale::default()).unwrap();
@@ -1049,7 +1049,7 @@ mod tests {
         );
         assert_eq!(s.radiance_view.unwrap().vp, [0.0, 0.0, 1.5]);
         assert_eq!(s.pixel_aspect, Some(1.0));
-        let cyl = radiance_file("VIEW= -vtc -vh 360 -vv 90", 16, 8, [128, 128, 128, 129]);
+        let cyl = radiance_file("VIEW= -vtc -vh 360 -vv 90\n", 16, 8, [128, 128, 128, 129]);
         let e =
             Scene::from_bytes(&cyl, Path::new("cyl.hdr"), LuminanceScale::default()).unwrap_err();
         assert!(e.to_string().contains("-vtc"), "{e}");
