@@ -139,7 +139,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
         Some(path) => Scene::load(path, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
-    args.view.apply_projection(&mut scene)?;
+    args.view.apply_projection(&mut scene, config.projection)?;
     crate::bounds::scene_luminance(&scene)?;
     if scene.repaired_components > 0 {
         tracing::info!(

@@ -90,13 +90,20 @@ impl ViewArgs {
     }
 
     /// Gives `scene` the projection of `--scene-projection` and
-    /// `--scene-fov-deg` (over its header's), if given.
-    pub fn apply_projection(&self, scene: &mut Scene) -> anyhow::Result<()> {
-        let Some(kind) = self.scene_projection else {
-            return Ok(());
+    /// `--scene-fov-deg`, else the configuration's `scene.projection` and
+    /// `scene.fov_deg` (over its header's), if given.
+    pub fn apply_projection(
+        &self,
+        scene: &mut Scene,
+        configured: Option<(ProjectionKind, Option<SceneFov>)>,
+    ) -> anyhow::Result<()> {
+        let (kind, fov) = match (self.scene_projection, configured) {
+            (Some(k), _) => (k, self.scene_fov_deg),
+            (None, Some((k, f))) => (k, f),
+            (None, None) => return Ok(()),
         };
         let (w, h) = (scene.image.width, scene.image.height);
-        scene.projection = Some(match (kind, self.scene_fov_deg) {
+        scene.projection = Some(match (kind, fov) {
             (ProjectionKind::Equirectangular, _) => SceneProjection::equirectangular(w, h),
             (_, None) => anyhow::bail!("--scene-projection {} needs --scene-fov-deg", kind.name()),
             (_, Some(SceneFov { h_deg, v_deg: None })) => {

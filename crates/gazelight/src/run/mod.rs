@@ -393,7 +393,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(p) => Scene::load(p, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
-    args.view.apply_projection(&mut scene)?;
+    args.view
+        .apply_projection(&mut scene, cfg.scene.projection_settings()?)?;
     crate::bounds::scene_luminance(&scene)?;
     let base = demo::default_view(r.size.0, r.size.1);
     let view = args.view.view(
