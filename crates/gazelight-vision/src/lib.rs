@@ -58,6 +58,7 @@ pub mod pipeline;
 pub mod pooling;
 pub mod psf;
 pub mod scene;
+pub mod scene_glare;
 mod simd;
 pub mod stray_light;
 pub mod temporal;

@@ -48,7 +48,9 @@ use crate::image::luminance;
 use crate::{RgbImage, VisionError};
 
 mod exr_header;
+pub mod projection;
 pub use exr_header::{MAX_PIXELS, MAX_SIDE_PX};
+pub use projection::{ProjectionKind, RadianceView, SceneProjection};
 
 /// Radiance's luminous efficacy of its white, lm/W: luminance =
 /// 179 × (0.265 R + 0.670 G + 0.065 B) / EXPOSURE (Radiance reference
@@ -123,6 +125,15 @@ pub struct Scene {
     pub cd_m2_per_unit: f64,
     /// How many components were NaN, infinite or negative in the file.
     pub repaired_components: usize,
+    /// The image's projection, where known: from the Radiance header's
+    /// `VIEW=` or given ([`Scene::set_projection`]). `None`: unknown, the
+    /// image is read as an equirectangular panorama.
+    pub projection: Option<SceneProjection>,
+    /// The Radiance view of the header (its `VIEW=` lines), where there
+    /// was one: gives the scene's directions in Radiance's world.
+    pub radiance_view: Option<RadianceView>,
+    /// The header's `PIXASPECT=` (pixel height / width), where given.
+    pub pixel_aspect: Option<f64>,
 }
 
 impl Scene {
@@ -145,7 +156,7 @@ impl Scene {
         scale: LuminanceScale,
     ) -> Result<Self, VisionError> {
         scale.validate()?;
-        let mut image = decode_hdr(bytes, name)?;
+        let (mut image, header) = decode_hdr_with_header(bytes, name)?;
         let total = image.pixels.len() * 3;
         let bad = image.sanitize();
         if total == 0 || bad * 2 > total {
@@ -171,7 +182,18 @@ impl Scene {
             }
         };
         image.scale(factor as f32);
-        if let Some(w) = geometry_warning(&image) {
+        let projection = match &header.view {
+            Some(v) => Some(v.projection(image.width, image.height).map_err(|reason| {
+                VisionError::SceneInvalid {
+                    path: name.to_owned(),
+                    reason: format!("its Radiance VIEW= header: {reason}"),
+                }
+            })?),
+            None => None,
+        };
+        if projection.is_none()
+            && let Some(w) = geometry_warning(&image)
+        {
             tracing::warn!(scene = %name.display(), "{w}");
         }
         Ok(Self {
@@ -179,12 +201,56 @@ impl Scene {
             image,
             cd_m2_per_unit: factor,
             repaired_components: bad,
+            projection,
+            radiance_view: header.view,
+            pixel_aspect: header.pixel_aspect,
+        })
+    }
+
+    /// Gives the scene a projection (`--scene-projection`,
+    /// `--scene-fov-deg`, or the config's keys), replacing the header's.
+    pub fn set_projection(
+        &mut self,
+        kind: ProjectionKind,
+        fov_deg: Option<[f64; 2]>,
+    ) -> Result<(), VisionError> {
+        let (w, h) = (self.image.width, self.image.height);
+        self.projection = Some(match (kind, fov_deg) {
+            (ProjectionKind::Equirectangular, _) => SceneProjection::equirectangular(w, h),
+            (_, Some([hf, vf])) => SceneProjection::new(kind, hf, vf, w, h)?,
+            (_, None) => {
+                return Err(VisionError::invalid(
+                    "scene field of view",
+                    "none",
+                    "a field in degrees (--scene-fov-deg H[,V]) for a non-panorama projection",
+                ));
+            }
+        });
+        Ok(())
+    }
+
+    /// The projection in effect: the known one, or the equirectangular
+    /// panorama an unknown image is read as.
+    pub fn effective_projection(&self) -> SceneProjection {
+        self.projection.unwrap_or_else(|| {
+            SceneProjection::equirectangular(self.image.width, self.image.height)
         })
     }
 }
 
-/// A warning when an image is not shaped like an equirectangular panorama
-/// (2:1): a fisheye or a perspective photo would be mapped as if it were one.
+/// What a Radiance header says beyond the pixels' scale.
+#[derive(Clone, Debug, Default)]
+pub struct RadianceHeader {
+    /// The view of its `VIEW=` lines (applied in order), if any.
+    pub view: Option<RadianceView>,
+    /// `PIXASPECT=` (their product), if any.
+    pub pixel_aspect: Option<f64>,
+}
+
+/// A warning when an image of unknown projection is not shaped like an
+/// equirectangular panorama (2:1): a fisheye or a perspective photo would be
+/// mapped as if it were one. Images with a known projection (a Radiance
+/// `VIEW=`, `--scene-projection`) are not warned about.
 pub fn geometry_warning(image: &RgbImage) -> Option<String> {
     if image.height == 0 {
         return None;
@@ -194,8 +260,9 @@ pub fn geometry_warning(image: &RgbImage) -> Option<String> {
         format!(
             "the scene is {}×{} (aspect {aspect:.3}), not a 2:1 equirectangular panorama: it is \
              mapped as one (longitude across the width, latitude down the height), so a \
-             fisheye or perspective image will look distorted; convert it to an \
-             equirectangular panorama first",
+             fisheye or perspective image will look distorted; give its projection \
+             (--scene-projection and --scene-fov-deg, or a Radiance VIEW= header) or \
+             convert it to an equirectangular panorama",
             image.width, image.height
         )
     })
@@ -214,6 +281,15 @@ pub fn median_luminance(image: &RgbImage) -> f64 {
 
 /// Decodes EXR or Radiance bytes into linear RGB (file units, not sanitised).
 pub fn decode_hdr(bytes: &[u8], name: &Path) -> Result<RgbImage, VisionError> {
+    decode_hdr_with_header(bytes, name).map(|(image, _)| image)
+}
+
+/// [`decode_hdr`], and what a Radiance header says of the view (empty for
+/// OpenEXR).
+pub fn decode_hdr_with_header(
+    bytes: &[u8],
+    name: &Path,
+) -> Result<(RgbImage, RadianceHeader), VisionError> {
     let read_err = |reason: String| VisionError::SceneRead {
         path: name.to_owned(),
         reason,
@@ -228,6 +304,7 @@ pub fn decode_hdr(bytes: &[u8], name: &Path) -> Result<RgbImage, VisionError> {
                 })
             })?;
             decode_exr(Cursor::new(bytes), header.has_rgb())
+                .map(|image| (image, RadianceHeader::default()))
                 .map_err(|e| read_err(format!("corrupt OpenEXR: {e}")))
         }
         Some(HdrFormat::Radiance) => decode_radiance(bytes).map_err(read_err),
@@ -278,7 +355,7 @@ fn decode_exr(reader: impl Read + Seek + Send, rgb: bool) -> Result<RgbImage, ex
 /// Decodes a Radiance file into cd/m² (see the module docs): checks the
 /// claimed size against [`MAX_SIDE_PX`], [`MAX_PIXELS`] and the file size
 /// before allocating, then applies 179 / (EXPOSURE × COLORCORR).
-fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, String> {
+fn decode_radiance(bytes: &[u8]) -> Result<(RgbImage, RadianceHeader), String> {
     use image::ImageDecoder;
     let decoder = image::codecs::hdr::HdrDecoder::new(Cursor::new(bytes))
         .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
@@ -300,6 +377,18 @@ fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, String> {
             bytes.len()
         ));
     }
+    let mut view: Option<RadianceView> = None;
+    for (key, value) in &meta.custom_attributes {
+        if key == "VIEW" {
+            view.get_or_insert_with(RadianceView::default)
+                .apply(value)
+                .map_err(|e| format!("Radiance HDR header: {e}"))?;
+        }
+    }
+    let header = RadianceHeader {
+        view,
+        pixel_aspect: meta.pixel_aspect_ratio.map(f64::from),
+    };
     let exposure = f64::from(meta.exposure.unwrap_or(1.0));
     let corr = meta.color_correction.unwrap_or((1.0, 1.0, 1.0));
     let corr = [f64::from(corr.0), f64::from(corr.1), f64::from(corr.2)];
@@ -336,11 +425,14 @@ fn decode_radiance(bytes: &[u8]) -> Result<RgbImage, String> {
             [f(0) * k[0], f(4) * k[1], f(8) * k[2]]
         })
         .collect();
-    Ok(RgbImage {
-        width: w as usize,
-        height: h as usize,
-        pixels,
-    })
+    Ok((
+        RgbImage {
+            width: w as usize,
+            height: h as usize,
+            pixels,
+        },
+        header,
+    ))
 }
 
 /// Writes a linear RGB float32 OpenEXR file.
@@ -566,6 +658,98 @@ impl PanoramaView {
                 }
             });
     }
+}
+
+impl PanoramaView {
+    /// Renders the view from a scene of any projection (bilinear, from the
+    /// pixels inside the scene's field only); view pixels whose direction
+    /// falls outside the scene's field are "no data": they are set to
+    /// [`NO_DATA_RGB`] and counted. An unknown projection is read as an
+    /// equirectangular panorama ([`Self::render`]).
+    pub fn render_scene(&self, scene: &Scene, out: &mut RgbImage) -> usize {
+        let Some(proj) = scene
+            .projection
+            .filter(|p| p.kind != ProjectionKind::Equirectangular)
+        else {
+            self.render(&scene.image, out);
+            return 0;
+        };
+        use rayon::prelude::*;
+        let (w, h) = (self.params.width, self.params.height);
+        if out.width != w || out.height != h {
+            *out = RgbImage::new(w, h);
+        }
+        out.pixels
+            .par_chunks_mut(w)
+            .enumerate()
+            .map(|(y, row)| {
+                let mut missing = 0;
+                for (x, px) in row.iter_mut().enumerate() {
+                    let d = self.direction(x as f32 + 0.5, y as f32 + 0.5);
+                    match sample_projected(&scene.image, &proj, d.as_dvec3()) {
+                        Some(v) => *px = v,
+                        None => {
+                            *px = NO_DATA_RGB;
+                            missing += 1;
+                        }
+                    }
+                }
+                missing
+            })
+            .sum()
+    }
+}
+
+/// The value a view pixel gets where the scene has no data (outside a
+/// fisheye's circle or a perspective image's frame): black, counted apart.
+pub const NO_DATA_RGB: [f32; 3] = [0.0; 3];
+
+/// Bilinear sample of a scene image through its projection in a direction
+/// (camera frame), from the neighbours inside the field (re-weighted);
+/// `None` where the direction is outside the field.
+pub fn sample_projected(
+    image: &RgbImage,
+    proj: &SceneProjection,
+    dir: glam::DVec3,
+) -> Option<[f32; 3]> {
+    let [fx, fy] = proj.pixel(dir)?;
+    let (w, h) = (image.width, image.height);
+    if w == 0 || h == 0 || w != proj.width_px || h != proj.height_px {
+        return None;
+    }
+    let x = fx - 0.5;
+    let y = fy - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (tx, ty) = (x - x0, y - y0);
+    let mut acc = [0.0f64; 3];
+    let mut wsum = 0.0;
+    for (dx, dy, wgt) in [
+        (0, 0, (1.0 - tx) * (1.0 - ty)),
+        (1, 0, tx * (1.0 - ty)),
+        (0, 1, (1.0 - tx) * ty),
+        (1, 1, tx * ty),
+    ] {
+        let (xi, yi) = (x0 as i64 + dx, y0 as i64 + dy);
+        if wgt <= 0.0 || xi < 0 || yi < 0 || xi >= w as i64 || yi >= h as i64 {
+            continue;
+        }
+        let (xu, yu) = (xi as usize, yi as usize);
+        if proj.pixel_direction(xu, yu).is_none() {
+            continue;
+        }
+        let p = image.get(xu, yu);
+        for i in 0..3 {
+            acc[i] += wgt * f64::from(p[i]);
+        }
+        wsum += wgt;
+    }
+    if wsum <= 0.0 {
+        // At the field's edge: the nearest pixel.
+        let xu = (fx.floor().max(0.0) as usize).min(w - 1);
+        let yu = (fy.floor().max(0.0) as usize).min(h - 1);
+        return Some(image.get(xu, yu));
+    }
+    Some(acc.map(|a| (a / wsum) as f32))
 }
 
 /// Equirectangular panorama pixel coordinates (continuous, pixel centres at
@@ -856,6 +1040,34 @@ mod tests {
         let w = geometry_warning(&square).unwrap();
         assert!(w.contains("64×64") && w.contains("not a 2:1"), "{w}");
         assert!(geometry_warning(&RgbImage::new(1024, 512)).is_none());
+    }
+
+    /// A Radiance header's VIEW= (two lines, the later refining the
+    /// earlier, as rpict then pfilt write them) gives the projection and
+    /// PIXASPECT= is kept; a view type gazelight cannot map is refused by
+    /// name; no VIEW= leaves the projection unknown (the 2:1 warning's
+    /// case).
+    #[test]
+    fn radiance_view_header_gives_the_projection() {
+        let hdr = "VIEW= -vtv -vp 0 0 1.5 -vd 0 1 0 -vu 0 0 1 -vh 60 -vv 60\n\
+                   VIEW= -vta -vh 180 -vv 180\nPIXASPECT=1.0\n";
+        let bytes = radiance_file(hdr, 32, 32, [128, 128, 128, 129]);
+        let s =
+            Scene::from_bytes(&bytes, Path::new("fish.hdr"), LuminanceScale::default()).unwrap();
+        let p = s.projection.unwrap();
+        assert_eq!(
+            (p.kind, p.hfov_deg, p.vfov_deg),
+            (ProjectionKind::Angular, 180.0, 180.0)
+        );
+        assert_eq!(s.radiance_view.unwrap().vp, [0.0, 0.0, 1.5]);
+        assert_eq!(s.pixel_aspect, Some(1.0));
+        let cyl = radiance_file("VIEW= -vtc -vh 360 -vv 90\n", 16, 8, [128, 128, 128, 129]);
+        let e =
+            Scene::from_bytes(&cyl, Path::new("cyl.hdr"), LuminanceScale::default()).unwrap_err();
+        assert!(e.to_string().contains("-vtc"), "{e}");
+        let plain = radiance_file("", 16, 16, [128, 128, 128, 129]);
+        let s = Scene::from_bytes(&plain, Path::new("p.hdr"), LuminanceScale::default()).unwrap();
+        assert!(s.projection.is_none());
     }
 
     #[test]

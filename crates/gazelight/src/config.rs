@@ -41,6 +41,11 @@ pub struct RenderConfig {
     pub scene_file: Option<PathBuf>,
     /// `scene.luminance_scale`.
     pub luminance_scale: Option<LuminanceScale>,
+    /// `scene.projection` and `scene.fov_deg`.
+    pub projection: Option<(
+        gazelight_vision::scene::ProjectionKind,
+        Option<crate::view_args::SceneFov>,
+    )>,
     /// `scene.yaw_deg`, `pitch_deg`, `hfov_deg` (or `scene.view`).
     pub view: ViewDefaults,
     /// `display.size` (or `scene.view`'s width and height).
@@ -68,9 +73,11 @@ impl RenderConfig {
             .map(crate::service_config::parse_size)
             .transpose()
             .map_err(|e| anyhow::anyhow!("config {}: display.size = {e}", path.display()))?;
+        let projection = config.scene.projection_settings()?;
         Ok(Self {
             scene_file: config.scene.file,
             luminance_scale: config.scene.luminance_scale,
+            projection,
             view: ViewDefaults {
                 yaw_deg: config.scene.yaw_deg,
                 pitch_deg: config.scene.pitch_deg,

@@ -21,6 +21,7 @@ mod config_cmd;
 mod demo;
 mod devices;
 mod export;
+mod glare;
 mod hub;
 mod input_report;
 mod inspect;
@@ -112,6 +113,11 @@ enum Command {
     /// profiles marked), USB devices and serial ports, with their source
     /// URIs.
     Devices(devices::DevicesArgs),
+    /// Glare numbers of a scene image (Radiance view, fisheye, perspective
+    /// or panorama) at one or more gazes: vertical illuminance, luminance
+    /// at the gaze with and without the veil, CIE 146 and Stiles–Holladay
+    /// (evalglare's) veils, threshold increment, glare sources; --json.
+    Glare(glare::GlareArgs),
 }
 
 /// Hidden switch: with `GAZELIGHT_PARSE_ONLY=1` in the environment the
@@ -154,7 +160,8 @@ fn check(command: &Command) -> anyhow::Result<()> {
         | Command::Export(_)
         | Command::Devices(_)
         | Command::Config(_)
-        | Command::Profile(_) => Ok(()),
+        | Command::Profile(_)
+        | Command::Glare(_) => Ok(()),
     }
 }
 
@@ -214,6 +221,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(args) => export::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Config(args) => config_cmd::run(args),
+        Command::Glare(args) => glare::run(args),
         Command::Profile(args) => profile_cmd::run(args),
     };
     match result {

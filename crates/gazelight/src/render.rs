@@ -135,10 +135,11 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     // Scene.
     let scale = args.view.scale(config.luminance_scale)?;
     let scene_path = args.scene.as_ref().or(config.scene_file.as_ref());
-    let scene = match scene_path {
+    let mut scene = match scene_path {
         Some(path) => Scene::load(path, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
+    args.view.apply_projection(&mut scene, config.projection)?;
     crate::bounds::scene_luminance(&scene)?;
     if scene.repaired_components > 0 {
         tracing::info!(
@@ -155,7 +156,15 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     );
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(width, height);
-    projection.render(&scene.image, &mut view_img);
+    let no_data = projection.render_scene(&scene, &mut view_img);
+    if no_data > 0 {
+        tracing::warn!(
+            scene = %scene.name,
+            "{no_data} of {} view pixels look outside the scene's field ({}): no data, drawn black",
+            width * height,
+            scene.effective_projection().kind.name()
+        );
+    }
 
     let mut settings = SessionSettings::new(user.name(), args.config.as_deref(), &config.ignored);
     let v = &args.view;

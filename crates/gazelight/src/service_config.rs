@@ -91,6 +91,45 @@ pub struct SceneSettings {
     /// height }`): on load it becomes the three keys above and
     /// `display.size`, which must then not be given as well.
     pub view: Option<ViewParams>,
+    /// The scene image's projection when its file does not say
+    /// (`--scene-projection`): equirectangular, perspective, angular,
+    /// hemispherical, equisolid, stereographic.
+    pub projection: Option<String>,
+    /// Its full field, degrees: `[H]` (square pixels) or `[H, V]`
+    /// (`--scene-fov-deg`).
+    pub fov_deg: Option<Vec<f64>>,
+}
+
+impl SceneSettings {
+    /// `scene.projection` and `scene.fov_deg`, parsed.
+    pub fn projection_settings(
+        &self,
+    ) -> anyhow::Result<
+        Option<(
+            gazelight_vision::scene::ProjectionKind,
+            Option<crate::view_args::SceneFov>,
+        )>,
+    > {
+        let Some(name) = &self.projection else {
+            anyhow::ensure!(self.fov_deg.is_none(), "fov_deg without projection");
+            return Ok(None);
+        };
+        let kind = gazelight_vision::scene::ProjectionKind::parse(name)
+            .ok_or_else(|| anyhow::anyhow!("unknown projection {name:?}"))?;
+        let fov = match self.fov_deg.as_deref() {
+            None => None,
+            Some(v)
+                if !v.is_empty() && v.len() <= 2 && v.iter().all(|f| f.is_finite() && *f > 0.0) =>
+            {
+                Some(crate::view_args::SceneFov {
+                    h_deg: v[0],
+                    v_deg: v.get(1).copied(),
+                })
+            }
+            Some(v) => anyhow::bail!("fov_deg = {v:?}: expected [H] or [H, V] in degrees > 0"),
+        };
+        Ok(Some((kind, fov)))
+    }
 }
 
 /// `[output]`.
@@ -221,8 +260,10 @@ impl ConfigUser {
     /// The sections (`"pipeline"`) and keys (`"scene.file"`) the command
     /// uses.
     fn applies(self) -> &'static [&'static str] {
-        const VIEW: [&str; 10] = [
+        const VIEW: [&str; 12] = [
             "scene.file",
+            "scene.projection",
+            "scene.fov_deg",
             "scene.luminance_scale",
             "scene.yaw_deg",
             "scene.pitch_deg",
@@ -233,8 +274,10 @@ impl ConfigUser {
             "filter",
             "observer",
         ];
-        const REPLAY: [&str; 11] = [
+        const REPLAY: [&str; 13] = [
             VIEW[0],
+            VIEW[10],
+            VIEW[11],
             VIEW[1],
             VIEW[2],
             VIEW[3],
@@ -391,6 +434,9 @@ impl ServiceConfig {
                 .validate()
                 .map_err(|e| anyhow::anyhow!("scene.luminance_scale: {e}"))?;
         }
+        self.scene
+            .projection_settings()
+            .map_err(|e| anyhow::anyhow!("scene.projection/fov_deg: {e}"))?;
         if let Some(head) = &self.scene.head {
             parse_head(head).map_err(|e| anyhow::anyhow!("scene.head = {e}"))?;
         }
@@ -437,6 +483,40 @@ impl ServiceConfig {
 
 #[cfg(test)]
 mod tests {
+    /// `scene.projection` and `scene.fov_deg`: a known name with one or two
+    /// fields parses; an unknown name, a field without a projection and
+    /// three numbers are refused by name.
+    #[test]
+    fn scene_projection_keys_parse_and_refuse() {
+        use gazelight_vision::scene::ProjectionKind;
+        let with = |p: Option<&str>, f: Option<Vec<f64>>| super::SceneSettings {
+            projection: p.map(str::to_owned),
+            fov_deg: f,
+            ..super::SceneSettings::default()
+        };
+        let (k, fov) = with(Some("angular"), Some(vec![182.0]))
+            .projection_settings()
+            .unwrap()
+            .unwrap();
+        assert_eq!(k, ProjectionKind::Angular);
+        assert_eq!((fov.unwrap().h_deg, fov.unwrap().v_deg), (182.0, None));
+        assert!(
+            with(Some("perspective"), Some(vec![60.0, 40.0]))
+                .projection_settings()
+                .unwrap()
+                .is_some()
+        );
+        assert!(with(None, None).projection_settings().unwrap().is_none());
+        let e = with(Some("fishy"), None).projection_settings().unwrap_err();
+        assert!(e.to_string().contains("fishy"), "{e}");
+        assert!(with(None, Some(vec![90.0])).projection_settings().is_err());
+        assert!(
+            with(Some("angular"), Some(vec![1.0, 2.0, 3.0]))
+                .projection_settings()
+                .is_err()
+        );
+    }
+
     use super::*;
 
     fn load_str(text: &str) -> anyhow::Result<ServiceConfig> {

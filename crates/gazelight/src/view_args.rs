@@ -1,8 +1,45 @@
 //! The view and scene-scale flags `render`, `replay` and `run` share, and
 //! how they override a configuration.
 
+use anyhow::Context;
 use clap::Args;
-use gazelight_vision::scene::{LuminanceScale, ViewParams};
+use gazelight_vision::scene::{LuminanceScale, ProjectionKind, Scene, SceneProjection, ViewParams};
+
+/// `--scene-fov-deg H[,V]`: the scene's full field, degrees.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneFov {
+    pub h_deg: f64,
+    pub v_deg: Option<f64>,
+}
+
+fn parse_fov(s: &str) -> Result<SceneFov, String> {
+    let num = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .ok_or_else(|| format!("{t:?} is not a field in degrees > 0"))
+    };
+    match s.split_once(',') {
+        Some((h, v)) => Ok(SceneFov {
+            h_deg: num(h)?,
+            v_deg: Some(num(v)?),
+        }),
+        None => Ok(SceneFov {
+            h_deg: num(s)?,
+            v_deg: None,
+        }),
+    }
+}
+
+fn parse_projection(s: &str) -> Result<ProjectionKind, String> {
+    ProjectionKind::parse(s).ok_or_else(|| {
+        format!(
+            "expected one of {}",
+            ProjectionKind::ALL.map(ProjectionKind::name).join(", ")
+        )
+    })
+}
 
 /// Head orientation, field of view and the scene's luminance scale.
 #[derive(Args, Clone, Copy, Debug, Default)]
@@ -22,6 +59,14 @@ pub struct ViewArgs {
     /// Scale the scene so its median luminance is this many cd/m².
     #[arg(long)]
     pub scene_key_cd_m2: Option<f64>,
+    /// The scene image's projection, when its file does not say (a
+    /// Radiance VIEW= does): equirectangular, perspective, angular,
+    /// hemispherical, equisolid, stereographic.
+    #[arg(long, value_name = "KIND", value_parser = parse_projection)]
+    pub scene_projection: Option<ProjectionKind>,
+    /// The scene image's full field, degrees: `H` (square pixels) or `H,V`.
+    #[arg(long, value_name = "H[,V]", value_parser = parse_fov, requires = "scene_projection")]
+    pub scene_fov_deg: Option<SceneFov>,
 }
 
 /// What a configuration file says about the view (each `None` = unset).
@@ -42,6 +87,37 @@ impl ViewArgs {
             (None, None) => configured.unwrap_or_default(),
         };
         crate::bounds::luminance_scale(scale)
+    }
+
+    /// Gives `scene` the projection of `--scene-projection` and
+    /// `--scene-fov-deg`, else the configuration's `scene.projection` and
+    /// `scene.fov_deg` (over its header's), if given.
+    pub fn apply_projection(
+        &self,
+        scene: &mut Scene,
+        configured: Option<(ProjectionKind, Option<SceneFov>)>,
+    ) -> anyhow::Result<()> {
+        let (kind, fov) = match (self.scene_projection, configured) {
+            (Some(k), _) => (k, self.scene_fov_deg),
+            (None, Some((k, f))) => (k, f),
+            (None, None) => return Ok(()),
+        };
+        let (w, h) = (scene.image.width, scene.image.height);
+        scene.projection = Some(match (kind, fov) {
+            (ProjectionKind::Equirectangular, _) => SceneProjection::equirectangular(w, h),
+            (_, None) => anyhow::bail!("--scene-projection {} needs --scene-fov-deg", kind.name()),
+            (_, Some(SceneFov { h_deg, v_deg: None })) => {
+                SceneProjection::with_square_pixels(kind, h_deg, w, h).context("--scene-fov-deg")?
+            }
+            (
+                _,
+                Some(SceneFov {
+                    h_deg,
+                    v_deg: Some(v),
+                }),
+            ) => SceneProjection::new(kind, h_deg, v, w, h).context("--scene-fov-deg")?,
+        });
+        Ok(())
     }
 
     /// The view: each angle from a flag, else the configuration, else

@@ -39,7 +39,7 @@ use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::pooling::PlaneAngles;
 use gazelight_vision::psf::PsfKernel;
-use gazelight_vision::scene::{PanoramaView, ViewParams};
+use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use super::head::Head;
 use super::psf_worker::PsfWorker;
@@ -67,8 +67,8 @@ pub struct FrameLoopSetup {
     pub pipeline: PipelineConfig,
     /// Which frame pipeline renders (CPU reference or GPU).
     pub backend: BackendChoice,
-    /// The panorama, cd/m².
-    pub pano: RgbImage,
+    /// The scene (cd/m²) and its projection.
+    pub pano: Scene,
     pub view: ViewParams,
     pub head: Head,
     pub fps: f64,
@@ -137,7 +137,7 @@ pub struct FrameLoop {
     adaptation_cell: Arc<AdaptationCell>,
     /// One pipeline per view: one (both eyes), or left and right.
     eyes: Vec<EyePipe>,
-    pano: RgbImage,
+    pano: Scene,
     view: ViewParams,
     view_img: RgbImage,
     head: Head,
@@ -284,7 +284,7 @@ impl FrameLoop {
             view.pitch_deg = pitch;
         }
         let mut view_img = RgbImage::new(view.width, view.height);
-        PanoramaView::new(view)?.render(&pano, &mut view_img);
+        PanoramaView::new(view)?.render_scene(&pano, &mut view_img);
         let kernel_len = match eyes.first_mut() {
             Some(e) => e.pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size),
             None => 0,
@@ -533,7 +533,7 @@ impl FrameLoop {
                 .zip(projections)
                 .zip(&mut self.view_means)
             {
-                p.render(&self.pano, &mut eye.view_img);
+                p.render_scene(&self.pano, &mut eye.view_img);
                 eye.pipeline.set_view_frustum(p.frustum_tans())?;
                 *mean = pupil_light::field_mean_cd_m2(&eye.view_img, p.frustum_tans(), 8);
             }
@@ -562,7 +562,7 @@ impl FrameLoop {
         {
             self.view.yaw_deg = yaw;
             self.view.pitch_deg = pitch;
-            PanoramaView::new(self.view)?.render(&self.pano, &mut self.view_img);
+            PanoramaView::new(self.view)?.render_scene(&self.pano, &mut self.view_img);
             self.pupil_light
                 .set_field(field_of(&self.view, &self.view_img));
         }
@@ -1026,7 +1026,7 @@ mod tests {
             adaptation: Arc::new(AdaptationCell::default()),
             pipeline: config,
             backend: BackendChoice::Cpu,
-            pano: scene.image,
+            pano: scene,
             view,
             head: Head::Fixed,
             fps: 90.0,

@@ -389,10 +389,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let scale = args.view.scale(cfg.scene.luminance_scale)?;
     scale.validate().context("luminance scale")?;
     let scene_path = args.scene.clone().or_else(|| cfg.scene.file.clone());
-    let scene = match &scene_path {
+    let mut scene = match &scene_path {
         Some(p) => Scene::load(p, scale)?,
         None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale)?,
     };
+    args.view
+        .apply_projection(&mut scene, cfg.scene.projection_settings()?)?;
     crate::bounds::scene_luminance(&scene)?;
     let base = demo::default_view(r.size.0, r.size.1);
     let view = args.view.view(
@@ -406,7 +408,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     );
     let projection = PanoramaView::new(view).context("view")?;
     let mut view_img = RgbImage::new(view.width, view.height);
-    projection.render(&scene.image, &mut view_img);
+    let no_data = projection.render_scene(&scene, &mut view_img);
+    if no_data > 0 {
+        tracing::warn!(
+            scene = %scene.name,
+            "{no_data} of {} view pixels look outside the scene's field: no data, drawn black",
+            view.width * view.height
+        );
+    }
     let head = match &r.head {
         HeadSpec::Fixed => Head::Fixed,
         HeadSpec::Trace(p) => Head::Trace(HeadTrace::load(p)?),
@@ -609,7 +618,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             adaptation: source.adaptation.clone(),
             pipeline: cfg.pipeline.clone(),
             backend: args.backend,
-            pano: scene.image,
+            pano: scene,
             view,
             head,
             fps: r.fps,

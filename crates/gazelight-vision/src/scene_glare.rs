@@ -1,0 +1,477 @@
+//! Glare numbers of a scene image at a gaze: the vertical illuminance at
+//! the eye, the glare sources, the veiling luminance by CIE 146:2002 and by
+//! the Stiles–Holladay formula evalglare reports, and the threshold
+//! increment — for any [`SceneProjection`], each pixel weighted by its own
+//! solid angle, pixels outside the image's field ignored.
+//!
+//! Definitions (for a gaze direction g; a pixel's luminance L in cd/m², its
+//! solid angle ω in sr, its direction d; only pixels in the field and in
+//! front of the eye, d·g > 0, count — the half space a fisheye centred on
+//! g sees, as evalglare's `pict_is_validpixel`):
+//!
+//! * vertical illuminance at the eye, on the plane facing g:
+//!   `E_v = Σ L ω (d·g)` lux;
+//! * glare sources: pixels brighter than a threshold — evalglare's default
+//!   is 2000 cd/m² (its `-b` above 100 is an absolute luminance, at or
+//!   below 100 a factor of the average luminance Σ L ω / Σ ω; evalglare
+//!   2.10 `main`), grouped as evalglare groups them: a pixel joins a source
+//!   when it lies within half the search radius `-r` (default 0.2 rad:
+//!   evalglare compares twice the angle with it, `find_near_pgs`) of one of
+//!   its pixels. Each source: its solid angle Σ ω, its mean luminance
+//!   Σ L ω / Σ ω, its position the ω-weighted mean pixel position (and the
+//!   direction through it), its illuminance at the eye `E_i = Σ L ω (d·g)`.
+//!   evalglare's peak extraction (pixels above 50 000 cd/m² split into
+//!   sources of their own, `-y`) and smoothing (`-s`) are not done.
+//! * Stiles–Holladay veil (evalglare's `Lveil_cie`):
+//!   `L_v = Σ_i 10 E_i / θ_i²`, θ_i in degrees between g and source i's
+//!   position (evalglare 2.10, detailed output). evalglare takes the
+//!   position as the pixel its truncated mean pixel index names, up to a
+//!   pixel off the centroid (5 % of the veil for a source 13° from the gaze
+//!   at 0.7°/px); both are reported, the centroid's as the veil;
+//! * CIE 146:2002 veil of the whole image at the observer's age and
+//!   pigmentation: `L_v = Σ L ω (d·g) f_CIE146(θ)` over the pixels with
+//!   θ ≥ [`GlareOptions::cie146_inner_deg`] (the central disc is what the
+//!   eye looks at, not a glare source);
+//! * luminance at the gaze: the ω-weighted mean over a disc of
+//!   [`GlareOptions::gaze_disc_deg`] around g, and the same plus the CIE
+//!   146 veil ("as the eye sees it");
+//! * threshold increment (CIE 140-2000 eq. 5 and 6, for road lighting):
+//!   `TI = 65 L_v / L_ad^0.8` % for L_ad ≤ 5 cd/m², `95 L_v / L_ad^1.05` %
+//!   above, with the CIE 146 veil and the adaptation luminance L_ad taken
+//!   as evalglare's background luminance `(E_v − Σ E_i) / π`.
+
+use glam::DVec3;
+use serde::Serialize;
+
+use crate::RgbImage;
+use crate::image::luminance;
+use crate::scene::SceneProjection;
+use crate::scene::projection::angles_from_direction;
+use crate::stray_light::cie146_veil_per_sr;
+
+/// The glare source threshold (evalglare's `-b`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SourceThreshold {
+    /// Pixels brighter than this luminance, cd/m².
+    AbsoluteCdM2 { cd_m2: f64 },
+    /// Pixels brighter than this factor times the average luminance.
+    TimesAverage { factor: f64 },
+}
+
+impl SourceThreshold {
+    /// evalglare's reading of `-b x`: above 100 a luminance, else a factor.
+    pub fn from_evalglare_b(b: f64) -> Self {
+        if b > 100.0 {
+            Self::AbsoluteCdM2 { cd_m2: b }
+        } else {
+            Self::TimesAverage { factor: b }
+        }
+    }
+}
+
+/// Settings of a glare evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GlareOptions {
+    /// Which pixels are glare sources (evalglare's default 2000 cd/m²).
+    pub threshold: SourceThreshold,
+    /// evalglare's search radius `-r`, radians (default 0.2): pixels within
+    /// half of it join a source.
+    pub search_radius_rad: f64,
+    /// Observer's age, years (CIE 146).
+    pub age_years: f64,
+    /// Ocular pigmentation (CIE 146: 0 very dark … 1.2 very light eyes).
+    pub pigmentation: f64,
+    /// Pixels closer to the gaze than this (degrees) add no CIE 146 veil.
+    pub cie146_inner_deg: f64,
+    /// Diameter of the disc the luminance at the gaze is averaged over,
+    /// degrees.
+    pub gaze_disc_deg: f64,
+}
+
+impl Default for GlareOptions {
+    fn default() -> Self {
+        Self {
+            threshold: SourceThreshold::AbsoluteCdM2 { cd_m2: 2000.0 },
+            search_radius_rad: 0.2,
+            age_years: 25.0,
+            pigmentation: 0.5,
+            cie146_inner_deg: 1.0,
+            gaze_disc_deg: 1.0,
+        }
+    }
+}
+
+/// One glare source at a gaze.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GlareSource {
+    /// Pixels in it.
+    pub pixels: usize,
+    /// ω-weighted mean pixel position (x right, y down; pixel centres at
+    /// +0.5).
+    pub position_px: [f64; 2],
+    /// The direction through that position, camera frame (−z forward,
+    /// +x right, +y up).
+    pub direction: [f64; 3],
+    /// Its azimuth (right) and elevation (up) from the image's view
+    /// direction, degrees.
+    pub azimuth_elevation_deg: [f64; 2],
+    /// Angle from the gaze, degrees.
+    pub angle_from_gaze_deg: f64,
+    /// Solid angle, sr.
+    pub solid_angle_sr: f64,
+    /// Mean luminance (ω-weighted), cd/m².
+    pub luminance_cd_m2: f64,
+    /// Brightest pixel, cd/m².
+    pub max_luminance_cd_m2: f64,
+    /// Illuminance it gives at the eye on the plane facing the gaze, lux.
+    pub illuminance_lux: f64,
+    /// Its Stiles–Holladay veil, 10 E / θ², cd/m².
+    pub veil_stiles_holladay_cd_m2: f64,
+    /// The angle from the gaze as evalglare 2.10 takes it: to the centre
+    /// of the pixel its truncated mean pixel index names (its `x2 =
+    /// (int)av_posx`, rows counted from the bottom), degrees. Up to a
+    /// pixel off the source's centroid.
+    pub angle_from_gaze_evalglare_deg: f64,
+    /// 10 E / θ² with that angle: evalglare's own `Lveil_cie` term.
+    pub veil_stiles_holladay_evalglare_cd_m2: f64,
+}
+
+/// The glare numbers at one gaze.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GazeGlare {
+    /// The gaze, azimuth and elevation from the image's view direction,
+    /// degrees.
+    pub gaze_deg: [f64; 2],
+    /// Whether the gaze direction lies in the image's field.
+    pub gaze_in_field: bool,
+    /// Vertical illuminance at the eye (the plane facing the gaze), lux.
+    pub vertical_illuminance_lux: f64,
+    /// Average luminance of the half space in front (Σ L ω / Σ ω), cd/m².
+    pub average_luminance_cd_m2: f64,
+    /// Solid angle with data in front of the eye, sr (2π for a full half
+    /// space).
+    pub solid_angle_with_data_sr: f64,
+    /// The source threshold used, cd/m².
+    pub source_threshold_cd_m2: f64,
+    /// Luminance at the gaze (mean over the gaze disc), cd/m²; `None` when
+    /// the gaze is outside the field.
+    pub luminance_at_gaze_cd_m2: Option<f64>,
+    /// The same plus the CIE 146 veil, cd/m².
+    pub luminance_at_gaze_with_veil_cd_m2: Option<f64>,
+    /// CIE 146:2002 veil of the whole image, cd/m².
+    pub veil_cie146_cd_m2: f64,
+    /// Stiles–Holladay veil of the glare sources, Σ 10 E_i / θ_i², θ_i to
+    /// each source's centroid, cd/m².
+    pub veil_stiles_holladay_cd_m2: f64,
+    /// The same with evalglare's source positions (whole pixels, see
+    /// [`GlareSource::angle_from_gaze_evalglare_deg`]): its `Lveil_cie`.
+    pub veil_stiles_holladay_evalglare_cd_m2: f64,
+    /// The glare sources' illuminance at the eye, lux.
+    pub source_illuminance_lux: f64,
+    /// Background (adaptation) luminance, (E_v − Σ E_i)/π, cd/m².
+    pub background_luminance_cd_m2: f64,
+    /// Threshold increment, percent (CIE 140 eq. 5/6 with the CIE 146 veil).
+    pub threshold_increment_pct: f64,
+    /// The glare sources, brightest illuminance first.
+    pub sources: Vec<GlareSource>,
+}
+
+/// A scene image prepared for glare evaluations: each pixel's luminance,
+/// direction and solid angle.
+pub struct SceneGlare {
+    projection: SceneProjection,
+    luminance: Vec<f64>,
+    /// Unit direction and solid angle of the pixels in the field.
+    pixels: Vec<(usize, DVec3, f64)>,
+    /// Pixels outside the field (no data).
+    pub no_data_pixels: usize,
+}
+
+impl SceneGlare {
+    /// Prepares `image` (cd/m²) seen through `projection` (whose size must
+    /// be the image's; the caller checks). Pixels outside the field are
+    /// never read.
+    pub fn new(image: &RgbImage, projection: SceneProjection) -> Self {
+        use rayon::prelude::*;
+        let w = image.width;
+        let n = image.width * image.height;
+        let luminance: Vec<f64> = image
+            .pixels
+            .iter()
+            .map(|&p| f64::from(luminance(p)).max(0.0))
+            .collect();
+        let pixels: Vec<(usize, DVec3, f64)> = (0..n)
+            .into_par_iter()
+            .filter_map(|i| {
+                let (x, y) = (i % w, i / w);
+                let d = projection.pixel_direction(x, y)?;
+                let om = projection.pixel_solid_angle_sr(x, y);
+                (om > 0.0).then_some((i, d, om))
+            })
+            .collect();
+        let no_data_pixels = n - pixels.len();
+        Self {
+            projection,
+            luminance,
+            pixels,
+            no_data_pixels,
+        }
+    }
+
+    /// The projection.
+    pub fn projection(&self) -> &SceneProjection {
+        &self.projection
+    }
+
+    /// The glare numbers at a gaze direction (camera frame).
+    pub fn at_gaze(&self, gaze: DVec3, opts: &GlareOptions) -> GazeGlare {
+        let g = gaze.normalize_or(DVec3::NEG_Z);
+        let front: Vec<(usize, DVec3, f64, f64)> = self
+            .pixels
+            .iter()
+            .filter_map(|&(i, d, om)| {
+                let c = d.dot(g);
+                (c >= 0.0).then_some((i, d, om, c))
+            })
+            .collect();
+        let mut e_v = 0.0;
+        let mut sum_l_om = 0.0;
+        let mut sum_om = 0.0;
+        let mut veil_cie = 0.0;
+        let inner_cos = opts.cie146_inner_deg.to_radians().cos();
+        let disc_cos = (opts.gaze_disc_deg * 0.5).to_radians().cos();
+        let (mut disc_l_om, mut disc_om) = (0.0, 0.0);
+        for &(i, _, om, c) in &front {
+            let l = self.luminance[i];
+            e_v += l * om * c;
+            sum_l_om += l * om;
+            sum_om += om;
+            if c <= inner_cos {
+                let theta_deg = c.clamp(-1.0, 1.0).acos().to_degrees();
+                veil_cie +=
+                    l * om * c * cie146_veil_per_sr(theta_deg, opts.age_years, opts.pigmentation);
+            }
+            if c >= disc_cos {
+                disc_l_om += l * om;
+                disc_om += om;
+            }
+        }
+        let average = if sum_om > 0.0 { sum_l_om / sum_om } else { 0.0 };
+        let threshold = match opts.threshold {
+            SourceThreshold::AbsoluteCdM2 { cd_m2 } => cd_m2,
+            SourceThreshold::TimesAverage { factor } => factor * average,
+        };
+        let sources = self.sources(&front, g, threshold, opts.search_radius_rad);
+        let veil_sh: f64 = sources.iter().map(|s| s.veil_stiles_holladay_cd_m2).sum();
+        let veil_sh_eg: f64 = sources
+            .iter()
+            .map(|s| s.veil_stiles_holladay_evalglare_cd_m2)
+            .sum();
+        let e_sources: f64 = sources.iter().map(|s| s.illuminance_lux).sum();
+        let gaze_px = self.projection.pixel(g);
+        let gaze_in_field = gaze_px.is_some();
+        let at_gaze = gaze_px.map(|p| {
+            if disc_om > 0.0 {
+                disc_l_om / disc_om
+            } else {
+                let x = (p[0].floor() as usize).min(self.projection.width_px - 1);
+                let y = (p[1].floor() as usize).min(self.projection.height_px - 1);
+                self.luminance[y * self.projection.width_px + x]
+            }
+        });
+        let background = ((e_v - e_sources) / std::f64::consts::PI).max(0.0);
+        GazeGlare {
+            gaze_deg: angles_from_direction(g),
+            gaze_in_field,
+            vertical_illuminance_lux: e_v,
+            average_luminance_cd_m2: average,
+            solid_angle_with_data_sr: sum_om,
+            source_threshold_cd_m2: threshold,
+            luminance_at_gaze_cd_m2: at_gaze,
+            luminance_at_gaze_with_veil_cd_m2: at_gaze.map(|l| l + veil_cie),
+            veil_cie146_cd_m2: veil_cie,
+            veil_stiles_holladay_cd_m2: veil_sh,
+            veil_stiles_holladay_evalglare_cd_m2: veil_sh_eg,
+            source_illuminance_lux: e_sources,
+            background_luminance_cd_m2: background,
+            threshold_increment_pct: threshold_increment_pct(veil_cie, background),
+            sources,
+        }
+    }
+
+    /// Groups the front pixels brighter than `threshold` into sources.
+    fn sources(
+        &self,
+        front: &[(usize, DVec3, f64, f64)],
+        g: DVec3,
+        threshold: f64,
+        search_radius_rad: f64,
+    ) -> Vec<GlareSource> {
+        let bright: Vec<&(usize, DVec3, f64, f64)> = front
+            .iter()
+            .filter(|p| self.luminance[p.0] > threshold)
+            .collect();
+        let link = (search_radius_rad * 0.5).max(1e-6);
+        let labels = single_linkage(&bright.iter().map(|p| p.1).collect::<Vec<_>>(), link);
+        let n_groups = labels.iter().copied().max().map_or(0, |m| m + 1);
+        #[derive(Default, Clone)]
+        struct Acc {
+            n: usize,
+            om: f64,
+            l_om: f64,
+            x_om: f64,
+            y_om: f64,
+            l_max: f64,
+            e: f64,
+        }
+        let mut acc = vec![Acc::default(); n_groups];
+        let w = self.projection.width_px;
+        for (p, &label) in bright.iter().zip(&labels) {
+            let &&(i, _d, om, c) = p;
+            let l = self.luminance[i];
+            let a = &mut acc[label];
+            a.n += 1;
+            a.om += om;
+            a.l_om += l * om;
+            a.x_om += ((i % w) as f64 + 0.5) * om;
+            a.y_om += ((i / w) as f64 + 0.5) * om;
+            a.l_max = a.l_max.max(l);
+            a.e += l * om * c;
+        }
+        let mut out: Vec<GlareSource> = acc
+            .into_iter()
+            .filter(|a| a.n > 0 && a.om > 0.0)
+            .map(|a| {
+                let pos = [a.x_om / a.om, a.y_om / a.om];
+                let dir = self.projection.direction_any(pos).unwrap_or(DVec3::NEG_Z);
+                let theta_deg = dir.dot(g).clamp(-1.0, 1.0).acos().to_degrees();
+                // evalglare: the mean integer column and row-from-bottom
+                // index, truncated; here in top-down continuous pixels.
+                let (mean_col, mean_row) = (pos[0] - 0.5, pos[1] - 0.5);
+                let eg_px = [mean_col.floor() + 0.5, mean_row.ceil() + 0.5];
+                let theta_eg_deg = self
+                    .projection
+                    .direction_any(eg_px)
+                    .map_or(theta_deg, |d| d.dot(g).clamp(-1.0, 1.0).acos().to_degrees());
+                GlareSource {
+                    pixels: a.n,
+                    position_px: pos,
+                    direction: dir.to_array(),
+                    azimuth_elevation_deg: angles_from_direction(dir),
+                    angle_from_gaze_deg: theta_deg,
+                    solid_angle_sr: a.om,
+                    luminance_cd_m2: a.l_om / a.om,
+                    max_luminance_cd_m2: a.l_max,
+                    illuminance_lux: a.e,
+                    // evalglare 2.10: Lveil_cie = 10 Eglare / (θ² + 1e-16), θ in degrees
+                    veil_stiles_holladay_cd_m2: 10.0 * a.e / (theta_deg * theta_deg + 1e-16),
+                    angle_from_gaze_evalglare_deg: theta_eg_deg,
+                    veil_stiles_holladay_evalglare_cd_m2: 10.0 * a.e
+                        / (theta_eg_deg * theta_eg_deg + 1e-16),
+                }
+            })
+            .collect();
+        out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
+        out
+    }
+}
+
+/// Threshold increment, percent: CIE 140-2000 eq. 5 (L_ad ≤ 5 cd/m²) and
+/// eq. 6 (above); 0 for no adaptation luminance.
+pub fn threshold_increment_pct(veil_cd_m2: f64, adaptation_cd_m2: f64) -> f64 {
+    if adaptation_cd_m2 <= 0.0 {
+        return 0.0;
+    }
+    if adaptation_cd_m2 <= 5.0 {
+        // CIE 140-2000 eq. 5: TI = 65 L_v / L_av^0.8
+        65.0 * veil_cd_m2 / adaptation_cd_m2.powf(0.8)
+    } else {
+        // CIE 140-2000 eq. 6: TI = 95 L_v / L_av^1.05
+        95.0 * veil_cd_m2 / adaptation_cd_m2.powf(1.05)
+    }
+}
+
+/// Single-linkage groups of unit directions: two join when their angle is
+/// at most `link_rad`. Returns a group label per direction (0-based,
+/// dense). A hash grid of cell size the link's chord keeps it linear.
+fn single_linkage(dirs: &[DVec3], link_rad: f64) -> Vec<usize> {
+    use std::collections::HashMap;
+    let n = dirs.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn find(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let chord = 2.0 * (link_rad * 0.5).sin();
+    let cos_link = link_rad.cos();
+    let cell = |d: DVec3| -> [i64; 3] {
+        [
+            (d.x / chord).floor() as i64,
+            (d.y / chord).floor() as i64,
+            (d.z / chord).floor() as i64,
+        ]
+    };
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, &d) in dirs.iter().enumerate() {
+        grid.entry(cell(d)).or_default().push(i);
+    }
+    for (i, &d) in dirs.iter().enumerate() {
+        let c = cell(d);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(members) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                        continue;
+                    };
+                    for &j in members {
+                        if j > i && dirs[j].dot(d) >= cos_link {
+                            let (a, b) = (find(&mut parent, i), find(&mut parent, j));
+                            if a != b {
+                                parent[a.max(b)] = a.min(b);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut dense: HashMap<usize, usize> = HashMap::new();
+    (0..n)
+        .map(|i| {
+            let r = find(&mut parent, i);
+            let next = dense.len();
+            *dense.entry(r).or_insert(next)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn linkage_joins_chains_and_keeps_gaps() {
+        let at = |deg: f64| {
+            let r = deg.to_radians();
+            DVec3::new(r.sin(), 0.0, -r.cos())
+        };
+        // 0°, 4°, 8° chain at a 5° link; 20° alone.
+        let labels = single_linkage(&[at(0.0), at(4.0), at(20.0), at(8.0)], 5f64.to_radians());
+        assert_eq!(labels[0], labels[1]);
+        assert_eq!(labels[1], labels[3]);
+        assert_ne!(labels[0], labels[2]);
+    }
+
+    #[test]
+    fn threshold_increment_follows_cie_140() {
+        // CIE 140 eq. 5 at L_av = 1: TI = 65 L_v.
+        assert!((threshold_increment_pct(0.1, 1.0) - 6.5).abs() < 1e-12);
+        // eq. 6 at L_av = 10: 95 × 0.5 / 10^1.05.
+        let expected = 95.0 * 0.5 / 10f64.powf(1.05);
+        assert!((threshold_increment_pct(0.5, 10.0) - expected).abs() < 1e-12);
+    }
+}

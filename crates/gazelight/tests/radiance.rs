@@ -1,0 +1,484 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
+//! Issue 38, "Must show", against real Radiance (the `pyradiance` wheel's
+//! `oconv`, `rpict`, `pfilt`, `rtrace` and `evalglare`, installed by
+//! `.ci/test`): a night street with four spherical luminaires
+//! (17 900 cd/m²) and a lit facade is rendered from one viewpoint as a
+//! 180° angular fisheye (`-vta`) and a 90° perspective (`-vtv`), and as a
+//! fisheye looking along each test gaze (evalglare evaluates the glare
+//! around its image's view direction). Checked:
+//!
+//! * the same direction's luminance agrees between the two projections,
+//!   read through gazelight's projections of their `VIEW=` headers;
+//! * the vertical illuminance at the eye from the fisheye agrees with
+//!   `rtrace -I` at the viewpoint within 5 %;
+//! * gazelight's Stiles–Holladay veil agrees with evalglare's `Lveil_cie`
+//!   on the fisheye rendered along each gaze within 5 % with evalglare's
+//!   whole-pixel source positions, within 10 % with the sources' centroids
+//!   (evalglare's truncation moves a source up to a pixel); read at the
+//!   gaze from the forward fisheye it agrees within 5 % with the fisheye
+//!   along the gaze; the glare sources match evalglare's within 1° (its
+//!   whole pixel) and their solid angles within 10 %;
+//! * the CIE 146 veil agrees within 2 % with the sum this test makes over
+//!   the fisheye's pixels with its own equidistant-projection geometry.
+//!
+//! Outside CI a missing pyradiance prints SKIP; with CI set it fails.
+
+mod common;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use common::{gazelight, tmp};
+use gazelight_vision::scene::{LuminanceScale, Scene};
+
+/// The street: Radiance's world, +z up; the eye at (0, 0, 1.5) looks
+/// along +y.
+const SCENE_RAD: &str = "\
+void plastic asphalt 0 0 5 .08 .08 .08 0 0
+void plastic facade 0 0 5 .3 .3 .3 0 0
+void light lamp 0 0 3 100 100 100
+asphalt polygon road 0 0 12 -50 -5 0  50 -5 0  50 80 0  -50 80 0
+facade polygon house 0 0 12 8 5 0  8 30 0  8 30 6  8 5 6
+lamp sphere l1 0 0 4 -3 10 6 0.35
+lamp sphere l2 0 0 4 3 14 6 0.35
+lamp sphere l3 0 0 4 -3 24 6 0.35
+lamp sphere l4 0 0 4 1.5 6 3.5 0.15
+";
+const VIEW: &str = "-vp 0 0 1.5 -vu 0 0 1";
+/// Rendered at 4× and box-filtered down (`pfilt -1 -x /4`): 256 px.
+const RENDER_PX: &str = "1024";
+/// Gazes (azimuth right, elevation up, degrees) from the view direction.
+const GAZES: [[f64; 2]; 4] = [[0.0, 0.0], [10.0, 5.0], [-15.0, 10.0], [25.0, -5.0]];
+
+/// The pyradiance package directory (its bin/ and lib/), or None.
+fn pyradiance() -> Option<PathBuf> {
+    let out = Command::new("python3")
+        .args([
+            "-c",
+            "import pyradiance, os; print(os.path.dirname(pyradiance.__file__))",
+        ])
+        .stderr(Stdio::null())
+        .output()
+        .ok()?;
+    let dir = PathBuf::from(String::from_utf8(out.stdout).ok()?.trim());
+    (out.status.success() && dir.join("bin/rpict").is_file() && dir.join("bin/evalglare").is_file())
+        .then_some(dir)
+}
+
+struct Radiance {
+    pkg: PathBuf,
+    dir: PathBuf,
+}
+
+impl Radiance {
+    /// Runs a shell line in the work directory with Radiance on PATH and
+    /// RAYPATH; returns stdout.
+    fn sh(&self, line: &str) -> String {
+        let path = format!(
+            "{}:{}",
+            self.pkg.join("bin").display(),
+            std::env::var("PATH").unwrap_or_default()
+        );
+        let out = Command::new("bash")
+            .args(["-c", &format!("set -o pipefail; {line}")])
+            .current_dir(&self.dir)
+            .env("PATH", path)
+            .env("RAYPATH", format!(".:{}", self.pkg.join("lib").display()))
+            .output()
+            .expect("bash");
+        assert!(
+            out.status.success(),
+            "{line}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    }
+
+    /// An image along (az, el) with the view type and field given.
+    fn render(&self, name: &str, vt: &str, fov: f64, az_el: [f64; 2]) -> PathBuf {
+        let (a, e) = (az_el[0].to_radians(), az_el[1].to_radians());
+        let vd = format!(
+            "{:.9} {:.9} {:.9}",
+            e.cos() * a.sin(),
+            e.cos() * a.cos(),
+            e.sin()
+        );
+        self.sh(&format!(
+            "rpict -vt{vt} {VIEW} -vd {vd} -vh {fov} -vv {fov} -x {RENDER_PX} -y {RENDER_PX} \
+             -ab 0 -ps 1 -pj 0 -dj 0 street.oct | pfilt -1 -x /4 -y /4 > {name}"
+        ));
+        self.dir.join(name)
+    }
+}
+
+/// evalglare -d: the glare sources (npix, x, y, L, Ω, xdir, ydir, zdir,
+/// Eglare, Lveil_cie) and the named summary values.
+struct Evalglare {
+    sources: Vec<[f64; 10]>,
+    values: HashMap<String, f64>,
+}
+
+fn evalglare(r: &Radiance, image: &Path) -> Evalglare {
+    let text = r.sh(&format!("evalglare -d {}", image.display()));
+    let mut sources = Vec::new();
+    let mut values = HashMap::new();
+    let mut in_sources = false;
+    for line in text.lines() {
+        if line.contains("No pixels x-pos") {
+            in_sources = true;
+            continue;
+        }
+        if let Some((names, nums)) = line.split_once(": ")
+            && names.starts_with("dgp,")
+        {
+            for (n, v) in names.split(',').zip(nums.split_whitespace()) {
+                values.insert(n.trim().to_owned(), v.parse::<f64>().unwrap());
+            }
+            in_sources = false;
+            continue;
+        }
+        if in_sources {
+            let f: Vec<f64> = line
+                .split_whitespace()
+                .filter_map(|t| t.parse().ok())
+                .collect();
+            // i npix x y L_s Ω_s Posindx L_b L_t E_v Edir Max_Lum Sigma xdir ydir zdir Eglare Lveil_cie ...
+            if f.len() >= 18 && f[1] > 0.0 {
+                sources.push([
+                    f[1], f[2], f[3], f[4], f[5], f[13], f[14], f[15], f[16], f[17],
+                ]);
+            }
+        }
+    }
+    assert!(
+        values.contains_key("Lveil_cie") && values.contains_key("E_v"),
+        "evalglare output:\n{text}"
+    );
+    Evalglare { sources, values }
+}
+
+fn glare_json(image: &Path, gazes: &[[f64; 2]], out: &Path) -> serde_json::Value {
+    let mut args: Vec<String> = vec!["glare".into(), image.display().to_string()];
+    for g in gazes {
+        args.push("--gaze-deg".into());
+        args.push(format!("{},{}", g[0], g[1]));
+    }
+    args.push("--json".into());
+    args.push(out.display().to_string());
+    let a: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = gazelight(&a);
+    assert!(
+        o.status.success(),
+        "gazelight glare: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    println!("{}", String::from_utf8_lossy(&o.stdout));
+    serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap()
+}
+
+fn f(v: &serde_json::Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or_else(|| panic!("{key} in {v}"))
+}
+
+/// CIE 146:2002 General Disability Glare equation, L_veil / E_glare, sr⁻¹.
+fn cie146(theta_deg: f64, age_years: f64, p: f64) -> f64 {
+    10.0 / theta_deg.powi(3)
+        + (5.0 / theta_deg.powi(2) + 0.1 * p / theta_deg) * (1.0 + (age_years / 62.5).powi(4))
+        + 0.0025 * p
+}
+
+#[test]
+fn radiance_views_illuminance_and_evalglare_agree() {
+    let Some(pkg) = pyradiance() else {
+        gazelight_test_support::skip_or_fail(
+            "pyradiance (Radiance's rpict, rtrace, evalglare) is not installed",
+        );
+        return;
+    };
+    let dir = tmp("radiance");
+    let r = Radiance {
+        pkg,
+        dir: dir.clone(),
+    };
+    std::fs::write(dir.join("street.rad"), SCENE_RAD).unwrap();
+    r.sh("oconv street.rad > street.oct");
+    let fish = r.render("fish.hdr", "a", 180.0, [0.0, 0.0]);
+    let persp = r.render("persp.hdr", "v", 90.0, [0.0, 0.0]);
+
+    // 1. Vertical illuminance at the eye: rtrace -I (one ambient bounce
+    // off the road and facade, as the image shows them) vs the fisheye.
+    let irr = r.sh(
+        "echo '0 0 1.5 0 1 0' | rtrace -I -h -ab 1 -aa 0 -ad 8192 -as 0 -av 0 0 0 -dj 0 street.oct",
+    );
+    let rgb: Vec<f64> = irr.split_whitespace().map(|t| t.parse().unwrap()).collect();
+    let e_rtrace = 179.0 * (0.265 * rgb[0] + 0.670 * rgb[1] + 0.065 * rgb[2]);
+    let fish_json = glare_json(&fish, &GAZES, &dir.join("fish.json"));
+    let at0 = &fish_json["gazes"][0];
+    let e_gl = f(at0, "vertical_illuminance_lux");
+    let eg0 = evalglare(&r, &fish);
+    println!(
+        "E_v: gazelight {e_gl:.2} lx, rtrace -I {e_rtrace:.2} lx ({:+.2} %), evalglare {:.2} lx",
+        100.0 * (e_gl / e_rtrace - 1.0),
+        eg0.values["E_v"]
+    );
+    assert!(
+        (e_gl / e_rtrace - 1.0).abs() < 0.05,
+        "E_v {e_gl} vs rtrace -I {e_rtrace}"
+    );
+
+    // 2. The same direction in both projections (a 1° disc mean each).
+    let persp_json = glare_json(
+        &persp,
+        &[
+            [33.7, 2.0],
+            [0.0, -8.5],
+            [-20.0, -4.0],
+            [30.0, 12.0],
+            [10.0, -20.0],
+        ],
+        &dir.join("persp.json"),
+    );
+    let fish_dirs = glare_json(
+        &fish,
+        &[
+            [33.7, 2.0],
+            [0.0, -8.5],
+            [-20.0, -4.0],
+            [30.0, 12.0],
+            [10.0, -20.0],
+        ],
+        &dir.join("fish_dirs.json"),
+    );
+    for i in 0..5 {
+        let lp = f(&persp_json["gazes"][i], "luminance_at_gaze_cd_m2");
+        let lf = f(&fish_dirs["gazes"][i], "luminance_at_gaze_cd_m2");
+        println!(
+            "direction {i}: perspective {lp:.4} cd/m², fisheye {lf:.4} cd/m² ({:+.2} %)",
+            100.0 * (lf / lp - 1.0)
+        );
+        assert!(
+            lp > 0.05,
+            "direction {i} is dark ({lp}): pick a lit surface"
+        );
+        assert!(
+            (lf / lp - 1.0).abs() < 0.05,
+            "direction {i}: fisheye {lf} vs perspective {lp}"
+        );
+    }
+
+    // 3. Stiles–Holladay veil and sources vs evalglare.
+    for (k, g) in GAZES.iter().enumerate() {
+        let ours_on_fish = &fish_json["gazes"][k];
+        let (image, eg) = if k == 0 {
+            (fish.clone(), evalglare(&r, &fish))
+        } else {
+            let img = r.render(&format!("gaze{k}.hdr"), "a", 180.0, *g);
+            let eg = evalglare(&r, &img);
+            (img, eg)
+        };
+        let same = glare_json(&image, &[[0.0, 0.0]], &dir.join(format!("gaze{k}.json")));
+        let ours_same = &same["gazes"][0];
+        let veil_eg = eg.values["Lveil_cie"];
+        let veil_fish = f(ours_on_fish, "veil_stiles_holladay_cd_m2");
+        let veil_same = f(ours_same, "veil_stiles_holladay_cd_m2");
+        let veil_same_eg = f(ours_same, "veil_stiles_holladay_evalglare_cd_m2");
+        println!(
+            "gaze {g:?}: S-H veil evalglare {veil_eg:.4}; gazelight on the same image with evalglare's whole-pixel \
+             source positions {veil_same_eg:.4} ({:+.2} %), with the centroids {veil_same:.4} ({:+.2} %); \
+             gazelight on the forward fisheye {veil_fish:.4} cd/m² ({:+.2} % from the same image's); \
+             E_v evalglare {:.2}, gazelight {:.2} lx",
+            100.0 * (veil_same_eg / veil_eg - 1.0),
+            100.0 * (veil_same / veil_eg - 1.0),
+            100.0 * (veil_fish / veil_same - 1.0),
+            eg.values["E_v"],
+            f(ours_same, "vertical_illuminance_lux")
+        );
+        assert!(
+            (veil_same_eg / veil_eg - 1.0).abs() < 0.05,
+            "gaze {g:?}: same image {veil_same_eg} vs evalglare {veil_eg}"
+        );
+        assert!(
+            (veil_same / veil_eg - 1.0).abs() < 0.10,
+            "gaze {g:?}: centroids {veil_same} vs evalglare {veil_eg}"
+        );
+        assert!(
+            (veil_fish / veil_same - 1.0).abs() < 0.05,
+            "gaze {g:?}: forward fisheye {veil_fish} vs along the gaze {veil_same}"
+        );
+        // Sources: each of evalglare's has one of ours within 1° with the
+        // solid angle within 10 %.
+        let ours = ours_same["sources"].as_array().unwrap();
+        assert_eq!(
+            ours.len(),
+            eg.sources.len(),
+            "gaze {g:?}: sources {ours:?} vs evalglare {:?}",
+            eg.sources
+        );
+        for s in &eg.sources {
+            let d = [s[5], s[6], s[7]];
+            let best = ours
+                .iter()
+                .map(|o| {
+                    let w: Vec<f64> = o["direction_radiance_world"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|v| v.as_f64().unwrap())
+                        .collect();
+                    let cos = (w[0] * d[0] + w[1] * d[1] + w[2] * d[2]).clamp(-1.0, 1.0);
+                    (
+                        cos.acos().to_degrees(),
+                        f(o, "solid_angle_sr"),
+                        f(o, "illuminance_lux"),
+                    )
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .unwrap();
+            println!(
+                "    source evalglare Ω {:.3e} sr E {:.3} lx; gazelight {:.2}° away, Ω {:.3e} sr ({:+.1} %), E {:.3} lx",
+                s[4],
+                s[8],
+                best.0,
+                best.1,
+                100.0 * (best.1 / s[4] - 1.0),
+                best.2
+            );
+            assert!(
+                best.0 < 1.0,
+                "gaze {g:?}: evalglare source {s:?} has no match within 1° ({})",
+                best.0
+            );
+            assert!(
+                (best.1 / s[4] - 1.0).abs() < 0.10,
+                "gaze {g:?}: Ω {} vs evalglare {}",
+                best.1,
+                s[4]
+            );
+        }
+    }
+
+    // 4. CIE 146 veil at each gaze vs this test's own pixel sum over the
+    // fisheye: equidistant, 180° across 256 px, θ = π r (r from the
+    // centre in image widths), pixel solid angle (sin θ / θ) (π/256)².
+    let scene = Scene::load(&fish, LuminanceScale::default()).unwrap();
+    let (w, h) = (scene.image.width, scene.image.height);
+    assert_eq!((w, h), (256, 256));
+    let px_rad = std::f64::consts::PI / w as f64;
+    for (k, g) in GAZES.iter().enumerate() {
+        let (a, e) = (g[0].to_radians(), g[1].to_radians());
+        let gaze = [e.cos() * a.sin(), e.sin(), -e.cos() * a.cos()];
+        let mut veil = 0.0;
+        for y in 0..h {
+            for x in 0..w {
+                let sx = (x as f64 + 0.5) / w as f64 - 0.5;
+                let sy = 0.5 - (y as f64 + 0.5) / h as f64;
+                let rr = (sx * sx + sy * sy).sqrt();
+                if rr > 0.5 {
+                    continue;
+                }
+                let theta = std::f64::consts::PI * rr;
+                let d = if rr < 1e-12 {
+                    [0.0, 0.0, -1.0]
+                } else {
+                    [theta.sin() * sx / rr, theta.sin() * sy / rr, -theta.cos()]
+                };
+                let omega = if theta < 1e-12 {
+                    px_rad * px_rad
+                } else {
+                    theta.sin() / theta * px_rad * px_rad
+                };
+                let c = d[0] * gaze[0] + d[1] * gaze[1] + d[2] * gaze[2];
+                let off = c.clamp(-1.0, 1.0).acos().to_degrees();
+                if c <= 0.0 || off < 1.0 {
+                    continue;
+                }
+                let p = scene.image.get(x, y);
+                let l = 0.265 * f64::from(p[0]) + 0.670 * f64::from(p[1]) + 0.065 * f64::from(p[2]);
+                veil += l * omega * c * cie146(off, 25.0, 0.5);
+            }
+        }
+        let ours = f(&fish_json["gazes"][k], "veil_cie146_cd_m2");
+        println!(
+            "gaze {g:?}: CIE 146 veil gazelight {ours:.4}, this test's sum {veil:.4} cd/m² ({:+.2} %)",
+            100.0 * (ours / veil - 1.0)
+        );
+        assert!(
+            (ours / veil - 1.0).abs() < 0.02,
+            "gaze {g:?}: CIE 146 veil {ours} vs {veil}"
+        );
+    }
+}
+
+/// A real luminance-camera photograph with a known lens (evalglare's own
+/// test image: an office window through an angular 182° fisheye, from a
+/// TechnoTeam luminance camera; `tests/data/radiance/`): gazelight reads
+/// its projection from the header (no 2:1 warning when rendering it) and
+/// its glare numbers at the image's axis agree with evalglare's: E_v
+/// within 2 %, Lveil_cie within 5 %, the same number of glare sources with
+/// the same total solid angle within 5 %.
+#[test]
+fn a_luminance_camera_fisheye_agrees_with_evalglare() {
+    let Some(pkg) = pyradiance() else {
+        gazelight_test_support::skip_or_fail("pyradiance (Radiance's evalglare) is not installed");
+        return;
+    };
+    let image = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/radiance/evalglare_testimage.hdr");
+    let dir = tmp("camera");
+    let r = Radiance {
+        pkg,
+        dir: dir.clone(),
+    };
+    let eg = evalglare(&r, &image);
+    let json = glare_json(&image, &[[0.0, 0.0]], &dir.join("camera.json"));
+    assert_eq!(json["projection"]["kind"], "angular");
+    let g = &json["gazes"][0];
+    let e = f(g, "vertical_illuminance_lux");
+    let veil = f(g, "veil_stiles_holladay_evalglare_cd_m2");
+    let ours = g["sources"].as_array().unwrap();
+    let om: f64 = ours.iter().map(|s| f(s, "solid_angle_sr")).sum();
+    let om_eg: f64 = eg.sources.iter().map(|s| s[4]).sum();
+    println!(
+        "camera image: E_v gazelight {e:.1} vs evalglare {:.1} lx ({:+.2} %); Lveil_cie {veil:.3} vs {:.3} cd/m² ({:+.2} %); \
+         sources {} vs {}, Ω {om:.4} vs {om_eg:.4} sr ({:+.2} %)",
+        eg.values["E_v"],
+        100.0 * (e / eg.values["E_v"] - 1.0),
+        eg.values["Lveil_cie"],
+        100.0 * (veil / eg.values["Lveil_cie"] - 1.0),
+        ours.len(),
+        eg.sources.len(),
+        100.0 * (om / om_eg - 1.0)
+    );
+    assert!(
+        (e / eg.values["E_v"] - 1.0).abs() < 0.02,
+        "E_v {e} vs {}",
+        eg.values["E_v"]
+    );
+    assert!(
+        (veil / eg.values["Lveil_cie"] - 1.0).abs() < 0.05,
+        "veil {veil} vs {}",
+        eg.values["Lveil_cie"]
+    );
+    assert_eq!(ours.len(), eg.sources.len());
+    assert!((om / om_eg - 1.0).abs() < 0.05, "Ω {om} vs {om_eg}");
+    // It renders as the eye sees it with its own projection: no 2:1 warning.
+    let out = dir.join("render");
+    let o = gazelight(&[
+        "render",
+        "--scene",
+        image.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--hfov-deg",
+        "90",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "render: {err}");
+    assert!(
+        !err.contains("2:1"),
+        "the 2:1 warning for a fisheye with a VIEW=: {err}"
+    );
+}
