@@ -8,7 +8,8 @@
 //! `*_physio.tsv.gz`, which brings its sibling eyes. The row's id is the
 //! file name's entities without `recording-` (`sub-01_ses-1_task-x_run-1`),
 //! its BIDS entities those of the name, its replay options the
-//! `[defaults]` table of `--defaults FILE.toml` (none without it).
+//! `[defaults]` table of `--defaults FILE.toml` (none without it; a TOML
+//! manifest's rows in that file are not used).
 //! `derivatives/` and other top-level folders are not searched.
 
 use std::collections::BTreeMap;

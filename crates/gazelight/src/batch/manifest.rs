@@ -573,7 +573,7 @@ fn toml_cell(text: &str, k: &str, v: &toml::Spanned<toml::Value>) -> Result<Cell
 
 /// The `[defaults]` table of a TOML file (`--defaults`, for a BIDS dataset
 /// root) as cells, and the file's directory (relative paths are taken from
-/// it). The file holds no `[[row]]`.
+/// it). Its `[[row]]` tables, if any (a TOML manifest's), are not used.
 pub(super) fn load_defaults(path: &Path) -> anyhow::Result<(Vec<Cell>, PathBuf)> {
     let text = gazelight_input::read_to_string(path, MAX_MANIFEST_BYTES)
         .with_context(|| format!("cannot read {}", path.display()))?;
@@ -588,14 +588,6 @@ pub(super) fn load_defaults(path: &Path) -> anyhow::Result<(Vec<Cell>, PathBuf)>
             first_line(e.message())
         )
     })?;
-    if let Some(r) = m.row.first() {
-        bail!(
-            "{}: line {}: [[row]]: a defaults file holds only [defaults] (the rows are the \
-             dataset's recordings)",
-            path.display(),
-            toml_line(&text, r.span().start)
-        );
-    }
     let flags = replay_flags();
     let mut cells = Vec::with_capacity(m.defaults.len());
     for (k, v) in &m.defaults {
