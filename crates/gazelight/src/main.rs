@@ -154,7 +154,7 @@ fn check(command: &Command) -> anyhow::Result<()> {
         Command::Record(args) => gazelight_tracker::uri::SourceUri::parse(&args.source)
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
-        Command::Batch(args) => batch::manifest::load(&args.manifest).map(|_| ()),
+        Command::Batch(args) => batch::load_rows(args).map(|_| ()),
         Command::Psf(_)
         | Command::Inspect(_)
         | Command::Export(_)

@@ -470,3 +470,190 @@ fn a_killed_batch_resumes_without_redoing_finished_rows() {
     assert_same_outputs(&out.join("c"), &single);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Runs the official BIDS validator (`bids-validator-deno`, installed by
+/// `.ci/test`) on `root`; fails on any error.
+fn validate(root: &Path) {
+    let out = match Command::new("bids-validator-deno")
+        .arg("--format")
+        .arg("json")
+        .arg(root)
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) => {
+            gazelight_test_support::skip_or_fail(&format!(
+                "bids-validator-deno not runnable ({e}; pip install bids-validator-deno)"
+            ));
+            return;
+        }
+    };
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "validator output is not JSON ({e}): {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    });
+    let errors: Vec<String> = report["issues"]["issues"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default()
+        .iter()
+        .filter(|i| i["severity"] == "error")
+        .map(|i| format!("{} {} {}", i["code"], i["subCode"], i["location"]))
+        .collect();
+    assert!(errors.is_empty(), "{}: {errors:#?}", root.display());
+}
+
+/// The replay options both BIDS tests give every recording.
+const BIDS_OPTS: [&str; 6] = [
+    "--secs=1",
+    "--from-secs=2",
+    "--size=48x32",
+    "--fps=10",
+    "--backend=cpu",
+    "--no-frames",
+];
+
+#[test]
+fn a_bids_dataset_root_batches_one_row_per_recording() {
+    let dir = tmp("bids-root");
+    // A BIDS dataset of two shipped recordings, written by `export`.
+    let ds = dir.join("ds");
+    let d = ds.to_str().unwrap();
+    for (rec, sub, ses) in [
+        ("eye/eyelink-psa/both_eyes.asc", "01", "a"),
+        ("eye/piprkit-plr/pupil_trace.csv", "02", "b"),
+    ] {
+        let r = gazelight(&[
+            "export",
+            "--bids",
+            d,
+            &shared_str(rec),
+            "--subject",
+            sub,
+            "--session",
+            ses,
+            "--task",
+            "plr",
+            "--run",
+            "1",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let defaults = dir.join("defaults.toml");
+    std::fs::write(
+        &defaults,
+        "[defaults]\nsecs = 1\nfrom_secs = 2\nsize = \"48x32\"\nfps = 10\n\
+         backend = \"cpu\"\nno_frames = true\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let r = gazelight(&[
+        "batch",
+        d,
+        "--defaults",
+        defaults.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (header, lines) = summary(&out);
+    let ids: Vec<&str> = lines.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(
+        ids,
+        ["sub-01_ses-a_task-plr_run-1", "sub-02_ses-b_task-plr_run-1"]
+    );
+    let ds = ds.canonicalize().unwrap();
+    for (line, (id, sub, ses)) in lines.iter().zip([(ids[0], "01", "a"), (ids[1], "02", "b")]) {
+        assert_eq!(cell(&header, line, "status"), "ok", "{line:?}");
+        // The row replays the recording's eye1 file (its eyes together),
+        // as a single replay of that file does.
+        let rec = ds.join(format!(
+            "sub-{sub}/ses-{ses}/beh/{id}_recording-eye1_physio.tsv.gz"
+        ));
+        assert_eq!(cell(&header, line, "recording"), rec.to_str().unwrap());
+        let single = dir.join(format!("single-{id}"));
+        let out_flag = format!("--out={}", single.display());
+        let mut argv = vec!["replay", rec.to_str().unwrap()];
+        argv.extend(BIDS_OPTS);
+        argv.push(&out_flag);
+        let s = gazelight(&argv);
+        assert!(s.status.success(), "{}", String::from_utf8_lossy(&s.stderr));
+        assert_same_outputs(&out.join(id), &single);
+    }
+    // The EyeLink recording has both eyes: the row read them together.
+    assert_ne!(cell(&header, &lines[0], "pupil_rate_left_hz"), "");
+    assert_eq!(
+        cell(&header, &lines[0], "pupil_rate_left_hz"),
+        cell(&header, &lines[0], "pupil_rate_right_hz")
+    );
+    // A directory that is no dataset is refused, naming it.
+    let r = gazelight(&[
+        "batch",
+        dir.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1));
+    assert!(e.contains("without dataset_description.json"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn batch_bids_writes_a_dataset_that_validates() {
+    let dir = tmp("bids-export");
+    // Entities as columns (empty: the defaults), options as in BIDS_OPTS.
+    let with_opts = dir.join("study.csv");
+    let mut text = String::from(
+        "id,recording,subject,session,task,run,secs,from_secs,size,fps,backend,no_frames\n",
+    );
+    text.push_str(&format!(
+        "eye-link,{},,,,,1,2,48x32,10,cpu,true\n",
+        shared_str("eye/eyelink-psa/both_eyes.asc")
+    ));
+    text.push_str(&format!(
+        "plr,{},p7,s2,light,3,1,2,48x32,10,cpu,true\n",
+        shared_str("eye/piprkit-plr/pupil_trace.csv")
+    ));
+    std::fs::write(&with_opts, text).unwrap();
+    let ds = dir.join("ds");
+    let out = dir.join("out");
+    let batch = |extra: &[&str]| {
+        let mut argv = vec![
+            "batch",
+            with_opts.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--bids",
+            ds.to_str().unwrap(),
+        ];
+        argv.extend(extra);
+        gazelight(&argv)
+    };
+    let r = batch(&["--jobs", "2"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // The rows' entities: the id's alphanumerics by default, else columns.
+    let a = ds.join("sub-eyelink/beh/sub-eyelink_task-replay_recording-eye1_physio.tsv.gz");
+    let b =
+        ds.join("sub-p7/ses-s2/beh/sub-p7_ses-s2_task-light_run-3_recording-eye1_physio.tsv.gz");
+    assert!(a.is_file() && b.is_file(), "{:?}", files(&ds));
+    // The derivative holds the replay's timeline values.
+    let der = ds.join("derivatives/gazelight/sub-p7/ses-s2/beh");
+    assert!(
+        files(&der)
+            .iter()
+            .any(|f| f.to_str().unwrap().contains("replay_physio.tsv.gz")),
+        "{:?}",
+        files(&der)
+    );
+    validate(&ds);
+    // Resumed: nothing runs again, the export included.
+    let r = batch(&[]);
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success(), "{e}");
+    assert!(e.contains("batch: skip eye-link: finished earlier"), "{e}");
+    assert!(e.contains("batch: skip plr: finished earlier"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

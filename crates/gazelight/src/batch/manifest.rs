@@ -11,8 +11,10 @@
 //! its name (`scene`, `fps`, `from_secs`, `no_frames`, …; `-` or `_`).
 //! Relative paths (`recording`, `scene`, `calibration`, `config`) are
 //! taken from the manifest's directory. `out`, `force` and `trace` are the
-//! batch's to set and are refused. Every row is checked before anything
-//! runs: an error names the file, the line and the field.
+//! batch's to set and are refused. `subject`, `session`, `task` and `run`
+//! are the row's BIDS entities for `--bids` (not replay options). Every row
+//! is checked before anything runs: an error names the file, the line and
+//! the field.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -37,6 +39,19 @@ pub(crate) struct ReplayCli {
     pub replay: ReplayArgs,
 }
 
+/// Columns that are a row's BIDS entities (for `--bids`), not replay
+/// options.
+const ENTITIES: [&str; 4] = ["subject", "session", "task", "run"];
+
+/// A row's BIDS entities for `--bids` (each optional: see [`Row::bids_names`]).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Entities {
+    pub subject: Option<String>,
+    pub session: Option<String>,
+    pub task: Option<String>,
+    pub run: Option<u32>,
+}
+
 /// One recording of the manifest.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Row {
@@ -49,6 +64,8 @@ pub struct Row {
     /// The arguments after `gazelight replay` (paths resolved), without
     /// `--out` and `--force`.
     pub argv: Vec<String>,
+    /// Its BIDS entities (manifest columns, or a BIDS dataset's file name).
+    pub entities: Entities,
 }
 
 impl Row {
@@ -61,28 +78,61 @@ impl Row {
             .map(|c| c.replay)
             .map_err(|e| anyhow::anyhow!("row {}: {}", self.id, first_line(&e.to_string())))
     }
+
+    /// Where `--bids` writes the row: its entities; subject by default the
+    /// id's letters and digits, task `replay`.
+    pub fn bids_names(&self) -> gazelight_tracker::import::bids::BidsNames {
+        let e = &self.entities;
+        let mut subject: String = self
+            .id
+            .chars()
+            .filter(char::is_ascii_alphanumeric)
+            .collect();
+        if subject.is_empty() {
+            subject.push_str("batch");
+        }
+        gazelight_tracker::import::bids::BidsNames {
+            subject: e.subject.clone().unwrap_or(subject),
+            session: e.session.clone(),
+            task: e.task.clone().unwrap_or_else(|| "replay".to_owned()),
+            run: e.run,
+        }
+    }
+
+    /// The hash its completion record holds: the replay's arguments and,
+    /// with `--bids DIR`, the export's folder and entities (the export is
+    /// part of the row's completion).
+    pub fn options_hash(&self, bids: Option<&Path>) -> String {
+        let mut argv = self.argv.clone();
+        if let Some(dir) = bids {
+            let n = self.bids_names();
+            argv.push(format!("--bids={}", dir.display()));
+            argv.push(n.prefix());
+        }
+        super::state::options_hash(&argv)
+    }
 }
 
 /// One cell: where it is and what it holds.
-struct Cell {
-    line: usize,
-    field: String,
-    value: Value,
+pub(super) struct Cell {
+    pub line: usize,
+    pub field: String,
+    pub value: Value,
 }
 
-enum Value {
+pub(super) enum Value {
     Text(String),
     Bool(bool),
 }
 
 /// What a replay option takes, from clap's own description of `replay`.
-struct Flag {
+pub(super) struct Flag {
     long: String,
     takes_value: bool,
     path: bool,
 }
 
-fn replay_flags() -> Vec<Flag> {
+pub(super) fn replay_flags() -> Vec<Flag> {
     ReplayCli::command()
         .get_arguments()
         .filter_map(|a| {
@@ -104,8 +154,8 @@ fn replay_flags() -> Vec<Flag> {
 pub fn load(path: &Path) -> anyhow::Result<Vec<Row>> {
     if path.is_dir() {
         bail!(
-            "{}: a directory; a BIDS dataset root as the manifest is not supported yet — \
-             give a CSV or TOML manifest (docs/batch.md)",
+            "{}: a directory; give a CSV or TOML manifest, or a BIDS dataset root \
+             (docs/batch.md)",
             path.display()
         );
     }
@@ -165,7 +215,7 @@ pub fn load(path: &Path) -> anyhow::Result<Vec<Row>> {
 /// Whether `name` is a column the manifest may have.
 fn check_field(name: &str, flags: &[Flag]) -> Result<(), String> {
     let key = name.trim().replace('_', "-");
-    if key == "id" || key == "recording" {
+    if key == "id" || key == "recording" || ENTITIES.contains(&key.as_str()) {
         return Ok(());
     }
     if FORBIDDEN.contains(&key.as_str()) {
@@ -183,7 +233,7 @@ fn check_field(name: &str, flags: &[Flag]) -> Result<(), String> {
 }
 
 /// One row's cells → its replay arguments, checked.
-fn build_row(
+pub(super) fn build_row(
     index: usize,
     line: usize,
     cells: Vec<Cell>,
@@ -192,6 +242,7 @@ fn build_row(
 ) -> anyhow::Result<Row> {
     let mut id = None;
     let mut recording = None;
+    let mut entities = Entities::default();
     let mut options: Vec<String> = Vec::new();
     // Flag name → field as written (to name it in errors).
     let mut fields: BTreeMap<String, (usize, String)> = BTreeMap::new();
@@ -210,6 +261,33 @@ fn build_row(
                 let v = text(&cell.value);
                 if !v.is_empty() {
                     recording = Some(v);
+                }
+                continue;
+            }
+            "subject" | "session" | "task" => {
+                let v = text(&cell.value);
+                if v.is_empty() {
+                    continue;
+                }
+                if !gazelight_tracker::import::bids::is_label(&v) {
+                    return Err(at(format!(
+                        "{v:?}: a BIDS label is letters and digits only"
+                    )));
+                }
+                match key.as_str() {
+                    "subject" => entities.subject = Some(v),
+                    "session" => entities.session = Some(v),
+                    _ => entities.task = Some(v),
+                }
+                continue;
+            }
+            "run" => {
+                let v = text(&cell.value);
+                if !v.is_empty() {
+                    entities.run = Some(
+                        v.parse()
+                            .map_err(|_| at(format!("{v:?}: a BIDS run is a whole number ≥ 0")))?,
+                    );
                 }
                 continue;
             }
@@ -257,6 +335,7 @@ fn build_row(
         id,
         recording,
         argv,
+        entities,
     };
     // clap's parse and replay's own flag checks, with the field named.
     let named = |msg: String| -> anyhow::Error {
@@ -310,7 +389,7 @@ fn resolve(base: &Path, path: &str) -> String {
 
 /// An id is a folder name: letters, digits, `.`, `_`, `-`, starting with
 /// a letter or digit.
-fn check_id(id: &str) -> Result<String, String> {
+pub(super) fn check_id(id: &str) -> Result<String, String> {
     let ok = !id.is_empty()
         && id.chars().count() <= MAX_ID_CHARS
         && id.chars().next().is_some_and(|c| c.is_ascii_alphanumeric())
@@ -467,34 +546,81 @@ struct TomlManifest {
     row: Vec<toml::Spanned<SpannedTable>>,
 }
 
+fn toml_line(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+fn toml_cell(text: &str, k: &str, v: &toml::Spanned<toml::Value>) -> Result<Cell, String> {
+    let line = toml_line(text, v.span().start);
+    let value = match v.get_ref() {
+        toml::Value::String(s) => Value::Text(s.clone()),
+        toml::Value::Integer(i) => Value::Text(i.to_string()),
+        toml::Value::Float(f) => Value::Text(f.to_string()),
+        toml::Value::Boolean(b) => Value::Bool(*b),
+        other => {
+            return Err(format!(
+                "line {line}: field {k}: a {}, expected a string, number or true/false",
+                other.type_str()
+            ));
+        }
+    };
+    Ok(Cell {
+        line,
+        field: k.to_owned(),
+        value,
+    })
+}
+
+/// The `[defaults]` table of a TOML file (`--defaults`, for a BIDS dataset
+/// root) as cells, and the file's directory (relative paths are taken from
+/// it). Its `[[row]]` tables, if any (a TOML manifest's), are not used.
+pub(super) fn load_defaults(path: &Path) -> anyhow::Result<(Vec<Cell>, PathBuf)> {
+    let text = gazelight_input::read_to_string(path, MAX_MANIFEST_BYTES)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let m: TomlManifest = toml::from_str(&text).map_err(|e| {
+        let at = e
+            .span()
+            .map(|s| format!("line {}: ", toml_line(&text, s.start)));
+        anyhow::anyhow!(
+            "{}: {}{}",
+            path.display(),
+            at.unwrap_or_default(),
+            first_line(e.message())
+        )
+    })?;
+    let flags = replay_flags();
+    let mut cells = Vec::with_capacity(m.defaults.len());
+    for (k, v) in &m.defaults {
+        let c = toml_cell(&text, k, v).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        if k == "id" || k == "recording" || ENTITIES.contains(&k.as_str()) {
+            bail!(
+                "{}: line {}: field {k}: each recording's own (from its file name), not [defaults]",
+                path.display(),
+                c.line
+            );
+        }
+        check_field(k, &flags)
+            .map_err(|e| anyhow::anyhow!("{}: line {}: {e}", path.display(), c.line))?;
+        cells.push(c);
+    }
+    let base = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let base = std::fs::canonicalize(base)
+        .with_context(|| format!("cannot resolve the directory of {}", path.display()))?;
+    Ok((cells, base))
+}
+
 /// The rows of a TOML manifest: (line of `[[row]]`, cells: the defaults
 /// the row does not override, then the row's keys).
 fn toml_rows(text: &str) -> Result<Vec<(usize, Vec<Cell>)>, String> {
-    let line_of = |offset: usize| text[..offset.min(text.len())].matches('\n').count() + 1;
+    let line_of = |offset: usize| toml_line(text, offset);
     let m: TomlManifest = toml::from_str(text).map_err(|e| {
         let at = e.span().map(|s| format!("line {}: ", line_of(s.start)));
         format!("{}{}", at.unwrap_or_default(), first_line(e.message()))
     })?;
-    let cell = |k: &str, v: &toml::Spanned<toml::Value>| -> Result<Cell, String> {
-        let line = line_of(v.span().start);
-        let value = match v.get_ref() {
-            toml::Value::String(s) => Value::Text(s.clone()),
-            toml::Value::Integer(i) => Value::Text(i.to_string()),
-            toml::Value::Float(f) => Value::Text(f.to_string()),
-            toml::Value::Boolean(b) => Value::Bool(*b),
-            other => {
-                return Err(format!(
-                    "line {line}: field {k}: a {}, expected a string, number or true/false",
-                    other.type_str()
-                ));
-            }
-        };
-        Ok(Cell {
-            line,
-            field: k.to_owned(),
-            value,
-        })
-    };
+    let cell = |k: &str, v: &toml::Spanned<toml::Value>| toml_cell(text, k, v);
     let mut rows = Vec::with_capacity(m.row.len());
     for r in &m.row {
         let line = line_of(r.span().start);
@@ -625,8 +751,12 @@ mod tests {
         let dir = write("x", "").parent().unwrap().to_path_buf();
         let e = format!("{:#}", load(&dir).unwrap_err());
         assert!(
-            e.contains("BIDS dataset root as the manifest is not supported yet"),
+            e.contains("a directory; give a CSV or TOML manifest"),
             "{e}"
         );
+        let e = err("label.csv", "recording,subject\na.csv,s-1\n");
+        assert!(e.contains("line 2: field subject: \"s-1\""), "{e}");
+        let e = err("run.csv", "recording,run\na.csv,x\n");
+        assert!(e.contains("line 2: field run: \"x\""), "{e}");
     }
 }

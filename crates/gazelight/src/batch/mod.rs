@@ -1,6 +1,7 @@
 //! `gazelight batch MANIFEST`: many replays from one list (docs/batch.md).
 //!
-//! Each manifest row ([`manifest`]) runs what a single `gazelight replay`
+//! The list is a CSV or TOML manifest ([`manifest`]) or a BIDS dataset
+//! root ([`bids_root`]: one row per eye-tracking recording). Each row runs what a single `gazelight replay`
 //! with the row's options would — the same binary as a child process
 //! (`gazelight replay REC … --out OUT/ID`), so its outputs are that
 //! replay's, byte for byte — into its own folder `OUT/ID`. When it ends
@@ -21,7 +22,12 @@
 //! - Slurm ([`slurm`]): `--slurm` writes a job-array script whose task K
 //!   runs `--task K --tasks N` (rows K, K + N, …), `--submit` submits it,
 //!   `--collect` merges the records into `summary.csv`.
+//! - `--bids DIR`: after its replay, each row's recording and timeline are
+//!   exported into the BIDS dataset DIR (`gazelight export --bids`, its
+//!   entities from the row), one export at a time; the row is finished
+//!   only when its export is.
 
+pub mod bids_root;
 pub mod manifest;
 pub mod slurm;
 pub mod state;
@@ -51,9 +57,20 @@ const MAX_MESSAGE_CHARS: usize = 300;
 #[derive(Args, Debug)]
 pub struct BatchArgs {
     /// The manifest: a CSV or TOML list of recordings with per-row replay
-    /// options (docs/batch.md).
+    /// options, or a BIDS dataset's root folder (one row per eye-tracking
+    /// recording) (docs/batch.md).
     #[arg(value_name = "MANIFEST")]
     pub manifest: PathBuf,
+    /// With a BIDS dataset root: a TOML file whose `[defaults]` table (as
+    /// in a TOML manifest) gives every recording's replay options.
+    #[arg(long, value_name = "FILE", conflicts_with = "slurm")]
+    pub defaults: Option<PathBuf>,
+    /// After each row's replay, export its recording and timeline into the
+    /// BIDS dataset DIR (as `gazelight export --bids DIR REC --timeline
+    /// OUT/ID/timeline.csv`), with the row's `subject`, `session`, `task`,
+    /// `run` (a BIDS root's rows: their own entities).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["slurm", "task"])]
+    pub bids: Option<PathBuf>,
     /// Output folder: one folder per row (`OUT/ID`), `OUT/summary.csv`,
     /// and the batch's records and logs in `OUT/_batch/`. Default: beside
     /// the manifest, its name with `-out` (`study.csv` → `study-out/`).
@@ -102,17 +119,45 @@ fn default_out(manifest: &Path) -> PathBuf {
     manifest.with_file_name(format!("{stem}-out"))
 }
 
+/// The rows: from a BIDS dataset root (a directory) or a manifest.
+pub fn load_rows(args: &BatchArgs) -> anyhow::Result<Vec<Row>> {
+    if args.manifest.is_dir() {
+        bids_root::load(&args.manifest, args.defaults.as_deref())
+    } else {
+        if let Some(d) = &args.defaults {
+            bail!(
+                "--defaults {}: only for a BIDS dataset root (a manifest has its own \
+                 [defaults] or columns)",
+                d.display()
+            );
+        }
+        manifest::load(&args.manifest)
+    }
+}
+
 /// Runs `gazelight batch`.
 pub fn run(args: BatchArgs) -> anyhow::Result<()> {
-    let rows = manifest::load(&args.manifest)?;
+    let rows = load_rows(&args)?;
     let out = args
         .out
         .clone()
         .unwrap_or_else(|| default_out(&args.manifest));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let state = State::open(&out)?;
+    let bids = match &args.bids {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("--bids: cannot create {}", dir.display()))?;
+            Some(
+                std::fs::canonicalize(dir)
+                    .with_context(|| format!("--bids: cannot resolve {}", dir.display()))?,
+            )
+        }
+        None => None,
+    };
+    let bids = bids.as_deref();
     if args.collect {
-        return collect(&rows, &out, &state);
+        return collect(&rows, &out, &state, bids);
     }
     if args.slurm {
         return slurm::write_and_submit(&args, &rows, &out, &state);
@@ -130,9 +175,9 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
         (None, Some(n)) => bail!("--tasks {n} without --task (or --slurm): which slice?"),
         _ => rows.iter().collect(),
     };
-    let outcome = run_rows(&slice, &out, &state, args.jobs)?;
+    let outcome = run_rows(&slice, &out, &state, args.jobs, bids)?;
     if args.task.is_none() {
-        let path = write_summary(&rows, &out, &state)?;
+        let path = write_summary(&rows, &out, &state, bids)?;
         println!("wrote {}", path.display());
     }
     if let Some(sig) = outcome.interrupted {
@@ -162,12 +207,12 @@ struct Outcome {
     interrupted: Option<&'static str>,
 }
 
-/// Whether `row` is finished (its record says ok for its options and its
-/// timeline is there).
-fn finished(row: &Row, out: &Path, state: &State) -> bool {
+/// Whether `row` is finished (its record says ok for its options, and
+/// export when `bids`, and its timeline is there).
+fn finished(row: &Row, out: &Path, state: &State, bids: Option<&Path>) -> bool {
     state
         .read(&row.id)
-        .is_some_and(|r| r.status == Status::Ok && r.options_hash == state::options_hash(&row.argv))
+        .is_some_and(|r| r.status == Status::Ok && r.options_hash == row.options_hash(bids))
         && out.join(&row.id).join("timeline.csv").is_file()
 }
 
@@ -211,13 +256,22 @@ fn hms(secs: f64) -> String {
 }
 
 /// Runs the unfinished `rows`, `jobs` at a time.
-fn run_rows(rows: &[&Row], out: &Path, state: &State, jobs: usize) -> anyhow::Result<Outcome> {
+fn run_rows(
+    rows: &[&Row],
+    out: &Path,
+    state: &State,
+    jobs: usize,
+    bids: Option<&Path>,
+) -> anyhow::Result<Outcome> {
     let exe = std::env::current_exe().context("cannot find gazelight's own executable")?;
     let stop = crate::shutdown::stop_flag();
+    // One export at a time: they share the dataset's participants.tsv.
+    let export_lock = Mutex::new(());
+    let export = bids.map(|dir| (dir, &export_lock));
     let mut todo = Vec::new();
     let mut skipped = 0;
     for row in rows {
-        if finished(row, out, state) {
+        if finished(row, out, state, bids) {
             eprintln!("batch: skip {}: finished earlier", row.id);
             skipped += 1;
         } else {
@@ -251,7 +305,7 @@ fn run_rows(rows: &[&Row], out: &Path, state: &State, jobs: usize) -> anyhow::Re
                     }
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(row) = todo.get(i) else { break };
-                    let ended = run_row(&exe, row, out, state, stop.as_deref());
+                    let ended = run_row(&exe, row, out, state, stop.as_deref(), export);
                     let (Ok(mut p), Ok(mut o)) = (progress.lock(), outcome.lock()) else {
                         break;
                     };
@@ -322,8 +376,9 @@ fn run_row(
     out: &Path,
     state: &State,
     stop: Option<&crate::shutdown::StopFlag>,
+    export: Option<(&Path, &Mutex<()>)>,
 ) -> RowEnd {
-    let hash = state::options_hash(&row.argv);
+    let hash = row.options_hash(export.map(|(d, _)| d));
     let fail = |msg: String| -> RowEnd {
         let record = Record {
             id: row.id.clone(),
@@ -344,7 +399,14 @@ fn run_row(
     }
     let dir = out.join(&row.id);
     let started = Instant::now();
-    let status = match spawn_and_wait(exe, row, &dir, &state.log_path(&row.id), stop) {
+    let mut replay = vec!["replay".to_owned()];
+    replay.extend(row.argv.iter().cloned());
+    replay.push(format!("--out={}", dir.display()));
+    if dir.exists() {
+        replay.push("--force".to_owned());
+    }
+    let log = state.log_path(&row.id);
+    let status = match spawn_and_wait(exe, &replay, &log, false, stop) {
         Ok(s) => s,
         Err(e) => return fail(format!("{e:#}")),
     };
@@ -359,6 +421,28 @@ fn run_row(
         Ok(v) => v,
         Err(e) => return fail(format!("summary: {e:#}")),
     };
+    if let Some((bids, lock)) = export {
+        let argv = match export_argv(row, &dir, bids) {
+            Ok(a) => a,
+            Err(e) => return fail(format!("BIDS export: {e:#}")),
+        };
+        let status = {
+            let Ok(_one) = lock.lock() else {
+                return fail("BIDS export: another export panicked".to_owned());
+            };
+            spawn_and_wait(exe, &argv, &log, true, stop)
+        };
+        match status {
+            Ok(s) if s.success() => {}
+            Ok(s) => {
+                if stop.is_some_and(|s| s.requested()) {
+                    return RowEnd::Interrupted;
+                }
+                return fail(format!("BIDS export: {}", error_of(&log, s)));
+            }
+            Err(e) => return fail(format!("BIDS export: {e:#}")),
+        }
+    }
     let frames = values
         .first()
         .and_then(|f| f.parse().ok())
@@ -386,30 +470,61 @@ fn row_values(row: &Row, dir: &Path) -> anyhow::Result<Vec<String>> {
     Ok(summary::values(&timeline, &recording))
 }
 
-/// Starts `gazelight replay` for `row` into `dir` (with `--force` when
-/// `dir` exists: what an interrupted run left is cleared), its output to
-/// `log`, in its own process group (a Ctrl-C reaches the batch, which
-/// passes it on once), with SIGTERM as its parent-death signal; waits for
-/// it, passing a stop request on as SIGTERM.
+/// `gazelight export --bids DIR …` of `row` with its replay's timeline in
+/// `dir` (and its calibration profile, if any).
+fn export_argv(row: &Row, dir: &Path, bids: &Path) -> anyhow::Result<Vec<String>> {
+    let args = row.replay_args(dir)?;
+    let names = row.bids_names();
+    let recording = row
+        .argv
+        .first()
+        .ok_or_else(|| anyhow::anyhow!("row {}: no recording", row.id))?;
+    let mut argv = vec![
+        "export".to_owned(),
+        format!("--bids={}", bids.display()),
+        format!("--subject={}", names.subject),
+        format!("--task={}", names.task),
+        format!("--timeline={}", dir.join("timeline.csv").display()),
+    ];
+    if let Some(s) = &names.session {
+        argv.push(format!("--session={s}"));
+    }
+    if let Some(r) = names.run {
+        argv.push(format!("--run={r}"));
+    }
+    if let Some(c) = &args.calibration {
+        argv.push(format!("--calibration={}", c.display()));
+    }
+    argv.push("--".to_owned());
+    argv.push(recording.clone());
+    Ok(argv)
+}
+
+/// Starts `gazelight ARGV…` (a row's replay, with `--force` when its
+/// folder exists: what an interrupted run left is cleared; or its export),
+/// its output to `log` (appended to when `append`), in its own process
+/// group (a Ctrl-C reaches the batch, which passes it on once), with
+/// SIGTERM as its parent-death signal; waits for it, passing a stop
+/// request on as SIGTERM.
 fn spawn_and_wait(
     exe: &Path,
-    row: &Row,
-    dir: &Path,
+    argv: &[String],
     log: &Path,
+    append: bool,
     stop: Option<&crate::shutdown::StopFlag>,
 ) -> anyhow::Result<ExitStatus> {
-    let log_file =
-        std::fs::File::create(log).with_context(|| format!("cannot write {}", log.display()))?;
+    let log_file = std::fs::OpenOptions::new()
+        .create(true)
+        .write(true)
+        .append(append)
+        .truncate(!append)
+        .open(log)
+        .with_context(|| format!("cannot write {}", log.display()))?;
     let err_file = log_file
         .try_clone()
         .with_context(|| format!("cannot write {}", log.display()))?;
     let mut cmd = Command::new(exe);
-    cmd.arg("replay")
-        .args(&row.argv)
-        .arg(format!("--out={}", dir.display()));
-    if dir.exists() {
-        cmd.arg("--force");
-    }
+    cmd.args(argv);
     cmd.stdin(Stdio::null())
         .stdout(log_file)
         .stderr(err_file)
@@ -435,7 +550,10 @@ fn spawn_and_wait(
         .with_context(|| format!("cannot start {}", exe.display()))?;
     let mut passed_on = false;
     loop {
-        if let Some(status) = child.try_wait().context("waiting for the replay")? {
+        if let Some(status) = child
+            .try_wait()
+            .context("waiting for the child gazelight")?
+        {
             return Ok(status);
         }
         if !passed_on && stop.is_some_and(|s| s.requested()) {
@@ -464,7 +582,12 @@ fn error_of(log: &Path, status: ExitStatus) -> String {
 /// Writes `OUT/summary.csv` (atomically) from the rows' records: one line
 /// per manifest row in manifest order; a row without a record for its
 /// current options is `pending`.
-fn write_summary(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<PathBuf> {
+fn write_summary(
+    rows: &[Row],
+    out: &Path,
+    state: &State,
+    bids: Option<&Path>,
+) -> anyhow::Result<PathBuf> {
     let mut text = String::from("id,recording,status,message");
     for c in summary::COLUMNS {
         text.push(',');
@@ -474,7 +597,7 @@ fn write_summary(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<Path
     for row in rows {
         let record = state
             .read(&row.id)
-            .filter(|r| r.options_hash == state::options_hash(&row.argv));
+            .filter(|r| r.options_hash == row.options_hash(bids));
         let (status, message, values) = match record {
             Some(r) if r.status == Status::Ok && r.values.len() == summary::COLUMNS.len() => {
                 ("ok", String::new(), r.values)
@@ -503,15 +626,15 @@ fn write_summary(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<Path
 
 /// `--collect`: the summary from the records; an error when a row failed
 /// or has not run.
-fn collect(rows: &[Row], out: &Path, state: &State) -> anyhow::Result<()> {
-    let path = write_summary(rows, out, state)?;
+fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyhow::Result<()> {
+    let path = write_summary(rows, out, state, bids)?;
     let mut ok = 0;
     let mut failed = Vec::new();
     let mut pending = Vec::new();
     for row in rows {
         match state
             .read(&row.id)
-            .filter(|r| r.options_hash == state::options_hash(&row.argv))
+            .filter(|r| r.options_hash == row.options_hash(bids))
         {
             Some(r) if r.status == Status::Ok => ok += 1,
             Some(_) => failed.push(row.id.as_str()),
