@@ -11,6 +11,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
+/// The tests of this file run one at a time (each starts batches of
+/// replays; together they overload a 2-core machine).
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 use common::{gazelight, shared_str, tmp};
 
 /// timeline.csv without its wall-clock timing columns (they differ
@@ -144,6 +152,7 @@ fn rows() -> Vec<(&'static str, String, Vec<&'static str>)> {
 
 #[test]
 fn batch_rows_are_single_replays_and_the_summary_collects() {
+    let _serial = serial();
     let dir = tmp("outputs");
     let manifest = dir.join("study.csv");
     // The same rows as CSV, plus a recording that does not exist.
@@ -310,6 +319,27 @@ fn mtime(p: &Path) -> SystemTime {
 /// Starts the batch on `manifest`, waits until `ready` exists (a frame of
 /// the row to interrupt), then sends `signal`; returns the batch's exit
 /// status and stderr.
+/// Whether a `gazelight replay` process writing into `dir` (its `--out`,
+/// given as `--out=DIR` or `--out DIR`)
+/// is still running (read from /proc; Linux only).
+fn replay_running_into(dir: &Path) -> bool {
+    let want = dir.to_string_lossy().into_owned();
+    let want_flag = format!("--out={want}");
+    let Ok(procs) = std::fs::read_dir("/proc") else {
+        return false;
+    };
+    procs.flatten().any(|p| {
+        let Ok(cmd) = std::fs::read(p.path().join("cmdline")) else {
+            return false;
+        };
+        let args: Vec<&[u8]> = cmd.split(|&b| b == 0).collect();
+        args.iter().any(|a| *a == b"replay")
+            && args
+                .iter()
+                .any(|a| std::str::from_utf8(a).is_ok_and(|s| s == want || s == want_flag))
+    })
+}
+
 fn interrupt_after(
     manifest: &Path,
     out: &Path,
@@ -361,6 +391,7 @@ fn interrupt_after(
 
 #[test]
 fn a_killed_batch_resumes_without_redoing_finished_rows() {
+    let _serial = serial();
     let dir = tmp("resume");
     let manifest = dir.join("study.toml");
     // Four rows of a few seconds each, run one at a time.
@@ -395,10 +426,13 @@ fn a_killed_batch_resumes_without_redoing_finished_rows() {
     // has written what it rendered (session.json is its last file), so
     // nothing else writes into b.
     let t = Instant::now();
-    while !out.join("b/session.json").exists() {
+    let b_dir = out.join("b");
+    while !out.join("b/session.json").exists() && replay_running_into(&b_dir) {
+        // Bounded; generous for a loaded 2-core machine.
         assert!(
-            t.elapsed() < Duration::from_secs(30),
-            "b's replay never stopped"
+            t.elapsed() < Duration::from_secs(120),
+            "b's replay never stopped; its log:\n{}",
+            std::fs::read_to_string(out.join("_batch/b.log")).unwrap_or_default()
         );
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -517,6 +551,7 @@ const BIDS_OPTS: [&str; 6] = [
 
 #[test]
 fn a_bids_dataset_root_batches_one_row_per_recording() {
+    let _serial = serial();
     let dir = tmp("bids-root");
     // A BIDS dataset of two shipped recordings, written by `export`.
     let ds = dir.join("ds");
@@ -603,6 +638,7 @@ fn a_bids_dataset_root_batches_one_row_per_recording() {
 
 #[test]
 fn batch_bids_writes_a_dataset_that_validates() {
+    let _serial = serial();
     let dir = tmp("bids-export");
     // Entities as columns (empty: the defaults), options as in BIDS_OPTS.
     let with_opts = dir.join("study.csv");
