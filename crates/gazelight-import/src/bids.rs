@@ -619,7 +619,7 @@ impl BidsImporter {
     }
 
     /// The next row of the earliest source, into `pending`.
-    fn step(&mut self) -> Result<bool, ImportError> {
+    fn read_step(&mut self) -> Result<bool, ImportError> {
         for s in &mut self.sources {
             s.fill(&mut self.warnings)?;
         }
@@ -641,26 +641,23 @@ impl BidsImporter {
     }
 }
 
+impl crate::Stepped for BidsImporter {
+    fn step(&mut self) -> Result<bool, ImportError> {
+        self.read_step()
+    }
+    fn pop_pending(&mut self) -> Option<Sample> {
+        self.pending.pop()
+    }
+    fn done_mut(&mut self) -> &mut bool {
+        &mut self.done
+    }
+}
+
 impl Iterator for BidsImporter {
     type Item = Result<Sample, ImportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(s) = self.pending.pop() {
-                return Some(Ok(s));
-            }
-            if self.done {
-                return None;
-            }
-            match self.step() {
-                Ok(true) => {}
-                Ok(false) => self.done = true,
-                Err(e) => {
-                    self.done = true;
-                    return Some(Err(e));
-                }
-            }
-        }
+        crate::next_stepped(self)
     }
 }
 

@@ -159,7 +159,7 @@ fn header_hint(line: &str) -> &'static str {
 impl<R: BufRead> CsvPupilImporter<R> {
     /// Reads one line: the header, a row (its samples go to `pending`) or a
     /// skipped line. An error ends the import.
-    fn step(&mut self) -> Result<(), ImportError> {
+    fn read_step(&mut self) -> Result<(), ImportError> {
         let read = read_text_line(
             &mut self.reader,
             &mut self.line,
@@ -226,22 +226,24 @@ impl<R: BufRead> CsvPupilImporter<R> {
     }
 }
 
+impl<R: BufRead> crate::Stepped for CsvPupilImporter<R> {
+    fn step(&mut self) -> Result<bool, ImportError> {
+        // `read_step` marks the end itself.
+        self.read_step().map(|()| !self.done)
+    }
+    fn pop_pending(&mut self) -> Option<Sample> {
+        self.pending.pop()
+    }
+    fn done_mut(&mut self) -> &mut bool {
+        &mut self.done
+    }
+}
+
 impl<R: BufRead> Iterator for CsvPupilImporter<R> {
     type Item = Result<Sample, ImportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(s) = self.pending.pop() {
-                return Some(Ok(s));
-            }
-            if self.done {
-                return None;
-            }
-            if let Err(e) = self.step() {
-                self.done = true;
-                return Some(Err(e));
-            }
-        }
+        crate::next_stepped(self)
     }
 }
 

@@ -263,42 +263,45 @@ impl<R: BufRead> AscImporter<R> {
     }
 }
 
+impl<R: BufRead> crate::Stepped for AscImporter<R> {
+    /// One line: its samples go to `pending`; a long or non-UTF-8 line is
+    /// skipped with a warning.
+    fn step(&mut self) -> Result<bool, ImportError> {
+        let read = read_text_line(
+            &mut self.reader,
+            &mut self.line,
+            &mut self.line_no,
+            &self.path,
+        )?;
+        match read {
+            LineRead::Eof => return Ok(false),
+            LineRead::TooLong(n) => {
+                self.warnings
+                    .skip_long_line(&self.path, self.line_no, n, "a line");
+            }
+            // Not UTF-8: the line was consumed; skip it.
+            LineRead::NotUtf8 => self.warnings.skip_not_utf8(&self.path, self.line_no),
+            LineRead::Text => {
+                let line = std::mem::take(&mut self.line);
+                self.handle_line(&line);
+                self.line = line;
+            }
+        }
+        Ok(true)
+    }
+    fn pop_pending(&mut self) -> Option<Sample> {
+        self.pending.pop()
+    }
+    fn done_mut(&mut self) -> &mut bool {
+        &mut self.done
+    }
+}
+
 impl<R: BufRead> Iterator for AscImporter<R> {
     type Item = Result<Sample, ImportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(s) = self.pending.pop() {
-                return Some(Ok(s));
-            }
-            if self.done {
-                return None;
-            }
-            let read = read_text_line(
-                &mut self.reader,
-                &mut self.line,
-                &mut self.line_no,
-                &self.path,
-            );
-            match read {
-                Err(e) => {
-                    self.done = true;
-                    return Some(Err(e));
-                }
-                Ok(LineRead::Eof) => self.done = true,
-                Ok(LineRead::TooLong(n)) => {
-                    self.warnings
-                        .skip_long_line(&self.path, self.line_no, n, "a line");
-                }
-                // Not UTF-8: the line was consumed; skip it.
-                Ok(LineRead::NotUtf8) => self.warnings.skip_not_utf8(&self.path, self.line_no),
-                Ok(LineRead::Text) => {
-                    let line = std::mem::take(&mut self.line);
-                    self.handle_line(&line);
-                    self.line = line;
-                }
-            }
-        }
+        crate::next_stepped(self)
     }
 }
 

@@ -313,6 +313,40 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
     }
 }
 
+/// An importer that reads its input one record at a time into a [`Pending`]
+/// queue; [`next_stepped`] is then its whole `Iterator::next`.
+pub(crate) trait Stepped {
+    /// Reads the next record (its samples go to the pending queue); `false`
+    /// at the end of the input. An error ends the import.
+    fn step(&mut self) -> Result<bool, ImportError>;
+    /// The oldest pending sample.
+    fn pop_pending(&mut self) -> Option<Sample>;
+    /// Whether the input has ended (or failed); set by [`next_stepped`].
+    fn done_mut(&mut self) -> &mut bool;
+}
+
+/// `Iterator::next` of a [`Stepped`] importer: pending samples first, then
+/// one step at a time until a sample, the end, or the first error (after
+/// which it yields nothing).
+pub(crate) fn next_stepped<T: Stepped>(t: &mut T) -> Option<Result<Sample, ImportError>> {
+    loop {
+        if let Some(s) = t.pop_pending() {
+            return Some(Ok(s));
+        }
+        if *t.done_mut() {
+            return None;
+        }
+        match t.step() {
+            Ok(true) => {}
+            Ok(false) => *t.done_mut() = true,
+            Err(e) => {
+                *t.done_mut() = true;
+                return Some(Err(e));
+            }
+        }
+    }
+}
+
 /// A small fixed-capacity FIFO of pending samples (an importer record can
 /// expand to several samples); no heap allocation.
 #[derive(Clone, Copy, Debug)]

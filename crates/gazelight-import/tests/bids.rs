@@ -7,7 +7,6 @@
 //! errors — outside CI a missing validator skips that part.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use gazelight_eye::filter::FilterChain;
 use gazelight_eye::sample::Sample;
@@ -124,55 +123,9 @@ fn real_recordings_come_back_identical_and_the_export_validates() {
     );
     let participants = std::fs::read_to_string(root.join("participants.tsv")).unwrap();
     assert_eq!(participants, "participant_id\nsub-eyelink\nsub-piprkit\n");
-    validate(&root);
-    validate(&root.join("derivatives/gazelight"));
+    gazelight_test_support::bids::validate(&root);
+    gazelight_test_support::bids::validate(&root.join("derivatives/gazelight"));
     let _ = std::fs::remove_dir_all(&root);
-}
-
-/// Runs the official validator on `root`; fails on any error.
-fn validate(root: &Path) {
-    let out = match Command::new("bids-validator-deno")
-        .arg("--format")
-        .arg("json")
-        .arg(root)
-        .output()
-    {
-        Ok(o) => o,
-        Err(e) => {
-            gazelight_test_support::skip_or_fail(&format!(
-                "bids-validator-deno not runnable ({e}; pip install bids-validator-deno)"
-            ));
-            return;
-        }
-    };
-    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!(
-            "validator output is not JSON ({e}): {}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
-    let issues = report["issues"]["issues"]
-        .as_array()
-        .cloned()
-        .unwrap_or_default();
-    let errors: Vec<String> = issues
-        .iter()
-        .filter(|i| i["severity"] == "error")
-        .map(|i| format!("{} {} {}", i["code"], i["subCode"], i["location"]))
-        .collect();
-    let warnings: Vec<String> = issues
-        .iter()
-        .filter(|i| i["severity"] == "warning")
-        .map(|i| format!("{} {}", i["code"], i["location"]))
-        .collect();
-    eprintln!(
-        "bids-validator-deno {} (schema {}): {} errors, {} warnings {warnings:?}",
-        root.display(),
-        report["summary"]["schemaVersion"],
-        errors.len(),
-        warnings.len()
-    );
-    assert!(errors.is_empty(), "{}: {errors:#?}", root.display());
 }
 
 /// The rows of a gzipped TSV.
@@ -293,7 +246,7 @@ fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
             |f| f.ends_with("sub-01_ses-a_task-night_run-2_recording-eye1replay_physio.tsv.gz")
         )
     );
-    validate(&root.join("ds"));
-    validate(&root.join("ds/derivatives/gazelight"));
+    gazelight_test_support::bids::validate(&root.join("ds"));
+    gazelight_test_support::bids::validate(&root.join("ds/derivatives/gazelight"));
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -7,6 +7,8 @@
 //! - [`data`]: where the shared real test data lives ([`data_dir`],
 //!   [`data_path`]): `GAZELIGHT_DATA_DIR` if set, else `shared/data` beside
 //!   the workspace root.
+//! - [`bids`]: the official BIDS validator on a dataset a test wrote
+//!   ([`bids::validate`]).
 //! - [`chromium`]: headless Chromium with a throw-away profile, and the
 //!   status page's state as the page shows it.
 //! - [`netns`]: a test re-run inside a private network namespace
@@ -18,6 +20,7 @@
 //! a test that lacks one prints a `SKIP` line and returns; with `CI` set it
 //! fails ([`skip_or_fail`]).
 
+pub mod bids;
 pub mod chromium;
 pub mod data;
 pub mod netns;

@@ -4,7 +4,7 @@
 //! Streams the file row by row (memory does not grow with its length).
 
 use std::io::{BufRead, BufReader, Read};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use serde::Serialize;
@@ -12,25 +12,141 @@ use serde::Serialize;
 /// Longest line read, bytes (a stereo row is a few hundred).
 const MAX_LINE_BYTES: u64 = 64 << 10;
 
-/// Running mean and variance (Welford).
-#[derive(Clone, Copy, Debug, Default)]
-struct Running {
+/// Running mean, variance, minimum and maximum (Welford); shared with the
+/// batch summary (`batch/summary.rs`).
+#[derive(Clone, Copy, Debug)]
+pub struct Stats {
     n: u64,
     mean: f64,
     m2: f64,
+    min: f64,
+    max: f64,
 }
 
-impl Running {
-    fn add(&mut self, x: f64) {
+impl Default for Stats {
+    fn default() -> Self {
+        Self {
+            n: 0,
+            mean: 0.0,
+            m2: 0.0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Stats {
+    pub fn add(&mut self, x: f64) {
         self.n += 1;
         let d = x - self.mean;
         self.mean += d / self.n as f64;
         self.m2 += d * (x - self.mean);
+        self.min = self.min.min(x);
+        self.max = self.max.max(x);
     }
-
-    fn sd(&self) -> Option<f64> {
+    /// How many values were added.
+    pub fn count(&self) -> u64 {
+        self.n
+    }
+    pub fn mean(&self) -> Option<f64> {
+        (self.n > 0).then_some(self.mean)
+    }
+    /// The sample standard deviation (n − 1).
+    pub fn sd(&self) -> Option<f64> {
         (self.n > 1).then(|| (self.m2 / (self.n - 1) as f64).sqrt())
     }
+    pub fn min(&self) -> Option<f64> {
+        (self.n > 0).then_some(self.min)
+    }
+    pub fn max(&self) -> Option<f64> {
+        (self.n > 0).then_some(self.max)
+    }
+}
+
+/// A timeline CSV read row by row: bounded lines, each row checked
+/// against the header's cell count, errors naming the file and line.
+/// Shared with the batch summary.
+pub struct TimelineReader {
+    path: PathBuf,
+    reader: BufReader<std::fs::File>,
+    line: String,
+    line_no: u64,
+    header: Vec<String>,
+}
+
+impl TimelineReader {
+    /// Opens `path` and reads its header.
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let file =
+            std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let mut r = Self {
+            path: path.to_owned(),
+            reader: BufReader::new(file),
+            line: String::new(),
+            line_no: 0,
+            header: Vec::new(),
+        };
+        if !r.read_line()? {
+            bail!("{}: empty", path.display());
+        }
+        r.header = r.line.trim_end().split(',').map(str::to_owned).collect();
+        Ok(r)
+    }
+
+    fn read_line(&mut self) -> anyhow::Result<bool> {
+        self.line.clear();
+        self.line_no += 1;
+        let no = self.line_no;
+        let n = self
+            .reader
+            .by_ref()
+            .take(MAX_LINE_BYTES)
+            .read_line(&mut self.line)
+            .with_context(|| format!("{} (line {no})", self.path.display()))?;
+        if n as u64 == MAX_LINE_BYTES && !self.line.ends_with('\n') {
+            bail!(
+                "{} (line {no}): longer than {MAX_LINE_BYTES} bytes",
+                self.path.display()
+            );
+        }
+        Ok(n > 0)
+    }
+
+    /// The header's column names.
+    pub fn header(&self) -> &[String] {
+        &self.header
+    }
+
+    /// The index of the column `name`.
+    pub fn column(&self, name: &str) -> Option<usize> {
+        self.header.iter().position(|h| h == name)
+    }
+
+    /// The next row's cells; `None` at the end of the file.
+    pub fn next_row(&mut self) -> anyhow::Result<Option<Vec<&str>>> {
+        if !self.read_line()? {
+            return Ok(None);
+        }
+        let cells: Vec<&str> = self.line.trim_end().split(',').collect();
+        if cells.len() != self.header.len() {
+            bail!(
+                "{} (line {}): {} cells, the header has {}",
+                self.path.display(),
+                self.line_no,
+                cells.len(),
+                self.header.len()
+            );
+        }
+        Ok(Some(cells))
+    }
+}
+
+/// Cell `i` as a finite number (an empty or non-finite cell is `None`).
+pub fn number(cells: &[&str], i: usize) -> Option<f64> {
+    cells
+        .get(i)
+        .and_then(|c| c.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
 }
 
 /// One view's figures.
@@ -75,40 +191,14 @@ pub fn is_timeline(path: &Path) -> bool {
 
 /// Reads the timeline at `path`.
 pub fn summarize(path: &Path) -> anyhow::Result<TimelineSummary> {
-    let file =
-        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut reader = BufReader::new(file);
-    let mut line = String::new();
-    let read_line = |reader: &mut BufReader<std::fs::File>,
-                     line: &mut String,
-                     no: u64|
-     -> anyhow::Result<bool> {
-        line.clear();
-        let n = reader
-            .by_ref()
-            .take(MAX_LINE_BYTES)
-            .read_line(line)
-            .with_context(|| format!("{} (line {no})", path.display()))?;
-        if n as u64 == MAX_LINE_BYTES && !line.ends_with('\n') {
-            bail!(
-                "{} (line {no}): longer than {MAX_LINE_BYTES} bytes",
-                path.display()
-            );
-        }
-        Ok(n > 0)
-    };
-    if !read_line(&mut reader, &mut line, 1)? {
-        bail!("{}: empty", path.display());
-    }
-    let header: Vec<String> = line.trim_end().split(',').map(str::to_owned).collect();
-    let col = |name: &str| header.iter().position(|h| h == name);
+    let mut reader = TimelineReader::open(path)?;
     // Per view: (name, pupil column, light column, residual column).
     let mut views = Vec::new();
     for (view, suffix) in [("", ""), ("left", "_left"), ("right", "_right")] {
         if let (Some(p), Some(l), Some(r)) = (
-            col(&format!("pupil_mm{suffix}")),
-            col(&format!("pupil_light_mm{suffix}")),
-            col(&format!("pupil_residual_mm{suffix}")),
+            reader.column(&format!("pupil_mm{suffix}")),
+            reader.column(&format!("pupil_light_mm{suffix}")),
+            reader.column(&format!("pupil_residual_mm{suffix}")),
         ) {
             views.push((view, p, l, r));
         }
@@ -119,29 +209,17 @@ pub fn summarize(path: &Path) -> anyhow::Result<TimelineSummary> {
             path.display()
         );
     }
-    let mut pupil = vec![Running::default(); views.len()];
-    let mut residual = vec![Running::default(); views.len()];
-    let mut light_range = vec![(f64::INFINITY, f64::NEG_INFINITY); views.len()];
+    let mut pupil = vec![Stats::default(); views.len()];
+    let mut residual = vec![Stats::default(); views.len()];
+    let mut light = vec![Stats::default(); views.len()];
     let mut frames = 0u64;
-    let mut no = 1u64;
-    while read_line(&mut reader, &mut line, no + 1)? {
-        no += 1;
-        let cells: Vec<&str> = line.trim_end().split(',').collect();
-        if cells.len() != header.len() {
-            bail!(
-                "{} (line {no}): {} cells, the header has {}",
-                path.display(),
-                cells.len(),
-                header.len()
-            );
-        }
+    while let Some(cells) = reader.next_row()? {
         frames += 1;
-        let num = |i: usize| cells[i].parse::<f64>().ok().filter(|v| v.is_finite());
         for (k, &(_, p, l, r)) in views.iter().enumerate() {
-            if let Some(v) = num(l) {
-                light_range[k] = (light_range[k].0.min(v), light_range[k].1.max(v));
+            if let Some(v) = number(&cells, l) {
+                light[k].add(v);
             }
-            if let (Some(pv), Some(rv)) = (num(p), num(r)) {
+            if let (Some(pv), Some(rv)) = (number(&cells, p), number(&cells, r)) {
                 pupil[k].add(pv);
                 residual[k].add(rv);
             }
@@ -154,11 +232,11 @@ pub fn summarize(path: &Path) -> anyhow::Result<TimelineSummary> {
             .enumerate()
             .map(|(k, &(view, ..))| ViewSpread {
                 view: view.to_owned(),
-                measured_frames: pupil[k].n,
+                measured_frames: pupil[k].count(),
                 pupil_sd_mm: pupil[k].sd(),
                 residual_sd_mm: residual[k].sd(),
-                pupil_light_min_mm: light_range[k].0.is_finite().then_some(light_range[k].0),
-                pupil_light_max_mm: light_range[k].1.is_finite().then_some(light_range[k].1),
+                pupil_light_min_mm: light[k].min(),
+                pupil_light_max_mm: light[k].max(),
             })
             .collect(),
     })

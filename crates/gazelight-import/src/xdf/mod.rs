@@ -464,7 +464,7 @@ impl XdfImporter {
         &self.layout
     }
 
-    fn step(&mut self) -> Result<bool, ImportError> {
+    fn read_step(&mut self) -> Result<bool, ImportError> {
         let Some(t) = self.samples.next_sample()? else {
             if let Some(start) = self.blink_start.take() {
                 self.pending.push(Sample::Blink(BlinkEvent {
@@ -497,26 +497,23 @@ impl XdfImporter {
     }
 }
 
+impl crate::Stepped for XdfImporter {
+    fn step(&mut self) -> Result<bool, ImportError> {
+        self.read_step()
+    }
+    fn pop_pending(&mut self) -> Option<Sample> {
+        self.pending.pop()
+    }
+    fn done_mut(&mut self) -> &mut bool {
+        &mut self.done
+    }
+}
+
 impl Iterator for XdfImporter {
     type Item = Result<Sample, ImportError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            if let Some(s) = self.pending.pop() {
-                return Some(Ok(s));
-            }
-            if self.done {
-                return None;
-            }
-            match self.step() {
-                Ok(true) => {}
-                Ok(false) => self.done = true,
-                Err(e) => {
-                    self.done = true;
-                    return Some(Err(e));
-                }
-            }
-        }
+        crate::next_stepped(self)
     }
 }
 

@@ -6,10 +6,9 @@
 //! same rows is the same file wherever it was computed (a local run, a
 //! Slurm array's `--collect`).
 
-use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
@@ -17,11 +16,9 @@ use gazelight_tracker::summary::Summarizer;
 use gazelight_tracker::{PupilUnit, Sample};
 
 use crate::config::RenderConfig;
+use crate::inspect_timeline::{Stats, TimelineReader, number};
 use crate::replay::ReplayArgs;
 use crate::service_config::ConfigUser;
-
-/// Longest timeline line read, bytes.
-const MAX_LINE_BYTES: u64 = 64 << 10;
 
 /// The summary's columns after `id, recording, status, message`.
 pub const COLUMNS: [&str; 27] = [
@@ -54,51 +51,6 @@ pub const COLUMNS: [&str; 27] = [
     "warnings",
 ];
 
-/// Running mean, variance, minimum and maximum (Welford).
-#[derive(Clone, Copy, Debug)]
-struct Stats {
-    n: u64,
-    mean: f64,
-    m2: f64,
-    min: f64,
-    max: f64,
-}
-
-impl Default for Stats {
-    fn default() -> Self {
-        Self {
-            n: 0,
-            mean: 0.0,
-            m2: 0.0,
-            min: f64::INFINITY,
-            max: f64::NEG_INFINITY,
-        }
-    }
-}
-
-impl Stats {
-    fn add(&mut self, x: f64) {
-        self.n += 1;
-        let d = x - self.mean;
-        self.mean += d / self.n as f64;
-        self.m2 += d * (x - self.mean);
-        self.min = self.min.min(x);
-        self.max = self.max.max(x);
-    }
-    fn mean(&self) -> Option<f64> {
-        (self.n > 0).then_some(self.mean)
-    }
-    fn sd(&self) -> Option<f64> {
-        (self.n > 1).then(|| (self.m2 / (self.n - 1) as f64).sqrt())
-    }
-    fn min(&self) -> Option<f64> {
-        (self.n > 0).then_some(self.min)
-    }
-    fn max(&self) -> Option<f64> {
-        (self.n > 0).then_some(self.max)
-    }
-}
-
 /// What a replay's `timeline.csv` says, all views pooled.
 #[derive(Clone, Debug, Default)]
 pub struct TimelineFigures {
@@ -114,44 +66,21 @@ pub struct TimelineFigures {
 
 /// Reads a replay's timeline (streamed; bad lines named).
 pub fn read_timeline(path: &Path) -> anyhow::Result<TimelineFigures> {
-    let file =
-        std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut reader = BufReader::new(file);
-    let mut line = String::new();
-    let mut next = |line: &mut String, no: u64| -> anyhow::Result<bool> {
-        line.clear();
-        let n = reader
-            .by_ref()
-            .take(MAX_LINE_BYTES)
-            .read_line(line)
-            .with_context(|| format!("{} (line {no})", path.display()))?;
-        if n as u64 == MAX_LINE_BYTES && !line.ends_with('\n') {
-            bail!(
-                "{} (line {no}): longer than {MAX_LINE_BYTES} bytes",
-                path.display()
-            );
-        }
-        Ok(n > 0)
-    };
-    if !next(&mut line, 1)? {
-        bail!("{}: empty", path.display());
-    }
-    let header: Vec<String> = line.trim_end().split(',').map(str::to_owned).collect();
-    let col = |name: String| header.iter().position(|h| *h == name);
+    let mut reader = TimelineReader::open(path)?;
     // Per view: pupil, held, adaptation, light, residual columns.
     let mut views = Vec::new();
     for suffix in ["", "_left", "_right"] {
         if let (Some(p), Some(h), Some(a)) = (
-            col(format!("pupil_mm{suffix}")),
-            col(format!("pupil_held{suffix}")),
-            col(format!("adaptation_cd_m2{suffix}")),
+            reader.column(&format!("pupil_mm{suffix}")),
+            reader.column(&format!("pupil_held{suffix}")),
+            reader.column(&format!("adaptation_cd_m2{suffix}")),
         ) {
-            let l = col(format!("pupil_light_mm{suffix}"));
-            let r = col(format!("pupil_residual_mm{suffix}"));
+            let l = reader.column(&format!("pupil_light_mm{suffix}"));
+            let r = reader.column(&format!("pupil_residual_mm{suffix}"));
             views.push((p, h, a, l, r));
         }
     }
-    if header.first().map(String::as_str) != Some("t_secs") || views.is_empty() {
+    if reader.header().first().map(String::as_str) != Some("t_secs") || views.is_empty() {
         bail!(
             "{}: not a gazelight timeline (t_secs, pupil_mm, pupil_held, adaptation_cd_m2 columns)",
             path.display()
@@ -161,19 +90,8 @@ pub fn read_timeline(path: &Path) -> anyhow::Result<TimelineFigures> {
         views: views.len(),
         ..TimelineFigures::default()
     };
-    let mut no = 1u64;
-    while next(&mut line, no + 1)? {
-        no += 1;
-        let cells: Vec<&str> = line.trim_end().split(',').collect();
-        if cells.len() != header.len() {
-            bail!(
-                "{} (line {no}): {} cells, the header has {}",
-                path.display(),
-                cells.len(),
-                header.len()
-            );
-        }
-        let num = |i: usize| cells[i].parse::<f64>().ok().filter(|v| v.is_finite());
+    while let Some(cells) = reader.next_row()? {
+        let num = |i: usize| number(&cells, i);
         f.frames += 1;
         if let Some(t) = num(0) {
             f.duration_secs = t;
@@ -305,7 +223,7 @@ pub fn values(t: &TimelineFigures, r: &RecordingFigures) -> Vec<String> {
         r.blinks[0].to_string(),
         r.blinks[1].to_string(),
         r.blink_events.to_string(),
-        t.pupil.n.to_string(),
+        t.pupil.count().to_string(),
         mm(t.pupil.mean()),
         mm(t.pupil.sd()),
         mm(t.pupil.min()),
@@ -315,7 +233,7 @@ pub fn values(t: &TimelineFigures, r: &RecordingFigures) -> Vec<String> {
         mm(t.light.mean()),
         mm(t.light.min()),
         mm(t.light.max()),
-        t.residual.n.to_string(),
+        t.residual.count().to_string(),
         mm(t.residual.mean()),
         mm(t.residual.sd()),
         mm(t.residual.min()),
