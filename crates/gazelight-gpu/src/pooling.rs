@@ -203,7 +203,7 @@ pub const POOLING_PASS: PassDescriptor = PassDescriptor {
         Binding::uniform::<PoolParams>("params"),
         Binding::read::<[f32; 4]>("scene"),
         Binding::read_write::<[f32; 4]>("work"),
-        Binding::read_write::<f32>("small_lum"),
+        Binding::read_write::<[f32; 2]>("small_lum"),
         Binding::read_write::<[f32; 2]>("partials"),
         Binding::read_write::<FrameState>("state"),
     ],
@@ -211,7 +211,7 @@ pub const POOLING_PASS: PassDescriptor = PassDescriptor {
 
 /// The twin of `shaders/pooling.wgsl` ([`POOLING_PASS`]). Bindings:
 /// 0 [`PoolParams`], 1 scene (RGBA f32, read-only), 2 working frame (RGBA
-/// f32), 3 block luminance (f32), 4 partial sums (`vec2<f32>`),
+/// f32), 3 block luminance and valid share (`vec2<f32>`), 4 partial sums (`vec2<f32>`),
 /// 5 [`crate::frame::FrameState`].
 #[derive(Debug, Clone)]
 pub struct PoolingPass {
