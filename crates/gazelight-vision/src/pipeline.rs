@@ -6,8 +6,8 @@
 //!
 //! | pass | stages | what |
 //! | --- | --- | --- |
-//! | A | 1 (input) | average the sanitised frame's luminance over the `pooling_downsample`² blocks the pooling model reads ([`PoolingModel::reach`]: for the default Gaussian, ±(6σ + 1) blocks around the gaze; the scene only is read) |
-//! | – | 1 pooling | [`PoolingModel::pool`] on the small luminance plane, centred on the gaze |
+//! | A | 1 (input) | average the sanitised frame's luminance, and count the pixels with data ([`crate::image::is_no_data`]), over the `pooling_downsample`² blocks the pooling model reads ([`PoolingModel::reach`]: for the default Gaussian, ±(6σ + 1) blocks around the gaze; the scene only is read) |
+//! | – | 1 pooling | [`PoolingModel::pool_valid_in`] on the small luminance plane, centred on the gaze (pixels without data left out) |
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
 //! | B | 4 glare | [`GlareConvolver::prepare`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond; nothing is written to the frame yet |
@@ -30,6 +30,14 @@
 //! image is written to a frame-sized buffer only when
 //! [`PipelineConfig::keep_retinal`] asks for it; otherwise each band of
 //! pass C keeps just the 2r + 1 rows its blur is working on.
+//!
+//! Pixels without data (NaN in the view: outside the scene's field,
+//! [`crate::scene::NO_DATA_RGB`]) are left out of pooling (pass A counts
+//! each block's pixels with data; the pool is `Σ w·L / Σ w·valid`, and a
+//! gaze whose reach has none keeps the last target), are no light in
+//! glare (sanitised to 0), and are marked in the output:
+//! [`NO_DATA_RGBA8`] in the display frame, NaN in the display-linear
+//! frame and the retinal image. The GPU twin does the same.
 //!
 //! Nothing is allocated per frame once the pipeline is built (the tests
 //! prove it with a counting allocator).

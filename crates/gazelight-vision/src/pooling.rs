@@ -66,6 +66,11 @@
 //!
 //! The centre-weight (000) and panorama-mean models are defined on the
 //! plane itself and ignore the geometry. Pooling never allocates.
+//!
+//! A plane with "no data" in it (pixels outside a scene's field) pools
+//! with [`PoolingModel::pool_valid_in`]: each pixel carries the share of
+//! its area with data, and every model's mean becomes the weighted
+//! luminance over the weighted area with data, `Σ w·L / Σ w·a`.
 
 use std::ops::Range;
 
