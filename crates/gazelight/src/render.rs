@@ -160,7 +160,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     if no_data > 0 {
         tracing::warn!(
             scene = %scene.name,
-            "{no_data} of {} view pixels look outside the scene's field ({}): no data, drawn black",
+            "{no_data} of {} view pixels look outside the scene's field ({}): no data: left out of pooling and glare, transparent (alpha 0) in PNG frames, NaN in EXR frames",
             width * height,
             scene.effective_projection().kind.name()
         );
@@ -787,6 +787,64 @@ mod tests {
         }
         // --exr needs the frames.
         assert!(Cli::try_parse_from(["render", "--exr", "--no-frames"]).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A view past a real fisheye's field (evalglare's 182° test image,
+    /// turned 60° right with a 90° field): the PNG frame is written as
+    /// RGBA and marks exactly the view's no-data pixels with alpha 0;
+    /// every other pixel is opaque.
+    #[test]
+    fn png_frames_mark_no_data_with_alpha_0() {
+        let dir = std::env::temp_dir().join(format!("gazelight-nodata-{}", std::process::id()));
+        let scene_path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/radiance/evalglare_testimage.hdr");
+        let out = dir.join("out");
+        let argv = [
+            "render",
+            "--scene",
+            scene_path.to_str().unwrap(),
+            "--size",
+            "96x72",
+            "--hfov-deg",
+            "90",
+            "--yaw-deg",
+            "60",
+            "--pitch-deg",
+            "0",
+            "--frames",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        run(Cli::try_parse_from(argv).unwrap().render).unwrap();
+        let png = image::open(out.join("frames").join("frame_00000.png")).unwrap();
+        assert!(png.color().has_alpha(), "{:?}", png.color());
+        let png = png.to_rgba8();
+        // The view's own no-data pixels.
+        let scene = Scene::load(&scene_path, LuminanceScale::default()).unwrap();
+        let view = gazelight_vision::scene::PanoramaView::new(ViewParams {
+            yaw_deg: 60.0,
+            pitch_deg: 0.0,
+            hfov_deg: 90.0,
+            width: 96,
+            height: 72,
+        })
+        .unwrap();
+        let mut img = RgbImage::new(96, 72);
+        let missing = view.render_scene(&scene, &mut img);
+        assert!(missing > 0);
+        for (i, p) in img.pixels.iter().enumerate() {
+            let a = png.as_raw()[4 * i + 3];
+            let want = if gazelight_vision::image::is_no_data(*p) {
+                0
+            } else {
+                255
+            };
+            assert_eq!(a, want, "pixel {i}");
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
