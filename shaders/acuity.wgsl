@@ -219,7 +219,8 @@ fn blur_v(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let wx = WHITE_XYZ * params.white_cd_m2;
-    let xyz = rgb_to_xyz(work[i].xyz);
+    let old = work[i];
+    let xyz = rgb_to_xyz(old.xyz);
     let f = vec3<f32>(lab_f(xyz.x / wx.x), lab_f(xyz.y / wx.y), lab_f(xyz.z / wx.z));
     let d = (l_new + 16.0) / 116.0 - f.y;
     let moved = vec3<f32>(
@@ -227,5 +228,6 @@ fn blur_v(@builtin(global_invocation_id) gid: vec3<u32>) {
         lab_f_inv(f.y + d) * wx.y,
         lab_f_inv(f.z + d) * wx.z,
     );
-    work[i] = vec4<f32>(xyz_to_rgb(moved), 0.0);
+    // w: the no-data flag of pooling.wgsl's import_scene, kept.
+    work[i] = vec4<f32>(xyz_to_rgb(moved), old.w);
 }

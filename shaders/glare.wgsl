@@ -273,7 +273,8 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
     let hi = (c * (1.0 - fx) + d * fx) * inv_b2;
     let add = lo * (1.0 - fy) + hi * fy;
     let f = frame_index(x, y);
-    var p = work[f].xyz;
+    let old = work[f];
+    var p = old.xyz;
     let fi = x - params.ofx;
     let fj = y - params.ofy;
     let wf = i32(params.wf);
@@ -286,5 +287,6 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else {
         p = p + add;
     }
-    work[f] = vec4<f32>(p, 0.0);
+    // w: the no-data flag of pooling.wgsl's import_scene, kept.
+    work[f] = vec4<f32>(p, old.w);
 }

@@ -4,15 +4,20 @@
 //
 // 1. `import_scene`: the HDR frame (RGBA f32, cd/m²) into the working
 //    buffer, NaN/±∞/negative/subnormal values set to 0 (the CPU's sanitize);
-// 2. `block_luminance`: one thread per block of ds×ds pixels: the mean
-//    luminance of the block (same summation order as the CPU: rows, then
-//    pixels in the row);
-// 3. `pool_partial`: the weighted sums Σ w·L and Σ w over the block plane,
+//    a pixel with no data (any channel NaN: outside the scene's field,
+//    gazelight_vision::image::is_no_data) gets w = 1 in the working buffer,
+//    which glare and acuity keep and tone_map marks in the output;
+// 2. `block_luminance`: one thread per block of ds×ds pixels: the block's
+//    luminance summed over its pixels with data over all its pixels, and
+//    the share of its pixels with data (same summation order as the CPU:
+//    rows, then pixels in the row);
+// 3. `pool_partial`: the weighted sums Σ w·L and Σ w·valid over the block plane,
 //    per workgroup (grid-stride loop, then a tree reduction; core WebGPU has
 //    no float atomics);
 // 4. `pool_final`: one workgroup adds the partials and writes the pooled
-//    target Σ w·L / Σ w (or the block under the gaze when the weights vanish)
-//    into FrameState.target_cd_m2.
+//    target Σ w·L / Σ w·valid (or the block under the gaze, over its valid
+//    share, when the weights vanish; when that block has no data either,
+//    the last frame's target is kept) into FrameState.target_cd_m2.
 //
 // The weight w(x, y) of block (x, y) follows the model:
 //   0 Gaussian (001 §4.1): pixel-integrated Gaussian, (erf differences) in x
@@ -74,7 +79,9 @@ struct PoolParams {
 @group(0) @binding(0) var<uniform> params: PoolParams;
 @group(0) @binding(1) var<storage, read> scene: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> work: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> small_lum: array<f32>;
+// Per block: x = luminance over the valid pixels per block pixel, y = the
+// share of the block's pixels with data.
+@group(0) @binding(3) var<storage, read_write> small_lum: array<vec2<f32>>;
 @group(0) @binding(4) var<storage, read_write> partials: array<vec2<f32>>;
 @group(0) @binding(5) var<storage, read_write> state: FrameState;
 
@@ -90,6 +97,17 @@ fn sanitize(v: f32) -> f32 {
 
 fn clean(v: f32) -> f32 {
     return select(0.0, v, finite_f32(v) && v > 0.0);
+}
+
+// NaN on the bit pattern (robust against fast-math assumptions).
+fn nan_f32(v: f32) -> bool {
+    let b = bitcast<u32>(v);
+    return (b & 0x7f800000u) == 0x7f800000u && (b & 0x007fffffu) != 0u;
+}
+
+// A pixel with no data (gazelight_vision::image::is_no_data): any channel NaN.
+fn no_data(s: vec4<f32>) -> bool {
+    return nan_f32(s.x) || nan_f32(s.y) || nan_f32(s.z);
 }
 
 // erf, Numerical Recipes' erfc fit (|error| < 1.2e-7), as gazelight_vision::pooling.
@@ -223,7 +241,7 @@ fn import_scene(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let i = gid.y * params.width + gid.x;
     let s = scene[i];
-    work[i] = vec4<f32>(sanitize(s.x), sanitize(s.y), sanitize(s.z), 0.0);
+    work[i] = vec4<f32>(sanitize(s.x), sanitize(s.y), sanitize(s.z), select(0.0, 1.0, no_data(s)));
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -236,14 +254,17 @@ fn block_luminance(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x1 = min(x0 + params.ds, params.width);
     let y1 = min(y0 + params.ds, params.height);
     var sum = 0.0;
+    var valid = 0u;
     for (var y = y0; y < y1; y++) {
         for (var x = x0; x < x1; x++) {
             let s = scene[y * params.width + x];
             let p = vec3<f32>(sanitize(s.x), sanitize(s.y), sanitize(s.z));
             sum += LUMINANCE_WEIGHTS.x * p.x + LUMINANCE_WEIGHTS.y * p.y + LUMINANCE_WEIGHTS.z * p.z;
+            valid += select(1u, 0u, no_data(s));
         }
     }
-    small_lum[gid.y * params.small_w + gid.x] = sum / f32((x1 - x0) * (y1 - y0));
+    let n = f32((x1 - x0) * (y1 - y0));
+    small_lum[gid.y * params.small_w + gid.x] = vec2<f32>(sum / n, f32(valid) / n);
 }
 
 @compute @workgroup_size(256, 1, 1)
@@ -258,7 +279,8 @@ fn pool_partial(
         let x = i % params.small_w;
         let y = i / params.small_w;
         let w = weight(x, y);
-        acc += vec2<f32>(w * clean(small_lum[i]), w);
+        let b = small_lum[i];
+        acc += vec2<f32>(w * clean(b.x), w * clamp(b.y, 0.0, 1.0));
     }
     reduce(t, acc);
     if t == 0u {
@@ -276,14 +298,17 @@ fn pool_final(@builtin(local_invocation_index) t: u32) {
     if t == 0u {
         let sum = tree[0].x;
         let w = tree[0].y;
-        var pooled = 0.0;
         if w > 0.0 && finite_f32(w) && finite_f32(sum) {
-            pooled = sum / w;
+            state.target_cd_m2 = max(sum / w, 0.0);
         } else {
             let x = min(u32(max(floor(params.gaze_x), 0.0)), params.small_w - 1u);
             let y = min(u32(max(floor(params.gaze_y), 0.0)), params.small_h - 1u);
-            pooled = clean(small_lum[y * params.small_w + x]);
+            let b = small_lum[y * params.small_w + x];
+            let a = clamp(b.y, 0.0, 1.0);
+            // No data under the gaze either: the last target is kept.
+            if a > 0.0 {
+                state.target_cd_m2 = max(clean(b.x) / a, 0.0);
+            }
         }
-        state.target_cd_m2 = max(pooled, 0.0);
     }
 }

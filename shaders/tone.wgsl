@@ -220,7 +220,17 @@ fn tone_map(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let i = gid.y * params.width + gid.x;
-    let display = clamp(colour(tone(work[i].xyz)), vec3<f32>(0.0), vec3<f32>(1.0));
+    let p = work[i];
+    // No data (pooling.wgsl's import_scene set w): the CPU's NO_DATA_RGBA8,
+    // transparent black; alpha 0 in the display-linear frame.
+    if p.w != 0.0 {
+        if params.keep_linear != 0u {
+            linear_out[i] = vec4<f32>(0.0);
+        }
+        output[i] = 0u;
+        return;
+    }
+    let display = clamp(colour(tone(p.xyz)), vec3<f32>(0.0), vec3<f32>(1.0));
     if params.keep_linear != 0u {
         linear_out[i] = vec4<f32>(display, 1.0);
     }

@@ -251,7 +251,7 @@ impl FrameBuffers {
             acuity_uniform: b("acuity params", size_of::<AcuityParams>() as u64, UNIFORM)?,
             scene: b("frame scene", pixels * 16, STORAGE)?,
             work: b("frame work", pixels * 16, STORAGE)?,
-            small_lum: b("frame block luminance", small_n * 4, STORAGE)?,
+            small_lum: b("frame block luminance", small_n * 8, STORAGE)?,
             partials: b(
                 "frame pooling partials",
                 u64::from(sizes.partial_count) * 8,
@@ -1048,6 +1048,7 @@ impl GpuFramePipeline {
         &self,
         source: &wgpu::Buffer,
         what: &'static str,
+        no_data: fn(&[f32; 4]) -> bool,
         out: &mut RgbImage,
     ) -> Result<(), GpuError> {
         let pixels = self.sizes.width as usize * self.sizes.height as usize;
@@ -1076,20 +1077,27 @@ impl GpuFramePipeline {
         read_mapped(&self.ctx, &self.buffers.image_staging, what, |bytes| {
             let texels: &[[f32; 4]] = bytemuck::cast_slice(&bytes[..pixels * 16]);
             for (d, s) in out.pixels.iter_mut().zip(texels) {
-                *d = [s[0], s[1], s[2]];
+                *d = if no_data(s) {
+                    [f32::NAN; 3]
+                } else {
+                    [s[0], s[1], s[2]]
+                };
             }
         })
     }
 
     /// Reads back the retinal image of the last frame: the working frame
     /// after glare (stage 4) and acuity (stage 5), linear RGB in cd/m²,
-    /// sanitised — the twin of `FramePipeline::retinal`. For tests and tools.
+    /// sanitised, NaN where the frame had no data — the twin of
+    /// `FramePipeline::retinal`. For tests and tools.
     pub fn read_retinal(&self, out: &mut RgbImage) -> Result<(), GpuError> {
-        self.read_image(&self.buffers.work, "retinal image", out)
+        // The working frame's w = 1 marks no data (`import_scene`).
+        self.read_image(&self.buffers.work, "retinal image", |s| s[3] != 0.0, out)
     }
 
     /// Reads back the display-linear frame (after acuity; needs
-    /// `keep_display_linear` in the config). For tests and tools.
+    /// `keep_display_linear` in the config), NaN where the frame had no
+    /// data. For tests and tools.
     pub fn read_display_linear(&self, out: &mut RgbImage) -> Result<(), GpuError> {
         if !self.config.keep_display_linear {
             return Err(invalid(VisionError::invalid(
@@ -1098,7 +1106,13 @@ impl GpuFramePipeline {
                 "true to read the display-linear frame",
             )));
         }
-        self.read_image(&self.buffers.linear, "display-linear frame", out)
+        // Alpha 0 marks no data (`tone_map`).
+        self.read_image(
+            &self.buffers.linear,
+            "display-linear frame",
+            |s| s[3] == 0.0,
+            out,
+        )
     }
 }
 
@@ -1249,6 +1263,130 @@ mod tests {
             "worst relative error: pooled target {:.2e}, adaptation {:.2e}",
             worst.0, worst.1
         );
+    }
+
+    /// A 90° view turned 60° right into a real 182° fisheye (evalglare's
+    /// test image): its right part has no data (NaN).
+    fn fisheye_view(w: usize, h: usize) -> (RgbImage, gazelight_vision::scene::PanoramaView) {
+        use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+        let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/radiance/evalglare_testimage.hdr");
+        let scene = Scene::load(&path, LuminanceScale::default()).unwrap();
+        let v = PanoramaView::new(ViewParams {
+            yaw_deg: 60.0,
+            pitch_deg: 0.0,
+            hfov_deg: 90.0,
+            width: w,
+            height: h,
+        })
+        .unwrap();
+        let mut img = RgbImage::new(w, h);
+        let missing = v.render_scene(&scene, &mut img);
+        assert!(missing > w * h / 20 && missing < w * h / 2, "{missing}");
+        (img, v)
+    }
+
+    /// No data (outside a fisheye's field) on the GPU as on the CPU: the
+    /// pooled target and adaptation for every pooling model, gazes inside,
+    /// at and beyond the field's edge (the block's valid share and
+    /// Σ w·L / Σ w·valid of pooling.wgsl), within 1e-4; and, with glare,
+    /// the marks: alpha 0 in the display frame and NaN in the retinal
+    /// image at the same pixels, every other pixel opaque and finite.
+    #[test]
+    fn no_data_pixels_match_the_cpu() {
+        let Some(ctx) = test_context("no_data_pixels_match_the_cpu") else {
+            return;
+        };
+        let (w, h) = (96, 72);
+        let (img, v) = fisheye_view(w, h);
+        let dpp = v.params().deg_per_px();
+        let edge_uv = |az: f64| {
+            let a = az.to_radians();
+            let d = gazelight_vision::scene::projection::DVec3::new(a.sin(), 0.0, -a.cos());
+            let px = v.project(d.as_vec3()).unwrap();
+            [px[0] / w as f32, px[1] / h as f32]
+        };
+        let gazes = [edge_uv(40.0), edge_uv(89.5), edge_uv(91.5), edge_uv(100.0)];
+        let mut worst = 0.0f64;
+        for pooling in crate::testing::pass_harness::every_pooling_model() {
+            for downsample in [Some(1), None] {
+                let config = no_glare(PipelineConfig {
+                    pooling,
+                    pooling_downsample: downsample,
+                    ..PipelineConfig::default()
+                });
+                let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+                let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+                cpu.set_view_frustum(v.frustum_tans()).unwrap();
+                gpu.set_view_frustum(v.frustum_tans()).unwrap();
+                let mut out = DisplayFrame::new(w, h);
+                for gaze_uv in gazes {
+                    let input = FrameInput {
+                        gaze_uv,
+                        pupil_mm: 4.0,
+                        dt_secs: 0.05,
+                    };
+                    let c = cpu.process(&img, &input, &mut out).unwrap();
+                    let g = gpu.process(&img, &input).unwrap();
+                    let (et, ea) = (
+                        rel(g.target_cd_m2, c.target_cd_m2),
+                        rel(g.adaptation_cd_m2, c.adaptation_cd_m2),
+                    );
+                    // 9° beyond the edge (4.5σ of the default Gaussian)
+                    // only the weights' far tail reaches data: there the
+                    // f32 erf differences of the GPU carry ~1e-3 relative.
+                    let tol = if gaze_uv == gazes[3] { 3e-3 } else { 1e-4 };
+                    assert!(
+                        et < tol && ea < tol,
+                        "{pooling:?} ds {downsample:?} gaze {gaze_uv:?}: target {} vs {}, \
+                         adaptation {} vs {}",
+                        g.target_cd_m2,
+                        c.target_cd_m2,
+                        g.adaptation_cd_m2,
+                        c.adaptation_cd_m2
+                    );
+                    if tol < 1e-3 {
+                        worst = worst.max(et.max(ea));
+                    }
+                }
+            }
+        }
+        println!("no data: worst relative error of target and adaptation {worst:.2e}");
+
+        let config = PipelineConfig {
+            keep_retinal: true,
+            ..PipelineConfig::default()
+        };
+        let mut cpu = FramePipeline::new(config.clone(), w, h, dpp).unwrap();
+        let mut gpu = GpuFramePipeline::new(ctx, config, w, h, dpp).unwrap();
+        cpu.set_view_frustum(v.frustum_tans()).unwrap();
+        gpu.set_view_frustum(v.frustum_tans()).unwrap();
+        let mut out = DisplayFrame::new(w, h);
+        let input = FrameInput {
+            gaze_uv: gazes[1],
+            pupil_mm: 4.0,
+            dt_secs: 0.05,
+        };
+        cpu.process(&img, &input, &mut out).unwrap();
+        gpu.process(&img, &input).unwrap();
+        let mut retinal = RgbImage::new(w, h);
+        gpu.read_retinal(&mut retinal).unwrap();
+        let frame = gpu.display().unwrap();
+        let mut marked = 0;
+        for (i, p) in img.pixels.iter().enumerate() {
+            let none = gazelight_vision::image::is_no_data(*p);
+            let (cg, gg) = (&out.rgba8[4 * i..4 * i + 4], &frame.rgba8[4 * i..4 * i + 4]);
+            if none {
+                assert_eq!((cg, gg), (&[0u8; 4][..], &[0u8; 4][..]), "pixel {i}");
+                assert!(gazelight_vision::image::is_no_data(retinal.pixels[i]));
+                assert!(gazelight_vision::image::is_no_data(cpu.retinal().pixels[i]));
+                marked += 1;
+            } else {
+                assert_eq!((cg[3], gg[3]), (255, 255), "pixel {i}");
+                assert!(retinal.pixels[i].iter().all(|c| c.is_finite()), "pixel {i}");
+            }
+        }
+        assert!(marked > 0);
     }
 
     /// The CPU convolver's glare on the sanitised `img` at `gaze_px`

@@ -203,7 +203,7 @@ pub const POOLING_PASS: PassDescriptor = PassDescriptor {
         Binding::uniform::<PoolParams>("params"),
         Binding::read::<[f32; 4]>("scene"),
         Binding::read_write::<[f32; 4]>("work"),
-        Binding::read_write::<f32>("small_lum"),
+        Binding::read_write::<[f32; 2]>("small_lum"),
         Binding::read_write::<[f32; 2]>("partials"),
         Binding::read_write::<FrameState>("state"),
     ],
@@ -211,7 +211,7 @@ pub const POOLING_PASS: PassDescriptor = PassDescriptor {
 
 /// The twin of `shaders/pooling.wgsl` ([`POOLING_PASS`]). Bindings:
 /// 0 [`PoolParams`], 1 scene (RGBA f32, read-only), 2 working frame (RGBA
-/// f32), 3 block luminance (f32), 4 partial sums (`vec2<f32>`),
+/// f32), 3 block luminance and valid share (`vec2<f32>`), 4 partial sums (`vec2<f32>`),
 /// 5 [`crate::frame::FrameState`].
 #[derive(Debug, Clone)]
 pub struct PoolingPass {
@@ -269,7 +269,8 @@ mod tests {
         let partial_count = (w * h).div_ceil(POOL_THREADS).clamp(1, POOL_THREADS);
         let scene = storage(ctx, &texels(&img));
         let work = storage(ctx, &texels(&img));
-        let small = storage(ctx, &vec![0.0f32; (w * h) as usize]);
+        // Per block: luminance and valid share.
+        let small = storage(ctx, &vec![[0.0f32; 2]; (w * h) as usize]);
         let partials = storage(ctx, &vec![[0.0f32; 2]; partial_count as usize]);
         let state = storage(ctx, &[FrameState::default()]);
         let mut worst = 0.0f64;
@@ -319,5 +320,59 @@ mod tests {
             }
         }
         println!("worst relative |GPU − CPU| pooled target {worst:.2e}");
+
+        // No data (NaN) in the right third: block_luminance's valid share
+        // and Σ w·L / Σ w·valid against `pool_valid_in` on 0/1 shares.
+        let mut holed = img.clone();
+        let mut valid = vec![1.0f32; (w * h) as usize];
+        for (i, p) in holed.pixels.iter_mut().enumerate() {
+            if i % w as usize >= 64 {
+                *p = [f32::NAN; 3];
+                valid[i] = 0.0;
+            }
+        }
+        let lum: Vec<f32> = holed
+            .pixels
+            .iter()
+            .map(|p| {
+                gazelight_vision::image::luminance(p.map(|c| if c.is_nan() { 0.0 } else { c }))
+            })
+            .collect();
+        let scene = storage(ctx, &texels(&holed));
+        for model in every_pooling_model() {
+            let angles = PlaneAngles::symmetric(60.0, w as usize, h as usize);
+            for gaze_px in [[48.0, 32.0], [62.5, 20.0], [66.0, 40.0]] {
+                let params = PoolParams::for_frame(
+                    &model,
+                    [w, h],
+                    [w, h],
+                    1,
+                    partial_count,
+                    gaze_px,
+                    angles,
+                );
+                let params_buf = uniform(ctx, &params);
+                run_pass(
+                    ctx,
+                    &pass.layout,
+                    &[&params_buf, &scene, &work, &small, &partials, &state],
+                    &[
+                        (&pass.import_scene, tiles(96, 64)),
+                        (&pass.block_luminance, tiles(96, 64)),
+                        (&pass.pool_partial, [partial_count, 1, 1]),
+                        (&pass.pool_final, [1, 1, 1]),
+                    ],
+                );
+                let gpu = f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2);
+                let cpu = model
+                    .pool_valid_in(&lum, &valid, w as usize, h as usize, gaze_px, angles)
+                    .unwrap();
+                let e = (gpu - cpu).abs() / cpu.abs().max(1e-9);
+                assert!(
+                    e < 1e-4,
+                    "no data: {model:?} at {gaze_px:?}: GPU {gpu}, CPU {cpu}"
+                );
+            }
+        }
     }
 }

@@ -202,8 +202,8 @@ pub(crate) trait RowSink: Sync {
     type Out: Send;
     /// Items of `Out` per image row.
     fn per_row(&self) -> usize;
-    /// Consumes one finished row (linear RGB, cd/m²).
-    fn row(&self, px: &[[f32; 3]], out: &mut [Self::Out]);
+    /// Consumes finished row `y` (linear RGB, cd/m²).
+    fn row(&self, y: usize, px: &[[f32; 3]], out: &mut [Self::Out]);
 }
 
 /// A sink that keeps nothing ([`AcuityBlur::apply`]).
@@ -215,7 +215,7 @@ impl RowSink for NoSink {
         1
     }
     #[inline(always)]
-    fn row(&self, _: &[[f32; 3]], _: &mut [()]) {}
+    fn row(&self, _: usize, _: &[[f32; 3]], _: &mut [()]) {}
 }
 
 /// Where a band pass filled from a source gets the frame's rows
@@ -465,7 +465,7 @@ impl AcuityBlur {
                             None => &mut band.scratch[..],
                         };
                         src.fill(y0 + k, row);
-                        sink.row(row, o);
+                        sink.row(y0 + k, row, o);
                     }
                     return 0;
                 }
@@ -616,7 +616,7 @@ fn run_band<S: RowSink, R: RowSource>(
         if band.dark[y] {
             changed += vertical(ctx, band, y, row);
         }
-        sink.row(row, &mut out[(y - y0) * per_row..(y - y0 + 1) * per_row]);
+        sink.row(y, row, &mut out[(y - y0) * per_row..(y - y0 + 1) * per_row]);
     }
     changed
 }

@@ -349,7 +349,7 @@ impl<M: Map> RowSink for EncodeRgba8<'_, M> {
         4 * self.width
     }
     #[inline(always)]
-    fn row(&self, px: &[[f32; 3]], out: &mut [u8]) {
+    fn row(&self, _: usize, px: &[[f32; 3]], out: &mut [u8]) {
         encode_row(self.simd, &self.map, self.lut, px, out);
     }
 }
@@ -411,7 +411,7 @@ impl<M: Map> RowSink for DisplayLinear<M> {
         self.width
     }
     #[inline(always)]
-    fn row(&self, px: &[[f32; 3]], out: &mut [[f32; 3]]) {
+    fn row(&self, _: usize, px: &[[f32; 3]], out: &mut [[f32; 3]]) {
         for_blocks(
             px,
             out,

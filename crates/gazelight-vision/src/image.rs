@@ -12,6 +12,18 @@ pub fn luminance(rgb: [f32; 3]) -> f32 {
     LUMINANCE_WEIGHTS[0] * rgb[0] + LUMINANCE_WEIGHTS[1] * rgb[1] + LUMINANCE_WEIGHTS[2] * rgb[2]
 }
 
+/// Whether a pixel of a view holds "no data" (its direction is outside
+/// the scene's field: [`crate::scene::NO_DATA_RGB`]): any channel NaN. A
+/// scene is sanitised when it is loaded ([`crate::scene::Scene`]: NaN,
+/// infinite and negative values become 0), so NaN in a view marks the
+/// pixels the scene does not cover and nothing else. The frame pipeline
+/// (CPU and GPU) leaves them out of pooling, counts them as no light in
+/// glare, and marks them in its output.
+#[inline(always)]
+pub fn is_no_data(rgb: [f32; 3]) -> bool {
+    rgb[0].is_nan() || rgb[1].is_nan() || rgb[2].is_nan()
+}
+
 /// Mean luminance of the pixels of `img` whose centre lies `d` pixels
 /// (rounded) from pixel `(cx, cy)`; 0 when none is inside the image. For
 /// measuring radial profiles (glare veils) in tests and examples.

@@ -6,8 +6,8 @@
 //!
 //! | pass | stages | what |
 //! | --- | --- | --- |
-//! | A | 1 (input) | average the sanitised frame's luminance over the `pooling_downsample`² blocks the pooling model reads ([`PoolingModel::reach`]: for the default Gaussian, ±(6σ + 1) blocks around the gaze; the scene only is read) |
-//! | – | 1 pooling | [`PoolingModel::pool`] on the small luminance plane, centred on the gaze |
+//! | A | 1 (input) | average the sanitised frame's luminance, and count the pixels with data ([`crate::image::is_no_data`]), over the `pooling_downsample`² blocks the pooling model reads ([`PoolingModel::reach`]: for the default Gaussian, ±(6σ + 1) blocks around the gaze; the scene only is read) |
+//! | – | 1 pooling | [`PoolingModel::pool_valid_in`] on the small luminance plane, centred on the gaze (pixels without data left out) |
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
 //! | B | 4 glare | [`GlareConvolver::prepare`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond; nothing is written to the frame yet |
@@ -30,6 +30,14 @@
 //! image is written to a frame-sized buffer only when
 //! [`PipelineConfig::keep_retinal`] asks for it; otherwise each band of
 //! pass C keeps just the 2r + 1 rows its blur is working on.
+//!
+//! Pixels without data (NaN in the view: outside the scene's field,
+//! [`crate::scene::NO_DATA_RGB`]) are left out of pooling (pass A counts
+//! each block's pixels with data; the pool is `Σ w·L / Σ w·valid`, and a
+//! gaze whose reach has none keeps the last target), are no light in
+//! glare (sanitised to 0), and are marked in the output:
+//! [`NO_DATA_RGBA8`] in the display frame, NaN in the display-linear
+//! frame and the retinal image. The GPU twin does the same.
 //!
 //! Nothing is allocated per frame once the pipeline is built (the tests
 //! prove it with a counting allocator).
@@ -245,8 +253,13 @@ pub struct FramePipeline {
     work: RgbImage,
     display: RgbImage,
     small_lum: Vec<f32>,
+    /// Each block's share of pixels with data ([`crate::image::is_no_data`]).
+    small_valid: Vec<f32>,
     small_w: usize,
     small_h: usize,
+    /// The last frame's pooled target, held when a gaze's pooling reaches
+    /// no pixel with data (0 before the first).
+    last_target_cd_m2: f64,
     /// The PSF builder (dropped while rebuilding is off: a live session
     /// builds kernels elsewhere, and a builder holds tens of MB) and the
     /// convolver.
@@ -339,8 +352,10 @@ impl FramePipeline {
                 RgbImage::new(0, 0)
             },
             small_lum: vec![0.0; small_w * small_h],
+            small_valid: vec![1.0; small_w * small_h],
             small_w,
             small_h,
+            last_target_cd_m2: 0.0,
             glare,
             psf_params,
             kernel_size,
@@ -600,7 +615,14 @@ impl FramePipeline {
                 if self.work.pixels.len() != w * h {
                     self.work = RgbImage::new(w, h);
                 }
-                reference_pass_a(scene, &mut self.work, &mut self.small_lum, ds, self.small_w);
+                reference_pass_a(
+                    scene,
+                    &mut self.work,
+                    &mut self.small_lum,
+                    &mut self.small_valid,
+                    ds,
+                    self.small_w,
+                );
             }
         } else {
             // Only the blocks the pooling model reads.
@@ -614,22 +636,28 @@ impl FramePipeline {
                 self.simd,
                 scene,
                 &mut self.small_lum,
+                &mut self.small_valid,
                 ds,
                 self.small_w,
                 &blocks,
             );
         }
+        // Pixels without data are left out (Σ w·L / Σ w·valid); a gaze
+        // whose pooling reaches none holds the last target.
         let target_cd_m2 = self
             .config
             .pooling
-            .pool_in(
+            .pool_valid_in(
                 &self.small_lum,
+                &self.small_valid,
                 self.small_w,
                 self.small_h,
                 small_gaze,
                 self.angles.downsampled(ds),
             )
+            .unwrap_or(self.last_target_cd_m2)
             .max(0.0);
+        self.last_target_cd_m2 = target_cd_m2;
         let t_pool = Instant::now();
         timings.pooling_ms = ms(t_start, t_pool);
 
@@ -703,6 +731,16 @@ impl FramePipeline {
                     lut,
                     to_display,
                 );
+                // The no-data marks, as the optimised pass makes them.
+                mark_retinal(scene, &mut self.work);
+                if to_display {
+                    mark_retinal(scene, &mut self.display);
+                }
+                for (p, o) in scene.pixels.iter().zip(out.rgba8.chunks_exact_mut(4)) {
+                    if crate::image::is_no_data(*p) {
+                        o.copy_from_slice(&NO_DATA_RGBA8);
+                    }
+                }
             }
         } else {
             let stages = Stages5To8 {
@@ -724,13 +762,24 @@ impl FramePipeline {
                 PixelMap::Window(m) => stages.run(m),
             }
         }
+        if self.config.keep_retinal && !reference {
+            mark_retinal(scene, &mut self.work);
+        }
         if to_display {
             let display = &self.display.pixels;
             let simd = self.simd;
             out.rgba8
                 .par_chunks_mut(4 * w)
                 .zip(display.par_chunks(w))
-                .for_each(|(o, d)| encode::encode_row(simd, &encode::IDENTITY, lut, d, o));
+                .for_each(|(o, d)| {
+                    encode::encode_row(simd, &encode::IDENTITY, lut, d, o);
+                    // The display-linear frame's no-data marks (NaN).
+                    for (p, o) in d.iter().zip(o.chunks_exact_mut(4)) {
+                        if crate::image::is_no_data(*p) {
+                            o.copy_from_slice(&NO_DATA_RGBA8);
+                        }
+                    }
+                });
         }
         timings.tone_colour_encode_ms = ms(t_glare, Instant::now()) - timings.acuity_ms;
         timings.total_ms = ms(t_start, Instant::now());
@@ -758,9 +807,12 @@ pub(crate) fn sanitize(v: f32) -> f32 {
     }
 }
 
-/// Pass A: `small_lum` = mean luminance of the `ds × ds` blocks `blocks`
-/// (block columns and rows) of the sanitised `scene` (edge blocks over the
-/// pixels they have); the other blocks are left as they are. Reads only
+/// Pass A: `small_lum` = luminance of the `ds × ds` blocks `blocks`
+/// (block columns and rows) of the sanitised `scene`, summed over the
+/// block's pixels with data and divided by all its pixels (edge blocks
+/// over the pixels they have), and `small_valid` = the share of the
+/// block's pixels with data ([`crate::image::is_no_data`]); the other
+/// blocks are left as they are. Reads only
 /// those blocks of the scene: the band pass makes the working frame's rows
 /// itself ([`FrameRows`]), and the pooling model reads only `blocks`
 /// ([`crate::pooling::PoolingModel::reach`]: ±(6σ + 1) blocks around the
@@ -772,6 +824,7 @@ fn pass_a(
     simd: Simd,
     scene: &RgbImage,
     small_lum: &mut [f32],
+    small_valid: &mut [f32],
     ds: usize,
     small_w: usize,
     blocks: &crate::pooling::PlaneRect,
@@ -786,12 +839,16 @@ fn pass_a(
     scene.pixels[py0 * w..py1 * w]
         .par_chunks(w * ds)
         .zip(small_lum[blocks.y.start * small_w..].par_chunks_mut(small_w))
-        .for_each(|(src, small_row)| {
+        .zip(small_valid[blocks.y.start * small_w..].par_chunks_mut(small_w))
+        .for_each(|((src, small_row), valid_row)| {
             let small_row = &mut small_row[bx0..bx1];
+            let valid_row = &mut valid_row[bx0..bx1];
             small_row.fill(0.0);
+            valid_row.fill(0.0);
             let rows = src.len() / w;
             for srow in src.chunks_exact(w) {
                 let srow = &srow[px0..px1];
+                block_valid_row(srow, valid_row, ds);
                 #[cfg(target_arch = "x86_64")]
                 if ds == LANES && simd.has(Tier::Avx2) {
                     // SAFETY: a `Simd` of this tier proves AVX2 and FMA.
@@ -801,11 +858,25 @@ fn pass_a(
                 }
                 block_sums_row_portable(srow, small_row, ds);
             }
-            for (k, v) in small_row.iter_mut().enumerate() {
+            for (k, (v, a)) in small_row.iter_mut().zip(valid_row.iter_mut()).enumerate() {
                 let cols = (w - (bx0 + k) * ds).min(ds);
                 *v /= (cols * rows) as f32;
+                *a /= (cols * rows) as f32;
             }
         });
+}
+
+/// Adds the number of pixels with data in each `ds`-pixel block of the
+/// row `srow` to its entry of `counts`.
+#[inline]
+pub(crate) fn block_valid_row(srow: &[[f32; 3]], counts: &mut [f32], ds: usize) {
+    for (blk, acc) in srow.chunks(ds).zip(counts.iter_mut()) {
+        let n = blk
+            .iter()
+            .filter(|p| !crate::image::is_no_data(**p))
+            .count();
+        *acc += n as f32;
+    }
 }
 
 /// Adds each `ds`-pixel block's luminance sum (pixels sanitised, in
@@ -881,21 +952,106 @@ impl Stages5To8<'_> {
     fn run<M: Map>(self, map: M) {
         let size = (self.rows.scene.width, self.rows.scene.height);
         let width = size.0;
+        let scene = self.rows.scene;
         if self.to_display {
-            let sink = DisplayLinear { map, width };
+            let sink = MarkNoData {
+                sink: DisplayLinear { map, width },
+                scene,
+            };
             self.acuity
                 .apply_from(&self.rows, size, self.work, &sink, &mut self.display.pixels);
         } else {
-            let sink = EncodeRgba8 {
-                map,
-                lut: self.lut,
-                width,
-                simd: self.rows.simd,
+            let sink = MarkNoData {
+                sink: EncodeRgba8 {
+                    map,
+                    lut: self.lut,
+                    width,
+                    simd: self.rows.simd,
+                },
+                scene,
             };
             self.acuity
                 .apply_from(&self.rows, size, self.work, &sink, &mut self.out.rgba8);
         }
     }
+}
+
+/// The display value of a pixel with no data ([`crate::image::is_no_data`]:
+/// outside the scene's field): RGBA `0, 0, 0, 0`, fully transparent, so a
+/// PNG shows it as no data and never as black light. (In the
+/// display-linear frame: NaN; in the retinal image: NaN, as in the view.)
+pub const NO_DATA_RGBA8: [u8; 4] = [0; 4];
+
+/// What a sink writes for a pixel with no data.
+trait NoDataMark: Copy + Send {
+    /// Items per pixel.
+    const PER_PX: usize;
+    /// The mark.
+    const MARK: Self;
+}
+
+impl NoDataMark for u8 {
+    const PER_PX: usize = 4;
+    const MARK: Self = 0;
+}
+
+impl NoDataMark for [f32; 3] {
+    const PER_PX: usize = 1;
+    const MARK: Self = [f32::NAN; 3];
+}
+
+/// A row sink that marks the pixels of the scene row without data
+/// (its rows scanned as they are written: a row with data everywhere is
+/// only read).
+struct MarkNoData<'a, S> {
+    sink: S,
+    scene: &'a RgbImage,
+}
+
+impl<S: crate::band::RowSink> crate::band::RowSink for MarkNoData<'_, S>
+where
+    S::Out: NoDataMark,
+{
+    type Out = S::Out;
+    fn per_row(&self) -> usize {
+        self.sink.per_row()
+    }
+    #[inline(always)]
+    fn row(&self, y: usize, px: &[[f32; 3]], out: &mut [Self::Out]) {
+        self.sink.row(y, px, out);
+        let w = self.scene.width;
+        let Some(src) = self.scene.pixels.get(y * w..(y + 1) * w) else {
+            return;
+        };
+        if !src.iter().any(|p| crate::image::is_no_data(*p)) {
+            return;
+        }
+        let per = S::Out::PER_PX;
+        for (p, o) in src.iter().zip(out.chunks_exact_mut(per)) {
+            if crate::image::is_no_data(*p) {
+                o.fill(S::Out::MARK);
+            }
+        }
+    }
+}
+
+/// Marks the pixels of the retinal image `work` where `scene` has no data
+/// (NaN, as in the view).
+fn mark_retinal(scene: &RgbImage, work: &mut RgbImage) {
+    let w = scene.width;
+    if work.pixels.len() != scene.pixels.len() || w == 0 {
+        return;
+    }
+    work.pixels
+        .par_chunks_mut(w)
+        .zip(scene.pixels.par_chunks(w))
+        .for_each(|(d, s)| {
+            for (d, s) in d.iter_mut().zip(s) {
+                if crate::image::is_no_data(*s) {
+                    *d = [f32::NAN; 3];
+                }
+            }
+        });
 }
 
 fn ms(a: Instant, b: Instant) -> f64 {
@@ -1013,6 +1169,10 @@ mod tests {
             }
             // The retinal image (after glare and acuity, cd/m²).
             for (p, q) in fast.retinal().pixels.iter().zip(&slow.retinal().pixels) {
+                // No data (NaN) in both.
+                if crate::image::is_no_data(*p) && crate::image::is_no_data(*q) {
+                    continue;
+                }
                 for c in 0..3 {
                     assert!(
                         (p[c] - q[c]).abs() <= 2e-4 * q[c].abs().max(1e-3),
@@ -1022,6 +1182,9 @@ mod tests {
             }
             if config.keep_display_linear {
                 for (p, q) in fast.display.pixels.iter().zip(&slow.display.pixels) {
+                    if crate::image::is_no_data(*p) && crate::image::is_no_data(*q) {
+                        continue;
+                    }
                     for c in 0..3 {
                         assert!(
                             (p[c] - q[c]).abs() < 1e-5,
@@ -1063,8 +1226,9 @@ mod tests {
         for ds in [8usize, 3] {
             let (sw, sh) = (w.div_ceil(ds), h.div_ceil(ds));
             let mut all = vec![0.0f32; sw * sh];
+            let mut all_valid = vec![0.0f32; sw * sh];
             let every = crate::pooling::PlaneRect { x: 0..sw, y: 0..sh };
-            pass_a(Simd::host(), &img, &mut all, ds, sw, &every);
+            pass_a(Simd::host(), &img, &mut all, &mut all_valid, ds, sw, &every);
             for model in [
                 PoolingModel::default(),
                 PoolingModel::Gaussian { sigma_deg: 0.2 },
@@ -1086,7 +1250,16 @@ mod tests {
                     let sdpp = dpp * ds as f64;
                     let blocks = model.reach(sw, sh, small_gaze, sdpp);
                     let mut some = vec![f32::NAN; sw * sh];
-                    pass_a(Simd::host(), &img, &mut some, ds, sw, &blocks);
+                    let mut some_valid = vec![f32::NAN; sw * sh];
+                    pass_a(
+                        Simd::host(),
+                        &img,
+                        &mut some,
+                        &mut some_valid,
+                        ds,
+                        sw,
+                        &blocks,
+                    );
                     let want = model.pool(&all, sw, sh, small_gaze, sdpp);
                     let got = model.pool(&some, sw, sh, small_gaze, sdpp);
                     assert_eq!(
@@ -1192,7 +1365,8 @@ mod tests {
         // daylight city at the headset's field (no blur).
         let (night, night_dpp) = view("night.exr", 1e-3, -78.4, 20.0, 180, 200);
         let (mut city, city_dpp) = view("city.exr", 50.0, 40.0, 104.0, 180, 200);
-        // Values the pipeline must clean: NaN, ±∞, negative, subnormal.
+        // Values the pipeline must clean: ±∞, negative, subnormal; and NaN,
+        // no data (left out of pooling, marked in the output).
         for (i, v) in [f32::NAN, f32::INFINITY, -5.0, 1e-40, f32::NEG_INFINITY]
             .into_iter()
             .enumerate()

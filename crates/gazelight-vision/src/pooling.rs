@@ -66,6 +66,11 @@
 //!
 //! The centre-weight (000) and panorama-mean models are defined on the
 //! plane itself and ignore the geometry. Pooling never allocates.
+//!
+//! A plane with "no data" in it (pixels outside a scene's field) pools
+//! with [`PoolingModel::pool_valid_in`]: each pixel carries the share of
+//! its area with data, and every model's mean becomes the weighted
+//! luminance over the weighted area with data, `Σ w·L / Σ w·a`.
 
 use std::ops::Range;
 
@@ -495,11 +500,48 @@ impl PoolingModel {
         gaze_px: [f64; 2],
         angles: PlaneAngles,
     ) -> f64 {
+        self.pool_plane(luminance_cd_m2, None, width, height, gaze_px, angles)
+            .unwrap_or(0.0)
+    }
+
+    /// [`Self::pool_in`] on a plane with "no data" in it: `valid[i]` is
+    /// the share of pixel `i`'s area that has data (0..1; a block plane's
+    /// valid pixel count over its pixels) and `luminance_cd_m2[i]` the
+    /// luminance summed over that valid part, per pixel area (no-data
+    /// parts add 0). The mean is the weighted luminance over the weighted
+    /// valid area, `Σ w·L / Σ w·a`, so pixels without data are ignored, not
+    /// read as black. `None` when no weighted pixel has data (and the
+    /// nearest pixel has none either); with every `valid` 1 the same bits
+    /// as [`Self::pool_in`]. A `valid` of the wrong length is read as all
+    /// valid. Never allocates.
+    pub fn pool_valid_in(
+        &self,
+        luminance_cd_m2: &[f32],
+        valid: &[f32],
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        angles: PlaneAngles,
+    ) -> Option<f64> {
+        let valid = (valid.len() == luminance_cd_m2.len()).then_some(valid);
+        self.pool_plane(luminance_cd_m2, valid, width, height, gaze_px, angles)
+    }
+
+    fn pool_plane(
+        &self,
+        luminance_cd_m2: &[f32],
+        valid: Option<&[f32]>,
+        width: usize,
+        height: usize,
+        gaze_px: [f64; 2],
+        angles: PlaneAngles,
+    ) -> Option<f64> {
         if width == 0 || height == 0 || luminance_cd_m2.len() != width * height {
-            return 0.0;
+            return Some(0.0);
         }
         let plane = Plane {
             lum: luminance_cd_m2,
+            valid,
             width,
             height,
         };
@@ -520,7 +562,7 @@ impl PoolingModel {
             Self::PanoramaMean => plane.panorama(),
         };
         if weight > 0.0 && weight.is_finite() && sum.is_finite() {
-            sum / weight
+            Some(sum / weight)
         } else {
             plane.nearest(gaze)
         }
@@ -691,6 +733,9 @@ fn clean(v: f32) -> f64 {
 
 struct Plane<'a> {
     lum: &'a [f32],
+    /// Each pixel's valid fraction (the share of its area with data, 0..1);
+    /// `None`: every pixel is wholly valid.
+    valid: Option<&'a [f32]>,
     width: usize,
     height: usize,
 }
@@ -701,9 +746,32 @@ impl Plane<'_> {
         &self.lum[y * self.width..(y + 1) * self.width]
     }
 
-    fn nearest(&self, gaze: [f64; 2]) -> f64 {
+    /// Pixel `i`'s valid fraction (1 without a validity plane; a
+    /// non-finite or negative fraction counts as 0, above 1 as 1).
+    #[inline(always)]
+    fn valid_at(&self, i: usize) -> f64 {
+        match self.valid {
+            None => 1.0,
+            Some(v) => {
+                let a = v[i];
+                if a >= 1.0 {
+                    1.0
+                } else if a > 0.0 {
+                    f64::from(a)
+                } else {
+                    0.0
+                }
+            }
+        }
+    }
+
+    /// The nearest pixel's mean over its valid area; `None` when it has
+    /// none.
+    fn nearest(&self, gaze: [f64; 2]) -> Option<f64> {
         let (x, y) = nearest_pixel(self.width, self.height, gaze);
-        clean(self.lum[y * self.width + x])
+        let i = y * self.width + x;
+        let a = self.valid_at(i);
+        (a > 0.0).then(|| clean(self.lum[i]) / a)
     }
 
     /// Gaussian integrated over each pixel (erf differences between the
@@ -725,6 +793,7 @@ impl Plane<'_> {
             }
             let dy_sep = axes.y_deg(y as f64 + 0.5);
             let row = self.row(y);
+            let base = y * self.width;
             let mut row_sum = 0.0;
             let mut row_w = 0.0;
             let mut e_lo = erf(axes.x_deg(x0 as f64) * inv);
@@ -746,7 +815,7 @@ impl Plane<'_> {
                     wx *= (-excess * inv * inv).exp() * axes.solid_angle_ratio(xc, yc);
                 }
                 row_sum += wx * clean(v);
-                row_w += wx;
+                row_w += wx * self.valid_at(base + x);
             }
             sum += wy * row_sum;
             weight += wy * row_w;
@@ -770,7 +839,7 @@ impl Plane<'_> {
                 if d2 < 0.25 {
                     let w = 1.0 - 4.0 * d2;
                     sum += w * clean(v);
-                    weight += w;
+                    weight += w * self.valid_at(y * self.width + x);
                 }
             }
         }
@@ -785,7 +854,7 @@ impl Plane<'_> {
                 // 003 eq 1: f_c = 43.1·E2/(E2 + d); 43.1 cancels in the mean
                 let w = e2_deg / (e2_deg + d_deg);
                 sum += w * clean(v);
-                weight += w;
+                weight += w * self.valid_at(y * self.width + x);
             }
         }
         (sum, weight)
@@ -806,7 +875,7 @@ impl Plane<'_> {
             for (x, &v) in row.iter().enumerate().take(x1).skip(x0) {
                 let w = wy * overlap(x, lo_x, hi_x);
                 sum += w * clean(v);
-                weight += w;
+                weight += w * self.valid_at(y * self.width + x);
             }
         }
         (sum, weight)
@@ -820,8 +889,14 @@ impl Plane<'_> {
             // row centre
             let w = (std::f64::consts::PI * (y as f64 + 0.5) / h).sin();
             let row_sum: f64 = self.row(y).iter().map(|&v| clean(v)).sum();
+            let row_valid: f64 = match self.valid {
+                None => self.width as f64,
+                Some(_) => (0..self.width)
+                    .map(|x| self.valid_at(y * self.width + x))
+                    .sum(),
+            };
             sum += w * row_sum;
-            weight += w * self.width as f64;
+            weight += w * row_valid;
         }
         (sum, weight)
     }

@@ -701,8 +701,10 @@ impl PanoramaView {
 }
 
 /// The value a view pixel gets where the scene has no data (outside a
-/// fisheye's circle or a perspective image's frame): black, counted apart.
-pub const NO_DATA_RGB: [f32; 3] = [0.0; 3];
+/// fisheye's circle or a perspective image's frame): NaN in every channel
+/// ([`crate::image::is_no_data`]), never light. The frame pipeline leaves
+/// these pixels out of pooling and glare and marks them in its output.
+pub const NO_DATA_RGB: [f32; 3] = [f32::NAN; 3];
 
 /// Bilinear sample of a scene image through its projection in a direction
 /// (camera frame), from the neighbours inside the field (re-weighted);

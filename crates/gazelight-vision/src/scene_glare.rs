@@ -224,6 +224,43 @@ impl SceneGlare {
         &self.projection
     }
 
+    /// The CIE 146:2002 veil at a gaze direction (camera frame) alone,
+    /// cd/m²: `Σ L ω (d·g) f_CIE146(θ)` over the pixels in front of the
+    /// eye with θ ≥ [`GlareOptions::cie146_inner_deg`] — the
+    /// [`GazeGlare::veil_cie146_cd_m2`] of [`Self::at_gaze`], which calls
+    /// it. Never allocates.
+    pub fn veil_cie146_cd_m2(&self, gaze: DVec3, opts: &GlareOptions) -> f64 {
+        let g = gaze.normalize_or(DVec3::NEG_Z);
+        let inner_cos = opts.cie146_inner_deg.to_radians().cos();
+        let mut veil = 0.0;
+        for &(i, d, om) in &self.pixels {
+            let c = d.dot(g);
+            if c >= 0.0 && c <= inner_cos {
+                let l = self.luminance[i];
+                let theta_deg = c.clamp(-1.0, 1.0).acos().to_degrees();
+                veil +=
+                    l * om * c * cie146_veil_per_sr(theta_deg, opts.age_years, opts.pigmentation);
+            }
+        }
+        veil
+    }
+
+    /// [`Self::veil_cie146_cd_m2`] at each of `gazes` (camera frame), in
+    /// parallel: a veil map. Costs one term per pixel in the field per
+    /// gaze ([`Self::pixels_in_field`]).
+    pub fn veil_map_cie146(&self, gazes: &[DVec3], opts: &GlareOptions) -> Vec<f64> {
+        use rayon::prelude::*;
+        gazes
+            .par_iter()
+            .map(|&g| self.veil_cie146_cd_m2(g, opts))
+            .collect()
+    }
+
+    /// The number of pixels in the image's field.
+    pub fn pixels_in_field(&self) -> usize {
+        self.pixels.len()
+    }
+
     /// The glare numbers at a gaze direction (camera frame).
     pub fn at_gaze(&self, gaze: DVec3, opts: &GlareOptions) -> GazeGlare {
         let g = gaze.normalize_or(DVec3::NEG_Z);
@@ -238,8 +275,7 @@ impl SceneGlare {
         let mut e_v = 0.0;
         let mut sum_l_om = 0.0;
         let mut sum_om = 0.0;
-        let mut veil_cie = 0.0;
-        let inner_cos = opts.cie146_inner_deg.to_radians().cos();
+        let veil_cie = self.veil_cie146_cd_m2(g, opts);
         let disc_cos = (opts.gaze_disc_deg * 0.5).to_radians().cos();
         let (mut disc_l_om, mut disc_om) = (0.0, 0.0);
         for &(i, _, om, c) in &front {
@@ -247,11 +283,6 @@ impl SceneGlare {
             e_v += l * om * c;
             sum_l_om += l * om;
             sum_om += om;
-            if c <= inner_cos {
-                let theta_deg = c.clamp(-1.0, 1.0).acos().to_degrees();
-                veil_cie +=
-                    l * om * c * cie146_veil_per_sr(theta_deg, opts.age_years, opts.pigmentation);
-            }
             if c >= disc_cos {
                 disc_l_om += l * om;
                 disc_om += om;

@@ -45,6 +45,7 @@ mod service_config;
 mod session;
 mod shutdown;
 mod stereo;
+mod veil_map;
 mod view_args;
 mod window;
 

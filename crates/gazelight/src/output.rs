@@ -45,7 +45,9 @@ pub enum PngCompression {
     Fast,
 }
 
-/// Writes an RGBA display frame as an RGB PNG.
+/// Writes an RGBA display frame as an RGB PNG, or as an RGBA PNG when
+/// the frame has pixels without data (alpha 0, outside the scene's field:
+/// `gazelight_vision::pipeline::NO_DATA_RGBA8`), so they stay marked.
 pub fn write_png(
     path: &Path,
     frame: &DisplayFrame,
@@ -53,11 +55,19 @@ pub fn write_png(
 ) -> anyhow::Result<()> {
     use image::ImageEncoder;
     use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let rgb: Vec<u8> = frame
-        .rgba8
-        .chunks_exact(4)
-        .flat_map(|p| [p[0], p[1], p[2]])
-        .collect();
+    let marked = frame.rgba8.chunks_exact(4).any(|p| p[3] != 255);
+    let (rgb, colour): (Vec<u8>, _) = if marked {
+        (frame.rgba8.clone(), image::ExtendedColorType::Rgba8)
+    } else {
+        (
+            frame
+                .rgba8
+                .chunks_exact(4)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .collect(),
+            image::ExtendedColorType::Rgb8,
+        )
+    };
     let kind = match compression {
         PngCompression::Default => CompressionType::Default,
         PngCompression::Fast => CompressionType::Fast,
@@ -66,12 +76,7 @@ pub fn write_png(
         std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut w = std::io::BufWriter::new(file);
     PngEncoder::new_with_quality(&mut w, kind, FilterType::Adaptive)
-        .write_image(
-            &rgb,
-            frame.width as u32,
-            frame.height as u32,
-            image::ExtendedColorType::Rgb8,
-        )
+        .write_image(&rgb, frame.width as u32, frame.height as u32, colour)
         .with_context(|| format!("cannot write {}", path.display()))?;
     w.flush()
         .with_context(|| format!("cannot write {}", path.display()))

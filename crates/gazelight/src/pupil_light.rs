@@ -93,6 +93,8 @@ pub(crate) struct SceneLight {
     pub field: FieldLight,
     pooling: PoolingModel,
     small_lum: Vec<f32>,
+    /// Each block's share of pixels with data (as the pipeline's pass A).
+    small_valid: Vec<f32>,
     small_w: usize,
     small_h: usize,
     ds: usize,
@@ -112,16 +114,27 @@ impl SceneLight {
         let (small_w, small_h) = (w.div_ceil(ds), h.div_ceil(ds));
         let mut sums = vec![0.0f64; small_w * small_h];
         let mut counts = vec![0u32; small_w * small_h];
+        let mut valid = vec![0u32; small_w * small_h];
         for (y, row) in view_img.pixels.chunks_exact(w.max(1)).enumerate() {
             for (x, p) in row.iter().enumerate() {
+                let i = (y / ds) * small_w + x / ds;
+                counts[i] += 1;
+                // No data (outside the scene's field): neither light nor area.
+                if gazelight_vision::image::is_no_data(*p) {
+                    continue;
+                }
                 let l = f64::from(luminance(
                     p.map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
                 ));
-                let i = (y / ds) * small_w + x / ds;
                 sums[i] += l;
-                counts[i] += 1;
+                valid[i] += 1;
             }
         }
+        let small_valid = valid
+            .iter()
+            .zip(&counts)
+            .map(|(&a, &n)| if n > 0 { a as f32 / n as f32 } else { 0.0 })
+            .collect();
         let small_lum = sums
             .iter()
             .zip(&counts)
@@ -144,6 +157,7 @@ impl SceneLight {
             },
             pooling: pipeline.pooling,
             small_lum,
+            small_valid,
             small_w,
             small_h,
             ds,
@@ -154,7 +168,8 @@ impl SceneLight {
     }
 
     /// The pooled luminance at `gaze_uv` (clamped onto the view, as the
-    /// pipeline does), cd/m².
+    /// pipeline does), cd/m²; pixels without data are left out (0 where
+    /// the pooling reaches none).
     pub(crate) fn pooled_at(&self, gaze_uv: [f32; 2]) -> f64 {
         let c = |v: f32| {
             if v.is_finite() {
@@ -168,13 +183,15 @@ impl SceneLight {
             f64::from(c(gaze_uv[1])) * self.height as f64 / self.ds as f64,
         ];
         self.pooling
-            .pool_in(
+            .pool_valid_in(
                 &self.small_lum,
+                &self.small_valid,
                 self.small_w,
                 self.small_h,
                 gaze_px,
                 self.small_angles,
             )
+            .unwrap_or(0.0)
             .max(0.0)
     }
 }
@@ -183,9 +200,11 @@ impl SceneLight {
 /// cd/m²: `Σ L·ω / Σ ω` with each pixel's solid angle `ω ∝ (1 + s_x² +
 /// s_y²)^{−3/2}` (`s` its tangent coordinates, the view's edges at
 /// `tan_lrud`: left, right, up, down), over every `step`-th pixel of every
-/// `step`-th row; negative and non-finite pixels count as 0. (A plain mean
-/// of the pixels would weigh the corners of a 90° view 4× too much.) NaN
-/// for an empty image.
+/// `step`-th row; negative and infinite pixels count as 0, pixels without
+/// data (NaN: outside the scene's field, [`gazelight_vision::image::is_no_data`])
+/// are left out of both sums. (A plain mean of the pixels would weigh the
+/// corners of a 90° view 4× too much.) NaN for an empty image or one with
+/// no data at all.
 pub(crate) fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) -> f64 {
     let (w, h) = (img.width, img.height);
     if w == 0 || h == 0 || img.pixels.len() != w * h {
@@ -199,6 +218,9 @@ pub(crate) fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) 
         let row = &img.pixels[y * w..(y + 1) * w];
         for x in (0..w).step_by(step) {
             let sx = l + (x as f64 + 0.5) / w as f64 * (r - l);
+            if gazelight_vision::image::is_no_data(row[x]) {
+                continue;
+            }
             let omega = (1.0 + sx * sx + sy * sy).powf(-1.5);
             let lum = f64::from(luminance(
                 row[x].map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 }),
@@ -494,4 +516,40 @@ pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
                 .map_err(|e| anyhow::anyhow!("{e:#}"))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pixels without data (NaN: outside the scene's field) are left out
+    /// of the field mean and of the pooled light, not read as black: a
+    /// 90° view whose right 40 % has no data and whose rest is 50 cd/m²
+    /// has the field mean 50 and pools 50 at a gaze beside the edge (read
+    /// as black they would give about 50 · 0.62 and 25).
+    #[test]
+    fn no_data_is_left_out_of_the_field_light() {
+        let view = ViewParams {
+            yaw_deg: 0.0,
+            pitch_deg: 0.0,
+            hfov_deg: 90.0,
+            width: 100,
+            height: 80,
+        };
+        let mut img = RgbImage::new(100, 80);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = if i % 100 >= 60 {
+                gazelight_vision::scene::NO_DATA_RGB
+            } else {
+                [50.0; 3]
+            };
+        }
+        let tans = [-1.0, 1.0, 0.8, -0.8];
+        let mean = field_mean_cd_m2(&img, tans, 1);
+        assert!((mean - 50.0).abs() < 1e-9, "field mean {mean}");
+        let light = SceneLight::new(&img, &view, &PipelineConfig::default());
+        assert!((light.field.field_mean_cd_m2 - 50.0).abs() < 1e-9);
+        let pooled = light.pooled_at([0.6, 0.5]);
+        assert!((pooled - 50.0).abs() < 1e-4, "pooled {pooled}");
+    }
 }

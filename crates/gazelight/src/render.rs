@@ -79,7 +79,9 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub observer: crate::observer::ObserverArgs,
     /// Also write each frame's retinal image — linear RGB in cd/m² after
-    /// glare and acuity, before tone mapping — as frames/frame_NNNNN.exr.
+    /// glare and acuity, before tone mapping — as frames/frame_NNNNN.exr
+    /// (NaN where the view has no data), and the view's CIE 146 veil map,
+    /// cd/m², as frames/veil.exr (see docs/lighting-research.md).
     #[arg(long, conflicts_with = "no_frames")]
     pub exr: bool,
     /// Render both eyes: one pipeline per eye on that eye's own gaze (where
@@ -160,7 +162,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     if no_data > 0 {
         tracing::warn!(
             scene = %scene.name,
-            "{no_data} of {} view pixels look outside the scene's field ({}): no data, drawn black",
+            "{no_data} of {} view pixels look outside the scene's field ({}): no data: left out of pooling and glare, transparent (alpha 0) in PNG frames, NaN in EXR frames",
             width * height,
             scene.effective_projection().kind.name()
         );
@@ -386,6 +388,29 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     if !args.no_frames {
         std::fs::create_dir_all(&frames_dir)
             .with_context(|| format!("cannot create {}", frames_dir.display()))?;
+    }
+    if args.exr {
+        // The CIE 146 veil of the scene on each direction of the view
+        // (one map: it depends on neither the gaze nor the pupil).
+        let psf = &config.pipeline.glare.psf;
+        let path = frames_dir.join("veil.exr");
+        let map = crate::veil_map::write(
+            &path,
+            scene,
+            view,
+            psf.age_years,
+            psf.pigmentation,
+            config.pipeline.pooling_downsample.unwrap_or(8),
+        )?;
+        println!(
+            "veil map (CIE 146, age {} y, pigmentation {}): {} ({}x{} samples, one per {} px)",
+            psf.age_years,
+            psf.pigmentation,
+            path.display(),
+            map.width,
+            map.height,
+            map.step_px
+        );
     }
 
     let views: &[View] = if args.stereo { &STEREO } else { &MONO };
@@ -787,6 +812,174 @@ mod tests {
         }
         // --exr needs the frames.
         assert!(Cli::try_parse_from(["render", "--exr", "--no-frames"]).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A view past a real fisheye's field (evalglare's 182° test image,
+    /// turned 60° right with a 90° field): the PNG frame is written as
+    /// RGBA and marks exactly the view's no-data pixels with alpha 0;
+    /// every other pixel is opaque.
+    #[test]
+    fn png_frames_mark_no_data_with_alpha_0() {
+        let dir = std::env::temp_dir().join(format!("gazelight-nodata-{}", std::process::id()));
+        let scene_path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/radiance/evalglare_testimage.hdr");
+        let out = dir.join("out");
+        let argv = [
+            "render",
+            "--scene",
+            scene_path.to_str().unwrap(),
+            "--size",
+            "96x72",
+            "--hfov-deg",
+            "90",
+            "--yaw-deg",
+            "60",
+            "--pitch-deg",
+            "0",
+            "--frames",
+            "1",
+            "--backend",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        run(Cli::try_parse_from(argv).unwrap().render).unwrap();
+        let png = image::open(out.join("frames").join("frame_00000.png")).unwrap();
+        assert!(png.color().has_alpha(), "{:?}", png.color());
+        let png = png.to_rgba8();
+        // The view's own no-data pixels.
+        let scene = Scene::load(&scene_path, LuminanceScale::default()).unwrap();
+        let view = gazelight_vision::scene::PanoramaView::new(ViewParams {
+            yaw_deg: 60.0,
+            pitch_deg: 0.0,
+            hfov_deg: 90.0,
+            width: 96,
+            height: 72,
+        })
+        .unwrap();
+        let mut img = RgbImage::new(96, 72);
+        let missing = view.render_scene(&scene, &mut img);
+        assert!(missing > 0);
+        for (i, p) in img.pixels.iter().enumerate() {
+            let a = png.as_raw()[4 * i + 3];
+            let want = if gazelight_vision::image::is_no_data(*p) {
+                0
+            } else {
+                255
+            };
+            assert_eq!(a, want, "pixel {i}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `render --exr` writes the view's CIE 146 veil map beside the frames.
+    /// At map points around a real fisheye's window (evalglare's test
+    /// image, a 70-year-old observer with light eyes) its value is the
+    /// `veil_cie146_cd_m2` that `gazelight glare` reports (its JSON) for a
+    /// gaze in the same direction, within 0.1 %: the map stores f32 and
+    /// its directions come from the view's f32 geometry (about 1e-7 rad,
+    /// a relative change of the veil under 1e-5 this far from the window
+    /// edges' brightest pixels), everything else is the same sum — which
+    /// crates/gazelight/tests/radiance.rs checks against the test's own
+    /// CIE 146 evaluation.
+    #[test]
+    fn exr_veil_map_is_the_glare_commands_cie146_veil() {
+        #[derive(clap::Parser)]
+        struct GlareCli {
+            #[command(flatten)]
+            glare: crate::glare::GlareArgs,
+        }
+        let dir = std::env::temp_dir().join(format!("gazelight-veil-{}", std::process::id()));
+        let scene_path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data/radiance/evalglare_testimage.hdr");
+        let out = dir.join("out");
+        let argv = [
+            "render",
+            "--scene",
+            scene_path.to_str().unwrap(),
+            "--size",
+            "96x72",
+            "--hfov-deg",
+            "90",
+            "--yaw-deg",
+            "20",
+            "--pitch-deg",
+            "5",
+            "--frames",
+            "1",
+            "--backend",
+            "cpu",
+            "--exr",
+            "--age-years",
+            "70",
+            "--pigmentation",
+            "1.0",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        run(Cli::try_parse_from(argv).unwrap().render).unwrap();
+        let map = Scene::load(
+            &out.join("frames").join("veil.exr"),
+            LuminanceScale::CdM2PerUnit { factor: 1.0 },
+        )
+        .unwrap()
+        .image;
+        assert_eq!((map.width, map.height), (12, 9));
+        let view = ViewParams {
+            yaw_deg: 20.0,
+            pitch_deg: 5.0,
+            hfov_deg: 90.0,
+            width: 96,
+            height: 72,
+        };
+        let grid = crate::veil_map::VeilMap {
+            width: 12,
+            height: 9,
+            step_px: 8,
+        };
+        let projection = PanoramaView::new(view).unwrap();
+        let mut checked = Vec::new();
+        for (i, j) in [(1, 1), (6, 4), (10, 7), (3, 6)] {
+            let [x, y] = crate::veil_map::view_point(&grid, &view, i, j);
+            let d = projection.direction(x, y).as_dvec3();
+            let [az, el] = gazelight_vision::scene::projection::angles_from_direction(d);
+            let json = dir.join(format!("glare_{i}_{j}.json"));
+            let gaze = format!("{az:.12},{el:.12}");
+            let args = GlareCli::try_parse_from([
+                "glare",
+                scene_path.to_str().unwrap(),
+                "--gaze-deg",
+                &gaze,
+                "--age-years",
+                "70",
+                "--pigmentation",
+                "1.0",
+                "--json",
+                json.to_str().unwrap(),
+            ])
+            .unwrap()
+            .glare;
+            crate::glare::run(args).unwrap();
+            let doc: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            let want = doc["gazes"][0]["veil_cie146_cd_m2"].as_f64().unwrap();
+            let got = f64::from(map.get(i, j)[0]);
+            eprintln!(
+                "veil at map ({i}, {j}), gaze {az:.2},{el:.2}°: map {got} cd/m², glare {want}"
+            );
+            assert!(want > 0.0);
+            assert!(
+                (got / want - 1.0).abs() < 1e-3,
+                "({i}, {j}): {got} vs {want}"
+            );
+            checked.push(want);
+        }
+        // The points see different veils (the map is not one value).
+        let (lo, hi) = checked
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+        assert!(hi > 1.5 * lo, "{checked:?}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

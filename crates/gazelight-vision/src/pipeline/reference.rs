@@ -18,6 +18,7 @@ pub(super) fn reference_pass_a(
     scene: &RgbImage,
     work: &mut RgbImage,
     small_lum: &mut [f32],
+    small_valid: &mut [f32],
     ds: usize,
     small_w: usize,
 ) {
@@ -33,17 +34,23 @@ pub(super) fn reference_pass_a(
         .chunks_mut(w * ds)
         .zip(scene.pixels.chunks(w * ds))
         .zip(small_lum.chunks_mut(small_w))
-        .for_each(|((dst, src), small_row)| {
+        .zip(small_valid.chunks_mut(small_w))
+        .for_each(|(((dst, src), small_row), valid_row)| {
             small_row.fill(0.0);
+            valid_row.fill(0.0);
             let rows = src.len() / w;
             for (i, (d, s)) in dst.iter_mut().zip(src).enumerate() {
                 let p = [sanitize(s[0]), sanitize(s[1]), sanitize(s[2])];
                 *d = p;
                 small_row[(i % w) / ds] += luminance(p);
+                if !(s[0].is_nan() || s[1].is_nan() || s[2].is_nan()) {
+                    valid_row[(i % w) / ds] += 1.0;
+                }
             }
-            for (bx, v) in small_row.iter_mut().enumerate() {
+            for (bx, (v, a)) in small_row.iter_mut().zip(valid_row.iter_mut()).enumerate() {
                 let cols = (w - bx * ds).min(ds);
                 *v /= (cols * rows) as f32;
+                *a /= (cols * rows) as f32;
             }
         });
 }

@@ -1001,15 +1001,39 @@ mod tests {
         out: Option<&std::path::Path>,
         stereo: bool,
     ) -> (FrameLoop, watch::Sender<LiveEyeState>) {
+        small_loop_in(tx_state, out, stereo, false)
+    }
+
+    /// [`small_loop`]; with `fisheye`, the embedded panorama's pixels read
+    /// as a 180° angular fisheye looking forward, so the demo view (turned
+    /// 78° left, 90° wide) looks past its field: part of it has no data.
+    fn small_loop_in(
+        tx_state: LiveEyeState,
+        out: Option<&std::path::Path>,
+        stereo: bool,
+        fisheye: bool,
+    ) -> (FrameLoop, watch::Sender<LiveEyeState>) {
         let views = if stereo { 2 } else { 1 };
         let (tx, rx) = watch::channel(tx_state);
         let hub = Hub::new("test://", rx);
-        let scene = Scene::from_bytes(
+        let mut scene = Scene::from_bytes(
             demo::NIGHT_EXR,
             demo::name_path(),
             LuminanceScale::default(),
         )
         .expect("embedded scene");
+        if fisheye {
+            scene.projection = Some(
+                gazelight_vision::scene::SceneProjection::new(
+                    gazelight_vision::scene::ProjectionKind::Angular,
+                    180.0,
+                    180.0,
+                    scene.image.width,
+                    scene.image.height,
+                )
+                .expect("fisheye"),
+            );
+        }
         let view = demo::default_view(320, 256);
         let mut config = PipelineConfig::default();
         // A small glare field keeps the test's PSF builds quick.
@@ -1048,14 +1072,18 @@ mod tests {
     /// second test counting in parallel would add its own allocations.
     #[test]
     fn steady_state_steps_do_not_allocate() {
-        steady_state_does_not_allocate(false);
-        steady_state_does_not_allocate(true);
+        steady_state_does_not_allocate(false, false);
+        steady_state_does_not_allocate(true, false);
+        // A view with no data in it (outside a fisheye's field).
+        steady_state_does_not_allocate(false, true);
     }
 
-    fn steady_state_does_not_allocate(stereo: bool) {
-        let dir =
-            std::env::temp_dir().join(format!("gazelight-alloc-{}-{stereo}", std::process::id()));
-        let (mut fl, tx) = small_loop(live_state(0.0, 5.0, 0.3, 1), Some(&dir), stereo);
+    fn steady_state_does_not_allocate(stereo: bool, fisheye: bool) {
+        let dir = std::env::temp_dir().join(format!(
+            "gazelight-alloc-{}-{stereo}-{fisheye}",
+            std::process::id()
+        ));
+        let (mut fl, tx) = small_loop_in(live_state(0.0, 5.0, 0.3, 1), Some(&dir), stereo, fisheye);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
             .start_handler(|_| COUNT_HERE.with(|c| c.set(true)))
@@ -1129,6 +1157,13 @@ mod tests {
             warm_frames
         });
         let n = ALLOCS.load(Ordering::SeqCst);
+        let no_data = fl
+            .view_img
+            .pixels
+            .iter()
+            .filter(|p| gazelight_vision::image::is_no_data(**p))
+            .count();
+        assert_eq!(no_data > 0, fisheye, "{no_data} view pixels without data");
         let summary = fl.run_summary_for_test();
         let _ = std::fs::remove_dir_all(&dir);
         assert_eq!(n, 0, "steady-state frames allocated {n} times");
