@@ -195,7 +195,9 @@ pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> Vec<S
                 )
             }
             (None, Kind::Implicit) => {
-                if set(DISABLE_ENV).is_some() {
+                // The loader disables it when the variable exists, even
+                // empty (its PlatformUtilsGetEnvSet: getenv != NULL).
+                if env(DISABLE_ENV).is_some() {
                     format!("the loader finds it, but {DISABLE_ENV} is set: not loaded")
                 } else {
                     "the loader finds it and loads it in every OpenXR app".to_owned()
