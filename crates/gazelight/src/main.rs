@@ -28,6 +28,7 @@ mod inspect;
 mod inspect_timeline;
 #[cfg(test)]
 mod isolated;
+mod layer;
 mod lsl_outlets;
 mod observer;
 mod out_dir;
@@ -119,6 +120,10 @@ enum Command {
     /// at the gaze with and without the veil, CIE 146 and Stiles–Holladay
     /// (evalglare's) veils, threshold increment, glare sources; --json.
     Glare(glare::GlareArgs),
+    /// The OpenXR API layer (gazelight-openxr-layer): `install
+    /// [--implicit]`, `uninstall` or `status` of its manifest under
+    /// $XDG_DATA_HOME/openxr/1/api_layers/.
+    Layer(layer::LayerArgs),
 }
 
 /// Hidden switch: with `GAZELIGHT_PARSE_ONLY=1` in the environment the
@@ -162,7 +167,8 @@ fn check(command: &Command) -> anyhow::Result<()> {
         | Command::Devices(_)
         | Command::Config(_)
         | Command::Profile(_)
-        | Command::Glare(_) => Ok(()),
+        | Command::Glare(_)
+        | Command::Layer(_) => Ok(()),
     }
 }
 
@@ -224,6 +230,7 @@ fn main() -> std::process::ExitCode {
         Command::Config(args) => config_cmd::run(args),
         Command::Glare(args) => glare::run(args),
         Command::Profile(args) => profile_cmd::run(args),
+        Command::Layer(args) => layer::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -1,0 +1,385 @@
+//! `gazelight-openxr-layer`: an OpenXR API layer (a `cdylib`) that the
+//! Khronos loader puts between any OpenXR application and its runtime.
+//!
+//! What it does today: it negotiates with the loader
+//! ([`xrNegotiateLoaderApiLayerInterface`]), creates its instance by
+//! chaining to the next layer or the runtime (`xrCreateApiLayerInstance`),
+//! keeps a dispatch table per instance from the next `xrGetInstanceProcAddr`,
+//! and forwards every function: its `xrGetInstanceProcAddr` hands out the
+//! next layer's own pointers for everything but itself and
+//! `xrDestroyInstance`. At instance creation it reads its configuration
+//! ([`config`]) and logs what it resolved to, or the error (file, line,
+//! field) and stays in pass-through mode.
+//!
+//! Not built yet (issue 33): eye gaze for the app
+//! (`XR_EXT_eye_gaze_interaction` served from a gazelight source) and the
+//! light perception on the app's frames in `xrEndFrame`; the config's
+//! `source`, `gaze`, `effects`, `out` and `dump` are checked and reported but
+//! drive nothing yet.
+//!
+//! Never the app's crash: every exported entry point runs in
+//! [`guard::guarded`], which catches a panic, logs it, turns the layer into
+//! pass-through mode and answers as a layer that only forwards would.
+//! `GAZELIGHT_LAYER_TEST_PANIC` forces a panic for tests ([`guard`]).
+
+pub mod config;
+pub mod guard;
+mod log;
+
+use std::collections::HashMap;
+use std::ffi::{CStr, c_char};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+
+use openxr_sys as xr;
+use openxr_sys::Handle as _;
+use openxr_sys::pfn;
+
+pub use log::log;
+
+/// The layer's name in its manifest and in `XR_ENABLE_API_LAYERS`.
+pub const LAYER_NAME: &str = "XR_APILAYER_GAZELIGHT_perception";
+/// The environment variable that disables the implicit layer (its manifest's
+/// `disable_environment`).
+pub const DISABLE_ENV: &str = "DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION";
+/// The loader–layer interface version this layer speaks
+/// (`XR_CURRENT_LOADER_API_LAYER_VERSION`).
+const INTERFACE_VERSION: u32 = xr::CURRENT_LOADER_API_LAYER_VERSION as u32;
+
+/// What the layer keeps per instance: the next layer's entry points.
+#[derive(Clone, Copy)]
+struct Dispatch {
+    next_get_instance_proc_addr: pfn::GetInstanceProcAddr,
+    next_destroy_instance: Option<pfn::DestroyInstance>,
+}
+
+static INSTANCES: Mutex<Option<HashMap<u64, Dispatch>>> = Mutex::new(None);
+
+/// The instance table, also after a panic poisoned it (the table holds only
+/// plain pointers, each insert or remove is whole).
+fn instances() -> MutexGuard<'static, Option<HashMap<u64, Dispatch>>> {
+    INSTANCES.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+fn dispatch_of(instance: xr::Instance) -> Option<Dispatch> {
+    instances()
+        .as_ref()
+        .and_then(|m| m.get(&instance.into_raw()).copied())
+}
+
+/// The loader calls this first: it checks the versions the loader offers
+/// and returns the layer's `xrGetInstanceProcAddr` and
+/// `xrCreateApiLayerInstance`.
+///
+/// # Safety
+/// Called by the OpenXR loader with valid (or null) pointers.
+#[unsafe(no_mangle)]
+pub unsafe extern "system" fn xrNegotiateLoaderApiLayerInterface(
+    loader_info: *const xr::NegotiateLoaderInfo,
+    layer_name: *const c_char,
+    request: *mut xr::NegotiateApiLayerRequest,
+) -> xr::Result {
+    guard::guarded(
+        "xrNegotiateLoaderApiLayerInterface",
+        // A panic before the answer: answer as a pass-through layer.
+        || unsafe { fill_request(request, xr::CURRENT_API_VERSION) },
+        || unsafe { negotiate(loader_info, layer_name, request) },
+    )
+}
+
+unsafe fn negotiate(
+    loader_info: *const xr::NegotiateLoaderInfo,
+    layer_name: *const c_char,
+    request: *mut xr::NegotiateApiLayerRequest,
+) -> xr::Result {
+    if loader_info.is_null() || request.is_null() {
+        log("error", "negotiation: null loader info or request");
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    // SAFETY: checked non-null; the loader owns both for this call.
+    let (info, req) = unsafe { (&*loader_info, &*request) };
+    guard::test_hook("xrNegotiateLoaderApiLayerInterface");
+    if !layer_name.is_null() {
+        // SAFETY: the loader passes a NUL-terminated name.
+        let name = unsafe { CStr::from_ptr(layer_name) }.to_string_lossy();
+        if name != LAYER_NAME {
+            log(
+                "warn",
+                &format!("negotiation: the loader names this layer {name}, expected {LAYER_NAME}"),
+            );
+        }
+    }
+    if info.struct_type != xr::NegotiateLoaderInfo::TYPE
+        || info.struct_version != xr::NegotiateLoaderInfo::VERSION
+        || info.struct_size != size_of::<xr::NegotiateLoaderInfo>()
+        || req.struct_type != xr::NegotiateApiLayerRequest::TYPE
+        || req.struct_version != xr::NegotiateApiLayerRequest::VERSION
+        || req.struct_size != size_of::<xr::NegotiateApiLayerRequest>()
+    {
+        log(
+            "error",
+            "negotiation: the loader's structures are of another type, version or size",
+        );
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    if !(info.min_interface_version..=info.max_interface_version).contains(&INTERFACE_VERSION) {
+        log(
+            "error",
+            &format!(
+                "negotiation: the loader speaks interface versions {}..={}, this layer {INTERFACE_VERSION}",
+                info.min_interface_version, info.max_interface_version
+            ),
+        );
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    // The layer passes every API version through: it answers the newest the
+    // loader takes, at most the one its headers know.
+    let api = if info.max_api_version.into_raw() < xr::CURRENT_API_VERSION.into_raw() {
+        info.max_api_version
+    } else {
+        xr::CURRENT_API_VERSION
+    };
+    if api.major() < 1 {
+        log(
+            "error",
+            &format!("negotiation: the loader offers API up to {api}, this layer needs 1.0"),
+        );
+        return xr::Result::ERROR_API_VERSION_UNSUPPORTED;
+    }
+    unsafe { fill_request(request, api) }
+}
+
+unsafe fn fill_request(request: *mut xr::NegotiateApiLayerRequest, api: xr::Version) -> xr::Result {
+    if request.is_null() {
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    // SAFETY: non-null, owned by the loader for this call.
+    let req = unsafe { &mut *request };
+    req.layer_interface_version = INTERFACE_VERSION;
+    req.layer_api_version = api;
+    req.get_instance_proc_addr = Some(get_instance_proc_addr);
+    req.create_api_layer_instance = Some(create_api_layer_instance);
+    xr::Result::SUCCESS
+}
+
+/// `xrCreateApiLayerInstance`: creates the instance through the next layer
+/// (its `next_info` advanced by one), then records the next layer's entry
+/// points and reads the configuration.
+unsafe extern "system" fn create_api_layer_instance(
+    info: *const xr::InstanceCreateInfo,
+    layer_info: *const xr::ApiLayerCreateInfo,
+    instance: *mut xr::Instance,
+) -> xr::Result {
+    // Set once the next layer was called: a panic after that must not
+    // create a second instance.
+    let created: std::cell::Cell<Option<xr::Result>> = std::cell::Cell::new(None);
+    guard::guarded(
+        "xrCreateApiLayerInstance",
+        || match created.get() {
+            Some(result) => result,
+            None => unsafe { create_next(info, layer_info, instance) },
+        },
+        || {
+            let result = unsafe { create_next(info, layer_info, instance) };
+            created.set(Some(result));
+            guard::test_hook("xrCreateApiLayerInstance");
+            if result.into_raw() >= 0 {
+                match config::LayerConfig::load_from_env() {
+                    Ok(Some((path, config))) => log(
+                        "info",
+                        &format!("config {}: {}", path.display(), config.summary()),
+                    ),
+                    Ok(None) => log(
+                        "info",
+                        "no config file (GAZELIGHT_LAYER_CONFIG, $XDG_CONFIG_HOME/gazelight/layer.toml): defaults",
+                    ),
+                    Err(e) => {
+                        log(
+                            "error",
+                            &format!("{e}; the layer passes everything through"),
+                        );
+                        guard::set_pass_through();
+                    }
+                }
+            }
+            result
+        },
+    )
+}
+
+/// Calls the next layer's `xrCreateApiLayerInstance` with the chain advanced
+/// past this layer, and records the next layer's entry points for the new
+/// instance. No panicking code: it is also the fallback after a panic.
+unsafe fn create_next(
+    info: *const xr::InstanceCreateInfo,
+    layer_info: *const xr::ApiLayerCreateInfo,
+    instance: *mut xr::Instance,
+) -> xr::Result {
+    if layer_info.is_null() || instance.is_null() {
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    // SAFETY: non-null; the loader owns it for this call.
+    let mut next_create_info = unsafe { *layer_info };
+    let next_info = next_create_info.next_info;
+    if next_info.is_null() {
+        log(
+            "error",
+            "xrCreateApiLayerInstance: no next layer in the chain",
+        );
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    // SAFETY: non-null; the chain lives as long as this call.
+    let this = unsafe { &*next_info };
+    if this.struct_type != xr::ApiLayerNextInfo::TYPE {
+        log(
+            "error",
+            "xrCreateApiLayerInstance: the chain's entry is not an XrApiLayerNextInfo",
+        );
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    }
+    let (Some(next_gipa), Some(next_create)) = (
+        this.next_get_instance_proc_addr,
+        this.next_create_api_layer_instance,
+    ) else {
+        log(
+            "error",
+            "xrCreateApiLayerInstance: the next layer has no entry points",
+        );
+        return xr::Result::ERROR_INITIALIZATION_FAILED;
+    };
+    next_create_info.next_info = this.next;
+    // SAFETY: the loader's contract: the next layer's create with the chain
+    // advanced by one.
+    let result = unsafe { next_create(info, &next_create_info, instance) };
+    if result.into_raw() < 0 {
+        return result;
+    }
+    // SAFETY: the next layer wrote the instance on success.
+    let created = unsafe { *instance };
+    let mut destroy: Option<pfn::VoidFunction> = None;
+    // SAFETY: the next layer's gipa on the instance it just created.
+    let r = unsafe { next_gipa(created, c"xrDestroyInstance".as_ptr(), &mut destroy) };
+    let next_destroy_instance = if r.into_raw() >= 0 {
+        // SAFETY: the pointer the next layer returned for this name has
+        // xrDestroyInstance's signature.
+        destroy
+            .map(|f| unsafe { std::mem::transmute::<pfn::VoidFunction, pfn::DestroyInstance>(f) })
+    } else {
+        None
+    };
+    instances().get_or_insert_with(HashMap::new).insert(
+        created.into_raw(),
+        Dispatch {
+            next_get_instance_proc_addr: next_gipa,
+            next_destroy_instance,
+        },
+    );
+    result
+}
+
+/// The layer's `xrGetInstanceProcAddr`: its own `xrGetInstanceProcAddr` and
+/// `xrDestroyInstance` (not in pass-through mode), the next layer's pointer
+/// for every other name.
+unsafe extern "system" fn get_instance_proc_addr(
+    instance: xr::Instance,
+    name: *const c_char,
+    function: *mut Option<pfn::VoidFunction>,
+) -> xr::Result {
+    guard::guarded(
+        "xrGetInstanceProcAddr",
+        || unsafe { forward_proc_addr(instance, name, function) },
+        || {
+            guard::test_hook("xrGetInstanceProcAddr");
+            if name.is_null() || function.is_null() {
+                return xr::Result::ERROR_VALIDATION_FAILURE;
+            }
+            // SAFETY: the caller passes a NUL-terminated name.
+            let wanted = unsafe { CStr::from_ptr(name) };
+            if wanted == c"xrGetInstanceProcAddr" {
+                // SAFETY: `function` checked non-null; a VoidFunction slot.
+                unsafe {
+                    *function = Some(std::mem::transmute::<
+                        pfn::GetInstanceProcAddr,
+                        pfn::VoidFunction,
+                    >(get_instance_proc_addr));
+                }
+                return xr::Result::SUCCESS;
+            }
+            if wanted == c"xrDestroyInstance" && !guard::pass_through() {
+                if dispatch_of(instance).is_none() {
+                    return xr::Result::ERROR_HANDLE_INVALID;
+                }
+                // SAFETY: as above.
+                unsafe {
+                    *function = Some(
+                        std::mem::transmute::<pfn::DestroyInstance, pfn::VoidFunction>(
+                            destroy_instance,
+                        ),
+                    );
+                }
+                return xr::Result::SUCCESS;
+            }
+            unsafe { forward_proc_addr(instance, name, function) }
+        },
+    )
+}
+
+/// The next layer's pointer for `name` (pass-through).
+unsafe fn forward_proc_addr(
+    instance: xr::Instance,
+    name: *const c_char,
+    function: *mut Option<pfn::VoidFunction>,
+) -> xr::Result {
+    match dispatch_of(instance) {
+        // SAFETY: the caller's arguments, handed on unchanged.
+        Some(d) => unsafe { (d.next_get_instance_proc_addr)(instance, name, function) },
+        None => {
+            if !function.is_null() {
+                // SAFETY: non-null slot.
+                unsafe { *function = None };
+            }
+            xr::Result::ERROR_HANDLE_INVALID
+        }
+    }
+}
+
+/// For this crate's tests: entry points the loader reaches only through
+/// `xrGetInstanceProcAddr`, which hands out the next layer's in pass-through
+/// mode.
+#[doc(hidden)]
+pub mod test_support {
+    /// The layer's own `xrDestroyInstance`.
+    pub fn destroy_instance_fn() -> openxr_sys::pfn::DestroyInstance {
+        super::destroy_instance
+    }
+}
+
+/// `xrDestroyInstance`: forgets the instance, then destroys it in the next
+/// layer.
+unsafe extern "system" fn destroy_instance(instance: xr::Instance) -> xr::Result {
+    let forwarded: std::cell::Cell<Option<xr::Result>> = std::cell::Cell::new(None);
+    let forward = |d: Option<Dispatch>| match d.and_then(|d| d.next_destroy_instance) {
+        // SAFETY: the next layer's destroy for the instance it created.
+        Some(destroy) => unsafe { destroy(instance) },
+        None => xr::Result::ERROR_HANDLE_INVALID,
+    };
+    guard::guarded(
+        "xrDestroyInstance",
+        || {
+            forwarded.get().unwrap_or_else(|| {
+                let d = instances()
+                    .as_mut()
+                    .and_then(|m| m.remove(&instance.into_raw()));
+                forward(d)
+            })
+        },
+        || {
+            guard::test_hook("xrDestroyInstance");
+            let d = instances()
+                .as_mut()
+                .and_then(|m| m.remove(&instance.into_raw()));
+            let result = forward(d);
+            forwarded.set(Some(result));
+            result
+        },
+    )
+}

@@ -1,0 +1,395 @@
+//! `gazelight layer install [--implicit] | uninstall | status`: the OpenXR
+//! API layer's manifest (crate `gazelight-openxr-layer`) in the user's data
+//! directory, where the Khronos loader looks for it:
+//! `$XDG_DATA_HOME/openxr/1/api_layers/{explicit,implicit}.d/` (XDG_DATA_HOME
+//! defaults to `~/.local/share`).
+//!
+//! An explicit layer is loaded when the app or `XR_ENABLE_API_LAYERS` names
+//! it; an implicit one in every OpenXR app, unless the variable of its
+//! manifest's `disable_environment` is set. `status` says which manifests
+//! are there, whether the library they name exists, whether the loader will
+//! load the layer in this environment, and what the layer's config resolves
+//! to.
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand};
+use gazelight_openxr_layer::config::{ConfigLocation, LayerConfig};
+use gazelight_openxr_layer::{DISABLE_ENV, LAYER_NAME};
+
+/// The layer library's file name, beside the `gazelight` executable in a
+/// cargo build (`cargo build -p gazelight-openxr-layer`).
+pub const LIBRARY_FILE: &str = "libgazelight_openxr_layer.so";
+
+/// Arguments of `gazelight layer`.
+#[derive(Args, Debug)]
+pub struct LayerArgs {
+    #[command(subcommand)]
+    pub action: LayerAction,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum LayerAction {
+    /// Write the layer's manifest (explicit: loaded when
+    /// XR_ENABLE_API_LAYERS names it; --implicit: in every OpenXR app).
+    Install {
+        /// Install as an implicit layer (disable with
+        /// DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION=1).
+        #[arg(long)]
+        implicit: bool,
+        /// The layer library (default: libgazelight_openxr_layer.so beside
+        /// this executable).
+        #[arg(long, value_name = "PATH")]
+        library: Option<PathBuf>,
+    },
+    /// Remove the explicit and the implicit manifest.
+    Uninstall,
+    /// Whether the loader will find the layer, and what its config
+    /// resolves to.
+    Status,
+}
+
+/// Explicit or implicit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    Explicit,
+    Implicit,
+}
+
+impl Kind {
+    fn dir(self) -> &'static str {
+        match self {
+            Self::Explicit => "explicit.d",
+            Self::Implicit => "implicit.d",
+        }
+    }
+}
+
+/// `$XDG_DATA_HOME` (absolute), else `$HOME/.local/share`.
+pub fn data_home(env: &dyn Fn(&str) -> Option<OsString>) -> anyhow::Result<PathBuf> {
+    let set = |n: &str| env(n).filter(|v| !v.is_empty()).map(PathBuf::from);
+    if let Some(p) = set("XDG_DATA_HOME").filter(|p| p.is_absolute()) {
+        return Ok(p);
+    }
+    match set("HOME") {
+        Some(h) => Ok(h.join(".local").join("share")),
+        None => bail!("neither XDG_DATA_HOME (absolute) nor HOME is set"),
+    }
+}
+
+/// Where the manifest of `kind` goes.
+pub fn manifest_path(data_home: &Path, kind: Kind) -> PathBuf {
+    data_home
+        .join("openxr/1/api_layers")
+        .join(kind.dir())
+        .join(format!("{LAYER_NAME}.json"))
+}
+
+/// The manifest (loader manifest file format 1.0.0).
+pub fn manifest_json(library: &Path, kind: Kind) -> serde_json::Value {
+    let mut layer = serde_json::json!({
+        "name": LAYER_NAME,
+        "library_path": library.to_string_lossy(),
+        "api_version": "1.0",
+        "implementation_version": "1",
+        "description": "gazelight: eye gaze from gazelight sources and light perception on the app's frames",
+    });
+    if kind == Kind::Implicit
+        && let Some(m) = layer.as_object_mut()
+    {
+        // The loader requires it of implicit layers.
+        m.insert("disable_environment".into(), DISABLE_ENV.into());
+    }
+    serde_json::json!({ "file_format_version": "1.0.0", "api_layer": layer })
+}
+
+/// Writes the manifest of `kind` for `library` (made absolute, must exist);
+/// returns its path.
+pub fn install(data_home: &Path, kind: Kind, library: &Path) -> anyhow::Result<PathBuf> {
+    let library = library.canonicalize().with_context(|| {
+        format!(
+            "layer library {}: not found (build it: cargo build -p gazelight-openxr-layer, or pass --library)",
+            library.display()
+        )
+    })?;
+    if !library.is_file() {
+        bail!("layer library {}: not a file", library.display());
+    }
+    let path = manifest_path(data_home, kind);
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let text = serde_json::to_string_pretty(&manifest_json(&library, kind))?;
+    std::fs::write(&path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    Ok(path)
+}
+
+/// Removes both manifests; returns the ones that were there.
+pub fn uninstall(data_home: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut removed = Vec::new();
+    for kind in [Kind::Explicit, Kind::Implicit] {
+        let path = manifest_path(data_home, kind);
+        match std::fs::remove_file(&path) {
+            Ok(()) => removed.push(path),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e).with_context(|| format!("removing {}", path.display())),
+        }
+    }
+    Ok(removed)
+}
+
+/// The status report, one fact a line.
+pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> Vec<String> {
+    let mut lines = Vec::new();
+    let set = |n: &str| env(n).filter(|v| !v.is_empty());
+    for kind in [Kind::Explicit, Kind::Implicit] {
+        let path = manifest_path(data_home, kind);
+        let label = match kind {
+            Kind::Explicit => "explicit",
+            Kind::Implicit => "implicit",
+        };
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            lines.push(format!(
+                "{label}: not installed ({} absent)",
+                path.display()
+            ));
+            continue;
+        };
+        let manifest: Option<serde_json::Value> = serde_json::from_str(&text).ok();
+        let field = |k: &str| {
+            manifest
+                .as_ref()
+                .and_then(|m| m.get("api_layer"))
+                .and_then(|l| l.get(k))
+                .and_then(|v| v.as_str())
+                .map(str::to_owned)
+        };
+        let library = field("library_path").map(PathBuf::from);
+        let library_ok = library.as_deref().is_some_and(Path::is_file);
+        let problem = if manifest.is_none() {
+            Some("the manifest is not valid JSON".to_owned())
+        } else if field("name").as_deref() != Some(LAYER_NAME) {
+            Some(format!("the manifest does not name {LAYER_NAME}"))
+        } else if !library_ok {
+            Some(format!(
+                "its library {} does not exist",
+                library
+                    .as_deref()
+                    .map_or("(none)".into(), |p| p.display().to_string())
+            ))
+        } else if kind == Kind::Implicit && field("disable_environment").is_none() {
+            Some("an implicit manifest without disable_environment (the loader skips it)".into())
+        } else {
+            None
+        };
+        let verdict = match (&problem, kind) {
+            (Some(p), _) => format!("the loader will not load it: {p}"),
+            (None, Kind::Explicit) => {
+                let enabled = set("XR_ENABLE_API_LAYERS")
+                    .is_some_and(|v| v.to_string_lossy().split(':').any(|n| n == LAYER_NAME));
+                format!(
+                    "the loader finds it; loaded when the app or XR_ENABLE_API_LAYERS names {LAYER_NAME} (in this environment: {})",
+                    if enabled { "named" } else { "not named" }
+                )
+            }
+            (None, Kind::Implicit) => {
+                // The loader disables it when the variable exists, even
+                // empty (its PlatformUtilsGetEnvSet: getenv != NULL).
+                if env(DISABLE_ENV).is_some() {
+                    format!("the loader finds it, but {DISABLE_ENV} is set: not loaded")
+                } else {
+                    "the loader finds it and loads it in every OpenXR app".to_owned()
+                }
+            }
+        };
+        lines.push(format!("{label}: {} ({verdict})", path.display()));
+    }
+    lines.push(match ConfigLocation::resolve(|n| env(n)) {
+        None => "config: no place to look (no GAZELIGHT_LAYER_CONFIG, XDG_CONFIG_HOME or HOME): defaults".into(),
+        Some(location) => {
+            let from = match location {
+                ConfigLocation::Env(_) => "GAZELIGHT_LAYER_CONFIG",
+                ConfigLocation::Default(_) => "the default place",
+            };
+            match LayerConfig::load_at(&location) {
+                Ok(Some((path, c))) => {
+                    format!("config: {} ({from}): {}", path.display(), c.summary())
+                }
+                Ok(None) => format!(
+                    "config: no file at {} ({from}): the defaults: {}",
+                    location.path().display(),
+                    LayerConfig::default().summary()
+                ),
+                Err(e) => format!("{e}: the layer will pass everything through"),
+            }
+        }
+    });
+    lines
+}
+
+pub fn run(args: LayerArgs) -> anyhow::Result<()> {
+    let env = |n: &str| std::env::var_os(n);
+    let home = data_home(&env)?;
+    match args.action {
+        LayerAction::Install { implicit, library } => {
+            let library = match library {
+                Some(l) => l,
+                None => std::env::current_exe()?
+                    .parent()
+                    .map(|d| d.join(LIBRARY_FILE))
+                    .context("the executable has no directory")?,
+            };
+            let kind = if implicit {
+                Kind::Implicit
+            } else {
+                Kind::Explicit
+            };
+            let path = install(&home, kind, &library)?;
+            println!("installed {}", path.display());
+            if kind == Kind::Explicit {
+                println!("enable it with XR_ENABLE_API_LAYERS={LAYER_NAME}");
+            } else {
+                println!("every OpenXR app loads it; disable with {DISABLE_ENV}=1");
+            }
+        }
+        LayerAction::Uninstall => {
+            let removed = uninstall(&home)?;
+            if removed.is_empty() {
+                println!("no manifest installed under {}", home.display());
+            }
+            for p in removed {
+                println!("removed {}", p.display());
+            }
+        }
+        LayerAction::Status => {
+            for line in status(&home, &env) {
+                println!("{line}");
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("gazelight-layer-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn env<'a>(vars: &'a [(&'a str, String)]) -> impl Fn(&str) -> Option<OsString> + 'a {
+        move |n| {
+            vars.iter()
+                .find(|(k, _)| *k == n)
+                .map(|(_, v)| OsString::from(v))
+        }
+    }
+
+    #[test]
+    fn the_data_home_is_xdg_data_home_else_home_local_share() {
+        let e = [
+            ("XDG_DATA_HOME", "/d".to_owned()),
+            ("HOME", "/h".to_owned()),
+        ];
+        assert_eq!(data_home(&env(&e)).unwrap(), PathBuf::from("/d"));
+        let e = [
+            ("XDG_DATA_HOME", "rel".to_owned()),
+            ("HOME", "/h".to_owned()),
+        ];
+        assert_eq!(
+            data_home(&env(&e)).unwrap(),
+            PathBuf::from("/h/.local/share")
+        );
+        assert!(data_home(&env(&[])).is_err());
+    }
+
+    #[test]
+    fn install_status_uninstall_with_a_temp_data_home() {
+        let dir = temp("install");
+        let data = dir.join("data");
+        let lib = dir.join(LIBRARY_FILE);
+        // No library: refused, nothing written.
+        assert!(install(&data, Kind::Explicit, &lib).is_err());
+        assert!(!manifest_path(&data, Kind::Explicit).exists());
+        std::fs::write(&lib, b"not really a library").unwrap();
+
+        let explicit = install(&data, Kind::Explicit, &lib).unwrap();
+        // The Khronos loader's user directory for explicit layers.
+        assert_eq!(
+            explicit,
+            data.join("openxr/1/api_layers/explicit.d/XR_APILAYER_GAZELIGHT_perception.json")
+        );
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&explicit).unwrap()).unwrap();
+        assert_eq!(m["file_format_version"], "1.0.0");
+        assert_eq!(m["api_layer"]["name"], "XR_APILAYER_GAZELIGHT_perception");
+        assert_eq!(
+            m["api_layer"]["library_path"],
+            lib.canonicalize().unwrap().to_string_lossy().as_ref()
+        );
+        assert!(m["api_layer"].get("disable_environment").is_none());
+
+        let implicit = install(&data, Kind::Implicit, &lib).unwrap();
+        let m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&implicit).unwrap()).unwrap();
+        assert_eq!(
+            m["api_layer"]["disable_environment"],
+            "DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION"
+        );
+
+        let config = dir.join("layer.toml");
+        std::fs::write(&config, "source = \"pupil://10.0.0.2:50020\"\n").unwrap();
+        let vars = [
+            (
+                "XR_ENABLE_API_LAYERS",
+                "XR_APILAYER_OTHER:XR_APILAYER_GAZELIGHT_perception".to_owned(),
+            ),
+            (
+                "GAZELIGHT_LAYER_CONFIG",
+                config.to_string_lossy().into_owned(),
+            ),
+        ];
+        let s = status(&data, &env(&vars)).join("\n");
+        assert!(s.contains("(in this environment: named)"), "{s}");
+        assert!(s.contains("loads it in every OpenXR app"), "{s}");
+        assert!(s.contains("source pupil://10.0.0.2:50020"), "{s}");
+
+        // Disabled, a bad config, a library gone.
+        std::fs::write(&config, "gaze = \"eyes\"\n").unwrap();
+        let vars = [
+            ("DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION", "1".to_owned()),
+            (
+                "GAZELIGHT_LAYER_CONFIG",
+                config.to_string_lossy().into_owned(),
+            ),
+        ];
+        let s = status(&data, &env(&vars)).join("\n");
+        assert!(s.contains("(in this environment: not named)"), "{s}");
+        assert!(
+            s.contains("DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION is set: not loaded"),
+            "{s}"
+        );
+        assert!(s.contains("layer.toml:1:8: gaze:"), "{s}");
+        std::fs::remove_file(&lib).unwrap();
+        let s = status(&data, &env(&[])).join("\n");
+        assert_eq!(
+            s.matches("the loader will not load it: its library")
+                .count(),
+            2,
+            "{s}"
+        );
+
+        let removed = uninstall(&data).unwrap();
+        assert_eq!(removed, vec![explicit.clone(), implicit.clone()]);
+        assert!(!explicit.exists() && !implicit.exists());
+        let s = status(&data, &env(&[])).join("\n");
+        assert_eq!(s.matches("not installed").count(), 2, "{s}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
