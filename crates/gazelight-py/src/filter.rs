@@ -134,50 +134,70 @@ impl FilterChain {
         EyeState::from(&self.chain.push(&s).state)
     }
 
-    /// Filters whole per-eye pupil series: `t_secs`, `diameter` (mm unless
-    /// `unit` says otherwise) and `confidence` (default 1), samples in time
-    /// order; returns the filtered pupil after each sample, mm.
-    #[pyo3(signature = (eye, t_secs, diameter, confidence=None, unit="mm"))]
-    fn filter_pupil<'py>(
+    /// Filters whole pupil series of one or both eyes: `t_secs`, and per
+    /// eye the diameters (mm unless `unit` says otherwise; NaN or 0: no
+    /// pupil) — each row is one sample of the right eye, then one of the
+    /// left, as a recording's importer delivers a binocular row.
+    /// Returns `(right_mm, left_mm)`: the filtered pupil after each sample
+    /// (None for an eye not given).
+    #[pyo3(signature = (t_secs, right=None, left=None, confidence=None, unit="mm"))]
+    #[allow(clippy::type_complexity)]
+    fn filter_pupils<'py>(
         &mut self,
         py: Python<'py>,
-        eye: u8,
         t_secs: numpy::PyReadonlyArray1<'py, f64>,
-        diameter: numpy::PyReadonlyArray1<'py, f32>,
+        right: Option<numpy::PyReadonlyArray1<'py, f32>>,
+        left: Option<numpy::PyReadonlyArray1<'py, f32>>,
         confidence: Option<numpy::PyReadonlyArray1<'py, f32>>,
         unit: &str,
-    ) -> PyResult<Bound<'py, numpy::PyArray1<f32>>> {
+    ) -> PyResult<(
+        Option<Bound<'py, numpy::PyArray1<f32>>>,
+        Option<Bound<'py, numpy::PyArray1<f32>>>,
+    )> {
         let unit = unit_from(unit)?;
         let t = t_secs.as_slice()?;
-        let d = diameter.as_slice()?;
-        let c = match &confidence {
-            Some(c) => Some(c.as_slice()?),
-            None => None,
-        };
-        if d.len() != t.len() || c.is_some_and(|c| c.len() != t.len()) {
+        let eyes = [
+            right.as_ref().map(|a| a.as_slice()).transpose()?,
+            left.as_ref().map(|a| a.as_slice()).transpose()?,
+        ];
+        let c = confidence.as_ref().map(|a| a.as_slice()).transpose()?;
+        let lens: Vec<usize> = eyes
+            .iter()
+            .flatten()
+            .chain(c.iter())
+            .map(|a| a.len())
+            .collect();
+        if lens.is_empty() {
+            return Err(PyValueError::new_err("give right, left or both"));
+        }
+        if lens.iter().any(|&n| n != t.len()) {
             return Err(PyValueError::new_err(format!(
-                "t_secs, diameter and confidence must have one length (got {}, {}, {})",
-                t.len(),
-                d.len(),
-                c.map_or(t.len(), <[f32]>::len)
+                "t_secs has {} rows; right, left and confidence must have as many (got {lens:?})",
+                t.len()
             )));
         }
-        let mut out = Vec::with_capacity(t.len());
+        let mut out: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
         for i in 0..t.len() {
-            let s = Sample::Pupil(PupilSample {
-                t_secs: t[i],
-                eye,
-                diameter_raw: d[i],
-                unit,
-                diameter_mm: (unit == PupilUnit::Mm).then_some(d[i]),
-                confidence: c.map_or(1.0, |c| c[i]),
-                norm_pos: [f32::NAN; 2],
-                method: DetectorMethod::Other,
-            });
-            let up = self.chain.push(&s);
-            out.push(up.state.eyes[(eye as usize).min(1)].pupil_mm);
+            for (e, d) in eyes.iter().enumerate() {
+                let Some(d) = d else { continue };
+                let s = Sample::Pupil(PupilSample {
+                    t_secs: t[i],
+                    eye: e as u8,
+                    diameter_raw: d[i],
+                    unit,
+                    diameter_mm: (unit == PupilUnit::Mm).then_some(d[i]),
+                    confidence: c.map_or(1.0, |c| c[i]),
+                    norm_pos: [f32::NAN; 2],
+                    method: DetectorMethod::Other,
+                });
+                out[e].push(self.chain.push(&s).state.eyes[e].pupil_mm);
+            }
         }
-        Ok(numpy::PyArray1::from_vec(py, out))
+        let [r, l] = out;
+        Ok((
+            eyes[0].is_some().then(|| numpy::PyArray1::from_vec(py, r)),
+            eyes[1].is_some().then(|| numpy::PyArray1::from_vec(py, l)),
+        ))
     }
 
     /// The state after the last sample.

@@ -20,6 +20,7 @@ use pyo3::prelude::*;
 
 mod config;
 mod filter;
+mod pupil;
 mod read;
 
 create_exception!(
@@ -95,6 +96,8 @@ fn _gazelight(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Calibration>()?;
     m.add_class::<filter::FilterChain>()?;
     m.add_class::<filter::EyeState>()?;
+    m.add_class::<pupil::PyPupilLightResponse>()?;
+    m.add_function(wrap_pyfunction!(pupil::psf, m)?)?;
     m.add_function(wrap_pyfunction!(read::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(read::inspect_json, m)?)?;
     Ok(())

@@ -27,8 +27,11 @@ CASES = {
     "unknown_key": "gazelight.FilterChain({'confidense': {}})",
     "missing_calibration": "gazelight.Calibration.load('/nonexistent/profile.json')",
     "unit": "gazelight.FilterChain().push_pupil(0.0, 0, 4.0, unit='inch')",
-    "lengths": "import numpy as np; gazelight.FilterChain().filter_pupil(0, np.zeros(3), np.zeros(2, np.float32))",
-    "nan_samples": "import numpy as np; print('OK', gazelight.FilterChain().filter_pupil(7, np.full(3, np.nan), np.full(3, np.nan, np.float32)).tolist())",
+    "lengths": "import numpy as np; gazelight.FilterChain().filter_pupils(np.zeros(3), right=np.zeros(2, np.float32))",
+    "nan_samples": "import numpy as np; print('OK', gazelight.FilterChain().filter_pupils(np.full(3, np.nan), left=np.full(3, np.nan, np.float32)))",
+    "eye_id": "print('OK', gazelight.FilterChain().push_pupil(0.0, 7, 4.0))",
+    "nan_psf": "gazelight.psf(float('nan'))",
+    "nan_fit": "import numpy as np; gazelight.PupilLightResponse(latency_secs=float('nan'))",
 }
 
 
@@ -64,7 +67,7 @@ def _cli_error(stderr: str) -> str:
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_bad_input_raises(case, data_dir, gazelight_bin, tmp_path):
     got = _run(case, data_dir)
-    if case == "nan_samples":
+    if case in ("nan_samples", "eye_id"):
         assert got["type"] is None  # eye 7 and NaN samples are data, not errors
         return
     expected_type = {

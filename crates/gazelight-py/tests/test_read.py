@@ -34,6 +34,11 @@ def test_read_equals_inspect(name, data_dir, gazelight_bin):
     s = inspect_json(gazelight_bin, path)
     rec, warned = _read(path)
 
+    assert_matches_inspect(rec, s, warned)
+
+
+def assert_matches_inspect(rec, s, warned):
+    """The arrays of `rec` hold what `inspect --json` summarised in `s`."""
     assert rec.format == s["format"]
     # The same samples.
     for e in (0, 1):
@@ -102,6 +107,13 @@ def test_read_equals_replay_timeline(name, secs, data_dir, gazelight_bin, tmp_pa
     run_cli(gazelight_bin, *args)
     tl = _timeline(tmp_path / "out" / "timeline.csv")
     rec, _ = _read(path)
+    check_timeline(rec, tl, name, MAX_RATE_MM_PER_S)
+
+
+def check_timeline(rec, tl, name, max_rate_mm_per_s, min_exact=0.9):
+    """Each frame of a stereo replay's timeline shows the filtered pupil of
+    the last sample at or before the frame, moved from the previous
+    frame's by at most the rate limit per frame."""
     # The timeline's clock starts at the recording's first sample.
     t0 = min(float(a.min()) for a in (rec.eyes[0].t_secs, rec.eyes[1].t_secs, rec.gaze.t_secs) if len(a))
     # Frames sit at t0 + k / fps (the column is rounded to 4 decimals).
@@ -117,11 +129,11 @@ def test_read_equals_replay_timeline(name, secs, data_dir, gazelight_bin, tmp_pa
         # previous frame's by at most the physiological rate limit per
         # frame (the live chain's slew at the frame clock).
         prev = np.concatenate([[np.nan], tl["pupil_mm" + suffix][:-1]])
-        step = MAX_RATE_MM_PER_S / FPS
+        step = max_rate_mm_per_s / FPS
         want = np.clip(eye.pupil_mm[np.maximum(i, 0)].astype(np.float64), prev - step, prev + step)
         np.testing.assert_allclose(want[ok], tl["pupil_mm" + suffix][ok], atol=2.01e-4, err_msg=f"{name} eye {e}")
         # Most frames need no rate step: the value itself, to 4 decimals.
         exact = np.abs(np.round(eye.pupil_mm[i[ok]].astype(np.float64), 4) - tl["pupil_mm" + suffix][ok]) <= 1.01e-4
-        assert exact.mean() > 0.9, f"{name} eye {e}: {exact.mean():.3f} of the frames equal"
+        assert exact.mean() > min_exact, f"{name} eye {e}: {exact.mean():.3f} of the frames equal"
         checked += int(ok.sum())
     assert checked > len(tl["t_secs"]), f"only {checked} frames compared"

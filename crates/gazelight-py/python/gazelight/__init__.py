@@ -8,6 +8,9 @@ chain, calibration profiles), with numpy arrays out:
   filter chain, as per-eye arrays (or a pandas DataFrame);
 - :class:`FilterChain` -- the chain itself, sample by sample or over arrays;
 - :class:`Calibration` -- a calibration profile (raw tracker units -> mm);
+- :class:`PupilLightResponse` -- the pupil's light response (W&Y target,
+  latency, constriction/redilation) and its fit on a recording's block;
+- :func:`psf` -- the glare kernel ``gazelight psf`` builds, as an array;
 - :class:`GazelightError` -- what the CLI would report, with its message.
 
 Eye indices follow Pupil Core: 0 is the right eye, 1 the left eye.
@@ -28,7 +31,9 @@ from ._gazelight import (  # noqa: F401
     EyeState,
     FilterChain,
     GazelightError,
+    PupilLightResponse,
     inspect_json as _inspect_json,
+    psf,
     read_recording as _read_recording,
 )
 
@@ -40,8 +45,10 @@ __all__ = [
     "Gaze",
     "GazelightError",
     "GazelightWarning",
+    "PupilLightResponse",
     "Recording",
     "inspect",
+    "psf",
     "read",
 ]
 
