@@ -22,6 +22,7 @@ mod config;
 mod filter;
 mod pupil;
 mod read;
+mod source;
 
 create_exception!(
     _gazelight,
@@ -97,6 +98,7 @@ fn _gazelight(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<filter::FilterChain>()?;
     m.add_class::<filter::EyeState>()?;
     m.add_class::<pupil::PyPupilLightResponse>()?;
+    m.add_class::<source::Source>()?;
     m.add_function(wrap_pyfunction!(pupil::psf, m)?)?;
     m.add_function(wrap_pyfunction!(read::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(read::inspect_json, m)?)?;

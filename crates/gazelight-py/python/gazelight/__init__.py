@@ -10,6 +10,8 @@ chain, calibration profiles), with numpy arrays out:
 - :class:`Calibration` -- a calibration profile (raw tracker units -> mm);
 - :class:`PupilLightResponse` -- the pupil's light response (W&Y target,
   latency, constriction/redilation) and its fit on a recording's block;
+- :class:`Source` -- a live source (``pupil://``, ``neon://``, ``lsl://``,
+  ...) as a context manager yielding :class:`EyeState` as they arrive;
 - :func:`psf` -- the glare kernel ``gazelight psf`` builds, as an array;
 - :class:`GazelightError` -- what the CLI would report, with its message.
 
@@ -32,6 +34,7 @@ from ._gazelight import (  # noqa: F401
     FilterChain,
     GazelightError,
     PupilLightResponse,
+    Source,
     inspect_json as _inspect_json,
     psf,
     read_recording as _read_recording,
@@ -47,6 +50,7 @@ __all__ = [
     "GazelightWarning",
     "PupilLightResponse",
     "Recording",
+    "Source",
     "inspect",
     "psf",
     "read",
