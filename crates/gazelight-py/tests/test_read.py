@@ -3,6 +3,8 @@ arrays hold the samples, filtered pupils and blinks that `gazelight inspect
 --json` and `replay`'s timeline.csv report for the same input."""
 
 import csv
+import os
+import shutil
 import warnings
 
 import numpy as np
@@ -137,3 +139,38 @@ def check_timeline(rec, tl, name, max_rate_mm_per_s, min_exact=0.9):
         assert exact.mean() > min_exact, f"{name} eye {e}: {exact.mean():.3f} of the frames equal"
         checked += int(ok.sum())
     assert checked > len(tl["t_secs"]), f"only {checked} frames compared"
+
+
+def test_damaged_recordings_warn_as_inspect_does(tmp_path, data_dir, gazelight_bin):
+    """Real recordings made imperfect: a CSV with a malformed row (skipped,
+    counted, warned) and a Neon recording without calibration.bin (a note):
+    read's Python warnings are inspect's."""
+    lines = (data_dir / "eye/piprkit-plr/pupil_trace.csv").read_text().splitlines()[:400]
+    lines[100] = lines[100].split(",")[0] + ",abc," + lines[100].split(",")[2]
+    csv_path = tmp_path / "damaged.csv"
+    csv_path.write_text("\n".join(lines) + "\n")
+    neon = tmp_path / "neon-no-calibration"
+    shutil.copytree(data_dir / "eye/neon-demo", neon)
+    (neon / "calibration.bin").unlink()
+    for path in (csv_path, neon):
+        s = inspect_json(gazelight_bin, path)
+        rec, warned = _read(path)
+        assert rec.warnings, f"{path}: no warning to compare"
+        assert_matches_inspect(rec, s, warned)
+
+
+def test_dataframe_holds_both_eyes(data_dir, gazelight_bin):
+    if not os.environ.get("CI"):
+        pytest.importorskip("pandas")
+    path = data_dir / "eye/neon-demo"
+    s = inspect_json(gazelight_bin, path)
+    df = gazelight.read(path, dataframe=True)
+    assert len(df) == sum(s["samples"]["pupil"])
+    assert list(df.groupby("eye").size()) == s["samples"]["pupil"]
+    assert df["t_secs"].is_monotonic_increasing
+    rec = gazelight.read(path)
+    for e in (0, 1):
+        sub = df[df["eye"] == e].sort_values("t_secs", kind="stable")
+        np.testing.assert_array_equal(sub["pupil_mm"].to_numpy(), rec.eyes[e].pupil_mm)
+        assert set(sub["unit"].astype(str)) == {s["pupil"][e]["unit"]}
+    assert df["blink"].dtype == bool and df["dropout"].dtype == bool
