@@ -89,7 +89,7 @@ def _timeline(path):
 
 
 # (recording, seconds replayed): long recordings are cut to keep CI short.
-FPS = 30
+FPS = 15
 # The configuration's default `physio.max_rate_mm_per_s` (`gazelight config
 # --print-default`).
 MAX_RATE_MM_PER_S = 6.0
