@@ -3,7 +3,7 @@
 The same library code as the ``gazelight`` CLI (the importers, the filter
 chain, calibration profiles), with numpy arrays out:
 
-- :func:`read` -- a recording (Pupil Core directory, Neon, EyeLink ``.asc``,
+- :func:`read` -- a recording (Pupil Core directory, Neon, EyeLink ``.asc``, XDF, BIDS,
   pupil ``.csv``, and every format ``gazelight inspect`` reads) through the
   filter chain, as per-eye arrays (or a pandas DataFrame);
 - :class:`FilterChain` -- the chain itself, sample by sample or over arrays;
