@@ -9,13 +9,15 @@ import textwrap
 
 import pytest
 
-from conftest import run_cli
+from conftest import ROOT, run_cli
 
 CASES = {
     # A missing recording: GazelightError with inspect's message.
     "missing_file": "gazelight.read('/nonexistent/recording.csv')",
     # A directory that is no recording.
     "not_a_recording": "gazelight.read('/proc/self')",
+    # An XDF file with no eye stream (tests/data/xdf, pyxdf's example).
+    "xdf_without_eye_data": "gazelight.read(ROOT + '/tests/data/xdf/minimal.xdf')",
     # Wrong types: TypeError from the argument conversion.
     "path_wrong_type": "gazelight.read(42)",
     "config_wrong_type": "gazelight.FilterChain(config=3.5)",
@@ -41,6 +43,7 @@ def _run(case: str, data_dir) -> dict:
         import json, sys
         import gazelight
         DATA = {str(data_dir)!r}
+        ROOT = {str(ROOT)!r}
         try:
             {CASES[case]}
             out = {{"type": None}}
@@ -85,6 +88,9 @@ def test_bad_input_raises(case, data_dir, gazelight_bin, tmp_path):
         assert cli.returncode != 0 and _cli_error(cli.stderr) == msg
     elif case == "not_a_recording":
         cli = run_cli(gazelight_bin, "inspect", "/proc/self", check=False)
+        assert cli.returncode != 0 and _cli_error(cli.stderr) == msg
+    elif case == "xdf_without_eye_data":
+        cli = run_cli(gazelight_bin, "inspect", str(ROOT / "tests/data/xdf/minimal.xdf"), check=False)
         assert cli.returncode != 0 and _cli_error(cli.stderr) == msg
     elif case == "missing_calibration":
         rec = str(data_dir / "eye/neon-demo")
