@@ -95,14 +95,20 @@ impl Source {
     }
 
     fn stop(&mut self) {
-        if let Some(r) = self.running.take() {
-            let _ = r.shutdown.send(true);
-            let task = r.task;
-            let _ = r
-                .runtime
-                .block_on(async { tokio::time::timeout(CLOSE_TIMEOUT, task).await });
-            r.runtime.shutdown_timeout(CLOSE_TIMEOUT);
-        }
+        stop(self.running.take());
+    }
+}
+
+/// Tells the task to stop, waits for it, then shuts the runtime down (its
+/// threads are joined); runs without the GIL where Python holds one.
+fn stop(running: Option<Running>) {
+    if let Some(r) = running {
+        let _ = r.shutdown.send(true);
+        let task = r.task;
+        let _ = r
+            .runtime
+            .block_on(async { tokio::time::timeout(CLOSE_TIMEOUT, task).await });
+        r.runtime.shutdown_timeout(CLOSE_TIMEOUT);
     }
 }
 
@@ -146,14 +152,16 @@ impl Source {
 
     /// Stops the task and the runtime; exceptions propagate.
     #[pyo3(signature = (*_args))]
-    fn __exit__(&mut self, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
-        self.stop();
+    fn __exit__(&mut self, py: Python<'_>, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
+        let running = self.running.take();
+        py.detach(|| stop(running));
         false
     }
 
     /// Stops the source (as the end of a `with` block does).
-    fn close(&mut self) {
-        self.stop();
+    fn close(&mut self, py: Python<'_>) {
+        let running = self.running.take();
+        py.detach(|| stop(running));
     }
 
     fn __iter__(slf: PyRefMut<'_, Self>) -> PyRefMut<'_, Self> {
