@@ -1,0 +1,273 @@
+"""gazelight from Python.
+
+The same library code as the ``gazelight`` CLI (the importers, the filter
+chain, calibration profiles), with numpy arrays out:
+
+- :func:`read` -- a recording (Pupil Core directory, Neon, EyeLink ``.asc``, XDF, BIDS,
+  pupil ``.csv``, and every format ``gazelight inspect`` reads) through the
+  filter chain, as per-eye arrays (or a pandas DataFrame);
+- :class:`FilterChain` -- the chain itself, sample by sample or over arrays;
+- :class:`Calibration` -- a calibration profile (raw tracker units -> mm);
+- :class:`PupilLightResponse` -- the pupil's light response (W&Y target,
+  latency, constriction/redilation) and its fit on a recording's block;
+- :class:`Source` -- a live source (``pupil://``, ``neon://``, ``lsl://``,
+  ...) as a context manager yielding :class:`EyeState` as they arrive;
+- :func:`psf` -- the glare kernel ``gazelight psf`` builds, as an array;
+- :class:`GazelightError` -- what the CLI would report, with its message.
+
+Eye indices follow Pupil Core: 0 is the right eye, 1 the left eye.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+from ._gazelight import (  # noqa: F401
+    Calibration,
+    EyeState,
+    FilterChain,
+    GazelightError,
+    PupilLightResponse,
+    Source,
+    inspect_json as _inspect_json,
+    psf,
+    read_recording as _read_recording,
+)
+
+__all__ = [
+    "Calibration",
+    "Eye",
+    "EyeState",
+    "FilterChain",
+    "Gaze",
+    "GazelightError",
+    "GazelightWarning",
+    "PupilLightResponse",
+    "Recording",
+    "Source",
+    "inspect",
+    "psf",
+    "read",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+class GazelightWarning(UserWarning):
+    """A recording's warning (a skipped record, a missing file beside it, ...)."""
+
+
+@dataclass(frozen=True)
+class Eye:
+    """One eye's pupil samples, one row per sample, in recording order.
+
+    ``t_secs``: the sample's time (s, the recording's clock);
+    ``pupil_raw``: the diameter as the tracker reported it, in ``unit``;
+    ``tracker_mm``: the tracker's own mm (3D model, Neon), NaN when none;
+    ``pupil_mm``: the filter chain's pupil right after this sample (mm);
+    ``confidence``: the tracker's confidence (0..1);
+    ``blink``: the chain considers the eye closed;
+    ``dropout``: the chain rejected this sample (low confidence, no pupil,
+    out of range, too fast) -- the ``dropout_fraction`` of ``inspect``;
+    ``measured``: accepted as a measurement; ``origin``: where ``pupil_mm``
+    came from (``origins``: measured, held, model, default);
+    ``settling``: the output still moves to its target at the rate limit;
+    ``detector``: index into ``detectors`` (``2d``, ``3d``, ``pupil``).
+    """
+
+    eye: int
+    t_secs: np.ndarray
+    pupil_raw: np.ndarray
+    unit_code: np.ndarray
+    tracker_mm: np.ndarray
+    pupil_mm: np.ndarray
+    confidence: np.ndarray
+    detector: np.ndarray
+    origin: np.ndarray
+    outcome: np.ndarray
+    blink: np.ndarray
+    settling: np.ndarray
+    units: Tuple[str, ...]
+    detectors: Tuple[str, ...]
+    origins: Tuple[str, ...]
+
+    @property
+    def dropout(self) -> np.ndarray:
+        """The samples the chain rejected (boolean)."""
+        return self.outcome == 1
+
+    @property
+    def measured(self) -> np.ndarray:
+        """The samples the chain accepted as measurements (boolean)."""
+        return self.outcome == 0
+
+    @property
+    def unit(self) -> Optional[str]:
+        """The unit of the first sample's raw pupil (as ``inspect``), or None."""
+        if len(self.unit_code) == 0:
+            return None
+        return self.units[int(self.unit_code[0])]
+
+    def __len__(self) -> int:
+        return len(self.t_secs)
+
+
+@dataclass(frozen=True)
+class Gaze:
+    """Gaze samples: normalised image coordinates (top-left origin).
+
+    ``eyes``: 0 binocular, 1 right eye only, 2 left eye only;
+    ``filtered_u``/``filtered_v``: the chain's fused gaze after the sample.
+    """
+
+    t_secs: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    confidence: np.ndarray
+    eyes: np.ndarray
+    filtered_u: np.ndarray
+    filtered_v: np.ndarray
+    filtered_valid: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_secs)
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A recording read through the filter chain (see :func:`read`)."""
+
+    path: str
+    format: str
+    eyes: Tuple[Eye, Eye]
+    gaze: Gaze
+    recording_blinks: Dict[str, np.ndarray]
+    closures: Dict[str, np.ndarray]
+    stats: Dict[str, Any]
+    warnings: List[str]
+    skipped_records: int
+    eye_gaze: Optional[Dict[str, Any]] = field(default=None)
+
+    @property
+    def right(self) -> Eye:
+        return self.eyes[0]
+
+    @property
+    def left(self) -> Eye:
+        return self.eyes[1]
+
+    def blinks(self, eye: int) -> Tuple[np.ndarray, np.ndarray]:
+        """The chain's blinks of ``eye``: (start_t_secs, end_t_secs)."""
+        c = self.closures
+        sel = (c["eye"] == eye) & c["blink"]
+        return c["start_t_secs"][sel], c["end_t_secs"][sel]
+
+    def dropouts(self, eye: int) -> Tuple[np.ndarray, np.ndarray]:
+        """Closures of ``eye`` too short or too long to be blinks."""
+        c = self.closures
+        sel = (c["eye"] == eye) & ~c["blink"]
+        return c["start_t_secs"][sel], c["end_t_secs"][sel]
+
+    def to_dataframe(self):
+        """The pupil samples of both eyes as one pandas DataFrame (long form:
+        a column ``eye``), sorted by time; needs pandas."""
+        try:
+            import pandas as pd
+        except ImportError as e:  # pragma: no cover - depends on the env
+            raise ImportError("Recording.to_dataframe needs pandas (pip install pandas)") from e
+        frames = []
+        for e in self.eyes:
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "eye": np.full(len(e), e.eye, dtype=np.uint8),
+                        "t_secs": e.t_secs,
+                        "pupil_raw": e.pupil_raw,
+                        "unit": pd.Categorical.from_codes(e.unit_code, categories=list(e.units)),
+                        "tracker_mm": e.tracker_mm,
+                        "pupil_mm": e.pupil_mm,
+                        "confidence": e.confidence,
+                        "detector": pd.Categorical.from_codes(e.detector, categories=list(e.detectors)),
+                        "origin": pd.Categorical.from_codes(e.origin, categories=list(e.origins)),
+                        "blink": e.blink,
+                        "dropout": e.dropout,
+                        "settling": e.settling,
+                    }
+                )
+            )
+        df = pd.concat(frames, ignore_index=True)
+        return df.sort_values(["t_secs", "eye"], kind="stable", ignore_index=True)
+
+
+def read(
+    path: PathLike,
+    config: Union[None, str, Dict[str, Any]] = None,
+    calibration: Union[None, PathLike, Calibration] = None,
+    dataframe: bool = False,
+):
+    """Reads a recording through the filter chain, as ``gazelight inspect``
+    and ``replay`` do.
+
+    ``path``: a Neon or Pupil Core recording directory, an EyeLink ``.asc``,
+    a pupil ``.csv`` (any recording the CLI reads). ``config``: the filter
+    chain's configuration (a dict or TOML text with the keys of the CLI
+    configuration's ``[filter]`` table; None for the defaults).
+    ``calibration``: a calibration profile (path or :class:`Calibration`)
+    mapping raw tracker units onto mm. ``dataframe=True`` returns
+    :meth:`Recording.to_dataframe` instead of the :class:`Recording`.
+
+    The recording's warnings are issued as :class:`GazelightWarning`.
+    Raises :class:`GazelightError` with the CLI's message when the file
+    cannot be read, ``TypeError`` for an argument of the wrong type.
+    """
+    d = _read_recording(path, config, calibration)
+    eyes = tuple(
+        Eye(
+            eye=i,
+            t_secs=e["t_secs"],
+            pupil_raw=e["pupil_raw"],
+            unit_code=e["unit"],
+            tracker_mm=e["tracker_mm"],
+            pupil_mm=e["pupil_mm"],
+            confidence=e["confidence"],
+            detector=e["detector"],
+            origin=e["origin"],
+            outcome=e["outcome"],
+            blink=e["blink"],
+            settling=e["settling"],
+            units=tuple(d["units"]),
+            detectors=tuple(d["detectors"]),
+            origins=tuple(d["origins"]),
+        )
+        for i, e in enumerate(d["eyes"])
+    )
+    rec = Recording(
+        path=os.fspath(d["path"]),
+        format=d["format"],
+        eyes=eyes,  # type: ignore[arg-type]
+        gaze=Gaze(**d["gaze"]),
+        recording_blinks=d["recording_blinks"],
+        closures=d["closures"],
+        stats=json.loads(d["stats"]),
+        warnings=list(d["warnings"]),
+        skipped_records=int(d["skipped_records"]),
+        eye_gaze=json.loads(d["eye_gaze"]) if d["eye_gaze"] else None,
+    )
+    for w in rec.warnings:
+        warnings.warn(GazelightWarning(f"{rec.path}: {w}"), stacklevel=2)
+    return rec.to_dataframe() if dataframe else rec
+
+
+def inspect(
+    path: PathLike,
+    config: Union[None, str, Dict[str, Any]] = None,
+    calibration: Union[None, PathLike, Calibration] = None,
+) -> Dict[str, Any]:
+    """The summary ``gazelight inspect --json`` prints for a recording, as a dict."""
+    return json.loads(_inspect_json(path, config, calibration))

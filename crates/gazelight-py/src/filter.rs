@@ -1,0 +1,213 @@
+//! `gazelight.FilterChain` and `gazelight.EyeState`: the library's one
+//! filter chain, fed sample by sample from Python (or a whole recording
+//! through `read`), and the state it keeps.
+
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use gazelight_tracker::filter::FilterChain as Chain;
+use gazelight_tracker::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
+
+use crate::read::{ORIGINS, origin_code};
+
+/// The filtered eye state after a sample (or a live source's newest).
+#[pyclass(module = "gazelight", name = "EyeState", frozen, get_all)]
+#[derive(Clone)]
+pub(crate) struct EyeState {
+    /// Time of the newest sample in it, s (the source's clock; a live
+    /// source's host clock).
+    pub(crate) t_secs: f64,
+    /// Fused gaze, normalised image coordinates, top-left origin.
+    pub(crate) gaze_uv: (f32, f32),
+    pub(crate) gaze_valid: bool,
+    /// Filtered pupil per eye (0 right, 1 left), mm.
+    pub(crate) pupil_mm: (f32, f32),
+    /// Where each eye's pupil came from: measured, held, model, default.
+    pub(crate) pupil_origin: (&'static str, &'static str),
+    /// Confidence of each eye's newest raw sample.
+    pub(crate) confidence: (f32, f32),
+    /// Whether the eyes are considered closed (a blink).
+    pub(crate) blink: bool,
+}
+
+impl From<&gazelight_tracker::EyeState> for EyeState {
+    fn from(s: &gazelight_tracker::EyeState) -> Self {
+        let origin = |e: usize| ORIGINS[origin_code(s.eyes[e].pupil_origin) as usize];
+        Self {
+            t_secs: s.t_secs,
+            gaze_uv: (s.gaze_uv[0], s.gaze_uv[1]),
+            gaze_valid: s.gaze_valid,
+            pupil_mm: (s.eyes[0].pupil_mm, s.eyes[1].pupil_mm),
+            pupil_origin: (origin(0), origin(1)),
+            confidence: (s.eyes[0].confidence, s.eyes[1].confidence),
+            blink: s.blink,
+        }
+    }
+}
+
+#[pymethods]
+impl EyeState {
+    fn __repr__(&self) -> String {
+        format!(
+            "EyeState(t_secs={:.4}, pupil_mm=({:.3}, {:.3}), gaze_uv=({:.4}, {:.4}), blink={})",
+            self.t_secs,
+            self.pupil_mm.0,
+            self.pupil_mm.1,
+            self.gaze_uv.0,
+            self.gaze_uv.1,
+            if self.blink { "True" } else { "False" }
+        )
+    }
+}
+
+fn unit_from(name: &str) -> PyResult<PupilUnit> {
+    Ok(match name {
+        "px" => PupilUnit::Px,
+        "mm" => PupilUnit::Mm,
+        "arbitrary_area" => PupilUnit::ArbitraryArea,
+        "arbitrary" => PupilUnit::Arbitrary,
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "unit {name:?}: expected px, mm, arbitrary_area or arbitrary"
+            )));
+        }
+    })
+}
+
+/// The filter chain (confidence gate, physiological range and rate, blink
+/// detector, dropout hold, 1€ gaze filter, calibration), as `gazelight
+/// inspect`, `replay` and the live eye task run it.
+#[pyclass(module = "gazelight", name = "FilterChain", unsendable)]
+pub(crate) struct FilterChain {
+    chain: Chain,
+}
+
+#[pymethods]
+impl FilterChain {
+    /// `config`: None (the defaults), a TOML string or a dict with the keys
+    /// of the CLI configuration's `[filter]` table; `calibration`: a
+    /// profile path or a `Calibration`.
+    #[new]
+    #[pyo3(signature = (config=None, calibration=None))]
+    fn new(
+        config: Option<&Bound<'_, PyAny>>,
+        calibration: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        Ok(Self {
+            chain: crate::read::chain_for(config, calibration)?,
+        })
+    }
+
+    /// Feeds one pupil sample; returns the state after it.
+    #[pyo3(signature = (t_secs, eye, diameter, unit="mm", confidence=1.0))]
+    fn push_pupil(
+        &mut self,
+        t_secs: f64,
+        eye: u8,
+        diameter: f32,
+        unit: &str,
+        confidence: f32,
+    ) -> PyResult<EyeState> {
+        let unit = unit_from(unit)?;
+        let s = Sample::Pupil(PupilSample {
+            t_secs,
+            eye,
+            diameter_raw: diameter,
+            unit,
+            diameter_mm: (unit == PupilUnit::Mm).then_some(diameter),
+            confidence,
+            norm_pos: [f32::NAN; 2],
+            method: DetectorMethod::Other,
+        });
+        Ok(EyeState::from(&self.chain.push(&s).state))
+    }
+
+    /// Feeds one binocular gaze sample (normalised, top-left origin).
+    #[pyo3(signature = (t_secs, u, v, confidence=1.0))]
+    fn push_gaze(&mut self, t_secs: f64, u: f32, v: f32, confidence: f32) -> EyeState {
+        let s = Sample::Gaze(GazeSample {
+            t_secs,
+            gaze_uv: [u, v],
+            confidence,
+            eyes: GazeEyes::Binocular,
+        });
+        EyeState::from(&self.chain.push(&s).state)
+    }
+
+    /// Filters whole pupil series of one or both eyes: `t_secs`, and per
+    /// eye the diameters (mm unless `unit` says otherwise; NaN or 0: no
+    /// pupil) — each row is one sample of the right eye, then one of the
+    /// left, as a recording's importer delivers a binocular row.
+    /// Returns `(right_mm, left_mm)`: the filtered pupil after each sample
+    /// (None for an eye not given).
+    #[pyo3(signature = (t_secs, right=None, left=None, confidence=None, unit="mm"))]
+    #[allow(clippy::type_complexity)]
+    fn filter_pupils<'py>(
+        &mut self,
+        py: Python<'py>,
+        t_secs: numpy::PyReadonlyArray1<'py, f64>,
+        right: Option<numpy::PyReadonlyArray1<'py, f32>>,
+        left: Option<numpy::PyReadonlyArray1<'py, f32>>,
+        confidence: Option<numpy::PyReadonlyArray1<'py, f32>>,
+        unit: &str,
+    ) -> PyResult<(
+        Option<Bound<'py, numpy::PyArray1<f32>>>,
+        Option<Bound<'py, numpy::PyArray1<f32>>>,
+    )> {
+        let unit = unit_from(unit)?;
+        let t = t_secs.as_slice()?;
+        let eyes = [
+            right.as_ref().map(|a| a.as_slice()).transpose()?,
+            left.as_ref().map(|a| a.as_slice()).transpose()?,
+        ];
+        let c = confidence.as_ref().map(|a| a.as_slice()).transpose()?;
+        let lens: Vec<usize> = eyes
+            .iter()
+            .flatten()
+            .chain(c.iter())
+            .map(|a| a.len())
+            .collect();
+        if lens.is_empty() {
+            return Err(PyValueError::new_err("give right, left or both"));
+        }
+        if lens.iter().any(|&n| n != t.len()) {
+            return Err(PyValueError::new_err(format!(
+                "t_secs has {} rows; right, left and confidence must have as many (got {lens:?})",
+                t.len()
+            )));
+        }
+        let mut out: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
+        for i in 0..t.len() {
+            for (e, d) in eyes.iter().enumerate() {
+                let Some(d) = d else { continue };
+                let s = Sample::Pupil(PupilSample {
+                    t_secs: t[i],
+                    eye: e as u8,
+                    diameter_raw: d[i],
+                    unit,
+                    diameter_mm: (unit == PupilUnit::Mm).then_some(d[i]),
+                    confidence: c.map_or(1.0, |c| c[i]),
+                    norm_pos: [f32::NAN; 2],
+                    method: DetectorMethod::Other,
+                });
+                out[e].push(self.chain.push(&s).state.eyes[e].pupil_mm);
+            }
+        }
+        let [r, l] = out;
+        Ok((
+            eyes[0].is_some().then(|| numpy::PyArray1::from_vec(py, r)),
+            eyes[1].is_some().then(|| numpy::PyArray1::from_vec(py, l)),
+        ))
+    }
+
+    /// The state after the last sample.
+    #[getter]
+    fn state(&self) -> EyeState {
+        EyeState::from(self.chain.state())
+    }
+
+    /// The chain's counters (as `inspect --json`'s `chain`), JSON text.
+    fn stats_json(&self) -> PyResult<String> {
+        serde_json::to_string(self.chain.stats()).map_err(crate::err)
+    }
+}
