@@ -232,17 +232,29 @@ unsafe fn resolve(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr) -> Res
     unsafe {
         use std::mem::transmute as t;
         Ok(Next {
-            get_system_properties: t(get(c"xrGetSystemProperties")?),
-            suggest: t(get(c"xrSuggestInteractionProfileBindings")?),
-            path_to_string: t(get(c"xrPathToString")?),
-            create_action_space: t(get(c"xrCreateActionSpace")?),
-            create_reference_space: t(get(c"xrCreateReferenceSpace")?),
-            destroy_space: t(get(c"xrDestroySpace")?),
-            destroy_session: t(get(c"xrDestroySession")?),
-            locate_space: t(get(c"xrLocateSpace")?),
-            locate_views: t(get(c"xrLocateViews")?),
-            get_action_state_pose: t(get(c"xrGetActionStatePose")?),
-            timespec_to_time: t(get(c"xrConvertTimespecTimeToTimeKHR")?),
+            get_system_properties: t::<pfn::VoidFunction, pfn::GetSystemProperties>(get(
+                c"xrGetSystemProperties",
+            )?),
+            suggest: t::<pfn::VoidFunction, pfn::SuggestInteractionProfileBindings>(get(
+                c"xrSuggestInteractionProfileBindings",
+            )?),
+            path_to_string: t::<pfn::VoidFunction, pfn::PathToString>(get(c"xrPathToString")?),
+            create_action_space: t::<pfn::VoidFunction, pfn::CreateActionSpace>(get(
+                c"xrCreateActionSpace",
+            )?),
+            create_reference_space: t::<pfn::VoidFunction, pfn::CreateReferenceSpace>(get(
+                c"xrCreateReferenceSpace",
+            )?),
+            destroy_space: t::<pfn::VoidFunction, pfn::DestroySpace>(get(c"xrDestroySpace")?),
+            destroy_session: t::<pfn::VoidFunction, pfn::DestroySession>(get(c"xrDestroySession")?),
+            locate_space: t::<pfn::VoidFunction, pfn::LocateSpace>(get(c"xrLocateSpace")?),
+            locate_views: t::<pfn::VoidFunction, pfn::LocateViews>(get(c"xrLocateViews")?),
+            get_action_state_pose: t::<pfn::VoidFunction, pfn::GetActionStatePose>(get(
+                c"xrGetActionStatePose",
+            )?),
+            timespec_to_time: t::<pfn::VoidFunction, pfn::ConvertTimespecTimeToTimeKHR>(get(
+                c"xrConvertTimespecTimeToTimeKHR",
+            )?),
         })
     }
 }
@@ -731,7 +743,7 @@ fn monotonic_now_secs() -> Option<f64> {
     };
     // SAFETY: an out-pointer to a timespec.
     let r = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
-    (r == 0).then(|| ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
+    (r == 0).then_some(ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9)
 }
 
 fn normalize(v: [f64; 3]) -> [f64; 3] {
