@@ -11,11 +11,15 @@
 //! ([`config`]) and logs what it resolved to, or the error (file, line,
 //! field) and stays in pass-through mode.
 //!
-//! Not built yet (issue 33): eye gaze for the app
-//! (`XR_EXT_eye_gaze_interaction` served from a gazelight source) and the
-//! light perception on the app's frames in `xrEndFrame`; the config's
-//! `source`, `gaze`, `effects`, `out` and `dump` are checked and reported but
-//! drive nothing yet.
+//! Eye gaze ([`gaze`]): with `gaze = "gazelight"` and an app that enables
+//! `XR_EXT_eye_gaze_interaction`, the layer enables
+//! `XR_KHR_convert_timespec_time` below itself, starts the live eye task on
+//! the config's `source` and serves the gaze action's space from it.
+//!
+//! Not built yet (issue 33): advertising `XR_EXT_eye_gaze_interaction` on
+//! runtimes that lack it, and the light perception on the app's frames in
+//! `xrEndFrame`; the config's `effects`, `out` and `dump` are checked and
+//! reported but drive nothing yet.
 //!
 //! Never the app's crash: every exported entry point runs in
 //! [`guard::guarded`], which catches a panic, logs it, turns the layer into
@@ -23,6 +27,7 @@
 //! `GAZELIGHT_LAYER_TEST_PANIC` forces a panic for tests ([`guard`]).
 
 pub mod config;
+pub mod gaze;
 pub mod guard;
 mod log;
 
@@ -179,31 +184,107 @@ unsafe extern "system" fn create_api_layer_instance(
             None => unsafe { create_next(info, layer_info, instance) },
         },
         || {
-            let result = unsafe { create_next(info, layer_info, instance) };
+            let loaded = config::LayerConfig::load_from_env();
+            let serve_gaze = match &loaded {
+                Ok(Some((_, c))) => unsafe { gaze::wanted(info, c) },
+                Ok(None) => unsafe { gaze::wanted(info, &config::LayerConfig::default()) },
+                Err(_) => false,
+            };
+            // Eye gaze needs XR_KHR_convert_timespec_time below the layer
+            // (sample times); without it the layer serves no gaze.
+            let mut with_convert = false;
+            let result = if serve_gaze
+                && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) }
+            {
+                let r = unsafe {
+                    create_with_extension(info, layer_info, instance, gaze::CONVERT_TIMESPEC_EXT)
+                };
+                if r == xr::Result::ERROR_EXTENSION_NOT_PRESENT {
+                    log(
+                        "warn",
+                        "eye gaze: the runtime lacks XR_KHR_convert_timespec_time; the layer serves no gaze",
+                    );
+                    unsafe { create_next(info, layer_info, instance) }
+                } else {
+                    with_convert = r.into_raw() >= 0;
+                    r
+                }
+            } else {
+                with_convert = serve_gaze;
+                unsafe { create_next(info, layer_info, instance) }
+            };
             created.set(Some(result));
             guard::test_hook("xrCreateApiLayerInstance");
             if result.into_raw() >= 0 {
-                match config::LayerConfig::load_from_env() {
-                    Ok(Some((path, config))) => log(
-                        "info",
-                        &format!("config {}: {}", path.display(), config.summary()),
-                    ),
-                    Ok(None) => log(
-                        "info",
-                        "no config file (GAZELIGHT_LAYER_CONFIG, $XDG_CONFIG_HOME/gazelight/layer.toml): defaults",
-                    ),
+                let config = match loaded {
+                    Ok(Some((path, config))) => {
+                        log(
+                            "info",
+                            &format!("config {}: {}", path.display(), config.summary()),
+                        );
+                        Some(config)
+                    }
+                    Ok(None) => {
+                        log(
+                            "info",
+                            "no config file (GAZELIGHT_LAYER_CONFIG, $XDG_CONFIG_HOME/gazelight/layer.toml): defaults",
+                        );
+                        Some(config::LayerConfig::default())
+                    }
                     Err(e) => {
                         log(
                             "error",
                             &format!("{e}; the layer passes everything through"),
                         );
                         guard::set_pass_through();
+                        None
+                    }
+                };
+                if let Some(config) = config
+                    && with_convert
+                {
+                    // SAFETY: the next layer wrote the instance on success.
+                    let created = unsafe { *instance };
+                    if let Some(d) = dispatch_of(created)
+                        && let Err(e) = gaze::start(created, d.next_get_instance_proc_addr, &config)
+                    {
+                        log("error", &format!("eye gaze: {e}; the layer serves no gaze"));
                     }
                 }
             }
             result
         },
     )
+}
+
+/// [`create_next`] with one more extension enabled.
+unsafe fn create_with_extension(
+    info: *const xr::InstanceCreateInfo,
+    layer_info: *const xr::ApiLayerCreateInfo,
+    instance: *mut xr::Instance,
+    extension: &CStr,
+) -> xr::Result {
+    if info.is_null() {
+        return unsafe { create_next(info, layer_info, instance) };
+    }
+    // SAFETY: non-null; the app's create info for this call.
+    let mut changed = unsafe { *info };
+    let mut names: Vec<*const c_char> = if changed.enabled_extension_names.is_null() {
+        Vec::new()
+    } else {
+        // SAFETY: an array of `enabled_extension_count` names.
+        unsafe {
+            std::slice::from_raw_parts(
+                changed.enabled_extension_names,
+                changed.enabled_extension_count as usize,
+            )
+        }
+        .to_vec()
+    };
+    names.push(extension.as_ptr());
+    changed.enabled_extension_names = names.as_ptr();
+    changed.enabled_extension_count = names.len() as u32;
+    unsafe { create_next(&changed, layer_info, instance) }
 }
 
 /// Calls the next layer's `xrCreateApiLayerInstance` with the chain advanced
@@ -318,6 +399,13 @@ unsafe extern "system" fn get_instance_proc_addr(
                 }
                 return xr::Result::SUCCESS;
             }
+            if !guard::pass_through()
+                && let Some(f) = gaze::proc_addr(instance, wanted)
+            {
+                // SAFETY: as above.
+                unsafe { *function = Some(f) };
+                return xr::Result::SUCCESS;
+            }
             unsafe { forward_proc_addr(instance, name, function) }
         },
     )
@@ -374,6 +462,7 @@ unsafe extern "system" fn destroy_instance(instance: xr::Instance) -> xr::Result
         },
         || {
             guard::test_hook("xrDestroyInstance");
+            gaze::stop(instance);
             let d = instances()
                 .as_mut()
                 .and_then(|m| m.remove(&instance.into_raw()));

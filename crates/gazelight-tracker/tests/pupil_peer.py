@@ -28,6 +28,11 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
   confidence is below 0.6), at --rate Hz; plus, every tenth cycle, one
   datum with an unknown topic (`pupil.0.custom`) and one truncated msgpack
   frame, which a client must count and survive.
+* Blinks (--blink-period P > 0): from P s after the start, every P s, for
+  --blink-secs s, both eyes' pupil datums have confidence 0 and diameter 0
+  (as Pupil publishes a closed eye) and the gaze datums confidence 0. Each
+  blink is printed when it ends, `BLINK <start> <end>` in time.monotonic()
+  seconds (CLOCK_MONOTONIC on Linux), flushed.
 
 Pupil time is the host's wall clock plus --offset seconds
 (pupil_time = time.time() + offset), so a client can check its clock
@@ -164,6 +169,8 @@ def main():
     ap.add_argument("--black-gain", type=float, default=1.5, help="pupil under black / resting pupil")
     ap.add_argument("--white-gain", type=float, default=0.6, help="pupil under white / resting pupil")
     ap.add_argument("--tau", type=float, default=0.1, help="time constant of the pupil response, s")
+    ap.add_argument("--blink-period", type=float, default=0.0, help="a blink every this many s (0: none)")
+    ap.add_argument("--blink-secs", type=float, default=0.2, help="how long each blink lasts, s")
     args = ap.parse_args()
     global PUPILS
     PUPILS = Pupils(args.black_gain, args.white_gain, args.tau)
@@ -191,6 +198,8 @@ def main():
     commands = {}
     published = 0
     deadline = time.monotonic() + args.timeout
+    started = time.monotonic()
+    blink_start = None
     period = 1.0 / args.rate
     next_pub = time.monotonic()
     cycle = 0
@@ -259,15 +268,35 @@ def main():
         if now >= next_pub:
             ts = pupil_time(args.offset)
             PUPILS.advance()
+            since = now - started
+            closed = (
+                args.blink_period > 0
+                and since >= args.blink_period
+                and since % args.blink_period < args.blink_secs
+            )
+            if closed and blink_start is None:
+                blink_start = now
+            elif not closed and blink_start is not None:
+                print("BLINK %.6f %.6f" % (blink_start, now), flush=True)
+                blink_start = None
+
+            def lid(d):
+                if closed:
+                    d = dict(d, confidence=0.0)
+                    for k in ("diameter", "diameter_3d"):
+                        if k in d:
+                            d[k] = 0.0
+                return d
+
             base = []
             for eye in (0, 1):
-                send("pupil.%d.2d" % eye, pupil_2d(eye, ts))
-                d3 = pupil_3d(eye, ts)
+                send("pupil.%d.2d" % eye, lid(pupil_2d(eye, ts)))
+                d3 = lid(pupil_3d(eye, ts))
                 send("pupil.%d.3d" % eye, d3)
                 base.append(d3)
-            send("gaze.3d.01.", gaze("gaze.3d.01.", GAZE_BINOCULAR, base, ts))
+            send("gaze.3d.01.", lid(gaze("gaze.3d.01.", GAZE_BINOCULAR, base, ts)))
             if cycle % 5 == 0:
-                send("gaze.3d.0.", gaze("gaze.3d.0.", GAZE_MONOCULAR, base[:1], ts))
+                send("gaze.3d.0.", lid(gaze("gaze.3d.0.", GAZE_MONOCULAR, base[:1], ts)))
             if cycle % 10 == 0:
                 send("pupil.0.custom", {"timestamp": ts, "anything": 1})
                 full = msgpack.packb(pupil_2d(1, ts), use_bin_type=True)
