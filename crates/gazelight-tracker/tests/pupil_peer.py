@@ -31,8 +31,9 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
 * Blinks (--blink-period P > 0): from P s after the start, every P s, for
   --blink-secs s, both eyes' pupil datums have confidence 0 and diameter 0
   (as Pupil publishes a closed eye) and the gaze datums confidence 0. Each
-  blink is printed when it ends, `BLINK <start> <end>` in time.monotonic()
-  seconds (CLOCK_MONOTONIC on Linux), flushed.
+  blink is printed when it starts, `BLINK_START <start>`, and when it
+  ends, `BLINK <start> <end>`, in time.monotonic() seconds
+  (CLOCK_MONOTONIC on Linux), flushed.
 
 Pupil time is the host's wall clock plus --offset seconds
 (pupil_time = time.time() + offset), so a client can check its clock
@@ -276,6 +277,7 @@ def main():
             )
             if closed and blink_start is None:
                 blink_start = now
+                print("BLINK_START %.6f" % now, flush=True)
             elif not closed and blink_start is not None:
                 print("BLINK %.6f %.6f" % (blink_start, now), flush=True)
                 blink_start = None
