@@ -7,6 +7,7 @@ samples; the GIL released while a frame is computed."""
 import csv
 import socket
 import threading
+import warnings
 import time
 from pathlib import Path
 
@@ -130,26 +131,48 @@ def test_config_file_is_the_clis(gazelight_bin, tmp_path):
         gazelight.render(config={"observer": {"age_years": 400.0}})
 
 
-def test_a_recording_without_samples_raises_the_clis_error(gazelight_bin, tmp_path):
-    """A pupil CSV of a header only: the message the CLI prints after
-    `error: ` for `replay` and `inspect`, from render and read."""
-    empty = tmp_path / "empty.csv"
-    empty.write_text("timestamp,diameter\n")
-    p = run_cli(gazelight_bin, "replay", str(empty), "--backend", "cpu", "--out", str(tmp_path / "o"), check=False)
-    assert p.returncode != 0
-    cli = [l for l in p.stderr.splitlines() if l.startswith("error: ")]
-    assert cli, p.stderr
-    msg = cli[-1][len("error: "):]
-    assert "holds no readable samples" in msg, msg
-    with pytest.raises(gazelight.GazelightError) as e:
-        gazelight.render(None, empty)
-    assert str(e.value) == msg
-    p = run_cli(gazelight_bin, "inspect", str(empty), check=False)
-    cli = [l for l in p.stderr.splitlines() if l.startswith("error: ")]
-    assert cli, p.stderr
-    with pytest.raises(gazelight.GazelightError) as e:
-        gazelight.read(empty)
-    assert str(e.value) == cli[-1][len("error: "):]
+def _without_samples(data_dir: Path, tmp_path: Path):
+    """Recordings that hold no sample: the PiPrKit CSV's header alone, and
+    the Neon recording's descriptions with empty streams."""
+    csv_path = tmp_path / "header_only.csv"
+    csv_path.write_text((data_dir / "eye/piprkit-plr/pupil_trace.csv").read_text().splitlines()[0] + "\n")
+    neon = tmp_path / "neon_empty"
+    neon.mkdir()
+    src = data_dir / "eye/neon-demo"
+    for f in src.iterdir():
+        if f.suffix in (".json", ".dtype"):
+            (neon / f.name).write_bytes(f.read_bytes())
+    for stream in ("gaze ps1", "eye_state ps1", "blinks ps1"):
+        (neon / f"{stream}.raw").write_bytes(b"")
+        (neon / f"{stream}.time").write_bytes(b"")
+    return [csv_path, neon]
+
+
+def _cli_error(p) -> str:
+    assert p.returncode != 0, p.stdout
+    lines = [l for l in p.stderr.splitlines() if l.startswith("error: ")]
+    assert lines, p.stderr
+    return lines[-1][len("error: "):]
+
+
+def test_a_recording_without_samples_raises_the_clis_error(data_dir, gazelight_bin, tmp_path):
+    """A recording without samples: the message the CLI prints after
+    `error: ` for `replay` (from render) and `inspect` (from read and
+    inspect), naming the file and why."""
+    for path in _without_samples(data_dir, tmp_path):
+        replay = _cli_error(run_cli(gazelight_bin, "replay", str(path), "--backend", "cpu", "--out",
+                                    str(tmp_path / "o"), check=False))
+        assert "holds no readable samples" in replay and str(path) in replay, replay
+        with pytest.raises(gazelight.GazelightError) as e:
+            gazelight.render(None, path)
+        assert str(e.value) == replay
+        inspect = _cli_error(run_cli(gazelight_bin, "inspect", str(path), check=False))
+        assert "holds no readable samples" in inspect, inspect
+        for f in (gazelight.read, gazelight.inspect):
+            with pytest.raises(gazelight.GazelightError) as e, warnings.catch_warnings():
+                warnings.simplefilter("ignore", gazelight.GazelightWarning)
+                f(path)
+            assert str(e.value) == inspect, f
 
 
 def test_write_png_refuses_a_frame_that_is_not_rgba(tmp_path):
