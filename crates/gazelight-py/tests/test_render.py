@@ -211,7 +211,7 @@ def test_render_releases_the_gil_while_a_frame_is_computed():
     """While `next()` renders a frame, another Python thread keeps running:
     it is never kept out for half the call (holding the GIL would keep it
     out for the whole frame)."""
-    r = gazelight.render(size=(1920, 1600), stereo=True, frames=3)
+    r = gazelight.render(size=(1920, 1600), stereo=True, frames=2)
     next(r)  # the first frame builds the kernel
     with _Counter() as c:
         a = time.monotonic()
