@@ -10,7 +10,7 @@ use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use gazelight_tracker::filter::FilterConfig;
 
 /// Converts a Python value (dict, list, str, bool, int, float) to TOML.
-fn to_toml(value: &Bound<'_, PyAny>, key: &str) -> PyResult<toml::Value> {
+pub(crate) fn to_toml(value: &Bound<'_, PyAny>, key: &str) -> PyResult<toml::Value> {
     if value.is_instance_of::<PyBool>() {
         return Ok(toml::Value::Boolean(value.extract()?));
     }

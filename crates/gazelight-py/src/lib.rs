@@ -4,7 +4,8 @@
 //! is the other half: the public names, pandas, warnings, stubs). It is
 //! thin on purpose: every function opens, filters and fits with the same
 //! library code the CLI runs (`gazelight-tracker`: the importers, the one
-//! filter chain, calibration profiles, the pupil light response) and only
+//! filter chain, calibration profiles, the pupil light response;
+//! `gazelight-render`: the frame step of `render` and `replay`) and only
 //! converts the results to numpy arrays and Python objects.
 //!
 //! Errors become `gazelight.GazelightError` with the message the CLI prints
@@ -22,6 +23,7 @@ mod config;
 mod filter;
 mod pupil;
 mod read;
+mod render;
 mod source;
 
 create_exception!(
@@ -99,6 +101,9 @@ fn _gazelight(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<filter::EyeState>()?;
     m.add_class::<pupil::PyPupilLightResponse>()?;
     m.add_class::<source::Source>()?;
+    m.add_class::<render::Render>()?;
+    m.add_function(wrap_pyfunction!(render::render_open, m)?)?;
+    m.add_function(wrap_pyfunction!(render::write_png, m)?)?;
     m.add_function(wrap_pyfunction!(pupil::psf, m)?)?;
     m.add_function(wrap_pyfunction!(read::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(read::inspect_json, m)?)?;

@@ -193,6 +193,19 @@ fn collect(
             }
         }
     }
+    // No pupil (eye 0 or 1), gaze or blink sample: the CLI's error, naming
+    // the file and why (`inspect` and `replay` refuse it alike).
+    if eyes.iter().all(|e| e.t_secs.is_empty())
+        && gaze.t_secs.is_empty()
+        && recording_blinks.start_t_secs.is_empty()
+    {
+        return Err(gazelight_render::feed::no_samples(
+            path,
+            importer.warnings(),
+            &importer.data_files(),
+        )
+        .to_string());
+    }
     // The closures still open at the end, as `inspect` counts them.
     let end = if last_t.is_finite() { last_t } else { 0.0 };
     for c in chain.finish(end).iter().flatten() {
@@ -324,6 +337,16 @@ pub(crate) fn inspect_json(
         let mut importer = import::open(&path).map_err(|e| crate::chain_msg(&e))?;
         let summary = gazelight_tracker::summary::summarize_importer(importer.as_mut(), chain)
             .map_err(|e| format!("while reading {}: {}", path.display(), crate::chain_msg(&e)))?;
+        // `gazelight inspect`'s refusal of a recording without samples.
+        let c = &summary.samples;
+        if c.pupil == [0, 0] && c.gaze == 0 && c.gaze_per_eye == 0 && c.blink_events == 0 {
+            return Err(gazelight_render::feed::no_samples(
+                &path,
+                importer.warnings(),
+                &importer.data_files(),
+            )
+            .to_string());
+        }
         serde_json::to_string(&summary).map_err(|e| e.to_string())
     })
     .map_err(err)

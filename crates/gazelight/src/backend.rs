@@ -38,6 +38,7 @@ use anyhow::{Context, bail};
 use gazelight_gpu::context::{is_software_adapter, probe_adapters, searched_backends};
 use gazelight_gpu::present::FrameSource;
 use gazelight_gpu::{AdapterChoice, ContextOptions, GpuContext, GpuFramePipeline};
+use gazelight_render::RenderError;
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, FrameStats, PipelineConfig,
@@ -484,6 +485,44 @@ impl Renderer {
             Renderer::Gpu(g, _) => g.pipeline.set_adaptation(state),
         }
     }
+}
+
+/// The frame step of `render` and `replay` (`gazelight_render::frame`)
+/// drives either pipeline through this; the errors keep their causes in
+/// their message (`outer: inner`, as the CLI prints them).
+impl gazelight_render::frame::ViewRenderer for Renderer {
+    fn render_views(
+        eyes: &mut [(&mut Self, &mut DisplayFrame)],
+        view: &RgbImage,
+        inputs: &[FrameInput],
+        stats: &mut [FrameStats],
+    ) -> Result<(), RenderError> {
+        Renderer::render_views(eyes, view, inputs, stats).map_err(pipeline_error)
+    }
+
+    fn read_frame(&mut self, out: &mut DisplayFrame) -> Result<(), RenderError> {
+        Renderer::read_frame(self, out).map_err(pipeline_error)
+    }
+
+    fn retinal(&mut self, out: &mut RgbImage) -> Result<(), RenderError> {
+        Renderer::retinal(self, out).map_err(pipeline_error)
+    }
+
+    fn psf_kernel(&mut self) -> Result<Option<&PsfKernel>, RenderError> {
+        Renderer::psf_kernel(self).map_err(pipeline_error)
+    }
+
+    fn set_psf_auto_rebuild(&mut self, on: bool) {
+        Renderer::set_psf_auto_rebuild(self, on);
+    }
+
+    fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), RenderError> {
+        Renderer::set_kernel(self, kernel).map_err(pipeline_error)
+    }
+}
+
+fn pipeline_error(e: anyhow::Error) -> RenderError {
+    RenderError::Pipeline(format!("{e:#}"))
 }
 
 #[cfg(test)]

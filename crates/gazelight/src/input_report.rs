@@ -1,106 +1,22 @@
 //! What `inspect` and `replay` say about a recording that cannot be used as
 //! it is: no readable samples (and why), a time range that is mostly a
-//! gap, and pupils that the filter chain (nearly) all rejected.
+//! gap (both `gazelight_render::feed`'s, shared with the Python package),
+//! and pupils that the filter chain (nearly) all rejected.
 
 use std::path::{Path, PathBuf};
 
 use gazelight_tracker::filter::ChainStats;
 use gazelight_tracker::filter::physio::PUPIL_MM_RANGE;
 use gazelight_tracker::import::ImportWarnings;
-use gazelight_tracker::import::time_guard::TimeStats;
 
-/// Refuse a replay whose samples cover less than 1 / this of its span…
-pub const MIN_COVERAGE_INV: f64 = 10.0;
-/// …when the uncovered time is also more than this, s.
-pub const MAX_UNCOVERED_SECS: f64 = 600.0;
 /// Warn when at most this fraction of an eye's pupil samples were measured.
 pub const MEASURED_WARN_FRACTION: f64 = 0.05;
 /// …and the eye has at least this many pupil samples.
 const MIN_PUPIL_SAMPLES: u64 = 20;
 
-/// Why a recording gave no samples: an error naming the file and the
-/// cause (the importer's first skipped records, an empty file, a file of
-/// headers only). For a directory recording, `data_files` (the streams the
-/// importer read) are named with their sizes.
+/// Why a recording gave no samples ([`gazelight_render::feed::no_samples`]).
 pub fn no_samples(path: &Path, warnings: &ImportWarnings, data_files: &[PathBuf]) -> anyhow::Error {
-    let what = if warnings.skipped_records > 0 {
-        format!(
-            "{} records were skipped as malformed; the first: {}",
-            warnings.skipped_records,
-            warnings.messages.first().map_or("-", String::as_str)
-        )
-    } else {
-        match std::fs::metadata(path) {
-            Ok(m) if m.is_dir() && !data_files.is_empty() => {
-                let files: Vec<String> = data_files
-                    .iter()
-                    .map(|f| {
-                        let name = f.file_name().map_or_else(
-                            || f.display().to_string(),
-                            |n| n.to_string_lossy().into_owned(),
-                        );
-                        match std::fs::metadata(f) {
-                            Ok(m) => format!("{name} ({} bytes)", m.len()),
-                            Err(e) => format!("{name} ({e})"),
-                        }
-                    })
-                    .collect();
-                format!(
-                    "its data files hold no sample records: {}",
-                    files.join(", ")
-                )
-            }
-            Ok(m) if m.is_file() && m.len() == 0 => "the file is empty (0 bytes)".to_string(),
-            Ok(m) if m.is_file() => format!(
-                "the file ({} bytes) holds no sample records: only a header, comments or \
-                 event lines",
-                m.len()
-            ),
-            _ => "no sample records were found".to_string(),
-        }
-    };
-    anyhow::anyhow!(
-        "{}: the recording holds no readable samples: {what}",
-        path.display()
-    )
-}
-
-/// A refusal when the samples cover a sliver of the recording's span (a
-/// one-year gap between two minutes of data): replaying it would render the
-/// gap. `None` when the recording is fine.
-pub fn sliver_span(path: &Path, stats: &TimeStats) -> Option<anyhow::Error> {
-    let span = stats.span_secs();
-    let covered = stats.covered_secs;
-    if !(span > covered * MIN_COVERAGE_INV && span - covered > MAX_UNCOVERED_SECS) {
-        return None;
-    }
-    let gap = stats
-        .largest_gap_secs
-        .map(|(a, b)| {
-            format!(
-                "; the largest gap is {} from t = {a:.3} s to t = {b:.3} s",
-                human_secs(b - a)
-            )
-        })
-        .unwrap_or_default();
-    Some(anyhow::anyhow!(
-        "{}: the samples cover {} of a {} time range ({:.4} %){gap}: the timestamps are \
-         probably wrong (a clock jump, mixed clocks) — replay a part with --from-secs/--secs",
-        path.display(),
-        human_secs(covered),
-        human_secs(span),
-        100.0 * covered / span
-    ))
-}
-
-fn human_secs(s: f64) -> String {
-    if s >= 86_400.0 {
-        format!("{:.1} days", s / 86_400.0)
-    } else if s >= 3_600.0 {
-        format!("{:.1} h", s / 3_600.0)
-    } else {
-        format!("{s:.1} s")
-    }
+    gazelight_render::feed::no_samples(path, warnings, data_files).into()
 }
 
 /// A loud warning when (nearly) every pupil sample of an eye was rejected
@@ -191,26 +107,5 @@ mod tests {
         assert!(w.contains("only 3 of 1000"), "{w}");
         s.measured = [900, 900];
         assert!(pupil_rejection(&s).is_none());
-    }
-
-    #[test]
-    fn sliver_span_is_refused_and_normal_gaps_pass() {
-        let year = TimeStats {
-            accepted: 144_000,
-            time_skipped: 0,
-            range_secs: Some((0.0, 31_536_360.0)),
-            covered_secs: 360.0,
-            largest_gap_secs: Some((180.0, 31_536_180.0)),
-        };
-        let e = sliver_span(Path::new("r.csv"), &year).unwrap().to_string();
-        assert!(e.contains("r.csv") && e.contains("365.0 days"), "{e}");
-        // EyeLink: 4 trials of ~35 s with ~90 s pauses.
-        let trials = TimeStats {
-            range_secs: Some((0.0, 420.0)),
-            covered_secs: 140.0,
-            largest_gap_secs: Some((100.0, 193.0)),
-            ..year
-        };
-        assert!(sliver_span(Path::new("t.asc"), &trials).is_none());
     }
 }

@@ -18,7 +18,6 @@ mod bounds;
 mod calibrate;
 mod config;
 mod config_cmd;
-mod demo;
 mod devices;
 mod export;
 mod glare;
@@ -49,6 +48,9 @@ mod stereo;
 mod veil_map;
 mod view_args;
 mod window;
+
+/// The embedded scene and demo trace (shared with the Python package).
+use gazelight_render::demo;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 

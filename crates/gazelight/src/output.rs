@@ -5,7 +5,7 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::Context;
-use gazelight_vision::pipeline::{DisplayFrame, FrameStats};
+use gazelight_vision::pipeline::DisplayFrame;
 use plotters::prelude::*;
 
 /// Tiles on the contact sheet (4 columns × 3 rows).
@@ -17,69 +17,20 @@ const SHEET_TILE_MAX_W: usize = 320;
 /// The font for plots and labels (DejaVu Sans, licence in `assets/`).
 const FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
 
-/// One row of `timeline.csv`.
-#[derive(Clone, Copy, Debug)]
-pub struct TimelineRow {
-    pub t_secs: f64,
-    pub gaze_u: f32,
-    pub gaze_v: f32,
-    pub pupil_mm: f32,
-    pub pupil_held: bool,
-    pub stats: FrameStats,
-    /// The pupil the light predicts, mm (`replay`'s pupil light response;
-    /// NaN where it is not computed: then the column is not written).
-    pub pupil_light_mm: f32,
-    /// Measured pupil − `pupil_light_mm`, mm; NaN (an empty cell) where
-    /// the pupil is not measured (a blink, held, the model's fill-in).
-    pub pupil_residual_mm: f32,
-}
-
-/// How hard [`write_png`] compresses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PngCompression {
-    /// zlib's default level: smaller files, slower (offline `render`,
-    /// where time is not pressing).
-    Default,
-    /// fdeflate (the `png` crate's fast mode): for frames written during a
-    /// live session, where the encoder shares the CPU with the frame loop.
-    Fast,
-}
+pub use gazelight_render::png::PngCompression;
+pub use gazelight_render::timeline::TimelineRow;
+use gazelight_render::timeline::{PUPIL_LIGHT_COLUMNS, TIMELINE_COLUMNS};
 
 /// Writes an RGBA display frame as an RGB PNG, or as an RGBA PNG when
 /// the frame has pixels without data (alpha 0, outside the scene's field:
-/// `gazelight_vision::pipeline::NO_DATA_RGBA8`), so they stay marked.
+/// `gazelight_vision::pipeline::NO_DATA_RGBA8`), so they stay marked
+/// (`gazelight_render::png`, the encoder `gazelight.write_png` shares).
 pub fn write_png(
     path: &Path,
     frame: &DisplayFrame,
     compression: PngCompression,
 ) -> anyhow::Result<()> {
-    use image::ImageEncoder;
-    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-    let marked = frame.rgba8.chunks_exact(4).any(|p| p[3] != 255);
-    let (rgb, colour): (Vec<u8>, _) = if marked {
-        (frame.rgba8.clone(), image::ExtendedColorType::Rgba8)
-    } else {
-        (
-            frame
-                .rgba8
-                .chunks_exact(4)
-                .flat_map(|p| [p[0], p[1], p[2]])
-                .collect(),
-            image::ExtendedColorType::Rgb8,
-        )
-    };
-    let kind = match compression {
-        PngCompression::Default => CompressionType::Default,
-        PngCompression::Fast => CompressionType::Fast,
-    };
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut w = std::io::BufWriter::new(file);
-    PngEncoder::new_with_quality(&mut w, kind, FilterType::Adaptive)
-        .write_image(&rgb, frame.width as u32, frame.height as u32, colour)
-        .with_context(|| format!("cannot write {}", path.display()))?;
-    w.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
+    Ok(gazelight_render::png::write(path, frame, compression)?)
 }
 
 /// One tile of a [`ContactSheet`].
@@ -238,30 +189,6 @@ impl ContactSheet {
             .with_context(|| format!("cannot write {}", path.display()))
     }
 }
-
-/// The per-view columns of `timeline.csv`, after `t_secs`.
-const TIMELINE_COLUMNS: [&str; 16] = [
-    "gaze_u",
-    "gaze_v",
-    "pupil_mm",
-    "pupil_held",
-    "target_cd_m2",
-    "adaptation_cd_m2",
-    "psf_pupil_mm",
-    "psf_rebuilt",
-    "acuity_sigma_px",
-    "pooling_ms",
-    "temporal_ms",
-    "psf_ms",
-    "glare_ms",
-    "acuity_ms",
-    "tone_colour_encode_ms",
-    "total_ms",
-];
-
-/// The per-view columns of the pupil light response (`replay`), written
-/// after every view's [`TIMELINE_COLUMNS`] when any row has a prediction.
-const PUPIL_LIGHT_COLUMNS: [&str; 2] = ["pupil_light_mm", "pupil_residual_mm"];
 
 /// Writes `timeline.csv`: `t_secs`, then each view's columns with its
 /// suffix (`""` for a mono frame; `_left`, `_right` for stereo); then, when

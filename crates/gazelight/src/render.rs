@@ -1,18 +1,22 @@
 //! `gazelight render`: a scene + a gaze/pupil trace → PNG frames, a contact
-//! sheet, `timeline.csv` and a plot.
+//! sheet, `timeline.csv` and a plot. The per-frame step (the eye state at
+//! each frame's time → the frame pipelines → the display frame and the
+//! timeline rows) is `gazelight_render`'s, which the Python package's
+//! `gazelight.render` runs too; this module adds the flags, the
+//! configuration file, the backend choice and the files.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use gazelight_tracker::filter::{ChainStats, FilterChain};
-use gazelight_tracker::live::LiveChain;
+use gazelight_render::frame::{FrameStep, Step};
+use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::trace_source;
-use gazelight_tracker::{EyeState, GazeTrace, Sample, TraceSample};
+use gazelight_tracker::{GazeTrace, Sample};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
+use gazelight_vision::pipeline::{FrameStats, PipelineConfig};
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use crate::backend::{BackendChoice, Renderer};
@@ -22,7 +26,7 @@ use crate::output::{self, TimelineRow};
 use crate::pupil_light::PupilLight;
 use crate::service_config::ConfigUser;
 use crate::session::{Origin, SessionSettings};
-use crate::stereo::{self, MONO, STEREO, StereoKernels, View};
+use crate::stereo::{MONO, STEREO, View};
 
 /// The frame rate of a rendered sequence unless `--fps` says otherwise.
 const DEFAULT_RENDER_FPS: f64 = 30.0;
@@ -281,7 +285,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         None if args.scene.is_none() && setup.config.scene_file.is_none() => {
             demo::demo_trace(&setup.view, &setup.view_img)?
         }
-        None => sweep_trace(),
+        None => demo::sweep_trace(),
     };
     // The inputs are checked; now where the outputs go.
     prepare_out("render", &args, &[])?;
@@ -297,57 +301,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     render_sequence(&args, &setup, &mut feeder, t0, duration, started, None)
 }
 
-/// Feeds samples (in time order) through the tracker's one chain
-/// ([`LiveChain`]: the filter chain, then the stale → model fallback) on
-/// the recording's clock — every sample up to each frame's time, one
-/// sample of look-ahead, nothing else buffered — and maps the resulting
-/// `EyeState` onto the pipeline's per-frame input, so the PSF never sees a
-/// pupil of 0 (the failure of 001 §7.1). Deterministic: no wall clock.
-pub(crate) struct SampleFeed<I> {
-    samples: I,
-    pending: Option<Sample>,
-    live: LiveChain,
-    updates: u64,
-}
-
-impl<I: Iterator<Item = Sample>> SampleFeed<I> {
-    pub(crate) fn new(samples: I, chain: FilterChain) -> Self {
-        Self {
-            samples,
-            pending: None,
-            live: LiveChain::new(chain),
-            updates: 0,
-        }
-    }
-
-    /// The filtered state at `t_secs` (feeding the adaptation luminance of
-    /// the previous frame back to the pupil model first).
-    pub(crate) fn state(&mut self, t_secs: f64, adaptation_cd_m2: Option<f64>) -> EyeState {
-        if let Some(l) = adaptation_cd_m2 {
-            self.live.set_adaptation_luminance(l);
-        }
-        while let Some(s) = self.pending.take().or_else(|| self.samples.next()) {
-            if s.t_secs() > t_secs {
-                self.pending = Some(s);
-                break;
-            }
-            self.live.push(&s);
-            self.updates += 1;
-        }
-        let age_secs = (t_secs - self.live.chain().state().t_secs).max(0.0);
-        self.live.state_at(t_secs, age_secs, self.updates)
-    }
-
-    /// The chain's counters.
-    pub(crate) fn stats(&self) -> &ChainStats {
-        self.live.stats()
-    }
-
-    /// The sample iterator (for what it counted).
-    pub(crate) fn samples(&self) -> &I {
-        &self.samples
-    }
-}
+pub(crate) use gazelight_render::feed::SampleFeed;
 
 /// Renders frames from `t0` over `duration_secs` (or `--frames`) and writes
 /// the outputs; with `pupil_light` (`replay`), each view's predicted pupil
@@ -428,7 +382,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         keep_retinal: args.exr,
         ..config.pipeline.clone()
     };
-    let mut pipelines = views
+    let pipelines = views
         .iter()
         .map(|_| {
             Renderer::new(
@@ -445,21 +399,17 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut kernels = if n_views == 2 {
-        StereoKernels::new(&config.pipeline, view.deg_per_px(), &mut pipelines)?
-    } else {
-        None
-    };
-    // Each view's display frame; a stereo frame is composed side by side.
-    let mut eye_out: Vec<DisplayFrame> = views
-        .iter()
-        .map(|_| DisplayFrame::new(width, height))
-        .collect();
-    let mut composed = DisplayFrame::new(width * n_views, if n_views > 1 { height } else { 0 });
-    let exr_w = if args.exr { width } else { 0 };
-    let mut eye_retinal = RgbImage::new(exr_w, height);
-    let mut retinal = RgbImage::new(exr_w * n_views, height);
-    let mut last_adaptation = None;
+    // The per-frame step (gazelight_render::frame, shared with the Python
+    // package): state → each view's pipeline → the display frame and rows.
+    let mut step = FrameStep::new(
+        pipelines,
+        args.stereo,
+        &config.pipeline,
+        view,
+        t0,
+        args.fps,
+        args.exr,
+    )?;
     let mut timeline: Vec<Vec<TimelineRow>> = views
         .iter()
         .map(|_| Vec::with_capacity(frames.min(4096)))
@@ -473,49 +423,18 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let dt_secs = 1.0 / args.fps;
     let mut rendered = 0usize;
-    // Stereo: frames in which each view (left, right) had its eye's own gaze.
-    let mut own_gaze_frames = [0usize; 2];
     for i in 0..frames {
         if stop.as_ref().is_some_and(|s| s.requested()) {
             break;
         }
-        let t_secs = t0 + i as f64 * dt_secs;
-        let state = eye.state(t_secs, last_adaptation);
-        let dt = if i == 0 { 0.0 } else { dt_secs as f32 };
-        let inputs: Vec<(FrameInput, bool)> = views.iter().map(|v| v.input(&state, dt)).collect();
-        for (k, v) in views.iter().enumerate().take(2) {
-            if let View::Eye(e) = v
-                && state.eyes.get(*e).is_some_and(|c| c.gaze_valid)
-            {
-                own_gaze_frames[k] += 1;
-            }
-        }
-        let new_kernel = match (&mut kernels, inputs.as_slice()) {
-            (Some(k), [(left, _), (right, _)]) => k.update([left, right], &mut pipelines)?,
-            _ => [false; 2],
-        };
-        // The pupil model of the chain adapts to the eyes' mean adaptation
-        // (geometric: luminances are compared on a log scale).
-        let mut log_adaptation = 0.0;
-        let frame_inputs: [FrameInput; 2] =
-            [inputs[0].0, inputs.get(1).map_or(inputs[0].0, |i| i.0)];
-        let mut all_stats = [FrameStats::default(); 2];
-        {
-            let mut eyes: Vec<(&mut Renderer, &mut DisplayFrame)> =
-                pipelines.iter_mut().zip(eye_out.iter_mut()).collect();
-            Renderer::render_views(
-                &mut eyes,
-                view_img,
-                &frame_inputs[..n_views],
-                &mut all_stats,
-            )?;
-            // The file writer takes every frame (a GPU frame comes back).
-            for (pipeline, out) in &mut eyes {
-                pipeline.read_frame(out)?;
-            }
-        }
+        let Step {
+            t_secs,
+            state,
+            inputs,
+            rows,
+            ..
+        } = step.step(eye, view_img)?;
         // The pupil light response: fed every frame with each view's
         // pooled luminance (no allocation).
         let light = match pupil_light.as_deref_mut() {
@@ -527,57 +446,28 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                         crate::pupil_light::view_measured(*v, &state),
                     );
                 }
-                plr.step(
-                    t_secs - t0,
-                    [all_stats[0].target_cd_m2, all_stats[1].target_cd_m2],
-                    pupils,
-                )
+                let default = FrameStats::default();
+                let target = |k: usize| {
+                    rows.get(k)
+                        .map_or(default.target_cd_m2, |r| r.stats.target_cd_m2)
+                };
+                plr.step(t_secs - t0, [target(0), target(1)], pupils)
             }
             None => [(f32::NAN, f32::NAN); 2],
         };
-        for (k, ((input, held), pipeline)) in inputs.iter().zip(&mut pipelines).enumerate() {
-            let mut stats = all_stats[k];
-            stats.psf_rebuilt |= new_kernel.get(k).copied().unwrap_or(false) && n_views > 1;
-            log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n_views as f64;
-            if n_views > 1 {
-                stereo::place_side_by_side(
-                    &eye_out[k].rgba8,
-                    &mut composed.rgba8,
-                    width * 4,
-                    k,
-                    n_views,
-                );
-            }
-            if args.exr {
-                pipeline.retinal(&mut eye_retinal)?;
-                stereo::place_side_by_side(
-                    &eye_retinal.pixels,
-                    &mut retinal.pixels,
-                    width,
-                    k,
-                    n_views,
-                );
-            }
-            timeline[k].push(TimelineRow {
-                t_secs: t_secs - t0,
-                gaze_u: input.gaze_uv[0],
-                gaze_v: input.gaze_uv[1],
-                pupil_mm: input.pupil_mm,
-                pupil_held: *held,
-                stats,
-                pupil_light_mm: light[k].0,
-                pupil_residual_mm: light[k].1,
-            });
+        for (k, mut row) in rows.into_iter().enumerate() {
+            row.pupil_light_mm = light[k].0;
+            row.pupil_residual_mm = light[k].1;
+            timeline[k].push(row);
         }
-        last_adaptation = Some(log_adaptation.exp());
-        let out = if n_views > 1 { &composed } else { &eye_out[0] };
+        let out = step.display();
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
             output::write_png(&path, out, output::PngCompression::Default)?;
         }
         if args.exr {
             let path = frames_dir.join(format!("frame_{i:05}.exr"));
-            gazelight_vision::scene::write_exr(&path, &retinal)
+            gazelight_vision::scene::write_exr(&path, step.retinal())
                 .with_context(|| format!("cannot write {}", path.display()))?;
         }
         if i % sheet_every == 0 {
@@ -619,8 +509,8 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     output::write_plot(&args.out.join("plot.png"), &eyes)?;
     let all_rows = || timeline.iter().flatten();
     let mean_ms = all_rows().map(|r| r.stats.timings.total_ms).sum::<f64>() / frames as f64;
-    let rebuilds = match &kernels {
-        Some(k) => k.builds as usize,
+    let rebuilds = match step.stereo_kernel_builds() {
+        Some(builds) => builds as usize,
         None => all_rows().filter(|r| r.stats.psf_rebuilt).count(),
     };
     println!(
@@ -631,20 +521,20 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         scene.name,
         started.elapsed().as_secs_f64(),
         mean_ms,
-        pipelines
+        step.pipelines()
             .first()
             .map_or_else(String::new, Renderer::describe)
     );
     println!(
         "backend {}",
-        pipelines
+        step.pipelines()
             .first()
             .map_or_else(String::new, Renderer::describe)
     );
     let mut settings = settings.clone();
     if n_views == 2 {
         // Said once: in the settings summary below and session.json.
-        let (value, note) = per_eye_gaze_setting(own_gaze_frames, rendered);
+        let (value, note) = per_eye_gaze_setting(step.own_gaze_frames(), rendered);
         settings.set("gaze.per_eye", value, Origin::Source).note = Some(note);
     }
     if let Some(plr) = pupil_light.as_deref() {
@@ -693,25 +583,6 @@ fn per_eye_gaze_setting(own: [usize; 2], frames: usize) -> (serde_json::Value, S
         )
     };
     (value, note)
-}
-
-/// A slow horizontal gaze sweep at a 4 mm pupil: the default trace for a
-/// user-supplied scene.
-fn sweep_trace() -> GazeTrace {
-    let n = 1200;
-    GazeTrace {
-        samples: (0..n)
-            .map(|i| {
-                let t = i as f64 / 100.0;
-                TraceSample {
-                    t_secs: t,
-                    gaze_uv: [0.1 + 0.8 * (i as f32 / (n - 1) as f32), 0.5],
-                    pupil_mm: Some(4.0),
-                    confidence: 1.0,
-                }
-            })
-            .collect(),
-    }
 }
 
 #[cfg(test)]

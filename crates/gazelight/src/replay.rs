@@ -14,10 +14,11 @@ use std::time::Instant;
 
 use anyhow::bail;
 use clap::Args;
+use gazelight_render::feed::{ImporterSamples, Scan, scan};
+use gazelight_tracker::PupilUnit;
 use gazelight_tracker::filter::FilterChain;
-use gazelight_tracker::import::{self, Importer};
+use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
-use gazelight_tracker::{PupilUnit, Sample};
 
 use gazelight_tracker::EYE_RIGHT;
 use gazelight_tracker::profile::EyeCalibration;
@@ -213,7 +214,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         started,
         Some(&mut plr),
     )?;
-    let w = feeder.samples().importer.warnings();
+    let w = feeder.samples().warnings();
     if w.skipped_records > 0 {
         println!(
             "{}: skipped {} malformed records (see the log); the first: {}",
@@ -432,102 +433,5 @@ fn which_eye(v: View) -> String {
     match v.suffix() {
         "" => String::new(),
         s => format!(" ({} eye)", s.trim_start_matches('_')),
-    }
-}
-
-/// What the first pass found.
-struct Scan {
-    t_first: f64,
-    t_last: f64,
-    pupil_units: Vec<PupilUnit>,
-}
-
-/// Reads the recording once for its time range and pupil units. Fails
-/// naming the cause when nothing is readable, when the importer refuses
-/// the file, and (unless `part` — the user chose a part with `--secs`) when
-/// the samples cover a sliver of the time range they claim.
-fn scan(path: &std::path::Path, part: bool) -> anyhow::Result<Scan> {
-    let mut importer = import::open(path)?;
-    let mut range: Option<(f64, f64)> = None;
-    let mut units: Vec<PupilUnit> = Vec::new();
-    for item in importer.by_ref() {
-        let sample = match item {
-            Ok(s) => s,
-            Err(e) if range.is_none() => {
-                return Err(anyhow::anyhow!(
-                    "{}: the recording holds no readable samples: {e}",
-                    path.display()
-                ));
-            }
-            Err(e) => return Err(anyhow::Error::new(e)),
-        };
-        let t = sample.t_secs();
-        if !t.is_finite() {
-            continue;
-        }
-        range = Some(match range {
-            None => (t, t),
-            Some((a, b)) => (a.min(t), b.max(t)),
-        });
-        if let Sample::Pupil(p) = &sample
-            && !units.contains(&p.unit)
-        {
-            units.push(p.unit);
-        }
-    }
-    let Some((t_first, t_last)) = range else {
-        return Err(input_report::no_samples(
-            path,
-            importer.warnings(),
-            &importer.data_files(),
-        ));
-    };
-    if !part
-        && let Some(stats) = importer.time_stats()
-        && let Some(e) = input_report::sliver_span(path, stats)
-    {
-        return Err(e);
-    }
-    Ok(Scan {
-        t_first,
-        t_last,
-        pupil_units: units,
-    })
-}
-
-/// An importer's samples; a read error ends them (logged).
-struct ImporterSamples {
-    importer: Box<dyn Importer + Send>,
-    ended: bool,
-}
-
-impl ImporterSamples {
-    fn new(importer: Box<dyn Importer + Send>) -> Self {
-        Self {
-            importer,
-            ended: false,
-        }
-    }
-}
-
-impl Iterator for ImporterSamples {
-    type Item = Sample;
-
-    fn next(&mut self) -> Option<Sample> {
-        if self.ended {
-            return None;
-        }
-        match self.importer.next() {
-            Some(Ok(s)) => Some(s),
-            Some(Err(e)) => {
-                tracing::warn!(error = %e, "recording ended early");
-                self.ended = true;
-                None
-            }
-            None => {
-                self.ended = true;
-                None
-            }
-        }
     }
 }

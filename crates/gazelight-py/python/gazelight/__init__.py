@@ -13,6 +13,9 @@ chain, calibration profiles), with numpy arrays out:
 - :class:`Source` -- a live source (``pupil://``, ``neon://``, ``lsl://``,
   ...) as a context manager yielding :class:`EyeState` as they arrive;
 - :func:`psf` -- the glare kernel ``gazelight psf`` builds, as an array;
+- :func:`render` -- a scene and a trace or a recording -> frames, one at a
+  time, with their ``timeline.csv`` rows (the CLI's ``render``/``replay``);
+  :func:`write_png` writes a frame with the CLI's PNG encoder;
 - :class:`GazelightError` -- what the CLI would report, with its message.
 
 Eye indices follow Pupil Core: 0 is the right eye, 1 the left eye.
@@ -34,10 +37,13 @@ from ._gazelight import (  # noqa: F401
     FilterChain,
     GazelightError,
     PupilLightResponse,
+    Render,
     Source,
     inspect_json as _inspect_json,
     psf,
     read_recording as _read_recording,
+    render_open as _render_open,
+    write_png,
 )
 
 __all__ = [
@@ -50,10 +56,13 @@ __all__ = [
     "GazelightWarning",
     "PupilLightResponse",
     "Recording",
+    "Render",
     "Source",
     "inspect",
     "psf",
     "read",
+    "render",
+    "write_png",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -271,3 +280,109 @@ def inspect(
 ) -> Dict[str, Any]:
     """The summary ``gazelight inspect --json`` prints for a recording, as a dict."""
     return json.loads(_inspect_json(path, config, calibration))
+
+
+# The header of a gaze/pupil trace (`gazelight render --trace`); any other
+# file or directory is a recording (`gazelight replay`).
+_TRACE_HEADER = "t_secs,gaze_u,gaze_v"
+
+
+def _is_trace(path: PathLike) -> bool:
+    p = os.fspath(path)
+    if os.path.isdir(p) or not p.lower().endswith(".csv"):
+        return False
+    try:
+        with open(p, encoding="utf-8", errors="replace") as f:
+            for line in f:
+                line = line.strip()
+                if line and not line.startswith("#"):
+                    return line.replace(" ", "").startswith(_TRACE_HEADER)
+    except OSError:
+        return False
+    return False
+
+
+def render(
+    scene: Optional[PathLike] = None,
+    trace_or_recording: Optional[PathLike] = None,
+    *,
+    size: Optional[Tuple[int, int]] = None,
+    stereo: bool = False,
+    config: Union[None, PathLike, str, Dict[str, Any]] = None,
+    fps: float = 30.0,
+    frames: Optional[int] = None,
+    retinal: bool = False,
+    calibration: Optional[PathLike] = None,
+    from_secs: float = 0.0,
+    secs: Optional[float] = None,
+    yaw_deg: Optional[float] = None,
+    pitch_deg: Optional[float] = None,
+    hfov_deg: Optional[float] = None,
+    luminance_scale: Optional[float] = None,
+) -> Render:
+    """Render frames as ``gazelight render`` (a trace) or ``gazelight
+    replay`` (a recording) does, one at a time: an iterator of
+    ``(frame, row)``.
+
+    ``frame`` is the display image as an H x W x 4 ``uint8`` array (RGBA;
+    stereo: left | right side by side), the pixels the CLI writes as
+    ``frames/frame_NNNNN.png`` (:func:`write_png` writes the same bytes);
+    with ``retinal=True`` it is the retinal image instead, H x W x 3
+    ``float32``, linear RGB in cd/m^2 after glare and acuity (NaN where the
+    view has no data; the CLI's ``--exr`` frames). ``row`` is the frame's
+    row of ``timeline.csv`` as a dict with the same column names
+    (``t_secs``, ``gaze_u``, ``pupil_mm``, ... with ``_left``/``_right``
+    in stereo), unrounded, plus ``frame`` (the index).
+
+    ``scene``: an HDR panorama (OpenEXR or Radiance), default the embedded
+    night scene. ``trace_or_recording``: a trace CSV
+    (``t_secs,gaze_u,gaze_v,pupil_mm[,confidence]``) or any recording
+    ``gazelight replay`` reads (Neon or Pupil Core directory, EyeLink
+    ``.asc``, pupil ``.csv``, ...); default the demo trace on the embedded
+    scene, a slow gaze sweep on a scene of your own. ``config``: the CLI's
+    TOML configuration (a path, a TOML string or a dict): its
+    ``[pipeline]``, ``[filter]``, ``[observer]``, ``scene.luminance_scale``,
+    the view (``scene.yaw_deg``, ``pitch_deg``, ``hfov_deg``, ``view``)
+    and ``display.size``; keyword arguments override it. The frames are
+    rendered on the CPU pipeline (``--backend cpu``), with the GIL
+    released; a recording is streamed, never loaded whole.
+    """
+    config_name = None
+    if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and os.path.isfile(config)):
+        config_name = os.fspath(config)
+        try:
+            with open(config_name, encoding="utf-8") as f:
+                config = f.read()
+        except OSError as e:
+            raise GazelightError(f"cannot read config {config_name}: {e}") from None
+    trace = recording = None
+    if trace_or_recording is not None:
+        if _is_trace(trace_or_recording):
+            trace = os.fspath(trace_or_recording)
+        else:
+            recording = os.fspath(trace_or_recording)
+    r = _render_open(
+        None if scene is None else os.fspath(scene),
+        trace,
+        recording,
+        size=None if size is None else (int(size[0]), int(size[1])),
+        stereo=stereo,
+        config=config,
+        config_name=config_name,
+        fps=fps,
+        frames=frames,
+        retinal=retinal,
+        calibration=None if calibration is None else os.fspath(calibration),
+        from_secs=from_secs,
+        secs=secs,
+        yaw_deg=yaw_deg,
+        pitch_deg=pitch_deg,
+        hfov_deg=hfov_deg,
+        luminance_scale=luminance_scale,
+    )
+    where = f"config {config_name}" if config_name else "config"
+    for key in r.ignored:
+        warnings.warn(GazelightWarning(f"{where}: `{key}` does not apply to gazelight.render; ignored"), stacklevel=2)
+    for w in r.warnings:
+        warnings.warn(GazelightWarning(w), stacklevel=2)
+    return r

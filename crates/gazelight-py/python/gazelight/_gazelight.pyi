@@ -100,6 +100,45 @@ class Source:
     @property
     def uri(self) -> str: ...
 
+class Render:
+    """A render in progress (``gazelight.render``): an iterator of
+    ``(frame, row)``, one frame rendered per ``next()``."""
+
+    @property
+    def frames(self) -> int: ...
+    @property
+    def size(self) -> Tuple[int, int]: ...
+    @property
+    def fps(self) -> float: ...
+    @property
+    def ignored(self) -> List[str]: ...
+    @property
+    def warnings(self) -> List[str]: ...
+    def close(self) -> None: ...
+    def __iter__(self) -> Iterator[Tuple[npt.NDArray[Any], Dict[str, float]]]: ...
+    def __next__(self) -> Tuple[npt.NDArray[Any], Dict[str, float]]: ...
+
+def render_open(
+    scene: Optional[_Path] = None,
+    trace: Optional[_Path] = None,
+    recording: Optional[_Path] = None,
+    *,
+    size: Optional[Tuple[int, int]] = None,
+    stereo: bool = False,
+    config: _Config = None,
+    config_name: Optional[str] = None,
+    fps: float = 30.0,
+    frames: Optional[int] = None,
+    retinal: bool = False,
+    calibration: Optional[_Path] = None,
+    from_secs: float = 0.0,
+    secs: Optional[float] = None,
+    yaw_deg: Optional[float] = None,
+    pitch_deg: Optional[float] = None,
+    hfov_deg: Optional[float] = None,
+    luminance_scale: Optional[float] = None,
+) -> Render: ...
+def write_png(path: _Path, frame: npt.NDArray[np.uint8]) -> None: ...
 def psf(
     pupil_mm: float,
     ppd: Optional[float] = None,

@@ -1,15 +1,18 @@
 //! The embedded default: a CC0 night panorama (`assets/night.exr`, licence
 //! beside it) and a built-in synthetic trace in which the gaze goes from the
 //! dark ground up to a street lamp and back, with blinks; the pupil follows
-//! the scene's luminance at the gaze.
+//! the scene's luminance at the gaze. Also the default trace for a scene
+//! of one's own (a slow horizontal sweep, [`sweep_trace`]).
 
 use std::path::Path;
 
-use gazelight_tracker::GazeTrace;
 use gazelight_tracker::synthetic::KeyframedTrace;
+use gazelight_tracker::{GazeTrace, TraceSample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pooling::PoolingModel;
 use gazelight_vision::scene::{PanoramaView, ViewParams, equirect_direction};
+
+use crate::RenderError;
 
 /// The bundled panorama (HDRI Haven "night", CC0, via Blender).
 pub const NIGHT_EXR: &[u8] = include_bytes!("../../../assets/night.exr");
@@ -39,13 +42,13 @@ pub fn default_view(width: usize, height: usize) -> ViewParams {
 /// follows the Watson–Yellott model of the luminance pooled around the gaze
 /// in `view_img` (cd/m²), with the tracker crate's pupil dynamics
 /// (constriction faster than dilation).
-pub fn demo_trace(view: &ViewParams, view_img: &RgbImage) -> anyhow::Result<GazeTrace> {
+pub fn demo_trace(view: &ViewParams, view_img: &RgbImage) -> Result<GazeTrace, RenderError> {
     let proj = PanoramaView::new(*view)?;
-    let uv = |px: [f32; 2]| -> anyhow::Result<[f32; 2]> {
+    let uv = |px: [f32; 2]| -> Result<[f32; 2], RenderError> {
         let d = equirect_direction(1024, 512, px);
         let p = proj
             .project(d)
-            .ok_or_else(|| anyhow::anyhow!("demo target is behind the default view"))?;
+            .ok_or_else(|| RenderError::Demo("demo target is behind the default view".into()))?;
         Ok([p[0] / view.width as f32, p[1] / view.height as f32])
     };
     let ground = uv(GROUND_PX)?;
@@ -76,4 +79,23 @@ pub const DEMO_SECS: f64 = 12.0;
 /// Path used in messages for the embedded scene.
 pub fn name_path() -> &'static Path {
     Path::new(NIGHT_NAME)
+}
+
+/// A slow horizontal gaze sweep at a 4 mm pupil over 12 s: the default
+/// trace for a scene of one's own.
+pub fn sweep_trace() -> GazeTrace {
+    let n = 1200;
+    GazeTrace {
+        samples: (0..n)
+            .map(|i| {
+                let t = i as f64 / 100.0;
+                TraceSample {
+                    t_secs: t,
+                    gaze_uv: [0.1 + 0.8 * (i as f32 / (n - 1) as f32), 0.5],
+                    pupil_mm: Some(4.0),
+                    confidence: 1.0,
+                }
+            })
+            .collect(),
+    }
 }

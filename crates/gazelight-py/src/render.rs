@@ -1,0 +1,555 @@
+//! `gazelight.render`: a scene and a gaze/pupil trace or a recording →
+//! frames, one at a time, through `gazelight_render`'s frame step — the
+//! code `gazelight render` and `replay` run — on the CPU pipeline.
+//!
+//! Nothing is loaded whole: a recording is scanned once for its time range
+//! and then streamed just ahead of the frame clock; each `next()` renders
+//! one frame with the GIL released. The frame is the display image the CLI
+//! writes as PNG (`write_png` writes it with the CLI's encoder) or, on
+//! request, the retinal image in cd/m².
+
+use std::path::{Path, PathBuf};
+
+use std::sync::Mutex;
+
+use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyString};
+
+use gazelight_render::demo;
+use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
+use gazelight_render::frame::{FrameStep, cpu_pipelines};
+use gazelight_render::png::PngCompression;
+use gazelight_render::timeline::TIMELINE_COLUMNS;
+use gazelight_tracker::filter::{FilterChain, FilterConfig};
+use gazelight_tracker::profile::{AGE_YEARS_RANGE, PIGMENTATION_RANGE, PupilCalibration};
+use gazelight_tracker::{GazeTrace, PupilUnit, Sample, trace_source};
+use gazelight_vision::RgbImage;
+use gazelight_vision::pipeline::{FramePipeline, PipelineConfig};
+use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
+
+use crate::err;
+
+type Samples = Box<dyn Iterator<Item = Sample> + Send>;
+
+/// What `render` reads of the CLI's configuration file (the keys
+/// `gazelight render`/`replay` use, `docs/configuration.md`).
+#[derive(Default)]
+struct Settings {
+    pipeline: PipelineConfig,
+    filter: FilterConfig,
+    luminance_scale: Option<LuminanceScale>,
+    yaw_deg: Option<f64>,
+    pitch_deg: Option<f64>,
+    hfov_deg: Option<f64>,
+    size: Option<(usize, usize)>,
+    age_years: Option<f64>,
+    pigmentation: Option<f64>,
+}
+
+/// The keys of the CLI's configuration that `render`/`replay` use but this
+/// function does not take from a file (give them as arguments instead).
+const UNSUPPORTED: [&str; 4] = [
+    "scene.file",
+    "scene.projection",
+    "scene.fov_deg",
+    "source.calibration",
+];
+
+/// `"WIDTHxHEIGHT"` (the CLI's `--size` and `display.size`).
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=16384).contains(n))
+    };
+    match s.split_once(['x', 'X']) {
+        Some((w, h)) => match (parse(w), parse(h)) {
+            (Some(w), Some(h)) => Ok((w, h)),
+            _ => Err(format!("{s:?}: expected WIDTHxHEIGHT, each 1..=16384")),
+        },
+        None => Err(format!("{s:?}: expected WIDTHxHEIGHT, each 1..=16384")),
+    }
+}
+
+fn in_range(what: &str, v: f64, (lo, hi): (f64, f64)) -> Result<f64, String> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{what} {v}: expected a number in {lo}..={hi}"))
+    }
+}
+
+/// Reads the configuration table; returns the settings and the keys that
+/// do not apply to a render (the CLI reports those as ignored).
+fn settings(table: toml::Table, name: &str) -> PyResult<(Settings, Vec<String>)> {
+    let fail = |e: String| err(format!("config {name}: {e}"));
+    let mut s = Settings::default();
+    let mut ignored = Vec::new();
+    for (section, value) in table {
+        let keys = |value: toml::Value| -> PyResult<toml::Table> {
+            match value {
+                toml::Value::Table(t) => Ok(t),
+                other => Err(fail(format!(
+                    "{section}: expected a table, not {}",
+                    other.type_str()
+                ))),
+            }
+        };
+        match section.as_str() {
+            "pipeline" => {
+                s.pipeline = value
+                    .try_into()
+                    .map_err(|e| fail(format!("pipeline: {e}")))?;
+                s.pipeline
+                    .validate()
+                    .map_err(|e| fail(format!("pipeline: {e}")))?;
+            }
+            "filter" => {
+                s.filter = value.try_into().map_err(|e| fail(format!("filter: {e}")))?;
+                s.filter
+                    .validate()
+                    .map_err(|e| fail(format!("filter.{e}")))?;
+            }
+            "observer" => {
+                for (k, v) in keys(value)? {
+                    let v = v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+                    let v = v.ok_or_else(|| fail(format!("observer.{k}: expected a number")))?;
+                    match k.as_str() {
+                        "age_years" => {
+                            s.age_years = Some(
+                                in_range("observer.age_years =", v, AGE_YEARS_RANGE)
+                                    .map_err(fail)?,
+                            );
+                        }
+                        "pigmentation" => {
+                            s.pigmentation = Some(
+                                in_range("observer.pigmentation =", v, PIGMENTATION_RANGE)
+                                    .map_err(fail)?,
+                            );
+                        }
+                        _ => return Err(fail(format!("observer: unknown field `{k}`"))),
+                    }
+                }
+            }
+            "scene" | "display" | "source" => {
+                for (k, v) in keys(value)? {
+                    let dotted = format!("{section}.{k}");
+                    if UNSUPPORTED.contains(&dotted.as_str()) {
+                        return Err(fail(format!(
+                            "{dotted}: not taken from a file by gazelight.render; give it as an argument"
+                        )));
+                    }
+                    let angle = |v: &toml::Value| {
+                        v.as_float()
+                            .or_else(|| v.as_integer().map(|i| i as f64))
+                            .ok_or_else(|| fail(format!("{dotted}: expected a number")))
+                    };
+                    match dotted.as_str() {
+                        "scene.luminance_scale" => {
+                            let scale: LuminanceScale =
+                                v.try_into().map_err(|e| fail(format!("{dotted}: {e}")))?;
+                            scale
+                                .validate()
+                                .map_err(|e| fail(format!("{dotted}: {e}")))?;
+                            s.luminance_scale = Some(scale);
+                        }
+                        "scene.yaw_deg" => s.yaw_deg = Some(angle(&v)?),
+                        "scene.pitch_deg" => s.pitch_deg = Some(angle(&v)?),
+                        "scene.hfov_deg" => s.hfov_deg = Some(angle(&v)?),
+                        "scene.view" => {
+                            let view: ViewParams =
+                                v.try_into().map_err(|e| fail(format!("{dotted}: {e}")))?;
+                            view.validate()
+                                .map_err(|e| fail(format!("{dotted}: {e}")))?;
+                            s.yaw_deg = Some(view.yaw_deg);
+                            s.pitch_deg = Some(view.pitch_deg);
+                            s.hfov_deg = Some(view.hfov_deg);
+                            s.size = Some((view.width, view.height));
+                        }
+                        "display.size" => {
+                            let text = v.as_str().ok_or_else(|| {
+                                fail(format!("{dotted}: expected \"WIDTHxHEIGHT\""))
+                            })?;
+                            s.size = Some(
+                                parse_size(text).map_err(|e| fail(format!("{dotted} = {e}")))?,
+                            );
+                        }
+                        _ => ignored.push(dotted),
+                    }
+                }
+            }
+            _ => ignored.push(section),
+        }
+    }
+    if let Some(y) = s.yaw_deg
+        && !y.is_finite()
+    {
+        return Err(fail(format!(
+            "scene.yaw_deg = {y}: expected a finite angle"
+        )));
+    }
+    if let Some(p) = s.pitch_deg
+        && !(p.is_finite() && p.abs() <= 90.0)
+    {
+        return Err(fail(format!(
+            "scene.pitch_deg = {p}: expected −90 ≤ pitch ≤ 90"
+        )));
+    }
+    if let Some(f) = s.hfov_deg
+        && !(f > 0.0 && f < 179.0)
+    {
+        return Err(fail(format!(
+            "scene.hfov_deg = {f}: expected 0 < hfov < 179"
+        )));
+    }
+    Ok((s, ignored))
+}
+
+/// One render in progress: an iterator of `(frame, row)`.
+#[pyclass(module = "gazelight", name = "Render")]
+pub(crate) struct Render {
+    /// `None` once finished or closed. A `next()` holds the lock while it
+    /// renders (without the GIL); a second thread's `next()` meanwhile is
+    /// refused rather than waited for (it would hold the GIL while waiting).
+    state: Mutex<Option<Box<Running>>>,
+    /// The frames it renders.
+    #[pyo3(get)]
+    frames: usize,
+    /// Each frame's width and height (stereo: both eyes side by side).
+    #[pyo3(get)]
+    size: (usize, usize),
+    /// Frames per second on the samples' clock.
+    #[pyo3(get)]
+    fps: f64,
+    /// The keys of the configuration that do not apply (as the CLI's
+    /// "ignored" warnings).
+    #[pyo3(get)]
+    ignored: Vec<String>,
+    /// Notes for the Python side to raise as warnings.
+    #[pyo3(get)]
+    warnings: Vec<String>,
+}
+
+struct Running {
+    step: FrameStep<FramePipeline>,
+    feed: SampleFeed<Samples>,
+    view_img: RgbImage,
+    retinal: bool,
+    suffixes: Vec<&'static str>,
+}
+
+#[pymethods]
+impl Render {
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// The next frame and its timeline row; `StopIteration` after the last.
+    fn __next__(&self, py: Python<'_>) -> PyResult<Option<(Py<PyAny>, Py<PyDict>)>> {
+        let frames = self.frames;
+        let mut guard = match self.state.try_lock() {
+            Ok(g) => g,
+            Err(std::sync::TryLockError::WouldBlock) => {
+                return Err(pyo3::exceptions::PyRuntimeError::new_err(
+                    "this render is computing a frame in another thread",
+                ));
+            }
+            Err(std::sync::TryLockError::Poisoned(_)) => return Ok(None),
+        };
+        let Some(r) = guard.as_deref_mut() else {
+            return Ok(None);
+        };
+        if r.step_count() >= frames {
+            *guard = None;
+            return Ok(None);
+        }
+        let Running {
+            step,
+            feed,
+            view_img,
+            ..
+        } = &mut *r;
+        let out = py.detach(|| step.step(feed, view_img)).map_err(err)?;
+        let image: Py<PyAny> = if r.retinal {
+            let img = r.step.retinal();
+            let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
+            PyArray1::from_vec(py, flat)
+                .reshape([img.height, img.width, 3])?
+                .into_any()
+                .unbind()
+        } else {
+            let d = r.step.display();
+            PyArray1::from_slice(py, &d.rgba8)
+                .reshape([d.height, d.width, 4])?
+                .into_any()
+                .unbind()
+        };
+        let row = PyDict::new(py);
+        let t_secs = out.rows.first().map_or(f64::NAN, |r| r.t_secs);
+        row.set_item("t_secs", t_secs)?;
+        for (suffix, r) in r.suffixes.iter().zip(&out.rows) {
+            for (c, v) in TIMELINE_COLUMNS.iter().zip(r.values()) {
+                row.set_item(format!("{c}{suffix}"), v)?;
+            }
+        }
+        row.set_item("frame", out.index)?;
+        Ok(Some((image, row.unbind())))
+    }
+
+    /// Stops the render (frees the pipelines and closes the recording).
+    fn close(&self) -> PyResult<()> {
+        match self.state.try_lock() {
+            Ok(mut g) => {
+                *g = None;
+                Ok(())
+            }
+            Err(std::sync::TryLockError::Poisoned(_)) => Ok(()),
+            Err(std::sync::TryLockError::WouldBlock) => {
+                Err(pyo3::exceptions::PyRuntimeError::new_err(
+                    "this render is computing a frame in another thread",
+                ))
+            }
+        }
+    }
+}
+
+impl Running {
+    fn step_count(&self) -> usize {
+        self.step.frames_rendered()
+    }
+}
+
+/// Whether `path` holds no samples the tracker can read in time order:
+/// the CLI's scan, its errors in its words.
+fn scan_recording(path: &Path, part: bool) -> PyResult<gazelight_render::feed::Scan> {
+    scan(path, part).map_err(err)
+}
+
+/// `gazelight.render`'s native half; the Python wrapper picks `trace` or
+/// `recording` and turns `warnings` into Python warnings.
+#[pyfunction]
+#[pyo3(signature = (scene=None, trace=None, recording=None, *, size=None, stereo=false,
+    config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
+    from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
+    luminance_scale=None))]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_open(
+    py: Python<'_>,
+    scene: Option<PathBuf>,
+    trace: Option<PathBuf>,
+    recording: Option<PathBuf>,
+    size: Option<(usize, usize)>,
+    stereo: bool,
+    config: Option<&Bound<'_, PyAny>>,
+    config_name: Option<String>,
+    fps: f64,
+    frames: Option<usize>,
+    retinal: bool,
+    calibration: Option<PathBuf>,
+    from_secs: f64,
+    secs: Option<f64>,
+    yaw_deg: Option<f64>,
+    pitch_deg: Option<f64>,
+    hfov_deg: Option<f64>,
+    luminance_scale: Option<f64>,
+) -> PyResult<Render> {
+    let name = config_name.unwrap_or_else(|| "<config>".to_owned());
+    let table: toml::Table = match config {
+        None => toml::Table::new(),
+        Some(c) if c.is_none() => toml::Table::new(),
+        Some(c) if c.is_instance_of::<PyString>() => {
+            let text: String = c.extract()?;
+            toml::from_str(&text).map_err(|e| err(format!("config {name}: {e}")))?
+        }
+        Some(c) => match crate::config::to_toml(c, "")? {
+            toml::Value::Table(t) => t,
+            _ => {
+                return Err(pyo3::exceptions::PyTypeError::new_err(
+                    "config: expected a dict, a TOML string or a path",
+                ));
+            }
+        },
+    };
+    let (mut settings, ignored) = settings(table, &name)?;
+    // The CLI's bounds (crates/gazelight/src/bounds.rs).
+    if !(fps.is_finite() && (0.001..=1000.0).contains(&fps)) {
+        return Err(err(format!("fps {fps}: expected a rate 0.001 ≤ Hz ≤ 1000")));
+    }
+    if trace.is_some() && recording.is_some() {
+        return Err(err("give a trace or a recording, not both"));
+    }
+    if let Some(n) = frames
+        && n == 0
+    {
+        return Err(err("--frames 0: nothing to render (0 frames)"));
+    }
+    let mut notes = Vec::new();
+    py.detach(|| -> PyResult<Render> {
+        // The observer: arguments none here; the configuration, else the
+        // calibration profile's (replay), else the pipeline's defaults.
+        let calibration = match &calibration {
+            Some(p) => Some(crate::load_calibration(p)?),
+            None => None,
+        };
+        let profile_observer = calibration.as_ref().map(|c| c.observer);
+        let psf = &mut settings.pipeline.glare.psf;
+        if let Some(a) = settings.age_years.or(profile_observer.map(|o| o.age_years)) {
+            psf.age_years = a;
+        }
+        if let Some(p) = settings
+            .pigmentation
+            .or(profile_observer.map(|o| o.pigmentation))
+        {
+            psf.pigmentation = p;
+        }
+        // The scene.
+        let scale = match luminance_scale {
+            Some(factor) => LuminanceScale::CdM2PerUnit { factor },
+            None => settings.luminance_scale.unwrap_or_default(),
+        };
+        scale
+            .validate()
+            .map_err(|e| err(format!("--luminance-scale: {e}")))?;
+        let scene_img = match &scene {
+            Some(p) => Scene::load(p, scale),
+            None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale),
+        }
+        .map_err(err)?;
+        let (width, height) = size.or(settings.size).unwrap_or((720, 800));
+        if width == 0 || height == 0 || width > 16384 || height > 16384 {
+            return Err(err(format!(
+                "size {width}x{height}: expected WIDTHxHEIGHT, each 1..=16384"
+            )));
+        }
+        let base = demo::default_view(width, height);
+        let view = ViewParams {
+            yaw_deg: yaw_deg.or(settings.yaw_deg).unwrap_or(base.yaw_deg),
+            pitch_deg: pitch_deg.or(settings.pitch_deg).unwrap_or(base.pitch_deg),
+            hfov_deg: hfov_deg.or(settings.hfov_deg).unwrap_or(base.hfov_deg),
+            width,
+            height,
+        };
+        let projection = PanoramaView::new(view).map_err(|e| err(format!("view: {e}")))?;
+        let mut view_img = RgbImage::new(width, height);
+        let no_data = projection.render_scene(&scene_img, &mut view_img);
+        if no_data > 0 {
+            notes.push(format!(
+                "{no_data} of {} view pixels look outside the scene's field: no data \
+                 (alpha 0 in frames, NaN in retinal images)",
+                width * height
+            ));
+        }
+        // The samples.
+        let mut chain = FilterChain::new(settings.filter, PupilCalibration::identity())
+            .map_err(|e| err(format!("filter configuration: {e}")))?;
+        let (samples, t0, duration): (Samples, f64, f64) = match &recording {
+            Some(path) => {
+                if !(from_secs.is_finite() && from_secs >= 0.0) {
+                    return Err(err(format!("--from-secs {from_secs}: expected a time ≥ 0")));
+                }
+                if let Some(s) = secs
+                    && !(s.is_finite() && s > 0.0)
+                {
+                    return Err(err(format!("--secs {s}: expected a duration > 0")));
+                }
+                let found = scan_recording(path, secs.is_some())?;
+                if calibration.is_none() && found.pupil_units.iter().any(|u| *u != PupilUnit::Mm) {
+                    notes.push(format!(
+                        "{}: pupil samples are not in millimetres and no calibration was given: \
+                         the pupil falls back to the light-adaptation model",
+                        path.display()
+                    ));
+                }
+                let t0 = found.t_first + from_secs;
+                if t0 > found.t_last {
+                    return Err(err(format!(
+                        "--from-secs {from_secs}: the recording is only {:.3} s long",
+                        found.t_last - found.t_first
+                    )));
+                }
+                let mut duration = found.t_last - t0;
+                if let Some(s) = secs {
+                    duration = duration.min(s);
+                }
+                if let Some(c) = &calibration {
+                    chain.set_calibration(c.clone());
+                }
+                let samples = ImporterSamples::open(path).map_err(err)?;
+                (Box::new(samples), t0, duration)
+            }
+            None => {
+                let trace = match &trace {
+                    Some(path) => GazeTrace::load(path).map_err(err)?,
+                    None if scene.is_none() => demo::demo_trace(&view, &view_img).map_err(err)?,
+                    None => demo::sweep_trace(),
+                };
+                let t0 = trace.samples.first().map_or(0.0, |s| s.t_secs);
+                let duration = trace.duration_secs();
+                let samples = trace
+                    .samples
+                    .into_iter()
+                    .flat_map(|s| trace_source::expand(&s, s.t_secs));
+                (Box::new(samples), t0, duration)
+            }
+        };
+        let frames = match frames {
+            Some(n) => n,
+            None => ((duration * fps).floor() as usize).saturating_add(1),
+        };
+        let pipeline_config = PipelineConfig {
+            keep_retinal: retinal,
+            ..settings.pipeline.clone()
+        };
+        let pipelines = cpu_pipelines(&pipeline_config, &view, stereo).map_err(err)?;
+        let step = FrameStep::new(
+            pipelines,
+            stereo,
+            &settings.pipeline,
+            &view,
+            t0,
+            fps,
+            retinal,
+        )
+        .map_err(err)?;
+        let suffixes = step.views().iter().map(|v| v.suffix()).collect();
+        let n_views = step.views().len();
+        Ok(Render {
+            state: Mutex::new(Some(Box::new(Running {
+                step,
+                feed: SampleFeed::new(samples, chain),
+                view_img,
+                retinal,
+                suffixes,
+            }))),
+            frames,
+            size: (width * n_views, height),
+            fps,
+            ignored,
+            warnings: std::mem::take(&mut notes),
+        })
+    })
+}
+
+/// Writes an H×W×4 uint8 frame as a PNG with the CLI's encoder (the bytes
+/// `gazelight render` writes for the same frame).
+#[pyfunction]
+pub(crate) fn write_png(
+    py: Python<'_>,
+    path: PathBuf,
+    frame: numpy::PyReadonlyArray3<'_, u8>,
+) -> PyResult<()> {
+    let shape = frame.shape();
+    let (height, width, channels) = (shape[0], shape[1], shape[2]);
+    if channels != 4 {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "write_png: expected an H×W×4 uint8 frame (RGBA), got {height}×{width}×{channels}"
+        )));
+    }
+    let bytes: Vec<u8> = frame.as_array().iter().copied().collect();
+    py.detach(|| {
+        gazelight_render::png::write_rgba8(&path, &bytes, width, height, PngCompression::Default)
+    })
+    .map_err(err)
+}

@@ -1,0 +1,294 @@
+//! Samples → the filtered eye state at each frame's time.
+//!
+//! A recording is streamed, never loaded whole: [`scan`] reads only its
+//! time range (for the frame count), then [`ImporterSamples`] feeds its
+//! samples through [`SampleFeed`] just ahead of the frame clock. A trace
+//! (`t_secs,gaze_u,gaze_v,pupil_mm`) is fed the same way.
+
+use std::path::{Path, PathBuf};
+
+use gazelight_tracker::filter::{ChainStats, FilterChain};
+use gazelight_tracker::import::time_guard::TimeStats;
+use gazelight_tracker::import::{self, ImportWarnings, Importer};
+use gazelight_tracker::live::LiveChain;
+use gazelight_tracker::{EyeState, PupilUnit, Sample};
+
+use crate::RenderError;
+
+/// Feeds samples (in time order) through the tracker's one chain
+/// ([`LiveChain`]: the filter chain, then the stale → model fallback) on
+/// the recording's clock — every sample up to each frame's time, one
+/// sample of look-ahead, nothing else buffered — and maps the resulting
+/// `EyeState` onto the pipeline's per-frame input, so the PSF never sees a
+/// pupil of 0 (the failure of 001 §7.1). Deterministic: no wall clock.
+pub struct SampleFeed<I> {
+    samples: I,
+    pending: Option<Sample>,
+    live: LiveChain,
+    updates: u64,
+}
+
+impl<I: Iterator<Item = Sample>> SampleFeed<I> {
+    pub fn new(samples: I, chain: FilterChain) -> Self {
+        Self {
+            samples,
+            pending: None,
+            live: LiveChain::new(chain),
+            updates: 0,
+        }
+    }
+
+    /// The filtered state at `t_secs` (feeding the adaptation luminance of
+    /// the previous frame back to the pupil model first).
+    pub fn state(&mut self, t_secs: f64, adaptation_cd_m2: Option<f64>) -> EyeState {
+        if let Some(l) = adaptation_cd_m2 {
+            self.live.set_adaptation_luminance(l);
+        }
+        while let Some(s) = self.pending.take().or_else(|| self.samples.next()) {
+            if s.t_secs() > t_secs {
+                self.pending = Some(s);
+                break;
+            }
+            self.live.push(&s);
+            self.updates += 1;
+        }
+        let age_secs = (t_secs - self.live.chain().state().t_secs).max(0.0);
+        self.live.state_at(t_secs, age_secs, self.updates)
+    }
+
+    /// The chain's counters.
+    pub fn stats(&self) -> &ChainStats {
+        self.live.stats()
+    }
+
+    /// The sample iterator (for what it counted).
+    pub fn samples(&self) -> &I {
+        &self.samples
+    }
+}
+
+/// What the first pass over a recording found.
+#[derive(Clone, Debug)]
+pub struct Scan {
+    /// The first and last finite sample times, s (the recording's clock).
+    pub t_first: f64,
+    pub t_last: f64,
+    /// The pupil units its samples are in.
+    pub pupil_units: Vec<PupilUnit>,
+}
+
+/// Reads the recording once for its time range and pupil units. Fails
+/// naming the cause when nothing is readable, when the importer refuses
+/// the file, and (unless `part` — the user chose a part of it) when the
+/// samples cover a sliver of the time range they claim.
+pub fn scan(path: &Path, part: bool) -> Result<Scan, RenderError> {
+    let mut importer = import::open(path)?;
+    let mut range: Option<(f64, f64)> = None;
+    let mut units: Vec<PupilUnit> = Vec::new();
+    for item in importer.by_ref() {
+        let sample = match item {
+            Ok(s) => s,
+            Err(e) if range.is_none() => {
+                return Err(RenderError::Recording(format!(
+                    "{}: the recording holds no readable samples: {e}",
+                    path.display()
+                )));
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let t = sample.t_secs();
+        if !t.is_finite() {
+            continue;
+        }
+        range = Some(match range {
+            None => (t, t),
+            Some((a, b)) => (a.min(t), b.max(t)),
+        });
+        if let Sample::Pupil(p) = &sample
+            && !units.contains(&p.unit)
+        {
+            units.push(p.unit);
+        }
+    }
+    let Some((t_first, t_last)) = range else {
+        return Err(no_samples(
+            path,
+            importer.warnings(),
+            &importer.data_files(),
+        ));
+    };
+    if !part
+        && let Some(stats) = importer.time_stats()
+        && let Some(e) = sliver_span(path, stats)
+    {
+        return Err(e);
+    }
+    Ok(Scan {
+        t_first,
+        t_last,
+        pupil_units: units,
+    })
+}
+
+/// An importer's samples; a read error ends them (logged).
+pub struct ImporterSamples {
+    importer: Box<dyn Importer + Send>,
+    ended: bool,
+}
+
+impl ImporterSamples {
+    /// Opens the recording at `path` for its samples.
+    pub fn open(path: &Path) -> Result<Self, RenderError> {
+        Ok(Self::new(import::open(path)?))
+    }
+
+    pub fn new(importer: Box<dyn Importer + Send>) -> Self {
+        Self {
+            importer,
+            ended: false,
+        }
+    }
+
+    /// What the importer noted so far (skipped records, missing files).
+    pub fn warnings(&self) -> &ImportWarnings {
+        self.importer.warnings()
+    }
+}
+
+impl Iterator for ImporterSamples {
+    type Item = Sample;
+
+    fn next(&mut self) -> Option<Sample> {
+        if self.ended {
+            return None;
+        }
+        match self.importer.next() {
+            Some(Ok(s)) => Some(s),
+            Some(Err(e)) => {
+                tracing::warn!(error = %e, "recording ended early");
+                self.ended = true;
+                None
+            }
+            None => {
+                self.ended = true;
+                None
+            }
+        }
+    }
+}
+
+/// Refuse a replay whose samples cover less than 1 / this of its span…
+pub const MIN_COVERAGE_INV: f64 = 10.0;
+/// …when the uncovered time is also more than this, s.
+pub const MAX_UNCOVERED_SECS: f64 = 600.0;
+
+/// Why a recording gave no samples: an error naming the file and the
+/// cause (the importer's first skipped records, an empty file, a file of
+/// headers only). For a directory recording, `data_files` (the streams the
+/// importer read) are named with their sizes.
+pub fn no_samples(path: &Path, warnings: &ImportWarnings, data_files: &[PathBuf]) -> RenderError {
+    let what = if warnings.skipped_records > 0 {
+        format!(
+            "{} records were skipped as malformed; the first: {}",
+            warnings.skipped_records,
+            warnings.messages.first().map_or("-", String::as_str)
+        )
+    } else {
+        match std::fs::metadata(path) {
+            Ok(m) if m.is_dir() && !data_files.is_empty() => {
+                let files: Vec<String> = data_files
+                    .iter()
+                    .map(|f| {
+                        let name = f.file_name().map_or_else(
+                            || f.display().to_string(),
+                            |n| n.to_string_lossy().into_owned(),
+                        );
+                        match std::fs::metadata(f) {
+                            Ok(m) => format!("{name} ({} bytes)", m.len()),
+                            Err(e) => format!("{name} ({e})"),
+                        }
+                    })
+                    .collect();
+                format!(
+                    "its data files hold no sample records: {}",
+                    files.join(", ")
+                )
+            }
+            Ok(m) if m.is_file() && m.len() == 0 => "the file is empty (0 bytes)".to_string(),
+            Ok(m) if m.is_file() => format!(
+                "the file ({} bytes) holds no sample records: only a header, comments or \
+                 event lines",
+                m.len()
+            ),
+            _ => "no sample records were found".to_string(),
+        }
+    };
+    RenderError::Recording(format!(
+        "{}: the recording holds no readable samples: {what}",
+        path.display()
+    ))
+}
+
+/// A refusal when the samples cover a sliver of the recording's span (a
+/// one-year gap between two minutes of data): replaying it would render the
+/// gap. `None` when the recording is fine.
+pub fn sliver_span(path: &Path, stats: &TimeStats) -> Option<RenderError> {
+    let span = stats.span_secs();
+    let covered = stats.covered_secs;
+    if !(span > covered * MIN_COVERAGE_INV && span - covered > MAX_UNCOVERED_SECS) {
+        return None;
+    }
+    let gap = stats
+        .largest_gap_secs
+        .map(|(a, b)| {
+            format!(
+                "; the largest gap is {} from t = {a:.3} s to t = {b:.3} s",
+                human_secs(b - a)
+            )
+        })
+        .unwrap_or_default();
+    Some(RenderError::Recording(format!(
+        "{}: the samples cover {} of a {} time range ({:.4} %){gap}: the timestamps are \
+         probably wrong (a clock jump, mixed clocks) — replay a part with --from-secs/--secs",
+        path.display(),
+        human_secs(covered),
+        human_secs(span),
+        100.0 * covered / span
+    )))
+}
+
+fn human_secs(s: f64) -> String {
+    if s >= 86_400.0 {
+        format!("{:.1} days", s / 86_400.0)
+    } else if s >= 3_600.0 {
+        format!("{:.1} h", s / 3_600.0)
+    } else {
+        format!("{s:.1} s")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sliver_span_is_refused_and_normal_gaps_pass() {
+        let year = TimeStats {
+            accepted: 144_000,
+            time_skipped: 0,
+            range_secs: Some((0.0, 31_536_360.0)),
+            covered_secs: 360.0,
+            largest_gap_secs: Some((180.0, 31_536_180.0)),
+        };
+        let e = sliver_span(Path::new("r.csv"), &year).unwrap().to_string();
+        assert!(e.contains("r.csv") && e.contains("365.0 days"), "{e}");
+        // EyeLink: 4 trials of ~35 s with ~90 s pauses.
+        let trials = TimeStats {
+            range_secs: Some((0.0, 420.0)),
+            covered_secs: 140.0,
+            largest_gap_secs: Some((100.0, 193.0)),
+            ..year
+        };
+        assert!(sliver_span(Path::new("t.asc"), &trials).is_none());
+    }
+}
