@@ -55,7 +55,7 @@ use openxr_sys::Handle as _;
 use openxr_sys::pfn;
 
 use crate::config::{Effects, LayerConfig};
-use crate::process::{EyeProcessor, fov_tangents};
+use crate::process::{EyeProcessor, EyeSpec, fov_tangents};
 use crate::vk::{AppInstance, DevicePlan, InstancePatch, LayerGpu};
 use crate::{gaze, guard, log};
 
@@ -638,6 +638,10 @@ unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
     })
 }
 
+/// Test hook: a `VkFormat` code the layer treats as not served (CI checks
+/// the fail-open path with the format hello_xr picks).
+pub const TEST_REFUSE_FORMAT_ENV: &str = "GAZELIGHT_LAYER_TEST_REFUSE_FORMAT";
+
 /// `XR_SWAPCHAIN_USAGE_TRANSFER_SRC_BIT`, added to served swapchains.
 const TRANSFER_SRC: xr::SwapchainUsageFlags = xr::SwapchainUsageFlags::TRANSFER_SRC;
 
@@ -660,7 +664,11 @@ unsafe extern "system" fn create_swapchain(
         if !served_session {
             return forward();
         }
-        let format = crate::vk::served_format(app.format);
+        let refused = std::env::var(TEST_REFUSE_FORMAT_ENV)
+            .ok()
+            .and_then(|v| v.trim().parse::<i64>().ok())
+            == Some(app.format);
+        let format = crate::vk::served_format(app.format).filter(|_| !refused);
         let reason = if format.is_none() {
             Some(format!(
                 "swapchain format {} is not served (R8G8B8A8_SRGB, B8G8R8A8_SRGB, R16G16B16A16_SFLOAT are)",
@@ -913,8 +921,9 @@ unsafe extern "system" fn end_frame(
         unsafe { (n.end_frame)(session, info) }
     };
     guard::guarded("xrEndFrame", forward, || {
-        guard::test_hook("xrEndFrame");
         if !guard::pass_through() && !info.is_null() {
+            // The test hook panics with the frame's releases still held.
+            guard::test_hook("xrEndFrame");
             // SAFETY: non-null; the app's frame for this call.
             let jobs = unsafe { view_jobs(&*info) };
             let display_ns = unsafe { (*info).display_time.as_nanos() };
@@ -1053,12 +1062,14 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
             match EyeProcessor::new(
                 &ctx,
                 &config.pipeline,
-                format,
-                sc.width,
-                sc.height,
-                job.tan_lrud,
-                scale,
-                timed,
+                EyeSpec {
+                    format,
+                    width: sc.width,
+                    height: sc.height,
+                    tan_lrud: job.tan_lrud,
+                    scale,
+                    timed,
+                },
             ) {
                 Ok(p) => slot.processor = Some(p),
                 Err(e) => {

@@ -40,6 +40,22 @@ struct Queries {
     readback: wgpu::Buffer,
 }
 
+/// What an [`EyeProcessor`] is built for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EyeSpec {
+    /// The swapchain's format (a served one, [`ImageFormat::of`]).
+    pub format: wgpu::TextureFormat,
+    pub width: u32,
+    pub height: u32,
+    /// The view's edge tangents ([`fov_tangents`]).
+    pub tan_lrud: [f64; 4],
+    /// Decoded value → cd/m² (`white_cd_m2` for sRGB, `scene_scale_cd_m2`
+    /// for half floats).
+    pub scale: f32,
+    /// Write GPU timestamps (when the device has them).
+    pub timed: bool,
+}
+
 /// One eye's processing of images of one size and format.
 pub struct EyeProcessor {
     ctx: GpuContext,
@@ -54,20 +70,16 @@ pub struct EyeProcessor {
 }
 
 impl EyeProcessor {
-    /// For `width × height` images of `format` (a view with edge tangents
-    /// `tan_lrud`); `scale` maps the decoded values to cd/m²
-    /// (`white_cd_m2` for sRGB, `scene_scale_cd_m2` for half floats).
-    /// `timed`: write GPU timestamps (when the device has them).
-    pub fn new(
-        ctx: &GpuContext,
-        config: &PipelineConfig,
-        format: wgpu::TextureFormat,
-        width: u32,
-        height: u32,
-        tan_lrud: [f64; 4],
-        scale: f32,
-        timed: bool,
-    ) -> Result<Self, GpuError> {
+    /// For the images and view of `spec`.
+    pub fn new(ctx: &GpuContext, config: &PipelineConfig, spec: EyeSpec) -> Result<Self, GpuError> {
+        let EyeSpec {
+            format,
+            width,
+            height,
+            tan_lrud,
+            scale,
+            timed,
+        } = spec;
         let image = ImageFormat::of(format).ok_or_else(|| GpuError::Wgpu {
             what: "the app's swapchain image".into(),
             message: format!("format {format:?} is not served"),

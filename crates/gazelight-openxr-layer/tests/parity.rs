@@ -22,7 +22,7 @@ use std::ffi::c_char;
 use ash::vk;
 use gazelight_gpu::{GpuFramePipeline, testing::gpu_required};
 use gazelight_openxr_layer::import::{ImageFormat, import_cpu, row_bytes};
-use gazelight_openxr_layer::process::{EyeProcessor, deg_per_px, fov_tangents};
+use gazelight_openxr_layer::process::{EyeProcessor, EyeSpec, deg_per_px, fov_tangents};
 use gazelight_openxr_layer::vk::{AppInstance, DevicePlan, InstancePatch, LayerGpu, raw_image};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{FrameInput, PipelineConfig, srgb_encode};
@@ -275,8 +275,15 @@ fn run_format(format: wgpu::TextureFormat) {
     let a = 45f32.to_radians();
     let tan = fov_tangents(-a, a, a, -a);
     let config = PipelineConfig::default();
-    let mut processor =
-        EyeProcessor::new(&ctx, &config, format, W, H, tan, scale, false).expect("eye processor");
+    let spec = EyeSpec {
+        format,
+        width: W,
+        height: H,
+        tan_lrud: tan,
+        scale,
+        timed: false,
+    };
+    let mut processor = EyeProcessor::new(&ctx, &config, spec).expect("eye processor");
     let mut reference = GpuFramePipeline::new(
         &ctx,
         config.clone(),

@@ -29,7 +29,8 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
   datum with an unknown topic (`pupil.0.custom`) and one truncated msgpack
   frame, which a client must count and survive.
 * Schedules (for the OpenXR layer's checks): --gaze-at T:U,V[:U0,V0]
-  moves the binocular gaze (and eye 0's own) from T s after the start,
+  moves the binocular gaze (and eye 0's own, then sent with confidence
+  0.9) from T s after the start,
   printed `GAZE <time> U V U0 V0`; --pupil-gain-at T:G sets both pupils'
   target to G x their resting diameters (the same first-order response),
   printed `PUPIL_GAIN <time> G`.
@@ -355,7 +356,8 @@ def main():
                 send("pupil.%d.3d" % eye, d3)
                 base.append(d3)
             bino = dict(GAZE_BINOCULAR, norm_pos=list(gaze_now[0]))
-            mono = dict(GAZE_MONOCULAR, norm_pos=list(gaze_now[1]))
+            # Scheduled: eye 0's own gaze confident enough to be used.
+            mono = dict(GAZE_MONOCULAR, norm_pos=list(gaze_now[1]), confidence=0.9 if gaze_plan else GAZE_MONOCULAR["confidence"])
             send("gaze.3d.01.", lid(gaze("gaze.3d.01.", bino, base, ts)))
             if cycle % 5 == 0:
                 send("gaze.3d.0.", lid(gaze("gaze.3d.0.", mono, base[:1], ts)))
