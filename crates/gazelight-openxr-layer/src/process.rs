@@ -237,3 +237,19 @@ impl EyeProcessor {
         &self.import
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_90_degree_view_320_pixels_wide_has_0_28125_degrees_per_pixel() {
+        let a = 45f32.to_radians();
+        let t = fov_tangents(-a, a, a, -a);
+        assert!(
+            (t[0] + 1.0).abs() < 1e-6 && (t[1] - 1.0).abs() < 1e-6,
+            "{t:?}"
+        );
+        assert!((deg_per_px(t, 320) - 90.0 / 320.0).abs() < 1e-6);
+    }
+}

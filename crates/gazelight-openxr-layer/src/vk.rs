@@ -647,3 +647,20 @@ pub fn format_name(vk_format: i64) -> String {
         Err(_) => format!("VkFormat {vk_format}"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_served_formats_are_the_vulkan_codes_of_the_issue() {
+        // VkFormat codes from the Vulkan registry: 43 R8G8B8A8_SRGB,
+        // 50 B8G8R8A8_SRGB, 97 R16G16B16A16_SFLOAT, 37 R8G8B8A8_UNORM.
+        assert_eq!(served_format(43), Some(wgpu::TextureFormat::Rgba8UnormSrgb));
+        assert_eq!(served_format(50), Some(wgpu::TextureFormat::Bgra8UnormSrgb));
+        assert_eq!(served_format(97), Some(wgpu::TextureFormat::Rgba16Float));
+        assert_eq!(served_format(37), None);
+        assert_eq!(served_format(1 << 40), None);
+        assert_eq!(format_name(43), "R8G8B8A8_SRGB");
+    }
+}

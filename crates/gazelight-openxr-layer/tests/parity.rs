@@ -13,7 +13,8 @@
 //! same gaze, pupil and time step. Two frames (the second with another
 //! gaze, pupil and dt: adaptation state and PSF carried over). The layer's
 //! image must equal the reference display frame within 1/255 and differ
-//! from its input (the effects were applied).
+//! from its input (the effects were applied). Also: the import pass
+//! (`shaders/layer_import.wgsl`) equals its CPU twin value for value.
 
 #![allow(clippy::expect_used, clippy::unwrap_used)]
 
@@ -410,4 +411,112 @@ fn the_layer_matches_the_pipeline_on_a_bgra8_srgb_image() {
 #[test]
 fn the_layer_matches_the_pipeline_on_a_half_float_image() {
     run_format(wgpu::TextureFormat::Rgba16Float);
+}
+
+/// The import pass against its CPU twin, value for value, on the scene's
+/// texels plus edge values (sRGB codes 0, 1, 254, 255; half-float
+/// subnormals, the largest half, infinity).
+#[test]
+fn the_import_pass_equals_its_cpu_twin() {
+    let Some(ctx) = gazelight_gpu::testing::test_context("the_import_pass_equals_its_cpu_twin")
+    else {
+        return;
+    };
+    let scene = scene();
+    for format in [
+        wgpu::TextureFormat::Rgba8UnormSrgb,
+        wgpu::TextureFormat::Bgra8UnormSrgb,
+        wgpu::TextureFormat::Rgba16Float,
+    ] {
+        let image_format = ImageFormat::of(format).expect("served");
+        let mut input = texels(&scene, image_format);
+        let edge: &[u8] = match image_format {
+            ImageFormat::Rgba16Float => &[
+                0x01, 0x00, 0xff, 0x03, 0xff, 0x7b, 0, 0x3c, 0x00, 0x7c, 0x00, 0x80, 0x00, 0x3c, 0,
+                0x3c,
+            ],
+            _ => &[0, 1, 254, 255, 255, 254, 1, 0],
+        };
+        input[..edge.len()].copy_from_slice(edge);
+        let tb = image_format.texel_bytes();
+        let texture = ctx.device().create_texture(&wgpu::TextureDescriptor {
+            label: None,
+            size: wgpu::Extent3d {
+                width: W,
+                height: H,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        ctx.queue().write_texture(
+            texture.as_image_copy(),
+            &input,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(W * tb),
+                rows_per_image: Some(H),
+            },
+            texture.size(),
+        );
+        let bytes = u64::from(W * H) * 16;
+        let scene_buf = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let read = ctx.device().create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let pass = gazelight_openxr_layer::import::ImportPass::new(
+            ctx,
+            image_format,
+            W,
+            H,
+            WHITE_CD_M2,
+            &scene_buf,
+        )
+        .expect("import pass");
+        let mut enc = ctx.device().create_command_encoder(&Default::default());
+        pass.encode(&mut enc, &texture, 0, [0, 0], None);
+        enc.copy_buffer_to_buffer(&scene_buf, 0, &read, 0, bytes);
+        ctx.queue().submit([enc.finish()]);
+        read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+        ctx.wait_idle().expect("wait");
+        let gpu: Vec<f32> =
+            bytemuck::cast_slice(&read.slice(..).get_mapped_range().expect("mapped")).to_vec();
+        let cpu = import_cpu(
+            &input,
+            (W * tb) as usize,
+            W as usize,
+            H as usize,
+            image_format,
+            WHITE_CD_M2,
+        )
+        .expect("CPU import");
+        let mut mismatches = 0;
+        for (g, c) in gpu.chunks(4).zip(&cpu) {
+            for k in 0..4 {
+                let same = (g[k].is_nan() && c[k].is_nan()) || g[k] == c[k];
+                if !same {
+                    mismatches += 1;
+                }
+            }
+        }
+        println!(
+            "import {format:?}: {mismatches} of {} values differ from the CPU twin; first texels GPU {:?} CPU {:?}",
+            cpu.len() * 4,
+            &gpu[..8],
+            &cpu[..2]
+        );
+        assert_eq!(mismatches, 0, "{format:?}");
+    }
 }
