@@ -301,7 +301,8 @@ impl PresentPass {
 /// image, say — on the frame's own device: the pipeline's output buffer is
 /// read in place (no copy, no read-back), scaled to fill the target (1:1
 /// when the pipeline renders at the target's size). An sRGB target gets the
-/// codes decoded to linear, so it stores the frame's own codes.
+/// codes decoded to linear, so it stores the frame's own codes; an
+/// `Rgba16Float` target gets the decoded linear values.
 pub struct TexturePresenter {
     ctx: GpuContext,
     pass: PresentPass,
@@ -319,7 +320,11 @@ impl TexturePresenter {
             params: PresentParams {
                 scale: [1.0, 1.0],
                 frame_size: [source.width, source.height],
-                decode_srgb: u32::from(format.is_srgb()),
+                // A float target (an `R16G16B16A16_SFLOAT` swapchain)
+                // holds linear values too.
+                decode_srgb: u32::from(
+                    format.is_srgb() || format == wgpu::TextureFormat::Rgba16Float,
+                ),
                 ..PresentParams::default()
             },
         })

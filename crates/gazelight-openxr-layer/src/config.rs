@@ -7,8 +7,11 @@
 //! source = "pupil://127.0.0.1:50020"   # any gazelight source URI
 //! gaze = "gazelight"                   # or "runtime": the runtime's own eye tracker
 //! effects = "on"                       # or "off"
-//! out = "/tmp/layer-out"               # per-frame CSV (not written yet)
-//! dump = "/tmp/layer-dump"             # processed frames as PNG (not written yet)
+//! out = "/tmp/layer-out"               # per-frame CSV (frames.csv)
+//! dump = "/tmp/layer-dump"             # processed frames as PNG
+//! dump_every = 30                      # every Nth processed frame per eye
+//! white_cd_m2 = 200.0                  # 8-bit sRGB code 255 in cd/m²
+//! scene_scale_cd_m2 = 100.0            # cd/m² per unit of a half-float image
 //!
 //! [filter]
 //! dropout = { hold_s = 0.3 }
@@ -41,6 +44,13 @@ use toml::Spanned;
 
 /// The variable naming the config file.
 pub const CONFIG_ENV: &str = "GAZELIGHT_LAYER_CONFIG";
+/// `dump_every` when the file names none.
+pub const DEFAULT_DUMP_EVERY: u32 = 30;
+/// `white_cd_m2` when the file names none: a typical HMD's white.
+pub const DEFAULT_WHITE_CD_M2: f64 = 200.0;
+/// `scene_scale_cd_m2` when the file names none.
+pub const DEFAULT_SCENE_SCALE_CD_M2: f64 = 100.0;
+
 /// The source when the file names none: Pupil Capture's default address, as
 /// `gazelight run`'s default.
 pub const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
@@ -83,6 +93,9 @@ struct RawConfig {
     effects: Option<Effects>,
     out: Option<PathBuf>,
     dump: Option<PathBuf>,
+    dump_every: Option<Spanned<u32>>,
+    white_cd_m2: Option<Spanned<f64>>,
+    scene_scale_cd_m2: Option<Spanned<f64>>,
     filter: Option<Spanned<FilterConfig>>,
     observer: Option<Spanned<ObserverSettings>>,
     pipeline: Option<Spanned<PipelineConfig>>,
@@ -96,6 +109,12 @@ pub struct LayerConfig {
     pub effects: Effects,
     pub out: Option<PathBuf>,
     pub dump: Option<PathBuf>,
+    /// Every Nth processed frame of each eye is dumped; ≥ 1.
+    pub dump_every: u32,
+    /// cd/m² of an 8-bit sRGB image's code 255; > 0.
+    pub white_cd_m2: f64,
+    /// cd/m² per unit of an `R16G16B16A16_SFLOAT` image; > 0.
+    pub scene_scale_cd_m2: f64,
     pub filter: FilterConfig,
     pub observer: ObserverSettings,
     pub pipeline: PipelineConfig,
@@ -160,6 +179,9 @@ impl Default for LayerConfig {
             effects: Effects::default(),
             out: None,
             dump: None,
+            dump_every: DEFAULT_DUMP_EVERY,
+            white_cd_m2: DEFAULT_WHITE_CD_M2,
+            scene_scale_cd_m2: DEFAULT_SCENE_SCALE_CD_M2,
             filter: FilterConfig::default(),
             observer: ObserverSettings::default(),
             pipeline: PipelineConfig::default(),
@@ -251,8 +273,37 @@ impl LayerConfig {
                 }
             }
         }
+        let positive = |v: &Option<Spanned<f64>>, key: &str, default: f64| match v {
+            None => Ok(default),
+            Some(x) if x.get_ref().is_finite() && *x.get_ref() > 0.0 => Ok(*x.get_ref()),
+            Some(x) => Err(invalid(
+                Some(x.span()),
+                Some(key.into()),
+                format!("{}: expected a finite number > 0", x.get_ref()),
+            )),
+        };
+        let white_cd_m2 = positive(&raw.white_cd_m2, "white_cd_m2", DEFAULT_WHITE_CD_M2)?;
+        let scene_scale_cd_m2 = positive(
+            &raw.scene_scale_cd_m2,
+            "scene_scale_cd_m2",
+            DEFAULT_SCENE_SCALE_CD_M2,
+        )?;
+        let dump_every = match &raw.dump_every {
+            None => DEFAULT_DUMP_EVERY,
+            Some(n) if *n.get_ref() >= 1 => *n.get_ref(),
+            Some(n) => {
+                return Err(invalid(
+                    Some(n.span()),
+                    Some("dump_every".into()),
+                    "0: expected an integer ≥ 1".into(),
+                ));
+            }
+        };
         Ok(Self {
             source,
+            dump_every,
+            white_cd_m2,
+            scene_scale_cd_m2,
             gaze: raw.gaze.unwrap_or_default(),
             effects: raw.effects.unwrap_or_default(),
             out: raw.out,

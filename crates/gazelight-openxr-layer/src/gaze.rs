@@ -84,6 +84,9 @@ struct GazeSpace {
 /// The gaze service of the one instance that has it.
 struct Served {
     instance: xr::Instance,
+    /// Whether the app's eye gaze is served (else the eye task runs only
+    /// for the frame effects).
+    serve_gaze: bool,
     next: Next,
     eye: watch::Receiver<LiveEyeState>,
     /// `CLOCK_MONOTONIC` − host clock, s: both tick on the same clock (Rust's
@@ -141,6 +144,7 @@ pub fn start(
     instance: xr::Instance,
     next_gipa: pfn::GetInstanceProcAddr,
     config: &LayerConfig,
+    serve_gaze: bool,
 ) -> Result<(), String> {
     let next = unsafe { resolve(instance, next_gipa) }?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -170,18 +174,26 @@ pub fn start(
             LiveConfig::default(),
         )
     };
-    log(
-        "info",
-        &format!(
-            "eye gaze: XR_EXT_eye_gaze_interaction served from {}",
-            live.describe
-        ),
-    );
+    if serve_gaze {
+        log(
+            "info",
+            &format!(
+                "eye gaze: XR_EXT_eye_gaze_interaction served from {}",
+                live.describe
+            ),
+        );
+    } else {
+        log(
+            "info",
+            &format!("eye state for the frame effects from {}", live.describe),
+        );
+    }
     let mono_minus_host_secs = monotonic_now_secs()
         .map(|m| m - host_now_secs())
         .ok_or("clock_gettime(CLOCK_MONOTONIC) failed")?;
     let old = served().replace(Served {
         instance,
+        serve_gaze,
         next,
         eye: live.eye,
         mono_minus_host_secs,
@@ -261,7 +273,10 @@ unsafe fn resolve(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr) -> Res
 
 /// The layer's own function for `name` when it serves gaze for `instance`.
 pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunction> {
-    if !served().as_ref().is_some_and(|s| s.instance == instance) {
+    if !served()
+        .as_ref()
+        .is_some_and(|s| s.instance == instance && s.serve_gaze)
+    {
         return None;
     }
     // SAFETY (all transmutes): function pointers to VoidFunction, the
@@ -286,6 +301,23 @@ pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunctio
             }
             _ => return None,
         })
+    }
+}
+
+/// The newest eye state of `instance`'s eye task and the offset
+/// `CLOCK_MONOTONIC` − host clock (s), when the task runs.
+pub fn eye_snapshot(instance: xr::Instance) -> Option<(LiveEyeState, f64)> {
+    let s = served();
+    let s = s.as_ref().filter(|s| s.instance == instance)?;
+    Some((*s.eye.borrow(), s.mono_minus_host_secs))
+}
+
+/// Forgets the gaze spaces and VIEW space of `session` (the frame path's
+/// `xrDestroySession` calls this when it is the one installed).
+pub fn forget_session(session: xr::Session) {
+    if let Some(s) = served().as_mut() {
+        s.view_spaces.remove(&session.into_raw());
+        s.spaces.retain(|_, g| g.session != session);
     }
 }
 
@@ -435,10 +467,7 @@ unsafe extern "system" fn destroy_space(space: xr::Space) -> xr::Result {
 unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
     let forward = |n: &Next| unsafe { (n.destroy_session)(session) };
     with_next("xrDestroySession", forward, |n| {
-        if let Some(s) = served().as_mut() {
-            s.view_spaces.remove(&session.into_raw());
-            s.spaces.retain(|_, g| g.session != session);
-        }
+        forget_session(session);
         forward(n)
     })
 }
@@ -736,7 +765,7 @@ unsafe fn host_to_xr_time(n: &Next, instance: xr::Instance, mono: f64) -> Option
     (r.into_raw() >= 0).then_some(t)
 }
 
-fn monotonic_now_secs() -> Option<f64> {
+pub fn monotonic_now_secs() -> Option<f64> {
     let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,

@@ -3,7 +3,9 @@
 //!
 //! Test hook: `GAZELIGHT_LAYER_TEST_PANIC` set to an entry point's name
 //! (`xrNegotiateLoaderApiLayerInterface`, `xrCreateApiLayerInstance`,
-//! `xrGetInstanceProcAddr`, `xrDestroyInstance`), or a comma-separated list
+//! `xrGetInstanceProcAddr`, `xrDestroyInstance`; with the frame effects
+//! running `xrCreateVulkanInstanceKHR`, `xrCreateVulkanDeviceKHR`,
+//! `xrEndFrame`), or a comma-separated list
 //! of them, or `all`, makes that entry point panic where it does its own
 //! work: `xrCreateApiLayerInstance` after the next layer created the
 //! instance (so the fallback must not create a second one), the others on

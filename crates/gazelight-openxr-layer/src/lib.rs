@@ -16,10 +16,14 @@
 //! `XR_KHR_convert_timespec_time` below itself, starts the live eye task on
 //! the config's `source` and serves the gaze action's space from it.
 //!
+//! Frame effects ([`frames`]): with `effects = "on"` and an app on
+//! `XR_KHR_vulkan_enable2`, the layer puts a wgpu device on the app's own
+//! Vulkan device ([`vk`]) and, in `xrEndFrame`, runs gazelight-gpu's frame
+//! pipeline on each projection view's image with that eye's gaze and pupil
+//! ([`process`], [`import`]), before the image goes to the runtime.
+//!
 //! Not built yet (issue 33): advertising `XR_EXT_eye_gaze_interaction` on
-//! runtimes that lack it, and the light perception on the app's frames in
-//! `xrEndFrame`; the config's `effects`, `out` and `dump` are checked and
-//! reported but drive nothing yet.
+//! runtimes that lack it.
 //!
 //! Never the app's crash: every exported entry point runs in
 //! [`guard::guarded`], which catches a panic, logs it, turns the layer into
@@ -27,9 +31,13 @@
 //! `GAZELIGHT_LAYER_TEST_PANIC` forces a panic for tests ([`guard`]).
 
 pub mod config;
+pub mod frames;
 pub mod gaze;
 pub mod guard;
+pub mod import;
 mod log;
+pub mod process;
+pub mod vk;
 
 use std::collections::HashMap;
 use std::ffi::{CStr, c_char};
@@ -190,11 +198,17 @@ unsafe extern "system" fn create_api_layer_instance(
                 Ok(None) => unsafe { gaze::wanted(info, &config::LayerConfig::default()) },
                 Err(_) => false,
             };
+            // The frame effects: for Vulkan apps (XR_KHR_vulkan_enable2).
+            let effects = match &loaded {
+                Ok(Some((_, c))) => unsafe { frames::wanted(info, c) },
+                Ok(None) => unsafe { frames::wanted(info, &config::LayerConfig::default()) },
+                Err(_) => false,
+            };
+            let want_eye = serve_gaze || effects;
             // Eye gaze needs XR_KHR_convert_timespec_time below the layer
             // (sample times); without it the layer serves no gaze.
             let mut with_convert = false;
-            let result = if serve_gaze
-                && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) }
+            let result = if want_eye && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) }
             {
                 let r = unsafe {
                     create_with_extension(info, layer_info, instance, gaze::CONVERT_TIMESPEC_EXT)
@@ -210,7 +224,7 @@ unsafe extern "system" fn create_api_layer_instance(
                     r
                 }
             } else {
-                with_convert = serve_gaze;
+                with_convert = want_eye;
                 unsafe { create_next(info, layer_info, instance) }
             };
             created.set(Some(result));
@@ -240,16 +254,21 @@ unsafe extern "system" fn create_api_layer_instance(
                         None
                     }
                 };
-                if let Some(config) = config
+                // SAFETY: the next layer wrote the instance on success.
+                let created = unsafe { *instance };
+                if let Some(config) = &config
                     && with_convert
+                    && let Some(d) = dispatch_of(created)
+                    && let Err(e) =
+                        gaze::start(created, d.next_get_instance_proc_addr, config, serve_gaze)
                 {
-                    // SAFETY: the next layer wrote the instance on success.
-                    let created = unsafe { *instance };
-                    if let Some(d) = dispatch_of(created)
-                        && let Err(e) = gaze::start(created, d.next_get_instance_proc_addr, &config)
-                    {
-                        log("error", &format!("eye gaze: {e}; the layer serves no gaze"));
-                    }
+                    log("error", &format!("eye gaze: {e}; the layer serves no gaze"));
+                }
+                if let Some(config) = &config
+                    && effects
+                    && let Some(d) = dispatch_of(created)
+                {
+                    frames::start(created, d.next_get_instance_proc_addr, config);
                 }
             }
             result
@@ -400,6 +419,13 @@ unsafe extern "system" fn get_instance_proc_addr(
                 return xr::Result::SUCCESS;
             }
             if !guard::pass_through()
+                && let Some(f) = frames::proc_addr(instance, wanted)
+            {
+                // SAFETY: as above.
+                unsafe { *function = Some(f) };
+                return xr::Result::SUCCESS;
+            }
+            if !guard::pass_through()
                 && let Some(f) = gaze::proc_addr(instance, wanted)
             {
                 // SAFETY: as above.
@@ -462,6 +488,7 @@ unsafe extern "system" fn destroy_instance(instance: xr::Instance) -> xr::Result
         },
         || {
             guard::test_hook("xrDestroyInstance");
+            frames::stop(instance);
             gaze::stop(instance);
             let d = instances()
                 .as_mut()

@@ -151,3 +151,22 @@ fn a_missing_file_is_the_defaults_only_at_the_default_place() {
         other => panic!("{other:?}"),
     }
 }
+
+#[test]
+fn the_luminance_mapping_and_dump_keys_are_checked() {
+    let (line, _, field, message) = err("effects = \"on\"\nwhite_cd_m2 = -80.0\n");
+    assert_eq!((line, field.as_str()), (2, "white_cd_m2"), "{message}");
+    let (line, _, field, _) = err("scene_scale_cd_m2 = 0.0\n");
+    assert_eq!((line, field.as_str()), (1, "scene_scale_cd_m2"));
+    let (line, _, field, _) = err("out = \"/tmp\"\ndump_every = 0\n");
+    assert_eq!((line, field.as_str()), (2, "dump_every"));
+    let c = LayerConfig::parse(
+        Path::new("/etc/layer.toml"),
+        "white_cd_m2 = 250.0\nscene_scale_cd_m2 = 80.0\ndump_every = 3\n",
+    )
+    .unwrap();
+    assert_eq!(
+        (c.white_cd_m2, c.scene_scale_cd_m2, c.dump_every),
+        (250.0, 80.0, 3)
+    );
+}

@@ -28,6 +28,12 @@ It speaks the parts of the Pupil Core Network API that gazelight uses:
   confidence is below 0.6), at --rate Hz; plus, every tenth cycle, one
   datum with an unknown topic (`pupil.0.custom`) and one truncated msgpack
   frame, which a client must count and survive.
+* Schedules (for the OpenXR layer's checks): --gaze-at T:U,V[:U0,V0]
+  moves the binocular gaze (and eye 0's own, then sent with confidence
+  0.9) from T s after the start,
+  printed `GAZE <time> U V U0 V0`; --pupil-gain-at T:G sets both pupils'
+  target to G x their resting diameters (the same first-order response),
+  printed `PUPIL_GAIN <time> G`.
 * Blinks (--blink-period P > 0): from P s after the start, every P s, for
   --blink-secs s, both eyes' pupil datums have confidence 0 and diameter 0
   (as Pupil publishes a closed eye) and the gaze datums confidence 0. Each
@@ -159,6 +165,31 @@ def gaze(topic, values, base, ts):
     }
 
 
+def schedule(items, parse):
+    """[(t, value)] sorted by t from "T:REST" strings."""
+    out = []
+    for item in items:
+        t, rest = item.split(":", 1)
+        out.append((float(t), parse(rest)))
+    return sorted(out, key=lambda x: x[0])
+
+
+def at(plan, since, default):
+    """The value of the newest schedule entry at or before `since`."""
+    value = default
+    for t, v in plan:
+        if t <= since:
+            value = v
+    return value
+
+
+def parse_gaze(rest):
+    parts = rest.split(":")
+    bino = [float(x) for x in parts[0].split(",")]
+    mono = [float(x) for x in parts[1].split(",")] if len(parts) > 1 else GAZE_MONOCULAR["norm_pos"]
+    return bino, mono
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--remote-port", type=int, default=0)
@@ -172,9 +203,26 @@ def main():
     ap.add_argument("--tau", type=float, default=0.1, help="time constant of the pupil response, s")
     ap.add_argument("--blink-period", type=float, default=0.0, help="a blink every this many s (0: none)")
     ap.add_argument("--blink-secs", type=float, default=0.2, help="how long each blink lasts, s")
+    ap.add_argument(
+        "--gaze-at",
+        action="append",
+        default=[],
+        metavar="T:U,V[:U0,V0]",
+        help="from T s after the start, the binocular gaze at norm_pos U,V (and eye 0's own gaze at U0,V0); repeatable",
+    )
+    ap.add_argument(
+        "--pupil-gain-at",
+        action="append",
+        default=[],
+        metavar="T:G",
+        help="from T s after the start, both pupils move towards G x their resting diameter (first-order, --tau); repeatable",
+    )
     args = ap.parse_args()
     global PUPILS
     PUPILS = Pupils(args.black_gain, args.white_gain, args.tau)
+    gaze_plan = schedule(args.gaze_at, parse_gaze)
+    gain_plan = schedule(args.pupil_gain_at, float)
+    gaze_now = (GAZE_BINOCULAR["norm_pos"], GAZE_MONOCULAR["norm_pos"])
     stimuli = []
 
     ctx = zmq.Context.instance()
@@ -268,8 +316,19 @@ def main():
         now = time.monotonic()
         if now >= next_pub:
             ts = pupil_time(args.offset)
-            PUPILS.advance()
             since = now - started
+            if gain_plan:
+                g = at(gain_plan, since, 1.0)
+                if PUPILS.gain["none"] != g:
+                    PUPILS.advance()
+                    PUPILS.gain["none"] = g
+                    print("PUPIL_GAIN %.6f %.4f" % (now, g), flush=True)
+            PUPILS.advance()
+            if gaze_plan:
+                g = at(gaze_plan, since, gaze_now)
+                if g != gaze_now:
+                    gaze_now = g
+                    print("GAZE %.6f %.4f %.4f %.4f %.4f" % (now, g[0][0], g[0][1], g[1][0], g[1][1]), flush=True)
             closed = (
                 args.blink_period > 0
                 and since >= args.blink_period
@@ -296,9 +355,12 @@ def main():
                 d3 = lid(pupil_3d(eye, ts))
                 send("pupil.%d.3d" % eye, d3)
                 base.append(d3)
-            send("gaze.3d.01.", lid(gaze("gaze.3d.01.", GAZE_BINOCULAR, base, ts)))
+            bino = dict(GAZE_BINOCULAR, norm_pos=list(gaze_now[0]))
+            # Scheduled: eye 0's own gaze confident enough to be used.
+            mono = dict(GAZE_MONOCULAR, norm_pos=list(gaze_now[1]), confidence=0.9 if gaze_plan else GAZE_MONOCULAR["confidence"])
+            send("gaze.3d.01.", lid(gaze("gaze.3d.01.", bino, base, ts)))
             if cycle % 5 == 0:
-                send("gaze.3d.0.", lid(gaze("gaze.3d.0.", GAZE_MONOCULAR, base[:1], ts)))
+                send("gaze.3d.0.", lid(gaze("gaze.3d.0.", mono, base[:1], ts)))
             if cycle % 10 == 0:
                 send("pupil.0.custom", {"timestamp": ts, "anything": 1})
                 full = msgpack.packb(pupil_2d(1, ts), use_bin_type=True)

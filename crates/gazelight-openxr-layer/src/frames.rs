@@ -1,0 +1,1204 @@
+//! The light perception on the app's frames (issue 33, step 3).
+//!
+//! Served when the config says `effects = "on"` and the app enables
+//! `XR_KHR_vulkan_enable2`. The layer intercepts:
+//! - `xrCreateVulkanInstanceKHR` / `xrCreateVulkanDeviceKHR`: wgpu's
+//!   instance and device extensions and features are added to the app's
+//!   create infos ([`crate::vk`]); when they cannot be, the app's own
+//!   create info goes down unchanged and that device's frames pass through;
+//! - `xrCreateSession`: from `XrGraphicsBindingVulkan2KHR` (device, queue
+//!   family and index) the layer opens its wgpu device on the app's device;
+//! - `xrCreateSwapchain`: for a served format (`R8G8B8A8_SRGB`,
+//!   `B8G8R8A8_SRGB`, `R16G16B16A16_SFLOAT`; colour attachment, one sample,
+//!   face and mip level) it adds `TRANSFER_SRC` usage (the layer copies the
+//!   image out before it draws the result back in);
+//! - `xrEnumerateSwapchainImages`: each `VkImage` becomes a `wgpu::Texture`;
+//! - `xrReleaseSwapchainImage` of a served swapchain is held back (answered
+//!   with success) so the layer can still write the image in
+//!   `xrEndFrame`; an `xrAcquireSwapchainImage` of that swapchain before
+//!   then forwards the held release first (that image unprocessed);
+//! - `xrEndFrame`: each view `i` of each `XrCompositionLayerProjection`
+//!   whose image is held is processed with eye `i`'s gaze and pupil
+//!   ([`crate::process::EyeProcessor`], state per eye across frames, time
+//!   steps from the predicted display times), all views in one submission
+//!   on the app's queue; then the held releases and the frame go down.
+//!   Quad and other layers are untouched.
+//!
+//! Gaze: the eye's own gaze (`EyeState::eye_gaze_uv`) in normalised view
+//! coordinates; the pipeline's angles come from the view's `XrFovf`. Not
+//! tracked (blink, dropout, stale): the eye's last tracked gaze (the
+//! centre before any). Pupil: `EyeState::eye_pupil_mm` (held, then the
+//! model's, when the tracker loses it).
+//!
+//! Anything the layer cannot serve (another graphics API, a format, a
+//! sub-image smaller than the image, an app feature chain it cannot merge)
+//! passes through with one warning naming the reason; a GPU error or device
+//! loss turns that session's frames to pass-through.
+//!
+//! `out = DIR`: `DIR/frames.csv`, one row per processed view (the layer
+//! then waits for its GPU work each frame to read the timestamps and the
+//! frame's scalars). `dump = DIR`: every `dump_every`th processed frame of
+//! each eye as `DIR/eye-{left,right}-NNNNNN.png` (the displayed frame).
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::ffi::{CStr, c_void};
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+
+use ash::vk::{self as vkt, Handle as _};
+use gazelight_tracker::EyeState;
+use gazelight_tracker::pupil::clock::host_now_secs;
+use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
+use openxr_sys as xr;
+use openxr_sys::Handle as _;
+use openxr_sys::pfn;
+
+use crate::config::{Effects, LayerConfig};
+use crate::process::{EyeProcessor, EyeSpec, fov_tangents};
+use crate::vk::{AppInstance, DevicePlan, InstancePatch, LayerGpu};
+use crate::{gaze, guard, log};
+
+/// The graphics extension the frame path serves.
+pub const VULKAN2_EXT: &CStr = c"XR_KHR_vulkan_enable2";
+
+/// Eye index in `EyeState` of view `i` of a stereo frame (OpenXR: view 0
+/// is the left eye).
+fn eye_of_view(i: usize) -> usize {
+    if i == 0 {
+        gazelight_tracker::EYE_LEFT
+    } else {
+        gazelight_tracker::EYE_RIGHT
+    }
+}
+
+/// Whether the frame path is wanted for this instance.
+///
+/// # Safety
+/// `info` is null or a valid `XrInstanceCreateInfo`.
+pub unsafe fn wanted(info: *const xr::InstanceCreateInfo, config: &LayerConfig) -> bool {
+    if config.effects != Effects::On {
+        return false;
+    }
+    if unsafe { gaze::enables(info, VULKAN2_EXT) } {
+        true
+    } else {
+        warn_once_global(
+            "the app does not enable XR_KHR_vulkan_enable2 (the only graphics path the frame effects serve); frames pass through",
+        );
+        false
+    }
+}
+
+fn warn_once_global(reason: &str) {
+    static WARNED: Mutex<Option<HashSet<String>>> = Mutex::new(None);
+    let mut w = WARNED.lock().unwrap_or_else(PoisonError::into_inner);
+    if w.get_or_insert_with(HashSet::new).insert(reason.to_owned()) {
+        log("warn", &format!("frame effects: {reason}"));
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Next {
+    create_vulkan_instance: Option<pfn::CreateVulkanInstanceKHR>,
+    create_vulkan_device: Option<pfn::CreateVulkanDeviceKHR>,
+    create_session: pfn::CreateSession,
+    destroy_session: pfn::DestroySession,
+    create_swapchain: pfn::CreateSwapchain,
+    destroy_swapchain: pfn::DestroySwapchain,
+    enumerate_swapchain_images: pfn::EnumerateSwapchainImages,
+    acquire: pfn::AcquireSwapchainImage,
+    release: pfn::ReleaseSwapchainImage,
+    end_frame: pfn::EndFrame,
+    time_to_timespec: Option<pfn::ConvertTimeToTimespecTimeKHR>,
+}
+
+struct FrameConfig {
+    pipeline: PipelineConfig,
+    white_cd_m2: f32,
+    scene_scale_cd_m2: f32,
+    out: Option<PathBuf>,
+    dump: Option<PathBuf>,
+    dump_every: u64,
+}
+
+#[derive(Default)]
+struct EyeSlot {
+    processor: Option<EyeProcessor>,
+    last_display_ns: Option<i64>,
+    gaze_uv: Option<[f32; 2]>,
+    processed: u64,
+}
+
+struct SessionFrames {
+    gpu: LayerGpu,
+    eyes: [EyeSlot; 2],
+    csv: Option<std::fs::File>,
+    /// Set after a failure: this session's frames pass through.
+    off: bool,
+}
+
+struct Swapchain {
+    session: u64,
+    /// The served format; `None`: passes through.
+    format: Option<wgpu::TextureFormat>,
+    width: u32,
+    height: u32,
+    layers: u32,
+    textures: Vec<Option<wgpu::Texture>>,
+    acquired: VecDeque<u32>,
+    /// The image whose release the layer holds back.
+    held: Option<u32>,
+}
+
+struct Frames {
+    instance: xr::Instance,
+    next: Next,
+    config: FrameConfig,
+    vk_instances: Vec<AppInstance>,
+    plans: HashMap<u64, DevicePlan>,
+    sessions: HashMap<u64, SessionFrames>,
+    swapchains: HashMap<u64, Swapchain>,
+    warned: HashSet<String>,
+}
+
+impl Frames {
+    fn warn_once(&mut self, reason: &str) {
+        if self.warned.insert(reason.to_owned()) {
+            log(
+                "warn",
+                &format!("frame effects: {reason}; those frames pass through"),
+            );
+        }
+    }
+}
+
+static FRAMES: Mutex<Option<Frames>> = Mutex::new(None);
+
+fn frames() -> MutexGuard<'static, Option<Frames>> {
+    FRAMES.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+fn next() -> Option<Next> {
+    frames().as_ref().map(|f| f.next)
+}
+
+/// Resolves the next layer's functions and starts the frame path for
+/// `instance`; logs and serves nothing when a function is missing.
+pub fn start(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr, config: &LayerConfig) {
+    let get = |name: &CStr| -> Option<pfn::VoidFunction> {
+        let mut f: Option<pfn::VoidFunction> = None;
+        // SAFETY: the next layer's gipa on its own instance.
+        let r = unsafe { gipa(instance, name.as_ptr(), &mut f) };
+        f.filter(|_| r.into_raw() >= 0)
+    };
+    // SAFETY (all transmutes): the pointer the next layer returned for
+    // this name has that function's signature.
+    let next = unsafe {
+        use std::mem::transmute as t;
+        (|| {
+            Some(Next {
+                create_vulkan_instance: get(c"xrCreateVulkanInstanceKHR")
+                    .map(|f| t::<pfn::VoidFunction, pfn::CreateVulkanInstanceKHR>(f)),
+                create_vulkan_device: get(c"xrCreateVulkanDeviceKHR")
+                    .map(|f| t::<pfn::VoidFunction, pfn::CreateVulkanDeviceKHR>(f)),
+                create_session: t::<pfn::VoidFunction, pfn::CreateSession>(get(
+                    c"xrCreateSession",
+                )?),
+                destroy_session: t::<pfn::VoidFunction, pfn::DestroySession>(get(
+                    c"xrDestroySession",
+                )?),
+                create_swapchain: t::<pfn::VoidFunction, pfn::CreateSwapchain>(get(
+                    c"xrCreateSwapchain",
+                )?),
+                destroy_swapchain: t::<pfn::VoidFunction, pfn::DestroySwapchain>(get(
+                    c"xrDestroySwapchain",
+                )?),
+                enumerate_swapchain_images: t::<pfn::VoidFunction, pfn::EnumerateSwapchainImages>(
+                    get(c"xrEnumerateSwapchainImages")?,
+                ),
+                acquire: t::<pfn::VoidFunction, pfn::AcquireSwapchainImage>(get(
+                    c"xrAcquireSwapchainImage",
+                )?),
+                release: t::<pfn::VoidFunction, pfn::ReleaseSwapchainImage>(get(
+                    c"xrReleaseSwapchainImage",
+                )?),
+                end_frame: t::<pfn::VoidFunction, pfn::EndFrame>(get(c"xrEndFrame")?),
+                time_to_timespec: get(c"xrConvertTimeToTimespecTimeKHR")
+                    .map(|f| t::<pfn::VoidFunction, pfn::ConvertTimeToTimespecTimeKHR>(f)),
+            })
+        })()
+    };
+    let Some(next) = next else {
+        log(
+            "error",
+            "frame effects: the next layer lacks a frame function; frames pass through",
+        );
+        return;
+    };
+    if next.create_vulkan_instance.is_none() || next.create_vulkan_device.is_none() {
+        log(
+            "warn",
+            "frame effects: the runtime has no xrCreateVulkanInstanceKHR/xrCreateVulkanDeviceKHR; frames pass through",
+        );
+        return;
+    }
+    for dir in [&config.out, &config.dump].into_iter().flatten() {
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            log(
+                "warn",
+                &format!("frame effects: cannot create {}: {e}", dir.display()),
+            );
+        }
+    }
+    log(
+        "info",
+        "frame effects: on (Vulkan apps through XR_KHR_vulkan_enable2)",
+    );
+    *frames() = Some(Frames {
+        instance,
+        next,
+        config: FrameConfig {
+            pipeline: config.pipeline.clone(),
+            white_cd_m2: config.white_cd_m2 as f32,
+            scene_scale_cd_m2: config.scene_scale_cd_m2 as f32,
+            out: config.out.clone(),
+            dump: config.dump.clone(),
+            dump_every: u64::from(config.dump_every.max(1)),
+        },
+        vk_instances: Vec::new(),
+        plans: HashMap::new(),
+        sessions: HashMap::new(),
+        swapchains: HashMap::new(),
+        warned: HashSet::new(),
+    });
+}
+
+/// Stops the frame path of `instance` (its GPU objects are dropped).
+pub fn stop(instance: xr::Instance) {
+    let old = {
+        let mut f = frames();
+        if f.as_ref().is_some_and(|f| f.instance == instance) {
+            f.take()
+        } else {
+            None
+        }
+    };
+    if let Some(mut old) = old {
+        old.swapchains.clear();
+        for (_, s) in old.sessions.drain() {
+            let _ = s.gpu.ctx.wait_idle();
+        }
+    }
+}
+
+/// The layer's own function for `name` when the frame path runs for
+/// `instance`.
+pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunction> {
+    if !frames().as_ref().is_some_and(|f| f.instance == instance) {
+        return None;
+    }
+    // SAFETY (all transmutes): function pointers to the loader's
+    // type-erased slot; the app casts them back by name.
+    unsafe {
+        use std::mem::transmute as t;
+        Some(match name.to_bytes() {
+            b"xrCreateVulkanInstanceKHR" => {
+                t::<pfn::CreateVulkanInstanceKHR, pfn::VoidFunction>(create_vulkan_instance)
+            }
+            b"xrCreateVulkanDeviceKHR" => {
+                t::<pfn::CreateVulkanDeviceKHR, pfn::VoidFunction>(create_vulkan_device)
+            }
+            b"xrCreateSession" => t::<pfn::CreateSession, pfn::VoidFunction>(create_session),
+            b"xrDestroySession" => t::<pfn::DestroySession, pfn::VoidFunction>(destroy_session),
+            b"xrCreateSwapchain" => t::<pfn::CreateSwapchain, pfn::VoidFunction>(create_swapchain),
+            b"xrDestroySwapchain" => {
+                t::<pfn::DestroySwapchain, pfn::VoidFunction>(destroy_swapchain)
+            }
+            b"xrEnumerateSwapchainImages" => {
+                t::<pfn::EnumerateSwapchainImages, pfn::VoidFunction>(enumerate_swapchain_images)
+            }
+            b"xrAcquireSwapchainImage" => {
+                t::<pfn::AcquireSwapchainImage, pfn::VoidFunction>(acquire_swapchain_image)
+            }
+            b"xrReleaseSwapchainImage" => {
+                t::<pfn::ReleaseSwapchainImage, pfn::VoidFunction>(release_swapchain_image)
+            }
+            b"xrEndFrame" => t::<pfn::EndFrame, pfn::VoidFunction>(end_frame),
+            _ => return None,
+        })
+    }
+}
+
+const NO_NEXT: xr::Result = xr::Result::ERROR_HANDLE_INVALID;
+
+unsafe extern "system" fn create_vulkan_instance(
+    instance: xr::Instance,
+    info: *const xr::VulkanInstanceCreateInfoKHR,
+    vk_instance: *mut xr::platform::VkInstance,
+    vk_result: *mut xr::platform::VkResult,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let Some(down) = n.create_vulkan_instance else {
+        return NO_NEXT;
+    };
+    let forward = || unsafe { down(instance, info, vk_instance, vk_result) };
+    guard::guarded("xrCreateVulkanInstanceKHR", forward, || {
+        guard::test_hook("xrCreateVulkanInstanceKHR");
+        if guard::pass_through() || info.is_null() || vk_instance.is_null() {
+            return forward();
+        }
+        // SAFETY: non-null; the app's structure for this call.
+        let app = unsafe { *info };
+        let Some(gipa) = app.pfn_get_instance_proc_addr else {
+            return forward();
+        };
+        if app.vulkan_create_info.is_null() {
+            return forward();
+        }
+        // SAFETY: identical C signatures (see gazelight-xr's vulkan module).
+        let gipa = unsafe {
+            std::mem::transmute::<xr::platform::VkGetInstanceProcAddr, vkt::PFN_vkGetInstanceProcAddr>(
+                gipa,
+            )
+        };
+        // SAFETY: the app's loader entry.
+        let entry = unsafe {
+            ash::Entry::from_static_fn(ash::StaticFn {
+                get_instance_proc_addr: gipa,
+            })
+        };
+        // SAFETY: the app's VkInstanceCreateInfo for this call.
+        let vk_info = unsafe { &*(app.vulkan_create_info as *const vkt::InstanceCreateInfo) };
+        let patch = match unsafe { InstancePatch::new(&entry, vk_info) } {
+            Ok(p) => p,
+            Err(e) => {
+                warn_once_global(&format!("the Vulkan instance: {e}"));
+                return forward();
+            }
+        };
+        let changed = xr::VulkanInstanceCreateInfoKHR {
+            vulkan_create_info: patch.info() as *const vkt::InstanceCreateInfo as *const c_void,
+            ..app
+        };
+        let r = unsafe { down(instance, &changed, vk_instance, vk_result) };
+        let vk_ok = vk_result.is_null() || unsafe { *vk_result } == 0;
+        if r.into_raw() < 0 || !vk_ok {
+            warn_once_global(&format!(
+                "the Vulkan instance with wgpu's extensions failed ({r:?}); created as the app asked"
+            ));
+            return forward();
+        }
+        // SAFETY: written on success.
+        let raw = crate::vk::instance_from_xr(unsafe { *vk_instance });
+        if let Some(f) = frames().as_mut() {
+            f.vk_instances.push(AppInstance {
+                entry,
+                raw,
+                api_version: patch.api_version,
+                extensions: patch.extensions.clone(),
+            });
+        }
+        r
+    })
+}
+
+unsafe extern "system" fn create_vulkan_device(
+    instance: xr::Instance,
+    info: *const xr::VulkanDeviceCreateInfoKHR,
+    vk_device: *mut xr::platform::VkDevice,
+    vk_result: *mut xr::platform::VkResult,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let Some(down) = n.create_vulkan_device else {
+        return NO_NEXT;
+    };
+    let forward = || unsafe { down(instance, info, vk_device, vk_result) };
+    guard::guarded("xrCreateVulkanDeviceKHR", forward, || {
+        guard::test_hook("xrCreateVulkanDeviceKHR");
+        if guard::pass_through() || info.is_null() || vk_device.is_null() {
+            return forward();
+        }
+        // SAFETY: non-null; the app's structure.
+        let app = unsafe { *info };
+        if app.vulkan_create_info.is_null() {
+            return forward();
+        }
+        let phd = crate::vk::physical_device_from_xr(app.vulkan_physical_device);
+        // The instance the physical device belongs to: the newest recorded
+        // one that lists it.
+        let owner = frames().as_ref().and_then(|f| {
+            f.vk_instances
+                .iter()
+                .rev()
+                .find(|i| {
+                    // SAFETY: a live instance the app created through the layer.
+                    let ash_i = unsafe { ash::Instance::load(i.entry.static_fn(), i.raw) };
+                    unsafe { ash_i.enumerate_physical_devices() }.is_ok_and(|p| p.contains(&phd))
+                })
+                .cloned()
+        });
+        let Some(owner) = owner else {
+            warn_once_global(
+                "the app's Vulkan instance was not created through xrCreateVulkanInstanceKHR",
+            );
+            return forward();
+        };
+        let plan = match DevicePlan::new(&owner, phd) {
+            Ok(p) => p,
+            Err(e) => {
+                warn_once_global(&format!("the Vulkan device: {e}"));
+                return forward();
+            }
+        };
+        // SAFETY: the app's VkDeviceCreateInfo for this call.
+        let vk_info = unsafe { &*(app.vulkan_create_info as *const vkt::DeviceCreateInfo) };
+        let patch = match unsafe { plan.patch(vk_info) } {
+            Ok(p) => p,
+            Err(e) => {
+                warn_once_global(&format!("the Vulkan device: {e}"));
+                return forward();
+            }
+        };
+        let changed = xr::VulkanDeviceCreateInfoKHR {
+            vulkan_create_info: patch.info() as *const vkt::DeviceCreateInfo as *const c_void,
+            ..app
+        };
+        let r = unsafe { down(instance, &changed, vk_device, vk_result) };
+        let vk_ok = vk_result.is_null() || unsafe { *vk_result } == 0;
+        if r.into_raw() < 0 || !vk_ok {
+            warn_once_global(&format!(
+                "the Vulkan device with wgpu's extensions and features failed ({r:?}); created as the app asked"
+            ));
+            return forward();
+        }
+        // SAFETY: written on success.
+        let raw = crate::vk::device_from_xr(unsafe { *vk_device });
+        if let Some(f) = frames().as_mut() {
+            f.plans.insert(raw.as_raw(), plan);
+        }
+        r
+    })
+}
+
+/// The Vulkan binding in a session create info's chain.
+///
+/// # Safety
+/// `info` is a valid `XrSessionCreateInfo`.
+unsafe fn vulkan_binding(info: &xr::SessionCreateInfo) -> Option<xr::GraphicsBindingVulkanKHR> {
+    let mut p = info.next as *const xr::BaseInStructure;
+    let mut n = 0;
+    while !p.is_null() && n < 64 {
+        // SAFETY: the app's chain of (type, next) structures.
+        let base = unsafe { &*p };
+        if base.ty == xr::GraphicsBindingVulkanKHR::TYPE {
+            return Some(unsafe { *(p as *const xr::GraphicsBindingVulkanKHR) });
+        }
+        p = base.next;
+        n += 1;
+    }
+    None
+}
+
+unsafe extern "system" fn create_session(
+    instance: xr::Instance,
+    info: *const xr::SessionCreateInfo,
+    session: *mut xr::Session,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.create_session)(instance, info, session) };
+    guard::guarded("xrCreateSession", forward, || {
+        let r = forward();
+        if r.into_raw() < 0 || info.is_null() || session.is_null() || guard::pass_through() {
+            return r;
+        }
+        // SAFETY: non-null; the app's info.
+        let Some(binding) = (unsafe { vulkan_binding(&*info) }) else {
+            if let Some(f) = frames().as_mut() {
+                f.warn_once("the session has no Vulkan graphics binding (another graphics API)");
+            }
+            return r;
+        };
+        // SAFETY: written on success.
+        let created = unsafe { *session };
+        let device = crate::vk::device_from_xr(binding.device);
+        let mut guard_f = frames();
+        let Some(f) = guard_f.as_mut() else { return r };
+        let Some(plan) = f.plans.get(&device.as_raw()) else {
+            f.warn_once("the session's VkDevice was not created through xrCreateVulkanDeviceKHR with wgpu's needs");
+            return r;
+        };
+        match plan.open(device, binding.queue_family_index, binding.queue_index) {
+            Ok(gpu) => {
+                log(
+                    "info",
+                    &format!(
+                        "frame effects: the layer's passes run on the app's device ({}, queue family {} index {})",
+                        plan.adapter_name, binding.queue_family_index, binding.queue_index
+                    ),
+                );
+                let csv = f.config.out.as_ref().and_then(|dir| open_csv(dir));
+                f.sessions.insert(
+                    created.into_raw(),
+                    SessionFrames {
+                        gpu,
+                        eyes: Default::default(),
+                        csv,
+                        off: false,
+                    },
+                );
+            }
+            Err(e) => f.warn_once(&format!("the layer's wgpu device: {e}")),
+        }
+        r
+    })
+}
+
+fn open_csv(dir: &std::path::Path) -> Option<std::fs::File> {
+    let path = dir.join("frames.csv");
+    match std::fs::File::create(&path) {
+        Ok(mut file) => {
+            let _ = writeln!(
+                file,
+                "display_time_ns,view,eye,gaze_u,gaze_v,gaze_tracked,pupil_mm,target_cd_m2,adaptation_cd_m2,kernel_pupil_mm,kernel_rebuilt,layer_gpu_ms,eye_state_age_ms"
+            );
+            Some(file)
+        }
+        Err(e) => {
+            log(
+                "warn",
+                &format!("frame effects: cannot write {}: {e}", path.display()),
+            );
+            None
+        }
+    }
+}
+
+/// Forwards every held release of `session` (or of all sessions for
+/// `None`). No panicking code: it is also the fallback after a panic.
+fn release_held(session: Option<u64>) {
+    let (release, held): (Option<pfn::ReleaseSwapchainImage>, Vec<u64>) = {
+        let mut f = frames();
+        match f.as_mut() {
+            None => (None, Vec::new()),
+            Some(f) => {
+                let held = f
+                    .swapchains
+                    .iter_mut()
+                    .filter(|(_, s)| session.is_none_or(|x| s.session == x))
+                    .filter_map(|(k, s)| s.held.take().map(|_| *k))
+                    .collect();
+                (Some(f.next.release), held)
+            }
+        }
+    };
+    if let Some(release) = release {
+        for sc in held {
+            forward_release(release, xr::Swapchain::from_raw(sc));
+        }
+    }
+}
+
+fn forward_release(release: pfn::ReleaseSwapchainImage, sc: xr::Swapchain) {
+    let info = xr::SwapchainImageReleaseInfo {
+        ty: xr::SwapchainImageReleaseInfo::TYPE,
+        next: std::ptr::null(),
+    };
+    // SAFETY: a swapchain of the app with an acquired image.
+    let r = unsafe { release(sc, &info) };
+    if r.into_raw() < 0 {
+        log(
+            "warn",
+            &format!("frame effects: a held xrReleaseSwapchainImage failed: {r:?}"),
+        );
+    }
+}
+
+unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || {
+        release_held(Some(session.into_raw()));
+        unsafe { (n.destroy_session)(session) }
+    };
+    guard::guarded("xrDestroySession", forward, || {
+        gaze::forget_session(session);
+        release_held(Some(session.into_raw()));
+        let old = {
+            let mut f = frames();
+            f.as_mut().map(|f| {
+                f.swapchains.retain(|_, s| s.session != session.into_raw());
+                f.sessions.remove(&session.into_raw())
+            })
+        };
+        if let Some(Some(s)) = old {
+            let _ = s.gpu.ctx.wait_idle();
+            drop(s);
+        }
+        unsafe { (n.destroy_session)(session) }
+    })
+}
+
+/// Test hook: a `VkFormat` code the layer treats as not served (CI checks
+/// the fail-open path with the format hello_xr picks).
+pub const TEST_REFUSE_FORMAT_ENV: &str = "GAZELIGHT_LAYER_TEST_REFUSE_FORMAT";
+
+/// `XR_SWAPCHAIN_USAGE_TRANSFER_SRC_BIT`, added to served swapchains.
+const TRANSFER_SRC: xr::SwapchainUsageFlags = xr::SwapchainUsageFlags::TRANSFER_SRC;
+
+unsafe extern "system" fn create_swapchain(
+    session: xr::Session,
+    info: *const xr::SwapchainCreateInfo,
+    swapchain: *mut xr::Swapchain,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.create_swapchain)(session, info, swapchain) };
+    guard::guarded("xrCreateSwapchain", forward, || {
+        if guard::pass_through() || info.is_null() || swapchain.is_null() {
+            return forward();
+        }
+        // SAFETY: non-null; the app's info.
+        let app = unsafe { *info };
+        let served_session = frames()
+            .as_ref()
+            .is_some_and(|f| f.sessions.contains_key(&session.into_raw()));
+        if !served_session {
+            return forward();
+        }
+        let refused = std::env::var(TEST_REFUSE_FORMAT_ENV)
+            .ok()
+            .and_then(|v| v.trim().parse::<i64>().ok())
+            == Some(app.format);
+        let format = crate::vk::served_format(app.format).filter(|_| !refused);
+        let reason = if format.is_none() {
+            Some(format!(
+                "swapchain format {} is not served (R8G8B8A8_SRGB, B8G8R8A8_SRGB, R16G16B16A16_SFLOAT are)",
+                crate::vk::format_name(app.format)
+            ))
+        } else if !app
+            .usage_flags
+            .contains(xr::SwapchainUsageFlags::COLOR_ATTACHMENT)
+        {
+            Some("a swapchain without colour attachment usage (depth, or sampled only) is not processed".into())
+        } else if app.sample_count != 1 || app.face_count != 1 || app.mip_count != 1 {
+            Some(format!(
+                "swapchains with {} samples, {} faces, {} mip levels are not served (1 each)",
+                app.sample_count, app.face_count, app.mip_count
+            ))
+        } else {
+            None
+        };
+        let (r, format) = match reason {
+            Some(reason) => {
+                if let Some(f) = frames().as_mut() {
+                    f.warn_once(&reason);
+                }
+                (forward(), None)
+            }
+            None => {
+                let changed = xr::SwapchainCreateInfo {
+                    usage_flags: app.usage_flags | TRANSFER_SRC,
+                    ..app
+                };
+                let r = unsafe { (n.create_swapchain)(session, &changed, swapchain) };
+                if r.into_raw() < 0 {
+                    if let Some(f) = frames().as_mut() {
+                        f.warn_once(&format!(
+                            "the runtime refused TRANSFER_SRC usage on a swapchain ({r:?})"
+                        ));
+                    }
+                    (forward(), None)
+                } else {
+                    (r, format)
+                }
+            }
+        };
+        if r.into_raw() >= 0
+            && let Some(f) = frames().as_mut()
+        {
+            // SAFETY: written on success.
+            let created = unsafe { *swapchain };
+            f.swapchains.insert(
+                created.into_raw(),
+                Swapchain {
+                    session: session.into_raw(),
+                    format,
+                    width: app.width,
+                    height: app.height,
+                    layers: app.array_size.max(1),
+                    textures: Vec::new(),
+                    acquired: VecDeque::new(),
+                    held: None,
+                },
+            );
+        }
+        r
+    })
+}
+
+unsafe extern "system" fn destroy_swapchain(swapchain: xr::Swapchain) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.destroy_swapchain)(swapchain) };
+    guard::guarded("xrDestroySwapchain", forward, || {
+        let (held, old, gpu_ctx) = {
+            let mut f = frames();
+            match f.as_mut() {
+                None => (false, None, None),
+                Some(f) => {
+                    let old = f.swapchains.remove(&swapchain.into_raw());
+                    let ctx = old
+                        .as_ref()
+                        .and_then(|s| f.sessions.get(&s.session))
+                        .map(|s| s.gpu.ctx.clone());
+                    (old.as_ref().is_some_and(|s| s.held.is_some()), old, ctx)
+                }
+            }
+        };
+        if held {
+            forward_release(n.release, swapchain);
+        }
+        // The layer's work on its images ends before the runtime frees them.
+        if let Some(ctx) = gpu_ctx {
+            let _ = ctx.wait_idle();
+        }
+        drop(old);
+        forward()
+    })
+}
+
+unsafe extern "system" fn enumerate_swapchain_images(
+    swapchain: xr::Swapchain,
+    capacity: u32,
+    count: *mut u32,
+    images: *mut xr::SwapchainImageBaseHeader,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.enumerate_swapchain_images)(swapchain, capacity, count, images) };
+    guard::guarded("xrEnumerateSwapchainImages", forward, || {
+        let r = forward();
+        if r.into_raw() < 0
+            || capacity == 0
+            || images.is_null()
+            || count.is_null()
+            || guard::pass_through()
+        {
+            return r;
+        }
+        // SAFETY: the runtime wrote `*count` structures.
+        let written = unsafe { *count }.min(capacity) as usize;
+        if unsafe { (*images).ty } != xr::SwapchainImageVulkanKHR::TYPE {
+            return r;
+        }
+        let vk_images: Vec<vkt::Image> = (0..written)
+            .map(|i| {
+                // SAFETY: an array of XrSwapchainImageVulkanKHR (checked type).
+                let img = unsafe { *(images as *const xr::SwapchainImageVulkanKHR).add(i) };
+                vkt::Image::from_raw(img.image)
+            })
+            .collect();
+        let mut guard_f = frames();
+        let Some(f) = guard_f.as_mut() else { return r };
+        let Some(sc) = f.swapchains.get_mut(&swapchain.into_raw()) else {
+            return r;
+        };
+        let Some(format) = sc.format else { return r };
+        let Some(session) = f.sessions.get(&sc.session) else {
+            return r;
+        };
+        let mut textures = Vec::with_capacity(vk_images.len());
+        for image in vk_images {
+            // SAFETY: the runtime's image of this swapchain, on the session's
+            // device, created with the swapchain's size, format and layers
+            // and (the layer added it) TRANSFER_SRC and COLOR_ATTACHMENT
+            // usage; it lives until xrDestroySwapchain, which drops the
+            // texture first.
+            match unsafe {
+                session
+                    .gpu
+                    .wrap_image(image, format, sc.width, sc.height, sc.layers)
+            } {
+                Ok(t) => textures.push(Some(t)),
+                Err(e) => {
+                    log("warn", &format!("frame effects: a swapchain image: {e}"));
+                    textures.push(None);
+                }
+            }
+        }
+        sc.textures = textures;
+        r
+    })
+}
+
+unsafe extern "system" fn acquire_swapchain_image(
+    swapchain: xr::Swapchain,
+    info: *const xr::SwapchainImageAcquireInfo,
+    index: *mut u32,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.acquire)(swapchain, info, index) };
+    guard::guarded("xrAcquireSwapchainImage", forward, || {
+        // A held release goes first, that image unprocessed.
+        let held = frames()
+            .as_mut()
+            .and_then(|f| f.swapchains.get_mut(&swapchain.into_raw()))
+            .and_then(|s| s.held.take());
+        if held.is_some() {
+            forward_release(n.release, swapchain);
+        }
+        let r = forward();
+        if r.into_raw() >= 0
+            && !index.is_null()
+            && let Some(s) = frames()
+                .as_mut()
+                .and_then(|f| f.swapchains.get_mut(&swapchain.into_raw()))
+        {
+            // SAFETY: written on success.
+            s.acquired.push_back(unsafe { *index });
+        }
+        r
+    })
+}
+
+unsafe extern "system" fn release_swapchain_image(
+    swapchain: xr::Swapchain,
+    info: *const xr::SwapchainImageReleaseInfo,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || unsafe { (n.release)(swapchain, info) };
+    guard::guarded("xrReleaseSwapchainImage", forward, || {
+        let hold = {
+            let mut f = frames();
+            let Some(f) = f.as_mut() else {
+                return forward();
+            };
+            let session_on = |s: u64| {
+                f.sessions
+                    .get(&s)
+                    .is_some_and(|s| !s.off && !s.gpu.has_failed())
+            };
+            let Some(sc) = f.swapchains.get(&swapchain.into_raw()) else {
+                return forward();
+            };
+            let served = !guard::pass_through()
+                && sc.format.is_some()
+                && sc.held.is_none()
+                && !sc.textures.is_empty()
+                && session_on(sc.session);
+            let sc = f.swapchains.get_mut(&swapchain.into_raw());
+            match sc {
+                Some(sc) => {
+                    let image = sc.acquired.pop_front();
+                    match image {
+                        Some(i) if served => {
+                            sc.held = Some(i);
+                            true
+                        }
+                        _ => false,
+                    }
+                }
+                None => false,
+            }
+        };
+        if hold { xr::Result::SUCCESS } else { forward() }
+    })
+}
+
+/// One view to process, copied out of the app's frame.
+struct ViewJob {
+    view: usize,
+    swapchain: u64,
+    layer: u32,
+    rect: xr::Rect2Di,
+    tan_lrud: [f64; 4],
+}
+
+unsafe extern "system" fn end_frame(
+    session: xr::Session,
+    info: *const xr::FrameEndInfo,
+) -> xr::Result {
+    let Some(n) = next() else { return NO_NEXT };
+    let forward = || {
+        release_held(Some(session.into_raw()));
+        unsafe { (n.end_frame)(session, info) }
+    };
+    guard::guarded("xrEndFrame", forward, || {
+        if !guard::pass_through() && !info.is_null() {
+            // The test hook panics with the frame's releases still held.
+            guard::test_hook("xrEndFrame");
+            // SAFETY: non-null; the app's frame for this call.
+            let jobs = unsafe { view_jobs(&*info) };
+            let display_ns = unsafe { (*info).display_time.as_nanos() };
+            if !jobs.is_empty() {
+                process_views(session, display_ns, &jobs);
+            }
+        }
+        forward()
+    })
+}
+
+/// The projection views of a frame (at most two: a stereo frame's eyes).
+///
+/// # Safety
+/// `info` is a valid `XrFrameEndInfo`.
+unsafe fn view_jobs(info: &xr::FrameEndInfo) -> Vec<ViewJob> {
+    let mut jobs = Vec::new();
+    if info.layers.is_null() {
+        return jobs;
+    }
+    for l in 0..info.layer_count as usize {
+        // SAFETY: an array of `layer_count` layer pointers.
+        let p = unsafe { *info.layers.add(l) };
+        if p.is_null() || unsafe { (*p).ty } != xr::CompositionLayerProjection::TYPE {
+            continue;
+        }
+        // SAFETY: a projection layer (checked type).
+        let proj = unsafe { &*(p as *const xr::CompositionLayerProjection) };
+        if proj.views.is_null() {
+            continue;
+        }
+        for v in 0..(proj.view_count as usize).min(2) {
+            // SAFETY: an array of `view_count` views.
+            let view = unsafe { &*proj.views.add(v) };
+            let fov = view.fov;
+            jobs.push(ViewJob {
+                view: v,
+                swapchain: view.sub_image.swapchain.into_raw(),
+                layer: view.sub_image.image_array_index,
+                rect: view.sub_image.image_rect,
+                tan_lrud: fov_tangents(
+                    fov.angle_left,
+                    fov.angle_right,
+                    fov.angle_up,
+                    fov.angle_down,
+                ),
+            });
+        }
+    }
+    jobs
+}
+
+/// What the CSV and dumps need of one processed view.
+struct Done {
+    view: usize,
+    eye: usize,
+    input: FrameInput,
+    tracked: bool,
+    encoded: gazelight_gpu::EncodedFrame,
+}
+
+fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
+    let mut guard_f = frames();
+    let Some(f) = guard_f.as_mut() else { return };
+    let instance = f.instance;
+    let (state, mono_minus_host) = match gaze::eye_snapshot(instance) {
+        Some((live, off)) => (Some(live.state), off),
+        None => (None, 0.0),
+    };
+    let now_host = host_now_secs();
+    let Frames {
+        sessions,
+        swapchains,
+        config,
+        warned,
+        next,
+        ..
+    } = f;
+    let Some(s) = sessions.get_mut(&session.into_raw()) else {
+        return;
+    };
+    if s.off || s.gpu.has_failed() {
+        return;
+    }
+    let mut warn = |reason: String| {
+        if warned.insert(reason.clone()) {
+            log(
+                "warn",
+                &format!("frame effects: {reason}; those frames pass through"),
+            );
+        }
+    };
+    let ctx = s.gpu.ctx.clone();
+    let mut encoder = ctx
+        .device()
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("gazelight-layer frame"),
+        });
+    let timed = config.out.is_some();
+    let mut done = Vec::new();
+    for job in jobs {
+        let Some(sc) = swapchains.get(&job.swapchain) else {
+            continue;
+        };
+        let (Some(format), Some(image)) = (sc.format, sc.held) else {
+            continue;
+        };
+        let Some(Some(texture)) = sc.textures.get(image as usize) else {
+            continue;
+        };
+        let rect = job.rect;
+        if rect.offset.x != 0
+            || rect.offset.y != 0
+            || rect.extent.width != sc.width as i32
+            || rect.extent.height != sc.height as i32
+        {
+            warn("a projection view's imageRect smaller than its image is not served".into());
+            continue;
+        }
+        if job.layer >= sc.layers {
+            continue;
+        }
+        let eye = eye_of_view(job.view);
+        let slot = &mut s.eyes[job.view];
+        let scale = if format == wgpu::TextureFormat::Rgba16Float {
+            config.scene_scale_cd_m2
+        } else {
+            config.white_cd_m2
+        };
+        if !slot
+            .processor
+            .as_ref()
+            .is_some_and(|p| p.fits(format, sc.width, sc.height, job.tan_lrud))
+        {
+            slot.processor = None;
+            match EyeProcessor::new(
+                &ctx,
+                &config.pipeline,
+                EyeSpec {
+                    format,
+                    width: sc.width,
+                    height: sc.height,
+                    tan_lrud: job.tan_lrud,
+                    scale,
+                    timed,
+                },
+            ) {
+                Ok(p) => slot.processor = Some(p),
+                Err(e) => {
+                    log(
+                        "error",
+                        &format!(
+                            "frame effects: the eye's pipeline: {e}; this session's frames pass through"
+                        ),
+                    );
+                    s.off = true;
+                    return;
+                }
+            }
+        }
+        let tracked = state.is_some_and(|st| gaze::tracked(&st, now_host));
+        if tracked && let Some(st) = &state {
+            slot.gaze_uv = Some(st.eye_gaze_uv(eye));
+        }
+        let pupil_mm = state.map_or(
+            gazelight_vision::kernel_policy::INITIAL_PUPIL_MM as f32,
+            |st| st.eye_pupil_mm(eye),
+        );
+        let dt_secs = slot
+            .last_display_ns
+            .map_or(0.0, |t| ((display_ns - t) as f64 * 1e-9).max(0.0) as f32);
+        slot.last_display_ns = Some(display_ns);
+        let input = FrameInput {
+            gaze_uv: slot.gaze_uv.unwrap_or([0.5, 0.5]),
+            pupil_mm,
+            dt_secs,
+        };
+        let Some(p) = slot.processor.as_mut() else {
+            continue;
+        };
+        let encoded = p.encode(&mut encoder, texture, job.layer, &input);
+        slot.processed += 1;
+        done.push(Done {
+            view: job.view,
+            eye,
+            input,
+            tracked,
+            encoded,
+        });
+    }
+    ctx.queue().submit([encoder.finish()]);
+    if done.is_empty() || (config.out.is_none() && config.dump.is_none()) {
+        return;
+    }
+    // The EyeState's age at the predicted display time (host clock).
+    let age_ms = state.filter(|st| st.t_secs > 0.0).and_then(|st| {
+        let f = next.time_to_timespec?;
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: the app's instance and a timespec out-pointer.
+        let r = unsafe {
+            f(
+                instance,
+                xr::Time::from_nanos(display_ns),
+                &mut ts as *mut libc::timespec as *mut _,
+            )
+        };
+        (r.into_raw() >= 0).then(|| {
+            let mono = ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
+            (mono - mono_minus_host - st.t_secs) * 1e3
+        })
+    });
+    for d in done {
+        let slot = &mut s.eyes[d.view];
+        let Some(p) = slot.processor.as_mut() else {
+            continue;
+        };
+        if let Some(csv) = s.csv.as_mut() {
+            let gpu_ms = p.read_gpu_ms();
+            let st = p.pipeline().read_state().ok();
+            let _ = writeln!(
+                csv,
+                "{display_ns},{},{},{:.5},{:.5},{},{:.4},{},{},{:.4},{},{},{}",
+                d.view,
+                if d.eye == gazelight_tracker::EYE_LEFT {
+                    "left"
+                } else {
+                    "right"
+                },
+                d.input.gaze_uv[0],
+                d.input.gaze_uv[1],
+                u8::from(d.tracked),
+                d.input.pupil_mm,
+                st.map_or(String::new(), |s| format!("{:.5}", s.target_cd_m2)),
+                st.map_or(String::new(), |s| format!("{:.5}", s.adaptation_cd_m2)),
+                d.encoded.psf_pupil_mm,
+                u8::from(d.encoded.psf_rebuilt),
+                gpu_ms.map_or(String::new(), |v| format!("{v:.3}")),
+                age_ms.map_or(String::new(), |v| format!("{v:.2}")),
+            );
+        }
+        if let Some(dir) = &config.dump
+            && (slot.processed - 1) % config.dump_every == 0
+        {
+            let name = format!(
+                "eye-{}-{:06}.png",
+                if d.eye == gazelight_tracker::EYE_LEFT {
+                    "left"
+                } else {
+                    "right"
+                },
+                slot.processed - 1
+            );
+            match p.pipeline().display() {
+                Ok(frame) => {
+                    if let Err(e) = image::save_buffer(
+                        dir.join(&name),
+                        &frame.rgba8,
+                        frame.width as u32,
+                        frame.height as u32,
+                        image::ExtendedColorType::Rgba8,
+                    ) {
+                        warn(format!("cannot write dumps into {}: {e}", dir.display()));
+                    }
+                }
+                Err(e) => warn(format!("reading a frame back for a dump: {e}")),
+            }
+        }
+    }
+}
+
+/// `EyeState` for tests of the gaze choice.
+#[doc(hidden)]
+pub fn view_gaze(state: &EyeState, view: usize) -> [f32; 2] {
+    state.eye_gaze_uv(eye_of_view(view))
+}
