@@ -127,26 +127,13 @@ impl InstancePatch {
         )
         .map_err(|e| unsupported(format!("wgpu's instance extensions: {e}")))?;
         // SAFETY: the app's array of `enabled_extension_count` names.
-        let mut names: Vec<*const c_char> = if info.pp_enabled_extension_names.is_null() {
-            Vec::new()
-        } else {
-            unsafe {
-                std::slice::from_raw_parts(
-                    info.pp_enabled_extension_names,
-                    info.enabled_extension_count as usize,
-                )
-            }
-            .to_vec()
+        let names = unsafe {
+            with_extensions(
+                info.pp_enabled_extension_names,
+                info.enabled_extension_count,
+                &extensions,
+            )
         };
-        for e in &extensions {
-            // SAFETY: the app's names are NUL-terminated.
-            if !names
-                .iter()
-                .any(|&n| !n.is_null() && unsafe { CStr::from_ptr(n) } == *e)
-            {
-                names.push(e.as_ptr());
-            }
-        }
         let mut patch = Box::new(Self {
             // SAFETY (lifetime): the app's strings outlive the patch.
             app_info: unsafe {
@@ -367,26 +354,14 @@ impl DevicePlan {
                 (*p).p_next = info.p_next as *mut vk::BaseOutStructure;
             }
         }
-        // SAFETY: the app's names.
-        let mut names: Vec<*const c_char> = if info.pp_enabled_extension_names.is_null() {
-            Vec::new()
-        } else {
-            unsafe {
-                std::slice::from_raw_parts(
-                    info.pp_enabled_extension_names,
-                    info.enabled_extension_count as usize,
-                )
-            }
-            .to_vec()
+        // SAFETY: the app's array of `enabled_extension_count` names.
+        let names = unsafe {
+            with_extensions(
+                info.pp_enabled_extension_names,
+                info.enabled_extension_count,
+                &self.extensions,
+            )
         };
-        for e in &self.extensions {
-            if !names
-                .iter()
-                .any(|&n| !n.is_null() && unsafe { CStr::from_ptr(n) } == *e)
-            {
-                names.push(e.as_ptr());
-            }
-        }
         let chain = ours.p_next;
         let mut patch = Box::new(DevicePatch {
             _features: features,
@@ -646,6 +621,35 @@ pub fn format_name(vk_format: i64) -> String {
         Ok(f) => format!("{:?}", vk::Format::from_raw(f)),
         Err(_) => format!("VkFormat {vk_format}"),
     }
+}
+
+/// The app's `count` extension names at `app` (null: none) and then each
+/// of `extra` the app does not name already.
+///
+/// # Safety
+/// `app` is null or points at `count` pointers, each null or a
+/// NUL-terminated string, alive while the result is used.
+unsafe fn with_extensions(
+    app: *const *const c_char,
+    count: u32,
+    extra: &[&'static CStr],
+) -> Vec<*const c_char> {
+    let mut names: Vec<*const c_char> = if app.is_null() {
+        Vec::new()
+    } else {
+        // SAFETY: the caller's array of `count` names.
+        unsafe { std::slice::from_raw_parts(app, count as usize) }.to_vec()
+    };
+    for e in extra {
+        // SAFETY: the app's names are NUL-terminated.
+        if !names
+            .iter()
+            .any(|&n| !n.is_null() && unsafe { CStr::from_ptr(n) } == *e)
+        {
+            names.push(e.as_ptr());
+        }
+    }
+    names
 }
 
 #[cfg(test)]
