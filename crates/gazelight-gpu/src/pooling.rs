@@ -273,6 +273,25 @@ mod tests {
         let small = storage(ctx, &vec![[0.0f32; 2]; (w * h) as usize]);
         let partials = storage(ctx, &vec![[0.0f32; 2]; partial_count as usize]);
         let state = storage(ctx, &[FrameState::default()]);
+        // The pass's pooled target for `scene` (the texels buffer).
+        let gpu_pooled =
+            |scene: &wgpu::Buffer, model: &PoolingModel, gaze_px: [f64; 2], angles: PlaneAngles| {
+                let params =
+                    PoolParams::for_frame(model, [w, h], [w, h], 1, partial_count, gaze_px, angles);
+                let params_buf = uniform(ctx, &params);
+                run_pass(
+                    ctx,
+                    &pass.layout,
+                    &[&params_buf, scene, &work, &small, &partials, &state],
+                    &[
+                        (&pass.import_scene, tiles(96, 64)),
+                        (&pass.block_luminance, tiles(96, 64)),
+                        (&pass.pool_partial, [partial_count, 1, 1]),
+                        (&pass.pool_final, [1, 1, 1]),
+                    ],
+                );
+                f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2)
+            };
         let mut worst = 0.0f64;
         // The view's own geometry (60° wide, through its projection) and
         // the planar one.
@@ -285,28 +304,7 @@ mod tests {
             .flat_map(|m| geometries.map(|a| (m, a)))
         {
             for gaze_px in [[48.0, 32.0], [10.5, 55.25], [90.0, 3.0]] {
-                let params = PoolParams::for_frame(
-                    &model,
-                    [w, h],
-                    [w, h],
-                    1,
-                    partial_count,
-                    gaze_px,
-                    angles,
-                );
-                let params_buf = uniform(ctx, &params);
-                run_pass(
-                    ctx,
-                    &pass.layout,
-                    &[&params_buf, &scene, &work, &small, &partials, &state],
-                    &[
-                        (&pass.import_scene, tiles(96, 64)),
-                        (&pass.block_luminance, tiles(96, 64)),
-                        (&pass.pool_partial, [partial_count, 1, 1]),
-                        (&pass.pool_final, [1, 1, 1]),
-                    ],
-                );
-                let gpu = f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2);
+                let gpu = gpu_pooled(&scene, &model, gaze_px, angles);
                 let cpu = model.pool_in(&lum, w as usize, h as usize, gaze_px, angles);
                 let e = (gpu - cpu).abs() / cpu.abs().max(1e-9);
                 println!(
@@ -342,28 +340,7 @@ mod tests {
         for model in every_pooling_model() {
             let angles = PlaneAngles::symmetric(60.0, w as usize, h as usize);
             for gaze_px in [[48.0, 32.0], [62.5, 20.0], [66.0, 40.0]] {
-                let params = PoolParams::for_frame(
-                    &model,
-                    [w, h],
-                    [w, h],
-                    1,
-                    partial_count,
-                    gaze_px,
-                    angles,
-                );
-                let params_buf = uniform(ctx, &params);
-                run_pass(
-                    ctx,
-                    &pass.layout,
-                    &[&params_buf, &scene, &work, &small, &partials, &state],
-                    &[
-                        (&pass.import_scene, tiles(96, 64)),
-                        (&pass.block_luminance, tiles(96, 64)),
-                        (&pass.pool_partial, [partial_count, 1, 1]),
-                        (&pass.pool_final, [1, 1, 1]),
-                    ],
-                );
-                let gpu = f64::from(read::<FrameState>(ctx, &state)[0].target_cd_m2);
+                let gpu = gpu_pooled(&scene, &model, gaze_px, angles);
                 let cpu = model
                     .pool_valid_in(&lum, &valid, w as usize, h as usize, gaze_px, angles)
                     .unwrap();
