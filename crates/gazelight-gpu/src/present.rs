@@ -265,13 +265,17 @@ impl PresentPass {
         })
     }
 
-    /// Records the pass drawing into `target` with `params`.
+    /// Records the pass drawing into `target` with `params`: the whole
+    /// target (cleared first), or only its rectangle `rect` = `[x, y,
+    /// width, height]` pixels (viewport and scissor; the rest of the target
+    /// is kept).
     fn encode(
         &self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         target: &wgpu::TextureView,
         params: &PresentParams,
+        rect: Option<[u32; 4]>,
     ) {
         ctx.queue()
             .write_buffer(&self.params, 0, bytemuck::bytes_of(params));
@@ -282,7 +286,11 @@ impl PresentPass {
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                    load: if rect.is_some() {
+                        wgpu::LoadOp::Load
+                    } else {
+                        wgpu::LoadOp::Clear(wgpu::Color::BLACK)
+                    },
                     store: wgpu::StoreOp::Store,
                 },
             })],
@@ -293,6 +301,10 @@ impl PresentPass {
         });
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &self.bind_group, &[]);
+        if let Some([x, y, w, h]) = rect {
+            pass.set_viewport(x as f32, y as f32, w as f32, h as f32, 0.0, 1.0);
+            pass.set_scissor_rect(x, y, w, h);
+        }
         pass.draw(0..4, 0..1);
     }
 }
@@ -334,7 +346,22 @@ impl TexturePresenter {
     /// presenter's format). The frame is whatever the pipeline last wrote
     /// when the encoder is submitted.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder, target: &wgpu::TextureView) {
-        self.pass.encode(&self.ctx, encoder, target, &self.params);
+        self.pass
+            .encode(&self.ctx, encoder, target, &self.params, None);
+    }
+
+    /// Records drawing the frame into the rectangle `rect` = `[x, y,
+    /// width, height]` pixels of `target` only, keeping the rest of it (an
+    /// image holding several views side by side, as an OpenXR
+    /// `imageRect`). The rectangle must lie inside the target.
+    pub fn encode_rect(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &wgpu::TextureView,
+        rect: [u32; 4],
+    ) {
+        self.pass
+            .encode(&self.ctx, encoder, target, &self.params, Some(rect));
     }
 
     /// Draws the frame into `target` now: records and submits one command
@@ -603,7 +630,8 @@ impl WindowPresenter {
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                     label: Some("present"),
                 });
-        self.pass.encode(&self.ctx, &mut encoder, &view, params);
+        self.pass
+            .encode(&self.ctx, &mut encoder, &view, params, None);
         self.ctx.queue().submit([encoder.finish()]);
         self.ctx.queue().present(frame);
         Ok(Presented::Shown)
@@ -788,7 +816,7 @@ mod tests {
             decode_srgb: u32::from(format.is_srgb()),
             ..PresentParams::default()
         };
-        pass.encode(ctx, &mut encoder, &view, &params);
+        pass.encode(ctx, &mut encoder, &view, &params, None);
         read_rgba8(ctx, encoder, &target, [tw, th])
     }
 

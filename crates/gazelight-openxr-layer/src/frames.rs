@@ -24,14 +24,24 @@
 //!   on the app's queue; then the held releases and the frame go down.
 //!   Quad and other layers are untouched.
 //!
-//! Gaze: the eye's own gaze (`EyeState::eye_gaze_uv`) in normalised view
-//! coordinates; the pipeline's angles come from the view's `XrFovf`. Not
+//! Gaze: the eye's own gaze (`EyeState::eye_gaze_uv`, normalised
+//! coordinates in the eye's nominal view: the runtime's `xrLocateViews` in
+//! VIEW space at the display time) re-projected into the view the app
+//! submitted: through the head's pose in the projection layer's space
+//! (`xrLocateSpace` of a VIEW space the layer makes) and the submitted
+//! view's pose and `XrFovf` ([`gaze::gaze_uv_in_submitted_view`]); where
+//! a pose cannot be located, the tracker's coordinates as they are. The
+//! pipeline's angles come from the submitted view's `XrFovf`. Not
 //! tracked (blink, dropout, stale): the eye's last tracked gaze (the
 //! centre before any). Pupil: `EyeState::eye_pupil_mm` (held, then the
 //! model's, when the tracker loses it).
 //!
-//! Anything the layer cannot serve (another graphics API, a format, a
-//! sub-image smaller than the image, an app feature chain it cannot merge)
+//! A view's `imageRect` may be the whole image or any rectangle inside it
+//! (both eyes side by side in one image): the view is read from and drawn
+//! back into its rectangle only.
+//!
+//! Anything the layer cannot serve (another graphics API, a format, an
+//! `imageRect` outside its image, an app feature chain it cannot merge)
 //! passes through with one warning naming the reason; a GPU error or device
 //! loss turns that session's frames to pass-through.
 //!
@@ -111,6 +121,11 @@ struct Next {
     release: pfn::ReleaseSwapchainImage,
     end_frame: pfn::EndFrame,
     time_to_timespec: Option<pfn::ConvertTimeToTimespecTimeKHR>,
+    /// The gaze re-projected into the submitted views (without them the
+    /// tracker's coordinates are used as they are).
+    create_reference_space: Option<pfn::CreateReferenceSpace>,
+    locate_space: Option<pfn::LocateSpace>,
+    locate_views: Option<pfn::LocateViews>,
 }
 
 struct FrameConfig {
@@ -136,6 +151,11 @@ struct SessionFrames {
     csv: Option<std::fs::File>,
     /// Set after a failure: this session's frames pass through.
     off: bool,
+    /// The session's VIEW space (made at its first frame; `Err` after a
+    /// failed try): the head's pose and the eyes' nominal views.
+    view_space: Option<Result<xr::Space, ()>>,
+    /// Whether a view's gaze was re-projected yet (logged once).
+    reprojected: bool,
 }
 
 struct Swapchain {
@@ -226,6 +246,12 @@ pub fn start(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr, config: &La
                 end_frame: t::<pfn::VoidFunction, pfn::EndFrame>(get(c"xrEndFrame")?),
                 time_to_timespec: get(c"xrConvertTimeToTimespecTimeKHR")
                     .map(|f| t::<pfn::VoidFunction, pfn::ConvertTimeToTimespecTimeKHR>(f)),
+                create_reference_space: get(c"xrCreateReferenceSpace")
+                    .map(|f| t::<pfn::VoidFunction, pfn::CreateReferenceSpace>(f)),
+                locate_space: get(c"xrLocateSpace")
+                    .map(|f| t::<pfn::VoidFunction, pfn::LocateSpace>(f)),
+                locate_views: get(c"xrLocateViews")
+                    .map(|f| t::<pfn::VoidFunction, pfn::LocateViews>(f)),
             })
         })()
     };
@@ -545,6 +571,8 @@ unsafe extern "system" fn create_session(
                         eyes: Default::default(),
                         csv,
                         off: false,
+                        view_space: None,
+                        reprojected: false,
                     },
                 );
             }
@@ -632,6 +660,23 @@ unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
         };
         if let Some(Some(s)) = old {
             let _ = s.gpu.ctx.wait_idle();
+            for (view, slot) in s.eyes.iter().enumerate() {
+                if slot.processed > 0 {
+                    let psf = match &slot.processor {
+                        Some(p) if p.psf_off_thread() => {
+                            format!("{} kernels built off the app's thread", p.psf_builds())
+                        }
+                        _ => "kernels rebuilt inside the frames".into(),
+                    };
+                    log(
+                        "info",
+                        &format!(
+                            "frame effects: view {view}: {} frames processed, {psf}",
+                            slot.processed
+                        ),
+                    );
+                }
+            }
             drop(s);
         }
         unsafe { (n.destroy_session)(session) }
@@ -909,6 +954,11 @@ struct ViewJob {
     layer: u32,
     rect: xr::Rect2Di,
     tan_lrud: [f64; 4],
+    /// The projection layer's space, and the pose and field of view the
+    /// app submitted for this view in it.
+    space: xr::Space,
+    pose: xr::Posef,
+    fov: xr::Fovf,
 }
 
 unsafe extern "system" fn end_frame(
@@ -970,6 +1020,9 @@ unsafe fn view_jobs(info: &xr::FrameEndInfo) -> Vec<ViewJob> {
                     fov.angle_up,
                     fov.angle_down,
                 ),
+                space: proj.space,
+                pose: view.pose,
+                fov,
             });
         }
     }
@@ -984,6 +1037,167 @@ struct Done {
     tracked: bool,
     encoded: gazelight_gpu::EncodedFrame,
 }
+
+/// A view's `imageRect` as (origin, size) in pixels when it is a
+/// non-empty rectangle inside an image of `image` = `[width, height]`.
+pub fn rect_in_image(rect: xr::Rect2Di, image: [u32; 2]) -> Option<([u32; 2], [u32; 2])> {
+    let origin = [
+        u32::try_from(rect.offset.x).ok()?,
+        u32::try_from(rect.offset.y).ok()?,
+    ];
+    let size = [
+        u32::try_from(rect.extent.width).ok().filter(|&w| w > 0)?,
+        u32::try_from(rect.extent.height).ok().filter(|&h| h > 0)?,
+    ];
+    let fits = |k: usize| {
+        origin[k]
+            .checked_add(size[k])
+            .is_some_and(|end| end <= image[k])
+    };
+    (fits(0) && fits(1)).then_some((origin, size))
+}
+
+/// The poses one frame's gaze re-projection needs (see
+/// [`gaze::gaze_uv_in_submitted_view`]).
+struct FramePoses {
+    /// The eyes' nominal views in VIEW space at the display time.
+    nominal: Option<[xr::View; 2]>,
+    /// VIEW's pose in each projection layer space of the frame.
+    head: Vec<(u64, xr::Posef)>,
+}
+
+impl FramePoses {
+    /// Locates them through the next layer; what cannot be located is
+    /// left out (the views then take the tracker's coordinates as they
+    /// are).
+    unsafe fn locate(
+        next: &Next,
+        session: xr::Session,
+        s: &mut SessionFrames,
+        display_ns: i64,
+        jobs: &[ViewJob],
+    ) -> Self {
+        let mut out = Self {
+            nominal: None,
+            head: Vec::new(),
+        };
+        let (Some(create), Some(locate_space), Some(locate_views)) = (
+            next.create_reference_space,
+            next.locate_space,
+            next.locate_views,
+        ) else {
+            return out;
+        };
+        let view_space = *s.view_space.get_or_insert_with(|| {
+            let info = xr::ReferenceSpaceCreateInfo {
+                ty: xr::ReferenceSpaceCreateInfo::TYPE,
+                next: std::ptr::null(),
+                reference_space_type: xr::ReferenceSpaceType::VIEW,
+                pose_in_reference_space: IDENTITY_POSE,
+            };
+            let mut space = xr::Space::NULL;
+            // SAFETY: a valid info and out-pointer on the app's session.
+            let r = unsafe { create(session, &info, &mut space) };
+            if r.into_raw() < 0 {
+                log(
+                    "warn",
+                    &format!("frame effects: no VIEW space ({r:?}); the gaze is not re-projected into the submitted views"),
+                );
+                return Err(());
+            }
+            Ok(space)
+        });
+        let Ok(view_space) = view_space else {
+            return out;
+        };
+        let time = xr::Time::from_nanos(display_ns);
+        let info = xr::ViewLocateInfo {
+            ty: xr::ViewLocateInfo::TYPE,
+            next: std::ptr::null(),
+            view_configuration_type: xr::ViewConfigurationType::PRIMARY_STEREO,
+            display_time: time,
+            space: view_space,
+        };
+        let mut state = xr::ViewState {
+            ty: xr::ViewState::TYPE,
+            next: std::ptr::null_mut(),
+            view_state_flags: xr::ViewStateFlags::EMPTY,
+        };
+        let empty = xr::View {
+            ty: xr::View::TYPE,
+            next: std::ptr::null_mut(),
+            pose: IDENTITY_POSE,
+            fov: xr::Fovf {
+                angle_left: 0.0,
+                angle_right: 0.0,
+                angle_up: 0.0,
+                angle_down: 0.0,
+            },
+        };
+        let mut views = [empty; 2];
+        let mut count = 0u32;
+        // SAFETY: valid info, state and a 2-view array.
+        let r = unsafe {
+            locate_views(
+                session,
+                &info,
+                &mut state,
+                2,
+                &mut count,
+                views.as_mut_ptr(),
+            )
+        };
+        let oriented = xr::ViewStateFlags::ORIENTATION_VALID;
+        if r.into_raw() >= 0 && count == 2 && state.view_state_flags.contains(oriented) {
+            out.nominal = Some(views);
+        }
+        for job in jobs {
+            let raw = job.space.into_raw();
+            if out.head.iter().any(|(s, _)| *s == raw) {
+                continue;
+            }
+            let mut location = xr::SpaceLocation {
+                ty: xr::SpaceLocation::TYPE,
+                next: std::ptr::null_mut(),
+                location_flags: xr::SpaceLocationFlags::EMPTY,
+                pose: IDENTITY_POSE,
+            };
+            // SAFETY: the app's spaces of this session and an out-pointer.
+            let r = unsafe { locate_space(view_space, job.space, time, &mut location) };
+            if r.into_raw() >= 0
+                && location
+                    .location_flags
+                    .contains(xr::SpaceLocationFlags::ORIENTATION_VALID)
+            {
+                out.head.push((raw, location.pose));
+            }
+        }
+        out
+    }
+
+    /// The tracker's `gaze_uv` (in the eye's nominal view) in the view the
+    /// app submitted for `job`.
+    fn gaze_uv(&self, job: &ViewJob, gaze_uv: [f32; 2]) -> Option<[f32; 2]> {
+        let nominal = self.nominal.as_ref()?.get(job.view)?;
+        let raw = job.space.into_raw();
+        let head = self.head.iter().find(|(s, _)| *s == raw).map(|(_, p)| p)?;
+        gaze::gaze_uv_in_submitted_view(gaze_uv, nominal, head, &job.pose, &job.fov)
+    }
+}
+
+const IDENTITY_POSE: xr::Posef = xr::Posef {
+    orientation: xr::Quaternionf {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+        w: 1.0,
+    },
+    position: xr::Vector3f {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+    },
+};
 
 fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
     let mut guard_f = frames();
@@ -1016,6 +1230,10 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
             );
         }
     };
+    // The eyes' nominal views and the head's pose in each projection
+    // layer's space at the display time: the gaze re-projected into the
+    // views the app submitted.
+    let poses = unsafe { FramePoses::locate(next, session, s, display_ns, jobs) };
     let ctx = s.gpu.ctx.clone();
     let mut encoder = ctx
         .device()
@@ -1034,15 +1252,12 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
         let Some(Some(texture)) = sc.textures.get(image as usize) else {
             continue;
         };
-        let rect = job.rect;
-        if rect.offset.x != 0
-            || rect.offset.y != 0
-            || rect.extent.width != sc.width as i32
-            || rect.extent.height != sc.height as i32
-        {
-            warn("a projection view's imageRect smaller than its image is not served".into());
+        // The view's rectangle of the image: the whole image, or one
+        // eye's half of an image holding both side by side.
+        let Some((origin, [width, height])) = rect_in_image(job.rect, [sc.width, sc.height]) else {
+            warn("a projection view's imageRect outside its image (or empty) is not served".into());
             continue;
-        }
+        };
         if job.layer >= sc.layers {
             continue;
         }
@@ -1056,7 +1271,7 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
         if !slot
             .processor
             .as_ref()
-            .is_some_and(|p| p.fits(format, sc.width, sc.height, job.tan_lrud))
+            .is_some_and(|p| p.fits(format, width, height, job.tan_lrud))
         {
             slot.processor = None;
             match EyeProcessor::new(
@@ -1064,8 +1279,8 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
                 &config.pipeline,
                 EyeSpec {
                     format,
-                    width: sc.width,
-                    height: sc.height,
+                    width,
+                    height,
                     tan_lrud: job.tan_lrud,
                     scale,
                     timed,
@@ -1096,15 +1311,37 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
             .last_display_ns
             .map_or(0.0, |t| ((display_ns - t) as f64 * 1e-9).max(0.0) as f32);
         slot.last_display_ns = Some(display_ns);
+        let tracker_uv = slot.gaze_uv.unwrap_or([0.5, 0.5]);
+        let reprojected = poses.gaze_uv(job, tracker_uv);
+        if reprojected.is_some() && !s.reprojected {
+            s.reprojected = true;
+            log(
+                "info",
+                "frame effects: each eye's gaze re-projected from its nominal view into the view the app submitted",
+            );
+        }
+        let slot = &mut s.eyes[job.view];
         let input = FrameInput {
-            gaze_uv: slot.gaze_uv.unwrap_or([0.5, 0.5]),
+            gaze_uv: reprojected.unwrap_or(tracker_uv),
             pupil_mm,
             dt_secs,
         };
         let Some(p) = slot.processor.as_mut() else {
             continue;
         };
-        let encoded = p.encode(&mut encoder, texture, job.layer, &input);
+        let encoded = match p.encode(&mut encoder, texture, job.layer, origin, &input) {
+            Ok(e) => e,
+            Err(e) => {
+                log(
+                    "error",
+                    &format!(
+                        "frame effects: installing the eye's PSF: {e}; this session's frames pass through"
+                    ),
+                );
+                s.off = true;
+                return;
+            }
+        };
         slot.processed += 1;
         done.push(Done {
             view: job.view,
@@ -1201,4 +1438,48 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
 #[doc(hidden)]
 pub fn view_gaze(state: &EyeState, view: usize) -> [f32; 2] {
     state.eye_gaze_uv(eye_of_view(view))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(x: i32, y: i32, w: i32, h: i32) -> xr::Rect2Di {
+        xr::Rect2Di {
+            offset: xr::Offset2Di { x, y },
+            extent: xr::Extent2Di {
+                width: w,
+                height: h,
+            },
+        }
+    }
+
+    #[test]
+    fn image_rects_inside_the_image_are_served_and_others_are_not() {
+        let image = [2880, 1600];
+        // The whole image, and each eye's half of a side-by-side image.
+        assert_eq!(
+            rect_in_image(rect(0, 0, 2880, 1600), image),
+            Some(([0, 0], [2880, 1600]))
+        );
+        assert_eq!(
+            rect_in_image(rect(0, 0, 1440, 1600), image),
+            Some(([0, 0], [1440, 1600]))
+        );
+        assert_eq!(
+            rect_in_image(rect(1440, 0, 1440, 1600), image),
+            Some(([1440, 0], [1440, 1600]))
+        );
+        // Past an edge, negative, empty, or overflowing.
+        for r in [
+            rect(1441, 0, 1440, 1600),
+            rect(0, 1, 2880, 1600),
+            rect(-1, 0, 100, 100),
+            rect(0, 0, 0, 100),
+            rect(0, 0, 100, -5),
+            rect(i32::MAX, 0, i32::MAX, 100),
+        ] {
+            assert_eq!(rect_in_image(r, image), None, "{r:?}");
+        }
+    }
 }

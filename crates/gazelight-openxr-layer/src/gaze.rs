@@ -749,6 +749,50 @@ pub fn gaze_pose_in_view(views: &[xr::View], gaze_uv: [f32; 2]) -> Option<xr::Po
     })
 }
 
+/// Where a gaze lands in the view the app submitted.
+///
+/// The tracker's `gaze_uv` (normalised image coordinates, top-left origin)
+/// is in the eye's nominal view, `nominal` (its pose and field of view in
+/// VIEW space, from `xrLocateViews`); the app submitted the frame with its
+/// own `submitted` pose and `submitted_fov`, in a space where VIEW is at
+/// `head`. The gaze ray (a direction: the fixated point is taken as far)
+/// is carried from the nominal view through VIEW into that space and
+/// projected through the submitted view. With the submitted view equal to
+/// the nominal one, `gaze_uv` comes back. `None` when the ray points away
+/// from the submitted view's image plane or an input is degenerate.
+pub fn gaze_uv_in_submitted_view(
+    gaze_uv: [f32; 2],
+    nominal: &xr::View,
+    head: &xr::Posef,
+    submitted: &xr::Posef,
+    submitted_fov: &xr::Fovf,
+) -> Option<[f32; 2]> {
+    let [u, v] = gaze_uv.map(f64::from);
+    let t = |f: &xr::Fovf| {
+        [f.angle_left, f.angle_right, f.angle_up, f.angle_down].map(|a| f64::from(a).tan())
+    };
+    let [tl, tr, tu, td] = t(&nominal.fov);
+    let d = [tl + u * (tr - tl), tu - v * (tu - td), -1.0];
+    let d = rotate(&head.orientation, rotate(&nominal.pose.orientation, d));
+    let q = &submitted.orientation;
+    let inverse = xr::Quaternionf {
+        x: -q.x,
+        y: -q.y,
+        z: -q.z,
+        w: q.w,
+    };
+    let d = rotate(&inverse, d);
+    let [sl, sr, su, sd] = t(submitted_fov);
+    if d[2].is_nan() || d[2] >= -1e-9 || !(sr - sl).is_normal() || !(su - sd).is_normal() {
+        return None;
+    }
+    let (x, y) = (d[0] / -d[2], d[1] / -d[2]);
+    let uv = [(x - sl) / (sr - sl), (su - y) / (su - sd)];
+    uv.iter()
+        .all(|c| c.is_finite())
+        .then(|| uv.map(|c| c as f32))
+}
+
 /// `CLOCK_MONOTONIC` seconds → `XrTime` through
 /// `xrConvertTimespecTimeToTimeKHR`.
 unsafe fn host_to_xr_time(n: &Next, instance: xr::Instance, mono: f64) -> Option<xr::Time> {
@@ -866,6 +910,126 @@ mod tests {
 
     fn close(a: [f64; 3], b: [f64; 3]) -> bool {
         (0..3).all(|k| (a[k] - b[k]).abs() < 1e-6)
+    }
+
+    /// A rotation of `deg` about +Y (a yaw to the left, OpenXR's
+    /// right-handed, Y-up frame).
+    fn yaw(deg: f64) -> xr::Quaternionf {
+        let h = deg.to_radians() / 2.0;
+        xr::Quaternionf {
+            x: 0.0,
+            y: h.sin() as f32,
+            z: 0.0,
+            w: h.cos() as f32,
+        }
+    }
+
+    fn pose(q: xr::Quaternionf) -> xr::Posef {
+        xr::Posef {
+            orientation: q,
+            position: xr::Vector3f {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+            },
+        }
+    }
+
+    fn fov_deg(l: f64, r: f64, u: f64, d: f64) -> xr::Fovf {
+        let a = |x: f64| x.to_radians() as f32;
+        xr::Fovf {
+            angle_left: a(l),
+            angle_right: a(r),
+            angle_up: a(u),
+            angle_down: a(d),
+        }
+    }
+
+    fn near(a: [f32; 2], b: [f64; 2]) -> bool {
+        (f64::from(a[0]) - b[0]).abs() < 1e-5 && (f64::from(a[1]) - b[1]).abs() < 1e-5
+    }
+
+    #[test]
+    fn a_submitted_view_equal_to_the_nominal_one_keeps_the_gaze() {
+        // An asymmetric field (a canted left eye), the eye 32 mm left and
+        // turned 5° out, the head turned 30° in the layer's space, the
+        // app's view where the runtime put it.
+        let mut nominal = view(-0.032, 45.0);
+        nominal.fov = fov_deg(-52.0, 41.0, 44.0, -49.0);
+        nominal.pose.orientation = yaw(5.0);
+        let head = pose(yaw(30.0));
+        let submitted = compose(&head, &nominal.pose);
+        for uv in [[0.5, 0.5], [0.1, 0.9], [0.83, 0.27], [0.0, 1.0]] {
+            let got = gaze_uv_in_submitted_view(uv, &nominal, &head, &submitted, &nominal.fov)
+                .expect("in view");
+            assert!(near(got, uv.map(f64::from)), "{uv:?} -> {got:?}");
+        }
+    }
+
+    #[test]
+    fn a_view_submitted_turned_10_degrees_left_sees_the_gaze_10_degrees_right() {
+        // Symmetric 90° field: a direction θ right of the view's axis lands
+        // at u = (1 + tan θ) / 2.
+        let nominal = view(0.0, 45.0);
+        let head = pose(yaw(0.0));
+        let submitted = pose(yaw(10.0));
+        let got = gaze_uv_in_submitted_view([0.5, 0.5], &nominal, &head, &submitted, &nominal.fov)
+            .expect("in view");
+        let want = (1.0 + 10f64.to_radians().tan()) / 2.0;
+        assert!(near(got, [want, 0.5]), "{got:?}, want u {want}");
+        // The head turned with it (the app rendered the head's newer
+        // pose): the gaze stays at the centre.
+        let got = gaze_uv_in_submitted_view(
+            [0.5, 0.5],
+            &nominal,
+            &pose(yaw(10.0)),
+            &submitted,
+            &nominal.fov,
+        )
+        .expect("in view");
+        assert!(near(got, [0.5, 0.5]), "{got:?}");
+    }
+
+    #[test]
+    fn a_wider_submitted_field_pulls_the_gaze_towards_the_centre() {
+        // The gaze at the nominal right edge (45°), the app's view ±50°
+        // wide and ±40° high: u = (tan 45° + tan 50°) / (2 tan 50°); the
+        // gaze 30° up (v for a ±45° nominal field: (1 − tan 30°) / 2) lands
+        // at v = (tan 40° − tan 30°) / (2 tan 40°).
+        let nominal = view(0.0, 45.0);
+        let v30 = (1.0 - 30f64.to_radians().tan()) / 2.0;
+        let wide = fov_deg(-50.0, 50.0, 40.0, -40.0);
+        let got = gaze_uv_in_submitted_view(
+            [1.0, v30 as f32],
+            &nominal,
+            &pose(yaw(0.0)),
+            &pose(yaw(0.0)),
+            &wide,
+        )
+        .expect("in view");
+        let (t45, t50, t30, t40) = (
+            1.0f64,
+            50f64.to_radians().tan(),
+            30f64.to_radians().tan(),
+            40f64.to_radians().tan(),
+        );
+        assert!(
+            near(got, [(t45 + t50) / (2.0 * t50), (t40 - t30) / (2.0 * t40)]),
+            "{got:?}"
+        );
+    }
+
+    #[test]
+    fn a_gaze_behind_the_submitted_view_has_no_place_in_it() {
+        let nominal = view(0.0, 45.0);
+        let got = gaze_uv_in_submitted_view(
+            [0.5, 0.5],
+            &nominal,
+            &pose(yaw(0.0)),
+            &pose(yaw(180.0)),
+            &nominal.fov,
+        );
+        assert_eq!(got, None);
     }
 
     #[test]

@@ -5,14 +5,22 @@
 //! [`TexturePresenter`] drawing the display frame back into the same
 //! image (a render pass: the image ends in `COLOR_ATTACHMENT_OPTIMAL`).
 //!
-//! The PSF follows the pupil by `gazelight_vision::kernel_policy`, rebuilt
-//! by the pipeline on the GPU when the pupil moved past the threshold (no
-//! host work on the app's thread).
+//! The PSF follows the pupil by `gazelight_vision::kernel_policy`: when
+//! the pupil moved past the threshold the eye asks its own
+//! [`PsfWorker`] (a CPU `PsfBuilder` with the pipeline's PSF parameters on
+//! a thread of its own at nice +10, [`Priority::Background`]) for a
+//! kernel and keeps the one it has until the kernel is ready; installing it
+//! uploads it (the next frame makes its spectra on the GPU). Neither the
+//! build nor a wait for it runs on the app's thread or its queue: only the
+//! upload does. Where the worker cannot start (no thread) the pipeline
+//! rebuilds the kernel itself inside the frame that needs it.
 
 use gazelight_gpu::frame::FRAME_TIMESTAMPS;
 use gazelight_gpu::present::{FrameSource, TexturePresenter};
 use gazelight_gpu::psf::REBUILD_TIMESTAMPS;
 use gazelight_gpu::{EncodedFrame, FrameTimestamps, GpuContext, GpuError, GpuFramePipeline};
+use gazelight_psf_worker::{Priority, PsfWorker};
+use gazelight_vision::kernel_policy::KernelPolicy;
 use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
 
 use crate::import::{ImageFormat, ImportPass};
@@ -67,6 +75,76 @@ pub struct EyeProcessor {
     height: u32,
     tan_lrud: [f64; 4],
     queries: Option<Queries>,
+    psf: Option<EyePsf>,
+}
+
+/// The eye's kernels built off the app's thread.
+struct EyePsf {
+    worker: PsfWorker,
+    policy: KernelPolicy,
+    /// The pupil of the newest kernel asked for (or installed), mm.
+    target_mm: f64,
+    /// The pupil of the kernel installed, mm.
+    kernel_mm: f64,
+}
+
+impl EyePsf {
+    /// The worker for `pipeline`'s PSF (same parameters, the kernel it
+    /// holds now as the initial one); `None` with glare off or when the
+    /// worker cannot start (the pipeline then rebuilds in-frame).
+    fn start(
+        pipeline: &mut GpuFramePipeline,
+        config: &PipelineConfig,
+    ) -> Result<Option<Self>, GpuError> {
+        let Some(psf) = pipeline.psf() else {
+            return Ok(None);
+        };
+        let initial = psf.read_kernel()?;
+        let params = psf.params().clone();
+        match PsfWorker::start(params, &initial, None, 1, Priority::Background) {
+            Ok(worker) => {
+                pipeline.set_psf_auto_rebuild(false);
+                Ok(Some(Self {
+                    worker,
+                    policy: KernelPolicy::new(&config.glare),
+                    target_mm: initial.pupil_mm,
+                    kernel_mm: initial.pupil_mm,
+                }))
+            }
+            Err(e) => {
+                crate::log::log(
+                    "warn",
+                    &format!(
+                        "frame effects: no PSF worker thread ({e}); kernels are rebuilt inside the frames"
+                    ),
+                );
+                Ok(None)
+            }
+        }
+    }
+
+    /// Asks for a kernel when `pupil_mm` moved past the threshold and
+    /// installs a finished one; whether one was installed. Never waits.
+    fn follow(&mut self, pipeline: &mut GpuFramePipeline, pupil_mm: f32) -> Result<bool, GpuError> {
+        if let Some(p) = self.policy.decide(pupil_mm, self.target_mm) {
+            self.target_mm = p;
+            self.worker.request_views([Some(p), None]);
+        }
+        let kernel_mm = &mut self.kernel_mm;
+        self.worker
+            .take(0, |prepared, _ring_rad| {
+                pipeline.set_kernel(&prepared.kernel)?;
+                *kernel_mm = prepared.kernel.pupil_mm;
+                Ok(())
+            })
+            .transpose()
+            .map(|installed| installed.is_some())
+    }
+
+    /// Kernels built so far.
+    fn builds(&self) -> u64 {
+        self.worker.builds()
+    }
 }
 
 impl EyeProcessor {
@@ -94,6 +172,7 @@ impl EyeProcessor {
         pipeline.set_view_frustum(tan_lrud)?;
         let presenter = TexturePresenter::new(&FrameSource::of(&pipeline), format)?;
         let import = ImportPass::new(ctx, image, width, height, scale, pipeline.scene_buffer())?;
+        let psf = EyePsf::start(&mut pipeline, config)?;
         let queries = (timed && ctx.has_timestamp_queries()).then(|| {
             let device = ctx.device();
             Queries {
@@ -131,6 +210,7 @@ impl EyeProcessor {
             height,
             tan_lrud,
             queries,
+            psf,
         })
     }
 
@@ -149,24 +229,34 @@ impl EyeProcessor {
             && self.tan_lrud == tan_lrud
     }
 
-    /// Records the processing of `texture`'s array `layer` (the whole
-    /// image is the view; the caller checks) into `encoder`.
+    /// Records the processing of the view at `origin` (pixels; the view
+    /// is the processor's size, inside the image: the caller checks) of
+    /// `texture`'s array `layer` into `encoder`: the whole image, or one
+    /// view's `imageRect` of an image holding both side by side, whose
+    /// other pixels stay as they are. First
+    /// installing the newest kernel the eye's PSF worker finished (then
+    /// `psf_rebuilt` is true: a new kernel took effect in this frame).
     pub fn encode(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         texture: &wgpu::Texture,
         layer: u32,
+        origin: [u32; 2],
         input: &FrameInput,
-    ) -> EncodedFrame {
+    ) -> Result<EncodedFrame, GpuError> {
+        let installed = match self.psf.as_mut() {
+            Some(psf) => psf.follow(&mut self.pipeline, input.pupil_mm)?,
+            None => false,
+        };
         let q = self.queries.as_ref();
         self.import.encode(
             encoder,
             texture,
             layer,
-            [0, 0],
+            origin,
             q.map(|q| (&q.frame, IMPORT_TS)),
         );
-        let encoded = self.pipeline.encode_timed(
+        let mut encoded = self.pipeline.encode_timed(
             encoder,
             input,
             q.map(|q| FrameTimestamps {
@@ -185,7 +275,17 @@ impl EyeProcessor {
             base_array_layer: layer,
             array_layer_count: Some(1),
         });
-        self.presenter.encode(encoder, &view);
+        let whole =
+            origin == [0, 0] && [texture.width(), texture.height()] == [self.width, self.height];
+        if whole {
+            self.presenter.encode(encoder, &view);
+        } else {
+            self.presenter.encode_rect(
+                encoder,
+                &view,
+                [origin[0], origin[1], self.width, self.height],
+            );
+        }
         if let Some(q) = q {
             encoder.resolve_query_set(&q.frame, 0..FRAME_QUERIES, &q.resolve, 0);
             encoder.copy_buffer_to_buffer(
@@ -196,7 +296,44 @@ impl EyeProcessor {
                 u64::from(FRAME_QUERIES) * 8,
             );
         }
-        encoded
+        encoded.psf_rebuilt |= installed;
+        Ok(encoded)
+    }
+
+    /// Whether the eye's kernels are built off the app's thread (else the
+    /// pipeline rebuilds them inside frames).
+    pub fn psf_off_thread(&self) -> bool {
+        self.psf.is_some()
+    }
+
+    /// Asks for the kernel of `pupil_mm` and waits up to `timeout` until
+    /// it is installed (tests: a frame that must have it); whether it is.
+    #[doc(hidden)]
+    pub fn wait_for_kernel(
+        &mut self,
+        pupil_mm: f32,
+        timeout: std::time::Duration,
+    ) -> Result<bool, GpuError> {
+        let Some(psf) = self.psf.as_mut() else {
+            // Rebuilt inside the next frame.
+            return Ok(true);
+        };
+        let t0 = std::time::Instant::now();
+        loop {
+            psf.follow(&mut self.pipeline, pupil_mm)?;
+            if psf.policy.decide(pupil_mm, psf.kernel_mm).is_none() {
+                return Ok(true);
+            }
+            if t0.elapsed() >= timeout {
+                return Ok(false);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+    }
+
+    /// Kernels the eye's PSF worker built so far.
+    pub fn psf_builds(&self) -> u64 {
+        self.psf.as_ref().map_or(0, EyePsf::builds)
     }
 
     /// The GPU time of the last submitted frame, ms: the import pass plus

@@ -183,10 +183,11 @@ fn texels(scene: &RgbImage, format: ImageFormat) -> Vec<u8> {
 /// Reads `texture` (layer 0) back as bytes, rows unpadded.
 fn read_texture(gpu: &LayerGpu, texture: &wgpu::Texture, format: ImageFormat) -> Vec<u8> {
     let ctx = &gpu.ctx;
-    let row = row_bytes(format, W);
+    let (width, height) = (texture.width(), texture.height());
+    let row = row_bytes(format, width);
     let buf = ctx.device().create_buffer(&wgpu::BufferDescriptor {
         label: None,
-        size: u64::from(row * H),
+        size: u64::from(row * height),
         usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
         mapped_at_creation: false,
     });
@@ -198,7 +199,7 @@ fn read_texture(gpu: &LayerGpu, texture: &wgpu::Texture, format: ImageFormat) ->
             layout: wgpu::TexelCopyBufferLayout {
                 offset: 0,
                 bytes_per_row: Some(row),
-                rows_per_image: Some(H),
+                rows_per_image: Some(height),
             },
         },
         texture.size(),
@@ -207,7 +208,7 @@ fn read_texture(gpu: &LayerGpu, texture: &wgpu::Texture, format: ImageFormat) ->
     buf.slice(..).map_async(wgpu::MapMode::Read, |_| ());
     ctx.wait_idle().expect("wait");
     let data = buf.slice(..).get_mapped_range().expect("mapped").to_vec();
-    let tb = (format.texel_bytes() * W) as usize;
+    let tb = (format.texel_bytes() * width) as usize;
     data.chunks(row as usize)
         .flat_map(|r| r[..tb].to_vec())
         .collect()
@@ -238,6 +239,162 @@ fn as_codes(bytes: &[u8], format: ImageFormat) -> Vec<[f32; 3]> {
             })
             .collect(),
     }
+}
+
+/// Two views side by side in one image (one swapchain for both eyes, each
+/// view's `imageRect` one half, as some engines submit): each half
+/// processed by its own eye's processor equals the pipeline on that half
+/// alone, within 1/255, and neither eye's draw touches the other's half.
+#[test]
+fn two_views_side_by_side_in_one_image_each_match_the_pipeline() {
+    let Some(mut app) = app() else {
+        return;
+    };
+    let gpu = app.gpu.as_ref().expect("gpu");
+    let ctx = gpu.ctx.clone();
+    let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+    let image_format = ImageFormat::of(format).expect("served format");
+    // The left eye sees the crop, the right eye its mirror image.
+    let left = scene();
+    let mut right = left.clone();
+    for y in 0..H as usize {
+        right.pixels[y * W as usize..(y + 1) * W as usize].reverse();
+    }
+    let halves = [texels(&left, image_format), texels(&right, image_format)];
+    let tb = image_format.texel_bytes() as usize;
+    let mut both = Vec::with_capacity(halves[0].len() * 2);
+    for y in 0..H as usize {
+        for half in &halves {
+            both.extend_from_slice(&half[y * W as usize * tb..(y + 1) * W as usize * tb]);
+        }
+    }
+    let app_texture = ctx.device().create_texture(&wgpu::TextureDescriptor {
+        label: Some("the app's side-by-side image"),
+        size: wgpu::Extent3d {
+            width: 2 * W,
+            height: H,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::RENDER_ATTACHMENT,
+        view_formats: &[],
+    });
+    ctx.queue().write_texture(
+        app_texture.as_image_copy(),
+        &both,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(2 * W * tb as u32),
+            rows_per_image: Some(H),
+        },
+        app_texture.size(),
+    );
+    ctx.wait_idle().expect("wait");
+    let a = 45f32.to_radians();
+    let tan = fov_tangents(-a, a, a, -a);
+    let config = PipelineConfig::default();
+    let spec = EyeSpec {
+        format,
+        width: W,
+        height: H,
+        tan_lrud: tan,
+        scale: WHITE_CD_M2,
+        timed: false,
+    };
+    let inputs = [
+        FrameInput {
+            gaze_uv: [0.3, 0.6],
+            pupil_mm: 5.5,
+            dt_secs: 0.0,
+        },
+        FrameInput {
+            gaze_uv: [0.7, 0.4],
+            pupil_mm: 3.0,
+            dt_secs: 0.0,
+        },
+    ];
+    let raw = raw_image(&app_texture).expect("raw image");
+    let wrapped = unsafe { gpu.wrap_image(raw, format, 2 * W, H, 1) }.expect("wrap");
+    let mut processors: Vec<EyeProcessor> = (0..2)
+        .map(|_| EyeProcessor::new(&ctx, &config, spec).expect("eye processor"))
+        .collect();
+    let mut enc = ctx.device().create_command_encoder(&Default::default());
+    for (eye, (p, input)) in processors.iter_mut().zip(&inputs).enumerate() {
+        assert!(
+            p.wait_for_kernel(input.pupil_mm, std::time::Duration::from_secs(120))
+                .expect("kernel")
+        );
+        p.encode(&mut enc, &wrapped, 0, [eye as u32 * W, 0], input)
+            .expect("encode");
+    }
+    ctx.queue().submit([enc.finish()]);
+    ctx.wait_idle().expect("wait");
+    let out = as_codes(&read_texture(gpu, &app_texture, image_format), image_format);
+    for (eye, (half, input)) in [&left, &right].into_iter().zip(&inputs).enumerate() {
+        let cpu_scene = import_cpu(
+            &halves[eye],
+            W as usize * tb,
+            W as usize,
+            H as usize,
+            image_format,
+            WHITE_CD_M2,
+        )
+        .expect("CPU import");
+        let cpu_scene = RgbImage {
+            width: W as usize,
+            height: H as usize,
+            pixels: cpu_scene.iter().map(|p| [p[0], p[1], p[2]]).collect(),
+        };
+        let mut reference = GpuFramePipeline::new(
+            &ctx,
+            config.clone(),
+            W as usize,
+            H as usize,
+            deg_per_px(tan, W),
+        )
+        .expect("reference pipeline");
+        reference.set_view_frustum(tan).expect("frustum");
+        reference
+            .process(&cpu_scene, input)
+            .expect("reference frame");
+        let display = reference.display().expect("display").clone();
+        let input_codes = as_codes(&halves[eye], image_format);
+        let (mut worst, mut changed) = (0.0f32, 0usize);
+        for y in 0..H as usize {
+            for x in 0..W as usize {
+                let l = out[y * 2 * W as usize + eye * W as usize + x];
+                let r = &display.rgba8[(y * W as usize + x) * 4..][..4];
+                for c in 0..3 {
+                    worst = worst.max((l[c] - f32::from(r[c])).abs());
+                }
+                if (0..3).any(|c| (l[c] - input_codes[y * W as usize + x][c]).abs() > 2.0) {
+                    changed += 1;
+                }
+            }
+        }
+        let n = (W * H) as usize;
+        println!(
+            "side by side, eye {eye} ({} px wide half at x = {}): worst difference {worst:.2} codes, {changed} of {n} pixels changed",
+            half.width,
+            eye as u32 * W
+        );
+        assert!(worst <= 1.0, "eye {eye}: worst difference {worst} codes");
+        assert!(
+            changed * 4 > n,
+            "eye {eye}: the effects changed only {changed} of {n} pixels"
+        );
+    }
+    drop(wrapped);
+    drop(processors);
+    drop(app_texture);
+    ctx.wait_idle().expect("wait");
+    drop(ctx);
+    app.gpu.take();
 }
 
 fn run_format(format: wgpu::TextureFormat) {
@@ -353,8 +510,24 @@ fn run_format(format: wgpu::TextureFormat) {
         ctx.queue().submit([enc.finish()]);
         ctx.wait_idle().expect("wait");
         // The layer's path on the app's image.
+        // The frame's kernel: the layer's comes from its eye's PSF worker
+        // (the CPU builder, off the app's thread), the pipeline's is
+        // rebuilt on the GPU inside the frame.
+        assert!(
+            processor
+                .wait_for_kernel(input.pupil_mm, std::time::Duration::from_secs(120))
+                .expect("kernel"),
+            "the PSF worker's kernel for {} mm",
+            input.pupil_mm
+        );
+        // Built by the eye's worker (one kernel per new pupil), not inside
+        // the frame.
+        assert!(processor.psf_off_thread());
+        assert_eq!(processor.psf_builds(), k as u64 + 1);
         let mut enc = ctx.device().create_command_encoder(&Default::default());
-        processor.encode(&mut enc, &wrapped, 0, input);
+        processor
+            .encode(&mut enc, &wrapped, 0, [0, 0], input)
+            .expect("encode");
         ctx.queue().submit([enc.finish()]);
         ctx.wait_idle().expect("wait");
         let layer_out = as_codes(&read_texture(gpu, &app_texture, image_format), image_format);

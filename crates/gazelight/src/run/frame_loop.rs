@@ -11,7 +11,7 @@
 //!    eases it to the model when the tracker vanishes, fed the adaptation
 //!    luminance this loop stores); the loop never filters it again;
 //! 2. follows the head orientation (a head trace re-renders the view);
-//! 3. asks the PSF worker ([`super::psf_worker`]) for a kernel when the
+//! 3. asks the PSF worker ([`gazelight_psf_worker`]) for a kernel when the
 //!    pupil moved more than `psf_rebuild_threshold_mm` since the last
 //!    request, installs a finished kernel if one is ready (frames keep the
 //!    previous kernel until then: a rebuild never stalls a frame), runs
@@ -42,13 +42,13 @@ use gazelight_vision::psf::PsfKernel;
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use super::head::Head;
-use super::psf_worker::PsfWorker;
 use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub};
 use crate::pupil_light::{self, FieldLight, PupilLight};
 use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
+use gazelight_psf_worker::{Priority, PsfWorker};
 use gazelight_tracker::live::SourceHealth;
 use gazelight_tracker::live::{AdaptationCell, AgeClock};
 
@@ -240,7 +240,7 @@ fn start_psf_worker(
     // As the pipelines' own builders: same size and pixel size.
     psf.ppd = 1.0 / view.deg_per_px();
     psf.pupil_mm = initial.pupil_mm;
-    let worker = PsfWorker::start(psf, &initial, preparer, eyes.len())
+    let worker = PsfWorker::start(psf, &initial, preparer, eyes.len(), Priority::Idle)
         .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
     for eye in eyes.iter_mut() {
         eye.psf_target_mm = initial.pupil_mm;

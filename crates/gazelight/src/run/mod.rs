@@ -24,7 +24,6 @@
 
 pub mod frame_loop;
 pub mod head;
-pub mod psf_worker;
 pub mod source_task;
 pub mod writer;
 pub mod xr;

@@ -14,23 +14,51 @@
 //!   field), both made on the worker. The worker fills a staging copy
 //!   allocated once at start and swaps it into the slot; the frame loop
 //!   takes the slot with `try_lock` (never waits) and installs it
-//!   ([`crate::backend::Renderer::install_prepared`]), which on the CPU
+//!   (gazelight's `Renderer::install_prepared`), which on the CPU
 //!   swaps buffers: no FFT, no copy, no allocation on the frame thread.
 //!   With it comes the first dark ring the worker measured on its
 //!   builder's 575 nm field for that build ([`PsfBuilder::first_ring_rad`];
 //!   `psf.csv`).
 //!
 //! Two views asking for the same pupil at once (the shared kernel of two
-//! agreeing pupils, `crate::stereo::plan`) are served by one build: the
+//! agreeing pupils, `KernelPolicy::plan`) are served by one build: the
 //! second view's slot gets a copy of the kernel and its spectra.
 //!
-//! Frames keep the previous kernel until the new one is ready, and a build
-//! never takes a core from a frame: the worker and the rayon pool it builds
-//! on (its own single thread, not the global pool the frame passes use, so
-//! no frame thread can steal a build task while it waits in a join) run at
-//! the kernel's idle priority (Linux `SCHED_IDLE`), so they get a core only
-//! while no frame thread wants it: in the gaps between frames and in a
-//! frame's serial parts. Kernel latency pays for that.
+//! Frames keep the previous kernel until the new one is ready. The worker
+//! and the rayon pool it builds on (its own single thread, not the global
+//! pool the frame passes use, so no frame thread can steal a build task
+//! while it waits in a join) run at a low CPU [`Priority`]:
+//!
+//! * [`Priority::Idle`] (`run`): the kernel's idle priority (Linux
+//!   `SCHED_IDLE`), so a build never takes a core from a frame: it gets
+//!   one only while no other thread wants it, in the gaps between frames
+//!   and in a frame's serial parts. Kernel latency pays for that, and a
+//!   machine whose cores other processes keep busy starves the worker.
+//! * [`Priority::Background`] (the OpenXR layer, a guest in an app's
+//!   process on a machine it does not own): nice +10, a small but certain
+//!   share of a core (about a tenth against one busy normal thread), so
+//!   kernels keep following the pupil, late, however loaded the machine.
+//!
+//! # Example
+//!
+//! ```
+//! use gazelight_psf_worker::{PsfWorker, Priority};
+//! use gazelight_vision::psf::{PsfBuilder, PsfParams};
+//!
+//! let params = PsfParams { field_deg: 2.0, ppd: 8.0, ..PsfParams::default() };
+//! let initial = PsfBuilder::new(params.clone())?.kernel().clone();
+//! let worker = PsfWorker::start(params, &initial, None, 1, Priority::Background)?;
+//! worker.request_views([Some(6.0), None]);
+//! let pupil_mm = loop {
+//!     // A frame loop would render here and look again next frame.
+//!     if let Some(p) = worker.take(0, |prepared, _ring_rad| prepared.kernel.pupil_mm) {
+//!         break p;
+//!     }
+//!     std::thread::sleep(std::time::Duration::from_millis(5));
+//! };
+//! assert_eq!(pupil_mm, 6.0);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 //!
 //! A build running on the other core while a frame renders still costs
 //! that frame shared cache and memory bandwidth (its FFT grids, tens of
@@ -73,20 +101,42 @@ const GAP_POLL: Duration = Duration::from_millis(2);
 /// stereo run) still get their kernels, about this much later.
 const MAX_DEFERRAL: Duration = Duration::from_secs(1);
 
-/// Puts the calling thread at the lowest CPU priority, Linux `SCHED_IDLE`:
-/// it runs only on a core no normal thread wants. A failure is logged and
-/// the thread keeps its priority; other systems keep it too.
-fn lower_priority() {
+/// How the worker's threads share the CPU with everything else.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Priority {
+    /// Linux `SCHED_IDLE`: a core only when no other thread wants it.
+    Idle,
+    /// Nice +10 (`SCHED_OTHER`): a small share even on a busy machine.
+    Background,
+}
+
+/// Nice value of [`Priority::Background`].
+const BACKGROUND_NICE: libc::c_int = 10;
+
+/// Puts the calling thread at `priority`. A failure is logged and the
+/// thread keeps its priority; other systems keep it too.
+fn lower_priority(priority: Priority) {
     #[cfg(target_os = "linux")]
     {
-        let param = libc::sched_param { sched_priority: 0 };
-        // SAFETY: pid 0 is the calling thread; `param` is a valid, live
-        // sched_param for the duration of the call.
-        let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
+        let rc = match priority {
+            Priority::Idle => {
+                let param = libc::sched_param { sched_priority: 0 };
+                // SAFETY: pid 0 is the calling thread; `param` is a valid,
+                // live sched_param for the duration of the call.
+                unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) }
+            }
+            // SAFETY: on Linux, PRIO_PROCESS with who 0 is the calling
+            // thread alone; raising one's own nice value needs no privilege.
+            Priority::Background => unsafe {
+                libc::setpriority(libc::PRIO_PROCESS, 0, BACKGROUND_NICE)
+            },
+        };
         if rc != 0 {
-            tracing::warn!(error = %std::io::Error::last_os_error(), "PSF worker: cannot lower its priority");
+            tracing::warn!(error = %std::io::Error::last_os_error(), ?priority, "PSF worker: cannot lower its priority");
         }
     }
+    #[cfg(not(target_os = "linux"))]
+    let _ = priority;
 }
 
 /// The largest number of views one worker serves (a stereo frame's two).
@@ -157,12 +207,13 @@ impl PsfWorker {
     /// kernel and its spectra are made once and copied to both slots. The
     /// builder is made on the worker thread (it costs as much as a
     /// rebuild); if that fails the worker logs it and ends, and frames keep
-    /// the initial kernel.
+    /// the initial kernel. Its threads run at `priority`.
     pub fn start(
         params: PsfParams,
         initial: &PsfKernel,
         preparer: Option<GlarePreparer>,
         views: usize,
+        priority: Priority,
     ) -> std::io::Result<Self> {
         if views == 0 || views > MAX_VIEWS {
             return Err(std::io::Error::new(
@@ -193,14 +244,14 @@ impl PsfWorker {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(BUILD_THREADS)
             .thread_name(|i| format!("gazelight-psf-{i}"))
-            .start_handler(|_| lower_priority())
+            .start_handler(move |_| lower_priority(priority))
             .build()
             .map_err(std::io::Error::other)?;
         let worker = Arc::clone(&shared);
         let handle = std::thread::Builder::new()
             .name("gazelight-psf".into())
             .spawn(move || {
-                lower_priority();
+                lower_priority(priority);
                 pool.install(|| work(&worker, params, preparer, staging));
             })?;
         Ok(Self {
@@ -425,7 +476,7 @@ mod tests {
         let params = small_params();
         let mut reference = PsfBuilder::new(params.clone()).expect("builder");
         let initial = reference.kernel().clone();
-        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None, 1, Priority::Idle).expect("worker");
         worker.request_views([Some(3.0), None]);
         worker.request_views([Some(6.0), None]);
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
@@ -459,7 +510,7 @@ mod tests {
             .expect("builder")
             .kernel()
             .clone();
-        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None, 1, Priority::Idle).expect("worker");
         let wait = |limit: Duration| {
             let deadline = std::time::Instant::now() + limit;
             while std::time::Instant::now() < deadline {
@@ -503,7 +554,8 @@ mod tests {
             fade_sigma_deg: 0.5,
         };
         let conv = GlareConvolver::new(&initial, window).expect("convolver");
-        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 2).expect("worker");
+        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 2, Priority::Idle)
+            .expect("worker");
         let wait = |view: usize| {
             let deadline = std::time::Instant::now() + Duration::from_secs(120);
             loop {
@@ -538,7 +590,7 @@ mod tests {
         assert_eq!((a.pupil_mm, b.pupil_mm), (3.0, 7.0));
         assert_eq!(b.rgb, reference.rebuild(7.0).rgb);
         assert_eq!(worker.builds(), 3);
-        assert!(PsfWorker::start(small_params(), &initial, None, 3).is_err());
+        assert!(PsfWorker::start(small_params(), &initial, None, 3, Priority::Idle).is_err());
     }
 
     /// The ring the worker reports is measured on the field it built: with
@@ -557,7 +609,7 @@ mod tests {
             .expect("builder")
             .kernel()
             .clone();
-        let worker = PsfWorker::start(params, &initial, None, 1).expect("worker");
+        let worker = PsfWorker::start(params, &initial, None, 1, Priority::Idle).expect("worker");
         let mut rings = Vec::new();
         for pupil_mm in [6.0, 2.5] {
             worker.request_views([Some(pupil_mm), None]);
@@ -602,7 +654,8 @@ mod tests {
             fade_sigma_deg: 0.5,
         };
         let mut conv = GlareConvolver::new(&initial, window).expect("convolver");
-        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 1).expect("worker");
+        let worker = PsfWorker::start(params, &initial, Some(conv.preparer()), 1, Priority::Idle)
+            .expect("worker");
         worker.request_views([Some(6.5), None]);
         let deadline = std::time::Instant::now() + Duration::from_secs(120);
         let (got_mm, spectra_mm) = loop {
