@@ -1093,7 +1093,7 @@ impl FramePoses {
                 ty: xr::ReferenceSpaceCreateInfo::TYPE,
                 next: std::ptr::null(),
                 reference_space_type: xr::ReferenceSpaceType::VIEW,
-                pose_in_reference_space: IDENTITY_POSE,
+                pose_in_reference_space: gaze::IDENTITY,
             };
             let mut space = xr::Space::NULL;
             // SAFETY: a valid info and out-pointer on the app's session.
@@ -1111,44 +1111,11 @@ impl FramePoses {
             return out;
         };
         let time = xr::Time::from_nanos(display_ns);
-        let info = xr::ViewLocateInfo {
-            ty: xr::ViewLocateInfo::TYPE,
-            next: std::ptr::null(),
-            view_configuration_type: xr::ViewConfigurationType::PRIMARY_STEREO,
-            display_time: time,
-            space: view_space,
-        };
-        let mut state = xr::ViewState {
-            ty: xr::ViewState::TYPE,
-            next: std::ptr::null_mut(),
-            view_state_flags: xr::ViewStateFlags::EMPTY,
-        };
-        let empty = xr::View {
-            ty: xr::View::TYPE,
-            next: std::ptr::null_mut(),
-            pose: IDENTITY_POSE,
-            fov: xr::Fovf {
-                angle_left: 0.0,
-                angle_right: 0.0,
-                angle_up: 0.0,
-                angle_down: 0.0,
-            },
-        };
-        let mut views = [empty; 2];
-        let mut count = 0u32;
-        // SAFETY: valid info, state and a 2-view array.
-        let r = unsafe {
-            locate_views(
-                session,
-                &info,
-                &mut state,
-                2,
-                &mut count,
-                views.as_mut_ptr(),
-            )
-        };
-        let oriented = xr::ViewStateFlags::ORIENTATION_VALID;
-        if r.into_raw() >= 0 && count == 2 && state.view_state_flags.contains(oriented) {
+        // SAFETY: the next layer's xrLocateViews on the app's session.
+        let located = unsafe { gaze::locate_stereo_views(locate_views, session, view_space, time) };
+        if let Some((views, 2, flags)) = located
+            && flags.contains(xr::ViewStateFlags::ORIENTATION_VALID)
+        {
             out.nominal = Some(views);
         }
         for job in jobs {
@@ -1160,7 +1127,7 @@ impl FramePoses {
                 ty: xr::SpaceLocation::TYPE,
                 next: std::ptr::null_mut(),
                 location_flags: xr::SpaceLocationFlags::EMPTY,
-                pose: IDENTITY_POSE,
+                pose: gaze::IDENTITY,
             };
             // SAFETY: the app's spaces of this session and an out-pointer.
             let r = unsafe { locate_space(view_space, job.space, time, &mut location) };
@@ -1184,20 +1151,6 @@ impl FramePoses {
         gaze::gaze_uv_in_submitted_view(gaze_uv, nominal, head, &job.pose, &job.fov)
     }
 }
-
-const IDENTITY_POSE: xr::Posef = xr::Posef {
-    orientation: xr::Quaternionf {
-        x: 0.0,
-        y: 0.0,
-        z: 0.0,
-        w: 1.0,
-    },
-    position: xr::Vector3f {
-        x: 0.0,
-        y: 0.0,
-        z: 0.0,
-    },
-};
 
 fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
     let mut guard_f = frames();

@@ -565,7 +565,8 @@ unsafe fn create_view_space(n: &Next, session: xr::Session) -> Option<xr::Space>
     Some(space)
 }
 
-const IDENTITY: xr::Posef = xr::Posef {
+/// The identity pose.
+pub(crate) const IDENTITY: xr::Posef = xr::Posef {
     orientation: xr::Quaternionf {
         x: 0.0,
         y: 0.0,
@@ -663,12 +664,31 @@ unsafe fn gaze_in_view(
     time: xr::Time,
     state: &EyeState,
 ) -> Option<xr::Posef> {
+    // SAFETY: the next layer's xrLocateViews on the app's session and space.
+    let (views, count, _) =
+        unsafe { locate_stereo_views(n.locate_views, session, view_space, time) }?;
+    gaze_pose_in_view(&views[..count], state.gaze_uv)
+}
+
+/// The primary stereo views in `space` at `time` through the next layer's
+/// `locate_views`: the views, how many were written (≥ 1), the view state
+/// flags; `None` when the call fails or writes none.
+///
+/// # Safety
+/// `locate_views` is the next layer's `xrLocateViews`; `session` and
+/// `space` are the app's live handles.
+pub(crate) unsafe fn locate_stereo_views(
+    locate_views: pfn::LocateViews,
+    session: xr::Session,
+    space: xr::Space,
+    time: xr::Time,
+) -> Option<([xr::View; 2], usize, xr::ViewStateFlags)> {
     let info = xr::ViewLocateInfo {
         ty: xr::ViewLocateInfo::TYPE,
         next: std::ptr::null(),
         view_configuration_type: xr::ViewConfigurationType::PRIMARY_STEREO,
         display_time: time,
-        space: view_space,
+        space,
     };
     let mut vs = xr::ViewState {
         ty: xr::ViewState::TYPE,
@@ -689,11 +709,8 @@ unsafe fn gaze_in_view(
     let mut views = [empty; 2];
     let mut count = 0u32;
     // SAFETY: valid info, state and a 2-view array.
-    let r = unsafe { (n.locate_views)(session, &info, &mut vs, 2, &mut count, views.as_mut_ptr()) };
-    if r.into_raw() < 0 || count == 0 {
-        return None;
-    }
-    gaze_pose_in_view(&views[..count as usize], state.gaze_uv)
+    let r = unsafe { locate_views(session, &info, &mut vs, 2, &mut count, views.as_mut_ptr()) };
+    (r.into_raw() >= 0 && count > 0).then(|| (views, (count as usize).min(2), vs.view_state_flags))
 }
 
 /// The binocular gaze pose from `views` (poses and fields of view in VIEW

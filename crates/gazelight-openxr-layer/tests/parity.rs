@@ -241,6 +241,52 @@ fn as_codes(bytes: &[u8], format: ImageFormat) -> Vec<[f32; 3]> {
     }
 }
 
+/// The app's swapchain image, `width` × H, that the app renders into
+/// (left in `COLOR_ATTACHMENT_OPTIMAL` after its render pass).
+fn app_image(
+    ctx: &gazelight_gpu::GpuContext,
+    format: wgpu::TextureFormat,
+    width: u32,
+    label: &str,
+) -> wgpu::Texture {
+    ctx.device().create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height: H,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::COPY_DST
+            | wgpu::TextureUsages::RENDER_ATTACHMENT,
+        view_formats: &[],
+    })
+}
+
+/// The CPU twin's import of a W×H image's `texels`: the reference
+/// pipeline's scene, cd/m².
+fn imported(texels: &[u8], format: ImageFormat, scale: f32) -> RgbImage {
+    let tb = format.texel_bytes() as usize;
+    let scene = import_cpu(
+        texels,
+        W as usize * tb,
+        W as usize,
+        H as usize,
+        format,
+        scale,
+    )
+    .expect("CPU import");
+    RgbImage {
+        width: W as usize,
+        height: H as usize,
+        pixels: scene.iter().map(|p| [p[0], p[1], p[2]]).collect(),
+    }
+}
+
 /// Two views side by side in one image (one swapchain for both eyes, each
 /// view's `imageRect` one half, as some engines submit): each half
 /// processed by its own eye's processor equals the pipeline on that half
@@ -268,22 +314,7 @@ fn two_views_side_by_side_in_one_image_each_match_the_pipeline() {
             both.extend_from_slice(&half[y * W as usize * tb..(y + 1) * W as usize * tb]);
         }
     }
-    let app_texture = ctx.device().create_texture(&wgpu::TextureDescriptor {
-        label: Some("the app's side-by-side image"),
-        size: wgpu::Extent3d {
-            width: 2 * W,
-            height: H,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage: wgpu::TextureUsages::COPY_SRC
-            | wgpu::TextureUsages::COPY_DST
-            | wgpu::TextureUsages::RENDER_ATTACHMENT,
-        view_formats: &[],
-    });
+    let app_texture = app_image(&ctx, format, 2 * W, "the app's side-by-side image");
     ctx.queue().write_texture(
         app_texture.as_image_copy(),
         &both,
@@ -336,20 +367,7 @@ fn two_views_side_by_side_in_one_image_each_match_the_pipeline() {
     ctx.wait_idle().expect("wait");
     let out = as_codes(&read_texture(gpu, &app_texture, image_format), image_format);
     for (eye, (half, input)) in [&left, &right].into_iter().zip(&inputs).enumerate() {
-        let cpu_scene = import_cpu(
-            &halves[eye],
-            W as usize * tb,
-            W as usize,
-            H as usize,
-            image_format,
-            WHITE_CD_M2,
-        )
-        .expect("CPU import");
-        let cpu_scene = RgbImage {
-            width: W as usize,
-            height: H as usize,
-            pixels: cpu_scene.iter().map(|p| [p[0], p[1], p[2]]).collect(),
-        };
+        let cpu_scene = imported(&halves[eye], image_format, WHITE_CD_M2);
         let mut reference = GpuFramePipeline::new(
             &ctx,
             config.clone(),
@@ -408,22 +426,7 @@ fn run_format(format: wgpu::TextureFormat) {
     let input_texels = texels(&scene, image_format);
     // The app's swapchain image, rendered into by the app: in
     // COLOR_ATTACHMENT_OPTIMAL after its render pass.
-    let app_texture = ctx.device().create_texture(&wgpu::TextureDescriptor {
-        label: Some("the app's image"),
-        size: wgpu::Extent3d {
-            width: W,
-            height: H,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage: wgpu::TextureUsages::COPY_SRC
-            | wgpu::TextureUsages::COPY_DST
-            | wgpu::TextureUsages::RENDER_ATTACHMENT,
-        view_formats: &[],
-    });
+    let app_texture = app_image(&ctx, format, W, "the app's image");
     let scale = if image_format == ImageFormat::Rgba16Float {
         1.0
     } else {
@@ -452,20 +455,7 @@ fn run_format(format: wgpu::TextureFormat) {
     .expect("reference pipeline");
     reference.set_view_frustum(tan).expect("frustum");
     let tb = image_format.texel_bytes() as usize;
-    let cpu_scene = import_cpu(
-        &input_texels,
-        W as usize * tb,
-        W as usize,
-        H as usize,
-        image_format,
-        scale,
-    )
-    .expect("CPU import");
-    let cpu_scene = RgbImage {
-        width: W as usize,
-        height: H as usize,
-        pixels: cpu_scene.iter().map(|p| [p[0], p[1], p[2]]).collect(),
-    };
+    let cpu_scene = imported(&input_texels, image_format, scale);
     let inputs = [
         FrameInput {
             gaze_uv: [0.3, 0.6],
