@@ -94,10 +94,10 @@ def test_eyelink_mono_with_a_profile_equals_the_cli_replay(data_dir, gazelight_b
     profile = _profile(gazelight_bin, data_dir, tmp_path)
     out = tmp_path / "cli"
     run_cli(gazelight_bin, "replay", str(rec), "--backend", "cpu", "--calibration", str(profile),
-            "--pupil-black-cd-m2", "0.5", "--pupil-white-cd-m2", "80", "--size", "48x40", "--fps", "1",
+            "--pupil-black-cd-m2", "0.05", "--pupil-white-cd-m2", "200", "--size", "48x40", "--fps", "1",
             "--secs", "85", "--no-frames", "--out", str(out))
     r = gazelight.render(None, rec, size=(48, 40), fps=1.0, secs=85.0, calibration=profile,
-                         pupil_black_cd_m2=0.5, pupil_white_cd_m2=80.0)
+                         pupil_black_cd_m2=0.05, pupil_white_cd_m2=200.0)
     _compare_params(out, r, ("",), "profile")
     _compare(out, r, ("",), min_residuals=50)
 
@@ -112,6 +112,23 @@ def test_neon_stereo_equals_the_cli_replay(data_dir, gazelight_bin, tmp_path):
     r = gazelight.render(None, rec, size=(48, 40), fps=10.0, secs=3.0, stereo=True)
     _compare_params(out, r, ("_left", "_right"), "default")
     _compare(out, r, ("_left", "_right"), min_residuals=30)
+
+
+def test_a_fitted_block_equals_the_cli_replay(data_dir, gazelight_bin, tmp_path):
+    """`pupil_fit` (`--pupil-fit 0..20`): the Neon recording's first 9 s
+    (the block clamped to its end) on the forest panorama, where the fit
+    succeeds; the fitted parameters (with R², rms and the samples used) and
+    the columns over 3 s at 5 fps are the CLI's. Given as a tuple."""
+    rec = data_dir / "eye/neon-demo"
+    scene = data_dir / "hdr/blender-world/forest.exr"
+    out = tmp_path / "cli"
+    p = run_cli(gazelight_bin, "replay", str(rec), "--scene", str(scene), "--luminance-scale", "1000",
+                "--backend", "cpu", "--pupil-fit", "0..20", "--size", "32x24", "--fps", "5", "--secs", "3",
+                "--no-frames", "--out", str(out))
+    assert "pupil light fit over 0..8.963258 s" in p.stdout, p.stdout
+    r = gazelight.render(scene, rec, luminance_scale=1000.0, size=(32, 24), fps=5.0, secs=3.0, pupil_fit=(0, 20))
+    _compare_params(out, r, ("",), "fit")
+    _compare(out, r, ("",), min_residuals=10)
 
 
 def _cli_error(p) -> str:
