@@ -162,3 +162,21 @@ def test_a_bad_pupil_fit_raises_the_clis_message(recording, block, data_dir, gaz
 def test_pupil_fit_needs_a_recording():
     with pytest.raises(gazelight.GazelightError, match="apply to a recording"):
         gazelight.render(size=(32, 24), frames=1, pupil_fit="0..5")
+
+
+def test_display_luminances_the_profile_cannot_map_raise_the_clis_message(data_dir, gazelight_bin, tmp_path):
+    """A calibration's white darker than its black: the profile's pupils
+    cannot be mapped onto the model; the CLI's message, flags and all."""
+    rec = data_dir / "eye/eyelink-psa/both_eyes.asc"
+    profile = _profile(gazelight_bin, data_dir, tmp_path)
+    want = _cli_error(run_cli(gazelight_bin, "replay", str(rec), "--backend", "cpu", "--calibration", str(profile),
+                              "--pupil-black-cd-m2", "100", "--pupil-white-cd-m2", "0.1", "--size", "32x24",
+                              "--secs", "1", "--no-frames", "--out", str(tmp_path / "o"), check=False))
+    assert "cannot be mapped onto the pupil light model" in want, want
+    with pytest.raises(gazelight.GazelightError) as e:
+        gazelight.render(None, rec, size=(32, 24), secs=1.0, calibration=profile, pupil_black_cd_m2=100.0,
+                         pupil_white_cd_m2=0.1)
+    assert str(e.value) == want
+    # A luminance below 0 is refused before anything is read.
+    with pytest.raises(gazelight.GazelightError, match=r"--pupil-white-cd-m2 -1: expected a luminance ≥ 0"):
+        gazelight.render(None, rec, pupil_white_cd_m2=-1.0)
