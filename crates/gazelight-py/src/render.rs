@@ -6,7 +6,9 @@
 //! and then streamed just ahead of the frame clock; each `next()` renders
 //! one frame with the GIL released. The frame is the display image the CLI
 //! writes as PNG (`write_png` writes it with the CLI's encoder) or, on
-//! request, the retinal image in cd/m².
+//! request, the retinal image in cd/m². A recording's rows carry the
+//! pupil light response (`pupil_light_mm`, `pupil_residual_mm`) of
+//! `gazelight_render::pupil_light`, as `replay`'s `timeline.csv` does.
 
 use std::path::{Path, PathBuf};
 
@@ -20,9 +22,13 @@ use gazelight_render::demo;
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
 use gazelight_render::png::PngCompression;
-use gazelight_render::timeline::TIMELINE_COLUMNS;
+use gazelight_render::pupil_light::{
+    self, ParamSource, PupilLight, PupilLightOptions, PupilLightPlan,
+};
+use gazelight_render::timeline::{PUPIL_LIGHT_COLUMNS, TIMELINE_COLUMNS};
 use gazelight_tracker::filter::{FilterChain, FilterConfig};
 use gazelight_tracker::profile::{AGE_YEARS_RANGE, PIGMENTATION_RANGE, PupilCalibration};
+use gazelight_tracker::pupil_response::ResponseParams;
 use gazelight_tracker::{GazeTrace, PupilUnit, Sample, trace_source};
 use gazelight_vision::RgbImage;
 use gazelight_vision::pipeline::{FramePipeline, PipelineConfig};
@@ -230,6 +236,9 @@ pub(crate) struct Render {
     /// Notes for the Python side to raise as warnings.
     #[pyo3(get)]
     warnings: Vec<String>,
+    /// A recording's pupil light response: each view's parameters and
+    /// where they came from (empty for a trace).
+    pupil_light_params: Vec<(&'static str, ResponseParams, ParamSource)>,
 }
 
 struct Running {
@@ -238,6 +247,10 @@ struct Running {
     view_img: RgbImage,
     retinal: bool,
     suffixes: Vec<&'static str>,
+    /// A recording's pupil light response (`replay`'s), and the first
+    /// frame's time on the samples' clock.
+    pupil_light: Option<PupilLight>,
+    t0_secs: f64,
 }
 
 #[pymethods]
@@ -269,9 +282,19 @@ impl Render {
             step,
             feed,
             view_img,
+            pupil_light,
+            t0_secs,
             ..
         } = &mut *r;
-        let out = py.detach(|| step.step(feed, view_img)).map_err(err)?;
+        let mut out = py.detach(|| step.step(feed, view_img)).map_err(err)?;
+        if let Some(plr) = pupil_light {
+            plr.apply(
+                out.t_secs - *t0_secs,
+                &out.state,
+                &out.inputs,
+                &mut out.rows,
+            );
+        }
         let image: Py<PyAny> = if r.retinal {
             let img = r.step.retinal();
             let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
@@ -294,8 +317,56 @@ impl Render {
                 row.set_item(format!("{c}{suffix}"), v)?;
             }
         }
+        if r.pupil_light.is_some() {
+            for (suffix, r) in r.suffixes.iter().zip(&out.rows) {
+                let values = [r.pupil_light_mm, r.pupil_residual_mm];
+                for (c, v) in PUPIL_LIGHT_COLUMNS.iter().zip(values) {
+                    row.set_item(format!("{c}{suffix}"), f64::from(v))?;
+                }
+            }
+        }
         row.set_item("frame", out.index)?;
         Ok(Some((image, row.unbind())))
+    }
+
+    /// A recording's pupil light response: per view (display order), its
+    /// parameters as `replay` writes them to `session.json`
+    /// (`pupil_light[_left|_right].*`) and `source` (`default`, `profile`
+    /// or `fit`); empty for a trace.
+    #[getter]
+    fn pupil_light_params<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.pupil_light_params
+            .iter()
+            .map(|(suffix, p, source)| {
+                let d = PyDict::new(py);
+                d.set_item(
+                    "view",
+                    match suffix.trim_start_matches('_') {
+                        "" => "both",
+                        eye => eye,
+                    },
+                )?;
+                d.set_item(
+                    "source",
+                    match source {
+                        ParamSource::Default => "default",
+                        ParamSource::Profile => "profile",
+                        ParamSource::Fit(_) => "fit",
+                    },
+                )?;
+                d.set_item("latency_secs", p.dynamics.latency_secs)?;
+                d.set_item("constriction_tau_secs", p.dynamics.constriction_tau_secs)?;
+                d.set_item("redilation_tau_secs", p.dynamics.redilation_tau_secs)?;
+                d.set_item("range_scale", p.range.scale)?;
+                d.set_item("range_offset_mm", p.range.offset_mm)?;
+                if let ParamSource::Fit(f) = source {
+                    d.set_item("fit_r_squared", f.r_squared)?;
+                    d.set_item("fit_rms_mm", f.rms_mm)?;
+                    d.set_item("fit_samples_used", f.samples_used)?;
+                }
+                Ok(d)
+            })
+            .collect()
     }
 
     /// Stops the render (frees the pipelines and closes the recording).
@@ -333,7 +404,7 @@ fn scan_recording(path: &Path, part: bool) -> PyResult<gazelight_render::feed::S
 #[pyo3(signature = (scene=None, trace=None, recording=None, *, size=None, stereo=false,
     config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
     from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
-    luminance_scale=None))]
+    luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_open(
     py: Python<'_>,
@@ -354,6 +425,9 @@ pub(crate) fn render_open(
     pitch_deg: Option<f64>,
     hfov_deg: Option<f64>,
     luminance_scale: Option<f64>,
+    pupil_fit: Option<String>,
+    pupil_black_cd_m2: Option<f64>,
+    pupil_white_cd_m2: Option<f64>,
 ) -> PyResult<Render> {
     let name = config_name.unwrap_or_else(|| "<config>".to_owned());
     let table: toml::Table = match config {
@@ -385,6 +459,23 @@ pub(crate) fn render_open(
     {
         return Err(err("--frames 0: nothing to render (0 frames)"));
     }
+    // `replay`'s pupil light flags (checked before anything is read, as
+    // the CLI does).
+    if recording.is_none()
+        && (pupil_fit.is_some() || pupil_black_cd_m2.is_some() || pupil_white_cd_m2.is_some())
+    {
+        return Err(err(
+            "pupil_fit, pupil_black_cd_m2 and pupil_white_cd_m2 apply to a recording \
+             (`gazelight replay`), not a trace",
+        ));
+    }
+    if let Some(r) = &pupil_fit {
+        pupil_light::parse_fit_range(r).map_err(err)?;
+    }
+    pupil_light::check_calibration_luminance("--pupil-black-cd-m2", pupil_black_cd_m2)
+        .map_err(err)?;
+    pupil_light::check_calibration_luminance("--pupil-white-cd-m2", pupil_white_cd_m2)
+        .map_err(err)?;
     let mut notes = Vec::new();
     py.detach(|| -> PyResult<Render> {
         // The observer: arguments none here; the configuration, else the
@@ -442,8 +533,18 @@ pub(crate) fn render_open(
             ));
         }
         // The samples.
-        let mut chain = FilterChain::new(settings.filter, PupilCalibration::identity())
-            .map_err(|e| err(format!("filter configuration: {e}")))?;
+        let new_chain = || -> PyResult<FilterChain> {
+            let mut chain = FilterChain::new(settings.filter, PupilCalibration::identity())
+                .map_err(|e| err(format!("filter configuration: {e}")))?;
+            if recording.is_some()
+                && let Some(c) = &calibration
+            {
+                chain.set_calibration(c.clone());
+            }
+            Ok(chain)
+        };
+        let chain = new_chain()?;
+        let mut span = None;
         let (samples, t0, duration): (Samples, f64, f64) = match &recording {
             Some(path) => {
                 if !(from_secs.is_finite() && from_secs >= 0.0) {
@@ -473,9 +574,7 @@ pub(crate) fn render_open(
                 if let Some(s) = secs {
                     duration = duration.min(s);
                 }
-                if let Some(c) = &calibration {
-                    chain.set_calibration(c.clone());
-                }
+                span = Some((found.t_first, found.t_last));
                 let samples = ImporterSamples::open(path).map_err(err)?;
                 (Box::new(samples), t0, duration)
             }
@@ -515,6 +614,41 @@ pub(crate) fn render_open(
         .map_err(err)?;
         let suffixes = step.views().iter().map(|v| v.suffix()).collect();
         let n_views = step.views().len();
+        // A recording: `replay`'s pupil light response (its parameters
+        // fitted first on a `pupil_fit` block: a pass of its own over it).
+        let mut pupil_light_params = Vec::new();
+        let pupil_light = match (&recording, span) {
+            (Some(path), Some((t_first, t_last))) => {
+                let mut plan = PupilLightPlan::new(
+                    step.views(),
+                    &view_img,
+                    &view,
+                    &settings.pipeline,
+                    &PupilLightOptions {
+                        age_years: settings.pipeline.glare.psf.age_years,
+                        calibration: calibration.as_ref(),
+                        black_cd_m2: pupil_black_cd_m2,
+                        white_cd_m2: pupil_white_cd_m2,
+                        pupil_fit: pupil_fit.as_deref(),
+                    },
+                    t_last - t_first,
+                )
+                .map_err(err)?;
+                if plan.fit_block_secs.is_some() {
+                    let samples = ImporterSamples::open(path).map_err(err)?;
+                    let mut fit_feed = SampleFeed::new(samples, new_chain()?);
+                    plan.fit(&mut fit_feed, t_first, fps).map_err(err)?;
+                }
+                pupil_light_params = plan
+                    .views
+                    .iter()
+                    .zip(plan.params.iter().zip(&plan.sources))
+                    .map(|(v, (p, s))| (v.suffix(), *p, *s))
+                    .collect();
+                Some(plan.start().map_err(err)?)
+            }
+            _ => None,
+        };
         Ok(Render {
             state: Mutex::new(Some(Box::new(Running {
                 step,
@@ -522,12 +656,15 @@ pub(crate) fn render_open(
                 view_img,
                 retinal,
                 suffixes,
+                pupil_light,
+                t0_secs: t0,
             }))),
             frames,
             size: (width * n_views, height),
             fps,
             ignored,
             warnings: std::mem::take(&mut notes),
+            pupil_light_params,
         })
     })
 }

@@ -15,6 +15,10 @@
 //!   in its GPU renderer through [`frame::ViewRenderer`]) → the display
 //!   frame (stereo: left | right) and each view's [`timeline::TimelineRow`].
 //! * [`timeline`]: the rows and the columns of `timeline.csv`.
+//! * [`pupil_light`]: `replay`'s pupil light response per view (the pupil
+//!   the light predicts and the residual columns, each view's parameters
+//!   from the observer, a calibration profile or a `--pupil-fit` block);
+//!   the CLI's live frame loop steps its models too.
 //! * [`png`]: the PNG encoder of the frames (the bytes the CLI writes).
 //! * [`demo`]: the embedded scene and its demo trace.
 //!
@@ -26,6 +30,7 @@ pub mod demo;
 pub mod feed;
 pub mod frame;
 pub mod png;
+pub mod pupil_light;
 pub mod timeline;
 
 /// What can go wrong in a render step. The messages are the CLI's: it

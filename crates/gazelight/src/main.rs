@@ -34,7 +34,6 @@ mod out_dir;
 mod output;
 mod profile_cmd;
 mod psf;
-mod pupil_light;
 mod record;
 mod relay;
 mod render;

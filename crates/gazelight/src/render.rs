@@ -11,19 +11,19 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_render::frame::{FrameStep, Step};
+use gazelight_render::pupil_light::PupilLight;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::trace_source;
 use gazelight_tracker::{GazeTrace, Sample};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{FrameStats, PipelineConfig};
+use gazelight_vision::pipeline::PipelineConfig;
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 
 use crate::backend::{BackendChoice, Renderer};
 use crate::config::RenderConfig;
 use crate::demo;
 use crate::output::{self, TimelineRow};
-use crate::pupil_light::PupilLight;
 use crate::service_config::ConfigUser;
 use crate::session::{Origin, SessionSettings};
 use crate::stereo::{MONO, STEREO, View};
@@ -432,32 +432,15 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
             t_secs,
             state,
             inputs,
-            rows,
+            mut rows,
             ..
         } = step.step(eye, view_img)?;
         // The pupil light response: fed every frame with each view's
         // pooled luminance (no allocation).
-        let light = match pupil_light.as_deref_mut() {
-            Some(plr) => {
-                let mut pupils = [(f32::NAN, false); 2];
-                for (p, ((input, _), v)) in pupils.iter_mut().zip(inputs.iter().zip(views)) {
-                    *p = (
-                        input.pupil_mm,
-                        crate::pupil_light::view_measured(*v, &state),
-                    );
-                }
-                let default = FrameStats::default();
-                let target = |k: usize| {
-                    rows.get(k)
-                        .map_or(default.target_cd_m2, |r| r.stats.target_cd_m2)
-                };
-                plr.step(t_secs - t0, [target(0), target(1)], pupils)
-            }
-            None => [(f32::NAN, f32::NAN); 2],
-        };
-        for (k, mut row) in rows.into_iter().enumerate() {
-            row.pupil_light_mm = light[k].0;
-            row.pupil_residual_mm = light[k].1;
+        if let Some(plr) = pupil_light.as_deref_mut() {
+            plr.apply(t_secs - t0, &state, &inputs, &mut rows);
+        }
+        for (k, row) in rows.into_iter().enumerate() {
             timeline[k].push(row);
         }
         let out = step.display();

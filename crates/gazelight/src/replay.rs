@@ -20,12 +20,11 @@ use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
 
-use gazelight_tracker::EYE_RIGHT;
-use gazelight_tracker::profile::EyeCalibration;
-use gazelight_tracker::pupil_response::ObserverRange;
+use gazelight_render::pupil_light::{
+    self, ParamSource, PupilLight, PupilLightOptions, PupilLightPlan, which_eye,
+};
 
 use crate::input_report;
-use crate::pupil_light::{self, ParamSource, PupilLight, SceneLight};
 use crate::render::{self, RenderArgs, SampleFeed};
 use crate::service_config::ConfigUser;
 use crate::session::Origin;
@@ -82,16 +81,8 @@ pub(crate) fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     if let Some(r) = &args.pupil_fit {
         pupil_light::parse_fit_range(r)?;
     }
-    for (flag, v) in [
-        ("--pupil-black-cd-m2", args.pupil_black_cd_m2),
-        ("--pupil-white-cd-m2", args.pupil_white_cd_m2),
-    ] {
-        if let Some(v) = v
-            && !(v.is_finite() && v >= 0.0)
-        {
-            bail!("{flag} {v}: expected a luminance ≥ 0 in cd/m²");
-        }
-    }
+    pupil_light::check_calibration_luminance("--pupil-black-cd-m2", args.pupil_black_cd_m2)?;
+    pupil_light::check_calibration_luminance("--pupil-white-cd-m2", args.pupil_white_cd_m2)?;
     Ok(())
 }
 
@@ -242,7 +233,8 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
 
 /// The pupil light response of this replay: each view's parameters (a
 /// `--pupil-fit` block, else the calibration profile, else W&Y with the
-/// observer's age), recorded in the session settings.
+/// observer's age, `gazelight_render::pupil_light`), recorded in the
+/// session settings.
 fn pupil_light_setup(
     args: &ReplayArgs,
     setup: &mut render::Setup,
@@ -251,77 +243,26 @@ fn pupil_light_setup(
     t_last: f64,
     new_feed: &dyn Fn() -> anyhow::Result<SampleFeed<ImporterSamples>>,
 ) -> anyhow::Result<PupilLight> {
-    let views: &[View] = if args.render.stereo { &STEREO } else { &MONO };
-    let scene = SceneLight::new(&setup.view_img, &setup.view, &setup.config.pipeline);
+    let views: &'static [View] = if args.render.stereo { &STEREO } else { &MONO };
     let age = setup.config.pipeline.glare.psf.age_years;
-    let black = args
-        .pupil_black_cd_m2
-        .unwrap_or(pupil_light::DEFAULT_CALIBRATION_BLACK_CD_M2);
-    let white = args
-        .pupil_white_cd_m2
-        .unwrap_or(pupil_light::DEFAULT_CALIBRATION_WHITE_CD_M2);
-    // Each view's range from the profile: the eye's own map, the mean of
-    // both for a mono view.
-    let eye_cal = |v: View| -> Option<EyeCalibration> {
-        let eyes = &calibration?.eyes;
-        let (r, l) = (eyes.right, eyes.left);
-        match v {
-            View::Eye(EYE_RIGHT) => r.or(l),
-            View::Eye(_) => l.or(r),
-            View::Both => match (r, l) {
-                (Some(a), Some(b)) => Some(EyeCalibration {
-                    mm_min: 0.5 * (a.mm_min + b.mm_min),
-                    mm_max: 0.5 * (a.mm_max + b.mm_max),
-                    ..a
-                }),
-                (a, b) => a.or(b),
-            },
-        }
-    };
-    let mut params = Vec::with_capacity(views.len());
-    let mut sources = Vec::with_capacity(views.len());
-    for v in views {
-        let (range, source) = match eye_cal(*v) {
-            Some(c) => (
-                ObserverRange::from_calibration(&c, black, white, scene.field.field_area_deg2, age)
-                    .map_err(|e| {
-                        anyhow::anyhow!(
-                            "the calibration profile's pupils cannot be mapped onto the pupil light \
-                             model (--pupil-black-cd-m2 {black}, --pupil-white-cd-m2 {white}): {e}"
-                        )
-                    })?,
-                ParamSource::Profile,
-            ),
-            None => (ObserverRange::IDENTITY, ParamSource::Default),
-        };
-        params.push(pupil_light::params(age, range));
-        sources.push(source);
-    }
-    if let Some(range) = &args.pupil_fit {
-        let (from, to) = pupil_light::parse_fit_range(range)?;
-        let length = t_last - t_first;
-        if from >= length {
-            bail!(
-                "--pupil-fit {range}: the block starts after the recording's end ({length:.3} s)"
-            );
-        }
-        let to_clamped = to.min(length);
+    let mut plan = PupilLightPlan::new(
+        views,
+        &setup.view_img,
+        &setup.view,
+        &setup.config.pipeline,
+        &PupilLightOptions {
+            age_years: age,
+            calibration,
+            black_cd_m2: args.pupil_black_cd_m2,
+            white_cd_m2: args.pupil_white_cd_m2,
+            pupil_fit: args.pupil_fit.as_deref(),
+        },
+        t_last - t_first,
+    )?;
+    if let Some([from, to_clamped]) = plan.fit_block_secs {
         let mut feed = new_feed()?;
-        let fits = pupil_light::fit_block(
-            &mut feed,
-            views,
-            &scene,
-            (t_first + from, t_first + to_clamped),
-            args.render.fps,
-            &params,
-            &format!("--pupil-fit {range}"),
-        )?;
-        for ((v, fit), (p, s)) in fits
-            .iter()
-            .zip(views)
-            .map(|(f, v)| (v, f))
-            .zip(params.iter_mut().zip(sources.iter_mut()))
-        {
+        let fits = plan.fit(&mut feed, t_first, args.render.fps)?;
+        for (v, fit) in views.iter().zip(&fits) {
             let d = &fit.params.dynamics;
             let r = &fit.params.range;
             println!(
@@ -337,8 +278,6 @@ fn pupil_light_setup(
                 fit.rms_mm,
                 fit.samples_used
             );
-            *p = fit.params;
-            *s = ParamSource::Fit(*fit);
         }
         setup.settings.set(
             "pupil_light.fit_block_secs",
@@ -346,6 +285,8 @@ fn pupil_light_setup(
             Origin::Flag,
         );
     }
+    let (black, white) = (plan.black_cd_m2, plan.white_cd_m2);
+    let scene = &plan.scene;
     let field = setup.settings.set(
         "pupil_light.field_mean_cd_m2",
         scene.field.field_mean_cd_m2,
@@ -381,7 +322,7 @@ fn pupil_light_setup(
             Origin::first(args.pupil_white_cd_m2, None, None),
         );
     }
-    for ((v, p), s) in views.iter().zip(&params).zip(&sources) {
+    for ((v, p), s) in views.iter().zip(&plan.params).zip(&plan.sources) {
         let key = |k: &str| format!("pupil_light{}.{k}", v.suffix());
         let origin = match s {
             ParamSource::Default => Origin::Default,
@@ -425,13 +366,5 @@ fn pupil_light_setup(
                 .set(&key("fit_samples_used"), f.samples_used, Origin::Flag);
         }
     }
-    PupilLight::new(views, &params, scene.field)
-}
-
-/// " (left eye)", " (right eye)" or "" for a mono view.
-fn which_eye(v: View) -> String {
-    match v.suffix() {
-        "" => String::new(),
-        s => format!(" ({} eye)", s.trim_start_matches('_')),
-    }
+    Ok(plan.start()?)
 }

@@ -319,6 +319,9 @@ def render(
     pitch_deg: Optional[float] = None,
     hfov_deg: Optional[float] = None,
     luminance_scale: Optional[float] = None,
+    pupil_fit: Union[None, str, Tuple[float, float]] = None,
+    pupil_black_cd_m2: Optional[float] = None,
+    pupil_white_cd_m2: Optional[float] = None,
 ) -> Render:
     """Render frames as ``gazelight render`` (a trace) or ``gazelight
     replay`` (a recording) does, one at a time: an iterator of
@@ -332,7 +335,11 @@ def render(
     view has no data; the CLI's ``--exr`` frames). ``row`` is the frame's
     row of ``timeline.csv`` as a dict with the same column names
     (``t_secs``, ``gaze_u``, ``pupil_mm``, ... with ``_left``/``_right``
-    in stereo), unrounded, plus ``frame`` (the index).
+    in stereo), unrounded, plus ``frame`` (the index). A recording's rows
+    also have ``replay``'s pupil light response: ``pupil_light_mm`` (the
+    pupil the light predicts) and ``pupil_residual_mm`` (measured minus
+    predicted; NaN where the pupil is not measured, an empty cell in the
+    CLI's CSV), per view.
 
     ``scene``: an HDR panorama (OpenEXR or Radiance), default the embedded
     night scene. ``trace_or_recording``: a trace CSV
@@ -346,7 +353,20 @@ def render(
     and ``display.size``; keyword arguments override it. The frames are
     rendered on the CPU pipeline (``--backend cpu``), with the GIL
     released; a recording is streamed, never loaded whole.
+
+    The pupil light response of a recording (``replay``'s options):
+    ``pupil_fit`` fits the observer on a baseline block first, ``"FROM..TO"``
+    or ``(FROM, TO)`` in seconds from the recording's first sample
+    (``--pupil-fit``); ``pupil_black_cd_m2`` and ``pupil_white_cd_m2`` are
+    the display's luminances when the ``calibration`` profile was made
+    (``--pupil-black-cd-m2``, ``--pupil-white-cd-m2``; default 0.1 and 100).
+    Each view's parameters and where they came from:
+    :attr:`Render.pupil_light_params`.
     """
+    if isinstance(pupil_fit, (tuple, list)):
+        if len(pupil_fit) != 2:
+            raise ValueError(f"pupil_fit: expected \"FROM..TO\" or (FROM, TO), got {pupil_fit!r}")
+        pupil_fit = f"{pupil_fit[0]}..{pupil_fit[1]}"
     config_name = None
     if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and os.path.isfile(config)):
         config_name = os.fspath(config)
@@ -379,6 +399,9 @@ def render(
         pitch_deg=pitch_deg,
         hfov_deg=hfov_deg,
         luminance_scale=luminance_scale,
+        pupil_fit=pupil_fit,
+        pupil_black_cd_m2=pupil_black_cd_m2,
+        pupil_white_cd_m2=pupil_white_cd_m2,
     )
     where = f"config {config_name}" if config_name else "config"
     for key in r.ignored:

@@ -45,10 +45,10 @@ use super::head::Head;
 use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
 use crate::hub::{FrameStatus, Hub};
-use crate::pupil_light::{self, FieldLight, PupilLight};
 use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
 use gazelight_psf_worker::{Priority, PsfWorker};
+use gazelight_render::pupil_light::{self, FieldLight, PupilLight};
 use gazelight_tracker::live::SourceHealth;
 use gazelight_tracker::live::{AdaptationCell, AgeClock};
 

@@ -1,7 +1,12 @@
-//! The pupil light response in `replay`: per view, the pupil the light
+//! The pupil light response of a replay: per view, the pupil the light
 //! predicts (`pupil_light_mm`) and what is left of the measured pupil
 //! (`pupil_residual_mm`), with the model of
 //! [`gazelight_tracker::pupil_response`] (docs/pupil-light-response.md).
+//! `gazelight replay` and the Python package's `gazelight.render` of a
+//! recording both run it through [`PupilLightPlan`] and
+//! [`PupilLight::apply`], so their columns are the same numbers; the CLI's
+//! live frame loop (`gazelight run`) steps a [`PupilLight`] with the field
+//! of the view its head turns to.
 //!
 //! What each eye sees, every frame:
 //!
@@ -12,11 +17,12 @@
 //! * **Field mean luminance and field area**: a replay's head does not
 //!   move, so each eye sees the same panorama view for the whole replay
 //!   (both eyes of a stereo replay see the same view of a panorama at
-//!   infinity, see `stereo.rs`). Its mean luminance (the plain pixel mean
-//!   of the view's luminance, `Y = 0.2126 R + 0.7152 G + 0.0722 B`, in
-//!   cd/m²) and the view's solid angle (the exact solid angle of the
-//!   rectilinear view, in deg²) are computed once, before the first frame,
-//!   so the per-frame cost is a few multiplications.
+//!   infinity, see [`crate::frame`]). Its mean luminance (the view's
+//!   luminance, `Y = 0.2126 R + 0.7152 G + 0.0722 B`, in cd/m², each pixel
+//!   weighted by its solid angle: [`field_mean_cd_m2`]) and the view's
+//!   solid angle (the exact solid angle of the rectilinear view, in deg²)
+//!   are computed once, before the first frame, so the per-frame cost is a
+//!   few multiplications.
 //!
 //! Both eyes' light drives both pupils (the consensual response); each
 //! view has its own [`PupilLightResponse`] (its own observer range), all
@@ -24,39 +30,89 @@
 //! eyes (`EyeLight::both`); a stereo replay's views are the left and the
 //! right eye. Stepping allocates nothing.
 //!
-//! `--pupil-fit FROM..TO` fits the observer on a baseline block first: a
-//! pass over the block with the same filter chain and the same light
-//! (the pooling model evaluated on the view's block-mean plane, as the
-//! pipeline does, without rendering), then [`fit_observer`].
+//! Each view's parameters ([`PupilLightPlan`]): W&Y with the observer's
+//! age; with a calibration profile, its black/white pupils mapped onto the
+//! model's range (at the display's black and white luminances of the
+//! calibration); with `--pupil-fit FROM..TO` (Python: `pupil_fit=`), the
+//! observer fitted on a baseline block first: a pass over the block with
+//! the same filter chain and the same light (the pooling model evaluated on
+//! the view's block-mean plane, as the pipeline does, without rendering),
+//! then [`fit_observer`].
+//!
+//! The error messages are the CLI's (its flags' names): the CLI prints
+//! them after `error: `, the Python package raises them.
 
-use anyhow::{Context, bail};
+use gazelight_tracker::profile::{EyeCalibration, PupilCalibration};
 use gazelight_tracker::pupil_response::{
     Adaptation, DEFAULT_GAZE_WEIGHT, Dynamics, EyeInput, EyeLight, FitOptions, FitResult,
-    ObserverRange, PupilLightResponse, PupilRow, ResponseParams, fit_observer, residual_mm,
+    ObserverRange, PupilLightResponse, PupilRow, ResponseError, ResponseParams, fit_observer,
+    residual_mm,
 };
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, Sample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::luminance;
-use gazelight_vision::pipeline::PipelineConfig;
+use gazelight_vision::pipeline::{FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::pooling::{PlaneAngles, PoolingModel};
 use gazelight_vision::scene::ViewParams;
 
-use crate::render::SampleFeed;
-use crate::stereo::View;
+use crate::feed::SampleFeed;
+use crate::frame::View;
+use crate::timeline::TimelineRow;
 
 /// The display's black during the calibration's black phase, cd/m²,
 /// unless `--pupil-black-cd-m2` says otherwise (an assumption: an LCD
 /// headset's black; the profile does not record it).
-pub(crate) const DEFAULT_CALIBRATION_BLACK_CD_M2: f64 = 0.1;
+pub const DEFAULT_CALIBRATION_BLACK_CD_M2: f64 = 0.1;
 /// The display's white during the calibration's white phase, cd/m², unless
 /// `--pupil-white-cd-m2` says otherwise (000 §3.3: headset luminance
 /// 100 cd/m², the tone mapper's default display peak).
-pub(crate) const DEFAULT_CALIBRATION_WHITE_CD_M2: f64 = 100.0;
+pub const DEFAULT_CALIBRATION_WHITE_CD_M2: f64 = 100.0;
+
+/// What can go wrong in setting up the pupil light response. The messages
+/// are the CLI's; none carries a `source()` (each says its cause itself,
+/// so `error: {e:#}` prints it once).
+#[derive(Debug, thiserror::Error)]
+pub enum PupilLightError {
+    /// Not 1 or 2 views, or not one set of parameters per view.
+    #[error("pupil light response: 1 or 2 views, one set of parameters each")]
+    Views,
+    /// A view's parameters are out of the model's range.
+    #[error("pupil light response: {0}")]
+    Model(ResponseError),
+    /// A flag's value (`--pupil-fit`, `--pupil-black-cd-m2`,
+    /// `--pupil-white-cd-m2`): the message names the flag, its value and
+    /// what was expected.
+    #[error("{0}")]
+    Flag(String),
+    /// The calibration profile's pupils cannot be mapped onto the model.
+    #[error(
+        "the calibration profile's pupils cannot be mapped onto the pupil light model \
+         (--pupil-black-cd-m2 {black_cd_m2}, --pupil-white-cd-m2 {white_cd_m2}): {reason}"
+    )]
+    Calibration {
+        black_cd_m2: f64,
+        white_cd_m2: f64,
+        reason: ResponseError,
+    },
+    /// The fit on the `--pupil-fit` block failed for a view.
+    #[error(
+        "{flag}: cannot fit the observer on this block{which} ({frames} frames at {fps} fps): {reason}"
+    )]
+    Fit {
+        /// `--pupil-fit FROM..TO` as given.
+        flag: String,
+        /// `" (left eye)"`, `" (right eye)"` or `""` (a mono view).
+        which: String,
+        frames: usize,
+        fps: f64,
+        reason: ResponseError,
+    },
+}
 
 /// The field an eye sees besides its gaze: the view's mean luminance and
 /// its solid angle.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct FieldLight {
+pub struct FieldLight {
     /// Mean of the view's luminance, cd/m².
     pub field_mean_cd_m2: f64,
     /// Solid angle of the view, deg².
@@ -65,7 +121,7 @@ pub(crate) struct FieldLight {
 
 impl FieldLight {
     /// What an eye looking at `gaze_cd_m2` in this field sees.
-    pub(crate) fn input(&self, gaze_cd_m2: f64) -> EyeInput {
+    pub fn input(&self, gaze_cd_m2: f64) -> EyeInput {
         EyeInput {
             gaze_luminance_cd_m2: gaze_cd_m2,
             field_mean_luminance_cd_m2: self.field_mean_cd_m2,
@@ -75,7 +131,7 @@ impl FieldLight {
     }
 
     /// Both eyes' light from each view's pooled luminance.
-    pub(crate) fn light(&self, views: &[View], gaze_cd_m2: &[f64]) -> EyeLight {
+    pub fn light(&self, views: &[View], gaze_cd_m2: &[f64]) -> EyeLight {
         let mut light = EyeLight::both(self.input(gaze_cd_m2.first().copied().unwrap_or(0.0)));
         for (v, &l) in views.iter().zip(gaze_cd_m2) {
             match *v {
@@ -89,7 +145,7 @@ impl FieldLight {
 
 /// The light a static view offers: its field, and the block-mean
 /// luminance plane the pooling model reads.
-pub(crate) struct SceneLight {
+pub struct SceneLight {
     pub field: FieldLight,
     pooling: PoolingModel,
     small_lum: Vec<f32>,
@@ -108,7 +164,7 @@ pub(crate) struct SceneLight {
 impl SceneLight {
     /// From the rendered view (`view_img`, cd/m²) and the pipeline's
     /// pooling settings.
-    pub(crate) fn new(view_img: &RgbImage, view: &ViewParams, pipeline: &PipelineConfig) -> Self {
+    pub fn new(view_img: &RgbImage, view: &ViewParams, pipeline: &PipelineConfig) -> Self {
         let (w, h) = (view_img.width, view_img.height);
         let ds = pipeline.pooling_downsample.unwrap_or(8).max(1);
         let (small_w, small_h) = (w.div_ceil(ds), h.div_ceil(ds));
@@ -170,7 +226,7 @@ impl SceneLight {
     /// The pooled luminance at `gaze_uv` (clamped onto the view, as the
     /// pipeline does), cd/m²; pixels without data are left out (0 where
     /// the pooling reaches none).
-    pub(crate) fn pooled_at(&self, gaze_uv: [f32; 2]) -> f64 {
+    pub fn pooled_at(&self, gaze_uv: [f32; 2]) -> f64 {
         let c = |v: f32| {
             if v.is_finite() {
                 v.clamp(0.0, 1.0)
@@ -205,7 +261,7 @@ impl SceneLight {
 /// are left out of both sums. (A plain mean of the pixels would weigh the
 /// corners of a 90° view 4× too much.) NaN for an empty image or one with
 /// no data at all.
-pub(crate) fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) -> f64 {
+pub fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) -> f64 {
     let (w, h) = (img.width, img.height);
     if w == 0 || h == 0 || img.pixels.len() != w * h {
         return f64::NAN;
@@ -234,7 +290,7 @@ pub(crate) fn field_mean_cd_m2(img: &RgbImage, tan_lrud: [f64; 4], step: usize) 
 
 /// The solid angle of a rectilinear view, deg²: `4·asin(sin α · sin β)` sr
 /// with α, β the half-angles of its horizontal and vertical field.
-pub(crate) fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
+pub fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
     let half_h = (view.hfov_deg.to_radians() * 0.5).clamp(0.0, std::f64::consts::FRAC_PI_2);
     let aspect = view.height as f64 / (view.width.max(1)) as f64;
     let half_v = (half_h.tan() * aspect).atan();
@@ -245,7 +301,7 @@ pub(crate) fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
 /// Whether the pupil a view uses this frame is a measurement (not held
 /// over a blink or dropout, not the model's fill-in, not the default):
 /// the eyes whose value the view's pupil is made of must all be measured.
-pub(crate) fn view_measured(view: View, state: &EyeState) -> bool {
+pub fn view_measured(view: View, state: &EyeState) -> bool {
     // A pupil still settling towards its measurement (after a blink or a
     // dropout, at the start) is not the measurement yet.
     let origin = |e: usize| {
@@ -285,7 +341,7 @@ pub(crate) fn view_measured(view: View, state: &EyeState) -> bool {
 
 /// Where a view's parameters came from.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum ParamSource {
+pub enum ParamSource {
     /// W&Y's formula as it is, with the observer's age.
     Default,
     /// The black/white calibration profile.
@@ -295,7 +351,7 @@ pub(crate) enum ParamSource {
 }
 
 /// The per-view models of a replay.
-pub(crate) struct PupilLight {
+pub struct PupilLight {
     views: [View; 2],
     n_views: usize,
     models: [Option<PupilLightResponse>; 2],
@@ -332,7 +388,7 @@ impl Spread {
 }
 
 /// One view's spreads (for the summary).
-pub(crate) struct ViewSpread {
+pub struct ViewSpread {
     pub suffix: &'static str,
     pub frames: u64,
     pub raw_sd_mm: f64,
@@ -341,20 +397,17 @@ pub(crate) struct ViewSpread {
 
 impl PupilLight {
     /// Models for `views` (1 or 2) with each view's parameters.
-    pub(crate) fn new(
+    pub fn new(
         views: &[View],
         params: &[ResponseParams],
         field: FieldLight,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, PupilLightError> {
         if views.is_empty() || views.len() > 2 || params.len() != views.len() {
-            bail!("pupil light response: 1 or 2 views, one set of parameters each");
+            return Err(PupilLightError::Views);
         }
         let mut models = [None, None];
         for (m, p) in models.iter_mut().zip(params) {
-            *m = Some(
-                PupilLightResponse::new(*p)
-                    .map_err(|e| anyhow::anyhow!("pupil light response: {e}"))?,
-            );
+            *m = Some(PupilLightResponse::new(*p).map_err(PupilLightError::Model)?);
         }
         Ok(Self {
             views: [views[0], views.get(1).copied().unwrap_or(views[0])],
@@ -369,7 +422,7 @@ impl PupilLight {
     /// and its pupil (mm, and whether it is measured) in; each view's
     /// (`pupil_light_mm`, `pupil_residual_mm`) out, the residual NaN where
     /// the pupil is not measured. Allocates nothing.
-    pub(crate) fn step(
+    pub fn step(
         &mut self,
         t_secs: f64,
         gaze_cd_m2: [f64; 2],
@@ -397,14 +450,46 @@ impl PupilLight {
         out
     }
 
+    /// One rendered frame of a replay ([`crate::frame::Step`]'s parts):
+    /// each view's pupil (`inputs`, measured or not by `state`) and pooled
+    /// luminance (its row's `target_cd_m2`) through [`Self::step`] at
+    /// `t_secs` (from the replay's first frame); each view's row gets its
+    /// `pupil_light_mm` and `pupil_residual_mm`. `inputs` and `rows` are in
+    /// the order of the views this was made for. Allocates nothing.
+    pub fn apply(
+        &mut self,
+        t_secs: f64,
+        state: &EyeState,
+        inputs: &[(FrameInput, bool)],
+        rows: &mut [TimelineRow],
+    ) {
+        let mut pupils = [(f32::NAN, false); 2];
+        for (p, ((input, _), v)) in pupils
+            .iter_mut()
+            .zip(inputs.iter().zip(&self.views[..self.n_views]))
+        {
+            *p = (input.pupil_mm, view_measured(*v, state));
+        }
+        let default = FrameStats::default();
+        let target = |k: usize| {
+            rows.get(k)
+                .map_or(default.target_cd_m2, |r| r.stats.target_cd_m2)
+        };
+        let light = self.step(t_secs, [target(0), target(1)], pupils);
+        for (row, (predicted, residual)) in rows.iter_mut().zip(light) {
+            row.pupil_light_mm = predicted;
+            row.pupil_residual_mm = residual;
+        }
+    }
+
     /// A new field (the view moved: a head turn), from the next frame on.
-    pub(crate) fn set_field(&mut self, field: FieldLight) {
+    pub fn set_field(&mut self, field: FieldLight) {
         self.field = field;
     }
 
     /// The spread (SD) of the raw pupil and of the residual per view, over
     /// the frames with a measured pupil.
-    pub(crate) fn spreads(&self) -> Vec<ViewSpread> {
+    pub fn spreads(&self) -> Vec<ViewSpread> {
         (0..self.n_views)
             .map(|k| {
                 let s = &self.spread[k];
@@ -420,7 +505,7 @@ impl PupilLight {
 }
 
 /// The adaptation (gaze weight, the observer's age) every view uses.
-pub(crate) fn adaptation(age_years: f64) -> Adaptation {
+pub fn adaptation(age_years: f64) -> Adaptation {
     Adaptation {
         gaze_weight: DEFAULT_GAZE_WEIGHT,
         age_years,
@@ -428,7 +513,7 @@ pub(crate) fn adaptation(age_years: f64) -> Adaptation {
 }
 
 /// Default dynamics and the range given.
-pub(crate) fn params(age_years: f64, range: ObserverRange) -> ResponseParams {
+pub fn params(age_years: f64, range: ObserverRange) -> ResponseParams {
     ResponseParams {
         adaptation: adaptation(age_years),
         dynamics: Dynamics::default(),
@@ -437,12 +522,12 @@ pub(crate) fn params(age_years: f64, range: ObserverRange) -> ResponseParams {
 }
 
 /// Parses `--pupil-fit FROM..TO` (seconds, `0 ≤ FROM < TO`, finite).
-pub(crate) fn parse_fit_range(s: &str) -> anyhow::Result<(f64, f64)> {
-    let bad = |why: &str| anyhow::anyhow!("--pupil-fit {s}: {why}");
+pub fn parse_fit_range(s: &str) -> Result<(f64, f64), PupilLightError> {
+    let bad = |why: &str| PupilLightError::Flag(format!("--pupil-fit {s}: {why}"));
     let (a, b) = s
         .split_once("..")
         .ok_or_else(|| bad("expected FROM..TO in seconds of the recording, e.g. 10..40"))?;
-    let num = |v: &str| -> anyhow::Result<f64> {
+    let num = |v: &str| -> Result<f64, PupilLightError> {
         v.trim()
             .parse::<f64>()
             .map_err(|_| bad(&format!("`{v}` is not a number of seconds")))
@@ -457,11 +542,31 @@ pub(crate) fn parse_fit_range(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
+/// Checks a calibration display luminance (`flag`: `--pupil-black-cd-m2`
+/// or `--pupil-white-cd-m2`): finite and ≥ 0 cd/m².
+pub fn check_calibration_luminance(flag: &str, v: Option<f64>) -> Result<(), PupilLightError> {
+    match v {
+        Some(v) if !(v.is_finite() && v >= 0.0) => Err(PupilLightError::Flag(format!(
+            "{flag} {v}: expected a luminance ≥ 0 in cd/m²"
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// `" (left eye)"`, `" (right eye)"` or `""` for a mono view.
+pub fn which_eye(v: View) -> String {
+    match v.suffix() {
+        "" => String::new(),
+        s => format!(" ({} eye)", s.trim_start_matches('_')),
+    }
+}
+
 /// The first pass of `--pupil-fit`: frames at `fps` over the block
 /// `t_from..t_to` (recording clock) through `feed`, each view's pupil
 /// (NaN unless measured) and the light at its gaze; then one fit per
-/// view, started from `initial[k]`.
-pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
+/// view, started from `initial[k]`. `flag` (`--pupil-fit FROM..TO`) names
+/// the block in the error.
+pub fn fit_block<I: Iterator<Item = Sample>>(
     feed: &mut SampleFeed<I>,
     views: &[View],
     scene: &SceneLight,
@@ -469,7 +574,7 @@ pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
     fps: f64,
     initial: &[ResponseParams],
     flag: &str,
-) -> anyhow::Result<Vec<FitResult>> {
+) -> Result<Vec<FitResult>, PupilLightError> {
     let dt = 1.0 / fps;
     let frames = ((t_to - t_from) * fps).floor() as usize + 1;
     let mut rows: Vec<Vec<PupilRow>> = views.iter().map(|_| Vec::with_capacity(frames)).collect();
@@ -502,20 +607,183 @@ pub(crate) fn fit_block<I: Iterator<Item = Sample>>(
         .zip(&rows)
         .zip(initial)
         .map(|((v, rows), init)| {
-            let which = match v.suffix() {
-                "" => String::new(),
-                s => format!(" ({} eye)", s.trim_start_matches('_')),
-            };
-            fit_observer(rows, init, &options)
-                .with_context(|| {
-                    format!(
-                        "{flag}: cannot fit the observer on this block{which} ({} frames at {fps} fps)",
-                        rows.len()
-                    )
-                })
-                .map_err(|e| anyhow::anyhow!("{e:#}"))
+            fit_observer(rows, init, &options).map_err(|reason| PupilLightError::Fit {
+                flag: flag.to_owned(),
+                which: which_eye(*v),
+                frames: rows.len(),
+                fps,
+                reason,
+            })
         })
         .collect()
+}
+
+/// What decides a replay's pupil light parameters besides the view.
+#[derive(Clone, Copy, Debug)]
+pub struct PupilLightOptions<'a> {
+    /// The observer's age (the PSF's, after the flags, the configuration
+    /// and the profile), years.
+    pub age_years: f64,
+    /// The calibration profile (`--calibration`): each view's range.
+    pub calibration: Option<&'a PupilCalibration>,
+    /// `--pupil-black-cd-m2` (default [`DEFAULT_CALIBRATION_BLACK_CD_M2`]).
+    pub black_cd_m2: Option<f64>,
+    /// `--pupil-white-cd-m2` (default [`DEFAULT_CALIBRATION_WHITE_CD_M2`]).
+    pub white_cd_m2: Option<f64>,
+    /// `--pupil-fit FROM..TO` as given (seconds from the first sample).
+    pub pupil_fit: Option<&'a str>,
+}
+
+/// A replay's pupil light response before its first frame: the light of
+/// its view, and each view's parameters and where they came from. Made by
+/// [`Self::new`]; with a fit block, [`Self::fit`] (a first pass over the
+/// block) replaces the parameters; [`Self::start`] gives the models.
+pub struct PupilLightPlan {
+    /// The views (1 or 2), in display order.
+    pub views: &'static [View],
+    /// The light of the (static) view.
+    pub scene: SceneLight,
+    /// Each view's parameters.
+    pub params: Vec<ResponseParams>,
+    /// Where each view's parameters came from.
+    pub sources: Vec<ParamSource>,
+    /// The calibration's black and white display luminances, cd/m² (the
+    /// flags' or the defaults).
+    pub black_cd_m2: f64,
+    pub white_cd_m2: f64,
+    /// The `--pupil-fit` block, seconds from the recording's first sample,
+    /// its end clamped to the recording's length; `None` without a fit.
+    pub fit_block_secs: Option<[f64; 2]>,
+    /// `--pupil-fit FROM..TO` as given (for the fit's error).
+    fit_flag: String,
+}
+
+impl PupilLightPlan {
+    /// Each view's parameters for the view `view_img` (cd/m², rendered for
+    /// `view`) under `pipeline`'s pooling: the calibration profile's range
+    /// where there is one (the eye's own map; the mean of both for a mono
+    /// view), else W&Y with the observer's age. A fit block is checked
+    /// against the recording's length (`recording_secs`, first to last
+    /// sample) but not fitted yet.
+    pub fn new(
+        views: &'static [View],
+        view_img: &RgbImage,
+        view: &ViewParams,
+        pipeline: &PipelineConfig,
+        options: &PupilLightOptions<'_>,
+        recording_secs: f64,
+    ) -> Result<Self, PupilLightError> {
+        check_calibration_luminance("--pupil-black-cd-m2", options.black_cd_m2)?;
+        check_calibration_luminance("--pupil-white-cd-m2", options.white_cd_m2)?;
+        let scene = SceneLight::new(view_img, view, pipeline);
+        let age = options.age_years;
+        let black = options
+            .black_cd_m2
+            .unwrap_or(DEFAULT_CALIBRATION_BLACK_CD_M2);
+        let white = options
+            .white_cd_m2
+            .unwrap_or(DEFAULT_CALIBRATION_WHITE_CD_M2);
+        let eye_cal = |v: View| -> Option<EyeCalibration> {
+            let eyes = &options.calibration?.eyes;
+            let (r, l) = (eyes.right, eyes.left);
+            match v {
+                View::Eye(EYE_RIGHT) => r.or(l),
+                View::Eye(_) => l.or(r),
+                View::Both => match (r, l) {
+                    (Some(a), Some(b)) => Some(EyeCalibration {
+                        mm_min: 0.5 * (a.mm_min + b.mm_min),
+                        mm_max: 0.5 * (a.mm_max + b.mm_max),
+                        ..a
+                    }),
+                    (a, b) => a.or(b),
+                },
+            }
+        };
+        let mut params_out = Vec::with_capacity(views.len());
+        let mut sources = Vec::with_capacity(views.len());
+        for v in views {
+            let (range, source) = match eye_cal(*v) {
+                Some(c) => (
+                    ObserverRange::from_calibration(
+                        &c,
+                        black,
+                        white,
+                        scene.field.field_area_deg2,
+                        age,
+                    )
+                    .map_err(|reason| PupilLightError::Calibration {
+                        black_cd_m2: black,
+                        white_cd_m2: white,
+                        reason,
+                    })?,
+                    ParamSource::Profile,
+                ),
+                None => (ObserverRange::IDENTITY, ParamSource::Default),
+            };
+            params_out.push(params(age, range));
+            sources.push(source);
+        }
+        let mut fit_block_secs = None;
+        let mut fit_flag = String::new();
+        if let Some(range) = options.pupil_fit {
+            let (from, to) = parse_fit_range(range)?;
+            let length = recording_secs;
+            if from >= length {
+                return Err(PupilLightError::Flag(format!(
+                    "--pupil-fit {range}: the block starts after the recording's end ({length:.3} s)"
+                )));
+            }
+            fit_block_secs = Some([from, to.min(length)]);
+            fit_flag = format!("--pupil-fit {range}");
+        }
+        Ok(Self {
+            views,
+            scene,
+            params: params_out,
+            sources,
+            black_cd_m2: black,
+            white_cd_m2: white,
+            fit_block_secs,
+            fit_flag,
+        })
+    }
+
+    /// With a fit block: fits each view's observer on it (frames at `fps`
+    /// through `feed`, a fresh feed of the recording whose first sample is
+    /// at `t_first_secs`) and takes the fitted parameters; returns the
+    /// fits (none without a block).
+    pub fn fit<I: Iterator<Item = Sample>>(
+        &mut self,
+        feed: &mut SampleFeed<I>,
+        t_first_secs: f64,
+        fps: f64,
+    ) -> Result<Vec<FitResult>, PupilLightError> {
+        let Some([from, to]) = self.fit_block_secs else {
+            return Ok(Vec::new());
+        };
+        let fits = fit_block(
+            feed,
+            self.views,
+            &self.scene,
+            (t_first_secs + from, t_first_secs + to),
+            fps,
+            &self.params,
+            &self.fit_flag,
+        )?;
+        for (fit, (p, s)) in fits
+            .iter()
+            .zip(self.params.iter_mut().zip(self.sources.iter_mut()))
+        {
+            *p = fit.params;
+            *s = ParamSource::Fit(*fit);
+        }
+        Ok(fits)
+    }
+
+    /// The models, one per view, for the whole replay.
+    pub fn start(&self) -> Result<PupilLight, PupilLightError> {
+        PupilLight::new(self.views, &self.params, self.scene.field)
+    }
 }
 
 #[cfg(test)]
