@@ -293,7 +293,7 @@ fn pupil_light_setup(
         Origin::Default,
     );
     field.note = Some(
-        "the plain pixel mean of the view's luminance (the head does not move in a replay)"
+        "the mean of the view's luminance, each pixel weighted by its solid angle (the head does not move in a replay)"
             .to_owned(),
     );
     setup.settings.set(
