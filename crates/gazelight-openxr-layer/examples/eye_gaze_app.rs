@@ -16,7 +16,9 @@
 //! gaze's forward axis and the ray through the expected point: the mean of
 //! the rays through it in each view's field of view), then a summary line
 //! `summary supports=B frames=N tracked=N max_err_deg=X median_err_deg=X
-//! sample_times_monotonic=B sample_times_distinct=N`.
+//! sample_times_monotonic=B sample_times_distinct=N`. First a line
+//! `layer_extensions NAME:VERSION…`: the instance extensions the loader
+//! says gazelight's layer provides (from its manifest).
 use anyhow::{Context, bail};
 use openxr as xr;
 
@@ -32,6 +34,7 @@ fn main() -> anyhow::Result<()> {
     ];
     // SAFETY: loads the system's OpenXR loader.
     let entry = unsafe { xr::Entry::load(&()) }.context("no OpenXR loader")?;
+    println!("layer_extensions {}", layer_extensions(&entry, "XR_APILAYER_GAZELIGHT_perception").join(" "));
     let available = entry.enumerate_extensions()?;
     if !available.ext_eye_gaze_interaction
         || !available.mnd_headless
@@ -259,4 +262,41 @@ fn rotate(q: &xr::Quaternionf, v: [f64; 3]) -> [f64; 3] {
             + 2.0 * (y * z + w * x) * v[1]
             + (1.0 - 2.0 * (x * x + y * y)) * v[2],
     ]
+}
+
+/// The instance extensions the loader lists for API layer `layer`
+/// (`xrEnumerateInstanceExtensionProperties` with its name), as
+/// `NAME:VERSION`; none when the loader does not know the layer.
+fn layer_extensions(entry: &xr::Entry, layer: &str) -> Vec<String> {
+    let Ok(name) = std::ffi::CString::new(layer) else {
+        return Vec::new();
+    };
+    let f = entry.fp().enumerate_instance_extension_properties;
+    let mut count = 0u32;
+    // SAFETY: a NUL-terminated layer name; the count query writes one u32.
+    let r = unsafe { f(name.as_ptr(), 0, &mut count, std::ptr::null_mut()) };
+    if r.into_raw() < 0 {
+        return Vec::new();
+    }
+    let empty = xr::sys::ExtensionProperties {
+        ty: xr::sys::ExtensionProperties::TYPE,
+        next: std::ptr::null_mut(),
+        extension_name: [0; xr::sys::MAX_EXTENSION_NAME_SIZE],
+        extension_version: 0,
+    };
+    let mut props = vec![empty; count as usize];
+    // SAFETY: `props` holds `count` initialised structures.
+    let r = unsafe { f(name.as_ptr(), count, &mut count, props.as_mut_ptr()) };
+    if r.into_raw() < 0 {
+        return Vec::new();
+    }
+    props
+        .iter()
+        .take(count as usize)
+        .map(|p| {
+            // SAFETY: the loader writes NUL-terminated names.
+            let n = unsafe { std::ffi::CStr::from_ptr(p.extension_name.as_ptr()) };
+            format!("{}:{}", n.to_string_lossy(), p.extension_version)
+        })
+        .collect()
 }

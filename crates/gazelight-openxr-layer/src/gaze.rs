@@ -2,8 +2,10 @@
 //! served from the configured gazelight source.
 //!
 //! Served when the config says `gaze = "gazelight"` and the app enabled
-//! `XR_EXT_eye_gaze_interaction` (so the runtime lists it; the layer does
-//! not yet advertise it to runtimes that lack it). Then the layer enables
+//! `XR_EXT_eye_gaze_interaction`, which the layer's manifest lists (the
+//! loader offers it and accepts it whether the runtime has it or not).
+//! Then the layer takes the extension out of the create info it passes
+//! down (the runtime never serves it), enables
 //! `XR_KHR_convert_timespec_time` below itself (for the sample times),
 //! starts gazelight-tracker's live eye task on the configured `source`, and
 //! intercepts:
@@ -48,6 +50,9 @@ use crate::{guard, log};
 
 /// The extension the layer serves.
 pub const EYE_GAZE_EXT: &CStr = c"XR_EXT_eye_gaze_interaction";
+/// Its version, as the layer's manifest lists it (the spec's
+/// `XR_EXT_eye_gaze_interaction_SPEC_VERSION`).
+pub const EYE_GAZE_EXT_VERSION: u32 = xr::EXT_eye_gaze_interaction_SPEC_VERSION;
 /// The extension the layer enables below itself for the sample times.
 pub const CONVERT_TIMESPEC_EXT: &CStr = c"XR_KHR_convert_timespec_time";
 const PROFILE: &str = "/interaction_profiles/ext/eye_gaze_interaction";

@@ -22,8 +22,10 @@
 //! pipeline on each projection view's image with that eye's gaze and pupil
 //! ([`process`], [`import`]), before the image goes to the runtime.
 //!
-//! Not built yet (issue 33): advertising `XR_EXT_eye_gaze_interaction` on
-//! runtimes that lack it.
+//! `XR_EXT_eye_gaze_interaction` is the layer's own when it serves the
+//! gaze: the manifest `gazelight layer install` writes lists it (so the
+//! loader offers it and accepts it on runtimes that lack it), and the layer
+//! takes it out of the create info it passes down.
 //!
 //! Never the app's crash: every exported entry point runs in
 //! [`guard::guarded`], which catches a panic, logs it, turns the layer into
@@ -205,27 +207,41 @@ unsafe extern "system" fn create_api_layer_instance(
                 Err(_) => false,
             };
             let want_eye = serve_gaze || effects;
-            // Eye gaze needs XR_KHR_convert_timespec_time below the layer
-            // (sample times); without it the layer serves no gaze.
-            let mut with_convert = false;
-            let result = if want_eye && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) }
-            {
+            // What goes down: eye gaze needs XR_KHR_convert_timespec_time
+            // below the layer (sample times); without it the layer serves
+            // no gaze. XR_EXT_eye_gaze_interaction is the layer's own when
+            // it serves the gaze: it is taken out of the create info, so
+            // the runtime need not have it (the loader accepts it from the
+            // layer's manifest, `gazelight layer install`).
+            let add_convert =
+                want_eye && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) };
+            let (result, with_convert) = if add_convert || serve_gaze {
                 let r = unsafe {
-                    create_with_extension(info, layer_info, instance, gaze::CONVERT_TIMESPEC_EXT)
+                    create_changed(
+                        info,
+                        layer_info,
+                        instance,
+                        add_convert.then_some(gaze::CONVERT_TIMESPEC_EXT),
+                        serve_gaze.then_some(gaze::EYE_GAZE_EXT),
+                    )
                 };
-                if r == xr::Result::ERROR_EXTENSION_NOT_PRESENT {
+                if r == xr::Result::ERROR_EXTENSION_NOT_PRESENT && add_convert {
                     log(
                         "warn",
                         "eye gaze: the runtime lacks XR_KHR_convert_timespec_time; the layer serves no gaze",
                     );
-                    unsafe { create_next(info, layer_info, instance) }
+                    (unsafe { create_next(info, layer_info, instance) }, false)
                 } else {
-                    with_convert = r.into_raw() >= 0;
-                    r
+                    if serve_gaze && r.into_raw() >= 0 {
+                        log(
+                            "info",
+                            "eye gaze: XR_EXT_eye_gaze_interaction is served by the layer (not passed down to the runtime)",
+                        );
+                    }
+                    (r, r.into_raw() >= 0)
                 }
             } else {
-                with_convert = want_eye;
-                unsafe { create_next(info, layer_info, instance) }
+                (unsafe { create_next(info, layer_info, instance) }, want_eye)
             };
             created.set(Some(result));
             guard::test_hook("xrCreateApiLayerInstance");
@@ -276,12 +292,14 @@ unsafe extern "system" fn create_api_layer_instance(
     )
 }
 
-/// [`create_next`] with one more extension enabled.
-unsafe fn create_with_extension(
+/// [`create_next`] with extension `add` enabled and `remove` taken out
+/// of the app's list.
+unsafe fn create_changed(
     info: *const xr::InstanceCreateInfo,
     layer_info: *const xr::ApiLayerCreateInfo,
     instance: *mut xr::Instance,
-    extension: &CStr,
+    add: Option<&CStr>,
+    remove: Option<&CStr>,
 ) -> xr::Result {
     if info.is_null() {
         return unsafe { create_next(info, layer_info, instance) };
@@ -300,7 +318,13 @@ unsafe fn create_with_extension(
         }
         .to_vec()
     };
-    names.push(extension.as_ptr());
+    if let Some(remove) = remove {
+        // SAFETY: the app's non-null entries are NUL-terminated names.
+        names.retain(|&p| p.is_null() || unsafe { CStr::from_ptr(p) } != remove);
+    }
+    if let Some(add) = add {
+        names.push(add.as_ptr());
+    }
     changed.enabled_extension_names = names.as_ptr();
     changed.enabled_extension_count = names.len() as u32;
     unsafe { create_next(&changed, layer_info, instance) }

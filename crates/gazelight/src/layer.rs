@@ -95,6 +95,12 @@ pub fn manifest_json(library: &Path, kind: Kind) -> serde_json::Value {
         "api_version": "1.0",
         "implementation_version": "1",
         "description": "gazelight: eye gaze from gazelight sources and light perception on the app's frames",
+        // The layer serves it itself, on runtimes without it too: the
+        // loader offers it and accepts an app enabling it.
+        "instance_extensions": [{
+            "name": gazelight_openxr_layer::gaze::EYE_GAZE_EXT.to_string_lossy(),
+            "extension_version": gazelight_openxr_layer::gaze::EYE_GAZE_EXT_VERSION.to_string(),
+        }],
     });
     if kind == Kind::Implicit
         && let Some(m) = layer.as_object_mut()
@@ -334,6 +340,13 @@ mod tests {
             lib.canonicalize().unwrap().to_string_lossy().as_ref()
         );
         assert!(m["api_layer"].get("disable_environment").is_none());
+        // XR_EXT_eye_gaze_interaction version 2 (the OpenXR registry's
+        // XR_EXT_eye_gaze_interaction_SPEC_VERSION), a string as the
+        // loader's manifest format has it.
+        assert_eq!(
+            m["api_layer"]["instance_extensions"],
+            serde_json::json!([{ "name": "XR_EXT_eye_gaze_interaction", "extension_version": "2" }])
+        );
 
         let implicit = install(&data, Kind::Implicit, &lib).unwrap();
         let m: serde_json::Value =
