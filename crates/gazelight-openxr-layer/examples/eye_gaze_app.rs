@@ -34,7 +34,10 @@ fn main() -> anyhow::Result<()> {
     ];
     // SAFETY: loads the system's OpenXR loader.
     let entry = unsafe { xr::Entry::load(&()) }.context("no OpenXR loader")?;
-    println!("layer_extensions {}", layer_extensions(&entry, "XR_APILAYER_GAZELIGHT_perception").join(" "));
+    println!(
+        "layer_extensions {}",
+        layer_extensions(&entry, "XR_APILAYER_GAZELIGHT_perception").join(" ")
+    );
     let available = entry.enumerate_extensions()?;
     if !available.ext_eye_gaze_interaction
         || !available.mnd_headless
