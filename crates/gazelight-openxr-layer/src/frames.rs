@@ -65,7 +65,7 @@ use openxr_sys::Handle as _;
 use openxr_sys::pfn;
 
 use crate::config::{Effects, LayerConfig};
-use crate::process::{EyeProcessor, EyeSpec, fov_tangents};
+use crate::process::{EyeProcessor, EyeSpec, Fit, fov_tangents};
 use crate::vk::{AppInstance, DevicePlan, InstancePatch, LayerGpu};
 use crate::{gaze, guard, log};
 
@@ -1221,11 +1221,18 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
         } else {
             config.white_cd_m2
         };
-        if !slot
+        let fit = slot
             .processor
             .as_ref()
-            .is_some_and(|p| p.fits(format, width, height, job.tan_lrud))
+            .map_or(Fit::Rebuild, |p| p.fit(format, width, height, job.tan_lrud));
+        if fit == Fit::Frustum
+            && let Some(p) = slot.processor.as_mut()
+            && let Err(e) = p.set_view(job.tan_lrud)
         {
+            warn(format!("a projection view's field of view: {e}"));
+            continue;
+        }
+        if fit == Fit::Rebuild {
             slot.processor = None;
             match EyeProcessor::new(
                 &ctx,

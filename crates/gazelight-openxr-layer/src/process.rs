@@ -48,6 +48,24 @@ struct Queries {
     readback: wgpu::Buffer,
 }
 
+/// The largest relative change of a view's pixel size (degrees per pixel)
+/// an [`EyeProcessor`] follows without being rebuilt: a field of view that
+/// moves a little from frame to frame (some runtimes' views do) only
+/// re-aims pooling; the kernels (built for the pixel size) stay within
+/// 0.5 % of it.
+pub const DEG_PER_PX_TOLERANCE: f64 = 0.005;
+
+/// How an [`EyeProcessor`] serves a view ([`EyeProcessor::fit`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fit {
+    /// Built for this view.
+    Same,
+    /// Serves it after [`EyeProcessor::set_view`].
+    Frustum,
+    /// Needs a new processor (another size, format or pixel size).
+    Rebuild,
+}
+
 /// What an [`EyeProcessor`] is built for.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EyeSpec {
@@ -214,19 +232,38 @@ impl EyeProcessor {
         })
     }
 
-    /// Whether this processor serves images of `format`, `width × height`,
-    /// edge tangents `tan_lrud`.
-    pub fn fits(
+    /// How this processor serves a view of `format`, `width × height`,
+    /// edge tangents `tan_lrud`: as it is, after [`Self::set_view`] (the
+    /// same image, a field whose pixel size is within
+    /// [`DEG_PER_PX_TOLERANCE`]: pooling follows the new frustum, the
+    /// kernels and the acuity keep their pixel size), or not at all.
+    pub fn fit(
         &self,
         format: wgpu::TextureFormat,
         width: u32,
         height: u32,
         tan_lrud: [f64; 4],
-    ) -> bool {
-        self.format == format
-            && self.width == width
-            && self.height == height
-            && self.tan_lrud == tan_lrud
+    ) -> Fit {
+        if self.format != format || self.width != width || self.height != height {
+            return Fit::Rebuild;
+        }
+        if self.tan_lrud == tan_lrud {
+            return Fit::Same;
+        }
+        let ratio = deg_per_px(tan_lrud, width) / self.pipeline.deg_per_px();
+        if (ratio - 1.0).abs() <= DEG_PER_PX_TOLERANCE {
+            Fit::Frustum
+        } else {
+            Fit::Rebuild
+        }
+    }
+
+    /// Takes a view with edge tangents `tan_lrud` (see [`Self::fit`]):
+    /// pooling measures angles through it from the next frame on.
+    pub fn set_view(&mut self, tan_lrud: [f64; 4]) -> Result<(), GpuError> {
+        self.pipeline.set_view_frustum(tan_lrud)?;
+        self.tan_lrud = tan_lrud;
+        Ok(())
     }
 
     /// Records the processing of the view at `origin` (pixels; the view

@@ -683,3 +683,49 @@ fn the_import_pass_equals_its_cpu_twin() {
         assert_eq!(mismatches, 0, "{format:?}");
     }
 }
+
+/// A view whose field of view moves a little (pixel size within 0.5 %)
+/// keeps its processor, re-aimed ([`Fit::Frustum`], then the same view);
+/// a larger change, another size or format needs a new one.
+#[test]
+fn a_slightly_changed_field_of_view_re_aims_the_processor() {
+    use gazelight_openxr_layer::process::Fit;
+    let Some(mut app) = app() else {
+        return;
+    };
+    let ctx = app.gpu.as_ref().expect("gpu").ctx.clone();
+    let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+    let half = |deg: f32| {
+        let a = deg.to_radians();
+        fov_tangents(-a, a, a, -a)
+    };
+    let spec = EyeSpec {
+        format,
+        width: W,
+        height: H,
+        tan_lrud: half(45.0),
+        scale: WHITE_CD_M2,
+        timed: false,
+    };
+    let mut p = EyeProcessor::new(&ctx, &PipelineConfig::default(), spec).expect("eye processor");
+    assert_eq!(p.fit(format, W, H, half(45.0)), Fit::Same);
+    // 90.2° over 90°: the pixel size 0.22 % larger.
+    assert_eq!(p.fit(format, W, H, half(45.1)), Fit::Frustum);
+    p.set_view(half(45.1)).expect("set view");
+    assert_eq!(p.fit(format, W, H, half(45.1)), Fit::Same);
+    // 94° over 90°: 4.4 % larger; another size; another format.
+    assert_eq!(p.fit(format, W, H, half(47.0)), Fit::Rebuild);
+    assert_eq!(p.fit(format, W + 2, H, half(45.1)), Fit::Rebuild);
+    assert_eq!(
+        p.fit(wgpu::TextureFormat::Rgba16Float, W, H, half(45.1)),
+        Fit::Rebuild
+    );
+    // Tangents out of order are refused, and the view is kept.
+    let a = 45f32.to_radians();
+    assert!(p.set_view(fov_tangents(a, -a, a, -a)).is_err());
+    assert_eq!(p.fit(format, W, H, half(45.1)), Fit::Same);
+    drop(p);
+    ctx.wait_idle().expect("wait");
+    drop(ctx);
+    app.gpu.take();
+}
