@@ -287,6 +287,35 @@ fn imported(texels: &[u8], format: ImageFormat, scale: f32) -> RgbImage {
     }
 }
 
+/// A W×H view of edge tangents `tan_lrud` in `format`, decoded × `scale`.
+fn eye_spec(format: wgpu::TextureFormat, tan_lrud: [f64; 4], scale: f32) -> EyeSpec {
+    EyeSpec {
+        format,
+        width: W,
+        height: H,
+        tan_lrud,
+        scale,
+        timed: false,
+    }
+}
+
+/// The two frames' gaze and pupil (the second `second_dt_secs` after the
+/// first).
+fn two_frames(second_dt_secs: f32) -> [FrameInput; 2] {
+    [
+        FrameInput {
+            gaze_uv: [0.3, 0.6],
+            pupil_mm: 5.5,
+            dt_secs: 0.0,
+        },
+        FrameInput {
+            gaze_uv: [0.7, 0.4],
+            pupil_mm: 3.0,
+            dt_secs: second_dt_secs,
+        },
+    ]
+}
+
 /// Two views side by side in one image (one swapchain for both eyes, each
 /// view's `imageRect` one half, as some engines submit): each half
 /// processed by its own eye's processor equals the pipeline on that half
@@ -329,26 +358,9 @@ fn two_views_side_by_side_in_one_image_each_match_the_pipeline() {
     let a = 45f32.to_radians();
     let tan = fov_tangents(-a, a, a, -a);
     let config = PipelineConfig::default();
-    let spec = EyeSpec {
-        format,
-        width: W,
-        height: H,
-        tan_lrud: tan,
-        scale: WHITE_CD_M2,
-        timed: false,
-    };
-    let inputs = [
-        FrameInput {
-            gaze_uv: [0.3, 0.6],
-            pupil_mm: 5.5,
-            dt_secs: 0.0,
-        },
-        FrameInput {
-            gaze_uv: [0.7, 0.4],
-            pupil_mm: 3.0,
-            dt_secs: 0.0,
-        },
-    ];
+    let spec = eye_spec(format, tan, WHITE_CD_M2);
+    // Each eye's first frame.
+    let inputs = two_frames(0.0);
     let raw = raw_image(&app_texture).expect("raw image");
     let wrapped = unsafe { gpu.wrap_image(raw, format, 2 * W, H, 1) }.expect("wrap");
     let mut processors: Vec<EyeProcessor> = (0..2)
@@ -436,14 +448,7 @@ fn run_format(format: wgpu::TextureFormat) {
     let a = 45f32.to_radians();
     let tan = fov_tangents(-a, a, a, -a);
     let config = PipelineConfig::default();
-    let spec = EyeSpec {
-        format,
-        width: W,
-        height: H,
-        tan_lrud: tan,
-        scale,
-        timed: false,
-    };
+    let spec = eye_spec(format, tan, scale);
     let mut processor = EyeProcessor::new(&ctx, &config, spec).expect("eye processor");
     let mut reference = GpuFramePipeline::new(
         &ctx,
@@ -456,18 +461,7 @@ fn run_format(format: wgpu::TextureFormat) {
     reference.set_view_frustum(tan).expect("frustum");
     let tb = image_format.texel_bytes() as usize;
     let cpu_scene = imported(&input_texels, image_format, scale);
-    let inputs = [
-        FrameInput {
-            gaze_uv: [0.3, 0.6],
-            pupil_mm: 5.5,
-            dt_secs: 0.0,
-        },
-        FrameInput {
-            gaze_uv: [0.7, 0.4],
-            pupil_mm: 3.0,
-            dt_secs: 1.0 / 60.0,
-        },
-    ];
+    let inputs = two_frames(1.0 / 60.0);
     let raw = raw_image(&app_texture).expect("raw image");
     let wrapped = unsafe { gpu.wrap_image(raw, format, W, H, 1) }.expect("wrap");
     for (k, input) in inputs.iter().enumerate() {
@@ -699,14 +693,7 @@ fn a_slightly_changed_field_of_view_re_aims_the_processor() {
         let a = deg.to_radians();
         fov_tangents(-a, a, a, -a)
     };
-    let spec = EyeSpec {
-        format,
-        width: W,
-        height: H,
-        tan_lrud: half(45.0),
-        scale: WHITE_CD_M2,
-        timed: false,
-    };
+    let spec = eye_spec(format, half(45.0), WHITE_CD_M2);
     let mut p = EyeProcessor::new(&ctx, &PipelineConfig::default(), spec).expect("eye processor");
     assert_eq!(p.fit(format, W, H, half(45.0)), Fit::Same);
     // 90.2° over 90°: the pixel size 0.22 % larger.
