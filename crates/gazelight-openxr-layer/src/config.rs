@@ -30,6 +30,11 @@
 //! `gazelight` bin crate) with the same keys and ranges. The run's other
 //! sections (`[scene]`, `[display]`, …) are refused: they do not apply to a
 //! layer. An error names the file, line, column and field.
+//!
+//! The file is read with `gazelight_input::read_config`, as the CLI reads
+//! its configs: a FIFO, a device or a file over 1 MiB is refused (the layer
+//! then runs as the app without it, see `lib.rs`), never read into the
+//! app's memory.
 
 use std::ffi::OsString;
 use std::ops::Range;
@@ -211,7 +216,12 @@ impl LayerConfig {
     /// is `Ok(None)`.
     pub fn load_at(location: &ConfigLocation) -> Result<Option<(PathBuf, Self)>, ConfigError> {
         let path = location.path();
-        match std::fs::read_to_string(path) {
+        // The bounded reader, as every front end's config: regular files
+        // only (a FIFO is refused without blocking the app's thread,
+        // `/dev/zero` without reading it), at most
+        // `gazelight_input::MAX_CONFIG_BYTES`, and its structure scanned
+        // before the TOML parser builds anything.
+        match gazelight_input::read_config(path, gazelight_input::ConfigSyntax::Toml) {
             Ok(text) => Self::parse(path, &text).map(|c| Some((path.to_path_buf(), c))),
             Err(e)
                 if e.kind() == std::io::ErrorKind::NotFound

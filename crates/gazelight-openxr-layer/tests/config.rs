@@ -170,3 +170,75 @@ fn the_luminance_mapping_and_dump_keys_are_checked() {
         (250.0, 80.0, 3)
     );
 }
+
+/// A scratch directory of this test process.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "gazelight-layer-cfg-{}-{name}",
+        std::process::id()
+    ));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `load_at` on `path` in a thread: its error, or a panic when it has not
+/// returned within 10 s (a blocking open or an endless read).
+fn read_error_within_10s(path: PathBuf) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(LayerConfig::load_at(&ConfigLocation::Env(path)));
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(10)) {
+        Ok(Err(ConfigError::Read { reason, .. })) => reason,
+        Ok(other) => panic!("expected a read error, got {other:?}"),
+        Err(_) => panic!("the config load did not return within 10 s"),
+    }
+}
+
+#[test]
+fn an_oversized_config_is_refused_by_its_size_before_reading() {
+    let dir = scratch("big");
+    let path = dir.join("layer.toml");
+    // 40 MB of comment lines: valid TOML, read whole it would become a
+    // 40 MB String in the app's process. Sparse, so the test writes little.
+    let f = std::fs::File::create(&path).unwrap();
+    f.set_len(40_000_000).unwrap();
+    drop(f);
+    let reason = read_error_within_10s(path);
+    assert!(reason.contains("limit"), "{reason}");
+    assert!(reason.contains("40000000"), "{reason}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[cfg(unix)]
+#[test]
+fn a_fifo_or_a_device_as_config_is_refused_without_blocking() {
+    let dir = scratch("fifo");
+    let fifo = dir.join("layer.toml");
+    let ok = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    // No writer ever opens it: a plain open would block forever.
+    let reason = read_error_within_10s(fifo);
+    assert!(reason.contains("FIFO"), "{reason}");
+    let reason = read_error_within_10s(PathBuf::from("/dev/zero"));
+    assert!(reason.contains("character device"), "{reason}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_config_with_a_huge_array_is_refused_before_parsing() {
+    let dir = scratch("array");
+    let path = dir.join("layer.toml");
+    // Under the byte limit, but 200 k values: refused by the structure scan.
+    let mut text = String::from("dump_every = [");
+    text.push_str(&"1,".repeat(200_000));
+    text.push_str("1]\n");
+    std::fs::write(&path, text).unwrap();
+    let reason = read_error_within_10s(path);
+    assert!(reason.contains("values"), "{reason}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
