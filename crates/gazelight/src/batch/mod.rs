@@ -142,6 +142,10 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| default_out(&args.manifest));
+    if args.slurm {
+        // Before anything is created: a path the script cannot name.
+        slurm::check_paths(&args.manifest, &out)?;
+    }
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let state = State::open(&out)?;
     let bids = match &args.bids {

@@ -1,0 +1,126 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
+//! Issue 48's classes at the CLI (each test is its own case, written for
+//! the class, not a copy of the issue's): generated Slurm scripts run by
+//! bash with hostile paths, outputs that are the command's own inputs,
+//! shared numeric bounds, quadratic manifests, messages and stale batch
+//! records.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::{shared_str, tmp};
+
+fn gazelight_in(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gazelight"));
+    cmd.args(args).env("RUST_LOG", "warn");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("run gazelight")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A folder whose name a shell or sbatch would split, expand or run.
+fn hostile_dir(root: &Path) -> PathBuf {
+    let d = root.join("my data's \"best\" $(touch PWNED1) `touch PWNED2` ; x");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn a_slurm_script_with_hostile_paths_runs_its_task_under_bash_and_nothing_else() {
+    let root = tmp("slurm");
+    let dir = hostile_dir(&root);
+    let manifest = dir.join("rows $(id).csv");
+    std::fs::write(
+        &manifest,
+        format!(
+            "id,recording,secs,from_secs,size,fps,backend\npip,{},2,10,48x32,4,cpu\n",
+            shared_str("eye/piprkit-plr/pupil_trace.csv")
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out put");
+    // `sbatch` stubbed: it runs the script as task 0 of the array, with
+    // bash, in the root (where an injected `touch` would land).
+    let bin = root.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let stub = bin.join("sbatch");
+    std::fs::write(
+        &stub,
+        "#!/bin/sh\n[ \"$1\" = --parsable ] || exit 9\nSLURM_ARRAY_TASK_ID=0 bash \"$2\" > \"$(dirname \"$0\")/task.log\" 2>&1 || exit 8\necho 4242\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&stub, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gazelight"));
+    cmd.args([
+        "batch",
+        s(&manifest),
+        "--out",
+        s(&out),
+        "--slurm",
+        "--submit",
+    ])
+    .env("RUST_LOG", "warn")
+    .env("PATH", &path)
+    .current_dir(&root);
+    let o = cmd.output().unwrap();
+    let log = std::fs::read_to_string(bin.join("task.log")).unwrap_or_default();
+    assert!(o.status.success(), "{}\ntask log: {log}", stderr(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("submitted job array 4242"),
+        "{o:?}"
+    );
+    // The task ran with the paths as they are: the row's outputs are in
+    // the hostile folder, and no injected command ran anywhere.
+    assert!(
+        out.join("pip").join("timeline.csv").is_file(),
+        "task log: {log}"
+    );
+    for pwned in ["PWNED1", "PWNED2"] {
+        assert!(!root.join(pwned).exists() && !dir.join(pwned).exists());
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+#[test]
+fn a_slurm_manifest_path_with_a_newline_is_refused_before_anything_is_written() {
+    let root = tmp("slurm-nl");
+    let manifest = root.join("rows\nsrun touch PWNED\n.csv");
+    std::fs::write(
+        &manifest,
+        format!(
+            "id,recording\npip,{}\n",
+            shared_str("eye/piprkit-plr/pupil_trace.csv")
+        ),
+    )
+    .unwrap();
+    let out = root.join("out");
+    let o = gazelight_in(&["batch", s(&manifest), "--out", s(&out), "--slurm"], &[]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("control character") && e.contains("manifest"),
+        "{e}"
+    );
+    assert!(
+        !out.exists(),
+        "the output folder was created before the refusal"
+    );
+    std::fs::remove_dir_all(&root).unwrap();
+}
