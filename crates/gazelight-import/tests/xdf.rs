@@ -324,8 +324,20 @@ fn truncated_and_damaged_copies_name_the_chunk() {
 /// piprkit pupil recording's first `rows` rows, LabRecorder's layout),
 /// written into `dir`; `None` when python3 or the shared data is missing.
 fn stand_in(layout: &str, rows: usize, dir: &Path) -> Option<PathBuf> {
+    stand_in_with(layout, rows, dir, layout, &[])
+}
+
+/// [`stand_in`] with the script's KEY=VALUE options (a blink, a gaze, a
+/// damaged stamp or clock offset), written as `dir/NAME.xdf`.
+fn stand_in_with(
+    layout: &str,
+    rows: usize,
+    dir: &Path,
+    name: &str,
+    options: &[&str],
+) -> Option<PathBuf> {
     let plr = gazelight_test_support::data_path("eye").join("piprkit-plr");
-    let out = dir.join(format!("{layout}.xdf"));
+    let out = dir.join(format!("{name}.xdf"));
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/xdf/write_eye_xdf.py");
     let status = match Command::new("python3")
         .arg(&script)
@@ -334,6 +346,7 @@ fn stand_in(layout: &str, rows: usize, dir: &Path) -> Option<PathBuf> {
         .arg(plr.join("stimuli.csv"))
         .arg(rows.to_string())
         .arg(&out)
+        .args(options)
         .status()
     {
         Ok(s) => s,
@@ -393,14 +406,10 @@ fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
                 Sample::Pupil(p) => {
                     let e = p.eye as usize;
                     pupils[e] += 1;
-                    // Layouts without a validity channel leave lost pupils
-                    // out; gazelight's own marks them lost.
-                    let k = (next[e]..ROWS)
-                        .find(|&k| {
-                            let v = rows[k][e];
-                            layout == "gazelight-eye" || (v.is_finite() && v > 0.0)
-                        })
-                        .unwrap_or_else(|| panic!("{layout}: more eye {e} pupils than rows"));
+                    // Every row gives each eye a sample; a lost pupil is a
+                    // lost sample (confidence 0), never left out.
+                    let k = next[e];
+                    assert!(k < ROWS, "{layout}: more eye {e} pupils than rows");
                     next[e] = k + 1;
                     let v = rows[k][e];
                     assert!(
@@ -417,31 +426,20 @@ fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
                 }
                 Sample::Gaze(g) => {
                     gaze += 1;
-                    assert_eq!(g.gaze_uv, [0.5, 0.5], "{layout}");
+                    if layout == "pupil-capture-relay" {
+                        // The relay's gaze is NaN (the recording has none):
+                        // a lost gaze on every row.
+                        assert!(g.gaze_uv[0].is_nan() && g.confidence == 0.0, "{g:?}");
+                    } else {
+                        assert_eq!(g.gaze_uv, [0.5, 0.5], "{layout}");
+                    }
                 }
                 Sample::Blink(_) => panic!("{layout}: the recording has no blink channel set"),
             }
         }
-        let valid = |e: usize| {
-            rows.iter()
-                .filter(|r| r[e].is_finite() && r[e] > 0.0)
-                .count()
-        };
-        for (e, &n) in pupils.iter().enumerate() {
-            let want = if layout == "gazelight-eye" {
-                ROWS
-            } else {
-                valid(e)
-            };
-            assert_eq!(n, want, "{layout} eye {e}");
-        }
-        // The relay's gaze is NaN (the recording has none): no gaze.
-        let want_gaze = if layout == "pupil-capture-relay" {
-            0
-        } else {
-            ROWS
-        };
-        assert_eq!(gaze, want_gaze, "{layout}");
+        // Every row counted: pyxdf's row count per eye and for the gaze.
+        assert_eq!(pupils, [py_t.len(); 2], "{layout}");
+        assert_eq!(gaze, py_t.len(), "{layout}");
         let note = imp.warnings().messages[0].clone();
         assert!(note.contains(&format!("layout {layout}")), "{note}");
         assert!(note.contains("`stimuli` (type Markers"), "{note}");
@@ -475,5 +473,178 @@ fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
         err.contains("no stream named `nope`") && err.contains("`mystery`"),
         "{err}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 45 item 6: a Pupil-Capture-relay XDF (gaze on every row) with a
+/// 150 ms blink as Pupil Capture relays one (confidence 0, every diameter
+/// 0). `inspect`'s summary (`summarize_importer`, what the command prints)
+/// counts as many samples per eye and of gaze as pyxdf reads rows, and
+/// the filter chain counts the blink in each eye. Before: the 30 blink
+/// rows were left out (3970 of pyxdf's 4000) and no blink was counted.
+#[test]
+fn a_relay_blink_is_counted_and_the_counts_equal_pyxdfs() {
+    use gazelight_eye::filter::FilterChain;
+    const ROWS: usize = 4000;
+    const BLINK_ROW: usize = 1000;
+    const BLINK_ROWS: usize = 30; // 150 ms at 200 Hz
+    let dir = std::env::temp_dir().join(format!("gazelight-xdf-blink-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let Some(path) = stand_in_with(
+        "pupil-capture-relay",
+        ROWS,
+        &dir,
+        "relay-blink",
+        &["gaze=0.4,0.6", &format!("blink={BLINK_ROW},{BLINK_ROWS}")],
+    ) else {
+        return;
+    };
+    let Some(py) = pyxdf_dump(&path) else { return };
+    let eye = &py["streams"][0];
+    let values = eye["values"].as_array().expect("values");
+    let stamps: Vec<f64> = eye["time_stamps"]
+        .as_array()
+        .expect("stamps")
+        .iter()
+        .map(|v| v.as_f64().expect("a stamp"))
+        .collect();
+    // pyxdf's own view of the file: its rows, and the blink (confidence
+    // channel 0 is 0) with its duration on pyxdf's clock.
+    let closed: Vec<usize> = values
+        .iter()
+        .enumerate()
+        .filter(|(_, row)| row[0].as_f64() == Some(0.0))
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(closed.len(), BLINK_ROWS, "pyxdf's zero-confidence rows");
+    // 30 rows of the piprkit recording's ~5 ms: 150 ms give or take its
+    // jitter.
+    let blink_s = stamps[closed[BLINK_ROWS - 1] + 1] - stamps[closed[0]];
+    assert!((blink_s - 0.150).abs() < 0.005, "{blink_s}");
+
+    let mut imp = gazelight_import::open(&path).expect("open");
+    let summary =
+        gazelight_import::summary::summarize_importer(imp.as_mut(), FilterChain::with_defaults())
+            .expect("summary");
+    let n = stamps.len() as u64;
+    assert_eq!(n, ROWS as u64);
+    assert_eq!(
+        summary.samples.pupil,
+        [n, n],
+        "pupil samples per eye vs pyxdf"
+    );
+    assert_eq!(summary.samples.gaze, n, "gaze samples vs pyxdf");
+    assert_eq!(summary.skipped_records, 0);
+    assert_eq!(summary.blinks.detected, [1, 1], "{:?}", summary.blinks);
+    eprintln!(
+        "relay XDF with a {:.0} ms blink: pyxdf {n} rows; inspect pupils {:?}, gaze {}, \
+         blinks detected {:?}, dropouts {:?}",
+        blink_s * 1e3,
+        summary.samples.pupil,
+        summary.samples.gaze,
+        summary.blinks.detected,
+        summary.dropouts
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The samples `gazelight_import::open` gives of `path`: (pupil samples
+/// per eye, their times, warnings).
+fn read_counts(path: &Path) -> Result<([u64; 2], Vec<f64>, Vec<String>), String> {
+    use gazelight_eye::sample::Sample;
+    let mut imp = gazelight_import::open(path).map_err(|e| e.to_string())?;
+    let mut pupils = [0u64; 2];
+    let mut times = Vec::new();
+    for s in imp.by_ref() {
+        if let Sample::Pupil(p) = s.map_err(|e| e.to_string())? {
+            pupils[usize::from(p.eye)] += 1;
+            if p.eye == 0 {
+                times.push(p.t_secs);
+            }
+        }
+    }
+    Ok((pupils, times, imp.warnings().messages.clone()))
+}
+
+/// Issue 48 class 1: one non-finite time stamp among 3000 samples, and
+/// one NaN, inf or 1e308 clock offset among 30, no longer poison the
+/// stream. The stamp is left out of the dejitter fit and takes its line's
+/// time (every sample keeps, within 1 % of the 5 ms sample interval, the
+/// time it has in the file without the bad value: the line through 2999
+/// of the recording's jittery stamps instead of 3000);
+/// the offset is left out of the clock fit. Both are counted in the
+/// import's notes (`inspect` prints them). The times of the clean file
+/// are the reference (pyxdf's, checked above); pyxdf itself gives NaN
+/// for every stamp of such a stream.
+#[test]
+fn one_non_finite_stamp_or_clock_offset_is_skipped_and_counted() {
+    let dir = std::env::temp_dir().join(format!("gazelight-xdf-nonfinite-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    // 3000 rows: the stamps.
+    let Some(clean) = stand_in_with("gazelight-eye", 3000, &dir, "clean3000", &[]) else {
+        return;
+    };
+    let (n, want, _) = read_counts(&clean).expect("the clean file");
+    assert_eq!(n, [3000, 3000]);
+    for value in ["nan", "inf", "-inf", "1e308"] {
+        let Some(path) = stand_in_with(
+            "gazelight-eye",
+            3000,
+            &dir,
+            &format!("stamp-{value}"),
+            &[&format!("stamp=1234,{value}")],
+        ) else {
+            return;
+        };
+        let (n, got, notes) = read_counts(&path).unwrap_or_else(|e| panic!("stamp {value}: {e}"));
+        assert_eq!(n, [3000, 3000], "stamp {value}: every sample read");
+        let worst = want
+            .iter()
+            .zip(&got)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 50e-6, "stamp {value}: times moved by {worst} s");
+        assert!(
+            got[1233] < got[1234] && got[1234] < got[1235],
+            "stamp {value}"
+        );
+        let note = notes
+            .iter()
+            .find(|m| m.contains("1 of its 3000 samples have a time stamp"))
+            .unwrap_or_else(|| panic!("stamp {value}: no note in {notes:?}"));
+        eprintln!("stamp {value}: {note}");
+    }
+    // 30 clock offsets: one every 5 s over 150 s.
+    let Some(clean) = stand_in_with("gazelight-eye", 29_200, &dir, "clean29200", &[]) else {
+        return;
+    };
+    let (n, want, notes) = read_counts(&clean).expect("the clean file");
+    assert_eq!(n, [29_200, 29_200]);
+    assert!(notes[0].contains("30 clock offsets"), "{notes:?}");
+    for value in ["nan", "inf", "1e308", "-1e308"] {
+        let Some(path) = stand_in_with(
+            "gazelight-eye",
+            29_200,
+            &dir,
+            &format!("offset-{value}"),
+            &[&format!("offset=17,{value}")],
+        ) else {
+            return;
+        };
+        let (n, got, notes) = read_counts(&path).unwrap_or_else(|e| panic!("offset {value}: {e}"));
+        assert_eq!(n, [29_200, 29_200], "offset {value}: every sample read");
+        let worst = want
+            .iter()
+            .zip(&got)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        // The fit through 29 of the 30 points of one line: the same line.
+        assert!(worst < 1e-6, "offset {value}: times moved by {worst} s");
+        let note = notes
+            .iter()
+            .find(|m| m.contains("1 of its 30 clock offsets skipped"))
+            .unwrap_or_else(|| panic!("offset {value}: no note in {notes:?}"));
+        eprintln!("offset {value}: {note}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -252,7 +252,8 @@ impl ClockMap {
     /// (start at 0), as stamps must come in file order.
     pub fn correct(&self, range: &mut usize, t: f64) -> f64 {
         let coefs = &self.coefs;
-        if coefs.is_empty() {
+        if coefs.is_empty() || !t.is_finite() {
+            // A non-finite stamp stays what it is, and moves no cursor.
             return t;
         }
         if coefs.len() > 1 {

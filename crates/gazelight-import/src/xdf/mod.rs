@@ -239,15 +239,18 @@ impl EyeLayout {
             let conf = get(self.eye_confidence[e])
                 .filter(|c| c.is_finite())
                 .map_or(confidence, |c| c.clamp(0.0, 1.0) as f32);
-            let method = match (self.kind, prefs.first().map(|p| p.1)) {
-                ("pupil-capture-relay", Some(PupilUnit::Mm))
-                    if found.is_some_and(|f| f.1 == PupilUnit::Mm) =>
-                {
-                    DetectorMethod::Pupil3d
-                }
+            // The detector of the value found; a lost pupil belongs to the
+            // preferred one (the 3D model where the relay has it).
+            let unit = found.map(|f| f.1).or(prefs.first().map(|p| p.1));
+            let method = match (self.kind, unit) {
+                ("pupil-capture-relay", Some(PupilUnit::Mm)) => DetectorMethod::Pupil3d,
                 ("pupil-capture-relay", _) => DetectorMethod::Pupil2d,
                 _ => DetectorMethod::Other,
             };
+            if prefs.is_empty() {
+                // The layout has no pupil channel for this eye.
+                continue;
+            }
             match found {
                 Some((d, unit)) if eye_valid => {
                     valid[e] = true;
@@ -262,9 +265,12 @@ impl EyeLayout {
                         method,
                     }));
                 }
-                // A layout that says the pupil is lost (gazelight's own
-                // validity channel): a lost pupil, confidence 0.
-                _ if self.eye_valid[e].is_some() => out.push(Sample::Pupil(PupilSample {
+                // No usable diameter (0, NaN, negative: a blink or a lost
+                // pupil), or a validity channel that says so: still a
+                // sample of this eye, lost (confidence 0), so blinks and
+                // dropouts are counted downstream and the counts equal
+                // the stream's rows.
+                _ => out.push(Sample::Pupil(PupilSample {
                     t_secs,
                     eye: e as u8,
                     diameter_raw: 0.0,
@@ -274,30 +280,41 @@ impl EyeLayout {
                     norm_pos: [f32::NAN; 2],
                     method,
                 })),
-                _ => {}
             }
         }
-        if flag(self.gaze_valid) == Some(false) {
+        let (Some(_), Some(_)) = (self.gaze_x, self.gaze_y) else {
             return;
-        }
-        if let (Some(x), Some(y)) = (get(self.gaze_x), get(self.gaze_y))
-            && x.is_finite()
-            && y.is_finite()
-        {
-            let u = x / self.gaze_range[0];
-            let v = y / self.gaze_range[1];
-            let v = if self.gaze_y_up { 1.0 - v } else { v };
-            out.push(Sample::Gaze(GazeSample {
+        };
+        let eyes = match valid {
+            [true, false] => GazeEyes::Right,
+            [false, true] => GazeEyes::Left,
+            _ => GazeEyes::Binocular,
+        };
+        let xy = (get(self.gaze_x), get(self.gaze_y));
+        let gaze = match xy {
+            (Some(x), Some(y))
+                if x.is_finite() && y.is_finite() && flag(self.gaze_valid) != Some(false) =>
+            {
+                let u = x / self.gaze_range[0];
+                let v = y / self.gaze_range[1];
+                let v = if self.gaze_y_up { 1.0 - v } else { v };
+                GazeSample {
+                    t_secs,
+                    gaze_uv: [u as f32, v as f32],
+                    confidence,
+                    eyes,
+                }
+            }
+            // A row without a usable gaze (NaN, or its validity channel
+            // says lost): a lost gaze sample, confidence 0, NaN position.
+            _ => GazeSample {
                 t_secs,
-                gaze_uv: [u as f32, v as f32],
-                confidence,
-                eyes: match valid {
-                    [true, false] => GazeEyes::Right,
-                    [false, true] => GazeEyes::Left,
-                    _ => GazeEyes::Binocular,
-                },
-            }));
-        }
+                gaze_uv: [f32::NAN; 2],
+                confidence: 0.0,
+                eyes,
+            },
+        };
+        out.push(Sample::Gaze(gaze));
     }
 }
 
@@ -442,6 +459,41 @@ impl XdfImporter {
             );
         }
         let samples = file.samples(index)?;
+        if info.clock_offsets_skipped > 0 {
+            warnings.note(
+                &file_path,
+                Position::File,
+                format!(
+                    "stream `{}`: {} of its {} clock offsets skipped (a collection time or an \
+                     offset that is not a finite number within ±{:e} s); the clock fit uses \
+                     the other {}",
+                    info.name,
+                    info.clock_offsets_skipped,
+                    info.clock_offsets.len() as u64 + info.clock_offsets_skipped,
+                    reader::MAX_CLOCK_SECS,
+                    info.clock_offsets.len()
+                ),
+            );
+        }
+        let bad_stamps = samples.implausible_stamps();
+        if bad_stamps > 0 {
+            warnings.note(
+                &file_path,
+                Position::File,
+                format!(
+                    "stream `{}`: {bad_stamps} of its {} samples have a time stamp that is not a \
+                     finite number within ±{:e} s, left out of the time fits; {}",
+                    info.name,
+                    info.samples_kept,
+                    reader::MAX_CLOCK_SECS,
+                    if info.dejittered() {
+                        "each takes its dejitter line's time at its index"
+                    } else {
+                        "the stream is not dejittered, so they are skipped (and counted)"
+                    }
+                ),
+            );
+        }
         Ok(Self {
             path: file_path,
             samples,

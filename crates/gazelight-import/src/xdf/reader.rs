@@ -46,6 +46,16 @@ pub const MAX_STREAMS: usize = 4096;
 pub const MAX_CLOCK_OFFSETS: usize = 1 << 20;
 /// Most dejitter pieces of one stream (a piece starts at a gap > 1 s).
 pub const MAX_SEGMENTS: usize = 1 << 20;
+/// Largest plausible |time stamp| and |clock offset|, s: the import's
+/// own bound on any time ([`crate::time_guard::MAX_ABS_T_SECS`], about 317
+/// years). A stamp or offset beyond it (or not finite) is left out of the
+/// clock fits and the dejitter lines, and counted.
+pub const MAX_CLOCK_SECS: f64 = crate::time_guard::MAX_ABS_T_SECS;
+
+/// Whether `t` is a time the clock fits may use.
+pub fn plausible_time(t: f64) -> bool {
+    t.is_finite() && t.abs() <= MAX_CLOCK_SECS
+}
 
 const MAGIC: &[u8; 4] = b"XDF:";
 
@@ -142,6 +152,11 @@ pub struct StreamInfo {
     pub samples_kept: u64,
     /// Clock ranges the offsets split into (1 + clock resets; 0: none).
     pub clock_ranges: usize,
+    /// ClockOffset chunks left out of the clock fit: a collection time or
+    /// an offset that is not a finite number within ±[`MAX_CLOCK_SECS`]
+    /// (NaN, ±inf, 1e308). Counted, never fitted: one such value would
+    /// make every synced stamp of the stream NaN.
+    pub clock_offsets_skipped: u64,
     #[serde(skip)]
     clock: ClockMap,
 }
@@ -495,6 +510,7 @@ fn parse_header(id: u32, x: &xml::Element) -> Result<StreamInfo, String> {
         clock_offsets: Vec::new(),
         samples_kept: 0,
         clock_ranges: 0,
+        clock_offsets_skipped: 0,
         clock: ClockMap::default(),
     })
 }
@@ -557,7 +573,11 @@ impl XdfFile {
                         )));
                     }
                     offsets_total += 1;
-                    s.clock_offsets.push((t, v));
+                    if plausible_time(t) && plausible_time(v) {
+                        s.clock_offsets.push((t, v));
+                    } else {
+                        s.clock_offsets_skipped += 1;
+                    }
                 }
                 TAG_STREAM_FOOTER => {
                     let id = c.u32("the stream id")?;
@@ -615,7 +635,15 @@ impl XdfFile {
         let mut pass = StreamSamples::new(self, info)?;
         pass.skip_values = true;
         let mut i = 0u64;
+        let mut implausible = 0u64;
         while let Some(t) = pass.next_raw()? {
+            if !plausible_time(t) {
+                // Left out of the dejitter line (one NaN would make the
+                // whole piece NaN); the line gives it a time by its index.
+                implausible += 1;
+                i += 1;
+                continue;
+            }
             if let Some(s) = segments.as_mut() {
                 s.learn(i, t, MAX_SEGMENTS).map_err(|max| {
                     pass.cursor.err(format_args!(
@@ -628,6 +656,7 @@ impl XdfFile {
         }
         let mut out = StreamSamples::new(self, info)?;
         out.segments = segments;
+        out.implausible_stamps = implausible;
         Ok(out)
     }
 }
@@ -643,9 +672,13 @@ pub struct StreamSamples {
     segments: Option<Segments>,
     /// Samples left in the current Samples chunk.
     left_in_chunk: u64,
-    /// The stream's previous raw stamp (0 before the first), for samples
-    /// without one.
+    /// The stream's last plausible raw stamp (0 before the first) and
+    /// the samples since it, for samples without a stamp.
     last_raw: f64,
+    since_raw: u64,
+    /// Samples whose stamp (raw, or synced) is not a plausible time
+    /// (found by the first pass of [`XdfFile::samples`]).
+    implausible_stamps: u64,
     /// Samples handed out.
     index: u64,
     skip_values: bool,
@@ -665,6 +698,8 @@ impl StreamSamples {
             segments: None,
             left_in_chunk: 0,
             last_raw: 0.0,
+            since_raw: 0,
+            implausible_stamps: 0,
             index: 0,
             skip_values: false,
             raw: vec![0u8; n * info.format.value_bytes()],
@@ -700,6 +735,15 @@ impl StreamSamples {
     /// The string values of the last sample (empty for a numeric stream).
     pub fn text(&self) -> &[String] {
         &self.text
+    }
+
+    /// Samples whose time stamp is not a finite time within
+    /// ±[`MAX_CLOCK_SECS`] (NaN, ±inf, 1e308): left out of the dejitter
+    /// fit. In a dejittered stream such a sample gets its piece's line
+    /// time at its index (as every sample does); in another it keeps its
+    /// stamp, and the import's time guard skips and counts it.
+    pub fn implausible_stamps(&self) -> u64 {
+        self.implausible_stamps
     }
 
     /// Where the last sample's chunk starts, byte offset.
@@ -744,7 +788,7 @@ impl StreamSamples {
         }
         let c = &mut self.cursor;
         let raw_t = match c.u8("a sample's stamp flag")? {
-            0 => self.last_raw + self.info.tdiff(),
+            0 => self.last_raw + self.info.tdiff() * (self.since_raw + 1) as f64,
             8 => c.f64("a sample's time stamp")?,
             other => {
                 return Err(c.err(format_args!(
@@ -755,7 +799,12 @@ impl StreamSamples {
                 )));
             }
         };
-        self.last_raw = raw_t;
+        if plausible_time(raw_t) {
+            self.last_raw = raw_t;
+            self.since_raw = 0;
+        } else {
+            self.since_raw += 1;
+        }
         self.read_values()?;
         self.left_in_chunk -= 1;
         if self.left_in_chunk == 0 {

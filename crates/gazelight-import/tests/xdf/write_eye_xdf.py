@@ -6,8 +6,15 @@ holding the real piprkit pupil recording (shared/data/eye/piprkit-plr, MIT)
 as an eye stream in one of the LSL layouts gazelight reads, plus its light
 flashes (stimuli.csv) as a marker stream.
 
-usage: python3 write_eye_xdf.py LAYOUT pupil_trace.csv stimuli.csv ROWS OUT.xdf
+usage: python3 write_eye_xdf.py LAYOUT pupil_trace.csv stimuli.csv ROWS OUT.xdf [KEY=VALUE ...]
 LAYOUT: pupil-capture-relay | gazelight-eye | neon | unknown
+KEY=VALUE options (each optional):
+  gaze=U,V          the relay's gaze norm_pos (origin bottom-left) on every row
+                    (default: NaN, no gaze)
+  blink=ROW,N       rows ROW..ROW+N are a blink as Pupil Capture relays one:
+                    confidence 0, every diameter 0 (the gaze keeps its position)
+  stamp=ROW,VALUE   row ROW's time stamp is VALUE (nan, inf, 1e308, ...)
+  offset=K,VALUE    the K-th clock offset of the eye stream has value VALUE
 """
 import csv
 import math
@@ -60,8 +67,10 @@ def layout(kind):
               ("diameter1_2d", "pixels", "Diameter", "left"),
               ("diameter0_3d", "mm", "Diameter", "right"),
               ("diameter1_3d", "mm", "Diameter", "left")]
+        gaze = OPTS.get("gaze")
+        gx, gy = (float(v) for v in gaze.split(",")) if gaze else (nan, nan)
         return "pupil_capture", "Gaze", "Pupil Labs", ch, lambda r, l: [
-            1.0, nan, nan, nan, nan, r, l]
+            1.0, gx, gy, nan, nan, r, l]
     if kind == "gazelight-eye":
         ch = [("gaze_x", "normalized", "ScreenX", "both"),
               ("gaze_y", "normalized", "ScreenY", "both"),
@@ -85,8 +94,15 @@ def layout(kind):
     return "mystery", "Gaze", "", ch, lambda r, l: [r, l]
 
 
+OPTS = {}
+
+
 def main():
     kind, trace, stimuli, rows, out = sys.argv[1:6]
+    OPTS.update(a.split("=", 1) for a in sys.argv[6:])
+    blink = [int(v) for v in OPTS["blink"].split(",")] if "blink" in OPTS else None
+    stamp = OPTS.get("stamp", "").split(",") if "stamp" in OPTS else None
+    bad_offset = OPTS.get("offset", "").split(",") if "offset" in OPTS else None
     rows = int(rows)
     name, stype, manu, channels, values = layout(kind)
     with open(trace) as f:
@@ -105,18 +121,32 @@ def main():
     b += chunk(5, BOUNDARY)
     nch = len(channels)
     next_offset = 0.0
+    n_offsets = 0
     for k in range(0, len(data), 100):
         part = data[k : k + 100]
         body = struct.pack("<I", eye) + varlen(len(part))
-        for t, l, r in part:
-            body += struct.pack("<Bd", 8, LSL_T0 + t)
-            body += struct.pack("<%df" % nch, *values(r, l))
+        for j, (t, l, r) in enumerate(part):
+            row = k + j
+            ts = LSL_T0 + t
+            if stamp and int(stamp[0]) == row:
+                ts = float(stamp[1])
+            body += struct.pack("<Bd", 8, ts)
+            v = values(r, l)
+            if blink and blink[0] <= row < blink[0] + blink[1]:
+                # Pupil Capture during a blink: confidence 0, diameters 0.
+                v = [0.0 if ch[0] == "confidence" or ch[0].startswith("diameter") else x
+                     for ch, x in zip(channels, v)]
+            body += struct.pack("<%df" % nch, *v)
         b += chunk(3, body)
         t_now = part[-1][0]
         while next_offset <= t_now:
             recv = LSL_T0 + next_offset
             for sid in (eye, mk):
-                b += chunk(4, struct.pack("<Idd", sid, recv, OFFSET0 + DRIFT * next_offset))
+                value = OFFSET0 + DRIFT * next_offset
+                if sid == eye and bad_offset and int(bad_offset[0]) == n_offsets:
+                    value = float(bad_offset[1])
+                b += chunk(4, struct.pack("<Idd", sid, recv, value))
+            n_offsets += 1
             next_offset += 5.0
         if k % 2000 == 0:
             b += chunk(5, BOUNDARY)
