@@ -319,5 +319,69 @@ fn frame(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, frame, glare_stage);
+/// The full-field stray light's cost (issue 46): the night 1440×1600 view,
+/// one eye, every stage on, with the far field (the default) and without
+/// (`glare.far_field = false`), measured side by side: criterion, then 41
+/// interleaved samples of each and the ratio of their medians.
+fn far_field_cost(c: &mut Criterion) {
+    let (w, h) = (1440, 1600);
+    if let Ok(only) = std::env::var("GAZELIGHT_BENCH_SIZES")
+        && !only.split(',').any(|s| s == format!("{w}x{h}"))
+    {
+        return;
+    }
+    let night = load("night.exr");
+    let (img, view) = view_of(&night, DEMO_YAW_DEG, w, h);
+    let input = FrameInput {
+        gaze_uv: [0.5, 0.8],
+        pupil_mm: 4.0,
+        dt_secs: 1.0 / 90.0,
+    };
+    let mut eyes: Vec<Eye> = [true, false]
+        .into_iter()
+        .map(|far| {
+            let mut config = PipelineConfig::default();
+            config.glare.far_field = far;
+            let mut pipeline =
+                FramePipeline::new(config, w, h, view.deg_per_px()).expect("pipeline");
+            let mut out = DisplayFrame::new(w, h);
+            pipeline.process(&img, &input, &mut out).expect("frame");
+            Eye {
+                img: img.clone(),
+                pipeline,
+                out,
+            }
+        })
+        .collect();
+    let mut group = c.benchmark_group(format!("far_field_{w}x{h}"));
+    group.sample_size(20);
+    group.bench_function("night_one_eye_far_on", |b| {
+        b.iter(|| black_box(eyes[0].frame(&input)))
+    });
+    group.bench_function("night_one_eye_far_off", |b| {
+        b.iter(|| black_box(eyes[1].frame(&input)))
+    });
+    group.finish();
+    let (mut on, mut off, mut glare_on, mut glare_off) = (vec![], vec![], vec![], vec![]);
+    for _ in 0..41 {
+        let t = Instant::now();
+        let s = eyes[0].frame(&input);
+        on.push(ms_since(t));
+        glare_on.push(s.glare_ms);
+        let t = Instant::now();
+        let s = eyes[1].frame(&input);
+        off.push(ms_since(t));
+        glare_off.push(s.glare_ms);
+    }
+    let (m_on, m_off) = (median(&mut on), median(&mut off));
+    eprintln!(
+        "far field, night {w}x{h} one eye, interleaved medians: on {m_on:.2} ms, off {m_off:.2} ms \
+         (×{:.3}); glare stage {:.2} / {:.2} ms",
+        m_on / m_off,
+        median(&mut glare_on),
+        median(&mut glare_off)
+    );
+}
+
+criterion_group!(benches, frame, glare_stage, far_field_cost);
 criterion_main!(benches);

@@ -92,6 +92,7 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
+use crate::far_glare::FarField;
 use crate::pipeline::sanitize;
 use crate::psf::PsfKernel;
 use crate::{RgbImage, VisionError};
@@ -862,6 +863,9 @@ pub struct GlareConvolver {
     /// What [`GlareConvolver::blend_row`] adds to each row, set by
     /// [`GlareConvolver::prepare`] (`None`: nothing to add).
     plan: Option<BlendPlan>,
+    /// The full-field stray light beyond the kernel ([`crate::far_glare`]),
+    /// when set.
+    far: Option<FarField>,
 }
 
 /// Where the prepared glare lands in the frame (image and window
@@ -1024,9 +1028,22 @@ impl GlareConvolver {
             hat,
             hrows: vec![0.0; (wc + 2) * wc * block * 3],
             plan: None,
+            far: None,
         };
         conv.set_kernel(kernel)?;
         Ok(conv)
+    }
+
+    /// Adds the full-field stray light beyond the kernel to every frame
+    /// ([`crate::far_glare`]; `None` turns it off). Its frame size must be
+    /// the frames'; it takes its split from the kernel's radius.
+    pub fn set_far_field(&mut self, far: Option<FarField>) {
+        self.far = far;
+    }
+
+    /// The full-field stray light, when on.
+    pub fn far_field(&self) -> Option<&FarField> {
+        self.far.as_ref()
     }
 
     /// The weight settings.
@@ -1149,6 +1166,18 @@ impl GlareConvolver {
     /// pipeline blends them inside its band pass). Prepares nothing for a
     /// non-finite gaze or an empty image.
     pub fn prepare(&mut self, img: &RgbImage, gaze_px: [f64; 2]) {
+        if let Some(far) = self.far.as_mut() {
+            far.sum_frame(img);
+        }
+        self.prepare_window(img, gaze_px);
+        if let Some(far) = self.far.as_mut() {
+            far.compute();
+        }
+    }
+
+    /// [`GlareConvolver::prepare`] of the window at the gaze (and the far
+    /// field's weighted block sums).
+    fn prepare_window(&mut self, img: &RgbImage, gaze_px: [f64; 2]) {
         self.plan = None;
         if !gaze_px[0].is_finite()
             || !gaze_px[1].is_finite()
@@ -1303,6 +1332,23 @@ impl GlareConvolver {
                     }
                 }
             });
+        // The far field's weighted sources (w · L), from the fine plane.
+        if let Some(far) = self.far.as_mut().filter(|f| f.is_ready()) {
+            let fine = &self.fine;
+            let sx = sx0 as usize;
+            far.add_weighted_rows(sy0 as usize, sy1 as usize, |y, row, bp| {
+                let fj = (y as i64 - ofy) as usize;
+                let rg = &fine.rg[fj * wf + fx0..fj * wf + fx1];
+                let bl = &fine.b[fj / 2 * wf + fx0..fj / 2 * wf + fx1];
+                let odd = fj % 2 == 1;
+                for (k, (v, b)) in rg.iter().zip(bl).enumerate() {
+                    let acc = &mut row[(sx + k) / bp];
+                    acc[0] += v.re;
+                    acc[1] += v.im;
+                    acc[2] += if odd { b.im } else { b.re };
+                }
+            });
+        }
         // Rows with sources, rows with output (window coordinates).
         let f_src = (sy0 - ofy) as usize..(sy1 - ofy) as usize;
         let f_out = (foy0 - ofy) as usize..(foy1 - ofy) as usize;
@@ -1397,6 +1443,9 @@ impl GlareConvolver {
     /// Rows `rows` of the frame get glare from [`GlareConvolver::prepare`]
     /// (empty: none; `0..0` before the first prepare).
     pub fn rows_reached(&self) -> Range<usize> {
+        if let Some(far) = self.far.as_ref().filter(|f| f.is_ready()) {
+            return 0..far.size().1;
+        }
         self.plan
             .as_ref()
             .map_or(0..0, |p| p.rows.start as usize..p.rows.end as usize)
@@ -1413,13 +1462,49 @@ impl GlareConvolver {
     /// AVX-512 and AVX2 twins.
     #[inline(always)]
     pub fn blend_row(&self, y: usize, row: &mut [[f32; 3]]) {
-        let Some(plan) = self.plan.as_ref() else {
-            return;
-        };
+        let far = self
+            .far
+            .as_ref()
+            .filter(|f| f.is_ready() && row.len() >= f.size().0);
+        let yu = y;
         let y = y as i64;
-        if !plan.rows.contains(&y) || row.len() < plan.fine_cols.end as usize {
-            return;
+        let plan = self
+            .plan
+            .as_ref()
+            .filter(|p| p.rows.contains(&y) && row.len() >= p.fine_cols.end as usize);
+        // What a pixel keeps of its own light: `k0 − s·w` (1 − w without
+        // the far field; with it, `(1 − w)(1 − E_near) − E_tail`).
+        let (k0, ks) = match far {
+            Some(f) => (f.keep(0.0), f.keep(0.0) - f.keep(1.0)),
+            None => (1.0, 1.0),
+        };
+        if let Some(f) = far {
+            // Pixels outside the fine window (w = 0).
+            let seg = plan.filter(|p| p.fine_rows.contains(&y)).map_or(0..0, |p| {
+                p.fine_cols.start as usize..p.fine_cols.end as usize
+            });
+            let width = f.size().0;
+            let (head, rest) = row[..width].split_at_mut(seg.start.min(width));
+            let skip = (seg.end.min(width) - head.len()).min(rest.len());
+            let tail = &mut rest[skip..];
+            for p in head.iter_mut().chain(tail.iter_mut()) {
+                for v in p.iter_mut() {
+                    *v *= k0;
+                }
+            }
         }
+        if let Some(plan) = plan {
+            self.blend_window_row(plan, y, row, k0, ks);
+        }
+        if let Some(f) = far {
+            f.add_row(yu, row);
+        }
+    }
+
+    /// The window's part of [`GlareConvolver::blend_row`]: the fine row
+    /// with `keep = k0 − ks·w`, and the coarse wide field.
+    #[inline]
+    fn blend_window_row(&self, plan: &BlendPlan, y: i64, row: &mut [[f32; 3]], k0: f32, ks: f32) {
         let wf = self.key.wf;
         let (fine, weight, hrows, hat) = (&self.fine, &self.weight, &self.hrows, &self.hat);
         let row3 = self.key.wc * self.key.block * 3;
@@ -1439,7 +1524,7 @@ impl GlareConvolver {
                 .zip(&fine.rg[f0..f1])
                 .zip(&fine.b[p0..p1])
             {
-                let keep = 1.0 - w;
+                let keep = k0 - ks * w;
                 p[0] = p[0] * keep + rg.re;
                 p[1] = p[1] * keep + rg.im;
                 p[2] = p[2] * keep + if odd { bl.im } else { bl.re };

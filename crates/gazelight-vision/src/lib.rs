@@ -51,6 +51,7 @@ pub mod band;
 pub mod colour;
 mod encode;
 pub mod error;
+pub mod far_glare;
 pub mod glare;
 pub mod image;
 pub mod kernel_policy;

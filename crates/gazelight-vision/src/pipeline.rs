@@ -51,6 +51,7 @@ use crate::acuity::AcuityModel;
 use crate::band::{AcuityBlur, RowSource};
 use crate::colour::ColourModel;
 use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
+use crate::far_glare::{FarField, FarSplit};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
 use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
@@ -76,6 +77,10 @@ pub struct GlareConfig {
     pub psf: PsfParams,
     /// The PSF is rebuilt when the pupil moved more than this, mm.
     pub psf_rebuild_threshold_mm: f64,
+    /// The CIE 146 veil of every pixel onto every other beyond the
+    /// kernel, out to 90° ([`crate::far_glare`]; needs the physical
+    /// kernel's stray light).
+    pub far_field: bool,
 }
 
 impl GlareConfig {
@@ -96,6 +101,7 @@ impl Default for GlareConfig {
             fade_sigma_deg: GlareWindow::default().fade_sigma_deg,
             psf: PsfParams::default(),
             psf_rebuild_threshold_mm: 0.1,
+            far_field: true,
         }
     }
 }
@@ -322,9 +328,18 @@ impl FramePipeline {
         let glare = if config.glare.enabled {
             psf_params.validate()?;
             let builder = PsfBuilder::new(psf_params.clone())?;
-            let conv = GlareConvolver::new(builder.kernel(), config.glare.window())?;
+            let mut conv = GlareConvolver::new(builder.kernel(), config.glare.window())?;
             kernel_size = builder.kernel().size;
             kernel_deg_per_px = builder.kernel().deg_per_px;
+            conv.set_far_field(far_field(
+                &config.glare,
+                &psf_params,
+                kernel_size,
+                kernel_deg_per_px,
+                width,
+                height,
+                PlaneAngles::Uniform { deg_per_px },
+            )?);
             Some((Some(builder), conv))
         } else {
             None
@@ -392,6 +407,17 @@ impl FramePipeline {
             extent_px: [self.width as f64, self.height as f64],
         };
         angles.validate()?;
+        if let Some((_, conv)) = self.glare.as_mut() {
+            conv.set_far_field(far_field(
+                &self.config.glare,
+                &self.psf_params,
+                self.kernel_size,
+                self.kernel_deg_per_px,
+                self.width,
+                self.height,
+                angles,
+            )?);
+        }
         self.angles = angles;
         Ok(())
     }
@@ -792,6 +818,29 @@ impl FramePipeline {
             timings,
         })
     }
+}
+
+/// The far field of a pipeline's glare (`None` when off or without the
+/// physical kernel's stray light): the CIE 146 split at the kernel's
+/// radius, for the view's geometry.
+fn far_field(
+    glare: &GlareConfig,
+    psf: &PsfParams,
+    kernel_size: usize,
+    kernel_deg_per_px: f64,
+    width: usize,
+    height: usize,
+    angles: PlaneAngles,
+) -> Result<Option<FarField>, VisionError> {
+    if !(glare.enabled && glare.far_field && psf.has_stray_light()) {
+        return Ok(None);
+    }
+    let split = FarSplit::new(
+        psf.age_years,
+        psf.pigmentation,
+        (kernel_size / 2) as f64 * kernel_deg_per_px,
+    );
+    FarField::new(split, width, height, angles).map(Some)
 }
 
 /// NaN, ±∞, negative and subnormal values become 0. Subnormals (below
