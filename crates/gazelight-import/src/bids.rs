@@ -324,7 +324,9 @@ fn field32(fields: &[&str], i: Option<usize>) -> Result<Option<f32>, String> {
 /// One gzipped TSV of a recording group, read line by line.
 struct TsvSource {
     path: PathBuf,
-    reader: BufReader<MultiGzDecoder<BufReader<File>>>,
+    /// Decompressed bytes capped at `gazelight_input::MAX_EXPANSION_RATIO`
+    /// times the file's size.
+    reader: BufReader<gazelight_input::ExpansionLimit<MultiGzDecoder<BufReader<File>>>>,
     line: String,
     line_no: u64,
     kind: SourceKind,
@@ -349,9 +351,13 @@ enum SourceKind {
 impl TsvSource {
     fn open(path: &Path, kind: SourceKind) -> Result<Self, ImportError> {
         let f = gazelight_input::open(path).map_err(|e| io_err(path, e))?;
+        let compressed = f.metadata().map_err(|e| io_err(path, e))?.len();
         Ok(Self {
             path: path.to_owned(),
-            reader: BufReader::new(MultiGzDecoder::new(BufReader::new(f))),
+            reader: BufReader::new(gazelight_input::ExpansionLimit::new(
+                MultiGzDecoder::new(BufReader::new(f)),
+                compressed,
+            )),
             line: String::new(),
             line_no: 0,
             kind,

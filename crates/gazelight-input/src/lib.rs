@@ -54,6 +54,84 @@ pub const MAX_CONFIG_DEPTH: usize = 32;
 /// under 200 bytes.
 pub const MAX_LINE_BYTES: usize = 64 << 10;
 
+/// Most bytes a compressed input (a `.tsv.gz`) may expand to, as a
+/// multiple of its compressed size. Real recordings' TSVs compress 3–15×
+/// (time stamps and samples differ row to row); gzip's own ceiling is
+/// ~1032×, reached only by made-up repetitive data.
+pub const MAX_EXPANSION_RATIO: u64 = 64;
+/// Expansion always allowed whatever the ratio (a small compressed file of
+/// many blank cells may exceed the ratio harmlessly).
+pub const MIN_EXPANSION_BYTES: u64 = 16 << 20;
+
+/// A reader of decompressed bytes that stops with an error once more than
+/// [`ExpansionLimit::limit_for`] of its compressed size came out: a few
+/// megabytes of gzip cannot become minutes of parsing and gigabytes of
+/// samples. Wrap the decoder (`ExpansionLimit::new(GzDecoder::new(file),
+/// file_len)`).
+pub struct ExpansionLimit<R> {
+    inner: R,
+    compressed: u64,
+    limit: u64,
+    out: u64,
+}
+
+impl<R> ExpansionLimit<R> {
+    /// `inner` yields the decompressed bytes of a file of `compressed_len`
+    /// bytes.
+    pub fn new(inner: R, compressed_len: u64) -> Self {
+        Self {
+            inner,
+            compressed: compressed_len,
+            limit: Self::limit_for(compressed_len),
+            out: 0,
+        }
+    }
+
+    /// The most decompressed bytes allowed for `compressed_len` bytes:
+    /// [`MAX_EXPANSION_RATIO`] times, at least [`MIN_EXPANSION_BYTES`].
+    pub fn limit_for(compressed_len: u64) -> u64 {
+        compressed_len
+            .saturating_mul(MAX_EXPANSION_RATIO)
+            .max(MIN_EXPANSION_BYTES)
+    }
+
+    /// Decompressed bytes read so far.
+    pub fn bytes_out(&self) -> u64 {
+        self.out
+    }
+}
+
+impl<R: Read> Read for ExpansionLimit<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        if self.out > self.limit {
+            return Err(self.exceeded());
+        }
+        // Never hand out more than one byte past the limit.
+        let room = usize::try_from(self.limit + 1 - self.out).unwrap_or(usize::MAX);
+        let n = buf.len().min(room);
+        let got = self.inner.read(&mut buf[..n])?;
+        self.out += got as u64;
+        if self.out > self.limit {
+            return Err(self.exceeded());
+        }
+        Ok(got)
+    }
+}
+
+impl<R> ExpansionLimit<R> {
+    fn exceeded(&self) -> io::Error {
+        io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!(
+                "the compressed file of {} bytes expands to more than {} bytes \
+                 ({MAX_EXPANSION_RATIO}× its size, at least {MIN_EXPANSION_BYTES} bytes, \
+                 is the limit for compressed inputs); it is not a recording's table",
+                self.compressed, self.limit
+            ),
+        )
+    }
+}
+
 /// What kind of file a path or descriptor is, for error messages.
 fn kind_name(ft: std::fs::FileType) -> &'static str {
     #[cfg(unix)]
@@ -596,5 +674,32 @@ glare = { window_px = 256 }
         std::fs::write(&p, RENDER_CONFIG).unwrap();
         assert_eq!(read_config(&p, ConfigSyntax::Toml).unwrap(), RENDER_CONFIG);
         std::fs::remove_dir_all(&d).ok();
+    }
+
+    #[test]
+    fn expansion_is_capped_at_its_ratio_while_reading() {
+        // An endless source of zeros behind a "compressed file" of 1 MiB:
+        // 64 MiB come out, then an error; nothing past one byte is kept.
+        let mut r = ExpansionLimit::new(io::repeat(0), 1 << 20);
+        let mut sink = [0u8; 1 << 16];
+        let mut total = 0u64;
+        let err = loop {
+            match r.read(&mut sink) {
+                Ok(0) => panic!("an endless reader ended"),
+                Ok(n) => total += n as u64,
+                Err(e) => break e,
+            }
+        };
+        assert_eq!(total, 64 << 20);
+        assert!(err.to_string().contains("1048576 bytes"), "{err}");
+        // A small file may always expand to the floor.
+        assert_eq!(
+            ExpansionLimit::<io::Empty>::limit_for(10),
+            MIN_EXPANSION_BYTES
+        );
+        let mut small = ExpansionLimit::new(io::repeat(1).take(1000), 10);
+        let mut v = Vec::new();
+        small.read_to_end(&mut v).unwrap();
+        assert_eq!(v.len(), 1000);
     }
 }

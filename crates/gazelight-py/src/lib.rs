@@ -21,6 +21,7 @@ use pyo3::prelude::*;
 
 mod config;
 mod filter;
+mod paths;
 mod pupil;
 mod read;
 mod render;
@@ -104,6 +105,8 @@ fn _gazelight(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<render::Render>()?;
     m.add_function(wrap_pyfunction!(render::render_open, m)?)?;
     m.add_function(wrap_pyfunction!(render::write_png, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::input_kind, m)?)?;
+    m.add_function(wrap_pyfunction!(paths::read_config_text, m)?)?;
     m.add_function(wrap_pyfunction!(pupil::psf, m)?)?;
     m.add_function(wrap_pyfunction!(read::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(read::inspect_json, m)?)?;

@@ -398,6 +398,12 @@ fn scan_recording(path: &Path, part: bool) -> PyResult<gazelight_render::feed::S
     scan(path, part).map_err(err)
 }
 
+/// Largest view side `render` accepts (`--size`), pixels.
+const MAX_SIDE: usize = 16384;
+/// Widest frame [`write_png`] encodes: a stereo frame is two views side by
+/// side.
+const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
+
 /// `gazelight.render`'s native half; the Python wrapper picks `trace` or
 /// `recording` and turns `warnings` into Python warnings.
 #[pyfunction]
@@ -509,9 +515,9 @@ pub(crate) fn render_open(
         }
         .map_err(err)?;
         let (width, height) = size.or(settings.size).unwrap_or((720, 800));
-        if width == 0 || height == 0 || width > 16384 || height > 16384 {
+        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
             return Err(err(format!(
-                "size {width}x{height}: expected WIDTHxHEIGHT, each 1..=16384"
+                "size {width}x{height}: expected WIDTHxHEIGHT, each 1..={MAX_SIDE}"
             )));
         }
         let base = demo::default_view(width, height);
@@ -682,6 +688,16 @@ pub(crate) fn write_png(
     if channels != 4 {
         return Err(pyo3::exceptions::PyValueError::new_err(format!(
             "write_png: expected an H×W×4 uint8 frame (RGBA), got {height}×{width}×{channels}"
+        )));
+    }
+    // The frame may be a view that holds far fewer bytes than its shape
+    // says (`np.broadcast_to`, zero strides): check H·W·4 against the
+    // largest frame `render` makes before copying it into a buffer.
+    if height == 0 || width == 0 || height > MAX_SIDE || width > MAX_FRAME_WIDTH {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "write_png: a {height}×{width} frame: expected a height 1..={MAX_SIDE} and a width \
+             1..={MAX_FRAME_WIDTH} (render's largest frame, stereo; at most {} bytes of RGBA)",
+            MAX_SIDE * MAX_FRAME_WIDTH * 4
         )));
     }
     let bytes: Vec<u8> = frame.as_array().iter().copied().collect();

@@ -14,6 +14,7 @@ use gazelight_tracker::profile::{
     AGE_YEARS_RANGE, DEFAULT_AGE_YEARS, DEFAULT_PIGMENTATION, PIGMENTATION_RANGE,
 };
 use gazelight_tracker::pupil_model::unified_mm;
+use gazelight_vision::image::RgbImage;
 use gazelight_vision::scene::projection::direction_from_angles;
 use gazelight_vision::scene::{LuminanceScale, ProjectionKind, Scene, SceneProjection};
 use gazelight_vision::scene_glare::{GlareOptions, SceneGlare, SourceThreshold};
@@ -124,6 +125,59 @@ pub fn load_scene(
     Ok(scene)
 }
 
+/// Most scene pixels the glare sums keep per pixel (luminance, direction
+/// and solid angle: ~50 bytes each, ~100 per gaze while sources are
+/// grouped): 2²³ (a 4096×2048 panorama) is ~0.4 GB + ~0.8 GB per gaze. A
+/// larger scene (up to the loader's 16384×8192) is binned k×k first
+/// ([`bin_for_glare`]), so `glare` works on any scene `render` loads.
+pub const MAX_GLARE_PIXELS: usize = 1 << 23;
+
+/// The image the glare sums see: `image` itself when it has at most
+/// [`MAX_GLARE_PIXELS`], else its k×k block means (the smallest k that
+/// fits; partial blocks at the right and bottom edges average the pixels
+/// they hold) with the same field. Returns the image, its projection and k.
+pub fn bin_for_glare(
+    image: &RgbImage,
+    projection: SceneProjection,
+) -> (std::borrow::Cow<'_, RgbImage>, SceneProjection, usize) {
+    let (w, h) = (image.width, image.height);
+    let mut k = 1;
+    while w.div_ceil(k) * h.div_ceil(k) > MAX_GLARE_PIXELS {
+        k += 1;
+    }
+    if k == 1 {
+        return (std::borrow::Cow::Borrowed(image), projection, 1);
+    }
+    let (bw, bh) = (w.div_ceil(k), h.div_ceil(k));
+    let mut sum = vec![[0.0f64; 4]; bw * bh];
+    for (y, row) in image.pixels.chunks_exact(w.max(1)).enumerate() {
+        let brow = &mut sum[(y / k) * bw..(y / k + 1) * bw];
+        for (x, p) in row.iter().enumerate() {
+            let b = &mut brow[x / k];
+            b[0] += f64::from(p[0]);
+            b[1] += f64::from(p[1]);
+            b[2] += f64::from(p[2]);
+            b[3] += 1.0;
+        }
+    }
+    let pixels = sum
+        .into_iter()
+        .map(|b| {
+            let n = b[3].max(1.0);
+            [(b[0] / n) as f32, (b[1] / n) as f32, (b[2] / n) as f32]
+        })
+        .collect();
+    let binned = RgbImage {
+        width: bw,
+        height: bh,
+        pixels,
+    };
+    let mut p = projection;
+    p.width_px = bw;
+    p.height_px = bh;
+    (std::borrow::Cow::Owned(binned), p, k)
+}
+
 /// Runs `gazelight glare`.
 pub fn run(args: GlareArgs) -> anyhow::Result<()> {
     let age = args.age_years.unwrap_or(DEFAULT_AGE_YEARS);
@@ -180,7 +234,32 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             args.scene.display()
         );
     }
-    let glare = SceneGlare::new(&scene.image, projection);
+    let (image, glare_projection, bin) = bin_for_glare(&scene.image, projection);
+    if bin > 1 {
+        eprintln!(
+            "note: {}: {}×{} px is more than the {MAX_GLARE_PIXELS} pixels the glare sums keep: \
+             binned {bin}×{bin} to {}×{} px (source positions are given in the scene's pixels, \
+             source pixel counts in binned pixels)",
+            args.scene.display(),
+            projection.width_px,
+            projection.height_px,
+            glare_projection.width_px,
+            glare_projection.height_px
+        );
+    }
+    let glare = SceneGlare::new(&image, glare_projection);
+    drop(image);
+    // In the scene's pixels (a binned pixel outside the field stands for
+    // its block).
+    let no_data_pixels =
+        (glare.no_data_pixels * bin * bin).min(projection.width_px * projection.height_px);
+    // Binned source positions back in the scene's continuous pixels.
+    let to_scene_px = |p: [f64; 2]| {
+        [
+            p[0] * projection.width_px as f64 / glare_projection.width_px as f64,
+            p[1] * projection.height_px as f64 / glare_projection.height_px as f64,
+        ]
+    };
     let opts = GlareOptions {
         threshold: SourceThreshold::from_evalglare_b(args.source_threshold),
         search_radius_rad: args.search_radius_rad,
@@ -196,11 +275,14 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
         projection.kind.name(),
         projection.hfov_deg,
         projection.vfov_deg,
-        glare.no_data_pixels
+        no_data_pixels
     );
     let mut out = Vec::new();
     for g in &gazes {
-        let r = glare.at_gaze(direction_from_angles(g[0], g[1]), &opts);
+        let mut r = glare.at_gaze(direction_from_angles(g[0], g[1]), &opts);
+        for src in &mut r.sources {
+            src.position_px = to_scene_px(src.position_px);
+        }
         let (pupil_mm, pupil_source) = match (args.pupil_mm, args.adapt) {
             (Some(d), _) => (Some(d), "given"),
             (None, true) => (
@@ -275,7 +357,7 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             "projection_known": scene.projection.is_some(),
             "radiance_view": scene.radiance_view,
             "pixel_aspect": scene.pixel_aspect,
-            "no_data_pixels": glare.no_data_pixels,
+            "no_data_pixels": no_data_pixels,
             "options": opts,
             "gazes": out,
         });
@@ -287,4 +369,39 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
 
 fn glam_dir(d: [f64; 3]) -> gazelight_vision::scene::projection::DVec3 {
     gazelight_vision::scene::projection::DVec3::from_array(d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_scene_over_the_glare_cap_is_binned_to_fit_keeping_its_light() {
+        // Just over 2²³ pixels: binned 2×2 (partial blocks at the edges).
+        let (w, h) = (4097, 2049);
+        let mut image = RgbImage::new(w, h);
+        image.pixels[0] = [4.0, 8.0, 12.0];
+        let total: f64 = image.pixels.iter().map(|p| f64::from(p[1])).sum();
+        let (binned, p, k) = bin_for_glare(&image, SceneProjection::equirectangular(w, h));
+        assert_eq!(k, 2);
+        assert_eq!((binned.width, binned.height), (2049, 1025));
+        assert_eq!((p.width_px, p.height_px), (2049, 1025));
+        assert!(binned.width * binned.height <= MAX_GLARE_PIXELS);
+        // The top-left block holds the bright pixel and three black ones.
+        assert_eq!(binned.pixels[0], [1.0, 2.0, 3.0]);
+        // The last column's blocks hold one column of two pixels each.
+        let binned_total: f64 = binned.pixels.iter().map(|p| f64::from(p[1])).sum();
+        assert!((binned_total * 4.0 - total).abs() < 1e-9, "{binned_total}");
+        // At or under the cap: the image itself.
+        let small = RgbImage::new(4096, 2048);
+        let (same, _, k) = bin_for_glare(&small, SceneProjection::equirectangular(4096, 2048));
+        assert_eq!(k, 1);
+        assert!(matches!(same, std::borrow::Cow::Borrowed(_)));
+        // The loader's largest scene fits after binning.
+        let mut k = 1;
+        while 16384usize.div_ceil(k) * 8192usize.div_ceil(k) > MAX_GLARE_PIXELS {
+            k += 1;
+        }
+        assert_eq!(k, 4);
+    }
 }

@@ -70,7 +70,11 @@ pub(crate) fn write(
     pigmentation: f64,
     block_px: usize,
 ) -> anyhow::Result<VeilMap> {
-    let glare = SceneGlare::new(&scene.image, scene.effective_projection());
+    // A scene above `glare::MAX_GLARE_PIXELS` is binned, as `glare` does.
+    let (image, projection, _) =
+        crate::glare::bin_for_glare(&scene.image, scene.effective_projection());
+    let glare = SceneGlare::new(&image, projection);
+    drop(image);
     let map = grid(view.width, view.height, block_px, glare.pixels_in_field());
     let projection = PanoramaView::new(*view).context("veil map view")?;
     let gazes: Vec<_> = (0..map.width * map.height)

@@ -124,3 +124,37 @@ fn a_slurm_manifest_path_with_a_newline_is_refused_before_anything_is_written() 
     );
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+/// A flat (uncompressed) uniform Radiance scene: 179·`m`·2^(`e`−136) cd/m².
+fn uniform_hdr(path: &Path, w: usize, h: usize, m: u8, e: u8) {
+    let mut bytes = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n").into_bytes();
+    bytes.reserve(w * h * 4);
+    for _ in 0..w * h {
+        bytes.extend_from_slice(&[m, m, m, e]);
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn glare_on_a_scene_over_its_pixel_cap_bins_it_and_keeps_the_illuminance() {
+    let dir = tmp("glare-big");
+    // 4200×2100 = 8.8 M pixels, over glare::MAX_GLARE_PIXELS (2²³).
+    let scene = dir.join("big.hdr");
+    uniform_hdr(&scene, 4200, 2100, 128, 128);
+    let json = dir.join("g.json");
+    let o = gazelight_in(
+        &["glare", s(&scene), "--gaze-deg", "0,0", "--json", s(&json)],
+        &[],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("binned 2×2"), "{}", stderr(&o));
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    // A uniform sphere of L cd/m² gives E_v = π·L at the eye.
+    let l = 179.0 * 128.0 / 256.0;
+    let ev = doc["gazes"][0]["vertical_illuminance_lux"]
+        .as_f64()
+        .unwrap();
+    assert!((ev / (std::f64::consts::PI * l) - 1.0).abs() < 0.02, "{ev}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

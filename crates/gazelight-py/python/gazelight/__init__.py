@@ -39,8 +39,10 @@ from ._gazelight import (  # noqa: F401
     PupilLightResponse,
     Render,
     Source,
+    input_kind as _input_kind,
     inspect_json as _inspect_json,
     psf,
+    read_config_text as _read_config_text,
     read_recording as _read_recording,
     render_open as _render_open,
     write_png,
@@ -282,24 +284,11 @@ def inspect(
     return json.loads(_inspect_json(path, config, calibration))
 
 
-# The header of a gaze/pupil trace (`gazelight render --trace`); any other
-# file or directory is a recording (`gazelight replay`).
-_TRACE_HEADER = "t_secs,gaze_u,gaze_v"
-
-
 def _is_trace(path: PathLike) -> bool:
-    p = os.fspath(path)
-    if os.path.isdir(p) or not p.lower().endswith(".csv"):
-        return False
-    try:
-        with open(p, encoding="utf-8", errors="replace") as f:
-            for line in f:
-                line = line.strip()
-                if line and not line.startswith("#"):
-                    return line.replace(" ", "").startswith(_TRACE_HEADER)
-    except OSError:
-        return False
-    return False
+    # Decided natively with the bounded opener: a FIFO or a device raises
+    # GazelightError instead of blocking or being read without end, and
+    # only the first MiB of a `.csv` is read to find its header.
+    return _input_kind(os.fspath(path)) == "trace"
 
 
 def render(
@@ -370,11 +359,9 @@ def render(
     config_name = None
     if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and os.path.isfile(config)):
         config_name = os.fspath(config)
-        try:
-            with open(config_name, encoding="utf-8") as f:
-                config = f.read()
-        except OSError as e:
-            raise GazelightError(f"cannot read config {config_name}: {e}") from None
+        # The bounded reader (regular file, at most 1 MiB, structure
+        # checked), as the CLI reads its config.
+        config = _read_config_text(config_name)
     trace = recording = None
     if trace_or_recording is not None:
         if _is_trace(trace_or_recording):
