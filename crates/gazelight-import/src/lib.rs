@@ -19,8 +19,10 @@
 //! - [`neon`]: Pupil Labs Neon native recordings (a directory with
 //!   `info.json`, `*.dtype`, `* ps1.raw`, `* ps1.time`);
 //! - [`eyelink`]: SR Research EyeLink ASC exports;
-//! - [`csv`]: pupil-diameter CSV traces (`time,left,right` in mm, as the
-//!   piprkit PLR recordings);
+//! - [`csv`]: CSV/TSV files with a documented column mapping: gazelight's
+//!   trace (`t_secs,gaze_u,gaze_v,pupil_mm[,confidence]`), per-eye pupil
+//!   traces (`time,left,right` in mm, as the piprkit PLR recordings), gaze,
+//!   per-eye pupils (mm, px, area units) and confidences;
 //! - [`pupil_core`]: Pupil Core recording directories (`pupil.pldata`,
 //!   `gaze.pldata`), as Pupil Capture and [`gazelight_pupil::recording`] write them;
 //! - [`bids`]: BIDS eye-tracking recordings (`*_physio.tsv.gz` + `.json`,
@@ -250,7 +252,8 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
 /// Opens a recording, picking the importer from the path: a directory with
 /// an `info.json` and `eye_state.dtype` is a Neon recording, a directory
 /// with `pupil.pldata` or `gaze.pldata` a Pupil Core recording, `*.asc` an
-/// EyeLink ASC export, `*.csv` a pupil CSV trace, `*.xdf` (optionally
+/// EyeLink ASC export, `*.csv` or `*.tsv` an eye-tracking CSV/TSV file
+/// ([`csv`]: gaze, per-eye pupils, confidence), `*.xdf` (optionally
 /// `*.xdf?stream=NAME`) an XDF file, `*_physio.tsv.gz` or `*_physio.json`
 /// a BIDS eye-tracking recording.
 ///
@@ -300,14 +303,14 @@ pub fn open(path: &Path) -> Result<Box<dyn Importer + Send>, ImportError> {
             eyelink::AscImporter::open(path)?,
             path,
         ))),
-        Some("csv") => Ok(Box::new(TimeGuard::new(
+        Some("csv" | "tsv") => Ok(Box::new(TimeGuard::new(
             csv::CsvPupilImporter::open(path)?,
             path,
         ))),
         _ => Err(ImportError::UnknownFormat {
             path: path.to_owned(),
-            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv, an .xdf or a BIDS \
-                     *_physio.tsv.gz file"
+            reason: "expected a Neon or Pupil Core directory, an .asc, a .csv or .tsv, an .xdf or \
+                     a BIDS *_physio.tsv.gz file"
                 .into(),
         }),
     }
