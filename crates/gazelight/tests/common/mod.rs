@@ -1,17 +1,26 @@
 //! Helpers shared by the `gazelight` binary's integration tests: running
 //! the binary, per-test temporary directories, the shared real data, the
 //! pyzmq Pupil peer (crates/gazelight-tracker/tests/pupil_peer.py) and
-//! bounded waits for child processes and listening ports.
+//! bounded waits for child processes, listening ports, log lines and rows
+//! of the outputs a run is still writing.
+//!
+//! Timing (issue 50): a test waits for an event it can observe (a log line,
+//! rows on disk, a counter) instead of sleeping "long enough", and derives
+//! any time bound from the instants of those events. The `limit`s of the
+//! waits here are backstops against a hung program, never the bound a test
+//! checks.
 //!
 //! Every test file declares `mod common;`, so each test binary compiles its
 //! own copy of this module and uses only some of the helpers; hence the
 //! module-wide `dead_code` allowance.
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// Runs the binary to completion with `RUST_LOG=warn`.
@@ -201,6 +210,105 @@ pub fn wait_exit(child: &mut Child, limit: Duration) -> ExitStatus {
     }
 }
 
+/// Polls `probe` every 20 ms until it gives `Some`, and returns that and
+/// the instant it was seen. `limit` is a backstop against a hung program
+/// (the test fails naming `what`), not a bound the test measures.
+pub fn wait_for<T>(
+    limit: Duration,
+    what: &str,
+    mut probe: impl FnMut() -> Option<T>,
+) -> (T, Instant) {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = probe() {
+            return (v, Instant::now());
+        }
+        assert!(start.elapsed() < limit, "no {what} within {limit:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Sends `kill -<signal>` (`INT`, `TERM`, …) to the child.
+pub fn signal(child: &Child, signal: &str) {
+    let status = Command::new("kill")
+        .args([&format!("-{signal}"), &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success(), "kill -{signal} {}", child.id());
+}
+
+/// A child's stderr, read line by line on a thread while it runs, so a
+/// test can wait for a log line (the program's own record of an event)
+/// instead of sleeping. [`LogWatch::finish`] returns the whole text once the
+/// child has exited.
+pub struct LogWatch {
+    text: Arc<Mutex<String>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl LogWatch {
+    /// Takes the child's (piped) stderr.
+    pub fn start(child: &mut Child) -> Self {
+        let mut stderr = BufReader::new(child.stderr.take().expect("piped stderr"));
+        let text = Arc::new(Mutex::new(String::new()));
+        let sink = Arc::clone(&text);
+        let thread = std::thread::spawn(move || {
+            let mut line = Vec::new();
+            loop {
+                line.clear();
+                match stderr.read_until(b'\n', &mut line) {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => sink
+                        .lock()
+                        .expect("log")
+                        .push_str(&String::from_utf8_lossy(&line)),
+                }
+            }
+            // Anything after a read error, for the failure message.
+            let mut rest = Vec::new();
+            let _ = stderr.read_to_end(&mut rest);
+            sink.lock()
+                .expect("log")
+                .push_str(&String::from_utf8_lossy(&rest));
+        });
+        Self {
+            text,
+            thread: Some(thread),
+        }
+    }
+
+    /// The text read so far.
+    pub fn text(&self) -> String {
+        self.text.lock().expect("log").clone()
+    }
+
+    /// Waits (bounded by the backstop `limit`) until a line containing
+    /// `needle` has been logged; returns the instant the test saw it (no
+    /// earlier than the program logged it).
+    pub fn wait_line(&self, needle: &str, limit: Duration) -> Instant {
+        wait_for(limit, &format!("log line with {needle:?}"), || {
+            self.text().contains(needle).then_some(())
+        })
+        .1
+    }
+
+    /// The whole stderr, after the child exited (its end of the pipe closed).
+    pub fn finish(mut self) -> String {
+        if let Some(t) = self.thread.take() {
+            t.join().expect("stderr reader");
+        }
+        self.text()
+    }
+}
+
+/// How many datums of `stream` a recording (`record`, flushed every
+/// second) has on disk so far, by its timestamps file; 0 before it exists
+/// or while it cannot be read whole.
+pub fn datums_on_disk(dir: &Path, stream: &str) -> usize {
+    let (_, npy) = gazelight_tracker::recording::stream_paths(dir, stream);
+    gazelight_tracker::recording::read_npy_f64(&npy).map_or(0, |ts| ts.len())
+}
+
 /// A CSV as a header → column index map and rows of fields.
 pub struct Csv {
     pub header: Vec<String>,
@@ -222,6 +330,21 @@ impl Csv {
             .map(|l| l.split(',').map(str::to_owned).collect())
             .collect();
         Self { header, rows }
+    }
+
+    /// The whole rows of a CSV a running program is still writing (its
+    /// writer flushes whole rows, at least every second): `None` before the
+    /// file has its header; a last line without its newline is left out.
+    pub fn try_read(path: &Path) -> Option<Self> {
+        let text = std::fs::read_to_string(path).ok()?;
+        let whole = &text[..text.rfind('\n')? + 1];
+        let mut lines = whole.lines();
+        let header: Vec<String> = lines.next()?.split(',').map(str::to_owned).collect();
+        let rows = lines
+            .map(|l| l.split(',').map(str::to_owned).collect::<Vec<String>>())
+            .filter(|r| r.len() == header.len())
+            .collect();
+        Some(Self { header, rows })
     }
 
     pub fn col(&self, name: &str) -> usize {
