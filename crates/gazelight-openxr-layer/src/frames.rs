@@ -90,6 +90,7 @@ pub unsafe fn wanted(info: *const xr::InstanceCreateInfo, config: &LayerConfig) 
     if config.effects != Effects::On {
         return false;
     }
+    // SAFETY: `info` as this function's caller guarantees.
     if unsafe { gaze::enables(info, VULKAN2_EXT) } {
         true
     } else {
@@ -212,7 +213,7 @@ pub fn start(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr, config: &La
         let r = unsafe { gipa(instance, name.as_ptr(), &mut f) };
         f.filter(|_| r.into_raw() >= 0)
     };
-    // SAFETY (all transmutes): the pointer the next layer returned for
+    // SAFETY: (all transmutes) the pointer the next layer returned for
     // this name has that function's signature.
     let next = unsafe {
         use std::mem::transmute as t;
@@ -324,7 +325,7 @@ pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunctio
     if !frames().as_ref().is_some_and(|f| f.instance == instance) {
         return None;
     }
-    // SAFETY (all transmutes): function pointers to the loader's
+    // SAFETY: (all transmutes) function pointers to the loader's
     // type-erased slot; the app casts them back by name.
     unsafe {
         use std::mem::transmute as t;
@@ -358,6 +359,13 @@ pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunctio
 
 const NO_NEXT: xr::Result = xr::Result::ERROR_HANDLE_INVALID;
 
+/// `xrCreateVulkanInstanceKHR`: the app's Vulkan instance with the
+/// extensions wgpu needs added.
+///
+/// # Safety
+/// Called as `xrCreateVulkanInstanceKHR`: `info` null or valid (its
+/// `vulkan_create_info` a valid `VkInstanceCreateInfo`), `vk_instance` and
+/// `vk_result` null or writable.
 unsafe extern "system" fn create_vulkan_instance(
     instance: xr::Instance,
     info: *const xr::VulkanInstanceCreateInfoKHR,
@@ -368,8 +376,10 @@ unsafe extern "system" fn create_vulkan_instance(
     let Some(down) = n.create_vulkan_instance else {
         return NO_NEXT;
     };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { down(instance, info, vk_instance, vk_result) };
     guard::guarded("xrCreateVulkanInstanceKHR", forward, || {
+        #[cfg(feature = "test-hooks")]
         guard::test_hook("xrCreateVulkanInstanceKHR");
         if guard::pass_through() || info.is_null() || vk_instance.is_null() {
             return forward();
@@ -396,6 +406,8 @@ unsafe extern "system" fn create_vulkan_instance(
         };
         // SAFETY: the app's VkInstanceCreateInfo for this call.
         let vk_info = unsafe { &*(app.vulkan_create_info as *const vkt::InstanceCreateInfo) };
+        // SAFETY: the app's loader entry and create info (its chain valid
+        // for this call).
         let patch = match unsafe { InstancePatch::new(&entry, vk_info) } {
             Ok(p) => p,
             Err(e) => {
@@ -407,7 +419,10 @@ unsafe extern "system" fn create_vulkan_instance(
             vulkan_create_info: patch.info() as *const vkt::InstanceCreateInfo as *const c_void,
             ..app
         };
+        // SAFETY: the app's create info with the patched Vulkan info, which
+        // `patch` keeps alive over the call; the app's out-pointers.
         let r = unsafe { down(instance, &changed, vk_instance, vk_result) };
+        // SAFETY: non-null, written by the runtime on this call.
         let vk_ok = vk_result.is_null() || unsafe { *vk_result } == 0;
         if r.into_raw() < 0 || !vk_ok {
             warn_once_global(&format!(
@@ -429,6 +444,13 @@ unsafe extern "system" fn create_vulkan_instance(
     })
 }
 
+/// `xrCreateVulkanDeviceKHR`: the app's Vulkan device with the extensions
+/// and features wgpu needs added.
+///
+/// # Safety
+/// Called as `xrCreateVulkanDeviceKHR`: `info` null or valid (its
+/// `vulkan_create_info` a valid `VkDeviceCreateInfo`), `vk_device` and
+/// `vk_result` null or writable.
 unsafe extern "system" fn create_vulkan_device(
     instance: xr::Instance,
     info: *const xr::VulkanDeviceCreateInfoKHR,
@@ -439,8 +461,10 @@ unsafe extern "system" fn create_vulkan_device(
     let Some(down) = n.create_vulkan_device else {
         return NO_NEXT;
     };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { down(instance, info, vk_device, vk_result) };
     guard::guarded("xrCreateVulkanDeviceKHR", forward, || {
+        #[cfg(feature = "test-hooks")]
         guard::test_hook("xrCreateVulkanDeviceKHR");
         if guard::pass_through() || info.is_null() || vk_device.is_null() {
             return forward();
@@ -460,6 +484,7 @@ unsafe extern "system" fn create_vulkan_device(
                 .find(|i| {
                     // SAFETY: a live instance the app created through the layer.
                     let ash_i = unsafe { ash::Instance::load(i.entry.static_fn(), i.raw) };
+                    // SAFETY: as above, a live instance.
                     unsafe { ash_i.enumerate_physical_devices() }.is_ok_and(|p| p.contains(&phd))
                 })
                 .cloned()
@@ -479,6 +504,7 @@ unsafe extern "system" fn create_vulkan_device(
         };
         // SAFETY: the app's VkDeviceCreateInfo for this call.
         let vk_info = unsafe { &*(app.vulkan_create_info as *const vkt::DeviceCreateInfo) };
+        // SAFETY: the app's VkDeviceCreateInfo, its chain valid for this call.
         let patch = match unsafe { plan.patch(vk_info) } {
             Ok(p) => p,
             Err(e) => {
@@ -490,7 +516,10 @@ unsafe extern "system" fn create_vulkan_device(
             vulkan_create_info: patch.info() as *const vkt::DeviceCreateInfo as *const c_void,
             ..app
         };
+        // SAFETY: the app's create info with the patched Vulkan info, which
+        // `patch` keeps alive over the call; the app's out-pointers.
         let r = unsafe { down(instance, &changed, vk_device, vk_result) };
+        // SAFETY: non-null, written by the runtime on this call.
         let vk_ok = vk_result.is_null() || unsafe { *vk_result } == 0;
         if r.into_raw() < 0 || !vk_ok {
             warn_once_global(&format!(
@@ -518,6 +547,7 @@ unsafe fn vulkan_binding(info: &xr::SessionCreateInfo) -> Option<xr::GraphicsBin
         // SAFETY: the app's chain of (type, next) structures.
         let base = unsafe { &*p };
         if base.ty == xr::GraphicsBindingVulkanKHR::TYPE {
+            // SAFETY: its type says it is this structure.
             return Some(unsafe { *(p as *const xr::GraphicsBindingVulkanKHR) });
         }
         p = base.next;
@@ -526,12 +556,19 @@ unsafe fn vulkan_binding(info: &xr::SessionCreateInfo) -> Option<xr::GraphicsBin
     None
 }
 
+/// `xrCreateSession`: a Vulkan session on a device the layer planned gets
+/// the layer's wgpu device on it.
+///
+/// # Safety
+/// Called as `xrCreateSession`: `info` null or valid, `session` null or
+/// writable.
 unsafe extern "system" fn create_session(
     instance: xr::Instance,
     info: *const xr::SessionCreateInfo,
     session: *mut xr::Session,
 ) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { (n.create_session)(instance, info, session) };
     guard::guarded("xrCreateSession", forward, || {
         let r = forward();
@@ -642,10 +679,16 @@ fn forward_release(release: pfn::ReleaseSwapchainImage, sc: xr::Swapchain) {
     }
 }
 
+/// `xrDestroySession`: held releases go first; the session's GPU work
+/// ends before the runtime destroys it.
+///
+/// # Safety
+/// Called as `xrDestroySession` (a handle only, no pointers).
 unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
     let forward = || {
         release_held(Some(session.into_raw()));
+        // SAFETY: the app's handle, handed to the next layer unchanged.
         unsafe { (n.destroy_session)(session) }
     };
     guard::guarded("xrDestroySession", forward, || {
@@ -679,23 +722,32 @@ unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
             }
             drop(s);
         }
+        // SAFETY: the app's handle; the layer's work on it has ended.
         unsafe { (n.destroy_session)(session) }
     })
 }
 
-/// Test hook: a `VkFormat` code the layer treats as not served (CI checks
-/// the fail-open path with the format hello_xr picks).
+/// Test hook (`test-hooks` builds only, see [`guard`]): a `VkFormat` code
+/// the layer treats as not served (CI checks the fail-open path with the
+/// format hello_xr picks).
+#[cfg(feature = "test-hooks")]
 pub const TEST_REFUSE_FORMAT_ENV: &str = "GAZELIGHT_LAYER_TEST_REFUSE_FORMAT";
 
 /// `XR_SWAPCHAIN_USAGE_TRANSFER_SRC_BIT`, added to served swapchains.
 const TRANSFER_SRC: xr::SwapchainUsageFlags = xr::SwapchainUsageFlags::TRANSFER_SRC;
 
+/// `xrCreateSwapchain`: a served swapchain gets TRANSFER_SRC usage.
+///
+/// # Safety
+/// Called as `xrCreateSwapchain`: `info` null or valid, `swapchain` null or
+/// writable.
 unsafe extern "system" fn create_swapchain(
     session: xr::Session,
     info: *const xr::SwapchainCreateInfo,
     swapchain: *mut xr::Swapchain,
 ) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { (n.create_swapchain)(session, info, swapchain) };
     guard::guarded("xrCreateSwapchain", forward, || {
         if guard::pass_through() || info.is_null() || swapchain.is_null() {
@@ -709,10 +761,13 @@ unsafe extern "system" fn create_swapchain(
         if !served_session {
             return forward();
         }
+        #[cfg(feature = "test-hooks")]
         let refused = std::env::var(TEST_REFUSE_FORMAT_ENV)
             .ok()
             .and_then(|v| v.trim().parse::<i64>().ok())
             == Some(app.format);
+        #[cfg(not(feature = "test-hooks"))]
+        let refused = false;
         let format = crate::vk::served_format(app.format).filter(|_| !refused);
         let reason = if format.is_none() {
             Some(format!(
@@ -744,6 +799,8 @@ unsafe extern "system" fn create_swapchain(
                     usage_flags: app.usage_flags | TRANSFER_SRC,
                     ..app
                 };
+                // SAFETY: the app's info with one more usage flag; the
+                // app's out-pointer (checked non-null).
                 let r = unsafe { (n.create_swapchain)(session, &changed, swapchain) };
                 if r.into_raw() < 0 {
                     if let Some(f) = frames().as_mut() {
@@ -780,8 +837,14 @@ unsafe extern "system" fn create_swapchain(
     })
 }
 
+/// `xrDestroySwapchain`: a held release goes first; the layer's GPU work
+/// on its images ends before the runtime frees them.
+///
+/// # Safety
+/// Called as `xrDestroySwapchain` (a handle only, no pointers).
 unsafe extern "system" fn destroy_swapchain(swapchain: xr::Swapchain) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's handle, handed to the next layer unchanged.
     let forward = || unsafe { (n.destroy_swapchain)(swapchain) };
     guard::guarded("xrDestroySwapchain", forward, || {
         let (held, old, gpu_ctx) = {
@@ -810,6 +873,12 @@ unsafe extern "system" fn destroy_swapchain(swapchain: xr::Swapchain) -> xr::Res
     })
 }
 
+/// `xrEnumerateSwapchainImages`: a served swapchain's Vulkan images are
+/// wrapped as wgpu textures.
+///
+/// # Safety
+/// Called as `xrEnumerateSwapchainImages`: `count` null or writable,
+/// `images` null or an array of `capacity` structures of one type.
 unsafe extern "system" fn enumerate_swapchain_images(
     swapchain: xr::Swapchain,
     capacity: u32,
@@ -817,6 +886,7 @@ unsafe extern "system" fn enumerate_swapchain_images(
     images: *mut xr::SwapchainImageBaseHeader,
 ) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { (n.enumerate_swapchain_images)(swapchain, capacity, count, images) };
     guard::guarded("xrEnumerateSwapchainImages", forward, || {
         let r = forward();
@@ -830,6 +900,7 @@ unsafe extern "system" fn enumerate_swapchain_images(
         }
         // SAFETY: the runtime wrote `*count` structures.
         let written = unsafe { *count }.min(capacity) as usize;
+        // SAFETY: `images` non-null with `capacity` > 0 structures.
         if unsafe { (*images).ty } != xr::SwapchainImageVulkanKHR::TYPE {
             return r;
         }
@@ -873,12 +944,19 @@ unsafe extern "system" fn enumerate_swapchain_images(
     })
 }
 
+/// `xrAcquireSwapchainImage`: a held release goes first; the acquired
+/// index is noted.
+///
+/// # Safety
+/// Called as `xrAcquireSwapchainImage`: `info` null or valid, `index` null
+/// or writable.
 unsafe extern "system" fn acquire_swapchain_image(
     swapchain: xr::Swapchain,
     info: *const xr::SwapchainImageAcquireInfo,
     index: *mut u32,
 ) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { (n.acquire)(swapchain, info, index) };
     guard::guarded("xrAcquireSwapchainImage", forward, || {
         // A held release goes first, that image unprocessed.
@@ -903,11 +981,17 @@ unsafe extern "system" fn acquire_swapchain_image(
     })
 }
 
+/// `xrReleaseSwapchainImage`: a served image's release is held until the
+/// layer has processed it in `xrEndFrame`.
+///
+/// # Safety
+/// Called as `xrReleaseSwapchainImage`: `info` null or valid.
 unsafe extern "system" fn release_swapchain_image(
     swapchain: xr::Swapchain,
     info: *const xr::SwapchainImageReleaseInfo,
 ) -> xr::Result {
     let Some(n) = next() else { return NO_NEXT };
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = || unsafe { (n.release)(swapchain, info) };
     guard::guarded("xrReleaseSwapchainImage", forward, || {
         let hold = {
@@ -961,6 +1045,12 @@ struct ViewJob {
     fov: xr::Fovf,
 }
 
+/// `xrEndFrame`: each projection view is processed, then the held
+/// releases and the frame go down.
+///
+/// # Safety
+/// Called as `xrEndFrame`: `info` null or a valid `XrFrameEndInfo` (its
+/// layers and views arrays valid for this call).
 unsafe extern "system" fn end_frame(
     session: xr::Session,
     info: *const xr::FrameEndInfo,
@@ -968,14 +1058,17 @@ unsafe extern "system" fn end_frame(
     let Some(n) = next() else { return NO_NEXT };
     let forward = || {
         release_held(Some(session.into_raw()));
+        // SAFETY: the app's arguments, handed to the next layer unchanged.
         unsafe { (n.end_frame)(session, info) }
     };
     guard::guarded("xrEndFrame", forward, || {
         if !guard::pass_through() && !info.is_null() {
             // The test hook panics with the frame's releases still held.
+            #[cfg(feature = "test-hooks")]
             guard::test_hook("xrEndFrame");
             // SAFETY: non-null; the app's frame for this call.
             let jobs = unsafe { view_jobs(&*info) };
+            // SAFETY: as above.
             let display_ns = unsafe { (*info).display_time.as_nanos() };
             if !jobs.is_empty() {
                 process_views(session, display_ns, &jobs);
@@ -997,6 +1090,8 @@ unsafe fn view_jobs(info: &xr::FrameEndInfo) -> Vec<ViewJob> {
     for l in 0..info.layer_count as usize {
         // SAFETY: an array of `layer_count` layer pointers.
         let p = unsafe { *info.layers.add(l) };
+        // SAFETY: non-null entries are the app's composition layers, each
+        // starting with its type.
         if p.is_null() || unsafe { (*p).ty } != xr::CompositionLayerProjection::TYPE {
             continue;
         }
@@ -1070,6 +1165,10 @@ impl FramePoses {
     /// Locates them through the next layer; what cannot be located is
     /// left out (the views then take the tracker's coordinates as they
     /// are).
+    ///
+    /// # Safety
+    /// `next` holds the next layer's functions for the session's instance;
+    /// `session` and the jobs' spaces are the app's live handles.
     unsafe fn locate(
         next: &Next,
         session: xr::Session,
@@ -1186,6 +1285,8 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
     // The eyes' nominal views and the head's pose in each projection
     // layer's space at the display time: the gaze re-projected into the
     // views the app submitted.
+    // SAFETY: the next layer's table; the app's session and the spaces of
+    // the frame it is ending.
     let poses = unsafe { FramePoses::locate(next, session, s, display_ns, jobs) };
     let ctx = s.gpu.ctx.clone();
     let mut encoder = ctx

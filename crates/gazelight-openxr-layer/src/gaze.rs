@@ -118,6 +118,7 @@ fn served() -> MutexGuard<'static, Option<Served>> {
 /// # Safety
 /// `info` is null or a valid `XrInstanceCreateInfo`.
 pub unsafe fn wanted(info: *const xr::InstanceCreateInfo, config: &LayerConfig) -> bool {
+    // SAFETY: `info` as this function's caller guarantees.
     config.gaze == GazeMode::Gazelight && unsafe { enables(info, EYE_GAZE_EXT) }
 }
 
@@ -151,6 +152,8 @@ pub fn start(
     config: &LayerConfig,
     serve_gaze: bool,
 ) -> Result<(), String> {
+    // SAFETY: `next_gipa` is the next layer's `xrGetInstanceProcAddr` and
+    // `instance` the instance it just created (lib.rs `create_next`).
     let next = unsafe { resolve(instance, next_gipa) }?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -234,6 +237,11 @@ fn drop_served(old: Option<Served>) {
     }
 }
 
+/// The next layer's functions the gaze service calls, looked up by name.
+///
+/// # Safety
+/// `gipa` is the next layer's `xrGetInstanceProcAddr` and `instance` a live
+/// instance it created.
 unsafe fn resolve(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr) -> Result<Next, String> {
     let get = |name: &CStr| -> Result<pfn::VoidFunction, String> {
         let mut f: Option<pfn::VoidFunction> = None;
@@ -244,7 +252,7 @@ unsafe fn resolve(instance: xr::Instance, gipa: pfn::GetInstanceProcAddr) -> Res
             _ => Err(format!("the next layer has no {}", name.to_string_lossy())),
         }
     };
-    // SAFETY (all transmutes): the pointer the next layer returned for this
+    // SAFETY: (all transmutes) the pointer the next layer returned for this
     // name has that function's signature.
     unsafe {
         use std::mem::transmute as t;
@@ -284,7 +292,7 @@ pub fn proc_addr(instance: xr::Instance, name: &CStr) -> Option<pfn::VoidFunctio
     {
         return None;
     }
-    // SAFETY (all transmutes): function pointers to VoidFunction, the
+    // SAFETY: (all transmutes) function pointers to VoidFunction, the
     // loader's type-erased slot; the app casts them back by name.
     unsafe {
         use std::mem::transmute as t;
@@ -343,11 +351,18 @@ fn with_next(
     guard::guarded(name, || forward(&n), || main(&n))
 }
 
+/// `xrGetSystemProperties`: the runtime's answer, with eye gaze
+/// interaction marked supported.
+///
+/// # Safety
+/// Called as `xrGetSystemProperties`: `properties` null or a valid output
+/// structure whose `next` chain is the app's valid output structures.
 unsafe extern "system" fn get_system_properties(
     instance: xr::Instance,
     system_id: xr::SystemId,
     properties: *mut xr::SystemProperties,
 ) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.get_system_properties)(instance, system_id, properties) };
     with_next("xrGetSystemProperties", forward, |n| {
         let r = forward(n);
@@ -358,9 +373,11 @@ unsafe extern "system" fn get_system_properties(
         // (type, next).
         let mut p = unsafe { (*properties).next } as *mut xr::BaseOutStructure;
         while !p.is_null() {
+            // SAFETY: non-null, a structure of the app's chain (type, next).
             let base = unsafe { &mut *p };
             if base.ty == xr::SystemEyeGazeInteractionPropertiesEXT::TYPE {
                 let props = p as *mut xr::SystemEyeGazeInteractionPropertiesEXT;
+                // SAFETY: its type says it is this structure.
                 unsafe { (*props).supports_eye_gaze_interaction = xr::TRUE };
             }
             p = base.next;
@@ -369,6 +386,10 @@ unsafe extern "system" fn get_system_properties(
     })
 }
 
+/// The string of `path` (at most 255 bytes), through `xrPathToString`.
+///
+/// # Safety
+/// `n` holds the next layer's functions for `instance`, a live instance.
 unsafe fn path_string(n: &Next, instance: xr::Instance, path: xr::Path) -> Option<String> {
     let mut buf = [0 as c_char; 256];
     let mut len = 0u32;
@@ -386,10 +407,17 @@ unsafe fn path_string(n: &Next, instance: xr::Instance, path: xr::Path) -> Optio
     )
 }
 
+/// `xrSuggestInteractionProfileBindings`: notes the app's gaze actions and
+/// accepts the eye gaze profile when the runtime refuses it.
+///
+/// # Safety
+/// Called as `xrSuggestInteractionProfileBindings`: `suggested` null or
+/// valid, its bindings an array of `count_suggested_bindings`.
 unsafe extern "system" fn suggest(
     instance: xr::Instance,
     suggested: *const xr::InteractionProfileSuggestedBinding,
 ) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.suggest)(instance, suggested) };
     with_next("xrSuggestInteractionProfileBindings", forward, |n| {
         let r = forward(n);
@@ -398,6 +426,7 @@ unsafe extern "system" fn suggest(
         }
         // SAFETY: non-null; the app's structure for this call.
         let s = unsafe { &*suggested };
+        // SAFETY: `n` is the next layer's table for the app's instance.
         if unsafe { path_string(n, instance, s.interaction_profile) }.as_deref() != Some(PROFILE) {
             return r;
         }
@@ -406,6 +435,7 @@ unsafe extern "system" fn suggest(
             for i in 0..s.count_suggested_bindings as usize {
                 // SAFETY: an array of `count_suggested_bindings`.
                 let b = unsafe { *s.suggested_bindings.add(i) };
+                // SAFETY: as above.
                 let path = unsafe { path_string(n, instance, b.binding) };
                 if path.as_deref().is_some_and(|p| GAZE_POSE.contains(&p)) {
                     gaze_actions.push(b.action.into_raw());
@@ -428,11 +458,17 @@ unsafe extern "system" fn suggest(
     })
 }
 
+/// `xrCreateActionSpace`: notes the spaces of the app's gaze actions.
+///
+/// # Safety
+/// Called as `xrCreateActionSpace`: `info` null or valid, `space` null or
+/// writable.
 unsafe extern "system" fn create_action_space(
     session: xr::Session,
     info: *const xr::ActionSpaceCreateInfo,
     space: *mut xr::Space,
 ) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.create_action_space)(session, info, space) };
     with_next("xrCreateActionSpace", forward, |n| {
         let r = forward(n);
@@ -457,7 +493,12 @@ unsafe extern "system" fn create_action_space(
     })
 }
 
+/// `xrDestroySpace`: forgets a gaze space.
+///
+/// # Safety
+/// Called as `xrDestroySpace` (handles only, no pointers).
 unsafe extern "system" fn destroy_space(space: xr::Space) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.destroy_space)(space) };
     with_next("xrDestroySpace", forward, |n| {
         if let Some(s) = served().as_mut() {
@@ -469,7 +510,11 @@ unsafe extern "system" fn destroy_space(space: xr::Space) -> xr::Result {
 
 /// Forgets the session's gaze spaces and the layer's VIEW space (the
 /// runtime destroys a session's spaces with it).
+///
+/// # Safety
+/// Called as `xrDestroySession` (a handle only, no pointers).
 unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.destroy_session)(session) };
     with_next("xrDestroySession", forward, |n| {
         forget_session(session);
@@ -477,11 +522,17 @@ unsafe extern "system" fn destroy_session(session: xr::Session) -> xr::Result {
     })
 }
 
+/// `xrGetActionStatePose`: a gaze action is active while served.
+///
+/// # Safety
+/// Called as `xrGetActionStatePose`: `get_info` null or valid, `state` null
+/// or writable.
 unsafe extern "system" fn get_action_state_pose(
     session: xr::Session,
     get_info: *const xr::ActionStateGetInfo,
     state: *mut xr::ActionStatePose,
 ) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.get_action_state_pose)(session, get_info, state) };
     with_next("xrGetActionStatePose", forward, |n| {
         let r = forward(n);
@@ -494,6 +545,7 @@ unsafe extern "system" fn get_action_state_pose(
             .as_ref()
             .is_some_and(|s| s.actions.contains(&action.into_raw()))
         {
+            // SAFETY: `state` checked non-null, the app's for this call.
             unsafe { (*state).is_active = xr::TRUE };
         }
         r
@@ -509,12 +561,19 @@ struct LocateJob {
     mono_minus_host_secs: f64,
 }
 
+/// `xrLocateSpace`: a gaze space is located from the newest eye state.
+///
+/// # Safety
+/// Called as `xrLocateSpace`: `location` null or a writable
+/// `XrSpaceLocation` whose `next` chain is the app's valid output
+/// structures.
 unsafe extern "system" fn locate_space(
     space: xr::Space,
     base_space: xr::Space,
     time: xr::Time,
     location: *mut xr::SpaceLocation,
 ) -> xr::Result {
+    // SAFETY: the app's arguments, handed to the next layer unchanged.
     let forward = |n: &Next| unsafe { (n.locate_space)(space, base_space, time, location) };
     with_next("xrLocateSpace", forward, |n| {
         if guard::pass_through() || location.is_null() {
@@ -538,15 +597,22 @@ unsafe extern "system" fn locate_space(
         };
         let view_space = match job.view_space {
             Some(v) => v,
+            // SAFETY: `n` is the next layer's table; the session is the
+            // app's (a gaze space of it is being located).
             None => match unsafe { create_view_space(n, job.gaze.session) } {
                 Some(v) => v,
                 None => return forward(n),
             },
         };
+        // SAFETY: `location` checked non-null; the app's for this call.
         unsafe { locate_gaze(n, &job, view_space, base_space, time, location) }
     })
 }
 
+/// Creates (and keeps, per session) the layer's own VIEW reference space.
+///
+/// # Safety
+/// `n` is the next layer's table; `session` a live session of its instance.
 unsafe fn create_view_space(n: &Next, session: xr::Session) -> Option<xr::Space> {
     let info = xr::ReferenceSpaceCreateInfo {
         ty: xr::ReferenceSpaceCreateInfo::TYPE,
@@ -593,6 +659,12 @@ pub fn tracked(state: &EyeState, now_secs: f64) -> bool {
         && state.age_secs(now_secs) <= STALE_SECS
 }
 
+/// Writes the gaze pose (in `base_space` at `time`) into `location`, and
+/// the sample's time into an `XrEyeGazeSampleTimeEXT` in its chain.
+///
+/// # Safety
+/// `location` is non-null and writable, its `next` chain the app's valid
+/// output structures; `n` is the next layer's table, the spaces live.
 unsafe fn locate_gaze(
     n: &Next,
     job: &LocateJob,
@@ -620,6 +692,8 @@ unsafe fn locate_gaze(
         return r;
     }
     let Some(gaze_in_view) =
+        // SAFETY: the next layer's table; the app's session, the layer's
+        // own VIEW space of it.
         (unsafe { gaze_in_view(n, job.gaze.session, view_space, time, state) })
     else {
         return r;
@@ -646,13 +720,16 @@ unsafe fn locate_gaze(
     // the source's clock offset estimate (about 1 ms for Pupil's), clamped.
     let sample_mono = state.t_secs + job.mono_minus_host_secs;
     let sample_mono = monotonic_now_secs().map_or(sample_mono, |now| sample_mono.min(now));
+    // SAFETY: the next layer's table for the served instance.
     let sample_time = unsafe { host_to_xr_time(n, job.instance, sample_mono) };
-    // SAFETY: the app's chain of output structures.
+    // The app's chain of output structures, each starting with (type, next).
     let mut p = loc.next as *mut xr::BaseOutStructure;
     while !p.is_null() {
+        // SAFETY: non-null, a structure of the app's chain.
         let base = unsafe { &mut *p };
         if base.ty == xr::EyeGazeSampleTimeEXT::TYPE {
             let st = p as *mut xr::EyeGazeSampleTimeEXT;
+            // SAFETY: its type says it is this structure.
             unsafe { (*st).time = sample_time.unwrap_or(xr::Time::from_nanos(0)) };
         }
         p = base.next;
@@ -662,6 +739,9 @@ unsafe fn locate_gaze(
 
 /// The gaze pose in VIEW space: origin the mean of the views' positions,
 /// forward (−Z) the mean of the rays through `gaze_uv` in each view.
+///
+/// # Safety
+/// `n` is the next layer's table; `session` and `view_space` live handles.
 unsafe fn gaze_in_view(
     n: &Next,
     session: xr::Session,
@@ -817,6 +897,10 @@ pub fn gaze_uv_in_submitted_view(
 
 /// `CLOCK_MONOTONIC` seconds → `XrTime` through
 /// `xrConvertTimespecTimeToTimeKHR`.
+///
+/// # Safety
+/// `n` is the next layer's table for `instance`, a live instance with
+/// `XR_KHR_convert_timespec_time` enabled.
 unsafe fn host_to_xr_time(n: &Next, instance: xr::Instance, mono: f64) -> Option<xr::Time> {
     if !mono.is_finite() || mono < 0.0 {
         return None;

@@ -1,7 +1,10 @@
 //! The panic guard around every exported entry point: no unwinding across
 //! `extern "system"`, and after a panic the layer only forwards.
 //!
-//! Test hook: `GAZELIGHT_LAYER_TEST_PANIC` set to an entry point's name
+//! Test hook (compiled only with the `test-hooks` feature, which the
+//! product build leaves off: `cargo test -p gazelight-openxr-layer
+//! --features test-hooks`, and `.ci/xr/run`'s second build of the
+//! library): `GAZELIGHT_LAYER_TEST_PANIC` set to an entry point's name
 //! (`xrNegotiateLoaderApiLayerInterface`, `xrCreateApiLayerInstance`,
 //! `xrGetInstanceProcAddr`, `xrDestroyInstance`; with the frame effects
 //! running `xrCreateVulkanInstanceKHR`, `xrCreateVulkanDeviceKHR`,
@@ -17,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use crate::log::log;
 
 /// The variable of the test hook.
+#[cfg(feature = "test-hooks")]
 pub const TEST_PANIC_ENV: &str = "GAZELIGHT_LAYER_TEST_PANIC";
 
 static PASS_THROUGH: AtomicBool = AtomicBool::new(false);
@@ -60,7 +64,9 @@ pub fn guarded<R>(
     }
 }
 
-/// Panics when the test hook names `entry` (see the module docs).
+/// Panics when the test hook names `entry` (see the module docs). Only in
+/// a `test-hooks` build: the product's entry points read no test variable.
+#[cfg(feature = "test-hooks")]
 pub fn test_hook(entry: &str) {
     if let Some(v) = std::env::var_os(TEST_PANIC_ENV) {
         let v = v.to_string_lossy();

@@ -30,7 +30,8 @@
 //! Never the app's crash: every exported entry point runs in
 //! [`guard::guarded`], which catches a panic, logs it, turns the layer into
 //! pass-through mode and answers as a layer that only forwards would.
-//! `GAZELIGHT_LAYER_TEST_PANIC` forces a panic for tests ([`guard`]).
+//! In a build with the `test-hooks` feature (tests only, never the
+//! product), `GAZELIGHT_LAYER_TEST_PANIC` forces a panic ([`guard`]).
 
 pub mod config;
 pub mod frames;
@@ -96,11 +97,19 @@ pub unsafe extern "system" fn xrNegotiateLoaderApiLayerInterface(
     guard::guarded(
         "xrNegotiateLoaderApiLayerInterface",
         // A panic before the answer: answer as a pass-through layer.
+        // SAFETY: the loader's pointers for this call, handed on unchanged
+        // (`fill_request` checks `request` for null).
         || unsafe { fill_request(request, xr::CURRENT_API_VERSION) },
+        // SAFETY: as above; `negotiate` checks both structures for null.
         || unsafe { negotiate(loader_info, layer_name, request) },
     )
 }
 
+/// Checks the loader's versions and fills in `request`.
+///
+/// # Safety
+/// `loader_info` and `request` are null or valid for this call;
+/// `layer_name` is null or a NUL-terminated string.
 unsafe fn negotiate(
     loader_info: *const xr::NegotiateLoaderInfo,
     layer_name: *const c_char,
@@ -112,6 +121,7 @@ unsafe fn negotiate(
     }
     // SAFETY: checked non-null; the loader owns both for this call.
     let (info, req) = unsafe { (&*loader_info, &*request) };
+    #[cfg(feature = "test-hooks")]
     guard::test_hook("xrNegotiateLoaderApiLayerInterface");
     if !layer_name.is_null() {
         // SAFETY: the loader passes a NUL-terminated name.
@@ -160,9 +170,15 @@ unsafe fn negotiate(
         );
         return xr::Result::ERROR_API_VERSION_UNSUPPORTED;
     }
+    // SAFETY: `request` checked non-null above, the loader's for this call.
     unsafe { fill_request(request, api) }
 }
 
+/// Writes the layer's interface version, `api` and its two entry points
+/// into the loader's request.
+///
+/// # Safety
+/// `request` is null or a valid, writable `XrNegotiateApiLayerRequest`.
 unsafe fn fill_request(request: *mut xr::NegotiateApiLayerRequest, api: xr::Version) -> xr::Result {
     if request.is_null() {
         return xr::Result::ERROR_INITIALIZATION_FAILED;
@@ -179,6 +195,11 @@ unsafe fn fill_request(request: *mut xr::NegotiateApiLayerRequest, api: xr::Vers
 /// `xrCreateApiLayerInstance`: creates the instance through the next layer
 /// (its `next_info` advanced by one), then records the next layer's entry
 /// points and reads the configuration.
+///
+/// # Safety
+/// Called by the loader (or the layer above) with `info` null or valid,
+/// `layer_info` null or the loader's chain for this call, `instance` null
+/// or writable.
 unsafe extern "system" fn create_api_layer_instance(
     info: *const xr::InstanceCreateInfo,
     layer_info: *const xr::ApiLayerCreateInfo,
@@ -191,18 +212,26 @@ unsafe extern "system" fn create_api_layer_instance(
         "xrCreateApiLayerInstance",
         || match created.get() {
             Some(result) => result,
+            // SAFETY: the caller's pointers, handed on unchanged;
+            // `create_next` checks them for null.
             None => unsafe { create_next(info, layer_info, instance) },
         },
         || {
             let loaded = config::LayerConfig::load_from_env();
+            // Below, `info` is null or the app's valid create info for this
+            // call: what `wanted` and `enables` ask.
             let serve_gaze = match &loaded {
+                // SAFETY: `info` as `wanted` asks (see above).
                 Ok(Some((_, c))) => unsafe { gaze::wanted(info, c) },
+                // SAFETY: `info` as `wanted` asks (see above).
                 Ok(None) => unsafe { gaze::wanted(info, &config::LayerConfig::default()) },
                 Err(_) => false,
             };
             // The frame effects: for Vulkan apps (XR_KHR_vulkan_enable2).
             let effects = match &loaded {
+                // SAFETY: `info` as `wanted` asks (see above).
                 Ok(Some((_, c))) => unsafe { frames::wanted(info, c) },
+                // SAFETY: `info` as `wanted` asks (see above).
                 Ok(None) => unsafe { frames::wanted(info, &config::LayerConfig::default()) },
                 Err(_) => false,
             };
@@ -214,8 +243,11 @@ unsafe extern "system" fn create_api_layer_instance(
             // the runtime need not have it (the loader accepts it from the
             // layer's manifest, `gazelight layer install`).
             let add_convert =
+                // SAFETY: `info` is null or the app's valid create info.
                 want_eye && !unsafe { gaze::enables(info, gaze::CONVERT_TIMESPEC_EXT) };
             let (result, with_convert) = if add_convert || serve_gaze {
+                // SAFETY: the caller's pointers, handed on; the names added
+                // are 'static C strings.
                 let r = unsafe {
                     create_changed(
                         info,
@@ -230,6 +262,8 @@ unsafe extern "system" fn create_api_layer_instance(
                         "warn",
                         "eye gaze: the runtime lacks XR_KHR_convert_timespec_time; the layer serves no gaze",
                     );
+                    // SAFETY: the caller's pointers, handed on unchanged
+                    // (the changed create failed: nothing was created).
                     (unsafe { create_next(info, layer_info, instance) }, false)
                 } else {
                     if serve_gaze && r.into_raw() >= 0 {
@@ -241,9 +275,11 @@ unsafe extern "system" fn create_api_layer_instance(
                     (r, r.into_raw() >= 0)
                 }
             } else {
+                // SAFETY: the caller's pointers, handed on unchanged.
                 (unsafe { create_next(info, layer_info, instance) }, want_eye)
             };
             created.set(Some(result));
+            #[cfg(feature = "test-hooks")]
             guard::test_hook("xrCreateApiLayerInstance");
             if result.into_raw() >= 0 {
                 let config = match loaded {
@@ -294,6 +330,10 @@ unsafe extern "system" fn create_api_layer_instance(
 
 /// [`create_next`] with extension `add` enabled and `remove` taken out
 /// of the app's list.
+///
+/// # Safety
+/// As [`create_next`]; `info`'s extension names, when non-null, are an
+/// array of `enabled_extension_count` entries, each null or NUL-terminated.
 unsafe fn create_changed(
     info: *const xr::InstanceCreateInfo,
     layer_info: *const xr::ApiLayerCreateInfo,
@@ -302,6 +342,7 @@ unsafe fn create_changed(
     remove: Option<&CStr>,
 ) -> xr::Result {
     if info.is_null() {
+        // SAFETY: the caller's pointers, handed on unchanged.
         return unsafe { create_next(info, layer_info, instance) };
     }
     // SAFETY: non-null; the app's create info for this call.
@@ -327,12 +368,20 @@ unsafe fn create_changed(
     }
     changed.enabled_extension_names = names.as_ptr();
     changed.enabled_extension_count = names.len() as u32;
+    // SAFETY: `changed` is the app's create info with a name array that
+    // outlives the call (`names`, its entries the app's or 'static).
     unsafe { create_next(&changed, layer_info, instance) }
 }
 
 /// Calls the next layer's `xrCreateApiLayerInstance` with the chain advanced
 /// past this layer, and records the next layer's entry points for the new
 /// instance. No panicking code: it is also the fallback after a panic.
+///
+/// # Safety
+/// `info` is what the next layer may be given (null or a valid create
+/// info); `layer_info` is null or the loader's `XrApiLayerCreateInfo` whose
+/// `next_info` chain is valid for this call; `instance` is null or
+/// writable.
 unsafe fn create_next(
     info: *const xr::InstanceCreateInfo,
     layer_info: *const xr::ApiLayerCreateInfo,
@@ -403,6 +452,10 @@ unsafe fn create_next(
 /// The layer's `xrGetInstanceProcAddr`: its own `xrGetInstanceProcAddr` and
 /// `xrDestroyInstance` (not in pass-through mode), the next layer's pointer
 /// for every other name.
+///
+/// # Safety
+/// The caller's `name` is null or NUL-terminated, `function` null or a
+/// writable slot.
 unsafe extern "system" fn get_instance_proc_addr(
     instance: xr::Instance,
     name: *const c_char,
@@ -410,8 +463,10 @@ unsafe extern "system" fn get_instance_proc_addr(
 ) -> xr::Result {
     guard::guarded(
         "xrGetInstanceProcAddr",
+        // SAFETY: the caller's arguments, handed on unchanged.
         || unsafe { forward_proc_addr(instance, name, function) },
         || {
+            #[cfg(feature = "test-hooks")]
             guard::test_hook("xrGetInstanceProcAddr");
             if name.is_null() || function.is_null() {
                 return xr::Result::ERROR_VALIDATION_FAILURE;
@@ -456,12 +511,17 @@ unsafe extern "system" fn get_instance_proc_addr(
                 unsafe { *function = Some(f) };
                 return xr::Result::SUCCESS;
             }
+            // SAFETY: the caller's arguments, handed on unchanged.
             unsafe { forward_proc_addr(instance, name, function) }
         },
     )
 }
 
 /// The next layer's pointer for `name` (pass-through).
+///
+/// # Safety
+/// As `xrGetInstanceProcAddr`: `name` null or NUL-terminated, `function`
+/// null or a writable slot.
 unsafe fn forward_proc_addr(
     instance: xr::Instance,
     name: *const c_char,
@@ -493,6 +553,10 @@ pub mod test_support {
 
 /// `xrDestroyInstance`: forgets the instance, then destroys it in the next
 /// layer.
+///
+/// # Safety
+/// `instance` is the app's instance (or any handle: an unknown one is
+/// answered `XR_ERROR_HANDLE_INVALID`); called as `xrDestroyInstance`.
 unsafe extern "system" fn destroy_instance(instance: xr::Instance) -> xr::Result {
     let forwarded: std::cell::Cell<Option<xr::Result>> = std::cell::Cell::new(None);
     let forward = |d: Option<Dispatch>| match d.and_then(|d| d.next_destroy_instance) {
@@ -511,6 +575,7 @@ unsafe extern "system" fn destroy_instance(instance: xr::Instance) -> xr::Result
             })
         },
         || {
+            #[cfg(feature = "test-hooks")]
             guard::test_hook("xrDestroyInstance");
             frames::stop(instance);
             gaze::stop(instance);

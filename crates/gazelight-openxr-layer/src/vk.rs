@@ -88,10 +88,11 @@ impl InstancePatch {
         entry: &ash::Entry,
         info: &vk::InstanceCreateInfo,
     ) -> Result<Box<Self>, VkError> {
-        // SAFETY: the app's application info, when given.
         let app_info = if info.p_application_info.is_null() {
             vk::ApplicationInfo::default()
         } else {
+            // SAFETY: the app's application info (non-null), part of the
+            // valid create info the caller passes.
             unsafe { *info.p_application_info }
         };
         // SAFETY: a plain query on the app's loader.
@@ -135,7 +136,8 @@ impl InstancePatch {
             )
         };
         let mut patch = Box::new(Self {
-            // SAFETY (lifetime): the app's strings outlive the patch.
+            // SAFETY: (lifetime only) the app's strings outlive the patch
+            // (the caller's contract: `info` outlives it).
             app_info: unsafe {
                 std::mem::transmute::<vk::ApplicationInfo<'_>, vk::ApplicationInfo<'static>>(
                     vk::ApplicationInfo {
@@ -145,7 +147,7 @@ impl InstancePatch {
                 )
             },
             names,
-            // SAFETY (lifetime): the copy points into `patch`, which is
+            // SAFETY: (lifetime only) the copy points into `patch`, which is
             // boxed (does not move) and outlives every use of `info()`.
             info: unsafe {
                 std::mem::transmute::<vk::InstanceCreateInfo<'_>, vk::InstanceCreateInfo<'static>>(
@@ -236,7 +238,7 @@ impl DevicePlan {
     ) -> Result<Self, VkError> {
         // SAFETY: a live instance the app created from this entry.
         let ash_instance = unsafe { ash::Instance::load(instance.entry.static_fn(), instance.raw) };
-        // SAFETY (from_raw): created from `entry` for `api_version` with
+        // SAFETY: (from_raw) created from `entry` for `api_version` with
         // `extensions` among its extensions and no debug messenger; the
         // drop callback leaves it to the app.
         let hal_instance = unsafe {
@@ -335,6 +337,7 @@ impl DevicePlan {
             let m = unsafe {
                 &mut *(&mut merged as *mut vk::PhysicalDeviceFeatures as *mut [vk::Bool32; N])
             };
+            // SAFETY: as above, a shared view of `core`.
             let c =
                 unsafe { &*(&core as *const vk::PhysicalDeviceFeatures as *const [vk::Bool32; N]) };
             for (a, b) in m.iter_mut().zip(c) {
@@ -367,7 +370,8 @@ impl DevicePlan {
             _features: features,
             core: Box::new(merged),
             names,
-            // SAFETY (lifetime): see InstancePatch::new.
+            // SAFETY: (lifetime only) the copy points into `patch`, boxed,
+            // and the app's info outlives the patch (the caller's contract).
             info: unsafe {
                 std::mem::transmute::<vk::DeviceCreateInfo<'_>, vk::DeviceCreateInfo<'static>>(
                     *info,
@@ -549,8 +553,11 @@ impl LayerGpu {
         // SAFETY: the caller's contract; the drop callback leaves the image
         // to the runtime.
         let hal_texture = {
+            // SAFETY: only to make the texture; the guard is dropped at the
+            // end of this block.
             let hal_device = unsafe { device.as_hal::<VkApi>() }
                 .ok_or_else(|| unsupported("the wgpu device has no Vulkan backend"))?;
+            // SAFETY: see above (the caller's contract on `image`).
             unsafe {
                 hal_device.texture_from_raw(
                     image,
@@ -641,11 +648,12 @@ unsafe fn with_extensions(
         unsafe { std::slice::from_raw_parts(app, count as usize) }.to_vec()
     };
     for e in extra {
-        // SAFETY: the app's names are NUL-terminated.
-        if !names
-            .iter()
-            .any(|&n| !n.is_null() && unsafe { CStr::from_ptr(n) } == *e)
-        {
+        let named = names.iter().any(|&n| {
+            // SAFETY: the app's non-null names are NUL-terminated (the
+            // caller's contract).
+            !n.is_null() && unsafe { CStr::from_ptr(n) } == *e
+        });
+        if !named {
             names.push(e.as_ptr());
         }
     }

@@ -48,7 +48,9 @@ fn the_layer_chains_to_the_next_and_forwards_everything() {
     let (r, f) = proc_addr(&request, instance, c"xrDestroyInstance");
     assert_eq!(r, xr::Result::SUCCESS);
     assert_ne!(fn_addr(f), next_destroy_addr());
+    // SAFETY: the layer's pointer for xrDestroyInstance has its signature.
     let destroy: xr::pfn::DestroyInstance = unsafe { std::mem::transmute(f.unwrap()) };
+    // SAFETY: the instance the layer created above, destroyed once.
     assert_eq!(unsafe { destroy(instance) }, xr::Result::SUCCESS);
     assert_eq!(NEXT_DESTROYS.load(Ordering::SeqCst), 1);
     // The instance is gone from the layer too.

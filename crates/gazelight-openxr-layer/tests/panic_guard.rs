@@ -49,6 +49,7 @@ fn a_panic_in_any_entry_point_is_caught_and_the_layer_passes_through() {
     // and the fallback destroys once.
     force_panic_in("xrDestroyInstance");
     let destroy = gazelight_openxr_layer::test_support::destroy_instance_fn();
+    // SAFETY: the instance created above, destroyed once.
     assert_eq!(unsafe { destroy(instance) }, xr::Result::SUCCESS);
     assert_eq!(NEXT_DESTROYS.load(Ordering::SeqCst), 1);
 }

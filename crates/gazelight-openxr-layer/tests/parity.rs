@@ -45,6 +45,8 @@ impl Drop for App {
         // The layer's device and instance wrappers first (they do not own
         // the handles), then the app's own.
         self.gpu.take();
+        // SAFETY: the app's own device and instance, no longer used (the
+        // layer's wrappers are gone), destroyed once, device first.
         unsafe {
             let _ = self.device.device_wait_idle();
             self.device.destroy_device(None);
@@ -56,6 +58,8 @@ impl Drop for App {
 /// The app's instance and device through the layer's patches, and the
 /// layer's wgpu device on them. `None` (with a SKIP line) without Vulkan.
 fn app() -> Option<App> {
+    // SAFETY: loads the system's Vulkan loader (its initialisation is
+    // trusted, as any Vulkan app's).
     let entry = match unsafe { ash::Entry::load() } {
         Ok(e) => e,
         Err(e) if !gpu_required() => {
@@ -69,7 +73,9 @@ fn app() -> Option<App> {
         .application_name(c"parity")
         .api_version(vk::API_VERSION_1_0);
     let info = vk::InstanceCreateInfo::default().application_info(&app_info);
+    // SAFETY: `info` and `app_info` outlive the patch.
     let patch = unsafe { InstancePatch::new(&entry, &info) }.expect("instance patch");
+    // SAFETY: the patched info is valid while `patch` lives (the call).
     let instance = unsafe { entry.create_instance(patch.info(), None) }.expect("vkCreateInstance");
     let app_instance = AppInstance {
         entry: entry.clone(),
@@ -77,12 +83,14 @@ fn app() -> Option<App> {
         api_version: patch.api_version,
         extensions: patch.extensions.clone(),
     };
+    // SAFETY: a live instance.
     let phd = unsafe { instance.enumerate_physical_devices() }.expect("physical devices");
     let Some(&phd) = phd.first() else {
         assert!(!gpu_required(), "no Vulkan physical device");
         println!("SKIP parity: no Vulkan physical device");
         return None;
     };
+    // SAFETY: a physical device of this live instance.
     let family = unsafe { instance.get_physical_device_queue_family_properties(phd) }
         .iter()
         .position(|f| f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
@@ -100,8 +108,10 @@ fn app() -> Option<App> {
         .queue_create_infos(&queues)
         .enabled_extension_names(&no_ext)
         .enabled_features(&features);
+    // SAFETY: `dinfo` and what it points to outlive the patch.
     let dpatch = unsafe { plan.patch(&dinfo) }.expect("device patch");
     let device =
+        // SAFETY: the patched info is valid while `dpatch` lives (the call).
         unsafe { instance.create_device(phd, dpatch.info(), None) }.expect("vkCreateDevice");
     let gpu = plan
         .open(device.handle(), family, 0)
@@ -362,6 +372,9 @@ fn two_views_side_by_side_in_one_image_each_match_the_pipeline() {
     // Each eye's first frame.
     let inputs = two_frames(0.0);
     let raw = raw_image(&app_texture).expect("raw image");
+    // SAFETY: a live image wgpu made on this device (`app_image`: this size
+    // and format, COPY_SRC and RENDER_ATTACHMENT), used by wgpu only as a
+    // colour target; `app_texture` outlives `wrapped`.
     let wrapped = unsafe { gpu.wrap_image(raw, format, 2 * W, H, 1) }.expect("wrap");
     let mut processors: Vec<EyeProcessor> = (0..2)
         .map(|_| EyeProcessor::new(&ctx, &config, spec).expect("eye processor"))
@@ -463,6 +476,8 @@ fn run_format(format: wgpu::TextureFormat) {
     let cpu_scene = imported(&input_texels, image_format, scale);
     let inputs = two_frames(1.0 / 60.0);
     let raw = raw_image(&app_texture).expect("raw image");
+    // SAFETY: as in the first test: wgpu's image of this size and format on
+    // this device, outliving `wrapped`.
     let wrapped = unsafe { gpu.wrap_image(raw, format, W, H, 1) }.expect("wrap");
     for (k, input) in inputs.iter().enumerate() {
         // The app renders its frame.

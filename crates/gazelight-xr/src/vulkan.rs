@@ -121,7 +121,7 @@ pub(crate) fn create(
     )?;
     // SAFETY: `raw_instance` was just created from `entry`'s loader.
     let ash_instance = unsafe { ash::Instance::load(entry.static_fn(), raw_instance) };
-    // SAFETY (from_raw): the instance was created from `entry` for
+    // SAFETY: (from_raw) the instance was created from `entry` for
     // `api_version` with exactly `extensions` (the runtime may have added
     // more, which wgpu-hal does not need to know) and no debug messenger;
     // with no drop callback wgpu-hal owns it and destroys it last. Wrapped

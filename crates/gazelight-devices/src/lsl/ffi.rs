@@ -156,10 +156,11 @@ fn load(config: &LslConfig) -> Result<Api, LslError> {
 }
 
 fn open_library() -> Result<(libloading::Library, PathBuf), LslError> {
-    // SAFETY (all `Library::new` below): loading liblsl runs its static
+    // Every `Library::new` below: loading liblsl runs its static
     // initialisers, which only set up C++ runtime state.
     if let Some(p) = std::env::var_os("GAZELIGHT_LIBLSL") {
         let path = PathBuf::from(p);
+        // SAFETY: liblsl's initialisers only set up C++ runtime state (above).
         return unsafe { libloading::Library::new(&path) }
             .map(|l| (l, path.clone()))
             .map_err(|e| LslError::Load {
@@ -169,6 +170,7 @@ fn open_library() -> Result<(libloading::Library, PathBuf), LslError> {
     }
     let mut tried = Vec::new();
     for name in ["liblsl.so", "liblsl.so.2"] {
+        // SAFETY: as above, liblsl's initialisers.
         match unsafe { libloading::Library::new(name) } {
             Ok(l) => return Ok((l, PathBuf::from(name))),
             Err(_) => tried.push(name.to_owned()),
@@ -181,6 +183,7 @@ fn open_library() -> Result<(libloading::Library, PathBuf), LslError> {
                 tried.push(path.display().to_string());
                 continue;
             }
+            // SAFETY: as above, liblsl's initialisers.
             match unsafe { libloading::Library::new(&path) } {
                 Ok(l) => return Ok((l, path)),
                 Err(e) => tried.push(format!("{} ({e})", path.display())),

@@ -18,25 +18,39 @@ pub static NEXT_END_FRAMES: AtomicUsize = AtomicUsize::new(0);
 /// Whether the next layer's create saw the chain advanced past ours.
 pub static NEXT_SAW_END_OF_CHAIN: AtomicUsize = AtomicUsize::new(0);
 
+/// The fake next layer's `xrCreateApiLayerInstance`.
+///
+/// # Safety
+/// `layer_info` valid and `instance` writable, as the layer passes them.
 unsafe extern "system" fn next_create(
     _info: *const xr::InstanceCreateInfo,
     layer_info: *const xr::ApiLayerCreateInfo,
     instance: *mut xr::Instance,
 ) -> xr::Result {
     NEXT_CREATES.fetch_add(1, Ordering::SeqCst);
+    // SAFETY: the layer passes its (advanced) chain, valid for the call.
     if unsafe { (*layer_info).next_info.is_null() } {
         NEXT_SAW_END_OF_CHAIN.fetch_add(1, Ordering::SeqCst);
     }
+    // SAFETY: the layer's out-pointer (checked non-null by the layer).
     unsafe { *instance = xr::Instance::from_raw(NEXT_INSTANCE) };
     xr::Result::SUCCESS
 }
 
+/// The fake next layer's `xrDestroyInstance`.
+///
+/// # Safety
+/// None beyond the signature: it reads no pointers.
 pub unsafe extern "system" fn next_destroy(instance: xr::Instance) -> xr::Result {
     assert_eq!(instance.into_raw(), NEXT_INSTANCE);
     NEXT_DESTROYS.fetch_add(1, Ordering::SeqCst);
     xr::Result::SUCCESS
 }
 
+/// The fake next layer's `xrEndFrame`.
+///
+/// # Safety
+/// None beyond the signature: it reads no pointers.
 pub unsafe extern "system" fn next_end_frame(
     _session: xr::Session,
     _info: *const xr::FrameEndInfo,
@@ -45,23 +59,31 @@ pub unsafe extern "system" fn next_end_frame(
     xr::Result::SUCCESS
 }
 
+/// The fake next layer's `xrGetInstanceProcAddr`.
+///
+/// # Safety
+/// `name` NUL-terminated, `function` writable.
 unsafe extern "system" fn next_gipa(
     instance: xr::Instance,
     name: *const c_char,
     function: *mut Option<pfn::VoidFunction>,
 ) -> xr::Result {
+    // SAFETY: the caller's NUL-terminated name.
     let name = unsafe { CStr::from_ptr(name) };
     let f: Option<pfn::VoidFunction> = if instance.into_raw() != NEXT_INSTANCE {
         None
     } else if name == c"xrDestroyInstance" {
+        // SAFETY: a function pointer into the loader's type-erased slot.
         Some(unsafe {
             std::mem::transmute::<pfn::DestroyInstance, pfn::VoidFunction>(next_destroy)
         })
     } else if name == c"xrEndFrame" {
+        // SAFETY: as above.
         Some(unsafe { std::mem::transmute::<pfn::EndFrame, pfn::VoidFunction>(next_end_frame) })
     } else {
         None
     };
+    // SAFETY: the caller's writable slot.
     unsafe { *function = f };
     if f.is_some() {
         xr::Result::SUCCESS
@@ -99,6 +121,7 @@ pub fn negotiate() -> (xr::Result, xr::NegotiateApiLayerRequest) {
         create_api_layer_instance: None,
     };
     let name = std::ffi::CString::new(gazelight_openxr_layer::LAYER_NAME).unwrap();
+    // SAFETY: valid structures and a NUL-terminated name, alive over the call.
     let r = unsafe {
         gazelight_openxr_layer::xrNegotiateLoaderApiLayerInterface(
             &info,
@@ -149,6 +172,8 @@ pub fn create(request: &xr::NegotiateApiLayerRequest) -> (xr::Result, xr::Instan
     let create = request
         .create_api_layer_instance
         .expect("the layer's create");
+    // SAFETY: the app's info, the loader's chain (this layer, then the
+    // fake next layer) and an out-pointer, alive over the call.
     let r = unsafe { create(&app, &layer_info, &mut instance) };
     (r, instance)
 }
@@ -161,6 +186,7 @@ pub fn proc_addr(
 ) -> (xr::Result, Option<pfn::VoidFunction>) {
     let gipa = request.get_instance_proc_addr.expect("the layer's gipa");
     let mut f = None;
+    // SAFETY: a NUL-terminated name and a writable slot.
     let r = unsafe { gipa(instance, name.as_ptr(), &mut f) };
     (r, f)
 }
