@@ -9,7 +9,9 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{python_ready, spawn_peer_any_port, tmp_path, wait_exit};
+use common::{
+    datums_on_disk, python_ready, spawn_peer_any_port, tmp_path, wait_bounded, wait_exit, wait_for,
+};
 
 use gazelight_tracker::PldataReader;
 use gazelight_tracker::recording::{read_npy_f64, stream_paths};
@@ -66,8 +68,16 @@ fn ctrl_c_keeps_every_received_datum() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("spawn record");
-    // Let it record for a while (the connection takes a moment).
-    std::thread::sleep(Duration::from_millis(2500));
+    // Recorded until the counts asserted below are on disk (flushed every
+    // second), however long the connection took; not a fixed 2.5 s.
+    wait_for(
+        Duration::from_secs(60),
+        "801 pupil and 101 gaze datums on disk",
+        || {
+            (datums_on_disk(&dir, "pupil") > 800 && datums_on_disk(&dir, "gaze") > 100)
+                .then_some(())
+        },
+    );
     let sent = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
@@ -149,16 +159,22 @@ fn lost_tracker_keeps_what_was_received() {
             "--out",
             dir.to_str().expect("utf-8"),
             "--secs",
-            "3.5",
+            "15",
         ])
         .env("RUST_LOG", "warn")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .expect("spawn record");
-    std::thread::sleep(Duration::from_millis(1500));
+    // The peer killed once 101 pupil datums are on disk (flushed every
+    // second), not after a fixed 1.5 s; the recording then ends on its
+    // --secs (15 s: room for the wait and the loss's report on a loaded
+    // machine; were it too short, "tracker lost" would be missing below).
+    wait_for(Duration::from_secs(14), "101 pupil datums on disk", || {
+        (datums_on_disk(&dir, "pupil") > 100).then_some(())
+    });
     drop(peer);
-    let out = child.wait_with_output().expect("record output");
+    let out = wait_bounded(child, Duration::from_secs(60));
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "record failed: {stdout}\n{stderr}");

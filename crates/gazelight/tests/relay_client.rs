@@ -34,7 +34,8 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
     let relay_port = free_port();
     let run = Proc(
         Command::new(env!("CARGO_BIN_EXE_gazelight"))
-            .args(["run", "--headless", "--size", "256x144", "--secs", "40"])
+            // --secs 120: a backstop; the run is killed when `run` drops.
+            .args(["run", "--headless", "--size", "256x144", "--secs", "120"])
             .args(["--source", &format!("pupil://127.0.0.1:{peer_port}")])
             .args(["--relay", &format!("127.0.0.1:{relay_port}")])
             .env("RUST_LOG", "warn")
@@ -43,10 +44,40 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
             .spawn()
             .expect("gazelight run"),
     );
-    wait_listening(relay_port, Duration::from_secs(20));
-    // Let the filtered pupil settle on the peer's values (slew-limited
-    // from the model pupil).
-    std::thread::sleep(Duration::from_secs(3));
+    wait_listening(relay_port, Duration::from_secs(60));
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    // The filtered pupil settles on the peer's values (slew-limited from
+    // the model pupil): wait until the relay publishes both eyes within
+    // the 0.02 mm asserted below, instead of sleeping 3 s.
+    rt.block_on(async {
+        let config =
+            gazelight_tracker::uri::pupil_config(&format!("pupil://127.0.0.1:{relay_port}"))
+                .unwrap();
+        let (client, mut streams) = PupilClient::spawn(config);
+        client
+            .wait_connected(Duration::from_secs(60))
+            .await
+            .unwrap();
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
+        let mut settled = [false; 2];
+        while !(settled[0] && settled[1]) {
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "the relay's pupil did not settle on {PEER_MM:?}"
+            );
+            if let Ok(Some(Sample::Pupil(p))) =
+                tokio::time::timeout(Duration::from_secs(1), streams.samples.recv()).await
+                && let Some(mm) = p.diameter_mm
+            {
+                settled[p.eye as usize] = (f64::from(mm) - PEER_MM[p.eye as usize]).abs() < 0.02;
+            }
+        }
+        client.shutdown().await;
+    });
 
     // 1. The official Python client.
     let out = Command::new("python3")
@@ -188,11 +219,6 @@ fn pupil_clients_read_the_relay_of_a_live_session() {
     );
 
     // 2. gazelight's own Pupil client decodes it like Pupil Capture.
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap();
     rt.block_on(async {
         let config =
             gazelight_tracker::uri::pupil_config(&format!("pupil://127.0.0.1:{relay_port}"))
