@@ -283,14 +283,23 @@ impl LayerConfig {
                 }
             }
         }
+        // The luminance bound every front end shares
+        // (`gazelight_vision::scene::MAX_SCALE_FACTOR`).
+        let max = gazelight_vision::scene::MAX_SCALE_FACTOR;
         let positive = |v: &Option<Spanned<f64>>, key: &str, default: f64| match v {
             None => Ok(default),
-            Some(x) if x.get_ref().is_finite() && *x.get_ref() > 0.0 => Ok(*x.get_ref()),
-            Some(x) => Err(invalid(
-                Some(x.span()),
-                Some(key.into()),
-                format!("{}: expected a finite number > 0", x.get_ref()),
-            )),
+            Some(x) if x.get_ref().is_finite() && *x.get_ref() > 0.0 && *x.get_ref() <= max => {
+                Ok(*x.get_ref())
+            }
+            Some(x) => Err(invalid(Some(x.span()), Some(key.into()), {
+                let v = *x.get_ref();
+                let v = if v.abs() >= 1e9 {
+                    format!("{v:e}")
+                } else {
+                    format!("{v}")
+                };
+                format!("{v}: expected a finite number > 0 and ≤ {max:e} cd/m²")
+            })),
         };
         let white_cd_m2 = positive(&raw.white_cd_m2, "white_cd_m2", DEFAULT_WHITE_CD_M2)?;
         let scene_scale_cd_m2 = positive(

@@ -173,10 +173,8 @@ fn the_luminance_mapping_and_dump_keys_are_checked() {
 
 /// A scratch directory of this test process.
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "gazelight-layer-cfg-{}-{name}",
-        std::process::id()
-    ));
+    let dir =
+        std::env::temp_dir().join(format!("gazelight-layer-cfg-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
@@ -241,4 +239,20 @@ fn a_config_with_a_huge_array_is_refused_before_parsing() {
     let reason = read_error_within_10s(path);
     assert!(reason.contains("values"), "{reason}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn luminance_keys_share_the_clis_upper_bound() {
+    // 1e308 cd/m² per unit is refused here as by `render --luminance-scale`.
+    for key in ["white_cd_m2", "scene_scale_cd_m2"] {
+        let (line, _, field, message) = err(&format!("effects = \"on\"\n{key} = 1e308\n"));
+        assert_eq!((line, field.as_str()), (2, key), "{message}");
+        assert!(
+            message.contains("1e308") && message.contains("1e20"),
+            "{message}"
+        );
+    }
+    // The bound itself is accepted.
+    let c = LayerConfig::parse(Path::new("l.toml"), "white_cd_m2 = 1e20\n").unwrap();
+    assert_eq!(c.white_cd_m2, gazelight_vision::scene::MAX_SCALE_FACTOR);
 }

@@ -514,6 +514,9 @@ pub(crate) fn render_open(
             None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale),
         }
         .map_err(err)?;
+        // The shared bound on the scaled scene (as `render`'s): an overflow
+        // would give all-black frames.
+        scene_img.check_luminance().map_err(err)?;
         let (width, height) = size.or(settings.size).unwrap_or((720, 800));
         if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
             return Err(err(format!(
@@ -658,7 +661,11 @@ pub(crate) fn render_open(
         Ok(Render {
             state: Mutex::new(Some(Box::new(Running {
                 step,
-                feed: SampleFeed::new(samples, chain),
+                feed: if recording.is_some() {
+                    SampleFeed::new(samples, chain)
+                } else {
+                    SampleFeed::new(samples, chain).hold_between_samples()
+                },
                 view_img,
                 retinal,
                 suffixes,

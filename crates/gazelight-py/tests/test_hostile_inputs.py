@@ -90,3 +90,19 @@ def test_write_png_checks_the_frame_size_before_copying_it(tmp_path):
     assert got["type"] == "ValueError", got
     assert "200000×200000" in got["message"], got
     assert not (tmp_path / "x.png").exists()
+
+
+def test_render_refuses_the_luminance_scale_the_cli_refuses(tmp_path):
+    for f in ("1e308", "1e21", "0.0"):
+        got = _catch(f"gazelight.render(luminance_scale={f}, frames=1)", tmp_path)
+        assert got["type"] == "GazelightError", (f, got)
+        assert "1e20" in got["message"], (f, got)
+    # A flat Radiance scene of ~4e17 cd/m² scaled by 1e20 passes the factor
+    # bound but overflows the scene bound: refused rather than rendered black.
+    hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 32 +X 64\n" + bytes([128, 128, 128, 180]) * (64 * 32)
+    (tmp_path / "hot.hdr").write_bytes(hdr)
+    got = _catch(
+        "gazelight.render(os.path.join(TMP, 'hot.hdr'), luminance_scale=1e20, frames=1, size=(16, 16))",
+        tmp_path,
+    )
+    assert got["type"] == "GazelightError" and "overflow" in got["message"], got

@@ -100,8 +100,43 @@ impl Default for LuminanceScale {
     }
 }
 
+/// Largest luminance factor (cd/m² per file unit) any front end accepts:
+/// the CLI's `--luminance-scale`, `glare --luminance-factor`, Python's
+/// `luminance_scale` and the OpenXR layer's `white_cd_m2` /
+/// `scene_scale_cd_m2` all check against this one bound.
+pub const MAX_SCALE_FACTOR: f64 = 1e20;
+/// Largest median key accepted, cd/m²: a median of 10⁹ cd/m² is already a
+/// scene made of the sun's disc (≈ 1.6·10⁹ cd/m²).
+pub const MAX_SCENE_KEY_CD_M2: f64 = 1e9;
+/// Brightest scaled scene value accepted, cd/m²: above it the pipeline's
+/// single-precision sums (pooling, the glare convolution over up to 2²⁰
+/// pixels) come within a factor ~10⁶ of `f32::MAX` and overflow.
+pub const MAX_SCENE_CD_M2: f64 = 1e32;
+
+/// A luminance factor (cd/m² per unit): `0 < factor ≤ MAX_SCALE_FACTOR`.
+/// `name` is the key or flag it came from, for the error.
+pub fn check_factor(name: &'static str, factor: f64) -> Result<f64, VisionError> {
+    if factor.is_finite() && factor > 0.0 && factor <= MAX_SCALE_FACTOR {
+        Ok(factor)
+    } else {
+        // 1e308 as `1e308`, not 309 digits.
+        let a = factor.abs();
+        let shown = if a.is_finite() && a != 0.0 && !(1e-4..1e9).contains(&a) {
+            format!("{factor:e}")
+        } else {
+            format!("{factor}")
+        };
+        Err(VisionError::invalid(
+            name,
+            shown,
+            "expected 0 < cd/m² per unit ≤ 1e20",
+        ))
+    }
+}
+
 impl LuminanceScale {
-    /// Checks the parameters.
+    /// Checks the parameters: factor `0 < f ≤ MAX_SCALE_FACTOR`, key
+    /// `0 < k ≤ MAX_SCENE_KEY_CD_M2`.
     pub fn validate(&self) -> Result<(), VisionError> {
         let (name, v) = match *self {
             Self::CdM2PerUnit { factor } => ("luminance_scale.factor", factor),
@@ -144,6 +179,42 @@ impl Scene {
                 path: path.to_owned(),
                 reason: e.to_string(),
             }
+    /// The brightest component after scaling, cd/m², and how many
+    /// components are not finite (the scale overflowed single precision).
+    pub fn luminance_range(&self) -> (f64, usize) {
+        let mut max = 0.0f32;
+        let mut overflowed = 0usize;
+        for &c in self.image.pixels.iter().flatten() {
+            if c.is_finite() {
+                max = max.max(c);
+            } else {
+                overflowed += 1;
+            }
+        }
+        (f64::from(max), overflowed)
+    }
+
+    /// Refuses a scaled scene with values that overflow single precision
+    /// or exceed [`MAX_SCENE_CD_M2`] (its frames would be black), naming
+    /// the scale applied; returns the brightest value.
+    pub fn check_luminance(&self) -> Result<f64, VisionError> {
+        let (max, overflowed) = self.luminance_range();
+        if overflowed > 0 || max > MAX_SCENE_CD_M2 {
+            return Err(VisionError::SceneInvalid {
+                path: PathBuf::from(&self.name),
+                reason: format!(
+                    "after scaling by {:e} cd/m² per unit, {overflowed} of {} values overflow \
+                     single precision and the brightest is {max:e} cd/m² (limit \
+                     {MAX_SCENE_CD_M2:e}): the frames would be black; lower the luminance scale \
+                     (the sun's disc is ≈ 1.6e9 cd/m²)",
+                    self.cd_m2_per_unit,
+                    self.image.pixels.len() * 3
+                ),
+            });
+        }
+        Ok(max)
+    }
+
         })?;
         Self::from_bytes(&bytes, path, scale)
     }

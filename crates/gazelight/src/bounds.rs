@@ -24,16 +24,11 @@ pub const MAX_FRAMES: usize = 1_000_000;
 /// Longest time a waiting loop sleeps before it looks at the shutdown flag
 /// again: a signal or `--secs` ends a run within this (plus one frame).
 pub const SHUTDOWN_POLL: Duration = Duration::from_millis(50);
-/// Largest `--luminance-scale` factor (cd/m² per file unit) accepted.
-pub const MAX_SCALE_FACTOR: f64 = 1e20;
-/// Largest `--scene-key-cd-m2` accepted: a median of 10⁹ cd/m² is already
-/// a scene made of the sun's disc (≈ 1.6·10⁹ cd/m²).
-pub const MAX_SCENE_KEY_CD_M2: f64 = 1e9;
-/// Brightest scaled scene value accepted, cd/m². Above it the pipeline's
-/// single-precision sums (pooling, the glare convolution over up to 2²⁰
-/// pixels) come within a factor ~10⁶ of `f32::MAX` (3.4·10³⁸) and overflow:
-/// such a scene is refused rather than rendered black.
-pub const MAX_SCENE_CD_M2: f64 = 1e32;
+/// The luminance bounds live in the library every front end links
+/// (`gazelight_vision::scene`): `--luminance-scale`, `glare
+/// --luminance-factor`, Python's `luminance_scale` and the OpenXR layer's
+/// config check the same numbers.
+pub use gazelight_vision::scene::{MAX_SCALE_FACTOR, MAX_SCENE_CD_M2, MAX_SCENE_KEY_CD_M2};
 /// Brightest scaled scene value that passes without a warning, cd/m²: ten
 /// times the sun's disc (≈ 1.6·10⁹ cd/m²). Brighter is physically
 /// implausible and almost always a wrong luminance scale.
@@ -147,19 +142,9 @@ pub struct SceneRange {
 
 /// Measures the scaled scene's range.
 pub fn scene_range(scene: &Scene) -> SceneRange {
-    let mut max = 0.0f32;
-    let mut overflowed = 0usize;
-    for p in &scene.image.pixels {
-        for &c in p {
-            if c.is_finite() {
-                max = max.max(c);
-            } else {
-                overflowed += 1;
-            }
-        }
-    }
+    let (max_cd_m2, overflowed) = scene.luminance_range();
     SceneRange {
-        max_cd_m2: f64::from(max),
+        max_cd_m2,
         overflowed,
     }
 }

@@ -101,10 +101,13 @@ pub fn load_scene(
     fov_deg: Option<&str>,
     factor: Option<f64>,
 ) -> anyhow::Result<Scene> {
-    let scale = LuminanceScale::CdM2PerUnit {
-        factor: factor.unwrap_or(1.0),
-    };
+    // The one bound every front end shares (gazelight_vision::scene).
+    let factor =
+        gazelight_vision::scene::check_factor("--luminance-factor", factor.unwrap_or(1.0))?;
+    let scale = LuminanceScale::CdM2PerUnit { factor };
     let mut scene = Scene::load(path, scale)?;
+    // A scaled scene that overflows is refused (an implausible one warned).
+    crate::bounds::scene_luminance(&scene)?;
     if let Some(kind) = projection {
         let kind = ProjectionKind::parse(kind).with_context(|| {
             format!(
@@ -212,6 +215,10 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             "--search-radius-rad {}: expected 0 < r < 3",
             args.search_radius_rad
         );
+    }
+    if let Some(path) = &args.json {
+        // Before anything is read or written: `--json` must not be the scene.
+        crate::out_dir::check_out_file("glare", "--json", path, &[&args.scene])?;
     }
     let gazes: Vec<[f64; 2]> = args
         .gaze_deg
@@ -361,8 +368,10 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             "options": opts,
             "gazes": out,
         });
-        std::fs::write(path, serde_json::to_string_pretty(&doc)? + "\n")
-            .with_context(|| format!("writing {}", path.display()))?;
+        crate::out_dir::write_atomic(
+            path,
+            (serde_json::to_string_pretty(&doc)? + "\n").as_bytes(),
+        )?;
     }
     Ok(())
 }

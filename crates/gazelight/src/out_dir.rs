@@ -131,6 +131,76 @@ pub fn prepare(
     Ok(())
 }
 
+/// An output file named by a flag (`profile phases --out`, `glare
+/// --json`): refused, before anything is written, when it is one of the
+/// command's `inputs` (the same file after symlinks, or a hard link to
+/// it) or a directory. Missing inputs are ignored.
+pub fn check_out_file(
+    command: &str,
+    flag: &str,
+    out: &Path,
+    inputs: &[&Path],
+) -> anyhow::Result<()> {
+    let shown = out.display();
+    if out.is_dir() {
+        bail!("{command} {flag} {shown}: is a directory; a file name is expected");
+    }
+    let Some(target) = canonical(out) else {
+        return Ok(());
+    };
+    let out_id = file_id(out);
+    for input in inputs {
+        let input_path = canonical(input);
+        let same_path = input_path.as_ref().is_some_and(|i| *i == target);
+        let same_file = out_id.is_some() && out_id == file_id(input);
+        // An existing file inside an input directory (a recording's own
+        // files) is part of that input.
+        let inside = out_id.is_some()
+            && input.is_dir()
+            && input_path.as_ref().is_some_and(|i| target.starts_with(i));
+        if same_path || same_file || inside {
+            bail!(
+                "{command} {flag} {shown}: is the input {}; writing it would destroy what the \
+                 command reads: choose another file",
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Device and inode of an existing file.
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
+/// Writes `bytes` to `path` through a temporary beside it
+/// (`.NAME.tmp`, flushed, renamed into place): a reader never sees half a
+/// file, and when writing or the rename fails the temporary is removed.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    use std::io::Write;
+    let name = path
+        .file_name()
+        .with_context(|| format!("{}: not a file name", path.display()))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(".tmp");
+    let tmp = path.with_file_name(tmp_name);
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        f.write_all(bytes)
+            .and_then(|()| f.sync_all())
+            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
 /// [`OutKind::Profile`]: one file, replaced only with `force`.
 fn prepare_file(
     command: &str,
@@ -370,6 +440,25 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    #[test]
+    fn a_failed_rename_leaves_no_temporary_and_the_old_file_whole() {
+        let d = tmp("atomic");
+        // The target is a non-empty directory: the rename fails.
+        let target = d.join("summary.csv");
+        std::fs::create_dir_all(target.join("keep")).unwrap();
+        let e = write_atomic(&target, b"a,b\n").unwrap_err();
+        assert!(format!("{e:#}").contains("summary.csv"), "{e:#}");
+        assert!(!d.join(".summary.csv.tmp").exists());
+        assert!(target.join("keep").is_dir());
+        // A plain file is replaced whole.
+        let f = d.join("x.json");
+        std::fs::write(&f, "old").unwrap();
+        write_atomic(&f, b"new").unwrap();
+        assert_eq!(std::fs::read_to_string(&f).unwrap(), "new");
+        assert!(!d.join(".x.json.tmp").exists());
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]

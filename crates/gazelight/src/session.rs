@@ -280,11 +280,9 @@ impl SessionSettings {
     /// a reader never sees half of it).
     pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
         let path = dir.join("session.json");
-        let tmp = dir.join(".session.json.tmp");
         let text = serde_json::to_string_pretty(self).context("session settings as JSON")?;
-        std::fs::write(&tmp, text + "\n")
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))
+        // `.session.json.tmp`, removed when the write or the rename fails.
+        crate::out_dir::write_atomic(&path, (text + "\n").as_bytes())
     }
 }
 

@@ -158,3 +158,184 @@ fn glare_on_a_scene_over_its_pixel_cap_bins_it_and_keeps_the_illuminance() {
     assert!((ev / (std::f64::consts::PI * l) - 1.0).abs() < 0.02, "{ev}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn an_output_file_that_is_the_commands_own_input_is_refused_untouched() {
+    let dir = tmp("out-is-in");
+    // glare --json naming the scene (through a symlink, and a hard link).
+    let scene = dir.join("s.hdr");
+    uniform_hdr(&scene, 64, 32, 128, 128);
+    let before = std::fs::read(&scene).unwrap();
+    std::os::unix::fs::symlink(&scene, dir.join("link.json")).unwrap();
+    std::fs::hard_link(&scene, dir.join("hard.json")).unwrap();
+    for json in ["s.hdr", "link.json", "hard.json"] {
+        let o = gazelight_in(
+            &[
+                "glare",
+                s(&scene),
+                "--gaze-deg",
+                "0,0",
+                "--json",
+                s(&dir.join(json)),
+            ],
+            &[],
+        );
+        assert!(!o.status.success(), "{json}");
+        assert!(
+            stderr(&o).contains("is the input"),
+            "{json}: {}",
+            stderr(&o)
+        );
+        assert_eq!(std::fs::read(&scene).unwrap(), before, "{json}");
+    }
+    // profile phases --out naming its recording.
+    let rec = dir.join("pupil.csv");
+    std::fs::copy(shared_str("eye/piprkit-plr/pupil_trace.csv"), &rec).unwrap();
+    let before = std::fs::read(&rec).unwrap();
+    let o = gazelight_in(
+        &[
+            "profile",
+            "phases",
+            s(&rec),
+            "--black",
+            "1..2",
+            "--white",
+            "3..4",
+            "--out",
+            s(&rec),
+        ],
+        &[],
+    );
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("is the input"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&rec).unwrap(), before);
+    // No temporary left beside either.
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn batch_out_holding_the_users_files_is_refused_before_anything_is_written() {
+    let dir = tmp("batch-own");
+    let manifest = dir.join("m.csv");
+    std::fs::write(
+        &manifest,
+        format!(
+            "id,recording,secs,from_secs,size,fps,backend\nrow1,{},2,10,48x32,4,cpu\n",
+            shared_str("eye/piprkit-plr/pupil_trace.csv")
+        ),
+    )
+    .unwrap();
+    // The user's own folder: their summary and a folder named like a row.
+    let out = dir.join("results");
+    std::fs::create_dir_all(out.join("row1")).unwrap();
+    std::fs::write(out.join("summary.csv"), "my,own\n1,2\n").unwrap();
+    std::fs::write(out.join("row1").join("notes.txt"), "mine").unwrap();
+    let o = gazelight_in(&["batch", s(&manifest), "--out", s(&out)], &[]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("summary.csv") && e.contains("row1/"), "{e}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("summary.csv")).unwrap(),
+        "my,own\n1,2\n"
+    );
+    assert!(
+        !out.join("_batch").exists(),
+        "the batch wrote before refusing"
+    );
+    // A row id that is the summary's name is refused in the manifest.
+    std::fs::write(
+        &manifest,
+        format!(
+            "id,recording\nSummary.CSV,{}\n",
+            shared_str("eye/piprkit-plr/pupil_trace.csv")
+        ),
+    )
+    .unwrap();
+    let o = gazelight_in(&["batch", s(&manifest), "--out", s(&dir.join("o2"))], &[]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("choose another id"), "{}", stderr(&o));
+    assert!(!dir.join("o2").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn glare_refuses_the_luminance_factors_render_refuses() {
+    let dir = tmp("glare-factor");
+    let scene = dir.join("s.hdr");
+    uniform_hdr(&scene, 64, 32, 128, 128);
+    for f in ["1e308", "1e21", "0", "-3", "nan"] {
+        let o = gazelight_in(
+            &[
+                "glare",
+                s(&scene),
+                "--gaze-deg",
+                "0,0",
+                "--luminance-factor",
+                f,
+            ],
+            &[],
+        );
+        assert!(!o.status.success(), "--luminance-factor {f} was accepted");
+        let e = stderr(&o);
+        assert!(
+            e.contains("--luminance-factor") && e.contains("1e20"),
+            "{f}: {e}"
+        );
+        assert!(e.len() < 400, "{e}");
+        // `render` refuses the same factor.
+        let o = gazelight_in(
+            &[
+                "render",
+                "--scene",
+                s(&scene),
+                "--luminance-scale",
+                f,
+                "--frames",
+                "1",
+                "--out",
+                s(&dir.join("r")),
+            ],
+            &[],
+        );
+        assert!(
+            !o.status.success(),
+            "render --luminance-scale {f} was accepted"
+        );
+    }
+    // A factor under the bound whose scaled scene overflows single
+    // precision is refused too, as `render` refuses it.
+    let o = gazelight_in(
+        &[
+            "glare",
+            s(&scene),
+            "--gaze-deg",
+            "0,0",
+            "--luminance-factor",
+            "1e20",
+        ],
+        &[],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let hot = dir.join("hot.hdr");
+    uniform_hdr(&hot, 64, 32, 128, 250);
+    let o = gazelight_in(
+        &[
+            "glare",
+            s(&hot),
+            "--gaze-deg",
+            "0,0",
+            "--luminance-factor",
+            "1e20",
+        ],
+        &[],
+    );
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("overflow"), "{}", stderr(&o));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

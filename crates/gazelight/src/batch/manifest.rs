@@ -28,6 +28,8 @@ use crate::replay::ReplayArgs;
 const MAX_MANIFEST_BYTES: u64 = 16 << 20;
 /// Longest row id.
 const MAX_ID_CHARS: usize = 100;
+/// Names the batch writes into `--out` itself: no row id may take them.
+const RESERVED_IDS: [&str; 1] = ["summary.csv"];
 /// Columns the batch sets itself.
 const FORBIDDEN: [&str; 4] = ["out", "force", "trace", "help"];
 
@@ -396,7 +398,11 @@ pub(super) fn check_id(id: &str) -> Result<String, String> {
         && id
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'));
-    if ok {
+    if ok && RESERVED_IDS.iter().any(|r| id.eq_ignore_ascii_case(r)) {
+        Err(format!(
+            "{id:?}: the batch writes a file of that name into --out; choose another id"
+        ))
+    } else if ok {
         Ok(id.to_owned())
     } else {
         Err(format!(

@@ -146,6 +146,9 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
         // Before anything is created: a path the script cannot name.
         slurm::check_paths(&args.manifest, &out)?;
     }
+    // Before anything is created: an `--out` holding files of the user's
+    // where the batch would write.
+    check_out_dir(&out, &rows)?;
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let state = State::open(&out)?;
     let bids = match &args.bids {
@@ -201,6 +204,40 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Refuses an `--out` that already exists without the batch's own
+/// `_batch/` folder (so no earlier batch wrote it) but holds a
+/// `summary.csv` or an entry named like a row's output folder: the batch
+/// would overwrite the user's own files. An earlier batch's folder (with
+/// `_batch/`) is resumed; a folder with other files only is fine.
+fn check_out_dir(out: &Path, rows: &[Row]) -> anyhow::Result<()> {
+    if !out.is_dir() || out.join(state::STATE_DIR).is_dir() {
+        return Ok(());
+    }
+    let mut clashes: Vec<String> = Vec::new();
+    if std::fs::symlink_metadata(out.join("summary.csv")).is_ok() {
+        clashes.push("summary.csv".to_owned());
+    }
+    for row in rows {
+        if std::fs::symlink_metadata(out.join(&row.id)).is_ok() {
+            clashes.push(format!("{}/", row.id));
+        }
+    }
+    if clashes.is_empty() {
+        return Ok(());
+    }
+    let n = clashes.len();
+    clashes.truncate(5);
+    bail!(
+        "--out {}: holds {n} entr{} the batch would write ({}{}) but no {}/ folder of an earlier \
+         batch: they are not the batch's to overwrite; choose another --out (or move them)",
+        out.display(),
+        if n == 1 { "y" } else { "ies" },
+        clashes.join(", "),
+        if n > 5 { ", …" } else { "" },
+        state::STATE_DIR
+    )
 }
 
 /// What a run of some rows came to.
@@ -622,9 +659,7 @@ fn write_summary(
         text.push('\n');
     }
     let path = out.join("summary.csv");
-    let tmp = out.join(".summary.csv.tmp");
-    std::fs::write(&tmp, text).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))?;
+    crate::out_dir::write_atomic(&path, text.as_bytes())?;
     Ok(path)
 }
 

@@ -5,7 +5,6 @@
 //! with the hash of its current options and its `timeline.csv` is there;
 //! anything else (no record, another hash, `failed`) is run again.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -108,15 +107,9 @@ impl State {
     /// disk, renamed into place.
     pub fn write(&self, record: &Record) -> anyhow::Result<()> {
         let path = self.record_path(&record.id);
-        let tmp = self.dir.join(format!(".{}.json.tmp", record.id));
-        let text = serde_json::to_string_pretty(record).context("batch record as JSON")?;
-        let mut f = std::fs::File::create(&tmp)
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        f.write_all(text.as_bytes())
-            .and_then(|()| f.write_all(b"\n"))
-            .and_then(|()| f.sync_all())
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, &path).with_context(|| format!("cannot write {}", path.display()))
+        let text = serde_json::to_string_pretty(record).context("batch record as JSON")? + "\n";
+        // `.ID.json.tmp`, removed when the write or the rename fails.
+        crate::out_dir::write_atomic(&path, text.as_bytes())
     }
 }
 
