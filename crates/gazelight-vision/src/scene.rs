@@ -138,12 +138,19 @@ impl LuminanceScale {
     /// Checks the parameters: factor `0 < f ≤ MAX_SCALE_FACTOR`, key
     /// `0 < k ≤ MAX_SCENE_KEY_CD_M2`.
     pub fn validate(&self) -> Result<(), VisionError> {
-        let (name, v) = match *self {
-            Self::CdM2PerUnit { factor } => ("luminance_scale.factor", factor),
-            Self::MedianKey { key_cd_m2 } => ("luminance_scale.key_cd_m2", key_cd_m2),
-        };
-        if !(v.is_finite() && v > 0.0) {
-            return Err(VisionError::invalid(name, v, "a finite number > 0"));
+        match *self {
+            Self::CdM2PerUnit { factor } => {
+                check_factor("luminance_scale.factor", factor)?;
+            }
+            Self::MedianKey { key_cd_m2 } => {
+                if !(key_cd_m2.is_finite() && key_cd_m2 > 0.0 && key_cd_m2 <= MAX_SCENE_KEY_CD_M2) {
+                    return Err(VisionError::invalid(
+                        "luminance_scale.key_cd_m2",
+                        key_cd_m2,
+                        "expected 0 < median cd/m² ≤ 1e9 (the sun's disc is ≈ 1.6e9 cd/m²)",
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -172,13 +179,6 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Loads a scene file and applies the luminance scale.
-    pub fn load(path: &Path, scale: LuminanceScale) -> Result<Self, VisionError> {
-        let bytes = gazelight_input::read(path, gazelight_input::MAX_SCENE_BYTES).map_err(|e| {
-            VisionError::SceneRead {
-                path: path.to_owned(),
-                reason: e.to_string(),
-            }
     /// The brightest component after scaling, cd/m², and how many
     /// components are not finite (the scale overflowed single precision).
     pub fn luminance_range(&self) -> (f64, usize) {
@@ -215,6 +215,13 @@ impl Scene {
         Ok(max)
     }
 
+    /// Loads a scene file and applies the luminance scale.
+    pub fn load(path: &Path, scale: LuminanceScale) -> Result<Self, VisionError> {
+        let bytes = gazelight_input::read(path, gazelight_input::MAX_SCENE_BYTES).map_err(|e| {
+            VisionError::SceneRead {
+                path: path.to_owned(),
+                reason: e.to_string(),
+            }
         })?;
         Self::from_bytes(&bytes, path, scale)
     }

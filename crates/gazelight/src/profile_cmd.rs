@@ -229,9 +229,9 @@ pub fn run(args: ProfileArgs) -> anyhow::Result<()> {
             Ok(())
         }
         ProfileAction::Phases(a) => {
-            let (profile, lines) = phases_profile(&a.recording, a.black, a.white)?;
             // Before the recording is read: `--out` must not be it.
             crate::out_dir::check_out_file("profile phases", "--out", &a.out, &[&a.recording])?;
+            let (profile, lines) = phases_profile(&a.recording, a.black, a.white)?;
             for l in &lines {
                 println!("{l}");
             }
