@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{Csv, gazelight, shared_str, tmp, tmp_path, wait_bounded};
+use common::{Csv, datums_on_disk, gazelight, shared_str, tmp, tmp_path, wait_bounded, wait_for};
 use gazelight_tracker::PldataWriter;
 use gazelight_tracker::recording::{read_npy_f64, stream_paths};
 
@@ -372,13 +372,26 @@ fn a_sigkilled_record_has_a_complete_info_player_json() {
         .stderr(Stdio::null())
         .spawn()
         .expect("record");
-    // Record ~3 s, then SIGKILL: no handler runs, nothing is finished.
-    std::thread::sleep(Duration::from_secs(3));
+    // Recorded until 201 datums and an info.player.json whose duration
+    // passed 0.5 s are on disk (the periodic flush; not a fixed 3 s), then
+    // SIGKILL: no handler runs, nothing is finished.
+    let info_duration = || {
+        let text = std::fs::read_to_string(rec.join("info.player.json")).ok()?;
+        serde_json::from_str::<serde_json::Value>(&text).ok()?["duration_s"].as_f64()
+    };
+    wait_for(
+        Duration::from_secs(60),
+        "201 datums and a 0.5 s duration on disk",
+        || {
+            (datums_on_disk(&rec, "pupil") > 200 && info_duration().is_some_and(|d| d > 0.5))
+                .then_some(())
+        },
+    );
     child.kill().unwrap();
     child.wait().unwrap();
     let (_, npy) = stream_paths(&rec, "pupil");
     let ts = read_npy_f64(&npy).expect("the pupil timestamps");
-    assert!(ts.len() > 200, "only {} datums in ~3 s at 200 Hz", ts.len());
+    assert!(ts.len() > 200, "only {} datums", ts.len());
     let info: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(rec.join("info.player.json")).unwrap())
             .expect("info.player.json is whole JSON");
