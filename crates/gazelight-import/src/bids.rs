@@ -449,10 +449,12 @@ impl TsvSource {
                 }
                 let (x, y) = (field32(f, m.x)?, field32(f, m.y)?);
                 let gconf = field32(f, m.gaze_conf)?;
+                // Every row of a file with gaze columns is a gaze sample; an
+                // n/a gaze is a lost one (confidence 0), never left out.
                 let has_gaze = if m.gaze_conf.is_some() {
                     gconf.is_some()
                 } else {
-                    x.is_some() && y.is_some()
+                    m.x.is_some() && m.y.is_some()
                 };
                 if has_gaze {
                     let (u, v) = match (x, y) {
@@ -466,7 +468,11 @@ impl TsvSource {
                     out.push(Sample::Gaze(GazeSample {
                         t_secs: t,
                         gaze_uv: [u, v],
-                        confidence: gconf.unwrap_or(1.0),
+                        confidence: gconf.unwrap_or(if x.is_some() && y.is_some() {
+                            1.0
+                        } else {
+                            0.0
+                        }),
                         eyes: match m.eye {
                             Recorded::Right => GazeEyes::Right,
                             Recorded::Left => GazeEyes::Left,
@@ -508,6 +514,10 @@ impl TsvSource {
 /// files (and physioevents) merged by time.
 pub struct BidsImporter {
     sources: Vec<TsvSource>,
+    /// The first eye sidecar's `SamplingFrequency`, Hz.
+    rate_hz: Option<f64>,
+    /// Its `Manufacturer` and `ManufacturersModelName`.
+    device: crate::Device,
     pending: Pending<2>,
     warnings: ImportWarnings,
     position: Position,
@@ -565,6 +575,8 @@ impl BidsImporter {
         };
         let mut warnings = ImportWarnings::default();
         let mut sources = Vec::new();
+        let mut rate_hz = None;
+        let mut device = crate::Device::default();
         for s in &stems {
             let json_path = dir.join(format!("{s}_physio.json"));
             let tsv_path = dir.join(format!("{s}_physio.tsv.gz"));
@@ -580,6 +592,24 @@ impl BidsImporter {
                 Recorded::Cyclopean => None,
             };
             let t_scale = map.t_scale;
+            if sources.is_empty() {
+                rate_hz = sidecar
+                    .get("SamplingFrequency")
+                    .and_then(Value::as_f64)
+                    .and_then(crate::plausible_rate);
+                let text = |k: &str| {
+                    sidecar
+                        .get(k)
+                        .and_then(Value::as_str)
+                        .map(str::trim)
+                        .filter(|v| !v.is_empty() && *v != "n/a")
+                        .map(|v| v.chars().take(64).collect::<String>())
+                };
+                device = crate::Device {
+                    manufacturer: text("Manufacturer"),
+                    model: text("ManufacturersModelName"),
+                };
+            }
             sources.push(TsvSource::open(&tsv_path, SourceKind::Physio(map))?);
             let ev_json = dir.join(format!("{s}_physioevents.json"));
             let ev_tsv = dir.join(format!("{s}_physioevents.tsv.gz"));
@@ -617,6 +647,8 @@ impl BidsImporter {
         tracing::info!(path = %path.display(), files = ?files, "BIDS eye-tracking recording");
         Ok(Self {
             sources,
+            rate_hz,
+            device,
             pending: Pending::new(),
             warnings,
             position: Position::File,
@@ -673,6 +705,12 @@ impl Importer for BidsImporter {
     }
     fn format(&self) -> &'static str {
         "bids-eyetrack"
+    }
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        self.rate_hz
+    }
+    fn device(&self) -> crate::Device {
+        self.device.clone()
     }
     fn position(&self) -> Position {
         self.position
@@ -789,8 +827,10 @@ struct TsvOut {
     path: PathBuf,
     w: GzEncoder<std::io::BufWriter<File>>,
     rows: u64,
-    first_t: f64,
     last_t: f64,
+    /// Steps of at most [`crate::summary::GAP_S`] between consecutive rows:
+    /// their count and sum, s (the pauses between trials left out).
+    steps: (u64, f64),
 }
 
 impl TsvOut {
@@ -800,8 +840,8 @@ impl TsvOut {
             path: path.to_owned(),
             w: GzEncoder::new(std::io::BufWriter::new(f), Compression::default()),
             rows: 0,
-            first_t: f64::NAN,
             last_t: f64::NAN,
+            steps: (0, 0.0),
         })
     }
 
@@ -813,20 +853,28 @@ impl TsvOut {
         }
         line.push('\n');
         self.w.write_all(line.as_bytes()).map_err(wio(&self.path))?;
-        if self.rows == 0 {
-            self.first_t = t;
+        let dt = t - self.last_t;
+        if dt > 0.0 && dt <= crate::summary::GAP_S {
+            self.steps.0 += 1;
+            self.steps.1 += dt;
         }
         self.last_t = t;
         self.rows += 1;
         Ok(())
     }
 
+    /// Finishes the file: its rows and their rate, Hz — the mean rate of
+    /// the steps between rows, the pauses longer than
+    /// [`crate::summary::GAP_S`] left out (rows over the whole span would
+    /// count the gaps between an EyeLink file's trials); 0 for fewer than
+    /// two rows.
     fn finish(self) -> Result<(u64, f64), ExportError> {
         let path = self.path.clone();
         let mut inner = self.w.finish().map_err(wio(&path))?;
         inner.flush().map_err(wio(&path))?;
-        let rate = if self.rows > 1 && self.last_t > self.first_t {
-            (self.rows - 1) as f64 / (self.last_t - self.first_t)
+        let (n, sum) = self.steps;
+        let rate = if n > 0 && sum > 0.0 {
+            n as f64 / sum
         } else {
             0.0
         };
@@ -856,19 +904,55 @@ pub struct RawExport {
 pub struct RecordingMeta {
     /// The importer's format (`eyelink-asc`, `neon`, …).
     pub format: String,
-    /// The source recording's path, for the sidecar's description.
+    /// The recording's own name ([`source_name`]: its file or directory
+    /// name), never a path of the exporting machine.
     pub source: String,
+    /// The tracker's maker and model, as the recording says.
+    pub device: crate::Device,
+    /// The sampling rate the recording states, Hz.
+    pub nominal_rate_hz: Option<f64>,
 }
 
-/// Writes a recording's samples as the raw per-eye physio files (and
-/// physioevents with the tracker's blinks) of `names` under `root`, and the
-/// dataset's top-level files if missing (`dataset_description.json`,
-/// `README`, `participants.tsv`/`.json`, the participant added).
+impl RecordingMeta {
+    /// What `importer` says of the recording `path` (ask once it has been
+    /// read: a text format states its rate on a line of its own).
+    pub fn of(importer: &dyn Importer, path: &Path) -> Self {
+        Self {
+            format: importer.format().to_owned(),
+            source: source_name(path),
+            device: importer.device(),
+            nominal_rate_hz: importer.nominal_rate_hz(),
+        }
+    }
+}
+
+/// A recording's name for a sidecar: the last component of its path (an
+/// XDF file's `?stream=` kept), so no sidecar holds a path of the machine
+/// that exported it.
+pub fn source_name(path: &Path) -> String {
+    let s = path.to_string_lossy();
+    let trimmed = s.trim_end_matches(['/', '\\']);
+    let name = trimmed
+        .rsplit(['/', '\\'])
+        .next()
+        .filter(|n| !n.is_empty() && *n != "." && *n != "..")
+        .unwrap_or("recording");
+    name.chars().take(255).collect()
+}
+
+/// Writes the samples of `importer` (the recording `recording`) as the raw
+/// per-eye physio files (and physioevents with the tracker's blinks) of
+/// `names` under `root`, and the dataset's top-level files if missing
+/// (`dataset_description.json`, `README`, `participants.tsv`/`.json`, the
+/// participant added). The sidecars' `SamplingFrequency` is the rate the
+/// recording states (else the rows' rate without the pauses),
+/// `Manufacturer`/`ManufacturersModelName` the recording's tracker, and
+/// `RecordingSource` the recording's name ([`RecordingMeta::of`]).
 pub fn export_raw(
-    samples: &mut dyn Iterator<Item = Result<Sample, ImportError>>,
+    importer: &mut dyn Importer,
     root: &Path,
     names: &BidsNames,
-    meta: &RecordingMeta,
+    recording: &Path,
 ) -> Result<RawExport, ExportError> {
     names.check()?;
     let dir = root.join(names.dir());
@@ -909,7 +993,7 @@ pub fn export_raw(
             None => Ok(()),
         }
     };
-    for item in samples {
+    for item in &mut *importer {
         let s = item?;
         match s {
             Sample::Pupil(p) => {
@@ -960,9 +1044,12 @@ pub fn export_raw(
                 }
             }
             Sample::Blink(b) => {
+                // A blink of both eyes goes with the first eye file there
+                // is (a left-eye-only recording has no right file).
                 let k = match b.eye {
-                    Some(0) | None => 0,
+                    Some(0) => 0,
                     Some(1) => 1,
+                    None => (0..3).find(|&k| outs[k].is_some()).unwrap_or(0),
                     Some(_) => continue,
                 };
                 if events[k].is_none() {
@@ -1005,13 +1092,15 @@ pub fn export_raw(
             )));
         }
     }
+    let meta = RecordingMeta::of(importer, recording);
     for (k, out) in outs.into_iter().enumerate() {
         let Some(out) = out else { continue };
         let path = out.path.clone();
-        let (n, rate) = out.finish()?;
+        let (n, rows_rate) = out.finish()?;
+        let rate = meta.nominal_rate_hz.unwrap_or(rows_rate);
         let (label, eye) = EYE_FILES[k];
         let (pupil_units, pupil_desc) = unit_name(units[k].unwrap_or(PupilUnit::Mm));
-        let sidecar = json!({
+        let mut sidecar = json!({
             "TaskName": names.task,
             "PhysioType": "eyetrack",
             "RecordedEye": eye,
@@ -1020,9 +1109,8 @@ pub fn export_raw(
             "Columns": COLUMNS,
             "SampleCoordinateSystem": "custom",
             "SampleCoordinateSystemDescription": "gazelight's gaze: normalised to the scene (or display) image the eye looked at, x 0 = left edge, 1 = right edge, y 0 = top edge, 1 = bottom edge",
-            "Manufacturer": meta.format,
             "SoftwareVersions": format!("gazelight {}", env!("CARGO_PKG_VERSION")),
-            "RecordingSource": meta.source,
+            "RecordingSource": format!("{} ({})", meta.source, meta.format),
             "timestamp": {"LongName": "Time stamp", "Description": "Time of the sample on the recording's own clock (the tracker's, as the recording holds it).", "Units": "s"},
             "x_coordinate": {"LongName": "Gaze position (x)", "Description": format!("Gaze x of the {eye} eye{}, normalised to the image width (0 left, 1 right).", if k == 2 { "s together" } else { "" }), "Units": "arbitrary"},
             "y_coordinate": {"LongName": "Gaze position (y)", "Description": "Gaze y, normalised to the image height (0 top, 1 bottom).", "Units": "arbitrary"},
@@ -1030,6 +1118,7 @@ pub fn export_raw(
             "pupil_confidence": {"Description": "The tracker's confidence in the pupil value, 0..1; n/a where the row holds no pupil sample (a lost pupil has pupil_size n/a and confidence 0).", "Units": "arbitrary"},
             "gaze_confidence": {"Description": "The tracker's confidence in the gaze, 0..1; n/a where the row holds no gaze sample.", "Units": "arbitrary"},
         });
+        add_device(&mut sidecar, &meta.device);
         let json_path = dir.join(format!("{prefix}_recording-{label}_physio.json"));
         write_json(&json_path, &sidecar)?;
         report.files.push((path, n, rate));
@@ -1058,6 +1147,19 @@ pub fn export_raw(
         ));
     }
     Ok(report)
+}
+
+/// The recording's `Manufacturer` and `ManufacturersModelName`, where it
+/// says them, into a sidecar.
+fn add_device(sidecar: &mut Value, device: &crate::Device) {
+    if let Some(obj) = sidecar.as_object_mut() {
+        if let Some(m) = &device.manufacturer {
+            obj.insert("Manufacturer".into(), json!(m));
+        }
+        if let Some(m) = &device.model {
+            obj.insert("ManufacturersModelName".into(), json!(m));
+        }
+    }
 }
 
 /// The dataset's top-level files, written when missing; the participant
@@ -1128,14 +1230,16 @@ pub struct DerivativeExport {
 /// `root/derivatives/gazelight/`: per eye the filtered, calibrated pupil
 /// (mm) and gaze after every pupil sample of that eye
 /// (`*_recording-eyeNfiltered_physio.tsv.gz`), the blinks and dropouts
-/// the filter chain found (`…_recording-eye1filtered_physioevents.tsv.gz`),
+/// the filter chain found in that eye beside it
+/// (`…_recording-eyeNfiltered_physioevents.tsv.gz`: a left-eye-only
+/// recording has eye2 files only),
 /// and, from a replay's `timeline.csv` when given, the per-frame pupil,
 /// light-driven pupil, residual and luminances
 /// (`…_recording-eyeNreplay_physio.tsv.gz`). BIDS 1.11 has no derivative
 /// rule for physio files (a `desc-` entity is refused by the validator),
 /// so the derivative kind is in the `recording-` label.
 pub fn export_derivative(
-    samples: &mut dyn Iterator<Item = Result<Sample, ImportError>>,
+    importer: &mut dyn Importer,
     chain: &mut FilterChain,
     root: &Path,
     names: &BidsNames,
@@ -1173,13 +1277,17 @@ pub fn export_derivative(
     let prefix = names.prefix();
     let mut report = DerivativeExport::default();
     let mut outs: [Option<TsvOut>; 2] = [None, None];
-    let mut events: Option<TsvOut> = None;
-    let closure_row = |events: &mut Option<TsvOut>,
+    // Each eye's closures beside that eye's filtered file.
+    let mut events: [Option<TsvOut>; 2] = [None, None];
+    let closure_row = |events: &mut [Option<TsvOut>; 2],
                        c: gazelight_eye::filter::blink::Closure|
      -> Result<(), ExportError> {
+        let k = usize::from(c.eye != 0);
+        let events = &mut events[k];
         if events.is_none() {
             let p = dir.join(format!(
-                "{prefix}_recording-eye1filtered_physioevents.tsv.gz"
+                "{prefix}_recording-{}filtered_physioevents.tsv.gz",
+                EYE_FILES[k].0
             ));
             *events = Some(TsvOut::create(&p)?);
         }
@@ -1201,7 +1309,7 @@ pub fn export_derivative(
         Ok(())
     };
     let mut last_t = f64::NAN;
-    for item in samples {
+    for item in &mut *importer {
         let s = item?;
         let up = chain.push(&s);
         last_t = s
@@ -1249,10 +1357,12 @@ pub fn export_derivative(
             closure_row(&mut events, c)?;
         }
     }
+    let nominal = importer.nominal_rate_hz();
     for (k, out) in outs.into_iter().enumerate() {
         let Some(out) = out else { continue };
         let path = out.path.clone();
-        let (_, rate) = out.finish()?;
+        let (_, rows_rate) = out.finish()?;
+        let rate = nominal.unwrap_or(rows_rate);
         let (label, eye) = EYE_FILES[k];
         write_json(
             &dir.join(format!("{prefix}_recording-{label}filtered_physio.json")),
@@ -1274,15 +1384,31 @@ pub fn export_derivative(
         )?;
         report.files.push(path);
     }
-    if let Some(ev) = events {
-        report.files.push(ev.path.clone());
+    for (k, ev) in events.into_iter().enumerate() {
+        let Some(ev) = ev else { continue };
+        let label = EYE_FILES[k].0;
+        let path = ev.path.clone();
         ev.finish()?;
+        if !report.files.iter().any(|f| {
+            f.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.ends_with(&format!("_recording-{label}filtered_physio.tsv.gz")))
+        }) {
+            // Closures of an eye without filtered samples (cannot happen
+            // with the chain's closures, which come from that eye's
+            // samples): no events file without its physio file.
+            std::fs::remove_file(&path).map_err(wio(&path))?;
+            continue;
+        }
+        report.files.push(path);
         write_json(
-            &dir.join(format!("{prefix}_recording-eye1filtered_physioevents.json")),
+            &dir.join(format!(
+                "{prefix}_recording-{label}filtered_physioevents.json"
+            )),
             &json!({
                 "Columns": ["onset", "duration", "trial_type", "eyes"],
                 "OnsetSource": "timestamp",
-                "Description": "Closures the filter chain found, both eyes in one file (the eyes column).",
+                "Description": "Closures the filter chain found in this eye (the eyes column names it).",
                 "onset": {"Units": "s"}, "duration": {"Units": "s"},
                 "trial_type": {"Levels": {"blink": "a blink (a short closure)", "dropout": "the pupil lost for longer than a blink"}},
                 "eyes": {"Levels": {"right": "right eye", "left": "left eye"}},

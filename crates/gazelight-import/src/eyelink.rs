@@ -49,6 +49,11 @@ pub struct AscImporter<R: BufRead = BufReader<File>> {
     unit: PupilUnit,
     /// Which eyes the sample columns hold: `[right, left]` recorded.
     eyes: [bool; 2],
+    /// The last `SAMPLES … RATE r` line's rate, Hz.
+    rate_hz: Option<f64>,
+    /// The tracker model from the header (`** … (EyeLink 1000 Plus)`, else
+    /// `** VERSION: …`).
+    model: Option<String>,
     pending: Pending<6>,
     warnings: ImportWarnings,
     done: bool,
@@ -72,6 +77,8 @@ impl<R: BufRead> AscImporter<R> {
             screen_px: DEFAULT_SCREEN_PX,
             unit: PupilUnit::ArbitraryArea,
             eyes: [true, true],
+            rate_hz: None,
+            model: None,
             pending: Pending::new(),
             warnings: ImportWarnings::default(),
             done: false,
@@ -108,7 +115,17 @@ impl<R: BufRead> AscImporter<R> {
                 if has_l || has_r {
                     self.eyes = [has_r, has_l];
                 }
+                if let Some(hz) = line
+                    .split_whitespace()
+                    .skip_while(|w| *w != "RATE")
+                    .nth(1)
+                    .and_then(|w| w.parse::<f64>().ok())
+                    .and_then(super::plausible_rate)
+                {
+                    self.rate_hz = Some(hz);
+                }
             }
+            Some(b'*') if line.starts_with("**") => self.header_line(line),
             Some(b'M') if line.contains("DISPLAY_COORDS") => {
                 let nums: Vec<f32> = line
                     .split_whitespace()
@@ -127,6 +144,29 @@ impl<R: BufRead> AscImporter<R> {
                 }
             }
             _ => {}
+        }
+    }
+
+    /// A `**` header line: the tracker model, from `** EYELINK II CL v5.50
+    /// … (EyeLink 1000 Plus)` (the parenthesis) or else `** VERSION:
+    /// EYELINK II 1`.
+    fn header_line(&mut self, line: &str) {
+        let body = line.trim_start_matches('*').trim();
+        let upper = body.to_ascii_uppercase();
+        if let Some(v) = upper
+            .starts_with("VERSION:")
+            .then(|| body["VERSION:".len()..].trim())
+            .filter(|v| !v.is_empty())
+        {
+            if self.model.is_none() {
+                self.model = Some(v.chars().take(64).collect());
+            }
+        } else if upper.starts_with("EYELINK")
+            && let (Some(a), Some(b)) = (body.rfind('('), body.rfind(')'))
+            && a < b
+            && body[a + 1..b].to_ascii_uppercase().starts_with("EYELINK")
+        {
+            self.model = Some(body[a + 1..b].chars().take(64).collect());
         }
     }
 
@@ -232,9 +272,12 @@ impl<R: BufRead> AscImporter<R> {
         }
         let right_ok = self.eyes[0] && cols[0][0].is_finite() && cols[0][1].is_finite();
         let left_ok = self.eyes[1] && cols[1][0].is_finite() && cols[1][1].is_finite();
-        let eyes = match (right_ok, left_ok) {
-            (true, false) => GazeEyes::Right,
-            (false, true) => GazeEyes::Left,
+        let eyes = match (right_ok, left_ok, self.eyes) {
+            (true, false, _) => GazeEyes::Right,
+            (false, true, _) => GazeEyes::Left,
+            // A monocular recording's lost gaze is still that eye's.
+            (false, false, [true, false]) => GazeEyes::Right,
+            (false, false, [false, true]) => GazeEyes::Left,
             _ => GazeEyes::Binocular,
         };
         self.pending.push(Sample::Gaze(GazeSample {
@@ -311,6 +354,15 @@ impl<R: BufRead> Importer for AscImporter<R> {
     }
     fn format(&self) -> &'static str {
         "eyelink-asc"
+    }
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        self.rate_hz
+    }
+    fn device(&self) -> super::Device {
+        super::Device {
+            manufacturer: Some("SR Research".into()),
+            model: self.model.clone(),
+        }
     }
     fn position(&self) -> Position {
         Position::Line(self.line_no)

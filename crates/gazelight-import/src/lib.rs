@@ -247,6 +247,33 @@ pub trait Importer: Iterator<Item = Result<Sample, ImportError>> {
     fn eye_gaze(&self) -> Option<&EyeGazeReport> {
         None
     }
+    /// The sampling rate the recording itself states, Hz (EyeLink's
+    /// `SAMPLES … RATE`, Neon's `gaze_frequency`, an XDF stream's
+    /// `nominal_srate`, a BIDS sidecar's `SamplingFrequency`); `None` where
+    /// it states none. A text importer knows it once the line is read
+    /// (complete once the iterator has ended).
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        None
+    }
+    /// The tracker that made the recording, as far as the recording (or
+    /// its format: an EyeLink ASC is SR Research's) says.
+    fn device(&self) -> Device {
+        Device::default()
+    }
+}
+
+/// The maker and model of the tracker that made a recording.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Device {
+    /// `SR Research`, `Pupil Labs`, …
+    pub manufacturer: Option<String>,
+    /// `EyeLink 1000 Plus`, `Neon`, `Pupil Core`, …
+    pub model: Option<String>,
+}
+
+/// A stated sampling rate, if it is one (finite, > 0, ≤ 1 MHz).
+pub(crate) fn plausible_rate(hz: f64) -> Option<f64> {
+    (hz.is_finite() && hz > 0.0 && hz <= 1e6).then_some(hz)
 }
 
 /// Opens a recording, picking the importer from the path: a directory with

@@ -599,6 +599,8 @@ pub struct NeonImporter {
     peek_gaze: Option<GazeSample>,
     peek_blink: Option<BlinkEvent>,
     duration_secs: Option<f64>,
+    /// `info.json`'s `gaze_frequency`, Hz.
+    gaze_frequency_hz: Option<f64>,
     pending: Pending<4>,
     warnings: ImportWarnings,
     failed: bool,
@@ -696,6 +698,10 @@ impl NeonImporter {
             peek_gaze: None,
             peek_blink: None,
             duration_secs,
+            gaze_frequency_hz: info
+                .get("gaze_frequency")
+                .and_then(serde_json::Value::as_f64)
+                .and_then(super::plausible_rate),
             pending: Pending::new(),
             warnings,
             failed: false,
@@ -954,6 +960,15 @@ impl Importer for NeonImporter {
     }
     fn format(&self) -> &'static str {
         "neon"
+    }
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        self.gaze_frequency_hz
+    }
+    fn device(&self) -> super::Device {
+        super::Device {
+            manufacturer: Some("Pupil Labs".into()),
+            model: Some("Neon".into()),
+        }
     }
     fn eye_gaze(&self) -> Option<&EyeGazeReport> {
         Some(&self.eye_gaze)

@@ -256,6 +256,12 @@ impl Importer for PupilCoreImporter {
         self.streams.iter().map(|s| s.path.clone()).collect()
     }
 
+    fn device(&self) -> super::Device {
+        super::Device {
+            manufacturer: Some("Pupil Labs".into()),
+            model: Some("Pupil Core".into()),
+        }
+    }
     fn format(&self) -> &'static str {
         "pupil-core"
     }

@@ -344,6 +344,12 @@ impl<I: Importer> Importer for TimeGuard<I> {
     fn eye_gaze(&self) -> Option<&super::EyeGazeReport> {
         self.inner.eye_gaze()
     }
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        self.inner.nominal_rate_hz()
+    }
+    fn device(&self) -> super::Device {
+        self.inner.device()
+    }
 }
 
 #[cfg(test)]

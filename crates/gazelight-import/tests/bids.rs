@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use gazelight_eye::filter::FilterChain;
 use gazelight_eye::sample::Sample;
-use gazelight_import::bids::{BidsNames, RecordingMeta, export_derivative, export_raw};
+use gazelight_import::bids::{BidsNames, export_derivative, export_raw};
 
 fn data(rel: &str) -> PathBuf {
     gazelight_test_support::data_path("eye").join(rel)
@@ -74,15 +74,11 @@ fn round_trip(recording: &Path, subject: &str, root: &Path) -> usize {
         run: None,
     };
     let mut imp = gazelight_import::open(recording).unwrap();
-    let meta = RecordingMeta {
-        format: imp.format().into(),
-        source: recording.display().to_string(),
-    };
-    let report = export_raw(&mut imp, root, &names, &meta).unwrap();
+    let report = export_raw(imp.as_mut(), root, &names, recording).unwrap();
     assert_eq!(report.unit_mismatch, 0);
     let mut chain = FilterChain::with_defaults();
     let mut again = gazelight_import::open(recording).unwrap();
-    export_derivative(&mut again, &mut chain, root, &names, None).unwrap();
+    export_derivative(again.as_mut(), &mut chain, root, &names, None).unwrap();
 
     let first = root
         .join(names.dir())
@@ -210,15 +206,11 @@ fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
     // source; the timeline's frames are typed in above.
     let csv = data("piprkit-plr/pupil_trace.csv");
     let mut imp = gazelight_import::open(&csv).unwrap();
-    let meta = RecordingMeta {
-        format: "csv".into(),
-        source: csv.display().to_string(),
-    };
-    export_raw(&mut imp, &root.join("ds"), &names, &meta).unwrap();
+    export_raw(imp.as_mut(), &root.join("ds"), &names, &csv).unwrap();
     let mut again = gazelight_import::open(&csv).unwrap();
     let mut chain = FilterChain::with_defaults();
     let report = export_derivative(
-        &mut again,
+        again.as_mut(),
         &mut chain,
         &root.join("ds"),
         &names,
@@ -249,4 +241,214 @@ fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
     gazelight_test_support::bids::validate(&root.join("ds"));
     gazelight_test_support::bids::validate(&root.join("ds/derivatives/gazelight"));
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A left-eye-only copy of the shipped binocular EyeLink file, as an
+/// EyeLink writes a monocular recording: `START`/`SAMPLES`/`EVENTS` lines
+/// name `LEFT` only, sample lines are `time x y pupil flags`, the right
+/// eye's event lines are gone. Written by the test from the real file.
+fn monocular_eyelink(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(data("eyelink-psa/both_eyes.asc")).unwrap();
+    let mut out = String::with_capacity(text.len());
+    for line in text.lines() {
+        let first = line.split_whitespace().next().unwrap_or("");
+        let f: Vec<&str> = line.split_whitespace().collect();
+        if first.starts_with(|c: char| c.is_ascii_digit()) && f.len() >= 8 {
+            // time xL yL pL xR yR pR flags…
+            out.push_str(&format!("{}\t{}\t{}\t{}\t...\n", f[0], f[1], f[2], f[3]));
+        } else if [
+            "START",
+            "END",
+            "SAMPLES",
+            "EVENTS",
+            "PRESCALER",
+            "VPRESCALER",
+        ]
+        .contains(&first)
+        {
+            out.push_str(&line.replace("\tRIGHT", "").replace(" RIGHT", ""));
+            out.push('\n');
+        } else if ["SBLINK", "EBLINK", "SFIX", "EFIX", "SSACC", "ESACC"].contains(&first)
+            && f.get(1) == Some(&"R")
+        {
+            continue;
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    let p = dir.join("left_eye.asc");
+    std::fs::create_dir_all(dir).unwrap();
+    std::fs::write(&p, out).unwrap();
+    p
+}
+
+/// The sidecars (`*.json`) under `dir`, recursively: (name, JSON).
+fn sidecars(dir: &Path) -> Vec<(String, serde_json::Value)> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(sidecars(&p));
+        } else if p.extension().is_some_and(|x| x == "json") {
+            let text = std::fs::read_to_string(&p).unwrap();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            out.push((name, serde_json::from_str(&text).unwrap()));
+        }
+    }
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
+}
+
+/// Issue 45 item 9: every shipped recording, and a left-eye-only EyeLink
+/// file, exported raw and derivative, passes the official validator with
+/// 0 errors; the eye sidecars carry the rate the recording states (the
+/// EyeLink file's own `SAMPLES … RATE 500.00` line, Neon's `info.json`
+/// `gaze_frequency`; read here from the files), the tracker's maker and
+/// model from the recording (the ASC header's `(EyeLink 1000 Plus)`), and
+/// no path of the exporting machine; one eye stays one eye.
+#[test]
+fn every_shipped_recording_and_one_eye_exports_a_valid_dataset() {
+    let root = temp("all");
+    let mono = monocular_eyelink(&temp("mono-src"));
+    let asc = std::fs::read_to_string(data("eyelink-psa/both_eyes.asc")).unwrap();
+    let stated_rate: f64 = asc
+        .lines()
+        .find(|l| l.starts_with("SAMPLES"))
+        .and_then(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let k = f.iter().position(|w| *w == "RATE")?;
+            f.get(k + 1)?.parse().ok()
+        })
+        .expect("the ASC's SAMPLES … RATE line");
+    let model = asc
+        .lines()
+        .find(|l| l.starts_with("** EYELINK"))
+        .and_then(|l| Some(l[l.rfind('(')? + 1..l.rfind(')')?].to_owned()))
+        .expect("the ASC header's model");
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("neon-demo/info.json")).unwrap())
+            .unwrap();
+    let neon_rate = info["gaze_frequency"].as_f64().unwrap();
+    let cases: [(&str, PathBuf, f64, Option<(&str, &str)>, &[&str]); 4] = [
+        (
+            "eyelink",
+            data("eyelink-psa/both_eyes.asc"),
+            stated_rate,
+            Some(("SR Research", model.as_str())),
+            &["eye1", "eye2", "eye3"],
+        ),
+        (
+            "eyelinkleft",
+            mono.clone(),
+            stated_rate,
+            Some(("SR Research", model.as_str())),
+            &["eye2"],
+        ),
+        (
+            "neon",
+            data("neon-demo"),
+            neon_rate,
+            Some(("Pupil Labs", "Neon")),
+            &["eye1", "eye2", "eye3"],
+        ),
+        // No stated rate: the rows' rate without pauses (≈ 197 Hz).
+        (
+            "piprkit",
+            data("piprkit-plr/pupil_trace.csv"),
+            f64::NAN,
+            None,
+            &["eye1", "eye2"],
+        ),
+    ];
+    for (subject, recording, rate, device, eyes) in &cases {
+        let names = BidsNames {
+            subject: (*subject).into(),
+            session: None,
+            task: "replay".into(),
+            run: None,
+        };
+        let mut imp = gazelight_import::open(recording).unwrap();
+        let report = export_raw(imp.as_mut(), &root, &names, recording).unwrap();
+        let mut chain = FilterChain::with_defaults();
+        let mut again = gazelight_import::open(recording).unwrap();
+        let der = export_derivative(again.as_mut(), &mut chain, &root, &names, None).unwrap();
+        let raw_dir = root.join(names.dir());
+        let der_dir = root.join("derivatives/gazelight").join(names.dir());
+        let found = |dir: &Path, tail: &str| -> Vec<String> {
+            let mut v: Vec<String> = std::fs::read_dir(dir)
+                .unwrap()
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.ends_with(tail))
+                .map(|n| n[n.find("_recording-").unwrap() + 11..n.len() - tail.len()].to_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(found(&raw_dir, "_physio.tsv.gz"), *eyes, "{subject} raw");
+        let filtered: Vec<String> = eyes
+            .iter()
+            .filter(|e| **e != "eye3")
+            .map(|e| format!("{e}filtered"))
+            .collect();
+        assert_eq!(found(&der_dir, "_physio.tsv.gz"), filtered, "{subject}");
+        // Each events file beside its own eye's data (the crash: events
+        // eye1filtered beside data eye2filtered).
+        for ev in found(&der_dir, "_physioevents.tsv.gz") {
+            assert!(
+                filtered.contains(&ev),
+                "{subject}: events {ev} without its data"
+            );
+        }
+        for (name, json) in sidecars(&raw_dir)
+            .into_iter()
+            .filter(|(n, _)| n.ends_with("_physio.json"))
+        {
+            let f = json["SamplingFrequency"].as_f64().unwrap();
+            if rate.is_nan() {
+                assert!((150.0..250.0).contains(&f), "{name}: {f}");
+            } else {
+                assert_eq!(f, *rate, "{name}");
+            }
+            match device {
+                Some((maker, model)) => {
+                    assert_eq!(json["Manufacturer"], *maker, "{name}");
+                    assert_eq!(json["ManufacturersModelName"], *model, "{name}");
+                }
+                None => assert!(json.get("Manufacturer").is_none(), "{name}"),
+            }
+            let source = json["RecordingSource"].as_str().unwrap();
+            let file = recording.file_name().unwrap().to_string_lossy();
+            assert!(source.starts_with(file.as_ref()), "{name}: {source}");
+            eprintln!("{name}: {f} Hz, {}, {source}", json["Manufacturer"]);
+        }
+        eprintln!(
+            "{subject}: raw {:?}, derivative {} files",
+            report
+                .files
+                .iter()
+                .map(|(p, n, r)| (p.file_name().unwrap().to_owned(), *n, *r))
+                .collect::<Vec<_>>(),
+            der.files.len()
+        );
+    }
+    // No sidecar holds a path of this machine: not the data's, not the
+    // dataset's, not the temporary folder's.
+    let data_dir = gazelight_test_support::data_path("eye");
+    for (name, json) in sidecars(&root) {
+        let text = json.to_string();
+        for p in [&data_dir, &root, &std::env::temp_dir()] {
+            let p = p.display().to_string();
+            assert!(!text.contains(&p), "{name} holds {p}: {text}");
+        }
+        assert!(
+            !text.contains("/tmp/") && !text.contains("/work/"),
+            "{name}: {text}"
+        );
+    }
+    gazelight_test_support::bids::validate(&root);
+    gazelight_test_support::bids::validate(&root.join("derivatives/gazelight"));
+    let _ = std::fs::remove_dir_all(&root);
+    let _ = std::fs::remove_dir_all(mono.parent().unwrap());
 }

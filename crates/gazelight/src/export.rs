@@ -13,7 +13,7 @@ use anyhow::Context;
 use clap::Args;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
-use gazelight_tracker::import::bids::{BidsNames, RecordingMeta};
+use gazelight_tracker::import::bids::BidsNames;
 
 /// Arguments of `gazelight export`.
 #[derive(Args, Debug)]
@@ -75,11 +75,9 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         );
     }
     let mut importer = import::open(&args.recording)?;
-    let meta = RecordingMeta {
-        format: importer.format().to_owned(),
-        source: args.recording.display().to_string(),
-    };
-    let raw = import::bids::export_raw(&mut importer, &args.bids, &names, &meta)
+    // The sidecars name the recording by its own name (no path of this
+    // machine), its tracker and its stated rate.
+    let raw = import::bids::export_raw(importer.as_mut(), &args.bids, &names, &args.recording)
         .with_context(|| format!("while writing {}", args.bids.display()))?;
     for (path, rows, rate) in &raw.files {
         println!("{}: {rows} rows, {rate:.2} Hz", path.display());
@@ -101,7 +99,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     }
     let mut again = import::open(&args.recording)?;
     let der = import::bids::export_derivative(
-        &mut again,
+        again.as_mut(),
         &mut chain,
         &args.bids,
         &names,

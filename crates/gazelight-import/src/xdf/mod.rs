@@ -576,6 +576,20 @@ impl Importer for XdfImporter {
     fn format(&self) -> &'static str {
         "xdf"
     }
+    fn nominal_rate_hz(&self) -> Option<f64> {
+        crate::plausible_rate(self.stream().nominal_srate_hz)
+    }
+    fn device(&self) -> crate::Device {
+        let m = self.stream().manufacturer.trim();
+        crate::Device {
+            manufacturer: (!m.is_empty()).then(|| m.chars().take(64).collect()),
+            model: match self.layout.kind {
+                "neon" => Some("Neon".into()),
+                "pupil-capture-relay" => Some("Pupil Core".into()),
+                _ => None,
+            },
+        }
+    }
     fn position(&self) -> Position {
         self.samples.position()
     }
