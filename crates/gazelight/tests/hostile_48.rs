@@ -339,3 +339,63 @@ fn glare_refuses_the_luminance_factors_render_refuses() {
     assert!(stderr(&o).contains("overflow"), "{}", stderr(&o));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A manifest of `n` rows of the same recording, ids `r0`…; `dup` repeats
+/// the id of row 1 as the last row.
+fn big_manifest(path: &Path, n: usize, dup: bool) {
+    let rec = shared_str("eye/piprkit-plr/pupil_trace.csv");
+    let mut text = String::from("id,recording\n");
+    for k in 0..n {
+        text.push_str(&format!("r{k},{rec}\n"));
+    }
+    if dup {
+        text.push_str(&format!("r1,{rec}\n"));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+#[test]
+fn a_100k_row_manifest_is_checked_in_linear_time_and_collect_stays_one_short_line() {
+    let dir = tmp("big-manifest");
+    let manifest = dir.join("m.csv");
+    big_manifest(&manifest, 100_000, true);
+    let t = std::time::Instant::now();
+    let o = gazelight_in(
+        &[
+            "batch",
+            s(&manifest),
+            "--out",
+            s(&dir.join("o")),
+            "--collect",
+        ],
+        &[],
+    );
+    let secs = t.elapsed().as_secs_f64();
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("line 100002") && e.contains("\"r1\"") && e.contains("line 3"),
+        "{e}"
+    );
+    assert!(secs < 20.0, "the duplicate check took {secs:.1} s");
+    // Without the duplicate: --collect of 100 000 rows none of which ran.
+    big_manifest(&manifest, 100_000, false);
+    let o = gazelight_in(
+        &[
+            "batch",
+            s(&manifest),
+            "--out",
+            s(&dir.join("o")),
+            "--collect",
+        ],
+        &[],
+    );
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("100000 pending") && e.contains("and 99990 more"),
+        "{e}"
+    );
+    assert!(e.len() < 1000, "{} bytes of error", e.len());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

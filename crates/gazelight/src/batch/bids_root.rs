@@ -12,7 +12,7 @@
 //! manifest's rows in that file are not used).
 //! `derivatives/` and other top-level folders are not searched.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
@@ -157,6 +157,8 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
     }
     let flags = manifest::replay_flags();
     let mut rows: Vec<Row> = Vec::with_capacity(groups.len());
+    // Each id's index in `rows`.
+    let mut seen: HashMap<String, usize> = HashMap::with_capacity(groups.len());
     for (index, ((id, kind), files)) in groups.into_iter().enumerate() {
         let Some(first) = files.first() else { continue };
         let tsv = first.with_file_name(
@@ -173,13 +175,16 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
                 tsv.display()
             );
         }
-        if let Some(other) = rows.iter().find(|r| r.id == id) {
+        // One lookup per recording (linear in a large dataset).
+        if let Some(&other) = seen.get(&id) {
+            let other: &Row = &rows[other];
             bail!(
                 "{}: recording label kind `{kind}` beside {}'s: two recordings with the id {id}",
                 first.display(),
                 other.recording
             );
         }
+        seen.insert(id.clone(), rows.len());
         let id =
             manifest::check_id(&id).map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
         let mut cells: Vec<Cell> = default_cells

@@ -663,6 +663,24 @@ fn write_summary(
     Ok(path)
 }
 
+/// Most row ids an error message lists.
+const MAX_IDS_SHOWN: usize = 10;
+
+/// The first [`MAX_IDS_SHOWN`] of `ids`, then how many more: a message of
+/// a 100 000-row batch stays one readable line.
+fn some_ids(ids: &[&str]) -> String {
+    let mut s = ids
+        .iter()
+        .take(MAX_IDS_SHOWN)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if ids.len() > MAX_IDS_SHOWN {
+        s.push_str(&format!(", … and {} more", ids.len() - MAX_IDS_SHOWN));
+    }
+    s
+}
+
 /// `--collect`: the summary from the records; an error when a row failed
 /// or has not run.
 fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyhow::Result<()> {
@@ -689,9 +707,12 @@ fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyh
     );
     if !failed.is_empty() || !pending.is_empty() {
         bail!(
-            "not every row finished: failed [{}], pending [{}]",
-            failed.join(", "),
-            pending.join(", ")
+            "not every row finished: {} failed [{}], {} pending [{}] (every row's status is in {})",
+            failed.len(),
+            some_ids(&failed),
+            pending.len(),
+            some_ids(&pending),
+            path.display()
         );
     }
     Ok(())
