@@ -780,9 +780,20 @@ async fn clock_faults() {
 
     // The status (what the status page and its JSON show) reports the jump
     // and the dropped stamps; the source stays live. It is published every
-    // 250 ms.
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let status = gazelight_tracker::live::lock_status(&live.status).clone();
+    // 250 ms: wait (bounded) for the publication that counts the 1e308
+    // datum (the last rejected stamp) rather than sleeping 300 ms.
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        let status = gazelight_tracker::live::lock_status(&live.status).clone();
+        if status.clock.as_ref().is_some_and(|c| c.rejected >= 3) {
+            break status;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the status never counted the rejected stamps: {status:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
     eprintln!("status: {status:?}");
     assert_eq!(status.health, gazelight_tracker::live::SourceHealth::Live);
     let clock = status
