@@ -103,7 +103,10 @@ impl PupilModel {
         };
         let d = unified_mm(l, self.field_area_deg2, self.age_years, self.binocular);
         // Ages far outside the fitted range could push it out of anatomy.
-        d.clamp(1.0, 9.0) as f32
+        d.clamp(
+            crate::pupil_response::PUPIL_MIN_MM,
+            crate::pupil_response::PUPIL_MAX_MM,
+        ) as f32
     }
 
     /// Checks the parameters; names the offending field.

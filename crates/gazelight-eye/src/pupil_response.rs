@@ -74,10 +74,12 @@ use crate::profile::EyeCalibration;
 use crate::pupil_model::{MONOCULAR_FACTOR, REFERENCE_AGE_YEARS, unified_from_flux_mm};
 
 /// Smallest diameter the model outputs, mm (the anatomical floor gazelight
-/// uses; W&Y's formula alone never goes below ≈ 2 mm).
-pub const PUPIL_MIN_MM: f64 = 1.5;
-/// Largest diameter the model outputs, mm.
-pub const PUPIL_MAX_MM: f64 = 9.0;
+/// uses, the lower end of `filter::physio::PUPIL_MM_RANGE`; W&Y's formula
+/// alone never goes below ≈ 2 mm).
+pub const PUPIL_MIN_MM: f64 = crate::filter::physio::PUPIL_MM_RANGE.0 as f64;
+/// Largest diameter the model outputs, mm (the upper end of
+/// `filter::physio::PUPIL_MM_RANGE`).
+pub const PUPIL_MAX_MM: f64 = crate::filter::physio::PUPIL_MM_RANGE.1 as f64;
 /// +∞ luminance counts as this, cd/m² (about the sun's disc, 1.6·10⁹).
 pub const MAX_LUMINANCE_CD_M2: f64 = 1.6e9;
 /// +∞ field area counts as this, deg² (the whole sphere, 4π sr).
@@ -1059,6 +1061,7 @@ mod tests {
     #[test]
     fn a_calibration_maps_black_and_white_onto_the_profile() {
         let cal = EyeCalibration {
+            kind: crate::profile::MapKind::Aperture,
             raw_unit: crate::PupilUnit::Px,
             raw_black: 40.0,
             raw_white: 15.0,

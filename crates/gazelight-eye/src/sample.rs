@@ -52,6 +52,12 @@ pub struct PupilSample {
     pub method: DetectorMethod,
 }
 
+/// Pupil Labs Neon's scene camera, pixels (1600 × 1200; Neon's
+/// specifications): Neon reports gaze in its pixels, and every Neon path
+/// (live `neon://`, recordings, LSL, XDF) divides by it. Defined here only
+/// (`tests/tests/rules_once.rs`).
+pub const NEON_SCENE_CAMERA_PX: [f32; 2] = [1600.0, 1200.0];
+
 /// Which eyes a gaze sample was computed from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

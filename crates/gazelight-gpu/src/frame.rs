@@ -72,8 +72,10 @@ use crate::psf::GpuPsfBuilder;
 use crate::temporal::{TemporalParams, TemporalPass};
 use crate::tone::{ToneParams, TonePass};
 
-/// Entries of the sRGB table (`SRGB_LUT_SIZE` in frame_state.wgsl and the CPU).
-pub(crate) const SRGB_LUT_SIZE: usize = 16384;
+/// Entries of the sRGB table: the CPU's (`gazelight_vision::SRGB_LUT_SIZE`),
+/// also `SRGB_LUT_SIZE` in frame_state.wgsl (checked equal by
+/// `tests/tests/rules_once.rs`).
+pub(crate) use gazelight_vision::SRGB_LUT_SIZE;
 /// Threads per side of the 8×8 per-pixel workgroups.
 pub(crate) const TILE: u32 = 8;
 

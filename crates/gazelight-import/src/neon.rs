@@ -48,8 +48,9 @@ use gazelight_eye::sample::{
 };
 pub use scene_camera::SceneCamera;
 
-/// Neon scene camera resolution (px), for gaze normalisation.
-pub const SCENE_CAMERA_PX: [f32; 2] = [1600.0, 1200.0];
+/// Neon scene camera resolution (px), for gaze normalisation
+/// (`gazelight_eye`'s one definition).
+pub const SCENE_CAMERA_PX: [f32; 2] = gazelight_eye::sample::NEON_SCENE_CAMERA_PX;
 /// Eyelid aperture at or below which the eye counts as closed (confidence 0).
 /// Open eyes in the demo recording measure 5–9 mm, closed ones 0–0.5 mm.
 pub const APERTURE_CLOSED_MM: f32 = 1.0;

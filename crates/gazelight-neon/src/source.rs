@@ -55,8 +55,9 @@ use gazelight_eye::source::{SampleSource, SourceError};
 
 /// The Real-time API's HTTP port.
 pub const DEFAULT_HTTP_PORT: u16 = 8080;
-/// Neon's scene camera, px (gaze is reported in its pixels).
-pub const SCENE_CAMERA_PX: [f32; 2] = [1600.0, 1200.0];
+/// Neon's scene camera, px (gaze is reported in its pixels;
+/// `gazelight_eye`'s one definition).
+pub const SCENE_CAMERA_PX: [f32; 2] = gazelight_eye::sample::NEON_SCENE_CAMERA_PX;
 /// Eyelid aperture at or below which an eye counts as closed (confidence
 /// 0): open eyes in the Neon demo recording measure 5–9 mm, closed 0–0.5.
 pub const APERTURE_CLOSED_MM: f32 = 1.0;

@@ -19,8 +19,11 @@ use crate::simd::{LANES, Simd};
 use crate::tone::{self, Op as ToneOp, ToneFrame};
 
 /// Size of the sRGB encoding table over linear [0, 1] (a power of two:
-/// [`lut_index`] masks with `N − 1`).
-pub(crate) const SRGB_LUT_SIZE: usize = 16384;
+/// [`lut_index`] masks with `N − 1`). Defined here only: the GPU's table
+/// (`gazelight-gpu`'s `frame.rs`) takes it from here, and the WGSL twin in
+/// `shaders/frame_state.wgsl` is checked against it
+/// (`tests/tests/rules_once.rs`).
+pub const SRGB_LUT_SIZE: usize = 16384;
 const _: () = assert!(SRGB_LUT_SIZE.is_power_of_two());
 
 /// Bits of the sRGB table's output codes.

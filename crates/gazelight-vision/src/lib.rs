@@ -66,5 +66,6 @@ pub mod temporal;
 pub mod tone;
 pub mod tvi;
 
+pub use encode::SRGB_LUT_SIZE;
 pub use error::VisionError;
 pub use image::RgbImage;

@@ -37,9 +37,12 @@ const TIME_CORRECTION_PERIOD_SECS: f64 = 5.0;
 const PULL_TIMEOUT_SECS: f64 = 0.05;
 /// How long one resolve waits before the stop flag is checked, seconds.
 const RESOLVE_STEP_SECS: f64 = 0.5;
-/// Neon's scene camera, pixels (1600 × 1200; Pupil Labs Neon
-/// specifications): its gaze x/y are in these pixels.
-const NEON_SCENE_PX: [f64; 2] = [1600.0, 1200.0];
+/// Neon's scene camera, pixels (`gazelight_eye`'s one definition): its gaze
+/// x/y are in these pixels.
+const NEON_SCENE_PX: [f64; 2] = [
+    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[0] as f64,
+    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[1] as f64,
+];
 
 /// Why an `lsl://` URI names no stream; the message quotes the URI.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

@@ -119,7 +119,7 @@ pub struct GazeConfig {
 impl Default for GazeConfig {
     fn default() -> Self {
         Self {
-            min_confidence: 0.6,
+            min_confidence: super::confidence::DEFAULT_MIN_CONFIDENCE,
             margin_uv: 0.25,
             max_speed_uv_per_s: 10.0,
             jump_tolerance_uv: 0.02,

@@ -29,9 +29,12 @@ use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
 };
 
-/// Neon's scene camera, pixels (1600 × 1200; Pupil Labs Neon
-/// specifications): Neon's LSL gaze x/y are in these pixels.
-pub const NEON_SCENE_PX: [f64; 2] = [1600.0, 1200.0];
+/// Neon's scene camera, pixels (`gazelight_eye`'s one definition): Neon's
+/// LSL gaze x/y are in these pixels.
+pub const NEON_SCENE_PX: [f64; 2] = [
+    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[0] as f64,
+    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[1] as f64,
+];
 
 /// The stream types picked when no `?stream=` is given, in this order of
 /// preference (the first stream of either type wins).
