@@ -50,7 +50,7 @@ use crate::{RgbImage, VisionError};
 mod exr_header;
 pub mod projection;
 pub use exr_header::{MAX_PIXELS, MAX_SIDE_PX};
-pub use projection::{ProjectionKind, RadianceView, SceneProjection};
+pub use projection::{ProjectionKind, RadianceView, RadianceViewError, SceneProjection};
 
 /// Radiance's luminous efficacy of its white, lm/W: luminance =
 /// 179 × (0.265 R + 0.670 G + 0.065 B) / EXPOSURE (Radiance reference

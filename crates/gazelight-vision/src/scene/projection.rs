@@ -435,6 +435,43 @@ fn triangle_sr(a: DVec3, b: DVec3, c: DVec3) -> f64 {
     2.0 * num.atan2(den)
 }
 
+/// Why a Radiance `VIEW=` line, or the view it gives, cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum RadianceViewError {
+    /// An option at the end of the line without its value(s).
+    #[error("VIEW= option {option} lacks its value")]
+    MissingValue {
+        /// The option, e.g. `-vp`.
+        option: String,
+    },
+    /// A value that is not a finite number.
+    #[error("VIEW= value {value:?} is not a finite number")]
+    NotANumber {
+        /// The token as written.
+        value: String,
+    },
+    /// A view type gazelight cannot map (cylindrical `-vtc`, parallel
+    /// `-vtl`, or an unknown letter).
+    #[error(
+        "Radiance view type -vt{0} is not supported (perspective -vtv and the fisheyes -vta, \
+         -vth, -vts are)"
+    )]
+    UnsupportedType(char),
+    /// `-vd` is the zero vector.
+    #[error("zero view direction -vd")]
+    ZeroDirection,
+    /// `-vu` is the zero vector.
+    #[error("zero view up -vu")]
+    ZeroUp,
+    /// `-vu` is parallel to `-vd`: no image plane orientation.
+    #[error("view up -vu parallel to the view direction -vd")]
+    UpAlongDirection,
+    /// The projection the view gives is out of range (its field of view,
+    /// shift or size).
+    #[error(transparent)]
+    Projection(#[from] VisionError),
+}
+
 /// A Radiance view (`VIEW=` options), in Radiance's world (usually +z up).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RadianceView {
@@ -477,23 +514,28 @@ impl RadianceView {
     /// Applies the options of one `VIEW=` line (later lines refine
     /// earlier ones, as in Radiance). Unknown options (`-vo`, `-va`, `-vf`)
     /// are skipped; a malformed number is an error.
-    pub fn apply(&mut self, options: &str) -> Result<(), String> {
+    pub fn apply(&mut self, options: &str) -> Result<(), RadianceViewError> {
         let tokens: Vec<&str> = options.split_whitespace().collect();
         let mut i = 0;
-        let num = |i: usize| -> Result<f64, String> {
+        // Value `i` of option `option`.
+        let num = |option: &str, i: usize| -> Result<f64, RadianceViewError> {
             let t = tokens
                 .get(i)
-                .ok_or_else(|| format!("VIEW= option {} lacks its value", tokens[i - 1]))?;
+                .ok_or_else(|| RadianceViewError::MissingValue {
+                    option: option.to_owned(),
+                })?;
             t.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("VIEW= value {t:?} is not a finite number"))
+                .ok_or_else(|| RadianceViewError::NotANumber {
+                    value: (*t).to_owned(),
+                })
         };
         while i < tokens.len() {
             let t = tokens[i];
             match t {
                 "-vp" | "-vd" | "-vu" => {
-                    let v = [num(i + 1)?, num(i + 2)?, num(i + 3)?];
+                    let v = [num(t, i + 1)?, num(t, i + 2)?, num(t, i + 3)?];
                     match t {
                         "-vp" => self.vp = v,
                         "-vd" => self.vd = v,
@@ -502,7 +544,7 @@ impl RadianceView {
                     i += 4;
                 }
                 "-vh" | "-vv" | "-vs" | "-vl" | "-vo" | "-va" => {
-                    let v = num(i + 1)?;
+                    let v = num(t, i + 1)?;
                     match t {
                         "-vh" => self.vh_deg = v,
                         "-vv" => self.vv_deg = v,
@@ -525,18 +567,17 @@ impl RadianceView {
     /// The scene projection of an image of `width × height` rendered with
     /// this view; fails on the view types gazelight cannot map
     /// (cylindrical `-vtc`, parallel `-vtl`) and on degenerate vectors.
-    pub fn projection(&self, width_px: usize, height_px: usize) -> Result<SceneProjection, String> {
+    pub fn projection(
+        &self,
+        width_px: usize,
+        height_px: usize,
+    ) -> Result<SceneProjection, RadianceViewError> {
         let kind = match self.view_type {
             'v' => ProjectionKind::Perspective,
             'a' => ProjectionKind::Angular,
             'h' => ProjectionKind::Hemispherical,
             's' => ProjectionKind::Stereographic,
-            other => {
-                return Err(format!(
-                    "Radiance view type -vt{other} is not supported (perspective -vtv and the \
-                     fisheyes -vta, -vth, -vts are)"
-                ));
-            }
+            other => return Err(RadianceViewError::UnsupportedType(other)),
         };
         self.basis()?;
         let p = SceneProjection {
@@ -547,23 +588,23 @@ impl RadianceView {
             width_px,
             height_px,
         };
-        p.validate().map_err(|e| e.to_string())?;
+        p.validate()?;
         Ok(p)
     }
 
     /// The view's right, up and forward unit vectors in Radiance's world
     /// (`hvec = vd × vu`, `vvec = hvec × vd`, as Radiance's `setview`).
-    pub fn basis(&self) -> Result<[DVec3; 3], String> {
+    pub fn basis(&self) -> Result<[DVec3; 3], RadianceViewError> {
         let vd = DVec3::from_array(self.vd)
             .try_normalize()
-            .ok_or("zero view direction -vd")?;
+            .ok_or(RadianceViewError::ZeroDirection)?;
         let vu = DVec3::from_array(self.vu)
             .try_normalize()
-            .ok_or("zero view up -vu")?;
+            .ok_or(RadianceViewError::ZeroUp)?;
         let h = vd
             .cross(vu)
             .try_normalize()
-            .ok_or("view up -vu parallel to the view direction -vd")?;
+            .ok_or(RadianceViewError::UpAlongDirection)?;
         let v = h.cross(vd);
         Ok([h, v, vd])
     }
@@ -670,10 +711,29 @@ mod tests {
         assert!((w - DVec3::X).length() < 1e-3, "{w}");
         let up = v.to_world(p.direction([50.0, 0.0001]).unwrap()).unwrap();
         assert!((up - DVec3::Z).length() < 1e-3, "{up}");
-        assert!(v.apply("-vh nan").is_err());
+        assert!(matches!(
+            v.apply("-vh nan"),
+            Err(RadianceViewError::NotANumber { value }) if value == "nan"
+        ));
+        let e = v.apply("-vh 30 -vp 1 2").unwrap_err();
+        assert_eq!(e.to_string(), "VIEW= option -vp lacks its value");
         let mut c = RadianceView::default();
         c.apply("-vtc").unwrap();
-        assert!(c.projection(10, 10).is_err());
+        assert!(matches!(
+            c.projection(10, 10),
+            Err(RadianceViewError::UnsupportedType('c'))
+        ));
+        let mut z = RadianceView::default();
+        z.apply("-vd 0 0 1").unwrap();
+        assert!(matches!(
+            z.projection(10, 10),
+            Err(RadianceViewError::UpAlongDirection)
+        ));
+        z.apply("-vd 0 1 0 -vh 0").unwrap();
+        assert!(matches!(
+            z.projection(10, 10),
+            Err(RadianceViewError::Projection(_))
+        ));
     }
 
     #[test]
