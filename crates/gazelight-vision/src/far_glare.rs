@@ -50,6 +50,7 @@
 //! nothing.
 
 use std::f64::consts::TAU;
+use std::ops::Range;
 use std::sync::Arc;
 
 use rayon::prelude::*;
@@ -547,23 +548,28 @@ impl FarField {
         }
         let (w, bp, bw) = (self.width, self.block_px, self.bw);
         self.wsums.fill([0.0; 3]);
+        // Each block row's pixel rows are first added column by column
+        // into a row of `hrows` (free until `compute`; one vector add per
+        // sample), then that row is summed over the blocks.
         img.pixels
             .par_chunks(w * bp)
             .zip(self.sums.par_chunks_mut(bw))
-            .for_each(|(rows, sums)| {
-                sums.fill([0.0; 3]);
+            .zip(self.hrows.par_chunks_mut(w * 3))
+            .for_each(|((rows, sums), acc)| {
+                acc.fill(0.0);
                 for row in rows.chunks_exact(w) {
-                    for (blk, acc) in row.chunks(bp).zip(sums.iter_mut()) {
-                        let mut s = [0.0f32; 3];
-                        for p in blk {
-                            s[0] += sanitize(p[0]);
-                            s[1] += sanitize(p[1]);
-                            s[2] += sanitize(p[2]);
-                        }
-                        acc[0] += s[0];
-                        acc[1] += s[1];
-                        acc[2] += s[2];
+                    for (a, &v) in acc.iter_mut().zip(row.as_flattened()) {
+                        *a += sanitize(v);
                     }
+                }
+                for (blk, s) in acc.chunks(bp * 3).zip(sums.iter_mut()) {
+                    let mut t = [0.0f32; 3];
+                    for p in blk.chunks_exact(3) {
+                        t[0] += p[0];
+                        t[1] += p[1];
+                        t[2] += p[2];
+                    }
+                    *s = t;
                 }
             });
         self.ready = true;
@@ -713,24 +719,28 @@ impl FarField {
     /// Adds the veil to row `y` (after the pixels' own light was scaled by
     /// [`FarField::keep`]).
     pub fn add_row(&self, y: usize, row: &mut [[f32; 3]]) {
-        if !self.ready || y >= self.height || row.len() < self.width {
+        self.blend_cols(y, row, 1.0, 0..self.width);
+    }
+
+    /// Columns `cols` of row `y`: each pixel's own light times `keep`, plus
+    /// the veil.
+    #[inline]
+    pub fn blend_cols(&self, y: usize, row: &mut [[f32; 3]], keep: f32, cols: Range<usize>) {
+        if !self.ready || y >= self.height || row.len() < self.width || cols.is_empty() {
             return;
         }
+        let cols = cols.start.min(self.width)..cols.end.min(self.width);
         let bp = self.block_px as f64;
         let b = ((y as f64 + 0.5) / bp - 0.5).clamp(0.0, (self.bh - 1) as f64);
         let j0 = (b.floor() as usize).min(self.bh.saturating_sub(2));
         let fy = (b - j0 as f64) as f32;
         let j1 = (j0 + 1).min(self.bh - 1);
         let w3 = self.width * 3;
-        let lo = &self.hrows[j0 * w3..(j0 + 1) * w3];
-        let hi = &self.hrows[j1 * w3..(j1 + 1) * w3];
-        for ((p, &a), &c) in row[..self.width]
-            .as_flattened_mut()
-            .iter_mut()
-            .zip(lo)
-            .zip(hi)
-        {
-            *p += a + (c - a) * fy;
+        let (c0, c1) = (cols.start * 3, cols.end * 3);
+        let lo = &self.hrows[j0 * w3 + c0..j0 * w3 + c1];
+        let hi = &self.hrows[j1 * w3 + c0..j1 * w3 + c1];
+        for ((p, &a), &c) in row[cols].as_flattened_mut().iter_mut().zip(lo).zip(hi) {
+            *p = *p * keep + (a + (c - a) * fy);
         }
     }
 }

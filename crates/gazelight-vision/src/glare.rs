@@ -1478,26 +1478,22 @@ impl GlareConvolver {
             Some(f) => (f.keep(0.0), f.keep(0.0) - f.keep(1.0)),
             None => (1.0, 1.0),
         };
+        // Pixels outside the fine window (w = 0): their light times k0
+        // plus the far veil, before the coarse wide field is added.
+        let seg = plan.filter(|p| p.fine_rows.contains(&y)).map_or(0..0, |p| {
+            p.fine_cols.start as usize..p.fine_cols.end as usize
+        });
         if let Some(f) = far {
-            // Pixels outside the fine window (w = 0).
-            let seg = plan.filter(|p| p.fine_rows.contains(&y)).map_or(0..0, |p| {
-                p.fine_cols.start as usize..p.fine_cols.end as usize
-            });
             let width = f.size().0;
-            let (head, rest) = row[..width].split_at_mut(seg.start.min(width));
-            let skip = (seg.end.min(width) - head.len()).min(rest.len());
-            let tail = &mut rest[skip..];
-            for p in head.iter_mut().chain(tail.iter_mut()) {
-                for v in p.iter_mut() {
-                    *v *= k0;
-                }
-            }
+            f.blend_cols(yu, row, k0, 0..seg.start.min(width));
+            f.blend_cols(yu, row, k0, seg.end.min(width)..width);
         }
         if let Some(plan) = plan {
             self.blend_window_row(plan, y, row, k0, ks);
         }
         if let Some(f) = far {
-            f.add_row(yu, row);
+            // The fine window's pixels (their own light already kept).
+            f.blend_cols(yu, row, 1.0, seg);
         }
     }
 
