@@ -127,9 +127,10 @@ async fn flood(when: When) {
         }
         other => panic!("{when:?}: expected the connection dropped, got {other:?}"),
     }
-    // Far less than the idle and ACK limits: the limit, not a timeout,
-    // ended the read.
-    assert!(took < Duration::from_secs(1), "{when:?}: took {took:?}");
+    // Before the idle and ACK limits (2 s, set above) could have ended the
+    // read: the line limit did. The bound is those configured timeouts,
+    // not a guess at how fast a loaded machine reads the flood.
+    assert!(took < Duration::from_secs(2), "{when:?}: took {took:?}");
     assert!(grew < RSS_BOUND_BYTES, "{when:?}: VmRSS grew {grew} bytes");
 }
 

@@ -44,7 +44,8 @@ fn status_page_of_a_live_session() {
     let http_port = free_port();
     let _run = Proc(
         Command::new(env!("CARGO_BIN_EXE_gazelight"))
-            .args(["run", "--headless", "--size", "480x270", "--secs", "80"])
+            // --secs 300: a backstop; the run is killed when `_run` drops.
+            .args(["run", "--headless", "--size", "480x270", "--secs", "300"])
             .args(["--source", &format!("pupil://127.0.0.1:{peer_port}")])
             .args(["--http", &format!("127.0.0.1:{http_port}")])
             .args(["--age-years", "70"])
@@ -54,25 +55,35 @@ fn status_page_of_a_live_session() {
             .spawn()
             .expect("gazelight run"),
     );
-    wait_listening(http_port, Duration::from_secs(20));
-    std::thread::sleep(Duration::from_secs(3));
+    wait_listening(http_port, Duration::from_secs(60));
 
-    // The JSON follows the session.
+    // The JSON follows the session: a first status, then (bounded, a
+    // backstop) the first one that shows what is asserted below, instead
+    // of a 3 s sleep and 10 s of polls. The rates are over the last whole
+    // second, so that second must lie after the source went live (its
+    // connection, with the clock probes, may take seconds on a loaded
+    // machine), and the filtered pupils must have reached the peer's.
     let s1 = get_json(http_port, "/api/status");
-    std::thread::sleep(Duration::from_millis(500));
-    // The rates are over the last whole second: wait (bounded) until that
-    // second lies after the source went live (its connection, with the
-    // clock probes, may take seconds on a loaded machine).
-    let mut s2 = get_json(http_port, "/api/status");
-    for _ in 0..20 {
-        let live = s2["source"]["health"] == "live";
-        let rate = s2["source"]["eye_rate_hz"][1].as_f64().unwrap_or(0.0);
-        if live && (170.0..230.0).contains(&rate) {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(500));
-        s2 = get_json(http_port, "/api/status");
-    }
+    let updates = |s: &serde_json::Value| s["eye"]["updates"].as_u64().unwrap_or(0);
+    let frames = |s: &serde_json::Value| s["frame"]["frames"].as_u64().unwrap_or(0);
+    let (s2, _) = common::wait_for(
+        Duration::from_secs(120),
+        "a live status at 200 Hz per eye with the peer's pupils",
+        || {
+            let s2 = get_json(http_port, "/api/status");
+            let live = s2["source"]["health"] == "live";
+            let rates = (0..2).all(|e| {
+                (170.0..230.0).contains(&s2["source"]["eye_rate_hz"][e].as_f64().unwrap_or(0.0))
+            });
+            let pupils = [3.75, 4.25].iter().enumerate().all(|(e, want)| {
+                s2["eye"]["pupil_mm"][e]
+                    .as_f64()
+                    .is_some_and(|p| (p - want).abs() < 0.05)
+            });
+            let moved = frames(&s2) > frames(&s1) && updates(&s2) > updates(&s1);
+            (live && rates && pupils && moved).then_some(s2)
+        },
+    );
     assert_eq!(s1["schema"], 1);
     assert_eq!(s2["source"]["health"], "live", "{s2}");
     // Every setting in effect, with its source.
