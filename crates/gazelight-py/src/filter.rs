@@ -2,6 +2,8 @@
 //! filter chain, fed sample by sample from Python (or a whole recording
 //! through `read`), and the state it keeps.
 
+use std::sync::{Mutex, MutexGuard, PoisonError};
+
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
@@ -77,9 +79,24 @@ fn unit_from(name: &str) -> PyResult<PupilUnit> {
 /// The filter chain (confidence gate, physiological range and rate, blink
 /// detector, dropout hold, 1€ gaze filter, calibration), as `gazelight
 /// inspect`, `replay` and the live eye task run it.
-#[pyclass(module = "gazelight", name = "FilterChain", unsendable)]
+///
+/// Usable from any Python thread (as `Source`): the chain is behind a
+/// mutex, so a second thread's use is never a panic across the boundary.
+#[pyclass(module = "gazelight", name = "FilterChain")]
 pub(crate) struct FilterChain {
-    chain: Chain,
+    chain: Mutex<Chain>,
+}
+
+impl FilterChain {
+    /// The chain through `&mut self` (no locking).
+    fn chain(&mut self) -> &mut Chain {
+        self.chain.get_mut().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The chain through `&self`.
+    fn locked(&self) -> MutexGuard<'_, Chain> {
+        self.chain.lock().unwrap_or_else(PoisonError::into_inner)
+    }
 }
 
 #[pymethods]
@@ -94,7 +111,7 @@ impl FilterChain {
         calibration: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         Ok(Self {
-            chain: crate::read::chain_for(config, calibration)?,
+            chain: Mutex::new(crate::read::chain_for(config, calibration)?),
         })
     }
 
@@ -119,7 +136,7 @@ impl FilterChain {
             norm_pos: [f32::NAN; 2],
             method: DetectorMethod::Other,
         });
-        Ok(EyeState::from(&self.chain.push(&s).state))
+        Ok(EyeState::from(&self.chain().push(&s).state))
     }
 
     /// Feeds one binocular gaze sample (normalised, top-left origin).
@@ -131,7 +148,7 @@ impl FilterChain {
             confidence,
             eyes: GazeEyes::Binocular,
         });
-        EyeState::from(&self.chain.push(&s).state)
+        EyeState::from(&self.chain().push(&s).state)
     }
 
     /// Filters whole pupil series of one or both eyes: `t_secs`, and per
@@ -190,7 +207,7 @@ impl FilterChain {
                     norm_pos: [f32::NAN; 2],
                     method: DetectorMethod::Other,
                 });
-                out[e].push(self.chain.push(&s).state.eyes[e].pupil_mm);
+                out[e].push(self.chain().push(&s).state.eyes[e].pupil_mm);
             }
         }
         let [r, l] = out;
@@ -203,11 +220,11 @@ impl FilterChain {
     /// The state after the last sample.
     #[getter]
     fn state(&self) -> EyeState {
-        EyeState::from(self.chain.state())
+        EyeState::from(self.locked().state())
     }
 
     /// The chain's counters (as `inspect --json`'s `chain`), JSON text.
     fn stats_json(&self) -> PyResult<String> {
-        serde_json::to_string(self.chain.stats()).map_err(crate::err)
+        serde_json::to_string(self.locked().stats()).map_err(crate::err)
     }
 }

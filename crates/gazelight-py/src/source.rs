@@ -10,6 +10,7 @@
 //! block) tells the task to stop, waits for it, then shuts the runtime
 //! down: no thread of it is left.
 
+use std::sync::{Mutex, PoisonError};
 use std::time::Duration;
 
 use pyo3::exceptions::PyRuntimeError;
@@ -38,21 +39,33 @@ struct Running {
 }
 
 /// A live eye source: a context manager and an iterator of `EyeState`s.
-#[pyclass(module = "gazelight", name = "Source", unsendable)]
+///
+/// Usable from any Python thread (not `unsendable`, whose use from a
+/// second thread is a Rust panic, `PanicException`, across the boundary):
+/// the state lives behind mutexes (only ever locked through `&mut self`,
+/// so never contended), and two threads using one `Source` at the same
+/// time get PyO3's `RuntimeError` ("Already borrowed") for the second,
+/// a Python exception.
+#[pyclass(module = "gazelight", name = "Source")]
 pub(crate) struct Source {
     uri: String,
-    chain: Option<FilterChain>,
+    chain: Mutex<Option<FilterChain>>,
     timeout: Option<f64>,
-    running: Option<Running>,
+    running: Mutex<Option<Running>>,
+}
+
+/// The value behind a mutex reached through `&mut` (no locking; a mutex
+/// poisoned by an earlier panic still gives its value).
+fn inner<T>(m: &mut Mutex<T>) -> &mut T {
+    m.get_mut().unwrap_or_else(PoisonError::into_inner)
 }
 
 impl Source {
     fn start(&mut self) -> PyResult<()> {
-        if self.running.is_some() {
+        if inner(&mut self.running).is_some() {
             return Ok(());
         }
-        let chain = self
-            .chain
+        let chain = inner(&mut self.chain)
             .take()
             .ok_or_else(|| PyRuntimeError::new_err("this Source was closed; open a new one"))?;
         let parsed = SourceUri::parse(&self.uri).map_err(err)?;
@@ -84,7 +97,7 @@ impl Source {
                 return Err(err(e));
             }
         };
-        self.running = Some(Running {
+        *inner(&mut self.running) = Some(Running {
             runtime,
             shutdown,
             eye: live.eye,
@@ -95,7 +108,7 @@ impl Source {
     }
 
     fn stop(&mut self) {
-        stop(self.running.take());
+        stop(inner(&mut self.running).take());
     }
 }
 
@@ -138,9 +151,9 @@ impl Source {
         SourceUri::parse(&uri).map_err(err)?;
         Ok(Self {
             uri,
-            chain: Some(crate::read::chain_for(config, calibration)?),
+            chain: Mutex::new(Some(crate::read::chain_for(config, calibration)?)),
             timeout,
-            running: None,
+            running: Mutex::new(None),
         })
     }
 
@@ -153,14 +166,14 @@ impl Source {
     /// Stops the task and the runtime; exceptions propagate.
     #[pyo3(signature = (*_args))]
     fn __exit__(&mut self, py: Python<'_>, _args: &Bound<'_, pyo3::types::PyTuple>) -> bool {
-        let running = self.running.take();
+        let running = inner(&mut self.running).take();
         py.detach(|| stop(running));
         false
     }
 
     /// Stops the source (as the end of a `with` block does).
     fn close(&mut self, py: Python<'_>) {
-        let running = self.running.take();
+        let running = inner(&mut self.running).take();
         py.detach(|| stop(running));
     }
 
@@ -172,7 +185,7 @@ impl Source {
     fn __next__(&mut self, py: Python<'_>) -> PyResult<Option<EyeState>> {
         self.start()?;
         let timeout = self.timeout;
-        let Some(r) = self.running.as_mut() else {
+        let Some(r) = inner(&mut self.running).as_mut() else {
             return Ok(None);
         };
         let started = std::time::Instant::now();

@@ -106,3 +106,33 @@ def test_render_refuses_the_luminance_scale_the_cli_refuses(tmp_path):
         tmp_path,
     )
     assert got["type"] == "GazelightError" and "overflow" in got["message"], got
+
+
+def test_a_source_and_a_filter_chain_used_from_another_thread_raise_no_panic(tmp_path, data_dir):
+    rec = str(data_dir / "eye/piprkit-plr/pupil_trace.csv")
+    got = _catch(
+        f"""
+        import threading
+        src = gazelight.Source("replay://" + {rec!r}, timeout=5)
+        chain = gazelight.FilterChain()
+        seen = []
+        def other():
+            try:
+                with src:
+                    seen.append(type(next(src)).__name__)
+                seen.append(type(chain.push_pupil(0.0, 0, 4.0)).__name__)
+            except Exception as e:  # a Python exception is fine
+                seen.append("raised " + type(e).__name__)
+            except BaseException as e:  # PanicException is a BaseException
+                seen.append("PANIC " + type(e).__name__)
+        t = threading.Thread(target=other)
+        t.start()
+        t.join(30)
+        assert not t.is_alive(), "the thread did not end"
+        assert not any(s.startswith("PANIC") for s in seen), seen
+        assert seen == ["EyeState", "EyeState"], seen
+        src.close()
+        """,
+        tmp_path,
+    )
+    assert got["type"] is None, got
