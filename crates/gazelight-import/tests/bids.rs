@@ -330,7 +330,15 @@ fn every_shipped_recording_and_one_eye_exports_a_valid_dataset() {
         serde_json::from_str(&std::fs::read_to_string(data("neon-demo/info.json")).unwrap())
             .unwrap();
     let neon_rate = info["gaze_frequency"].as_f64().unwrap();
-    let cases: [(&str, PathBuf, f64, Option<(&str, &str)>, &[&str]); 4] = [
+    // (subject, recording, stated rate, (maker, model), eye files).
+    type Case<'a> = (
+        &'a str,
+        PathBuf,
+        f64,
+        Option<(&'a str, &'a str)>,
+        &'a [&'a str],
+    );
+    let cases: [Case; 4] = [
         (
             "eyelink",
             data("eyelink-psa/both_eyes.asc"),

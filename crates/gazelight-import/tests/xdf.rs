@@ -548,9 +548,12 @@ fn a_relay_blink_is_counted_and_the_counts_equal_pyxdfs() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The samples `gazelight_import::open` gives of `path`: (pupil samples
-/// per eye, their times, warnings).
-fn read_counts(path: &Path) -> Result<([u64; 2], Vec<f64>, Vec<String>), String> {
+/// What `gazelight_import::open` gives of a file: pupil samples per eye,
+/// the right eye's times, the notes.
+type Counts = ([u64; 2], Vec<f64>, Vec<String>);
+
+/// The [`Counts`] of `path`.
+fn read_counts(path: &Path) -> Result<Counts, String> {
     use gazelight_eye::sample::Sample;
     let mut imp = gazelight_import::open(path).map_err(|e| e.to_string())?;
     let mut pupils = [0u64; 2];
