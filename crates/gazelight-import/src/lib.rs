@@ -74,6 +74,39 @@ use gazelight_eye::sample::Sample;
 /// How many warning messages an importer keeps verbatim (all are counted).
 pub const KEPT_WARNING_MESSAGES: usize = 16;
 
+/// Most bytes of an error's reason shown: a reason quoting a hostile
+/// input (a 16 MiB XML tag, a megabyte-long CSV cell) is shown as its
+/// first [`QUOTED_HEAD_BYTES`] and last [`QUOTED_TAIL_BYTES`] with the
+/// number of bytes left out between them.
+pub const MAX_REASON_BYTES: usize = 1024;
+/// See [`MAX_REASON_BYTES`].
+pub const QUOTED_HEAD_BYTES: usize = 640;
+/// See [`MAX_REASON_BYTES`].
+pub const QUOTED_TAIL_BYTES: usize = 256;
+
+/// `reason` as an error shows it: whole up to [`MAX_REASON_BYTES`], else
+/// its head and tail (cut at character boundaries) around
+/// `… [N bytes left out] …`.
+pub fn capped(reason: &str) -> std::borrow::Cow<'_, str> {
+    if reason.len() <= MAX_REASON_BYTES {
+        return std::borrow::Cow::Borrowed(reason);
+    }
+    let mut head = QUOTED_HEAD_BYTES;
+    while !reason.is_char_boundary(head) {
+        head -= 1;
+    }
+    let mut tail = reason.len() - QUOTED_TAIL_BYTES;
+    while !reason.is_char_boundary(tail) {
+        tail += 1;
+    }
+    std::borrow::Cow::Owned(format!(
+        "{} … [{} bytes left out] … {}",
+        &reason[..head],
+        tail - head,
+        &reason[tail..]
+    ))
+}
+
 /// A recording that cannot be imported (or a part of it that cannot).
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
@@ -86,14 +119,14 @@ pub enum ImportError {
     },
     /// The file's structure is unusable (missing field, wrong layout); the
     /// import stops. `position` names the line or byte offset.
-    #[error("{path} ({position}): {reason}")]
+    #[error("{path} ({position}): {}", capped(reason))]
     Structure {
         path: PathBuf,
         position: Position,
         reason: String,
     },
     /// The path is not a recording any importer knows.
-    #[error("{path}: unknown recording format ({reason})")]
+    #[error("{path}: unknown recording format ({})", capped(reason))]
     UnknownFormat { path: PathBuf, reason: String },
 }
 

@@ -165,10 +165,14 @@ pub fn phases_profile(
     let mut session: Option<CalibrationSession> = None;
     let mut sink = gazelight_tracker::calibration::LogSink::default();
     let mut t0 = None;
+    let mut t_last = f64::NEG_INFINITY;
     for item in importer.by_ref() {
         let sample = item.with_context(|| format!("reading {}", recording.display()))?;
         let Sample::Pupil(p) = sample else { continue };
         let t0 = *t0.get_or_insert(p.t_secs);
+        if p.t_secs.is_finite() {
+            t_last = t_last.max(p.t_secs);
+        }
         let session = match &mut session {
             Some(s) => s,
             None => session.insert(
@@ -186,6 +190,19 @@ pub fn phases_profile(
     }
     let session =
         session.ok_or_else(|| anyhow::anyhow!("{}: no pupil samples", recording.display()))?;
+    // A window past the recording's pupil samples: say which and how long
+    // the recording is (its summary would only say "0 % valid").
+    let length = t0.map_or(0.0, |t0| (t_last - t0).max(0.0));
+    for (flag, (from, to)) in [("--black", black), ("--white", white)] {
+        if from >= length {
+            anyhow::bail!(
+                "{flag} {from}..{to}: the window starts after the recording's last pupil sample: \
+                 {} holds {length:.3} s of pupil samples (windows are seconds from its first \
+                 sample)",
+                recording.display()
+            );
+        }
+    }
     let lines = session
         .summary()
         .iter()

@@ -399,3 +399,33 @@ fn a_100k_row_manifest_is_checked_in_linear_time_and_collect_stays_one_short_lin
     assert!(e.len() < 1000, "{} bytes of error", e.len());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_profile_window_past_the_recording_names_the_window_and_the_length() {
+    let dir = tmp("window");
+    let rec = shared_str("eye/piprkit-plr/pupil_trace.csv");
+    let out = dir.join("p.json");
+    let o = gazelight_in(
+        &[
+            "profile",
+            "phases",
+            &rec,
+            "--black",
+            "5..10",
+            "--white",
+            "90000..90010",
+            "--out",
+            s(&out),
+        ],
+        &[],
+    );
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("--white 90000..90010"), "{e}");
+    assert!(
+        e.contains("holds") && e.contains(" s of pupil samples"),
+        "{e}"
+    );
+    assert!(!out.exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
