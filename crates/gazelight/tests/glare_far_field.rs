@@ -119,6 +119,7 @@ fn render_retinal(
     yaw_deg: f64,
     hfov_deg: f64,
     gaze_uv: [f64; 2],
+    extra: &[&str],
 ) -> RgbImage {
     std::fs::create_dir_all(dir).expect("render dir");
     let trace = dir.join("trace.csv");
@@ -131,7 +132,7 @@ fn render_retinal(
     let out = dir.join("out");
     let size = format!("{px}x{px}");
     let (hfov, yaw) = (hfov_deg.to_string(), yaw_deg.to_string());
-    let args = [
+    let mut args = vec![
         "render",
         "--scene",
         scene.to_str().expect("utf-8"),
@@ -155,6 +156,7 @@ fn render_retinal(
         "--out",
         out.to_str().expect("utf-8"),
     ];
+    args.extend_from_slice(extra);
     let run = gazelight(&args);
     assert!(
         run.status.success(),
@@ -201,6 +203,8 @@ fn veil_at_the_gaze_is_cie_146_from_2_to_60_degrees() {
     let dir = tmp("far-veil");
     let scene = dir.join("lamp.exr");
     write_exr(&scene, &lamp_panorama()).expect("scene");
+    let off = dir.join("far-off.toml");
+    std::fs::write(&off, "[pipeline.glare]\nfar_field = false\n").expect("config");
     let mut failures = Vec::new();
     for theta in [2.0f64, 5.0, 15.0, 25.0, 35.0, 60.0] {
         let hfov = (theta + 30.0).max(40.0);
@@ -218,6 +222,7 @@ fn veil_at_the_gaze_is_cie_146_from_2_to_60_degrees() {
             yaw,
             hfov,
             gaze_uv,
+            &[],
         );
         // The lamp lies where the geometry puts it (the sign of yaw).
         let (mut sx, mut sw) = (0.0, 0.0);
@@ -241,8 +246,21 @@ fn veil_at_the_gaze_is_cie_146_from_2_to_60_degrees() {
         let want = FIELD_CD_M2 + expected_veil(gaze);
         let got = lum(img.get(gx as usize, gy as usize));
         let ratio = got / want;
+        // Without the far field (the window kernel alone, as before issue
+        // 46), for the record.
+        let before = render_retinal(
+            &dir.join(format!("t{theta}-off")),
+            &scene,
+            VIEW_PX,
+            yaw,
+            hfov,
+            gaze_uv,
+            &["--config", off.to_str().expect("utf-8")],
+        );
+        let was = lum(before.get(gx as usize, gy as usize));
         eprintln!(
-            "lamp {angle:5.2}° from the gaze: render {got:.4} cd/m², field + CIE 146 veil {want:.4} (×{ratio:.3}), hfov {hfov}°"
+            "lamp {angle:5.2}° from the gaze: render {got:.4} cd/m² (without the far field {was:.4}), \
+             field + CIE 146 veil {want:.4} (×{ratio:.3}), hfov {hfov}°"
         );
         if (ratio - 1.0).abs() > 0.10 {
             failures.push(format!("{angle:.2}°: {got:.4} vs {want:.4} (×{ratio:.3})"));
@@ -292,7 +310,15 @@ fn veil_around_a_lamp_falls_without_a_step_to_60_degrees() {
     let scene = dir.join("lamp.exr");
     write_exr(&scene, &lamp_panorama()).expect("scene");
     let hfov = 130.0;
-    let img = render_retinal(&dir.join("p"), &scene, PROFILE_PX, 0.0, hfov, [0.5, 0.5]);
+    let img = render_retinal(
+        &dir.join("p"),
+        &scene,
+        PROFILE_PX,
+        0.0,
+        hfov,
+        [0.5, 0.5],
+        &[],
+    );
     let (mut prev, mut prev_want) = (f64::INFINITY, f64::INFINITY);
     let mut failures = Vec::new();
     let mut ratios = Vec::new();
