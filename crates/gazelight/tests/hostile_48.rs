@@ -429,3 +429,34 @@ fn a_profile_window_past_the_recording_names_the_window_and_the_length() {
     assert!(!out.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_recording_rewritten_in_place_is_not_skipped_as_done() {
+    let dir = tmp("stale");
+    let rec = dir.join("pupil.csv");
+    std::fs::copy(shared_str("eye/piprkit-plr/pupil_trace.csv"), &rec).unwrap();
+    let manifest = dir.join("m.csv");
+    std::fs::write(
+        &manifest,
+        "id,recording,secs,from_secs,size,fps,backend,no_frames\nr,pupil.csv,2,10,48x32,4,cpu,true\n",
+    )
+    .unwrap();
+    let out = dir.join("o");
+    let run = || {
+        let o = gazelight_in(&["batch", s(&manifest), "--out", s(&out)], &[]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        stderr(&o)
+    };
+    let first = run();
+    assert!(first.contains("(0 skipped"), "{first}");
+    // Unchanged: skipped as done.
+    let again = run();
+    assert!(again.contains("(1 skipped"), "{again}");
+    // The same bytes written again (a new modification time): run again.
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    let bytes = std::fs::read(&rec).unwrap();
+    std::fs::write(&rec, &bytes).unwrap();
+    let after = run();
+    assert!(after.contains("(0 skipped"), "{after}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

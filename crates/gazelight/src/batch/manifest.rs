@@ -101,7 +101,8 @@ impl Row {
         }
     }
 
-    /// The hash its completion record holds: the replay's arguments and,
+    /// The hash its completion record holds: the replay's arguments, the
+    /// identity of each input file they name, and,
     /// with `--bids DIR`, the export's folder and entities (the export is
     /// part of the row's completion).
     pub fn options_hash(&self, bids: Option<&Path>) -> String {
@@ -111,6 +112,9 @@ impl Row {
             argv.push(format!("--bids={}", dir.display()));
             argv.push(n.prefix());
         }
+        // The inputs' identities (size and modification time): a recording,
+        // scene, config or profile rewritten in place runs again.
+        argv.extend(super::state::input_identities(&self.argv));
         super::state::options_hash(&argv)
     }
 }

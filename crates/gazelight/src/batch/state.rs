@@ -60,6 +60,73 @@ pub fn options_hash(argv: &[String]) -> String {
     format!("fnv1a64:{:016x}", fnv1a64(text.as_bytes()))
 }
 
+/// Most directory entries an input's identity covers (a recording folder
+/// and its subfolders, breadth first).
+const MAX_IDENTITY_ENTRIES: usize = 10_000;
+
+/// The identity of each absolute path among a row's arguments (the
+/// recording, and `--scene=`, `--config=`, `--calibration=` values), one
+/// `input:PATH:…` string each: for a file its size and modification time
+/// (ns), for a folder (a Neon or Pupil recording) the names, sizes and
+/// times of its entries two levels deep (at most
+/// [`MAX_IDENTITY_ENTRIES`]). A recording rewritten in place, even with
+/// the same size, gets another identity, so its row runs again.
+pub fn input_identities(argv: &[String]) -> Vec<String> {
+    let mut out = Vec::new();
+    for a in argv {
+        let value = match a.split_once('=') {
+            Some((flag, v)) if flag.starts_with("--") => v,
+            _ => a.as_str(),
+        };
+        let path = Path::new(value);
+        if !path.is_absolute() {
+            continue;
+        }
+        let Ok(meta) = std::fs::metadata(path) else {
+            continue;
+        };
+        let mut id = format!("input:{value}:{}", stamp(&meta));
+        if meta.is_dir() {
+            let mut h: u64 = fnv1a64(b"");
+            let mut seen = 0usize;
+            let mut queue = vec![(path.to_path_buf(), 0u8)];
+            while let Some((dir, depth)) = queue.pop() {
+                let Ok(read) = std::fs::read_dir(&dir) else {
+                    continue;
+                };
+                let mut entries: Vec<_> = read.flatten().collect();
+                entries.sort_by_key(|e| e.file_name());
+                for e in entries {
+                    seen += 1;
+                    if seen > MAX_IDENTITY_ENTRIES {
+                        break;
+                    }
+                    let Ok(m) = e.metadata() else { continue };
+                    let line = format!("{}\0{}\0", e.path().display(), stamp(&m));
+                    h ^= fnv1a64(line.as_bytes());
+                    h = h.wrapping_mul(0x0000_0100_0000_01b3);
+                    if m.is_dir() && depth < 1 {
+                        queue.push((e.path(), depth + 1));
+                    }
+                }
+            }
+            id.push_str(&format!(":entries:{h:016x}"));
+        }
+        out.push(id);
+    }
+    out
+}
+
+/// `SIZE:MTIME_NS` of a file (the directory's own for a directory).
+fn stamp(meta: &std::fs::Metadata) -> String {
+    let mtime = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    format!("{}:{mtime}", meta.len())
+}
+
 /// The batch's folder and the paths of one row's files in it.
 pub struct State {
     dir: PathBuf,
