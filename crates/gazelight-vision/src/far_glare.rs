@@ -29,9 +29,9 @@
 //! ([`FarSplit::tail_energy`], [`FarSplit::near_energy`]) leave the source
 //! pixel: its kept light is `(1 − w)(1 − E_near) − E_tail` (negative near
 //! the gaze, where `K`'s core, tens of per cent, gives it back), so a
-//! source's light adds up to 1 at every `w`: `(1 − w)(1 − E_near) − E_tail
-//! + w + E_tail + (1 − w) E_near = 1`. Light scattered outside the view is
-//! lost, as the window's is beyond the image.
+//! source's light adds up to 1 at every `w`:
+//! `(1 − w)(1 − E_near) − E_tail + w + E_tail + (1 − w) E_near = 1`. Light
+//! scattered outside the view is lost, as the window's is beyond the image.
 //!
 //! # On the frame ([`FarField`])
 //!
