@@ -44,7 +44,6 @@ use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, FrameStats, PipelineConfig,
 };
 use gazelight_vision::psf::PsfKernel;
-use gazelight_vision::temporal::AdaptationState;
 
 use crate::window::DisplaySlot;
 
@@ -267,7 +266,6 @@ impl Renderer {
     }
 
     /// Whether the GPU pipeline renders.
-    #[allow(dead_code)] // for `run`, being wired
     pub fn is_gpu(&self) -> bool {
         matches!(self, Renderer::Gpu(..))
     }
@@ -477,9 +475,10 @@ impl Renderer {
         self.set_kernel(&prepared.kernel)
     }
 
-    /// Sets the adaptation state (e.g. to start a replay adapted).
-    #[allow(dead_code)] // for `run`, being wired
-    pub fn set_adaptation(&mut self, state: AdaptationState) {
+    /// Sets the adaptation state (the backend test starts both backends
+    /// adapted; no command does).
+    #[cfg(test)]
+    pub fn set_adaptation(&mut self, state: gazelight_vision::temporal::AdaptationState) {
         match self {
             Renderer::Cpu(p, _) => p.set_adaptation(state),
             Renderer::Gpu(g, _) => g.pipeline.set_adaptation(state),
@@ -530,6 +529,7 @@ mod tests {
     use super::*;
     use gazelight_gpu::testing::test_context;
     use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene};
+    use gazelight_vision::temporal::AdaptationState;
 
     /// The embedded night panorama seen towards the street lamp, at `w × h`.
     fn demo_view(w: usize, h: usize) -> (RgbImage, f64) {

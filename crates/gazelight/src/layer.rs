@@ -8,8 +8,10 @@
 //! it; an implicit one in every OpenXR app, unless the variable of its
 //! manifest's `disable_environment` is set. `status` says which manifests
 //! are there, whether the library they name exists, whether the loader will
-//! load the layer in this environment, and what the layer's config resolves
-//! to.
+//! load the layer in this environment, whether an OpenXR loader and the
+//! active runtime are found, and what the layer's config resolves to; it
+//! exits non-zero on a bad config (the layer would pass everything through)
+//! and when no runtime is found (no OpenXR app can start).
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -46,8 +48,9 @@ pub enum LayerAction {
     },
     /// Remove the explicit and the implicit manifest.
     Uninstall,
-    /// Whether the loader will find the layer, and what its config
-    /// resolves to.
+    /// Whether the loader will find the layer, whether an OpenXR loader and
+    /// the active runtime are found, and what the layer's config resolves
+    /// to; exits non-zero on a bad config or without a runtime.
     Status,
 }
 
@@ -146,9 +149,171 @@ pub fn uninstall(data_home: &Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(removed)
 }
 
-/// The status report, one fact a line.
-pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> Vec<String> {
+/// The OpenXR loader's file name (what `run --display xr` opens; apps may
+/// bundle their own).
+pub const LOADER_FILE: &str = "libopenxr_loader.so.1";
+
+/// The directories a library file name is looked up in here:
+/// `LD_LIBRARY_PATH`, then the usual system library directories (the
+/// dynamic linker's cache is not read).
+fn library_dirs(env: &dyn Fn(&str) -> Option<OsString>) -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = env("LD_LIBRARY_PATH")
+        .map(|v| {
+            std::env::split_paths(&v)
+                .filter(|p| p.is_absolute())
+                .collect()
+        })
+        .unwrap_or_default();
+    let arch = std::env::consts::ARCH;
+    for d in [
+        "/usr/local/lib".to_owned(),
+        "/usr/local/lib64".to_owned(),
+        format!("/usr/lib/{arch}-linux-gnu"),
+        format!("/lib/{arch}-linux-gnu"),
+        "/usr/lib64".to_owned(),
+        "/usr/lib".to_owned(),
+        "/lib64".to_owned(),
+        "/lib".to_owned(),
+    ] {
+        dirs.push(PathBuf::from(d));
+    }
+    dirs
+}
+
+/// Where `file` is found in [`library_dirs`].
+fn find_library(file: &str, env: &dyn Fn(&str) -> Option<OsString>) -> Option<PathBuf> {
+    library_dirs(env)
+        .into_iter()
+        .map(|d| d.join(file))
+        .find(|p| p.is_file())
+}
+
+/// The active runtime's manifest as the Khronos loader finds it on Linux:
+/// `XR_RUNTIME_JSON`, else `openxr/1/active_runtime.<arch>.json` then
+/// `active_runtime.json` in `$XDG_CONFIG_HOME` (default `~/.config`), each
+/// of `$XDG_CONFIG_DIRS` (default `/etc/xdg`), then `/etc`. With the
+/// variable: where it came from.
+fn runtime_manifest(env: &dyn Fn(&str) -> Option<OsString>) -> (Option<PathBuf>, String) {
+    let set = |n: &str| env(n).filter(|v| !v.is_empty());
+    if let Some(p) = set("XR_RUNTIME_JSON") {
+        let p = PathBuf::from(p);
+        let exists = p.is_file();
+        return (
+            exists.then(|| p.clone()),
+            format!("XR_RUNTIME_JSON={}", p.display()),
+        );
+    }
+    let mut dirs = Vec::new();
+    match set("XDG_CONFIG_HOME").map(PathBuf::from) {
+        Some(p) if p.is_absolute() => dirs.push(p),
+        _ => {
+            if let Some(h) = set("HOME") {
+                dirs.push(PathBuf::from(h).join(".config"));
+            }
+        }
+    }
+    let config_dirs = set("XDG_CONFIG_DIRS").unwrap_or_else(|| OsString::from("/etc/xdg"));
+    dirs.extend(std::env::split_paths(&config_dirs).filter(|p| p.is_absolute()));
+    dirs.push(PathBuf::from("/etc"));
+    let arch = std::env::consts::ARCH;
+    let mut tried = Vec::new();
+    for d in &dirs {
+        for name in [
+            format!("active_runtime.{arch}.json"),
+            "active_runtime.json".into(),
+        ] {
+            let p = d.join("openxr/1").join(name);
+            if p.is_file() {
+                return (Some(p), "the active runtime".into());
+            }
+            tried.push(p.display().to_string());
+        }
+    }
+    (
+        None,
+        format!("no XR_RUNTIME_JSON, none of {}", tried.join(", ")),
+    )
+}
+
+/// The loader and runtime lines of the report; the second value is whether
+/// a runtime with its library was found.
+fn loader_and_runtime(env: &dyn Fn(&str) -> Option<OsString>) -> (Vec<String>, bool) {
     let mut lines = Vec::new();
+    lines.push(match find_library(LOADER_FILE, env) {
+        Some(p) => format!("loader: {} (what `gazelight run --display xr` opens)", p.display()),
+        None => format!(
+            "loader: {LOADER_FILE} not found in LD_LIBRARY_PATH or the system library directories \
+             (install libopenxr-loader1; apps that bundle their own loader, e.g. Godot, do not need it)"
+        ),
+    });
+    let (manifest, from) = runtime_manifest(env);
+    let Some(manifest) = manifest else {
+        lines.push(format!(
+            "runtime: not found ({from}): no OpenXR app can start; start your runtime's setup \
+             (Monado, SteamVR: \"Set SteamVR as OpenXR runtime\") or set XR_RUNTIME_JSON"
+        ));
+        return (lines, false);
+    };
+    let json: Option<serde_json::Value> = std::fs::read_to_string(&manifest)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    let field = |k: &str| {
+        json.as_ref()
+            .and_then(|m| m.get("runtime"))
+            .and_then(|r| r.get(k))
+            .and_then(|v| v.as_str())
+            .map(str::to_owned)
+    };
+    let name = field("name").map_or(String::new(), |n| format!(" \"{n}\""));
+    let Some(library) = field("library_path") else {
+        lines.push(format!(
+            "runtime: {} ({from}) is not a runtime manifest (no runtime.library_path)",
+            manifest.display()
+        ));
+        return (lines, false);
+    };
+    // As the loader: a relative path is relative to the manifest (its
+    // real path: active_runtime.json is usually a symlink), a bare file
+    // name is looked up in the library path.
+    let resolved = if library.contains('/') {
+        let base = manifest
+            .canonicalize()
+            .ok()
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+            .unwrap_or_default();
+        // `components` drops the `./` of `./bin/…`.
+        Some(base.join(&library).components().collect::<PathBuf>()).filter(|p| p.is_file())
+    } else {
+        find_library(&library, env)
+    };
+    let ok = resolved.is_some();
+    lines.push(match resolved {
+        Some(lib) => format!(
+            "runtime{name}: {} ({from}), library {}",
+            manifest.display(),
+            lib.display()
+        ),
+        None => format!(
+            "runtime{name}: {} ({from}), but its library {library} does not exist: no OpenXR app can start",
+            manifest.display()
+        ),
+    });
+    (lines, ok)
+}
+
+/// What `status` found.
+#[derive(Debug)]
+pub struct StatusReport {
+    /// One fact a line.
+    pub lines: Vec<String>,
+    /// Why `status` fails: a bad config, no runtime (empty: it succeeds).
+    pub problems: Vec<String>,
+}
+
+/// The status report, one fact a line.
+pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> StatusReport {
+    let mut lines = Vec::new();
+    let mut problems = Vec::new();
     let set = |n: &str| env(n).filter(|v| !v.is_empty());
     for kind in [Kind::Explicit, Kind::Implicit] {
         let path = manifest_path(data_home, kind);
@@ -212,6 +377,17 @@ pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> Vec<S
         };
         lines.push(format!("{label}: {} ({verdict})", path.display()));
     }
+    if let Some(p) = set("XR_API_LAYER_PATH") {
+        lines.push(format!(
+            "XR_API_LAYER_PATH={}: the loader looks for explicit layers only there",
+            p.to_string_lossy()
+        ));
+    }
+    let (runtime_lines, runtime_ok) = loader_and_runtime(env);
+    lines.extend(runtime_lines);
+    if !runtime_ok {
+        problems.push("no OpenXR runtime found".to_owned());
+    }
     lines.push(match ConfigLocation::resolve(|n| env(n)) {
         None => "config: no place to look (no GAZELIGHT_LAYER_CONFIG, XDG_CONFIG_HOME or HOME): defaults".into(),
         Some(location) => {
@@ -228,11 +404,26 @@ pub fn status(data_home: &Path, env: &dyn Fn(&str) -> Option<OsString>) -> Vec<S
                     location.path().display(),
                     LayerConfig::default().summary()
                 ),
-                Err(e) => format!("{e}: the layer will pass everything through"),
+                Err(e) => {
+                    problems.push(format!("the layer config is invalid ({from})"));
+                    format!("{e}: the layer will pass everything through")
+                }
             }
         }
     });
-    lines
+    StatusReport { lines, problems }
+}
+
+/// The parse-only check (`GAZELIGHT_PARSE_ONLY=1`, the doc-command test):
+/// for `status`, the layer config it would report (`GAZELIGHT_LAYER_CONFIG`,
+/// else the default place) is loaded and checked; nothing else is looked at.
+pub fn check(args: &LayerArgs) -> anyhow::Result<()> {
+    if let LayerAction::Status = args.action
+        && let Some(location) = ConfigLocation::resolve(|n| std::env::var_os(n))
+    {
+        LayerConfig::load_at(&location)?;
+    }
+    Ok(())
 }
 
 pub fn run(args: LayerArgs) -> anyhow::Result<()> {
@@ -270,8 +461,12 @@ pub fn run(args: LayerArgs) -> anyhow::Result<()> {
             }
         }
         LayerAction::Status => {
-            for line in status(&home, &env) {
+            let report = status(&home, &env);
+            for line in &report.lines {
                 println!("{line}");
+            }
+            if !report.problems.is_empty() {
+                bail!("{}", report.problems.join("; "));
             }
         }
     }
@@ -313,6 +508,94 @@ mod tests {
             PathBuf::from("/h/.local/share")
         );
         assert!(data_home(&env(&[])).is_err());
+    }
+
+    #[test]
+    fn status_finds_the_runtime_as_the_loader_does() {
+        let dir = temp("runtime");
+        let lib_dir = dir.join("lib");
+        std::fs::create_dir_all(&lib_dir).unwrap();
+        std::fs::write(lib_dir.join(LOADER_FILE), b"stand-in").unwrap();
+        std::fs::write(lib_dir.join("libruntime.so"), b"stand-in").unwrap();
+        // The user's active runtime, a symlink to a manifest whose library
+        // path is relative to the manifest's real directory (as SteamVR's).
+        let real = dir.join("vendor");
+        std::fs::create_dir_all(real.join("bin")).unwrap();
+        std::fs::write(real.join("bin/vrclient.so"), b"stand-in").unwrap();
+        std::fs::write(
+            real.join("vendor_runtime.json"),
+            r#"{"file_format_version": "1.0.0", "runtime": {"name": "Vendor", "library_path": "./bin/vrclient.so"}}"#,
+        )
+        .unwrap();
+        let config = dir.join("config");
+        std::fs::create_dir_all(config.join("openxr/1")).unwrap();
+        std::os::unix::fs::symlink(
+            real.join("vendor_runtime.json"),
+            config.join("openxr/1/active_runtime.json"),
+        )
+        .unwrap();
+        let data = dir.join("data");
+        let vars = [
+            ("LD_LIBRARY_PATH", lib_dir.to_string_lossy().into_owned()),
+            ("XDG_CONFIG_HOME", config.to_string_lossy().into_owned()),
+            (
+                "XDG_CONFIG_DIRS",
+                dir.join("none").to_string_lossy().into_owned(),
+            ),
+        ];
+        let report = status(&data, &env(&vars));
+        let s = report.lines.join("\n");
+        assert!(report.problems.is_empty(), "{report:?}");
+        assert!(
+            s.contains(&format!("loader: {}", lib_dir.join(LOADER_FILE).display())),
+            "{s}"
+        );
+        assert!(s.contains("runtime \"Vendor\": "), "{s}");
+        assert!(s.contains("vendor/bin/vrclient.so"), "{s}");
+
+        // XR_RUNTIME_JSON wins; a bare library name is looked up in the
+        // library path; a missing library fails the status.
+        let manifest = dir.join("bare.json");
+        std::fs::write(
+            &manifest,
+            r#"{"file_format_version": "1.0.0", "runtime": {"library_path": "libruntime.so"}}"#,
+        )
+        .unwrap();
+        let mut vars = vars.to_vec();
+        vars.push(("XR_RUNTIME_JSON", manifest.to_string_lossy().into_owned()));
+        let report = status(&data, &env(&vars));
+        let s = report.lines.join("\n");
+        assert!(report.problems.is_empty(), "{report:?}");
+        assert!(
+            s.contains(&format!(
+                "library {}",
+                lib_dir.join("libruntime.so").display()
+            )),
+            "{s}"
+        );
+        std::fs::remove_file(lib_dir.join("libruntime.so")).unwrap();
+        let report = status(&data, &env(&vars));
+        assert_eq!(report.problems, ["no OpenXR runtime found"], "{report:?}");
+        assert!(
+            report.lines.join("\n").contains("does not exist"),
+            "{report:?}"
+        );
+
+        // Nothing anywhere: not found, named in the report.
+        let vars = [(
+            "XR_RUNTIME_JSON",
+            dir.join("gone.json").to_string_lossy().into_owned(),
+        )];
+        let report = status(&data, &env(&vars));
+        assert!(
+            report
+                .lines
+                .join("\n")
+                .contains("runtime: not found (XR_RUNTIME_JSON="),
+            "{report:?}"
+        );
+        assert_eq!(report.problems, ["no OpenXR runtime found"]);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
@@ -368,7 +651,7 @@ mod tests {
                 config.to_string_lossy().into_owned(),
             ),
         ];
-        let s = status(&data, &env(&vars)).join("\n");
+        let s = status(&data, &env(&vars)).lines.join("\n");
         assert!(s.contains("(in this environment: named)"), "{s}");
         assert!(s.contains("loads it in every OpenXR app"), "{s}");
         assert!(s.contains("source pupil://10.0.0.2:50020"), "{s}");
@@ -382,7 +665,15 @@ mod tests {
                 config.to_string_lossy().into_owned(),
             ),
         ];
-        let s = status(&data, &env(&vars)).join("\n");
+        let report = status(&data, &env(&vars));
+        assert!(
+            report
+                .problems
+                .iter()
+                .any(|p| p.contains("config is invalid")),
+            "{report:?}"
+        );
+        let s = report.lines.join("\n");
         assert!(s.contains("(in this environment: not named)"), "{s}");
         assert!(
             s.contains("DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION is set: not loaded"),
@@ -390,7 +681,7 @@ mod tests {
         );
         assert!(s.contains("layer.toml:1:8: gaze:"), "{s}");
         std::fs::remove_file(&lib).unwrap();
-        let s = status(&data, &env(&[])).join("\n");
+        let s = status(&data, &env(&[])).lines.join("\n");
         assert_eq!(
             s.matches("the loader will not load it: its library")
                 .count(),
@@ -401,7 +692,7 @@ mod tests {
         let removed = uninstall(&data).unwrap();
         assert_eq!(removed, vec![explicit.clone(), implicit.clone()]);
         assert!(!explicit.exists() && !implicit.exists());
-        let s = status(&data, &env(&[])).join("\n");
+        let s = status(&data, &env(&[])).lines.join("\n");
         assert_eq!(s.matches("not installed").count(), 2, "{s}");
         let _ = std::fs::remove_dir_all(&dir);
     }

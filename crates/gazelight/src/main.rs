@@ -162,14 +162,14 @@ fn check(command: &Command) -> anyhow::Result<()> {
             .map(|_| ())
             .map_err(|e| anyhow::anyhow!("--source {}: {e}", args.source)),
         Command::Batch(args) => batch::load_rows(args).map(|_| ()),
+        Command::Layer(args) => layer::check(args),
         Command::Psf(_)
         | Command::Inspect(_)
         | Command::Export(_)
         | Command::Devices(_)
         | Command::Config(_)
         | Command::Profile(_)
-        | Command::Glare(_)
-        | Command::Layer(_) => Ok(()),
+        | Command::Glare(_) => Ok(()),
     }
 }
 

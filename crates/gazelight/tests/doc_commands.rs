@@ -24,7 +24,7 @@
 //! | `<!-- doc-test: set FLAG VALUE -->` | every gazelight command of the block gets `FLAG VALUE` (replacing its own value of FLAG, or appended), e.g. `set --frames 2` |
 //! | `<!-- doc-test: append ARGS… -->` | ARGS appended to every gazelight command of the block |
 //! | `<!-- doc-test: data NAME=REL -->` | before the block, `NAME` in the working directory links to `REL` under the shared test data; without the data the block is skipped (SKIP) outside CI and fails in CI |
-//! | `<!-- doc-test: config run\|render\|batch -->` | a toml block is loaded by that command's loader (`--config`, parse-only; `batch`: as its manifest); default `run` |
+//! | `<!-- doc-test: config run\|render\|batch\|layer -->` | a toml block is loaded by that command's loader (`--config`, parse-only; `batch`: as its manifest; `layer`: as the OpenXR layer's `layer.toml`, by `gazelight layer status` with `GAZELIGHT_LAYER_CONFIG`, parse-only); default `run` |
 //! | `<!-- doc-test: save NAME -->` | a toml or csv block is also saved as `NAME` in the working directory, for later blocks of the same page |
 //!
 //! Each page runs in its own temporary working directory, its blocks in
@@ -319,10 +319,10 @@ fn run_toml(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Resul
     let command = match directive(block, "config").next() {
         None => "run",
         Some([c]) if c == "batch" => return run_manifest(env, block, work, report, "toml"),
-        Some([c]) if c == "run" || c == "render" => c.as_str(),
+        Some([c]) if c == "run" || c == "render" || c == "layer" => c.as_str(),
         Some(other) => {
             return Err(format!(
-                "`config` takes run, render or batch, got {other:?}"
+                "`config` takes run, render, batch or layer, got {other:?}"
             ));
         }
     };
@@ -333,6 +333,21 @@ fn run_toml(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Resul
             return Err(format!("`save` takes one NAME, got {args:?}"));
         };
         std::fs::write(work.join(name), &block.body).map_err(|e| e.to_string())?;
+    }
+    if command == "layer" {
+        // The layer reads its file from the environment, not a flag.
+        let path = work.join(&file).to_string_lossy().into_owned();
+        let argv = ["layer".to_owned(), "status".to_owned()];
+        invoke(
+            env,
+            &argv,
+            &[("GAZELIGHT_LAYER_CONFIG", path.as_str())],
+            true,
+            work,
+        )
+        .map_err(|e| format!("[layer config] {e}"))?;
+        report.ran += 1;
+        return Ok(());
     }
     let argv = vec![command.to_owned(), "--config".to_owned(), file];
     invoke(env, &argv, &[], true, work).map_err(|e| format!("[{command} config] {e}"))?;
@@ -560,11 +575,15 @@ fn a_broken_page_fails() {
         ```csv\n\
         recording,fps\n\
         rec.asc,25\n\
+        ```\n\n\
+        <!-- doc-test: config layer -->\n\
+        ```toml\n\
+        effects = \"off\"\n\
         ```\n";
     let work = common::tmp_path("broken");
     let report = check_page(&env, "good.md", good, &work);
     assert!(report.failures.is_empty(), "{:?}", report.failures);
-    assert_eq!(report.ran, 4);
+    assert_eq!(report.ran, 5);
 
     let broken = [
         ("--fps 90", "--fsp 90", "a misspelt flag"),
@@ -582,6 +601,11 @@ fn a_broken_page_fails() {
         ),
         ("parse-only", "parse-onyl", "an unknown directive"),
         ("rec.asc,25", "rec.asc,fast", "a bad batch manifest row"),
+        (
+            "effects = \"off\"",
+            "effects = \"maybe\"",
+            "a bad layer.toml",
+        ),
     ];
     for (from, to, what) in broken {
         assert!(good.contains(from), "{from}");

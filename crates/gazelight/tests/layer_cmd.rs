@@ -1,5 +1,6 @@
 //! `gazelight layer install | status | uninstall` as a user runs them, with
-//! a temporary XDG_DATA_HOME and XDG_CONFIG_HOME (never the real ones).
+//! a temporary XDG_DATA_HOME and XDG_CONFIG_HOME (never the real ones) and
+//! a stand-in runtime manifest (XR_RUNTIME_JSON).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common;
@@ -15,10 +16,22 @@ fn install_status_uninstall_in_a_temp_data_home() {
     std::fs::write(&lib, b"stand-in").unwrap();
     std::fs::create_dir_all(config.join("gazelight")).unwrap();
     std::fs::write(config.join("gazelight/layer.toml"), "effects = \"off\"\n").unwrap();
-    let (d, c, l) = (
+    let runtime_lib = dir.join("libstand_in_runtime.so");
+    std::fs::write(&runtime_lib, b"stand-in").unwrap();
+    let runtime = dir.join("runtime.json");
+    std::fs::write(
+        &runtime,
+        format!(
+            r#"{{"file_format_version": "1.0.0", "runtime": {{"name": "stand-in", "library_path": "{}"}}}}"#,
+            runtime_lib.display()
+        ),
+    )
+    .unwrap();
+    let (d, c, l, r) = (
         data.to_str().unwrap(),
         config.to_str().unwrap(),
         lib.to_str().unwrap(),
+        runtime.to_str().unwrap(),
     );
     let env = [
         ("XDG_DATA_HOME", d),
@@ -26,6 +39,7 @@ fn install_status_uninstall_in_a_temp_data_home() {
         ("GAZELIGHT_LAYER_CONFIG", ""),
         ("XR_ENABLE_API_LAYERS", ""),
         ("DISABLE_XR_APILAYER_GAZELIGHT_PERCEPTION", ""),
+        ("XR_RUNTIME_JSON", r),
     ];
     let text = |o: &std::process::Output| {
         format!(
@@ -51,6 +65,27 @@ fn install_status_uninstall_in_a_temp_data_home() {
         "{s}"
     );
     assert!(s.contains("effects Off"), "{s}");
+    assert!(s.contains("runtime \"stand-in\": "), "{s}");
+    assert!(s.contains("loader: "), "{s}");
+
+    // A bad layer.toml: reported with its line, and the status fails.
+    std::fs::write(config.join("gazelight/layer.toml"), "effects = \"maybe\"\n").unwrap();
+    let o = gazelight_env(&["layer", "status"], &env);
+    let s = text(&o);
+    assert!(!o.status.success(), "{s}");
+    assert!(s.contains("layer.toml:1:"), "{s}");
+    assert!(s.contains("the layer config is invalid"), "{s}");
+    std::fs::write(config.join("gazelight/layer.toml"), "effects = \"off\"\n").unwrap();
+
+    // No runtime: reported, and the status fails.
+    let gone = dir.join("gone.json");
+    let mut no_runtime = env.to_vec();
+    no_runtime.retain(|(k, _)| *k != "XR_RUNTIME_JSON");
+    no_runtime.push(("XR_RUNTIME_JSON", gone.to_str().unwrap()));
+    let o = gazelight_env(&["layer", "status"], &no_runtime);
+    let s = text(&o);
+    assert!(!o.status.success(), "{s}");
+    assert!(s.contains("runtime: not found"), "{s}");
 
     let o = gazelight_env(&["layer", "uninstall"], &env);
     assert!(o.status.success() && !manifest.exists(), "{}", text(&o));
