@@ -57,7 +57,9 @@
 //! 146 term inside the field: 0.1495 → 0.1449 at 13.85 ppd, age 25,
 //! p = 0.5), goes to the near field through `α_c`. The veil beyond the
 //! field (CIE 146 holds to 100°; from 20° to 100° it holds 2.9 % of the
-//! light) is not in the kernel, with or without the taper. The taper applies to the analytic terms only: the
+//! light) is not in the kernel, with or without the taper: from the taper
+//! out to 90° it is [`crate::far_glare`]'s, which adds CIE 146 × (1 − t)
+//! for every source pixel and takes that light out of the source's pixel. The taper applies to the analytic terms only: the
 //! wave-optics near field (≤ 0.6°) ends inside any field wider than about
 //! 1.2°, and in seed scale (below) the FFT field fills the whole kernel.
 //!
