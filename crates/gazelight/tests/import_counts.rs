@@ -1,0 +1,207 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
+//! Issue 45 items 6 and 9 through the CLI: `gazelight inspect --json` of
+//! a Pupil-Capture-relay XDF with a 150 ms blink counts as many samples as
+//! pyxdf reads rows, and the blink; `gazelight export --bids` of a
+//! left-eye-only EyeLink file (made here from the shipped binocular one)
+//! writes one eye, raw and derivative, that bids-validator passes with 0
+//! errors, with the file's own rate and tracker and no path of this
+//! machine. The XDF is written by the import tests' LabRecorder-layout
+//! script from the real piprkit recording; pyxdf and the validator are
+//! installed by `.ci/test` (outside CI a missing one SKIPs, with `CI` set
+//! it fails).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use gazelight_test_support::skip_or_fail;
+
+fn gazelight(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run gazelight")
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "gazelight-import-counts-{}-{name}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn scripts() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../gazelight-import/tests/xdf")
+}
+
+/// Runs python3 on `script` with `args`; `None` (SKIP outside CI) when
+/// python3 or pyxdf is missing.
+fn python(script: &str, args: &[&str]) -> Option<Vec<u8>> {
+    let out = match Command::new("python3")
+        .arg(scripts().join(script))
+        .args(args)
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) => {
+            skip_or_fail(&format!("python3 not runnable: {e}"));
+            return None;
+        }
+    };
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        if err.contains("No module named 'pyxdf'") {
+            skip_or_fail("python3 has no pyxdf (pip install pyxdf)");
+            return None;
+        }
+        panic!("{script} failed: {err}");
+    }
+    Some(out.stdout)
+}
+
+#[test]
+fn inspect_of_a_relay_xdf_with_a_blink_counts_what_pyxdf_reads() {
+    let dir = tmp("xdf");
+    let xdf = dir.join("relay-blink.xdf");
+    let plr = gazelight_test_support::data_path("eye").join("piprkit-plr");
+    let Some(_) = python(
+        "write_eye_xdf.py",
+        &[
+            "pupil-capture-relay",
+            plr.join("pupil_trace.csv").to_str().unwrap(),
+            plr.join("stimuli.csv").to_str().unwrap(),
+            "4000",
+            xdf.to_str().unwrap(),
+            "gaze=0.4,0.6",
+            "blink=1000,30",
+        ],
+    ) else {
+        return;
+    };
+    let Some(dump) = python("pyxdf_dump.py", &[xdf.to_str().unwrap()]) else {
+        return;
+    };
+    let py: serde_json::Value = serde_json::from_slice(&dump).unwrap();
+    let rows = py["streams"][0]["time_stamps"].as_array().unwrap().len() as u64;
+    let blink_rows = py["streams"][0]["values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r[0].as_f64() == Some(0.0))
+        .count();
+    assert_eq!(
+        (rows, blink_rows),
+        (4000, 30),
+        "pyxdf's rows and blink rows"
+    );
+    let out = gazelight(&["inspect", "--json", xdf.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        s["samples"]["pupil"],
+        serde_json::json!([rows, rows]),
+        "{s}"
+    );
+    assert_eq!(s["samples"]["gaze"], rows, "{s}");
+    assert_eq!(
+        s["blinks"]["detected"],
+        serde_json::json!([1, 1]),
+        "{}",
+        s["blinks"]
+    );
+    eprintln!(
+        "pyxdf {rows} rows ({blink_rows} blink rows); inspect: pupils {}, gaze {}, blinks {}",
+        s["samples"]["pupil"], s["samples"]["gaze"], s["blinks"]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The shipped binocular EyeLink file as a left-eye-only recording.
+fn monocular_eyelink(dir: &Path) -> PathBuf {
+    let src = gazelight_test_support::data_path("eye").join("eyelink-psa/both_eyes.asc");
+    let text = std::fs::read_to_string(src).unwrap();
+    let mut out = String::with_capacity(text.len());
+    for line in text.lines() {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        let first = f.first().copied().unwrap_or("");
+        if first.starts_with(|c: char| c.is_ascii_digit()) && f.len() >= 8 {
+            out.push_str(&format!("{}\t{}\t{}\t{}\t...\n", f[0], f[1], f[2], f[3]));
+        } else if ["START", "END", "SAMPLES", "EVENTS"].contains(&first) {
+            out.push_str(&line.replace("\tRIGHT", ""));
+            out.push('\n');
+        } else if ["SBLINK", "EBLINK", "SFIX", "EFIX", "SSACC", "ESACC"].contains(&first)
+            && f.get(1) == Some(&"R")
+        {
+            continue;
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    let p = dir.join("left_eye.asc");
+    std::fs::write(&p, out).unwrap();
+    p
+}
+
+#[test]
+fn export_of_a_left_eye_eyelink_file_is_one_valid_eye() {
+    let dir = tmp("bids");
+    let asc = monocular_eyelink(&dir);
+    let ds = dir.join("ds");
+    let out = gazelight(&[
+        "export",
+        "--bids",
+        ds.to_str().unwrap(),
+        asc.to_str().unwrap(),
+        "--subject",
+        "left",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let beh = ds.join("sub-left/beh");
+    let der = ds.join("derivatives/gazelight/sub-left/beh");
+    let names = |d: &Path| {
+        let mut v: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(
+        names(&beh),
+        [
+            "sub-left_task-replay_recording-eye2_physio.json",
+            "sub-left_task-replay_recording-eye2_physio.tsv.gz",
+            "sub-left_task-replay_recording-eye2_physioevents.json",
+            "sub-left_task-replay_recording-eye2_physioevents.tsv.gz",
+        ]
+    );
+    for n in names(&der) {
+        assert!(n.contains("recording-eye2filtered_"), "{n}");
+    }
+    let sidecar: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(beh.join("sub-left_task-replay_recording-eye2_physio.json"))
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(sidecar["SamplingFrequency"], 500.0);
+    assert_eq!(sidecar["Manufacturer"], "SR Research");
+    assert_eq!(sidecar["ManufacturersModelName"], "EyeLink 1000 Plus");
+    assert_eq!(sidecar["RecordingSource"], "left_eye.asc (eyelink-asc)");
+    assert!(!sidecar.to_string().contains(&dir.display().to_string()));
+    gazelight_test_support::bids::validate(&ds);
+    gazelight_test_support::bids::validate(&ds.join("derivatives/gazelight"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
