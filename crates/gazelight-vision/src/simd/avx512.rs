@@ -662,20 +662,15 @@ mod tests {
         }
         let lut = crate::encode::srgb_lut();
         // SAFETY: the CPU has AVX-512F and BW, AVX2 and FMA (checked above).
-        assert_eq!(
-            unsafe { search_misses(&lut, lut.thresholds()) },
-            Vec::<usize>::new()
-        );
+        let misses = unsafe { search_misses(&lut, lut.thresholds()) };
+        assert_eq!(misses, Vec::<usize>::new());
         // Each node matters: one threshold off by one misses an index.
         for k in 1..SRGB_CODES {
             let mut t = *lut.thresholds();
             t.0[k] += 1;
             // SAFETY: as above.
-            assert_ne!(
-                unsafe { search_misses(&lut, &t) },
-                Vec::<usize>::new(),
-                "node {k}"
-            );
+            let misses = unsafe { search_misses(&lut, &t) };
+            assert_ne!(misses, Vec::<usize>::new(), "node {k}");
         }
     }
 
