@@ -407,7 +407,12 @@ impl FramePipeline {
             extent_px: [self.width as f64, self.height as f64],
         };
         angles.validate()?;
-        if let Some((_, conv)) = self.glare.as_mut() {
+        // The far field's grid follows the geometry: rebuilt (allocating)
+        // only when it changed, not when a live loop re-sets the same one
+        // each frame.
+        if angles != self.angles
+            && let Some((_, conv)) = self.glare.as_mut()
+        {
             conv.set_far_field(far_field(
                 &self.config.glare,
                 &self.psf_params,
