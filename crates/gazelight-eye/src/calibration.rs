@@ -533,6 +533,7 @@ impl CalibrationSession {
                 });
             }
             maps[e] = Some(EyeCalibration {
+                kind: crate::profile::MapKind::Aperture,
                 raw_unit: unit,
                 raw_black: black,
                 raw_white: white,

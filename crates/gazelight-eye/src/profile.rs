@@ -2,11 +2,21 @@
 //! raw pupil units to millimetres (001 §5), and the observer it was made
 //! for.
 //!
-//! The map is bounded: a raw value that is not finite or ≤ 0 (a blink, a
-//! lost pupil) is rejected before mapping ([`BadRawPupil`]), and the
-//! result is clamped to the profile's `[mm_min, mm_max]` (2–8 mm by
-//! default, 001 §5) — the line is never extrapolated past the pupils the
-//! observer showed in the black and white phases.
+//! Two kinds of map ([`MapKind`]), never confused:
+//!
+//! - **aperture** (the default, what `calibrate` and `profile phases`
+//!   write): 001 §5's black/white map onto the model's range (2–8 mm by
+//!   default). It sizes the glare kernel's pupil aperture; it is not a
+//!   measurement, so the measured pupil stays in the tracker's own unit
+//!   (or its mm). The line runs through the two phases' estimates and is
+//!   *not* clamped at them: a pupil larger than in the black phase maps
+//!   above `mm_max`; the filter chain bounds the aperture only by the
+//!   physiological range and counts what falls outside.
+//! - **scale** (`profile scale`, an artificial pupil): a physical scale,
+//!   millimetres per raw unit; the measured pupil is then in mm.
+//!
+//! A raw value that is not finite or ≤ 0 (a blink, a lost pupil) is
+//! rejected before mapping ([`BadRawPupil`]).
 //!
 //! Profiles are JSON files (schema `gazelight.pupil-calibration/2`,
 //! documented in `calibration/schema.json` and `calibration/README.md` at
@@ -91,10 +101,26 @@ pub const DEFAULT_MM_MIN: f64 = 2.0;
 /// Default pupil diameter mapped to the black phase, mm (001 §5).
 pub const DEFAULT_MM_MAX: f64 = 8.0;
 
+/// What a map means: the model aperture (001 §5) or a physical scale.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MapKind {
+    /// 001 §5's black/white map onto the model's range: sizes the PSF, not
+    /// a measurement.
+    #[default]
+    Aperture,
+    /// A physical scale (mm per raw unit): the measured pupil in mm.
+    Scale,
+}
+
 /// One eye's linear map.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EyeCalibration {
+    /// Whether this map is the model aperture (default; profiles without
+    /// the field) or a physical scale.
+    #[serde(default)]
+    pub kind: MapKind,
     /// Unit of the raw values this map applies to.
     pub raw_unit: PupilUnit,
     /// Robust raw pupil during the black phase (√area for area units).
@@ -109,8 +135,9 @@ pub struct EyeCalibration {
 
 impl EyeCalibration {
     /// Maps a raw diameter-like value (already √area for area units) onto
-    /// mm: rejects a raw value that is not finite or ≤ 0 before mapping,
-    /// and clamps the line to `[mm_min, mm_max]`.
+    /// mm along the line through the two phases: rejects a raw value that
+    /// is not finite or ≤ 0 before mapping; never clamps (a value past a
+    /// phase's estimate is extrapolated; bounds are the caller's, counted).
     #[inline]
     pub fn map(&self, raw: f64) -> Result<f64, BadRawPupil> {
         if !raw.is_finite() {
@@ -119,10 +146,9 @@ impl EyeCalibration {
         if raw <= 0.0 {
             return Err(BadRawPupil::NonPositive);
         }
-        let mm = self.mm_max
+        Ok(self.mm_max
             + (raw - self.raw_black) * (self.mm_min - self.mm_max)
-                / (self.raw_white - self.raw_black);
-        Ok(mm.clamp(self.mm_min, self.mm_max))
+                / (self.raw_white - self.raw_black))
     }
 
     fn validate(&self, field: &str) -> Result<(), (String, String)> {
@@ -244,13 +270,37 @@ impl PupilCalibration {
         }
     }
 
-    /// The sample's diameter in mm: through this eye's map if it has one for
-    /// the sample's unit (a raw value that is not finite or ≤ 0 is an
-    /// error, the result is clamped to the map's range); else the tracker's
-    /// own mm (`diameter_mm`, or a raw value in mm), not range-checked
-    /// here; else `Ok(None)` (uncalibrated raw units).
+    /// The measured pupil of a sample, in its unit: the tracker's own mm
+    /// (`diameter_mm`, or a raw value in mm); else raw × this eye's
+    /// physical scale ([`MapKind::Scale`]) in mm; else the raw value in
+    /// the tracker's unit (diameter, or area for area units). NaN when the
+    /// raw value is not finite or ≤ 0.
     #[inline]
-    pub fn to_mm(&self, p: &PupilSample) -> Result<Option<f32>, BadRawPupil> {
+    pub fn measured(&self, p: &PupilSample) -> (f32, PupilUnit) {
+        if let Some(mm) = p.diameter_mm {
+            return (mm, PupilUnit::Mm);
+        }
+        if p.unit == PupilUnit::Mm {
+            return (p.diameter_raw, PupilUnit::Mm);
+        }
+        if let Some(c) = self.eye(p.eye)
+            && c.kind == MapKind::Scale
+            && c.raw_unit == p.unit
+        {
+            return match c.map(Self::raw_value(p)) {
+                Ok(mm) => (mm as f32, PupilUnit::Mm),
+                Err(_) => (f32::NAN, PupilUnit::Mm),
+            };
+        }
+        (p.diameter_raw, p.unit)
+    }
+
+    /// The model aperture of a sample, mm: through this eye's map when it
+    /// has one for the sample's unit (001 §5's line, not clamped); else the
+    /// tracker's own mm; else `Ok(None)` (raw units with no map). A raw
+    /// value that is not finite or ≤ 0 is an error.
+    #[inline]
+    pub fn aperture_mm(&self, p: &PupilSample) -> Result<Option<f32>, BadRawPupil> {
         if let Some(c) = self.eye(p.eye)
             && c.raw_unit == p.unit
         {
@@ -259,10 +309,24 @@ impl PupilCalibration {
             }
             return c.map(Self::raw_value(p)).map(|mm| Some(mm as f32));
         }
-        if let Some(mm) = p.diameter_mm {
-            return Ok(Some(mm));
+        let (v, unit) = self.measured(p);
+        if unit != PupilUnit::Mm {
+            return Ok(None);
         }
-        Ok((p.unit == PupilUnit::Mm).then_some(p.diameter_raw))
+        if !v.is_finite() {
+            return Err(BadRawPupil::NotFinite);
+        }
+        if v <= 0.0 {
+            return Err(BadRawPupil::NonPositive);
+        }
+        Ok(Some(v))
+    }
+
+    /// Whether this eye's map is 001 §5's aperture map for `unit` (then
+    /// the measured pupil in `unit` is not in mm).
+    pub fn maps_aperture(&self, eye: u8, unit: PupilUnit) -> bool {
+        self.eye(eye)
+            .is_some_and(|c| c.raw_unit == unit && c.kind == MapKind::Aperture)
     }
 
     /// Checks the schema and every map; `Err((field, reason))`.

@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::sample::PupilUnit;
+
 /// Index of the right eye in per-eye arrays (Pupil Core's eye id 0).
 pub const EYE_RIGHT: usize = 0;
 /// Index of the left eye in per-eye arrays (Pupil Core's eye id 1).
@@ -23,10 +25,22 @@ pub enum PupilOrigin {
     Default,
 }
 
-/// One eye's state.
+/// One eye's state: two quantities, never confused.
+///
+/// - The **measured pupil** ([`Self::measured`], in [`Self::measured_unit`]):
+///   the newest clean sample of this eye, unchanged — the tracker's mm, raw
+///   × a physical scale, or the tracker's raw unit — or `None` where this
+///   eye is not measured now (lost, a blink and its margins, a speed
+///   outlier, before its first measurement, an eye the source does not
+///   have). This is what research outputs carry.
+/// - The **model aperture** ([`Self::pupil_mm`]): the pupil the glare PSF
+///   is built for — 001 §5's black/white map or the measured mm, held
+///   through blinks, eased to the pupil model when nothing is measured,
+///   rate-limited; always finite and > 0.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EyeChannel {
-    /// Calibrated pupil diameter in millimetres; always finite and > 0.
+    /// The model aperture, mm (sizes the glare PSF; not a measurement);
+    /// always finite and > 0.
     pub pupil_mm: f32,
     /// Where `pupil_mm` came from.
     pub pupil_origin: PupilOrigin,
@@ -51,6 +65,31 @@ pub struct EyeChannel {
     /// residual out).
     #[serde(default)]
     pub settling: bool,
+    /// The measured pupil now, in `measured_unit`; `None` where this eye is
+    /// not measured (see the type's docs).
+    #[serde(default)]
+    pub measured: Option<f32>,
+    /// The unit of `measured` (mm where known).
+    #[serde(default)]
+    pub measured_unit: Option<PupilUnit>,
+    /// The time of the sample `measured` comes from (same clock as
+    /// `EyeState::t_secs`).
+    #[serde(default)]
+    pub measured_t_secs: Option<f64>,
+    /// Whether the source has given any pupil sample of this eye (a
+    /// monocular recording's other eye never has).
+    #[serde(default)]
+    pub present: bool,
+}
+
+impl EyeChannel {
+    /// The measured pupil in mm, where it is measured and in mm.
+    pub fn measured_mm(&self) -> Option<f32> {
+        match (self.measured, self.measured_unit) {
+            (Some(v), Some(PupilUnit::Mm)) => Some(v),
+            _ => None,
+        }
+    }
 }
 
 fn centre_uv() -> [f32; 2] {
@@ -68,6 +107,10 @@ impl Default for EyeChannel {
             gaze_uv: centre_uv(),
             gaze_valid: false,
             settling: false,
+            measured: None,
+            measured_unit: None,
+            measured_t_secs: None,
+            present: false,
         }
     }
 }
@@ -144,6 +187,41 @@ impl EyeState {
                 }
             }
             _ => self.pupil_mm(),
+        }
+    }
+
+    /// The measured pupil of a view, with its unit: eye `eye`'s own
+    /// ([`EYE_RIGHT`], [`EYE_LEFT`]), or for any other index the mean of
+    /// the eyes measured now (in one unit). `None` where nothing is
+    /// measured — never the other eye's or the model's value.
+    pub fn view_measured(&self, eye: usize) -> Option<(f32, PupilUnit)> {
+        match self.eyes.get(eye) {
+            Some(e) => e.measured.zip(e.measured_unit),
+            None => {
+                let mut sum = 0.0f32;
+                let mut n = 0u32;
+                let mut unit = None;
+                for e in &self.eyes {
+                    if let (Some(v), Some(u)) = (e.measured, e.measured_unit) {
+                        if unit.is_some_and(|u0| u0 != u) {
+                            continue;
+                        }
+                        unit = Some(u);
+                        sum += v;
+                        n += 1;
+                    }
+                }
+                unit.map(|u| (sum / n as f32, u))
+            }
+        }
+    }
+
+    /// Whether eye `eye` (any other index: either eye) is present in the
+    /// source.
+    pub fn view_present(&self, eye: usize) -> bool {
+        match self.eyes.get(eye) {
+            Some(e) => e.present,
+            None => self.eyes.iter().any(|e| e.present),
         }
     }
 

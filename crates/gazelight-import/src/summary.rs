@@ -19,7 +19,7 @@ use std::time::Duration;
 use serde::Serialize;
 
 use crate::{ImportError, ImportWarnings, Importer};
-use gazelight_eye::filter::{ChainStats, FilterChain, PupilStreamCounts};
+use gazelight_eye::filter::{ChainStats, FilterChain, PupilOutcome, PupilStreamCounts};
 use gazelight_eye::sample::{PupilUnit, Sample};
 use gazelight_pupil::{PupilClient, PupilConfig};
 
@@ -103,8 +103,12 @@ pub struct EyePupil {
     pub unit: Option<PupilUnit>,
     /// Raw values > 0 (0 = lost is excluded).
     pub raw: Option<Range>,
-    /// The chain's output after each sample of this eye, mm.
+    /// The clean measured pupils of this eye (after the guideline
+    /// cleaning, unchanged values), mm; `None` where the pupil is in raw
+    /// units without a physical scale.
     pub filtered_mm: Option<Range>,
+    /// The clean measured pupils in the raw unit (no physical scale).
+    pub measured_raw: Option<Range>,
     /// Mean reported confidence.
     pub confidence_mean: f64,
     /// Fraction of samples below the confidence gate.
@@ -185,12 +189,14 @@ pub struct Summarizer {
     unit: [Option<PupilUnit>; 2],
     raw: [Vec<f32>; 2],
     filtered: [Vec<f32>; 2],
+    measured_raw: [Vec<f32>; 2],
     conf_sum: [f64; 2],
     invalid: u64,
 }
 
 impl Summarizer {
-    pub fn new(chain: FilterChain) -> Self {
+    pub fn new(mut chain: FilterChain) -> Self {
+        chain.keep_decided();
         Self {
             chain,
             first_t: f64::INFINITY,
@@ -201,6 +207,7 @@ impl Summarizer {
             unit: [None; 2],
             raw: [Vec::new(), Vec::new()],
             filtered: [Vec::new(), Vec::new()],
+            measured_raw: [Vec::new(), Vec::new()],
             conf_sum: [0.0; 2],
             invalid: 0,
         }
@@ -214,6 +221,7 @@ impl Summarizer {
     /// Feeds one sample.
     pub fn push(&mut self, s: &Sample) {
         let up = self.chain.push(s);
+        self.take_decided();
         let t = s.t_secs();
         if t.is_finite() {
             self.first_t = self.first_t.min(t);
@@ -237,9 +245,6 @@ impl Summarizer {
                 let e = p.eye as usize;
                 let m = PupilStreamCounts::detector_index(p.method);
                 span(PupilStreamCounts::DETECTORS * e + m);
-                if let Some(outcome) = up.pupil_outcome {
-                    self.outcomes[e][m].add(outcome);
-                }
                 self.counts.pupil[e] += 1;
                 self.unit[e].get_or_insert(p.unit);
                 if p.diameter_raw > 0.0 && p.diameter_raw.is_finite() {
@@ -252,7 +257,6 @@ impl Summarizer {
                 if !(f.is_finite() && f > 0.0) {
                     self.invalid += 1;
                 }
-                self.filtered[e].push(f);
             }
             Sample::Pupil(_) => {}
             Sample::Gaze(g) => {
@@ -271,6 +275,23 @@ impl Summarizer {
         }
     }
 
+    /// The chain's decided pupil samples into the per-stream outcomes and
+    /// the measured ranges (what was measured: clean samples only).
+    fn take_decided(&mut self) {
+        for d in self.chain.take_decided() {
+            let e = usize::from(d.eye & 1);
+            let m = PupilStreamCounts::detector_index(d.method);
+            self.outcomes[e][m].add(PupilOutcome::from(d.fate));
+            if d.fate.is_clean() {
+                if d.unit == PupilUnit::Mm {
+                    self.filtered[e].push(d.value);
+                } else {
+                    self.measured_raw[e].push(d.value);
+                }
+            }
+        }
+    }
+
     /// Finishes: flushes pending blinks and computes the summary.
     pub fn finish(mut self, format: Option<&str>, warnings: &ImportWarnings) -> RecordingSummary {
         let end = if self.last_t.is_finite() {
@@ -279,6 +300,7 @@ impl Summarizer {
             0.0
         };
         self.chain.finish(end);
+        self.take_decided();
         let stats = *self.chain.stats();
         let rate = |(_, n, sum): (f64, u64, f64)| if n > 0 { n as f64 / sum } else { 0.0 };
         let mut pupil = [EyePupil::default(); 2];
@@ -309,6 +331,7 @@ impl Summarizer {
                 unit: self.unit[e],
                 raw: Range::of(&mut self.raw[e]),
                 filtered_mm: Range::of(&mut self.filtered[e]),
+                measured_raw: Range::of(&mut self.measured_raw[e]),
                 confidence_mean: self.conf_sum[e] / nf,
                 low_confidence_fraction: stats.rejected_confidence[e] as f64 / nf,
                 dropout_fraction: if n == 0 {
@@ -377,6 +400,102 @@ pub fn summarize_importer(
     let mut summary = s.finish(Some(format), importer.warnings());
     summary.eye_gaze = importer.eye_gaze().cloned();
     Ok(summary)
+}
+
+/// Warn when at most this fraction of an eye's pupil samples were measured.
+pub const MEASURED_WARN_FRACTION: f64 = 0.05;
+/// …and the eye has at least this many pupil samples.
+const MIN_PUPIL_SAMPLES: u64 = 20;
+
+/// What a user must know about a recording's pupils, from the chain's
+/// counters, as one warning (`None` when all is well): an eye whose pupil
+/// samples were (nearly) all rejected, naming the likely cause and the
+/// fix; an eye measured only in raw tracker units, with no physical scale
+/// (so no pupil in mm, and the glare aperture follows the light model
+/// unless a black/white profile maps it). The one rule for `inspect`,
+/// `replay`, `batch` and the Python package.
+pub fn pupil_rejection(stats: &ChainStats) -> Option<String> {
+    use gazelight_eye::filter::physio::PUPIL_MM_RANGE;
+    let eyes = ["right (0)", "left (1)"];
+    let mut lines = Vec::new();
+    let mut raw_only = Vec::new();
+    for (e, eye) in eyes.iter().enumerate() {
+        let n = stats.pupil_samples[e];
+        if n < MIN_PUPIL_SAMPLES {
+            continue;
+        }
+        let measured = stats.measured[e];
+        if measured as f64 > MEASURED_WARN_FRACTION * n as f64 {
+            if stats.uncalibrated[e] * 2 > measured {
+                raw_only.push(*eye);
+            }
+            continue;
+        }
+        let reasons = [
+            (
+                stats.rejected_range[e],
+                format!(
+                    "are outside the physiological range {}–{} mm: \
+                     the pupil is probably not in millimetres (pixels, area units or µm); \
+                     convert it, or give its unit (a CSV column named `left_px`/`right_px`) \
+                     and a --calibration FILE mapping it to mm",
+                    PUPIL_MM_RANGE.0, PUPIL_MM_RANGE.1
+                ),
+            ),
+            (
+                stats.rejected_confidence[e],
+                "are below the confidence gate: the tracker lost the pupil, or its \
+                 confidence column is on another scale"
+                    .to_string(),
+            ),
+            (
+                stats.rejected_non_positive[e] + stats.rejected_not_finite[e],
+                "are 0, negative or NaN (lost pupils)".to_string(),
+            ),
+            (
+                stats.rejected_rate[e],
+                "are dilation-speed outliers (noise, or a wrong time unit)".to_string(),
+            ),
+            (
+                stats.discarded_margin[e],
+                "lie within the margins around lost samples (a tracker that loses the \
+                 pupil every few samples)"
+                    .to_string(),
+            ),
+            (
+                stats.other_stream[e],
+                "belong to another stream of the eye than the one measured".to_string(),
+            ),
+        ];
+        let (count, why) = reasons
+            .iter()
+            .max_by_key(|(c, _)| *c)
+            .map(|(c, w)| (*c, w.as_str()))
+            .unwrap_or((0, ""));
+        lines.push(format!(
+            "eye {}: only {measured} of {n} pupil samples were accepted; {count} of them {why}",
+            eye
+        ));
+    }
+    let mut out = Vec::new();
+    if !lines.is_empty() {
+        out.push(format!(
+            "nearly all pupil samples were rejected, so nothing is measured and the glare \
+             aperture falls back to the light-adaptation model: {}",
+            lines.join("; ")
+        ));
+    }
+    if !raw_only.is_empty() {
+        out.push(format!(
+            "eye {}: the pupil is measured in raw tracker units (px or area) with no physical \
+             scale, so no pupil in mm is written (the measured pupil is given in the raw unit); \
+             for mm give --calibration with a profile made by `gazelight profile scale` (a known \
+             mm per unit); a black/white profile (`calibrate`, `profile phases`) sizes only the \
+             glare aperture",
+            raw_only.join(" and ")
+        ));
+    }
+    (!out.is_empty()).then(|| out.join("; "))
 }
 
 /// Why a live summary failed.

@@ -750,14 +750,22 @@ pub struct AdaptationOut {
 const PUPIL_TOPICS: [&str; 2] = ["pupil.0.3d", "pupil.1.3d"];
 const GAZE_TOPIC: &str = "gaze.3d.01.";
 
+/// One eye's pupil datum: the measured pupil in mm as `diameter_3d`, or —
+/// where the eye is not measured now (a blink and its margins, lost, no
+/// physical scale) — 0 with confidence 0, as Pupil Capture reports a lost
+/// pupil. The model aperture is never relayed as a measurement.
 fn pupil_out(eye: usize, ch: &EyeChannel, t: f64, raw: &RawFields) -> PupilOut {
+    let (diameter_3d, confidence) = match ch.measured_mm() {
+        Some(mm) => (f64::from(mm), f64::from(ch.confidence)),
+        None => (0.0, 0.0),
+    };
     PupilOut {
         topic: PUPIL_TOPICS[eye],
         id: eye as u8,
         method: RELAY_METHOD,
         timestamp: t,
-        confidence: f64::from(ch.confidence),
-        diameter_3d: f64::from(ch.pupil_mm),
+        confidence,
+        diameter_3d,
         diameter: raw.diameter_px[eye],
         norm_pos: raw.norm_pos[eye],
     }

@@ -15,7 +15,9 @@ use numpy::PyArray1;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use gazelight_tracker::filter::{ChainStats, Closure, ClosureKind, FilterChain, PupilOutcome};
+use gazelight_tracker::filter::{
+    ChainStats, Closure, ClosureKind, FilterChain, PupilOutcome, SampleFate, TrackSample,
+};
 use gazelight_tracker::import::{self, Importer};
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::{DetectorMethod, GazeEyes, PupilOrigin, PupilUnit, Sample};
@@ -31,6 +33,28 @@ pub(crate) const DETECTORS: [&str; 3] = ["2d", "3d", "pupil"];
 pub(crate) const ORIGINS: [&str; 4] = ["measured", "held", "model", "default"];
 /// The outcome names, indexed by the `outcome` column's codes (255: none).
 pub(crate) const OUTCOMES: [&str; 3] = ["measured", "dropout", "uncalibrated"];
+/// The fate names (what the guideline cleaning made of each sample),
+/// indexed by the `fate` column's codes (255: not decided: a sample with
+/// no valid time).
+pub(crate) const FATES: [&str; 6] = [
+    "clean",
+    "lost",
+    "out_of_range",
+    "margin",
+    "speed",
+    "other_stream",
+];
+
+fn fate_code(f: SampleFate) -> u8 {
+    match f {
+        SampleFate::Clean => 0,
+        SampleFate::Lost => 1,
+        SampleFate::OutOfRange => 2,
+        SampleFate::Margin => 3,
+        SampleFate::Speed => 4,
+        SampleFate::OtherStream => 5,
+    }
+}
 
 pub(crate) fn unit_code(u: PupilUnit) -> u8 {
     match u {
@@ -58,12 +82,11 @@ fn detector_code(m: DetectorMethod) -> u8 {
     }
 }
 
-fn outcome_code(o: Option<PupilOutcome>) -> u8 {
+fn outcome_code(o: PupilOutcome) -> u8 {
     match o {
-        Some(PupilOutcome::Measured) => 0,
-        Some(PupilOutcome::Uncalibrated) => 2,
-        Some(_) => 1,
-        None => 255,
+        PupilOutcome::Measured => 0,
+        PupilOutcome::Uncalibrated => 2,
+        PupilOutcome::Rejected => 1,
     }
 }
 
@@ -76,11 +99,47 @@ struct EyeColumns {
     tracker_mm: Vec<f32>,
     confidence: Vec<f32>,
     detector: Vec<u8>,
+    /// The measured pupil in mm (clean samples in mm), else NaN.
     pupil_mm: Vec<f32>,
+    /// The measured pupil in `measured_unit` (clean samples), else NaN.
+    measured: Vec<f32>,
+    measured_unit: Vec<u8>,
+    /// The guidelines' interpolated series of `measured` across the
+    /// discarded stretches, and where it is interpolated.
+    interpolated: Vec<f32>,
+    is_interpolated: Vec<bool>,
+    /// The model aperture after this sample was decided, mm.
+    aperture_mm: Vec<f32>,
+    fate: Vec<u8>,
     origin: Vec<u8>,
     outcome: Vec<u8>,
     blink: Vec<bool>,
     settling: Vec<bool>,
+    /// Rows waiting for the chain's decision, oldest first.
+    pending: std::collections::VecDeque<usize>,
+}
+
+impl EyeColumns {
+    /// The chain's decision about this eye's oldest pending row.
+    fn decide(&mut self, d: &TrackSample, state: &gazelight_tracker::EyeState) {
+        let Some(i) = self.pending.pop_front() else {
+            return;
+        };
+        let ch = &state.eyes[usize::from(d.eye & 1)];
+        let clean = d.fate.is_clean();
+        self.measured[i] = if clean { d.value } else { f32::NAN };
+        self.measured_unit[i] = unit_code(d.unit);
+        self.pupil_mm[i] = if clean && d.unit == PupilUnit::Mm {
+            d.value
+        } else {
+            f32::NAN
+        };
+        self.aperture_mm[i] = ch.pupil_mm;
+        self.fate[i] = fate_code(d.fate);
+        self.origin[i] = origin_code(ch.pupil_origin);
+        self.outcome[i] = outcome_code(PupilOutcome::from(d.fate));
+        self.settling[i] = ch.settling;
+    }
 }
 
 /// The gaze columns, a row per gaze sample.
@@ -141,6 +200,13 @@ fn collect(
     let mut recording_blinks = Events::default();
     let mut closures = Events::default();
     let mut last_t = f64::NEG_INFINITY;
+    chain.keep_decided();
+    let decide = |chain: &mut FilterChain, eyes: &mut [EyeColumns; 2]| {
+        let state = *chain.state();
+        for d in chain.take_decided() {
+            eyes[usize::from(d.eye & 1)].decide(&d, &state);
+        }
+    };
     for sample in &mut *importer {
         let sample = sample
             .map_err(|e| format!("while reading {}: {}", path.display(), crate::chain_msg(&e)))?;
@@ -163,11 +229,19 @@ fn collect(
                 c.tracker_mm.push(p.diameter_mm.unwrap_or(f32::NAN));
                 c.confidence.push(p.confidence);
                 c.detector.push(detector_code(p.method));
-                c.pupil_mm.push(ch.pupil_mm);
+                c.pupil_mm.push(f32::NAN);
+                c.measured.push(f32::NAN);
+                c.measured_unit.push(unit_code(p.unit));
+                c.aperture_mm.push(ch.pupil_mm);
+                c.fate.push(255);
                 c.origin.push(origin_code(ch.pupil_origin));
-                c.outcome.push(outcome_code(up.pupil_outcome));
+                c.outcome.push(255);
                 c.blink.push(up.state.blink);
                 c.settling.push(ch.settling);
+                if p.t_secs.is_finite() {
+                    c.pending.push_back(c.t_secs.len() - 1);
+                }
+                decide(&mut chain, &mut eyes);
             }
             Sample::Pupil(_) => {}
             Sample::Gaze(g) => {
@@ -211,6 +285,17 @@ fn collect(
     for c in chain.finish(end).iter().flatten() {
         closures.closure(c);
     }
+    decide(&mut chain, &mut eyes);
+    for c in &mut eyes {
+        c.interpolated = c.measured.clone();
+        c.is_interpolated = vec![false; c.measured.len()];
+        gazelight_tracker::filter::clean::interpolate_gaps(
+            &c.t_secs,
+            &mut c.interpolated,
+            &mut c.is_interpolated,
+            gazelight_tracker::filter::clean::DEFAULT_MAX_INTERPOLATED_GAP_S,
+        );
+    }
     let w = importer.warnings();
     Ok(Columns {
         format: importer.format().to_owned(),
@@ -219,7 +304,13 @@ fn collect(
         recording_blinks,
         closures,
         stats: *chain.stats(),
-        warnings: w.messages.clone(),
+        warnings: w
+            .messages
+            .iter()
+            .cloned()
+            // The CLI's `inspect`/`replay` warning, from the same function.
+            .chain(gazelight_tracker::summary::pupil_rejection(chain.stats()))
+            .collect(),
         skipped_records: w.skipped_records,
         eye_gaze: importer
             .eye_gaze()
@@ -288,6 +379,12 @@ pub(crate) fn read_recording<'py>(
         e.set_item("confidence", PyArray1::from_vec(py, c.confidence))?;
         e.set_item("detector", PyArray1::from_vec(py, c.detector))?;
         e.set_item("pupil_mm", PyArray1::from_vec(py, c.pupil_mm))?;
+        e.set_item("measured", PyArray1::from_vec(py, c.measured))?;
+        e.set_item("measured_unit", PyArray1::from_vec(py, c.measured_unit))?;
+        e.set_item("interpolated", PyArray1::from_vec(py, c.interpolated))?;
+        e.set_item("is_interpolated", PyArray1::from_vec(py, c.is_interpolated))?;
+        e.set_item("aperture_mm", PyArray1::from_vec(py, c.aperture_mm))?;
+        e.set_item("fate", PyArray1::from_vec(py, c.fate))?;
         e.set_item("origin", PyArray1::from_vec(py, c.origin))?;
         e.set_item("outcome", PyArray1::from_vec(py, c.outcome))?;
         e.set_item("blink", PyArray1::from_vec(py, c.blink))?;
@@ -319,6 +416,7 @@ pub(crate) fn read_recording<'py>(
     d.set_item("detectors", DETECTORS.to_vec())?;
     d.set_item("origins", ORIGINS.to_vec())?;
     d.set_item("outcomes", OUTCOMES.to_vec())?;
+    d.set_item("fates", FATES.to_vec())?;
     Ok(d)
 }
 
@@ -346,6 +444,11 @@ pub(crate) fn inspect_json(
                 &importer.data_files(),
             )
             .to_string());
+        }
+        let mut summary = summary;
+        // The CLI's own warning, from the same function.
+        if let Some(w) = gazelight_tracker::summary::pupil_rejection(&summary.chain) {
+            summary.warnings.push(w);
         }
         serde_json::to_string(&summary).map_err(|e| e.to_string())
     })

@@ -5,6 +5,7 @@
 //! samples through [`SampleFeed`] just ahead of the frame clock. A trace
 //! (`t_secs,gaze_u,gaze_v,pupil_mm`) is fed the same way.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 
 use gazelight_tracker::filter::{ChainStats, FilterChain};
@@ -17,25 +18,60 @@ use crate::RenderError;
 
 /// Feeds samples (in time order) through the tracker's one chain
 /// ([`LiveChain`]: the filter chain, then the stale → model fallback) on
-/// the recording's clock — every sample up to each frame's time, one
-/// sample of look-ahead, nothing else buffered — and maps the resulting
-/// `EyeState` onto the pipeline's per-frame input, so the PSF never sees a
-/// pupil of 0 (the failure of 001 §7.1). Deterministic: no wall clock.
+/// the recording's clock and maps the resulting `EyeState` onto the
+/// pipeline's per-frame input, so the PSF never sees a pupil of 0 (the
+/// failure of 001 §7.1). Deterministic: no wall clock.
+///
+/// Look-ahead: the guideline cleaning decides a pupil sample once it knows
+/// the margin after it (a blink 50 ms later discards it), so pupil samples
+/// are pushed until every eye has one past the frame's time plus that
+/// margin, and the chain's horizon is the frame's time
+/// ([`gazelight_tracker::filter::FilterChain::set_horizon`]): the state at
+/// a frame holds exactly the samples up to it, each decided. Gaze and
+/// blink events read ahead wait in a bounded queue until their time.
 pub struct SampleFeed<I> {
     samples: I,
-    pending: Option<Sample>,
     live: LiveChain,
     updates: u64,
+    /// Look-ahead beyond the frame's time, s (the cleaning's margin).
+    lookahead_s: f64,
+    /// Non-pupil samples read ahead, oldest first (bounded).
+    backlog: VecDeque<Sample>,
+    /// Per eye: the newest pupil sample time read.
+    newest_pupil_t: [Option<f64>; 2],
+    /// The newest time read.
+    lead_t: f64,
+    ended: bool,
 }
+
+/// Most gaze/blink samples kept back while reading pupil samples ahead
+/// (at 2 kHz, 2 s); beyond it they are applied early.
+const BACKLOG_CAPACITY: usize = 4096;
+/// The farthest the feed reads ahead of a frame for an eye whose samples
+/// stopped, s.
+const MAX_LOOKAHEAD_S: f64 = 1.0;
 
 impl<I: Iterator<Item = Sample>> SampleFeed<I> {
     pub fn new(samples: I, chain: FilterChain) -> Self {
+        let lookahead_s = chain.config().clean.margin_before_s;
         Self {
             samples,
-            pending: None,
             live: LiveChain::new(chain),
             updates: 0,
+            lookahead_s,
+            backlog: VecDeque::with_capacity(BACKLOG_CAPACITY),
+            newest_pupil_t: [None; 2],
+            lead_t: f64::NEG_INFINITY,
+            ended: false,
         }
+    }
+
+    /// A gaze/pupil trace rather than a recording: its rows are what the
+    /// user asks for, so its pupil holds from one row to the next (no
+    /// stale → model fallback between sparse rows).
+    pub fn hold_between_samples(mut self) -> Self {
+        self.live.set_stale_after_secs(f64::INFINITY);
+        self
     }
 
     /// The filtered state at `t_secs` (feeding the adaptation luminance of
@@ -44,16 +80,57 @@ impl<I: Iterator<Item = Sample>> SampleFeed<I> {
         if let Some(l) = adaptation_cd_m2 {
             self.live.set_adaptation_luminance(l);
         }
-        while let Some(s) = self.pending.take().or_else(|| self.samples.next()) {
-            if s.t_secs() > t_secs {
-                self.pending = Some(s);
-                break;
+        while self.backlog.front().is_some_and(|s| s.t_secs() <= t_secs) {
+            if let Some(s) = self.backlog.pop_front() {
+                self.live.push(&s);
+                self.updates += 1;
             }
-            self.live.push(&s);
-            self.updates += 1;
         }
+        let ahead = t_secs + self.lookahead_s;
+        while !self.ended && self.needs_more(ahead) {
+            let Some(s) = self.samples.next() else {
+                self.ended = true;
+                // The last samples have nothing after them: decide them.
+                self.live.flush_pending();
+                break;
+            };
+            let t = s.t_secs();
+            if t.is_finite() {
+                self.lead_t = self.lead_t.max(t);
+            }
+            match &s {
+                Sample::Pupil(p) => {
+                    if let Some(n) = self.newest_pupil_t.get_mut(usize::from(p.eye))
+                        && t.is_finite()
+                    {
+                        *n = Some(n.map_or(t, |n0| n0.max(t)));
+                    }
+                    self.live.push(&s);
+                    self.updates += 1;
+                }
+                _ if t <= t_secs || self.backlog.len() >= BACKLOG_CAPACITY => {
+                    self.live.push(&s);
+                    self.updates += 1;
+                }
+                _ => self.backlog.push_back(s),
+            }
+        }
+        self.live.set_horizon(t_secs);
         let age_secs = (t_secs - self.live.chain().state().t_secs).max(0.0);
         self.live.state_at(t_secs, age_secs, self.updates)
+    }
+
+    /// Whether to read on: an eye seen so far has no pupil sample past
+    /// `ahead` yet (within [`MAX_LOOKAHEAD_S`]), or nothing was read past
+    /// it.
+    fn needs_more(&self, ahead: f64) -> bool {
+        if self.lead_t <= ahead {
+            return true;
+        }
+        if self.lead_t > ahead + MAX_LOOKAHEAD_S || self.backlog.len() >= BACKLOG_CAPACITY {
+            return false;
+        }
+        self.newest_pupil_t.iter().flatten().any(|&t| t <= ahead)
     }
 
     /// The chain's counters.

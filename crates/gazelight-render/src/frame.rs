@@ -20,7 +20,7 @@
 //! CPU reference pipeline here, and the CLI's renderer, which picks the GPU
 //! or the CPU (`--backend`).
 
-use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, Sample};
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilUnit, Sample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
 use gazelight_vision::pipeline::{
@@ -57,9 +57,11 @@ impl View {
         }
     }
 
-    /// The pipeline's input for this view from the filtered state, and
-    /// whether its pupil is held or modelled rather than measured.
+    /// The pipeline's input for this view from the filtered state (its
+    /// pupil is the model aperture), and whether nothing is measured for
+    /// the view now ([`Self::pupil`]).
     pub fn input(self, state: &EyeState, dt_secs: f32) -> (FrameInput, bool) {
+        let held = self.pupil(state).measured.is_none();
         match self {
             View::Both => (
                 FrameInput {
@@ -67,10 +69,7 @@ impl View {
                     pupil_mm: state.pupil_mm(),
                     dt_secs,
                 },
-                state
-                    .eyes
-                    .iter()
-                    .any(|e| e.pupil_origin != PupilOrigin::Measured),
+                held,
             ),
             View::Eye(e) => (
                 FrameInput {
@@ -78,12 +77,61 @@ impl View {
                     pupil_mm: state.eye_pupil_mm(e),
                     dt_secs,
                 },
-                state
-                    .eyes
-                    .get(e)
-                    .is_none_or(|c| c.pupil_origin != PupilOrigin::Measured),
+                held,
             ),
         }
+    }
+
+    /// The index [`EyeState::view_measured`] takes for this view.
+    fn eye_index(self) -> usize {
+        match self {
+            View::Both => usize::MAX,
+            View::Eye(e) => e,
+        }
+    }
+
+    /// What this view's pupil columns carry: its measured pupil now (the
+    /// view's own eye, or mono the mean of the eyes measured now) and
+    /// whether the recording has its eye at all.
+    pub fn pupil(self, state: &EyeState) -> ViewPupil {
+        let i = self.eye_index();
+        ViewPupil {
+            measured: state.view_measured(i),
+            present: state.view_present(i),
+        }
+    }
+}
+
+/// A view's measured pupil at a frame ([`View::pupil`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewPupil {
+    /// The measured pupil and its unit; `None` where nothing is measured.
+    pub measured: Option<(f32, PupilUnit)>,
+    /// Whether the source has the view's eye (mono: either eye).
+    pub present: bool,
+}
+
+impl ViewPupil {
+    /// The measured pupil in mm (NaN where none or not in mm).
+    pub fn mm(&self) -> f32 {
+        match self.measured {
+            Some((v, PupilUnit::Mm)) => v,
+            _ => f32::NAN,
+        }
+    }
+
+    /// The measured pupil in a raw unit (NaN where none or in mm).
+    pub fn raw(&self) -> f32 {
+        match self.measured {
+            Some((v, u)) if u != PupilUnit::Mm => v,
+            _ => f32::NAN,
+        }
+    }
+
+    /// `pupil_held`: true where nothing is measured, `None` for an eye the
+    /// source does not have.
+    pub fn held(&self) -> Option<bool> {
+        self.present.then_some(self.measured.is_none())
     }
 }
 
@@ -440,7 +488,8 @@ impl<R: ViewRenderer> FrameStep<R> {
             }
         }
         let mut rows = Vec::with_capacity(n_views);
-        for (k, ((input, held), pipeline)) in inputs.iter().zip(&mut self.pipelines).enumerate() {
+        for (k, ((input, _), pipeline)) in inputs.iter().zip(&mut self.pipelines).enumerate() {
+            let pupil = self.views[k].pupil(&state);
             let mut stats = all_stats[k];
             stats.psf_rebuilt |= new_kernel.get(k).copied().unwrap_or(false) && n_views > 1;
             log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n_views as f64;
@@ -467,8 +516,10 @@ impl<R: ViewRenderer> FrameStep<R> {
                 t_secs: t_secs - self.t0_secs,
                 gaze_u: input.gaze_uv[0],
                 gaze_v: input.gaze_uv[1],
-                pupil_mm: input.pupil_mm,
-                pupil_held: *held,
+                pupil_mm: pupil.mm(),
+                pupil_raw: pupil.raw(),
+                pupil_held: pupil.held(),
+                aperture_mm: input.pupil_mm,
                 stats,
                 pupil_light_mm: f32::NAN,
                 pupil_residual_mm: f32::NAN,
@@ -532,6 +583,7 @@ impl<R: ViewRenderer> FrameStep<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gazelight_tracker::PupilOrigin;
 
     #[test]
     fn views_take_their_eyes_gaze_and_pupil() {
@@ -545,6 +597,9 @@ mod tests {
         s.eyes[EYE_RIGHT].pupil_origin = PupilOrigin::Measured;
         s.eyes[EYE_LEFT].gaze_uv = [0.25, 0.5];
         s.eyes[EYE_LEFT].gaze_valid = true;
+        s.eyes[EYE_LEFT].measured = Some(3.1);
+        s.eyes[EYE_LEFT].measured_unit = Some(PupilUnit::Mm);
+        s.eyes[EYE_LEFT].present = true;
         let (left, held) = STEREO[0].input(&s, 0.01);
         assert_eq!(
             (left.gaze_uv, left.pupil_mm, held),
@@ -555,6 +610,14 @@ mod tests {
         let (both, _) = MONO[0].input(&s, 0.01);
         assert_eq!((both.gaze_uv, both.pupil_mm), ([0.5, 0.5], 4.0));
         assert_eq!(STEREO.map(View::suffix), ["_left", "_right"]);
+        // The measured pupil is the eye's own, never the other eye's or the
+        // aperture; an eye the source does not have has empty columns.
+        let left = STEREO[0].pupil(&s);
+        assert_eq!((left.mm(), left.held()), (3.1, Some(false)));
+        let right = STEREO[1].pupil(&s);
+        assert!(right.mm().is_nan() && right.held().is_none(), "{right:?}");
+        let both = MONO[0].pupil(&s);
+        assert_eq!((both.mm(), both.held()), (3.1, Some(false)));
     }
 
     #[test]

@@ -48,7 +48,7 @@ use gazelight_tracker::pupil_response::{
     ObserverRange, PupilLightResponse, PupilRow, ResponseError, ResponseParams, fit_observer,
     residual_mm,
 };
-use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, Sample};
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin, PupilUnit, Sample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::luminance;
 use gazelight_vision::pipeline::{FrameInput, FrameStats, PipelineConfig};
@@ -298,6 +298,56 @@ pub fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
     sr * (180.0 / std::f64::consts::PI).powi(2)
 }
 
+/// The pupil a view's residual is taken from, mm: its measured pupil where
+/// that is in mm (the tracker's mm, or raw × a physical scale); where the
+/// pupil is measured only in raw units, the model aperture of 001 §5's
+/// black/white map while it follows a clean measurement (settled, not held)
+/// — a residual in the map's millimetres, which `session.json` names
+/// ([`ResidualBasis`]); `None` where nothing is measured (a blink and its
+/// margins, lost, a speed outlier, before the first measurement).
+pub fn residual_pupil_mm(view: View, state: &EyeState) -> Option<f32> {
+    match view.pupil(state).measured {
+        Some((v, PupilUnit::Mm)) => Some(v),
+        Some(_) if view_measured(view, state) => Some(view.input(state, 0.0).0.pupil_mm),
+        _ => None,
+    }
+}
+
+/// What the residual column is taken from, for `session.json`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResidualBasis {
+    /// The measured pupil in mm.
+    MeasuredMm,
+    /// 001 §5's black/white map of a pupil measured in raw units (no
+    /// physical scale): the model aperture's millimetres.
+    ApertureMap,
+}
+
+impl ResidualBasis {
+    /// The basis of a recording whose pupils are in `units`: the measured
+    /// mm when any is in mm, else the aperture map.
+    pub fn of(units: &[PupilUnit]) -> Self {
+        if units.is_empty() || units.contains(&PupilUnit::Mm) {
+            Self::MeasuredMm
+        } else {
+            Self::ApertureMap
+        }
+    }
+
+    /// Its description in `session.json`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::MeasuredMm => {
+                "measured pupil in mm (the tracker's mm, or raw × a physical scale)"
+            }
+            Self::ApertureMap => {
+                "no physical scale: the model aperture of 001 §5's black/white map (the profile's \
+                 millimetres, not a measurement in mm)"
+            }
+        }
+    }
+}
+
 /// Whether the pupil a view uses this frame is a measurement (not held
 /// over a blink or dropout, not the model's fill-in, not the default):
 /// the eyes whose value the view's pupil is made of must all be measured.
@@ -464,11 +514,12 @@ impl PupilLight {
         rows: &mut [TimelineRow],
     ) {
         let mut pupils = [(f32::NAN, false); 2];
-        for (p, ((input, _), v)) in pupils
+        for (p, (_, v)) in pupils
             .iter_mut()
             .zip(inputs.iter().zip(&self.views[..self.n_views]))
         {
-            *p = (input.pupil_mm, view_measured(*v, state));
+            let pupil = residual_pupil_mm(*v, state);
+            *p = (pupil.unwrap_or(f32::NAN), pupil.is_some());
         }
         let default = FrameStats::default();
         let target = |k: usize| {
@@ -588,12 +639,7 @@ pub fn fit_block<I: Iterator<Item = Sample>>(
         }
         let light = scene.field.light(views, &gaze_cd_m2[..views.len()]);
         for (k, v) in views.iter().enumerate() {
-            let (input, _) = v.input(&state, 0.0);
-            let pupil = if view_measured(*v, &state) {
-                f64::from(input.pupil_mm)
-            } else {
-                f64::NAN
-            };
+            let pupil = residual_pupil_mm(*v, &state).map_or(f64::NAN, f64::from);
             rows[k].push(PupilRow {
                 t_secs: t - t_from,
                 pupil_mm: pupil,

@@ -10,8 +10,22 @@ pub struct TimelineRow {
     pub t_secs: f64,
     pub gaze_u: f32,
     pub gaze_v: f32,
+    /// The measured pupil, mm: the newest clean sample of the view's eye
+    /// (mono: the mean of the eyes measured now), the tracker's mm or raw ×
+    /// a physical scale; NaN (an empty cell) where nothing is measured or
+    /// the pupil has no physical scale.
     pub pupil_mm: f32,
-    pub pupil_held: bool,
+    /// The measured pupil in the tracker's raw unit where it has no
+    /// physical scale (session.json names the unit); NaN otherwise.
+    pub pupil_raw: f32,
+    /// Whether nothing is measured for this view at this frame (a blink and
+    /// its margins, lost, before the first measurement); `None` (an empty
+    /// cell) for an eye the recording does not have.
+    pub pupil_held: Option<bool>,
+    /// The model aperture the glare PSF is built for, mm (001 §5's
+    /// black/white map or the measured mm, held and eased; not a
+    /// measurement).
+    pub aperture_mm: f32,
     pub stats: FrameStats,
     /// The pupil the light predicts, mm (`replay`'s pupil light response;
     /// NaN where it is not computed: then the column is not written).
@@ -22,11 +36,13 @@ pub struct TimelineRow {
 }
 
 /// The per-view columns of `timeline.csv`, after `t_secs`.
-pub const TIMELINE_COLUMNS: [&str; 16] = [
+pub const TIMELINE_COLUMNS: [&str; 18] = [
     "gaze_u",
     "gaze_v",
     "pupil_mm",
+    "pupil_raw",
     "pupil_held",
+    "aperture_mm",
     "target_cd_m2",
     "adaptation_cd_m2",
     "psf_pupil_mm",
@@ -47,15 +63,17 @@ pub const PUPIL_LIGHT_COLUMNS: [&str; 2] = ["pupil_light_mm", "pupil_residual_mm
 
 impl TimelineRow {
     /// The values of [`TIMELINE_COLUMNS`], in their order (booleans as 0
-    /// or 1), unrounded.
-    pub fn values(&self) -> [f64; 16] {
+    /// or 1, NaN for an empty cell), unrounded.
+    pub fn values(&self) -> [f64; 18] {
         let s = &self.stats;
         let t = &s.timings;
         [
             f64::from(self.gaze_u),
             f64::from(self.gaze_v),
             f64::from(self.pupil_mm),
-            f64::from(u8::from(self.pupil_held)),
+            f64::from(self.pupil_raw),
+            self.pupil_held.map_or(f64::NAN, |h| f64::from(u8::from(h))),
+            f64::from(self.aperture_mm),
             s.target_cd_m2,
             s.adaptation_cd_m2,
             s.psf_pupil_mm,

@@ -43,7 +43,7 @@ use std::time::Duration;
 use gazelight_eye::clock::{ClockStats, host_now_secs};
 use gazelight_eye::filter::{
     ChainStats, ChainUpdate, DEFAULT_ADAPTATION_LUMINANCE_CD_M2, DropoutFill, FilterChain,
-    PupilOutcome, PupilStreamCounts, SlewLimiter,
+    PupilOutcome, PupilStreamCounts, SlewLimiter, TrackSample,
 };
 use gazelight_eye::pupil_model::PupilModel;
 use gazelight_eye::source::{SampleSource, SourceError};
@@ -217,8 +217,12 @@ pub struct LiveChain {
     model: PupilModel,
     fill: [DropoutFill; 2],
     slew: [SlewLimiter; 2],
+    /// Per eye: whether the fallback's limiter has started (at the chain's
+    /// first aperture, never from a made-up default).
+    slew_started: [bool; 2],
     luminance_cd_m2: Option<f64>,
     stale_after_secs: f64,
+    max_rate_mm_per_s: f32,
 }
 
 impl LiveChain {
@@ -231,8 +235,10 @@ impl LiveChain {
             model: cfg.pupil_model,
             fill: [DropoutFill::new(cfg.dropout, model_mm); 2],
             slew: [SlewLimiter::new(cfg.physio.max_rate_mm_per_s, model_mm); 2],
+            slew_started: [false; 2],
             luminance_cd_m2: None,
             stale_after_secs: STALE_AFTER_SECS,
+            max_rate_mm_per_s: cfg.physio.max_rate_mm_per_s,
             chain,
         }
     }
@@ -253,6 +259,40 @@ impl LiveChain {
     /// Feeds one sample to the filter chain.
     pub fn push(&mut self, sample: &Sample) -> ChainUpdate {
         self.chain.push(sample)
+    }
+
+    /// Keeps the chain's decided pupil samples for [`Self::take_decided`].
+    pub fn keep_decided(&mut self) {
+        self.chain.keep_decided();
+    }
+
+    /// The pupil samples the chain decided since the last call.
+    pub fn take_decided(&mut self) -> impl Iterator<Item = TrackSample> + '_ {
+        self.chain.take_decided()
+    }
+
+    /// Offline look-ahead ([`FilterChain::set_horizon`]).
+    pub fn set_horizon(&mut self, t_secs: f64) {
+        self.chain.set_horizon(t_secs);
+    }
+
+    /// Ends the stream ([`FilterChain::finish`]).
+    pub fn finish(&mut self, t_secs: f64) {
+        self.chain.finish(t_secs);
+    }
+
+    /// Decides the chain's pending samples ([`FilterChain::flush_pending`]).
+    pub fn flush_pending(&mut self) {
+        self.chain.flush_pending();
+    }
+
+    /// How old the state may be before the fallback takes over, s
+    /// ([`STALE_AFTER_SECS`] by default; ∞ for a trace, whose pupil holds
+    /// between its rows).
+    pub fn set_stale_after_secs(&mut self, secs: f64) {
+        if secs > 0.0 {
+            self.stale_after_secs = secs;
+        }
     }
 
     /// The chain's counters.
@@ -283,9 +323,19 @@ impl LiveChain {
                 (fresh && ch.pupil_origin != PupilOrigin::Default).then_some(ch.pupil_mm);
             let (filled, origin) = self.fill[e].update(now_secs, measured, model_mm);
             let target = if fresh { ch.pupil_mm } else { filled };
-            ch.pupil_mm = self.slew[e].step(now_secs, target);
+            if !self.slew_started[e] && ch.pupil_origin != PupilOrigin::Default {
+                self.slew[e] = SlewLimiter::new(self.max_rate_mm_per_s, ch.pupil_mm);
+                self.slew_started[e] = true;
+            }
+            ch.pupil_mm = if self.slew_started[e] {
+                self.slew[e].step(now_secs, target)
+            } else {
+                target
+            };
             if !fresh {
                 ch.pupil_origin = origin;
+                // Stale: nothing is measured now, whatever was last.
+                ch.measured = None;
             }
         }
         state
@@ -361,7 +411,11 @@ pub fn spawn<S: SampleSource + 'static>(
     let task = tokio::spawn(
         Task {
             source,
-            chain: LiveChain::new(chain),
+            chain: {
+                let mut live = LiveChain::new(chain);
+                live.keep_decided();
+                live
+            },
             age_clock,
             config,
             eye_tx,
@@ -414,9 +468,8 @@ impl RateWindow {
         }
     }
 
-    /// One sample, what the chain made of it, and the state's age after it
-    /// when that was stale.
-    fn add(&mut self, now: f64, sample: &Sample, up: &ChainUpdate, stale_age: Option<f64>) {
+    /// One sample as it arrived.
+    fn add(&mut self, now: f64, sample: &Sample) {
         self.samples += 1;
         let confidence = sample_confidence(sample);
         if confidence.is_finite() {
@@ -424,17 +477,9 @@ impl RateWindow {
         }
         match sample {
             Sample::Pupil(p) => {
-                if let (Some(outcome), Some(eye)) =
-                    (up.pupil_outcome, self.pupil.get_mut(usize::from(p.eye)))
-                {
-                    eye[PupilStreamCounts::detector_index(p.method)].add(outcome);
-                    if outcome == PupilOutcome::Measured {
-                        self.measured += 1;
-                        if let Some(age) = stale_age {
-                            self.measured_stale += 1;
-                            self.stale_age_max_secs = self.stale_age_max_secs.max(age);
-                        }
-                    }
+                // Counted as it arrives; its outcome when it is decided.
+                if let Some(eye) = self.pupil.get_mut(usize::from(p.eye)) {
+                    eye[PupilStreamCounts::detector_index(p.method)].samples += 1;
                 }
             }
             Sample::Gaze(g) => {
@@ -448,6 +493,23 @@ impl RateWindow {
             Sample::Blink(_) => {}
         }
         self.last_sample_secs = Some(now);
+    }
+
+    /// One pupil sample as the chain decided it (a margin after it
+    /// arrived), and the state's age when that was stale.
+    fn add_decided(&mut self, d: &TrackSample, stale_age: Option<f64>) {
+        let Some(eye) = self.pupil.get_mut(usize::from(d.eye)) else {
+            return;
+        };
+        let outcome = PupilOutcome::from(d.fate);
+        eye[PupilStreamCounts::detector_index(d.method)].add_outcome(outcome);
+        if outcome == PupilOutcome::Measured {
+            self.measured += 1;
+            if let Some(age) = stale_age {
+                self.measured_stale += 1;
+                self.stale_age_max_secs = self.stale_age_max_secs.max(age);
+            }
+        }
     }
 
     /// Rates and dropouts per stream, per eye and overall into `s`.
@@ -723,13 +785,17 @@ impl<S: SampleSource> Task<S> {
                     if let Some(l) = adaptation.get() {
                         chain.set_adaptation_luminance(l);
                     }
-                    let up = chain.push(&sample);
+                    chain.push(&sample);
                     updates += 1;
                     let now = host_now_secs();
                     published_host_secs = now;
                     last_sample_host_secs = now;
                     let age = publish(&mut chain, &eye_tx, age_clock, now, updates, now);
-                    window.add(now, &sample, &up, (age > STALE_AFTER_SECS).then_some(age));
+                    window.add(now, &sample);
+                    let stale_age = (age > STALE_AFTER_SECS).then_some(age);
+                    for d in chain.take_decided() {
+                        window.add_decided(&d, stale_age);
+                    }
                     // No receiver is fine; a full ring drops its oldest.
                     let _ = samples.send(sample);
                     if !live {
@@ -840,6 +906,7 @@ mod tests {
         use gazelight_eye::GazeSample;
         let run = |low_confidence_every: Option<u32>| {
             let mut chain = FilterChain::with_defaults();
+            chain.keep_decided();
             let mut w = RateWindow::new(0.0, None);
             let hz = 200.0;
             for i in 0..200u32 {
@@ -867,8 +934,11 @@ mod tests {
                         two_d.confidence = 0.1;
                     }
                     for smp in [Sample::Pupil(two_d), Sample::Pupil(three_d)] {
-                        let up = chain.push(&smp);
-                        w.add(t, &smp, &up, None);
+                        chain.push(&smp);
+                        w.add(t, &smp);
+                        for d in chain.take_decided() {
+                            w.add_decided(&d, None);
+                        }
                     }
                 }
                 let mut gazes = vec![GazeEyes::Binocular];
@@ -882,9 +952,15 @@ mod tests {
                         confidence: 0.89,
                         eyes,
                     });
-                    let up = chain.push(&g);
-                    w.add(t, &g, &up, None);
+                    chain.push(&g);
+                    w.add(t, &g);
                 }
+            }
+            // The last samples are decided a margin later: at the end of
+            // the stream, now.
+            chain.flush_pending();
+            for d in chain.take_decided() {
+                w.add_decided(&d, None);
             }
             let mut s = SourceStatus::default();
             assert!(w.publish(1.0, &mut s, 0, None).is_some());

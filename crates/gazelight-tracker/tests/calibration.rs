@@ -356,6 +356,7 @@ fn summary_reports_each_phase_and_eye() {
 
 fn px_map() -> gazelight_tracker::profile::EyeCalibration {
     gazelight_tracker::profile::EyeCalibration {
+        kind: gazelight_tracker::profile::MapKind::Aperture,
         raw_unit: PupilUnit::Px,
         raw_black: 60.0,
         raw_white: 20.0,
@@ -365,24 +366,27 @@ fn px_map() -> gazelight_tracker::profile::EyeCalibration {
 }
 
 #[test]
-fn the_map_clamps_to_the_calibrated_range() {
+fn the_map_is_the_line_through_the_phases_not_clamped_at_them() {
     use gazelight_tracker::profile::EyeCalibration;
     let c = px_map();
     // Inside the phases' pupils the line itself (001 §5):
     // 8 + (40 − 60)·(2 − 8)/(20 − 60) = 5 mm.
     assert!((c.map(40.0).unwrap() - 5.0).abs() < 1e-12);
-    // Beyond them it is not extrapolated: a raw 100 px would be 14 mm,
-    // a raw 5 px −0.25 mm.
-    assert_eq!(c.map(100.0).unwrap(), 8.0);
-    assert_eq!(c.map(5.0).unwrap(), 2.0);
-    // The profile's own range, not 2–8 mm, when it configures another.
+    // Beyond them the same line (the filter chain bounds the aperture by
+    // the physiological range and counts what falls outside): a pupil
+    // larger than in the black phase is not pinned at the black phase's
+    // 8 mm. Raw 70 px: 8 + 10·6/40 = 9.5 mm; raw 15 px: 2 − 5·6/40 = 1.25.
+    assert!((c.map(70.0).unwrap() - 9.5).abs() < 1e-12);
+    assert!((c.map(15.0).unwrap() - 1.25).abs() < 1e-12);
+    // The profile's own range, not 2–8 mm, when it configures another:
+    // raw 60 → 7 mm, raw 20 → 3 mm.
     let narrow = EyeCalibration {
         mm_min: 3.0,
         mm_max: 7.0,
         ..c
     };
-    assert_eq!(narrow.map(1000.0).unwrap(), 7.0);
-    assert_eq!(narrow.map(1.0).unwrap(), 3.0);
+    assert!((narrow.map(60.0).unwrap() - 7.0).abs() < 1e-12);
+    assert!((narrow.map(20.0).unwrap() - 3.0).abs() < 1e-12);
 }
 
 #[test]
@@ -394,8 +398,8 @@ fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
     assert_eq!(c.map(-3.0), Err(BadRawPupil::NonPositive));
     assert_eq!(c.map(f64::NAN), Err(BadRawPupil::NotFinite));
     assert_eq!(c.map(f64::INFINITY), Err(BadRawPupil::NotFinite));
-    // Unclamped, raw 0 would have mapped to 8 + 60·6/40 = 17 mm, then
-    // clamped to a plausible 8 mm: a blink would read as a wide pupil.
+    // Raw 0 would map to 8 + 60·6/40 = 17 mm: a blink must never read as a
+    // (wide) pupil, so it is rejected before the map.
     let mut cal = PupilCalibration::identity();
     cal.eyes = EyeCalibrations {
         right: Some(c),
@@ -411,19 +415,27 @@ fn a_raw_pupil_at_or_below_zero_is_rejected_before_mapping() {
         norm_pos: [0.5, 0.5],
         method: DetectorMethod::Pupil2d,
     };
-    assert_eq!(cal.to_mm(&sample(0.0)), Err(BadRawPupil::NonPositive));
-    assert_eq!(cal.to_mm(&sample(-1.0)), Err(BadRawPupil::NonPositive));
-    assert_eq!(cal.to_mm(&sample(f32::NAN)), Err(BadRawPupil::NotFinite));
-    assert_eq!(cal.to_mm(&sample(40.0)), Ok(Some(5.0)));
-    assert_eq!(cal.to_mm(&sample(1e6)), Ok(Some(8.0)));
+    assert_eq!(cal.aperture_mm(&sample(0.0)), Err(BadRawPupil::NonPositive));
+    assert_eq!(
+        cal.aperture_mm(&sample(-1.0)),
+        Err(BadRawPupil::NonPositive)
+    );
+    assert_eq!(
+        cal.aperture_mm(&sample(f32::NAN)),
+        Err(BadRawPupil::NotFinite)
+    );
+    assert_eq!(cal.aperture_mm(&sample(40.0)), Ok(Some(5.0)));
+    // An aperture map is not a measurement: the measured pupil stays raw px.
+    assert_eq!(cal.measured(&sample(40.0)), (40.0, PupilUnit::Px));
     // Area units: √area of a negative area is not a pupil either.
     let mut area = sample(-4.0);
     area.unit = PupilUnit::ArbitraryArea;
     cal.eyes.right = Some(gazelight_tracker::profile::EyeCalibration {
+        kind: gazelight_tracker::profile::MapKind::Aperture,
         raw_unit: PupilUnit::ArbitraryArea,
         ..c
     });
-    assert!(cal.to_mm(&area).is_err());
+    assert!(cal.aperture_mm(&area).is_err());
 }
 
 #[test]

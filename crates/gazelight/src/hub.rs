@@ -31,9 +31,14 @@ pub struct FrameStatus {
     pub frames_late: u64,
     /// Session time of the newest frame, s.
     pub t_secs: f64,
-    /// Calibrated pupil per eye [right, left] (Pupil's eye indices), mm.
+    /// The measured pupil per eye [right, left] (Pupil's eye indices),
+    /// mm; NaN (null) where the eye is not measured now or has no physical
+    /// scale.
     pub pupil_mm: [f32; 2],
-    /// Pupil the frame used (binocular), mm.
+    /// The model aperture per eye [right, left], mm (sizes the glare PSF;
+    /// not a measurement).
+    pub aperture_mm: [f32; 2],
+    /// Aperture the frame used (binocular), mm.
     pub frame_pupil_mm: f32,
     /// Gaze used for the frame, normalised display coordinates.
     pub gaze_uv: [f32; 2],

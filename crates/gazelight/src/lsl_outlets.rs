@@ -24,7 +24,7 @@ use std::time::Duration;
 use anyhow::Context;
 use gazelight_tracker::lsl::{ChannelDesc, ChannelFormat, LslClock, LslConfig, Outlet, StreamDesc};
 use gazelight_tracker::pupil::clock::host_now_secs;
-use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState};
 use tokio::task::JoinHandle;
 
 use crate::hub::{Hub, TappedFrame};
@@ -162,15 +162,18 @@ fn marker_desc(prefix: &str, source: &str) -> StreamDesc {
 
 /// The eye sample of a state, in [`EYE_CHANNELS`] order.
 pub fn eye_values(s: &EyeState) -> [f64; 10] {
-    let valid = |e: usize| f64::from(u8::from(s.eyes[e].pupil_origin == PupilOrigin::Measured));
+    // The measured pupil (NaN where the eye is not measured now or has no
+    // physical scale), never the model aperture.
+    let valid = |e: usize| f64::from(u8::from(s.eyes[e].measured_mm().is_some()));
+    let mm = |e: usize| s.eyes[e].measured_mm().map_or(f64::NAN, f64::from);
     [
         f64::from(s.gaze_uv[0]),
         f64::from(s.gaze_uv[1]),
         f64::from(u8::from(s.gaze_valid)),
-        f64::from(s.eyes[EYE_RIGHT].pupil_mm),
+        mm(EYE_RIGHT),
         f64::from(s.eyes[EYE_RIGHT].confidence),
         valid(EYE_RIGHT),
-        f64::from(s.eyes[EYE_LEFT].pupil_mm),
+        mm(EYE_LEFT),
         f64::from(s.eyes[EYE_LEFT].confidence),
         valid(EYE_LEFT),
         f64::from(u8::from(s.blink)),

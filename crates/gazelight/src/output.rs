@@ -225,13 +225,17 @@ pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::
             let r = &rows[i];
             let s = &r.stats;
             let t = &s.timings;
+            write!(w, ",{:.5},{:.5}", r.gaze_u, r.gaze_v)?;
+            write_opt(&mut w, r.pupil_mm, 4)?;
+            write_opt(&mut w, r.pupil_raw, 4)?;
+            match r.pupil_held {
+                Some(h) => write!(w, ",{}", u8::from(h))?,
+                None => write!(w, ",")?,
+            }
             write!(
                 w,
-                ",{:.5},{:.5},{:.4},{},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
-                r.gaze_u,
-                r.gaze_v,
-                r.pupil_mm,
-                u8::from(r.pupil_held),
+                ",{:.4},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
+                r.aperture_mm,
                 s.target_cd_m2,
                 s.adaptation_cd_m2,
                 s.psf_pupil_mm,
@@ -262,6 +266,15 @@ pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::
     }
     w.flush()
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// `,value` with `decimals`, or `,` (an empty cell) where it is not finite.
+fn write_opt(w: &mut impl Write, v: f32, decimals: usize) -> std::io::Result<()> {
+    if v.is_finite() {
+        write!(w, ",{v:.decimals$}")
+    } else {
+        write!(w, ",")
+    }
 }
 
 pub(crate) fn register_font() -> anyhow::Result<()> {
@@ -328,7 +341,10 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()?;
-        let p_hi = all().map(|r| r.pupil_mm).fold(8.0f32, f32::max) as f64;
+        let p_hi = all()
+            .flat_map(|r| [r.pupil_mm, r.aperture_mm])
+            .filter(|v| v.is_finite())
+            .fold(8.0f32, f32::max) as f64;
         let mut chart = ChartBuilder::on(&bottom)
             .caption("pupil", ("sans-serif", 20))
             .margin(10)
@@ -341,7 +357,7 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
             let mut bands = Vec::new();
             let mut start = None;
             for w in rows.windows(2) {
-                match (start, w[0].pupil_held) {
+                match (start, w[0].pupil_held.unwrap_or(false)) {
                     (None, true) => start = Some(w[0].t_secs),
                     (Some(t), false) => {
                         bands.push((t, w[0].t_secs));
@@ -374,7 +390,7 @@ pub fn write_plot(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Resu
                     pupil.stroke_width(1),
                     dashed,
                 ))?
-                .label(format!("pupil{eye} (trace, dropouts held)"))
+                .label(format!("pupil{eye} measured (empty: not measured)"))
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], pupil));
             chart
                 .draw_series(line(
@@ -427,14 +443,21 @@ fn line(
     dashed: bool,
 ) -> Vec<PathElement<(f64, f64)>> {
     let points: Vec<(f64, f64)> = points.collect();
+    // A point that is not finite (an empty cell: nothing measured) breaks
+    // the line.
+    let runs = points
+        .split(|p| !(p.0.is_finite() && p.1.is_finite()))
+        .filter(|r| !r.is_empty());
     if !dashed {
-        return vec![PathElement::new(points, style)];
+        return runs.map(|r| PathElement::new(r.to_vec(), style)).collect();
     }
-    points
-        .windows(2)
-        .step_by(2)
-        .map(|w| PathElement::new(w.to_vec(), style))
-        .collect()
+    runs.flat_map(|r| {
+        r.windows(2)
+            .step_by(2)
+            .map(|w| PathElement::new(w.to_vec(), style))
+            .collect::<Vec<_>>()
+    })
+    .collect()
 }
 
 /// Draws a `size` RGB chart into memory with `draw` and writes it as PNG

@@ -130,6 +130,7 @@ pub fn scale_profile(unit: PupilUnit, mm_per_unit: f64) -> anyhow::Result<PupilC
         "--mm-per-unit {mm_per_unit}: expected a number > 0"
     );
     let map = EyeCalibration {
+        kind: gazelight_tracker::profile::MapKind::Scale,
         raw_unit: unit,
         raw_black: DEFAULT_MM_MAX / mm_per_unit,
         raw_white: DEFAULT_MM_MIN / mm_per_unit,

@@ -297,7 +297,9 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         .flat_map(|s| trace_source::expand(&s, s.t_secs));
     let chain = FilterChain::new(setup.config.filter, PupilCalibration::identity())
         .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
-    let mut feeder = SampleFeed::new(samples, chain);
+    // A trace's rows are what the user asks for: its pupil holds from one
+    // row to the next.
+    let mut feeder = SampleFeed::new(samples, chain).hold_between_samples();
     render_sequence(&args, &setup, &mut feeder, t0, duration, started, None)
 }
 

@@ -1,37 +1,52 @@
 //! The filter chain: raw samples in, [`EyeState`] out.
 //!
-//! Per pupil sample of eye `e`:
+//! Two quantities come out per eye, never confused (see
+//! [`crate::state::EyeChannel`]):
 //!
-//! 1. **blink** ([`blink`]): the sample is *closed* when it fails the
-//!    confidence gate or its raw diameter is ≤ 0 / NaN — units-agnostic, so
-//!    blinks are found before (and without) calibration;
-//! 2. **confidence** ([`confidence`]): gate at 0.6 (Pupil's threshold);
-//! 3. **calibration** ([`crate::profile::PupilCalibration`]): raw units
-//!    → mm for this eye (identity for sources already in mm);
-//! 4. **physiology** ([`physio`]): reject ≤ 0, NaN, outside 1.5–9 mm, or
-//!    changing faster than 6 mm/s (+ noise tolerance);
-//! 5. **dropout** ([`dropout`]): hold the last good pupil for 0.5 s, then
-//!    ease towards the Watson–Yellott pupil ([`crate::pupil_model`]) at the
+//! **The measured pupil** — per pupil sample of eye `e`:
+//!
+//! 1. **stream** : one stream per eye is measured — the one in mm when the
+//!    tracker gives mm (Pupil Core's 3D detector beside its 2D pixels),
+//!    else the one the profile maps, else the first; the others are
+//!    counted ([`SampleFate::OtherStream`]);
+//! 2. **lost** : below the confidence gate ([`confidence`], 0.6), a raw
+//!    value ≤ 0 / NaN, or a millimetre value outside the physiological
+//!    range ([`physio`], 1.5–9 mm);
+//! 3. **guideline cleaning** ([`clean`]): samples within 50 ms before and
+//!    after a lost sample and dilation-speed outliers (median + 16 MAD) are
+//!    discarded (Mathôt et al. 2018; Kret & Sjak-Shie 2019); every other
+//!    sample is **clean** and passes unchanged, in the tracker's mm, raw ×
+//!    a physical scale, or the raw unit. Decisions come out a margin after
+//!    the samples ([`FilterChain::set_horizon`] for offline look-ahead).
+//!
+//! **The model aperture** (the glare PSF's pupil) — from the clean samples:
+//! 001 §5's black/white map (not clamped; outside the physiological range
+//! counted, then bounded) or the measured mm; then
+//!
+//! 4. **dropout** ([`dropout`]): the last aperture is held for 0.5 s, then
+//!    eases towards the Watson–Yellott pupil ([`crate::pupil_model`]) at the
 //!    adaptation luminance fed back with
 //!    [`FilterChain::set_adaptation_luminance`];
-//! 6. **slew limit** ([`physio::SlewLimiter`]): the output never changes
-//!    faster than `physio.max_rate_mm_per_s`;
-//! 7. **binocular pairing** ([`binocular`]): a partner eye silent for longer
+//! 5. **slew limit** ([`physio::SlewLimiter`]): the aperture never changes
+//!    faster than `physio.max_rate_mm_per_s` — it starts *at* the first
+//!    measurement (before it, the model's pupil, origin `Default`);
+//! 6. **binocular pairing** ([`binocular`]): a partner eye silent for longer
 //!    than the pair window is advanced as missing.
 //!
-//! Gaze samples go through outlier rejection and One Euro smoothing
-//! ([`gaze`]). Blink events from the source are counted, not trusted.
+//! Blinks (closures) are found from the raw samples ([`blink`]); blink
+//! events from the source are counted, not trusted. Gaze samples go through
+//! outlier rejection and One Euro smoothing ([`gaze`]).
 //!
 //! The failure of 001 §7.1 (a tracker returning 0 made the glare flicker)
-//! cannot happen: every pupil the chain outputs comes out of the slew
-//! limiter, whose input is either a value that passed the range check or
-//! the model's pupil (finite, 1–9 mm), and which starts at the model's
-//! pupil. The property tests feed random garbage to prove it.
+//! cannot happen: the aperture comes out of the slew limiter, whose input
+//! is either a bounded aperture of a clean sample or the model's pupil. The
+//! property tests feed random garbage to prove it.
 //!
 //! No stage allocates on the heap per sample: all state is fixed-size.
 
 pub mod binocular;
 pub mod blink;
+pub mod clean;
 pub mod confidence;
 pub mod dropout;
 pub mod gaze;
@@ -42,15 +57,18 @@ use serde::{Deserialize, Serialize};
 
 use crate::profile::{BadRawPupil, PupilCalibration};
 use crate::pupil_model::PupilModel;
-use crate::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, Sample};
+use crate::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 use crate::state::{EYE_LEFT, EYE_RIGHT, EyeState, PupilOrigin};
 
 pub use binocular::{BinocularConfig, BinocularPairing};
 pub use blink::{BlinkConfig, BlinkDetector, Closure, ClosureKind};
+pub use clean::{CleanConfig, CleanTrack, SampleFate, TrackSample};
 pub use confidence::ConfidenceGate;
 pub use dropout::{DropoutConfig, DropoutFill};
 pub use gaze::{GazeConfig, GazeFilter, OneEuro, OneEuroConfig};
 pub use physio::{PhysioConfig, PhysioGate, Reject, SlewLimiter};
+
+use std::collections::VecDeque;
 
 /// Default adaptation luminance before the service feeds one back, cd/m²
 /// (a dim interior; the model pupil there is ≈ 4.3 mm).
@@ -66,6 +84,8 @@ pub struct FilterConfig {
     pub physio: PhysioConfig,
     pub blink: BlinkConfig,
     pub dropout: DropoutConfig,
+    /// The guideline cleaning of the measured pupil (margins, speed).
+    pub clean: CleanConfig,
     pub gaze: GazeConfig,
     pub binocular: BinocularConfig,
     /// Pupil model for the dropout fallback.
@@ -79,6 +99,7 @@ impl FilterConfig {
         self.physio.validate()?;
         self.blink.validate()?;
         self.dropout.validate()?;
+        self.clean.validate()?;
         self.gaze.validate()?;
         self.binocular.validate()?;
         self.pupil_model
@@ -108,9 +129,21 @@ pub struct ChainStats {
     pub rejected_not_finite: [u64; 2],
     pub rejected_non_positive: [u64; 2],
     pub rejected_range: [u64; 2],
+    /// Dilation-speed outliers (median + n·MAD of the speed).
     pub rejected_rate: [u64; 2],
-    /// Samples in raw units with no calibration for them.
+    /// Samples discarded in the margin before or after a lost sample.
+    #[serde(default)]
+    pub discarded_margin: [u64; 2],
+    /// Samples of another stream of the eye than the one measured.
+    #[serde(default)]
+    pub other_stream: [u64; 2],
+    /// Clean samples in raw units with no map onto the aperture (measured
+    /// in their raw unit; the aperture follows the model).
     pub uncalibrated: [u64; 2],
+    /// Clean samples whose aperture fell outside the physiological range
+    /// (bounded to it for the PSF, counted here).
+    #[serde(default)]
+    pub aperture_out_of_range: [u64; 2],
     /// Samples with an eye id other than 0/1, or a non-finite time.
     pub rejected_bad_sample: u64,
     /// Blinks found by the chain's detector.
@@ -173,6 +206,12 @@ impl PupilStreamCounts {
     /// Counts one sample.
     pub fn add(&mut self, outcome: PupilOutcome) {
         self.samples += 1;
+        self.add_outcome(outcome);
+    }
+
+    /// Counts the outcome of a sample already counted (one decided a
+    /// margin after it arrived).
+    pub fn add_outcome(&mut self, outcome: PupilOutcome) {
         match outcome {
             PupilOutcome::Measured => self.measured += 1,
             PupilOutcome::Rejected => self.rejected += 1,
@@ -205,31 +244,53 @@ impl PupilStreamCounts {
     }
 }
 
+impl From<SampleFate> for PupilOutcome {
+    fn from(f: SampleFate) -> Self {
+        match f {
+            SampleFate::Clean => Self::Measured,
+            SampleFate::OtherStream => Self::Uncalibrated,
+            _ => Self::Rejected,
+        }
+    }
+}
+
 /// What one [`FilterChain::push`] did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ChainUpdate {
     /// The state after the sample.
     pub state: EyeState,
-    /// The eye whose pupil this sample updated, if it was a pupil sample.
+    /// The eye whose pupil this sample was, if it was a pupil sample.
     pub pupil_eye: Option<u8>,
-    /// For a pupil sample: whether it was accepted as a measurement.
-    pub measured: bool,
-    /// For a pupil sample: what the chain made of it (`None` for other
-    /// samples and for ones with a bad eye id or time).
-    pub pupil_outcome: Option<PupilOutcome>,
     /// A closure of this eye that has just been finalised.
     pub closure: Option<Closure>,
 }
+
+/// How many decided samples the chain keeps for [`FilterChain::take_decided`]
+/// when nobody takes them (the oldest are dropped and counted).
+pub const DECIDED_LOG_CAPACITY: usize = 2 * clean::PENDING_CAPACITY;
 
 /// The configured chain with its per-eye state.
 #[derive(Clone, Debug)]
 pub struct FilterChain {
     cfg: FilterConfig,
     calibration: PupilCalibration,
-    physio: [PhysioGate; 2],
     blink: [BlinkDetector; 2],
+    /// Per eye: the guideline cleaning of the measured pupil.
+    clean: [CleanTrack; 2],
+    /// Per eye: the stream measured (detector, unit, whether in mm).
+    stream: [Option<(DetectorMethod, PupilUnit, bool)>; 2],
+    /// Pupil samples pushed so far (their running number).
+    seq: u64,
+    /// Decisions up to this time are applied to the state (∞ live; the
+    /// frame time offline, see [`Self::set_horizon`]).
+    horizon: f64,
+    /// Decided samples for [`Self::take_decided`], when asked for.
+    decided_log: Option<VecDeque<TrackSample>>,
     dropout: [DropoutFill; 2],
     slew: [SlewLimiter; 2],
+    /// Per eye: whether the aperture has had its first measurement (the
+    /// slew limiter starts there).
+    slew_started: [bool; 2],
     /// Per eye: the dropout stage's latest value (the slew limiter's target)
     /// and its origin.
     target: [(f32, PupilOrigin); 2],
@@ -263,13 +324,18 @@ impl FilterChain {
         Ok(Self {
             cfg,
             calibration,
-            physio: [PhysioGate::new(cfg.physio); 2],
             blink: [
                 BlinkDetector::new(cfg.blink, 0),
                 BlinkDetector::new(cfg.blink, 1),
             ],
+            clean: [CleanTrack::new(cfg.clean), CleanTrack::new(cfg.clean)],
+            stream: [None; 2],
+            seq: 0,
+            horizon: f64::INFINITY,
+            decided_log: None,
             dropout: [DropoutFill::new(cfg.dropout, model_mm); 2],
             slew: [SlewLimiter::new(cfg.physio.max_rate_mm_per_s, model_mm); 2],
+            slew_started: [false; 2],
             target: [(model_mm, PupilOrigin::Default); 2],
             gaze: GazeFilter::new(cfg.gaze),
             last_gaze_t: None,
@@ -304,12 +370,19 @@ impl FilterChain {
         }
     }
 
-    /// Replaces the calibration (e.g. after a calibration run).
+    /// Replaces the calibration (e.g. after a calibration run): the
+    /// streams are chosen anew.
     pub fn set_calibration(&mut self, calibration: PupilCalibration) {
         self.calibration = calibration;
-        for g in &mut self.physio {
-            g.reset();
+        for e in 0..2 {
+            self.flush_eye(e);
+            self.stream[e] = None;
         }
+    }
+
+    /// The calibration in use.
+    pub fn calibration(&self) -> &PupilCalibration {
+        &self.calibration
     }
 
     pub fn config(&self) -> &FilterConfig {
@@ -322,13 +395,40 @@ impl FilterChain {
         &self.stats
     }
 
+    /// Keeps every decided pupil sample for [`Self::take_decided`] (per
+    /// sample outputs: `inspect`, Python, the BIDS derivative). Bounded:
+    /// take them after each push.
+    pub fn keep_decided(&mut self) {
+        if self.decided_log.is_none() {
+            self.decided_log = Some(VecDeque::with_capacity(DECIDED_LOG_CAPACITY));
+        }
+    }
+
+    /// The pupil samples decided since the last call, in order (with
+    /// [`Self::keep_decided`]; else nothing).
+    pub fn take_decided(&mut self) -> impl Iterator<Item = TrackSample> + '_ {
+        self.decided_log.iter_mut().flat_map(|log| log.drain(..))
+    }
+
+    /// Offline look-ahead: decisions about pupil samples later than
+    /// `t_secs` are kept back from the state until the horizon passes them.
+    /// A replay pushes its samples a margin ahead of each frame's time and
+    /// sets the horizon to the frame's time, so the state at a frame holds
+    /// the samples up to it, each decided with the margin after it known.
+    /// Live, the horizon stays ∞.
+    pub fn set_horizon(&mut self, t_secs: f64) {
+        if !t_secs.is_nan() {
+            self.horizon = t_secs;
+            self.release();
+            self.advance_outputs();
+        }
+    }
+
     /// Feeds one sample.
     pub fn push(&mut self, sample: &Sample) -> ChainUpdate {
         let mut up = ChainUpdate {
             state: self.state,
             pupil_eye: None,
-            measured: false,
-            pupil_outcome: None,
             closure: None,
         };
         match sample {
@@ -402,7 +502,7 @@ impl FilterChain {
     }
 
     /// Steps every eye that has reported towards its target at the chain
-    /// clock (`state.t_secs`, monotone), so each output pupil changes by at
+    /// clock (`state.t_secs`, monotone), so each aperture changes by at
     /// most `max_rate · Δt` between any two consecutive states.
     fn advance_outputs(&mut self) {
         let now = self.state.t_secs;
@@ -412,7 +512,11 @@ impl FilterChain {
                 continue;
             }
             let (target, origin) = self.target[e];
-            let mut out = self.slew[e].step(now, target);
+            let mut out = if self.slew_started[e] {
+                self.slew[e].step(now, target)
+            } else {
+                target
+            };
             if !(out.is_finite() && out > 0.0) {
                 // Unreachable by construction; counted and replaced so that
                 // nothing downstream can ever see it.
@@ -425,8 +529,14 @@ impl FilterChain {
         }
     }
 
-    /// Ends the stream: finalises pending closures at `t_secs`.
+    /// Ends the stream: decides every pending sample (applied up to the
+    /// horizon) and finalises pending closures at `t_secs`.
     pub fn finish(&mut self, t_secs: f64) -> [Option<Closure>; 2] {
+        for e in 0..2 {
+            self.clean[e].flush();
+        }
+        self.release();
+        self.advance_outputs();
         let mut out = [None; 2];
         for (e, o) in out.iter_mut().enumerate() {
             if let Some(c) = self.blink[e].flush(t_secs) {
@@ -437,11 +547,62 @@ impl FilterChain {
         out
     }
 
+    /// Decides what is pending for a silent source (live: the tracker
+    /// stopped delivering), so its last samples reach the state.
+    pub fn flush_pending(&mut self) {
+        for e in 0..2 {
+            self.clean[e].flush();
+        }
+        self.release();
+        self.advance_outputs();
+    }
+
+    fn flush_eye(&mut self, e: usize) {
+        self.clean[e].flush();
+        self.release();
+        self.clean[e].reset();
+    }
+
     fn count_closure(&mut self, c: &Closure) {
         let e = c.eye as usize & 1;
         match c.kind {
             ClosureKind::Blink => self.stats.blinks[e] += 1,
             ClosureKind::Dropout => self.stats.dropouts[e] += 1,
+        }
+    }
+
+    /// The stream of eye `e` a sample belongs to, choosing (or switching
+    /// to) it: the stream in mm when the tracker gives mm; else the one the
+    /// profile maps onto the aperture; else the first seen.
+    fn in_stream(&mut self, e: usize, p: &PupilSample) -> bool {
+        let has_mm = p.diameter_mm.is_some() || p.unit == PupilUnit::Mm;
+        let key = (p.method, p.unit, has_mm);
+        match self.stream[e] {
+            Some(k) if k == key => true,
+            Some((_, unit, locked_mm)) => {
+                let better = (has_mm && !locked_mm)
+                    || (has_mm == locked_mm
+                        && !self
+                            .calibration
+                            .eye(p.eye)
+                            .is_some_and(|c| c.raw_unit == unit)
+                        && self
+                            .calibration
+                            .eye(p.eye)
+                            .is_some_and(|c| c.raw_unit == p.unit));
+                if better {
+                    // What is pending of the old stream is not this eye's
+                    // measurement.
+                    self.clean[e].abandon();
+                    self.release();
+                    self.stream[e] = Some(key);
+                }
+                better
+            }
+            None => {
+                self.stream[e] = Some(key);
+                true
+            }
         }
     }
 
@@ -454,6 +615,9 @@ impl FilterChain {
         let t = p.t_secs;
         self.stats.pupil_samples[e] += 1;
         up.pupil_eye = Some(p.eye);
+        let seq = self.seq;
+        self.seq += 1;
+        self.state.eyes[e].present = true;
 
         let raw_ok = p.diameter_raw.is_finite() && p.diameter_raw > 0.0;
         let conf_ok = self.cfg.confidence.accept(p.confidence);
@@ -461,79 +625,147 @@ impl FilterChain {
             self.count_closure(&c);
             up.closure = Some(c);
         }
-
-        let measured = if !conf_ok {
-            self.stats.rejected_confidence[e] += 1;
-            None
+        self.state.blink = (0..2)
+            .filter(|&i| self.state.eyes[i].present)
+            .all(|i| self.blink[i].is_closed());
+        self.state.eyes[e].confidence = if p.confidence.is_finite() {
+            p.confidence.clamp(0.0, 1.0)
         } else {
-            match self.calibration.to_mm(p) {
+            0.0
+        };
+
+        let (value, unit) = self.calibration.measured(p);
+        let mut s = TrackSample {
+            seq,
+            t_secs: t,
+            eye: p.eye,
+            method: p.method,
+            value,
+            unit,
+            aperture_mm: f32::NAN,
+            fate: SampleFate::Clean,
+        };
+        if !self.in_stream(e, p) {
+            s.fate = SampleFate::OtherStream;
+        } else if !conf_ok {
+            self.stats.rejected_confidence[e] += 1;
+            s.fate = SampleFate::Lost;
+        } else {
+            match self.calibration.aperture_mm(p) {
                 Err(bad) => {
                     let c = match bad {
                         BadRawPupil::NotFinite => &mut self.stats.rejected_not_finite,
                         BadRawPupil::NonPositive => &mut self.stats.rejected_non_positive,
                     };
                     c[e] += 1;
-                    None
+                    s.fate = SampleFate::Lost;
                 }
-                Ok(None) => {
-                    self.stats.uncalibrated[e] += 1;
-                    up.pupil_outcome = Some(PupilOutcome::Uncalibrated);
-                    None
-                }
-                Ok(Some(mm)) => match self.physio[e].check(t, mm) {
-                    Ok(mm) => Some(mm),
-                    Err(r) => {
-                        let c = match r {
-                            Reject::NotFinite => &mut self.stats.rejected_not_finite,
-                            Reject::NonPositive => &mut self.stats.rejected_non_positive,
-                            Reject::OutOfRange => &mut self.stats.rejected_range,
-                            Reject::TooFast => &mut self.stats.rejected_rate,
+                Ok(aperture) => {
+                    s.aperture_mm = aperture.unwrap_or(f32::NAN);
+                    if !(value.is_finite() && value > 0.0) {
+                        let c = if value.is_finite() {
+                            &mut self.stats.rejected_non_positive
+                        } else {
+                            &mut self.stats.rejected_not_finite
                         };
                         c[e] += 1;
-                        None
+                        s.fate = SampleFate::Lost;
+                    } else if unit == PupilUnit::Mm
+                        && !(self.cfg.physio.min_pupil_mm..=self.cfg.physio.max_pupil_mm)
+                            .contains(&value)
+                    {
+                        self.stats.rejected_range[e] += 1;
+                        s.fate = SampleFate::OutOfRange;
                     }
-                },
+                }
             }
-        };
-        if measured.is_some() {
-            self.stats.measured[e] += 1;
-            up.measured = true;
-            up.pupil_outcome = Some(PupilOutcome::Measured);
-        } else if up.pupil_outcome.is_none() {
-            up.pupil_outcome = Some(PupilOutcome::Rejected);
         }
-        let model_mm = self.model_mm;
-        self.advance_eye(e, t, measured, model_mm, p.confidence);
-
-        if let Some(partner) = self.pairing.observe(e, t) {
-            let conf = self.state.eyes[partner].confidence;
-            self.advance_eye(partner, t, None, model_mm, conf);
-        }
-        let reporting = [self.pairing.has_reported(0), self.pairing.has_reported(1)];
-        self.state.blink = (0..2)
-            .filter(|&i| reporting[i])
-            .all(|i| self.blink[i].is_closed());
-        self.state.t_secs = self.state.t_secs.max(t);
+        self.clean[e].push(s);
+        // The state has seen this sample (its decision comes a margin
+        // later); offline, not beyond the frame's time.
+        self.state.t_secs = self.state.t_secs.max(t.min(self.horizon));
+        self.release();
     }
 
-    /// Runs the dropout stage of eye `e` at time `t`; the output is stepped
-    /// by [`Self::advance_outputs`].
-    fn advance_eye(
-        &mut self,
-        e: usize,
-        t: f64,
-        measured: Option<f32>,
-        model_mm: f32,
-        confidence: f32,
-    ) {
-        self.target[e] = self.dropout[e].update(t, measured, model_mm);
-        let ch = &mut self.state.eyes[e];
-        ch.confidence = if confidence.is_finite() {
-            confidence.clamp(0.0, 1.0)
+    /// Applies the decided samples of both eyes up to the horizon, in time
+    /// order.
+    fn release(&mut self) {
+        loop {
+            let next = match (self.clean[0].ready_t(), self.clean[1].ready_t()) {
+                (Some(a), Some(b)) => Some(if b < a { 1 } else { 0 }),
+                (Some(_), None) => Some(0),
+                (None, Some(_)) => Some(1),
+                (None, None) => None,
+            };
+            let Some(e) = next else { break };
+            let Some(t) = self.clean[e].ready_t() else {
+                break;
+            };
+            if t > self.horizon {
+                break;
+            }
+            let Some(d) = self.clean[e].pop_ready() else {
+                break;
+            };
+            self.apply(&d);
+            if let Some(log) = &mut self.decided_log {
+                if log.len() >= DECIDED_LOG_CAPACITY {
+                    log.pop_front();
+                }
+                log.push_back(d);
+            }
+        }
+    }
+
+    /// One decided sample of eye `d.eye` into the state.
+    fn apply(&mut self, d: &TrackSample) {
+        let e = usize::from(d.eye & 1);
+        let t = d.t_secs;
+        let model_mm = self.model_mm;
+        match d.fate {
+            SampleFate::OtherStream => {
+                self.stats.other_stream[e] += 1;
+                return;
+            }
+            SampleFate::Margin => self.stats.discarded_margin[e] += 1,
+            SampleFate::Speed => self.stats.rejected_rate[e] += 1,
+            _ => {}
+        }
+        let aperture = if d.fate.is_clean() {
+            self.stats.measured[e] += 1;
+            let ch = &mut self.state.eyes[e];
+            ch.measured = Some(d.value);
+            ch.measured_unit = Some(d.unit);
+            ch.measured_t_secs = Some(t);
+            if d.aperture_mm.is_finite() {
+                let (lo, hi) = (self.cfg.physio.min_pupil_mm, self.cfg.physio.max_pupil_mm);
+                if !(lo..=hi).contains(&d.aperture_mm) {
+                    self.stats.aperture_out_of_range[e] += 1;
+                }
+                Some(d.aperture_mm.clamp(lo, hi))
+            } else {
+                self.stats.uncalibrated[e] += 1;
+                None
+            }
         } else {
-            0.0
+            self.state.eyes[e].measured = None;
+            None
         };
-        ch.last_valid_t_secs = self.dropout[e].last_good_t_secs();
+        self.target[e] = self.dropout[e].update(t, aperture, model_mm);
+        if let Some(a) = aperture
+            && !self.slew_started[e]
+        {
+            // The aperture starts at the first measurement, not at a made-up
+            // default.
+            self.slew[e] = SlewLimiter::new(self.cfg.physio.max_rate_mm_per_s, a);
+            self.slew_started[e] = true;
+        }
+        self.state.eyes[e].last_valid_t_secs = self.dropout[e].last_good_t_secs();
+        if let Some(partner) = self.pairing.observe(e, t) {
+            self.target[partner] = self.dropout[partner].update(t, None, model_mm);
+            self.state.eyes[partner].measured = None;
+        }
+        self.state.t_secs = self.state.t_secs.max(t);
     }
 }
 
@@ -656,7 +888,7 @@ mod tests {
             let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
             let mut chain = FilterChain::with_defaults();
             let max_rate = chain.config().physio.max_rate_mm_per_s;
-            let mut prev: [Option<(f64, f32)>; 2] = [None; 2];
+            let mut prev: [Option<(f64, f32, PupilOrigin)>; 2] = [None; 2];
             let mut t = 0.0f64;
             for _ in 0..20_000 {
                 // Mostly forward time, sometimes jumps back or stalls.
@@ -686,7 +918,11 @@ mod tests {
                 for (e, ch) in up.state.eyes.iter().enumerate() {
                     assert!(ch.pupil_mm.is_finite() && ch.pupil_mm > 0.0, "{ch:?}");
                     assert!(ch.pupil_mm >= 1.0 && ch.pupil_mm <= 9.0, "{ch:?}");
-                    if let Some((t0, p0)) = prev[e] {
+                    // The aperture starts at the first measurement: the one
+                    // jump allowed is out of the model's default.
+                    if let Some((t0, p0, o0)) = prev[e]
+                        && o0 != PupilOrigin::Default
+                    {
                         let dt = (up.state.t_secs - t0).max(0.0) as f32;
                         assert!(
                             (ch.pupil_mm - p0).abs() <= max_rate * dt + 1e-4,
@@ -694,7 +930,7 @@ mod tests {
                             ch.pupil_mm
                         );
                     }
-                    prev[e] = Some((up.state.t_secs, ch.pupil_mm));
+                    prev[e] = Some((up.state.t_secs, ch.pupil_mm, ch.pupil_origin));
                 }
                 assert!(up.state.gaze_uv.iter().all(|v| v.is_finite()));
             }
@@ -750,7 +986,10 @@ mod tests {
             origins.push(up.state.eyes[0].pupil_origin);
             t += 0.01;
         }
-        assert_eq!(origins[0], PupilOrigin::Held);
+        // Decisions come a margin (50 ms) after the samples: the samples
+        // before the dropout are discarded as its margin, then held.
+        assert_eq!(origins[0], PupilOrigin::Measured);
+        assert_eq!(origins[10], PupilOrigin::Held);
         assert_eq!(*origins.last().unwrap(), PupilOrigin::Model);
         assert!((chain.state().eyes[0].pupil_mm - target).abs() < 1e-3);
         assert_eq!(

@@ -81,13 +81,25 @@ class Eye:
     ``t_secs``: the sample's time (s, the recording's clock);
     ``pupil_raw``: the diameter as the tracker reported it, in ``unit``;
     ``tracker_mm``: the tracker's own mm (3D model, Neon), NaN when none;
-    ``pupil_mm``: the filter chain's pupil right after this sample (mm);
+    ``pupil_mm``: the measured pupil in mm -- the sample's own value when
+    it is clean and in mm (the tracker's mm, or raw x a physical scale),
+    NaN otherwise (lost, within 50 ms of a blink, a speed outlier, or a
+    raw unit with no physical scale);
+    ``measured_value``: the measured pupil of clean samples in
+    ``measured_unit`` (the raw unit where no physical scale is known), NaN
+    otherwise; ``interpolated``: ``measured_value`` with the discarded
+    stretches up to 1 s bridged by straight lines (Kret & Sjak-Shie 2019;
+    MNE's ``interpolate_blinks``), marked in ``is_interpolated``;
+    ``aperture_mm``: the model aperture the glare PSF is built for (001
+    section 5's black/white map, held through blinks) -- not a measurement;
+    ``fate``: what the guideline cleaning made of the sample (``fates``:
+    clean, lost, out_of_range, margin, speed, other_stream);
     ``confidence``: the tracker's confidence (0..1);
     ``blink``: the chain considers the eye closed;
     ``dropout``: the chain rejected this sample (low confidence, no pupil,
     out of range, too fast) -- the ``dropout_fraction`` of ``inspect``;
-    ``measured``: accepted as a measurement; ``origin``: where ``pupil_mm``
-    came from (``origins``: measured, held, model, default);
+    ``measured``: accepted as a measurement; ``origin``: where
+    ``aperture_mm`` came from (``origins``: measured, held, model, default);
     ``settling``: the output still moves to its target at the rate limit;
     ``detector``: index into ``detectors`` (``2d``, ``3d``, ``pupil``).
     """
@@ -98,6 +110,12 @@ class Eye:
     unit_code: np.ndarray
     tracker_mm: np.ndarray
     pupil_mm: np.ndarray
+    measured_value: np.ndarray
+    measured_unit_code: np.ndarray
+    interpolated: np.ndarray
+    is_interpolated: np.ndarray
+    aperture_mm: np.ndarray
+    fate: np.ndarray
     confidence: np.ndarray
     detector: np.ndarray
     origin: np.ndarray
@@ -107,6 +125,7 @@ class Eye:
     units: Tuple[str, ...]
     detectors: Tuple[str, ...]
     origins: Tuple[str, ...]
+    fates: Tuple[str, ...] = ()
 
     @property
     def dropout(self) -> np.ndarray:
@@ -203,6 +222,14 @@ class Recording:
                         "unit": pd.Categorical.from_codes(e.unit_code, categories=list(e.units)),
                         "tracker_mm": e.tracker_mm,
                         "pupil_mm": e.pupil_mm,
+                        "measured_value": e.measured_value,
+                        "measured_unit": pd.Categorical.from_codes(e.measured_unit_code, categories=list(e.units)),
+                        "interpolated": e.interpolated,
+                        "is_interpolated": e.is_interpolated,
+                        "aperture_mm": e.aperture_mm,
+                        "fate": pd.Categorical.from_codes(
+                            np.where(e.fate == 255, -1, e.fate).astype(np.int16), categories=list(e.fates)
+                        ),
                         "confidence": e.confidence,
                         "detector": pd.Categorical.from_codes(e.detector, categories=list(e.detectors)),
                         "origin": pd.Categorical.from_codes(e.origin, categories=list(e.origins)),
@@ -246,6 +273,12 @@ def read(
             unit_code=e["unit"],
             tracker_mm=e["tracker_mm"],
             pupil_mm=e["pupil_mm"],
+            measured_value=e["measured"],
+            measured_unit_code=e["measured_unit"],
+            interpolated=e["interpolated"],
+            is_interpolated=e["is_interpolated"],
+            aperture_mm=e["aperture_mm"],
+            fate=e["fate"],
             confidence=e["confidence"],
             detector=e["detector"],
             origin=e["origin"],
@@ -255,6 +288,7 @@ def read(
             units=tuple(d["units"]),
             detectors=tuple(d["detectors"]),
             origins=tuple(d["origins"]),
+            fates=tuple(d["fates"]),
         )
         for i, e in enumerate(d["eyes"])
     )
@@ -280,8 +314,16 @@ def inspect(
     config: Union[None, str, Dict[str, Any]] = None,
     calibration: Union[None, PathLike, Calibration] = None,
 ) -> Dict[str, Any]:
-    """The summary ``gazelight inspect --json`` prints for a recording, as a dict."""
-    return json.loads(_inspect_json(path, config, calibration))
+    """The summary ``gazelight inspect --json`` prints for a recording, as a dict.
+
+    The warnings ``inspect`` prints (the summary's ``warnings``: skipped
+    records, pupils nearly all rejected, a pupil in raw units with no
+    physical scale) are issued as :class:`GazelightWarning`, as ``read`` does.
+    """
+    summary = json.loads(_inspect_json(path, config, calibration))
+    for w in summary.get("warnings", []):
+        warnings.warn(GazelightWarning(f"{os.fspath(path)}: {w}"), stacklevel=2)
+    return summary
 
 
 def _is_trace(path: PathLike) -> bool:

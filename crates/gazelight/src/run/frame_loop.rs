@@ -33,7 +33,7 @@ use std::time::{Duration, Instant};
 
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil_response::ObserverRange;
-use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, PupilOrigin};
+use gazelight_tracker::{EYE_LEFT, EYE_RIGHT};
 use gazelight_vision::RgbImage;
 use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
@@ -498,10 +498,9 @@ impl FrameLoop {
         let live = *self.hub.eye.borrow();
         let mut state = live.state;
         let age_secs = self.age_clock.age_secs(&live, now_host_secs);
-        let held = state
-            .eyes
-            .iter()
-            .any(|e| e.pupil_origin != PupilOrigin::Measured);
+        // Nothing measured for any eye the source has (one eye of a
+        // monocular tracker is not "held").
+        let held = state.view_measured(usize::MAX).is_none() && state.view_present(usize::MAX);
         let cursor = self.mouse.as_ref().and_then(|m| m.cursor.get());
         if let (Some(m), Some(uv)) = (&self.mouse, cursor)
             && m.gaze
@@ -664,6 +663,10 @@ impl FrameLoop {
             frames_late: self.late,
             t_secs,
             pupil_mm: [
+                state.eyes[EYE_RIGHT].measured_mm().unwrap_or(f32::NAN),
+                state.eyes[EYE_LEFT].measured_mm().unwrap_or(f32::NAN),
+            ],
+            aperture_mm: [
                 state.eyes[EYE_RIGHT].pupil_mm,
                 state.eyes[EYE_LEFT].pupil_mm,
             ],

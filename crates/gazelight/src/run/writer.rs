@@ -56,9 +56,10 @@ const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
 pub struct Row {
     pub frame: u64,
     pub t_secs: f64,
-    /// Calibrated pupil per eye, [right, left], mm.
+    /// The measured pupil per eye, [right, left], mm; NaN (an empty cell)
+    /// where the eye is not measured now or has no physical scale.
     pub pupil_mm: [f32; 2],
-    /// Either pupil held or modelled rather than measured.
+    /// Nothing measured for any eye the source has.
     pub pupil_held: bool,
     pub eye_state_age_ms: f64,
     pub health: SourceHealth,
@@ -72,7 +73,7 @@ pub struct Row {
 pub struct ViewRow {
     pub gaze_u: f32,
     pub gaze_v: f32,
-    /// Pupil the view used, mm.
+    /// Aperture the view used (the glare PSF's pupil), mm.
     pub frame_pupil_mm: f32,
     pub target_cd_m2: f64,
     pub adaptation_cd_m2: f64,
@@ -85,11 +86,11 @@ pub struct ViewRow {
     pub pupil_residual_mm: f32,
 }
 
-const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,pupil_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms,pupil_light_mm,pupil_residual_mm";
+const HEADER: &str = "frame,t_secs,gaze_u,gaze_v,pupil_right_mm,pupil_left_mm,aperture_mm,pupil_held,eye_state_age_ms,source_health,target_cd_m2,adaptation_cd_m2,psf_pupil_mm,psf_rebuilt,frame_ms,pupil_light_mm,pupil_residual_mm";
 /// A stereo run's header: per-view columns suffixed `_left`, `_right`.
 const STEREO_HEADER: &str = "frame,t_secs,pupil_right_mm,pupil_left_mm,pupil_held,eye_state_age_ms,source_health,\
-gaze_u_left,gaze_v_left,pupil_mm_left,target_cd_m2_left,adaptation_cd_m2_left,psf_pupil_mm_left,psf_rebuilt_left,\
-gaze_u_right,gaze_v_right,pupil_mm_right,target_cd_m2_right,adaptation_cd_m2_right,psf_pupil_mm_right,psf_rebuilt_right,frame_ms,\
+gaze_u_left,gaze_v_left,aperture_mm_left,target_cd_m2_left,adaptation_cd_m2_left,psf_pupil_mm_left,psf_rebuilt_left,\
+gaze_u_right,gaze_v_right,aperture_mm_right,target_cd_m2_right,adaptation_cd_m2_right,psf_pupil_mm_right,psf_rebuilt_right,frame_ms,\
 pupil_light_mm_left,pupil_residual_mm_left,pupil_light_mm_right,pupil_residual_mm_right";
 
 fn health_name(h: SourceHealth) -> &'static str {
@@ -600,13 +601,13 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
     if !stereo {
         let _ = writeln!(
             w,
-            "{},{:.4},{:.5},{:.5},{:.4},{:.4},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3},{},{}",
+            "{},{:.4},{:.5},{:.5},{},{},{:.4},{},{:.3},{},{:.6e},{:.6e},{:.4},{},{:.3},{},{}",
             r.frame,
             r.t_secs,
             v.gaze_u,
             v.gaze_v,
-            r.pupil_mm[0],
-            r.pupil_mm[1],
+            Mm(r.pupil_mm[0]),
+            Mm(r.pupil_mm[1]),
             v.frame_pupil_mm,
             u8::from(r.pupil_held),
             r.eye_state_age_ms,
@@ -623,11 +624,11 @@ fn format_row(w: &mut String, r: &Row, stereo: bool) {
     }
     let _ = write!(
         w,
-        "{},{:.4},{:.4},{:.4},{},{:.3},{}",
+        "{},{:.4},{},{},{},{:.3},{}",
         r.frame,
         r.t_secs,
-        r.pupil_mm[0],
-        r.pupil_mm[1],
+        Mm(r.pupil_mm[0]),
+        Mm(r.pupil_mm[1]),
         u8::from(r.pupil_held),
         r.eye_state_age_ms,
         health_name(r.health),

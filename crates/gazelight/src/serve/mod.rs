@@ -41,8 +41,8 @@ use axum::extract::ws::{Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use gazelight_tracker::PupilOrigin;
 use gazelight_tracker::pupil::clock::host_now_secs;
+use gazelight_tracker::{PupilOrigin, PupilUnit};
 use serde::Serialize;
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
@@ -296,13 +296,23 @@ pub struct EyeStatus {
     pub gaze_uv: [f32; 2],
     pub gaze_valid: bool,
     pub blink: bool,
-    /// Calibrated pupil per eye [right, left], mm.
-    pub pupil_mm: [f32; 2],
-    /// Where each eye's pupil came from.
+    /// The measured pupil per eye [right, left], mm: the newest clean
+    /// sample (the tracker's mm, or raw × a physical scale); null where the
+    /// eye is not measured now or has no physical scale.
+    pub pupil_mm: [Option<f32>; 2],
+    /// The measured pupil per eye in its unit (raw where no physical
+    /// scale), with the unit; null where not measured.
+    pub measured: [Option<f32>; 2],
+    pub measured_unit: [Option<PupilUnit>; 2],
+    /// The model aperture per eye [right, left], mm: the pupil the glare
+    /// PSF is built for (001 §5's map or the measured mm; not a
+    /// measurement).
+    pub aperture_mm: [f32; 2],
+    /// Where each eye's aperture came from.
     pub pupil_origin: [PupilOrigin; 2],
     /// Confidence of each eye's newest raw sample.
     pub confidence: [f32; 2],
-    /// Pupil the pipeline uses (binocular), mm.
+    /// Aperture the pipeline uses (binocular), mm.
     pub binocular_pupil_mm: f32,
 }
 
@@ -365,7 +375,10 @@ impl Status {
                 gaze_uv: s.gaze_uv,
                 gaze_valid: s.gaze_valid,
                 blink: s.blink,
-                pupil_mm: [s.eyes[0].pupil_mm, s.eyes[1].pupil_mm],
+                pupil_mm: [s.eyes[0].measured_mm(), s.eyes[1].measured_mm()],
+                measured: [s.eyes[0].measured, s.eyes[1].measured],
+                measured_unit: [s.eyes[0].measured_unit, s.eyes[1].measured_unit],
+                aperture_mm: [s.eyes[0].pupil_mm, s.eyes[1].pupil_mm],
                 pupil_origin: [s.eyes[0].pupil_origin, s.eyes[1].pupil_origin],
                 confidence: [s.eyes[0].confidence, s.eyes[1].confidence],
                 binocular_pupil_mm: s.pupil_mm(),

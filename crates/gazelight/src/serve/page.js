@@ -114,8 +114,13 @@
         : '<span class="a">■ adaptation</span>';
     }
     set("samples", src.samples_total + " / " + src.samples_dropped);
-    set("pupil-right", fmt(eye.pupil_mm[0], 3, "mm") + " (" + eye.pupil_origin[0] + ")");
-    set("pupil-left", fmt(eye.pupil_mm[1], 3, "mm") + " (" + eye.pupil_origin[1] + ")");
+    // The measured pupil (mm, or the tracker's raw unit) and, apart, the
+    // model aperture the glare PSF is built for.
+    const units = { px: "px", arbitrary_area: "area units", arbitrary: "raw units", mm: "mm" };
+    const measured = (k) => eye.measured[k] === null ? "not measured"
+      : fmt(eye.measured[k], eye.measured_unit[k] === "mm" ? 3 : 1, units[eye.measured_unit[k]] || "");
+    set("pupil-right", measured(0) + "; aperture " + fmt(eye.aperture_mm[0], 2, "mm") + " (" + eye.pupil_origin[0] + ")");
+    set("pupil-left", measured(1) + "; aperture " + fmt(eye.aperture_mm[1], 2, "mm") + " (" + eye.pupil_origin[1] + ")");
     set("gaze", fmt(eye.gaze_uv[0], 3) + ", " + fmt(eye.gaze_uv[1], 3) + (eye.gaze_valid ? "" : " (invalid)"));
     set("eye-age", fmt(eye.age_ms, 1, "ms"));
     const ck = src.clock;
