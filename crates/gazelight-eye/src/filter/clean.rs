@@ -478,7 +478,7 @@ impl CleanTrack {
         let n = self.scratch.len();
         let (_, hi, _) = self.scratch.select_nth_unstable_by(n / 2, f32::total_cmp);
         let hi = *hi;
-        let lo = if n % 2 == 0 {
+        let lo = if n.is_multiple_of(2) {
             self.scratch[..n / 2]
                 .iter()
                 .copied()
