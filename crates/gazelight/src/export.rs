@@ -74,6 +74,20 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             args.recording.display()
         );
     }
+    // Every input is opened before the first file is written: a missing
+    // or unreadable --calibration or --timeline is refused with nothing
+    // written (it was found after the raw files were).
+    let profile = match &args.calibration {
+        Some(path) => Some(
+            gazelight_tracker::profile::PupilCalibration::load(path)
+                .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?,
+        ),
+        None => None,
+    };
+    if let Some(path) = &args.timeline {
+        gazelight_input::open(path)
+            .with_context(|| format!("--timeline: cannot read {}", path.display()))?;
+    }
     let mut importer = import::open(&args.recording)?;
     // The sidecars name the recording by its own name (no path of this
     // machine), its tracker and its stated rate.
@@ -92,9 +106,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
         );
     }
     let mut chain = FilterChain::with_defaults();
-    if let Some(path) = &args.calibration {
-        let profile = gazelight_tracker::profile::PupilCalibration::load(path)
-            .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?;
+    if let Some(profile) = profile {
         chain.set_calibration(profile);
     }
     let mut again = import::open(&args.recording)?;

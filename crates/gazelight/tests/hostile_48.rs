@@ -460,3 +460,32 @@ fn a_recording_rewritten_in_place_is_not_skipped_as_done() {
     assert!(after.contains("(0 skipped"), "{after}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn export_with_a_missing_calibration_or_timeline_writes_nothing() {
+    let dir = tmp("export-missing");
+    let rec = shared_str("eye/piprkit-plr/pupil_trace.csv");
+    for (flag, missing) in [
+        ("--calibration", "no-profile.json"),
+        ("--timeline", "no-timeline.csv"),
+    ] {
+        let bids = dir.join(format!("bids{flag}"));
+        let o = gazelight_in(
+            &[
+                "export",
+                &rec,
+                "--bids",
+                s(&bids),
+                flag,
+                s(&dir.join(missing)),
+            ],
+            &[],
+        );
+        assert!(!o.status.success(), "{flag}");
+        let e = stderr(&o);
+        assert!(e.contains(flag) && e.contains(missing), "{e}");
+        let written = std::fs::read_dir(&bids).map_or(0, |d| d.count());
+        assert_eq!(written, 0, "{flag}: files were written before the refusal");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
