@@ -119,9 +119,52 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         tracing::warn!(
             recording = %args.recording.display(),
             "pupil samples are not in millimetres and no --calibration was given: \
-             the pupil falls back to the light-adaptation model"
+             the measured pupil is written in the tracker's raw unit (pupil_raw) and the \
+             glare aperture follows the light-adaptation model"
         );
     }
+    // What the pupil columns carry (issue 45): the measured pupil and the
+    // model aperture, never one for the other.
+    let raw_units: Vec<&str> = pupil_units
+        .iter()
+        .filter(|u| **u != PupilUnit::Mm)
+        .map(|u| unit_words(*u))
+        .collect();
+    setup.settings.set(
+        "pupil.measured",
+        if raw_units.is_empty() || pupil_units.contains(&PupilUnit::Mm) {
+            "pupil_mm: the tracker's millimetres (clean samples unchanged; empty where not measured)"
+                .to_string()
+        } else {
+            format!(
+                "pupil_raw: the tracker's raw unit ({}), no physical scale{}; pupil_mm is empty",
+                raw_units.join(", "),
+                if calibration.as_ref().is_some_and(|c| {
+                    [c.eyes.right, c.eyes.left]
+                        .iter()
+                        .flatten()
+                        .any(|m| m.kind == gazelight_tracker::profile::MapKind::Scale)
+                }) {
+                    " unless the profile's scale applies"
+                } else {
+                    ""
+                }
+            )
+        },
+        Origin::Source,
+    );
+    setup.settings.set(
+        "pupil.aperture",
+        "aperture_mm: the model aperture the glare PSF is built for (001 §5's black/white map \
+         of the profile, or the measured mm; held through blinks, eased to the light model when \
+         nothing is measured) — not a measurement",
+        Origin::Default,
+    );
+    setup.settings.set(
+        "pupil_light.residual_basis",
+        gazelight_render::pupil_light::ResidualBasis::of(&pupil_units).describe(),
+        Origin::Source,
+    );
     let t0 = t_first + args.from_secs;
     if t0 > t_last {
         bail!(
@@ -228,7 +271,31 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         tracing::warn!(recording = %args.recording.display(), "{warning}");
         eprintln!("warning: {}: {warning}", args.recording.display());
     }
+    // A recording's eyes are its eyes: a monocular one in stereo.
+    let samples = feeder.stats().pupil_samples;
+    if args.render.stereo && (samples[0] == 0) != (samples[1] == 0) {
+        let (has, lacks) = if samples[1] > 0 {
+            ("left", "right")
+        } else {
+            ("right", "left")
+        };
+        eprintln!(
+            "note: {}: the recording has only the {has} eye: both views show the {has} eye's \
+             gaze and aperture; the {lacks} view's pupil columns are empty",
+            args.recording.display()
+        );
+    }
     Ok(())
+}
+
+/// A raw pupil unit in a user's words.
+fn unit_words(u: PupilUnit) -> &'static str {
+    match u {
+        PupilUnit::Px => "eye-camera pixels",
+        PupilUnit::Mm => "millimetres",
+        PupilUnit::ArbitraryArea => "arbitrary area units",
+        PupilUnit::Arbitrary => "arbitrary diameter units",
+    }
 }
 
 /// The pupil light response of this replay: each view's parameters (a

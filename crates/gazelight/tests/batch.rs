@@ -222,12 +222,16 @@ fn batch_rows_are_single_replays_and_the_summary_collects() {
     assert_eq!(cell(&header, &lines[1], "views"), "2");
     // The pupil figures are the timeline's: measured frames (held = 0).
     let text = std::fs::read_to_string(out.join("neon/timeline.csv")).unwrap();
+    let head: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| head.iter().position(|c| *c == name).unwrap();
+    let (pupil, held) = (col("pupil_mm"), col("pupil_held"));
     let measured: Vec<f64> = text
         .lines()
         .skip(1)
-        .filter(|l| l.split(',').nth(4) == Some("0"))
-        .map(|l| l.split(',').nth(3).unwrap().parse().unwrap())
+        .filter(|l| l.split(',').nth(held) == Some("0"))
+        .map(|l| l.split(',').nth(pupil).unwrap().parse().unwrap())
         .collect();
+    assert!(!measured.is_empty());
     let mean = measured.iter().sum::<f64>() / measured.len() as f64;
     assert_eq!(
         cell(&header, &lines[0], "pupil_measured_frames"),

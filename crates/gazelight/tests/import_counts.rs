@@ -205,3 +205,105 @@ fn export_of_a_left_eye_eyelink_file_is_one_valid_eye() {
     gazelight_test_support::bids::validate(&ds.join("derivatives/gazelight"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Reads a CSV into its header and rows (test helper).
+fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let head = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_owned)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(str::to_owned).collect())
+        .collect();
+    (head, rows)
+}
+
+/// Issue 45 item 4: a left-eye-only EyeLink file is one eye in `inspect`,
+/// `replay` and `replay --stereo` — the right eye's columns are empty on
+/// every frame, never filled from the model or the other eye;
+/// `pupil_held` is 0 wherever the left pupil was measured; the stereo
+/// replay says once that both views show the one eye.
+#[test]
+fn a_left_eye_eyelink_file_is_one_eye_in_inspect_and_replay() {
+    let dir = tmp("mono");
+    let asc = monocular_eyelink(&dir);
+    let a = asc.to_str().unwrap();
+    let out = gazelight(&["inspect", "--json", a]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["samples"]["pupil"][0], 0, "{}", s["samples"]);
+    assert!(s["samples"]["pupil"][1].as_u64().unwrap() > 60_000);
+    assert!(s["pupil"][0]["measured_raw"].is_null());
+    assert!(s["pupil"][1]["measured_raw"]["median"].as_f64().unwrap() > 0.0);
+
+    let common = [
+        "--secs",
+        "20",
+        "--fps",
+        "10",
+        "--size",
+        "48x48",
+        "--no-frames",
+    ];
+    for stereo in [false, true] {
+        let o = dir.join(if stereo { "stereo" } else { "mono" });
+        let mut argv = vec!["replay", a];
+        argv.extend(common);
+        if stereo {
+            argv.push("--stereo");
+        }
+        let out_flag = format!("--out={}", o.display());
+        argv.push(&out_flag);
+        let r = gazelight(&argv);
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.success(), "{stderr}");
+        let (head, rows) = csv(&o.join("timeline.csv"));
+        let col = |n: &str| {
+            head.iter()
+                .position(|c| c == n)
+                .unwrap_or_else(|| panic!("{n} in {head:?}"))
+        };
+        let (view, other) = if stereo {
+            ("_left", Some("_right"))
+        } else {
+            ("", None)
+        };
+        let (raw, mm, held) = (
+            col(&format!("pupil_raw{view}")),
+            col(&format!("pupil_mm{view}")),
+            col(&format!("pupil_held{view}")),
+        );
+        let measured = rows.iter().filter(|r| r[held] == "0").count();
+        assert!(
+            measured > rows.len() / 2,
+            "{measured} of {} frames measured",
+            rows.len()
+        );
+        for r in &rows {
+            // Raw area units, no physical scale: no mm, the raw value where
+            // measured, and held exactly where nothing is.
+            assert_eq!(r[mm], "", "{r:?}");
+            assert_eq!(r[held] == "0", !r[raw].is_empty(), "{r:?}");
+        }
+        if let Some(other) = other {
+            for n in ["pupil_mm", "pupil_raw", "pupil_held"] {
+                let c = col(&format!("{n}{other}"));
+                assert!(rows.iter().all(|r| r[c].is_empty()), "{n}{other} filled");
+            }
+            assert_eq!(
+                stderr.matches("has only the left eye").count(),
+                1,
+                "{stderr}"
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

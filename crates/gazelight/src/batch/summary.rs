@@ -59,6 +59,8 @@ pub struct TimelineFigures {
     /// The last frame's time from the first, s.
     pub duration_secs: f64,
     pupil: Stats,
+    /// Frames×views with a measured pupil (`pupil_held` 0), in mm or not.
+    measured: u64,
     adaptation: Stats,
     light: Stats,
     residual: Stats,
@@ -97,8 +99,14 @@ pub fn read_timeline(path: &Path) -> anyhow::Result<TimelineFigures> {
             f.duration_secs = t;
         }
         for &(p, h, a, l, r) in &views {
-            if let (Some(pv), Some(0.0)) = (num(p), num(h)) {
-                f.pupil.add(pv);
+            // Measured where `pupil_held` is 0 (an eye the recording does
+            // not have has an empty cell: not counted); the mm figures
+            // from the frames whose pupil is in mm.
+            if num(h) == Some(0.0) {
+                f.measured += 1;
+                if let Some(pv) = num(p) {
+                    f.pupil.add(pv);
+                }
             }
             if let Some(v) = num(a) {
                 f.adaptation.add(v);
@@ -223,7 +231,7 @@ pub fn values(t: &TimelineFigures, r: &RecordingFigures) -> Vec<String> {
         r.blinks[0].to_string(),
         r.blinks[1].to_string(),
         r.blink_events.to_string(),
-        t.pupil.count().to_string(),
+        t.measured.to_string(),
         mm(t.pupil.mean()),
         mm(t.pupil.sd()),
         mm(t.pupil.min()),

@@ -664,7 +664,12 @@ mod tests {
             ..EyeState::default()
         };
         for (e, ch) in state.eyes.iter_mut().enumerate() {
-            ch.pupil_mm = pupil_mm[e];
+            // The measured pupil and, a little apart, the aperture: the
+            // page shows both, never one for the other.
+            ch.measured = Some(pupil_mm[e]);
+            ch.measured_unit = Some(PupilUnit::Mm);
+            ch.present = true;
+            ch.pupil_mm = pupil_mm[e] + 0.5;
             ch.pupil_origin = PupilOrigin::Measured;
             ch.confidence = 0.9;
         }
@@ -741,6 +746,8 @@ mod tests {
         assert_eq!(s1["source"]["dropout_rate"], 0.02);
         assert_eq!(s1["eye"]["updates"], 10);
         assert_eq!(s1["eye"]["pupil_mm"][1], 3.75);
+        assert_eq!(s1["eye"]["measured_unit"][1], "mm");
+        assert_eq!(s1["eye"]["aperture_mm"][1], 4.25);
         assert_eq!(s1["eye"]["pupil_origin"][0], "measured");
         assert_eq!(s1["frame"]["frames"], 9);
         assert_eq!(s1["frame"]["adaptation_cd_m2"], 40.0);
