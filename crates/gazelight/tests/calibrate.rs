@@ -157,3 +157,170 @@ fn no_tracker_is_a_clear_error() {
     );
     assert!(!profile.exists());
 }
+
+/// Sends the peer a `gazelight.stimulus` notification through Pupil
+/// Remote, as a host application showing the stimulus would.
+fn show(port: u16, color: &str) {
+    let code = format!(
+        "import zmq,msgpack\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
+         s.connect('tcp://127.0.0.1:{port}')\n\
+         s.send_string('notify.gazelight.stimulus',zmq.SNDMORE)\n\
+         s.send(msgpack.packb({{'subject':'gazelight.stimulus','color':'{color}'}}))\nprint(s.recv_string())\n"
+    );
+    let out = Command::new("python3")
+        .args(["-c", &code])
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Issue 45's must-show: calibrate against the peer, then run with the
+/// profile while the peer's pupils sit fully in the dark (wider than the
+/// calibration's black phase ever settled): the measured pupil is the
+/// peer's own millimetres within 0.1 mm, no frame is pinned at the map's
+/// 2/8 mm, and the aperture — 001 §5's line, extrapolated a little past
+/// the black phase — stays within the model's range.
+#[test]
+fn calibrate_then_run_keeps_the_trackers_millimetres() {
+    if !python_ready() {
+        return;
+    }
+    // A pupil slower than the calibration's phases (τ 0.4 s against a 0.7 s
+    // settle): the black phase's estimate stays short of the full dark
+    // pupil the run then sees.
+    let peer = spawn_peer_any_port(
+        "200",
+        "60",
+        &["--black-gain", "1.5", "--white-gain", "0.6", "--tau", "0.4"],
+    );
+    let port = peer.remote_port;
+    let dir = tmp("live");
+    let profile = dir.join("profile.json");
+    let out = gazelight(&[
+        "calibrate",
+        "--source",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--stimulus",
+        "remote",
+        "--phase-secs",
+        "1.5",
+        "--settle-secs",
+        "0.7",
+        "--out",
+        profile.to_str().expect("utf-8"),
+    ]);
+    assert!(
+        out.status.success(),
+        "calibrate failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let peer_state = peer_stimuli(port);
+    let tau_s = peer_state["tau_s"].as_f64().expect("tau");
+    let black_mm: Vec<f64> = peer_state["targets"]["black"]["mm"]
+        .as_array()
+        .expect("targets")
+        .iter()
+        .map(|v| v.as_f64().expect("mm"))
+        .collect();
+    // The dark screen, before the run starts: every frame of the run is
+    // later than this notification.
+    show(port, "black");
+    let run_secs = 5.5;
+    let out = gazelight(&[
+        "run",
+        "--source",
+        &format!("pupil://127.0.0.1:{port}"),
+        "--calibration",
+        profile.to_str().expect("utf-8"),
+        "--headless",
+        "--secs",
+        &format!("{run_secs}"),
+        "--size",
+        "64x64",
+        "--no-frames",
+        "--out",
+        dir.join("run").to_str().expect("utf-8"),
+    ]);
+    drop(peer);
+    assert!(
+        out.status.success(),
+        "run failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(dir.join("run/timeline.csv")).expect("timeline");
+    let head: Vec<&str> = text.lines().next().expect("header").split(',').collect();
+    let col = |n: &str| {
+        head.iter()
+            .position(|c| *c == n)
+            .unwrap_or_else(|| panic!("{n} in {head:?}"))
+    };
+    let (t, right, left, aperture) = (
+        col("t_secs"),
+        col("pupil_right_mm"),
+        col("pupil_left_mm"),
+        col("aperture_mm"),
+    );
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert!(rows.len() > 20, "{} rows", rows.len());
+    // The peer's pupil follows the stimulus with its time constant: from 10
+    // τ after the notification on it is within e⁻¹⁰ of its target (the
+    // notification came before the run's clock started).
+    let settled_after = 10.0 * tau_s;
+    assert!(
+        settled_after < run_secs - 1.0,
+        "τ = {tau_s} s is too slow for this test"
+    );
+    let mut compared = 0;
+    let mut pinned = 0;
+    for r in &rows {
+        let a: f64 = r[aperture].parse().expect("aperture");
+        assert!(
+            (1.5..=9.0).contains(&a),
+            "aperture {a} out of the model's range: {r:?}"
+        );
+        let t_secs: f64 = r[t].parse().expect("t");
+        // Wider than the black phase ever was: the line goes on past 8 mm
+        // (before, it was clamped there: 42 % of such frames read 2.000 or
+        // 8.000 mm).
+        if t_secs >= settled_after && a <= 8.0 {
+            pinned += 1;
+        }
+        for (c, want) in [(right, black_mm[0]), (left, black_mm[1])] {
+            if r[c].is_empty() {
+                continue;
+            }
+            let v: f64 = r[c].parse().expect("pupil");
+            if v == 2.0 || v == 8.0 {
+                pinned += 1;
+            }
+            if t_secs >= settled_after {
+                compared += 1;
+                assert!(
+                    (v - want).abs() <= 0.1,
+                    "measured {v} mm vs the peer's {want} mm at t = {t_secs}: {r:?}"
+                );
+            }
+        }
+    }
+    if let Some(last) = rows.last() {
+        eprintln!(
+            "last frame: measured {} / {} mm (peer {black_mm:?}), aperture {} mm; {compared} \
+             settled pupils compared",
+            last[right], last[left], last[aperture]
+        );
+    }
+    assert!(
+        compared > 20,
+        "only {compared} measured frames after {settled_after} s"
+    );
+    assert_eq!(pinned, 0, "frames pinned at the map's 2/8 mm");
+    let _ = std::fs::remove_dir_all(&dir);
+}
