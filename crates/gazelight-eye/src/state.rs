@@ -76,6 +76,12 @@ pub struct EyeChannel {
     /// `EyeState::t_secs`).
     #[serde(default)]
     pub measured_t_secs: Option<f64>,
+    /// The measured pupil through the profile's black/white map (001 §5),
+    /// mm of the map, where the pupil is measured in raw units with such a
+    /// map: the sample's own value, not held or rate-limited (the
+    /// aperture is); `None` elsewhere.
+    #[serde(default)]
+    pub measured_map_mm: Option<f32>,
     /// Whether the source has given any pupil sample of this eye (a
     /// monocular recording's other eye never has).
     #[serde(default)]
@@ -110,6 +116,7 @@ impl Default for EyeChannel {
             measured: None,
             measured_unit: None,
             measured_t_secs: None,
+            measured_map_mm: None,
             present: false,
         }
     }
@@ -212,6 +219,19 @@ impl EyeState {
                     }
                 }
                 unit.map(|u| (sum / n as f32, u))
+            }
+        }
+    }
+
+    /// The measured pupil through the black/white map of a view
+    /// ([`EyeChannel::measured_map_mm`]): the eye's own, or for any other
+    /// index the mean of the eyes that have one now.
+    pub fn view_measured_map_mm(&self, eye: usize) -> Option<f32> {
+        match self.eyes.get(eye) {
+            Some(e) => e.measured_map_mm,
+            None => {
+                let v: Vec<f32> = self.eyes.iter().filter_map(|e| e.measured_map_mm).collect();
+                (!v.is_empty()).then(|| v.iter().sum::<f32>() / v.len() as f32)
             }
         }
     }

@@ -97,6 +97,7 @@ impl View {
         let i = self.eye_index();
         ViewPupil {
             measured: state.view_measured(i),
+            map_mm: state.view_measured_map_mm(i),
             present: state.view_present(i),
         }
     }
@@ -107,6 +108,8 @@ impl View {
 pub struct ViewPupil {
     /// The measured pupil and its unit; `None` where nothing is measured.
     pub measured: Option<(f32, PupilUnit)>,
+    /// A raw measured pupil through the black/white map, mm of the map.
+    pub map_mm: Option<f32>,
     /// Whether the source has the view's eye (mono: either eye).
     pub present: bool,
 }
@@ -518,6 +521,7 @@ impl<R: ViewRenderer> FrameStep<R> {
                 gaze_v: input.gaze_uv[1],
                 pupil_mm: pupil.mm(),
                 pupil_raw: pupil.raw(),
+                pupil_map_mm: pupil.map_mm.unwrap_or(f32::NAN),
                 pupil_held: pupil.held(),
                 aperture_mm: input.pupil_mm,
                 stats,

@@ -300,16 +300,17 @@ pub fn view_solid_angle_deg2(view: &ViewParams) -> f64 {
 
 /// The pupil a view's residual is taken from, mm: its measured pupil where
 /// that is in mm (the tracker's mm, or raw × a physical scale); where the
-/// pupil is measured only in raw units, the model aperture of 001 §5's
-/// black/white map while it follows a clean measurement (settled, not held)
-/// — a residual in the map's millimetres, which `session.json` names
-/// ([`ResidualBasis`]); `None` where nothing is measured (a blink and its
-/// margins, lost, a speed outlier, before the first measurement).
+/// pupil is measured only in raw units, that measurement through the
+/// profile's black/white map (001 §5; `pupil_map_mm`) — a residual in the
+/// map's millimetres, which `session.json` names ([`ResidualBasis`]);
+/// `None` where nothing is measured (a blink and its margins, lost, a
+/// speed outlier, before the first measurement).
 pub fn residual_pupil_mm(view: View, state: &EyeState) -> Option<f32> {
-    match view.pupil(state).measured {
+    let p = view.pupil(state);
+    match p.measured {
         Some((v, PupilUnit::Mm)) => Some(v),
-        Some(_) if view_measured(view, state) => Some(view.input(state, 0.0).0.pupil_mm),
-        _ => None,
+        Some(_) => p.map_mm,
+        None => None,
     }
 }
 

@@ -18,6 +18,10 @@ pub struct TimelineRow {
     /// The measured pupil in the tracker's raw unit where it has no
     /// physical scale (session.json names the unit); NaN otherwise.
     pub pupil_raw: f32,
+    /// That raw pupil through the profile's black/white map (001 §5), mm
+    /// of the map (no physical scale): what the residual is taken from
+    /// then; NaN otherwise.
+    pub pupil_map_mm: f32,
     /// Whether nothing is measured for this view at this frame (a blink and
     /// its margins, lost, before the first measurement); `None` (an empty
     /// cell) for an eye the recording does not have.
@@ -36,11 +40,12 @@ pub struct TimelineRow {
 }
 
 /// The per-view columns of `timeline.csv`, after `t_secs`.
-pub const TIMELINE_COLUMNS: [&str; 18] = [
+pub const TIMELINE_COLUMNS: [&str; 19] = [
     "gaze_u",
     "gaze_v",
     "pupil_mm",
     "pupil_raw",
+    "pupil_map_mm",
     "pupil_held",
     "aperture_mm",
     "target_cd_m2",
@@ -64,7 +69,7 @@ pub const PUPIL_LIGHT_COLUMNS: [&str; 2] = ["pupil_light_mm", "pupil_residual_mm
 impl TimelineRow {
     /// The values of [`TIMELINE_COLUMNS`], in their order (booleans as 0
     /// or 1, NaN for an empty cell), unrounded.
-    pub fn values(&self) -> [f64; 18] {
+    pub fn values(&self) -> [f64; 19] {
         let s = &self.stats;
         let t = &s.timings;
         [
@@ -72,6 +77,7 @@ impl TimelineRow {
             f64::from(self.gaze_v),
             f64::from(self.pupil_mm),
             f64::from(self.pupil_raw),
+            f64::from(self.pupil_map_mm),
             self.pupil_held.map_or(f64::NAN, |h| f64::from(u8::from(h))),
             f64::from(self.aperture_mm),
             s.target_cd_m2,

@@ -336,6 +336,7 @@ impl LiveChain {
                 ch.pupil_origin = origin;
                 // Stale: nothing is measured now, whatever was last.
                 ch.measured = None;
+                ch.measured_map_mm = None;
             }
         }
         state

@@ -228,6 +228,7 @@ pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::
             write!(w, ",{:.5},{:.5}", r.gaze_u, r.gaze_v)?;
             write_opt(&mut w, r.pupil_mm, 4)?;
             write_opt(&mut w, r.pupil_raw, 4)?;
+            write_opt(&mut w, r.pupil_map_mm, 4)?;
             match r.pupil_held {
                 Some(h) => write!(w, ",{}", u8::from(h))?,
                 None => write!(w, ",")?,

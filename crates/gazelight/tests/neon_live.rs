@@ -204,7 +204,9 @@ fn run_drives_the_psf_from_neon_pupils() {
     let mut lines = timeline.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (pupil_col, health_col) = (col("pupil_mm"), col("source_health"));
+    // The binocular aperture the frames used (the live timeline's per-eye
+    // measured pupils are pupil_right_mm / pupil_left_mm).
+    let (pupil_col, health_col) = (col("aperture_mm"), col("source_health"));
     let live: Vec<f32> = lines
         .map(|l| l.split(',').collect::<Vec<_>>())
         .filter(|f| f[health_col] == "live")
@@ -294,8 +296,10 @@ fn record_a_live_neon_then_replay_it() {
     let mut lines = timeline.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
     let col = header.iter().position(|h| *h == "pupil_mm").unwrap();
+    // The measured pupil; an empty cell is a frame with nothing measured
+    // (a blink and its margins).
     let pupils: Vec<f32> = lines
-        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .filter_map(|l| l.split(',').nth(col).unwrap().parse().ok())
         .collect();
     assert!(pupils.len() >= 90, "{} frames for 4 s", pupils.len());
     let binocular: Vec<f32> = want[0]

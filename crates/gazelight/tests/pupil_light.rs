@@ -74,12 +74,17 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
 }
 
 /// Per row: t, pupil, held, predicted, residual (NaN for an empty cell).
+/// Per frame of a view: time, the pupil the residual is taken from (the
+/// measured mm, or — for a pupil in raw units with a black/white profile,
+/// no physical scale — that pupil through 001 §5's map), held, light-driven
+/// pupil, residual.
 fn plr_rows(dir: &Path, suffix: &str) -> Vec<[f64; 5]> {
     let csv = Csv::read(&dir.join("timeline.csv"));
     let c = |n: &str| csv.col(&format!("{n}{suffix}"));
-    let (t, p, h, l, r) = (
+    let (t, mm, aperture, h, l, r) = (
         csv.col("t_secs"),
         c("pupil_mm"),
+        c("pupil_map_mm"),
         c("pupil_held"),
         c("pupil_light_mm"),
         c("pupil_residual_mm"),
@@ -94,9 +99,14 @@ fn plr_rows(dir: &Path, suffix: &str) -> Vec<[f64; 5]> {
     csv.rows
         .iter()
         .map(|row| {
+            let p = if row[mm].is_empty() {
+                &row[aperture]
+            } else {
+                &row[mm]
+            };
             [
                 num(&row[t]),
-                num(&row[p]),
+                num(p),
                 num(&row[h]),
                 num(&row[l]),
                 num(&row[r]),

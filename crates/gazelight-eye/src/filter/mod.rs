@@ -737,6 +737,8 @@ impl FilterChain {
             ch.measured = Some(d.value);
             ch.measured_unit = Some(d.unit);
             ch.measured_t_secs = Some(t);
+            ch.measured_map_mm =
+                (d.unit != PupilUnit::Mm && d.aperture_mm.is_finite()).then_some(d.aperture_mm);
             if d.aperture_mm.is_finite() {
                 let (lo, hi) = (self.cfg.physio.min_pupil_mm, self.cfg.physio.max_pupil_mm);
                 if !(lo..=hi).contains(&d.aperture_mm) {
@@ -749,6 +751,7 @@ impl FilterChain {
             }
         } else {
             self.state.eyes[e].measured = None;
+            self.state.eyes[e].measured_map_mm = None;
             None
         };
         self.target[e] = self.dropout[e].update(t, aperture, model_mm);
@@ -764,6 +767,7 @@ impl FilterChain {
         if let Some(partner) = self.pairing.observe(e, t) {
             self.target[partner] = self.dropout[partner].update(t, None, model_mm);
             self.state.eyes[partner].measured = None;
+            self.state.eyes[partner].measured_map_mm = None;
         }
         self.state.t_secs = self.state.t_secs.max(t);
     }

@@ -354,11 +354,18 @@ impl Csv {
             .unwrap_or_else(|| panic!("no column {name} in {:?}", self.header))
     }
 
+    /// A column's numbers; an empty cell (nothing measured) reads NaN.
     pub fn f64s(&self, name: &str) -> Vec<f64> {
         let c = self.col(name);
         self.rows
             .iter()
-            .map(|r| r[c].parse::<f64>().expect("number"))
+            .map(|r| {
+                if r[c].is_empty() {
+                    f64::NAN
+                } else {
+                    r[c].parse::<f64>().expect("number")
+                }
+            })
             .collect()
     }
 
