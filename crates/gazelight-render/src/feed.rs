@@ -53,7 +53,11 @@ const MAX_LOOKAHEAD_S: f64 = 1.0;
 
 impl<I: Iterator<Item = Sample>> SampleFeed<I> {
     pub fn new(samples: I, chain: FilterChain) -> Self {
-        let lookahead_s = chain.config().clean.margin_before_s;
+        // A sample is decided once the stream is this far past it (the
+        // margin before a blink, the blink's shortest length), plus 1 ms
+        // against rounding.
+        let clean = chain.config().clean;
+        let lookahead_s = clean.margin_before_s + clean.min_lost_s + 1e-3;
         Self {
             samples,
             live: LiveChain::new(chain),

@@ -16,15 +16,47 @@ fn model_rows(dir: &Path) -> Vec<Vec<String>> {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
     assert_eq!(header[0], "t_secs");
-    assert_eq!(header[3], "pupil_mm");
+    // The columns these tests read, by name, in this order: 3 the measured
+    // pupil (mm), 4 pupil_held, 5 the model aperture.
+    let names = [
+        "t_secs",
+        "gaze_u",
+        "gaze_v",
+        "pupil_mm",
+        "pupil_held",
+        "aperture_mm",
+        "target_cd_m2",
+        "adaptation_cd_m2",
+        "psf_pupil_mm",
+        "psf_rebuilt",
+    ];
+    let at: Vec<usize> = names
+        .iter()
+        .map(|n| {
+            header
+                .iter()
+                .position(|h| h == n)
+                .unwrap_or_else(|| panic!("{n}"))
+        })
+        .collect();
     lines
-        .map(|l| l.split(',').take(10).map(str::to_owned).collect())
+        .map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            at.iter().map(|&i| cells[i].to_owned()).collect()
+        })
         .collect()
 }
 
+/// A column's numbers; an empty cell (nothing measured) reads NaN.
 fn col(rows: &[Vec<String>], i: usize) -> Vec<f64> {
     rows.iter()
-        .map(|r| r[i].parse::<f64>().expect("number"))
+        .map(|r| {
+            if r[i].is_empty() {
+                f64::NAN
+            } else {
+                r[i].parse::<f64>().expect("number")
+            }
+        })
         .collect()
 }
 
@@ -118,13 +150,16 @@ fn eyelink_replay_with_window_and_frames() {
         .count();
     assert_eq!(pngs, 61);
     // EyeLink pupil is in arbitrary area units and no calibration was given:
-    // the service says so and the pupil comes from the adaptation model.
+    // the service says so; the pupil is measured (held 0 on most frames) in
+    // the raw unit, so no frame has a pupil in mm, and the glare aperture
+    // comes from the adaptation model.
     assert!(
         stderr.contains("not in millimetres"),
         "missing the calibration warning: {stderr}"
     );
     let held = col(&rows, 4);
-    assert!(held.iter().all(|h| *h == 1.0));
+    assert!(held.iter().filter(|h| **h == 0.0).count() > rows.len() / 2);
+    assert!(col(&rows, 3).iter().all(|p| p.is_nan()));
 }
 
 #[test]
@@ -241,13 +276,18 @@ fn replay_reports_every_setting_and_its_source() {
     ] {
         assert!(stdout.contains(line), "summary lacks `{line}`: {stdout}");
     }
-    // The profile puts the pupil in mm: no model fallback, 2–8 mm.
+    // The black/white profile sizes the aperture (no model fallback, within
+    // the model's range); it is not a physical scale, so no pupil in mm.
     assert!(!stderr.contains("not in millimetres"), "{stderr}");
     let rows = model_rows(&out_dir);
     let held = col(&rows, 4);
-    let pupil = col(&rows, 3);
+    let aperture = col(&rows, 5);
     assert!(held.contains(&0.0), "every pupil held/modelled");
-    assert!(pupil.iter().all(|p| (2.0..=8.0).contains(p)), "{pupil:?}");
+    assert!(
+        aperture.iter().all(|p| (1.5..=9.0).contains(p)),
+        "{aperture:?}"
+    );
+    assert!(col(&rows, 3).iter().all(|p| p.is_nan()));
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -313,7 +353,7 @@ fn eyelink_reaches_millimetres_through_a_scale_profile() {
     for r in &rows {
         let (t, pupil, held): (f64, f64, f64) = (
             r[0].parse().expect("t"),
-            r[3].parse().expect("pupil"),
+            r[3].parse().unwrap_or(f64::NAN),
             r[4].parse().expect("held"),
         );
         let i = samples.partition_point(|s| s.0 < t0 + t);
