@@ -66,7 +66,7 @@ pub use clean::{CleanConfig, CleanTrack, SampleFate, TrackSample};
 pub use confidence::ConfidenceGate;
 pub use dropout::{DropoutConfig, DropoutFill};
 pub use gaze::{GazeConfig, GazeFilter, OneEuro, OneEuroConfig};
-pub use physio::{PhysioConfig, PhysioGate, Reject, SlewLimiter};
+pub use physio::{PhysioConfig, SlewLimiter};
 
 use std::collections::VecDeque;
 

@@ -16,14 +16,15 @@
 //!   3.5 mm) stay below 4 mm/s over any 50 ms window; the blink artefacts in
 //!   the same recording exceed 30 mm/s.
 //!
-//! [`PhysioGate`] rejects a sample whose change from the last accepted one
-//! exceeds `jump_tolerance_mm + max_rate · Δt` (the tolerance absorbs
-//! detector noise: Neon's 200 Hz diameters jitter by ±0.1 mm from sample to
-//! sample). Because the allowance grows with Δt, a gate that once locked onto
-//! a wrong value recovers within `(|Δ| − tolerance) / max_rate` seconds.
-//! [`SlewLimiter`] is the last stage of the chain: whatever the stages before
-//! it do (hold, model easing, a new eye after a dropout), its output never
-//! changes faster than `max_rate`.
+//! The range bounds which millimetre samples count as pupils (the
+//! measured pupil's lost samples, [`super::clean`]) and the model aperture.
+//! The rate bounds only the aperture: [`SlewLimiter`] is its last stage, so
+//! whatever the stages before it do (hold, model easing, a new eye after a
+//! dropout) it never changes faster than `max_rate`. The measured pupil is
+//! never rate-limited: a rate gate that rejected samples changing faster
+//! than `jump_tolerance_mm + max_rate · Δt` locked onto an eyelid-occluded
+//! sample after a blink and rejected the tracker's real pupils as jumps
+//! (issue 45); outliers are the dilation-speed filter's now.
 
 use crate::setting::SettingError;
 use serde::{Deserialize, Serialize};
@@ -36,7 +37,7 @@ pub const PUPIL_MM_RANGE: (f32, f32) = (1.5, 9.0);
 /// Fastest plausible pupil change, mm/s (above Reeves' 5.48 mm/s primary
 /// constriction of the light reflex).
 pub const DEFAULT_MAX_RATE_MM_PER_S: f32 = 6.0;
-/// Sample-to-sample detector noise tolerated by the rate check, mm.
+/// The old rate gate's noise tolerance, mm (accepted, unused).
 pub const DEFAULT_JUMP_TOLERANCE_MM: f32 = 0.5;
 
 /// Configuration of the physiological checks.
@@ -47,10 +48,11 @@ pub struct PhysioConfig {
     pub min_pupil_mm: f32,
     /// Largest plausible pupil (mm), default 9.
     pub max_pupil_mm: f32,
-    /// Fastest plausible change (mm/s), default 6; also the slew limit of
-    /// the chain's output.
+    /// Fastest plausible change (mm/s), default 6: the model aperture's
+    /// slew limit.
     pub max_rate_mm_per_s: f32,
-    /// Noise tolerance of the rate check (mm), default 0.5.
+    /// Accepted for old configurations (the rate gate it tuned is gone:
+    /// outliers are the dilation-speed filter's); default 0.5.
     pub jump_tolerance_mm: f32,
 }
 
@@ -96,60 +98,6 @@ impl PhysioConfig {
             ));
         }
         Ok(())
-    }
-}
-
-/// Why a pupil value was rejected.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reject {
-    /// NaN or infinite.
-    NotFinite,
-    /// ≤ 0 (the tracker's "no pupil").
-    NonPositive,
-    /// Outside `min_pupil_mm..=max_pupil_mm`.
-    OutOfRange,
-    /// Changed faster than the rate bound allows.
-    TooFast,
-}
-
-/// Range and rate check of one eye's pupil.
-#[derive(Clone, Copy, Debug)]
-pub struct PhysioGate {
-    cfg: PhysioConfig,
-    last: Option<(f64, f32)>,
-}
-
-impl PhysioGate {
-    pub fn new(cfg: PhysioConfig) -> Self {
-        Self { cfg, last: None }
-    }
-
-    /// Checks a pupil diameter (mm) measured at `t_secs`; on success it
-    /// becomes the reference for the next rate check.
-    pub fn check(&mut self, t_secs: f64, pupil_mm: f32) -> Result<f32, Reject> {
-        if !pupil_mm.is_finite() {
-            return Err(Reject::NotFinite);
-        }
-        if pupil_mm <= 0.0 {
-            return Err(Reject::NonPositive);
-        }
-        if pupil_mm < self.cfg.min_pupil_mm || pupil_mm > self.cfg.max_pupil_mm {
-            return Err(Reject::OutOfRange);
-        }
-        if let Some((t0, p0)) = self.last {
-            let dt = (t_secs - t0).max(0.0) as f32;
-            let allowed = self.cfg.jump_tolerance_mm + self.cfg.max_rate_mm_per_s * dt;
-            if (pupil_mm - p0).abs() > allowed {
-                return Err(Reject::TooFast);
-            }
-        }
-        self.last = Some((t_secs.max(self.last.map_or(t_secs, |l| l.0)), pupil_mm));
-        Ok(pupil_mm)
-    }
-
-    /// Forgets the rate reference.
-    pub fn reset(&mut self) {
-        self.last = None;
     }
 }
 
@@ -207,21 +155,6 @@ impl SlewLimiter {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rejects_zero_nan_range_and_fast_changes() {
-        let mut g = PhysioGate::new(PhysioConfig::default());
-        assert_eq!(g.check(0.0, 0.0), Err(Reject::NonPositive));
-        assert_eq!(g.check(0.0, f32::NAN), Err(Reject::NotFinite));
-        assert_eq!(g.check(0.0, 12.0), Err(Reject::OutOfRange));
-        assert_eq!(g.check(0.0, 1.2), Err(Reject::OutOfRange));
-        assert_eq!(g.check(0.0, 4.0), Ok(4.0));
-        // 5 ms later: allowance 0.5 + 6·0.005 = 0.53 mm.
-        assert_eq!(g.check(0.005, 4.5), Ok(4.5));
-        assert_eq!(g.check(0.010, 3.9), Err(Reject::TooFast));
-        // The allowance grows with time since the last accepted sample.
-        assert_eq!(g.check(0.110, 3.9), Ok(3.9));
-    }
 
     #[test]
     fn slew_never_exceeds_its_rate_even_backwards_in_time() {
