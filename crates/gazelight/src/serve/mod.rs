@@ -1041,6 +1041,9 @@ mod browser_tests {
                 };
                 for (e, ch) in state.eyes.iter_mut().enumerate() {
                     ch.pupil_mm = pupil[e];
+                    ch.measured = Some(pupil[e]);
+                    ch.measured_unit = Some(PupilUnit::Mm);
+                    ch.present = true;
                     ch.pupil_origin = PupilOrigin::Measured;
                     ch.confidence = 0.95;
                 }
