@@ -1259,7 +1259,7 @@ pub fn export_derivative(
             "GeneratedBy": [{
                 "Name": "gazelight",
                 "Version": env!("CARGO_PKG_VERSION"),
-                "Description": "The filter chain (confidence gate, blink and dropout detection and hold, 1€ smoothing, physiological rate limit, per-eye calibration) over the raw recording; from a replay, the pupil light response and the luminance at gaze."
+                "Description": "The filter chain over the raw recording: the measured pupil cleaned as the guidelines do (50 ms margins around blinks, dilation-speed outliers; clean samples unchanged), the model aperture (001 section 5), blinks and dropouts, 1€-smoothed gaze; from a replay, the pupil light response and the luminance at gaze."
             }],
             "SourceDatasets": [{"URL": "../../"}],
         }),
@@ -1308,6 +1308,72 @@ pub fn export_derivative(
         }
         Ok(())
     };
+    // Per eye: the gaze and blink state at each pupil sample, kept until the
+    // chain decides the sample (a margin later): one row per sample.
+    let mut at_sample: [std::collections::VecDeque<(u64, f32, f32, bool)>; 2] =
+        [Default::default(), Default::default()];
+    let mut seq = 0u64;
+    let mut units: [Option<gazelight_eye::sample::PupilUnit>; 2] = [None, None];
+    chain.keep_decided();
+    let write_decided = |chain: &mut FilterChain,
+                         outs: &mut [Option<TsvOut>; 2],
+                         at_sample: &mut [std::collections::VecDeque<(u64, f32, f32, bool)>; 2],
+                         units: &mut [Option<gazelight_eye::sample::PupilUnit>; 2]|
+     -> Result<(), ExportError> {
+        let aperture = [
+            chain.state().eyes[0].pupil_mm,
+            chain.state().eyes[1].pupil_mm,
+        ];
+        for d in chain.take_decided() {
+            let e = usize::from(d.eye & 1);
+            let mut gaze = None;
+            while let Some(&(s, gx, gy, blink)) = at_sample[e].front() {
+                if s > d.seq {
+                    break;
+                }
+                at_sample[e].pop_front();
+                if s == d.seq {
+                    gaze = Some((gx, gy, blink));
+                }
+            }
+            let Some((gx, gy, blink)) = gaze else {
+                continue;
+            };
+            if outs[e].is_none() {
+                let p = dir.join(format!(
+                    "{prefix}_recording-{}filtered_physio.tsv.gz",
+                    EYE_FILES[e].0
+                ));
+                outs[e] = Some(TsvOut::create(&p)?);
+            }
+            let clean = d.fate.is_clean();
+            if clean {
+                units[e].get_or_insert(d.unit);
+            }
+            let fate = match d.fate {
+                gazelight_eye::filter::SampleFate::Clean => "clean",
+                gazelight_eye::filter::SampleFate::Lost => "lost",
+                gazelight_eye::filter::SampleFate::OutOfRange => "out_of_range",
+                gazelight_eye::filter::SampleFate::Margin => "margin",
+                gazelight_eye::filter::SampleFate::Speed => "speed",
+                gazelight_eye::filter::SampleFate::OtherStream => "other_stream",
+            };
+            if let Some(o) = outs[e].as_mut() {
+                o.line(
+                    d.t_secs,
+                    &[
+                        num(Some(gx)),
+                        num(Some(gy)),
+                        num(clean.then_some(d.value)),
+                        fate.into(),
+                        num(Some(aperture[e])),
+                        format!("{}", u8::from(blink)),
+                    ],
+                )?;
+            }
+        }
+        Ok(())
+    };
     let mut last_t = f64::NAN;
     for item in &mut *importer {
         let s = item?;
@@ -1319,37 +1385,15 @@ pub fn export_derivative(
             report.closures += 1;
             closure_row(&mut events, c)?;
         }
-        let Some(e) = up.pupil_eye.map(usize::from).filter(|e| *e < 2) else {
-            continue;
-        };
-        if outs[e].is_none() {
-            let p = dir.join(format!(
-                "{prefix}_recording-{}filtered_physio.tsv.gz",
-                EYE_FILES[e].0
-            ));
-            outs[e] = Some(TsvOut::create(&p)?);
+        if let Some(e) = up.pupil_eye.map(usize::from).filter(|e| *e < 2)
+            && s.t_secs().is_finite()
+        {
+            let st = &up.state;
+            let [gx, gy] = st.eye_gaze_uv(e);
+            at_sample[e].push_back((seq, gx, gy, st.blink));
+            seq += 1;
         }
-        let st = &up.state;
-        let ch = &st.eyes[e];
-        let [gx, gy] = st.eye_gaze_uv(e);
-        let origin = match ch.pupil_origin {
-            gazelight_eye::state::PupilOrigin::Measured => 0,
-            gazelight_eye::state::PupilOrigin::Held => 1,
-            gazelight_eye::state::PupilOrigin::Model => 2,
-            gazelight_eye::state::PupilOrigin::Default => 3,
-        };
-        if let Some(o) = outs[e].as_mut() {
-            o.line(
-                s.t_secs(),
-                &[
-                    num(Some(gx)),
-                    num(Some(gy)),
-                    num(Some(ch.pupil_mm)),
-                    format!("{origin}"),
-                    format!("{}", u8::from(st.blink)),
-                ],
-            )?;
-        }
+        write_decided(chain, &mut outs, &mut at_sample, &mut units)?;
     }
     if last_t.is_finite() {
         for c in chain.finish(last_t).into_iter().flatten() {
@@ -1357,6 +1401,7 @@ pub fn export_derivative(
             closure_row(&mut events, c)?;
         }
     }
+    write_decided(chain, &mut outs, &mut at_sample, &mut units)?;
     let nominal = importer.nominal_rate_hz();
     for (k, out) in outs.into_iter().enumerate() {
         let Some(out) = out else { continue };
@@ -1373,12 +1418,13 @@ pub fn export_derivative(
                 "SamplingFrequency": rate,
                 "StartTime": 0.0,
                 "SampleCoordinateSystem": "custom",
-                "Columns": ["timestamp", "x_coordinate", "y_coordinate", "pupil_size", "pupil_origin", "blink"],
+                "Columns": ["timestamp", "x_coordinate", "y_coordinate", "pupil_size", "pupil_fate", "aperture_mm", "blink"],
                 "timestamp": {"Description": "Time of the raw pupil sample, the recording's clock.", "Units": "s"},
                 "x_coordinate": {"Description": "Filtered gaze x of this eye (its own gaze where the tracker gives one, else the fused gaze), normalised (0 left, 1 right).", "Units": "arbitrary"},
                 "y_coordinate": {"Description": "Filtered gaze y, normalised (0 top, 1 bottom).", "Units": "arbitrary"},
-                "pupil_size": {"Description": "Filtered, calibrated pupil diameter.", "Units": "mm"},
-                "pupil_origin": {"Description": "Where the pupil value comes from.", "Levels": {"0": "measured", "1": "held through a blink or dropout", "2": "the pupil model", "3": "the default, nothing measured yet"}},
+                "pupil_size": {"Description": if units[k] == Some(gazelight_eye::sample::PupilUnit::Mm) { "The measured pupil diameter: the sample's own value where it is clean (the guideline cleaning: 50 ms margins around blinks, dilation-speed outliers; Mathot et al. 2018, Kret & Sjak-Shie 2019), n/a where it is not." } else { "The measured pupil in the tracker's raw unit (no physical scale): the sample's own value where it is clean, n/a where it is not." }, "Units": if units[k] == Some(gazelight_eye::sample::PupilUnit::Mm) { "mm" } else { "arbitrary" }},
+                "pupil_fate": {"Description": "What the cleaning made of the sample.", "Levels": {"clean": "a clean measurement, unchanged", "lost": "no pupil (low confidence, 0 or NaN)", "out_of_range": "a diameter outside 1.5-9 mm", "margin": "within 50 ms of a blink or lost stretch", "speed": "a dilation-speed outlier", "other_stream": "another stream of this eye than the one measured"}},
+                "aperture_mm": {"Description": "The model aperture the glare kernel is built for (001 section 5's black/white map or the measured mm, held through blinks): not a measurement.", "Units": "mm"},
                 "blink": {"Description": "Whether the eye is closed (a blink).", "Levels": {"0": "open", "1": "closed"}},
             }),
         )?;
