@@ -10,7 +10,7 @@ use pyo3::prelude::*;
 use gazelight_tracker::filter::FilterChain as Chain;
 use gazelight_tracker::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
 
-use crate::read::{ORIGINS, origin_code};
+use crate::read::{ORIGINS, UNITS, origin_code, unit_code};
 
 /// The filtered eye state after a sample (or a live source's newest).
 #[pyclass(module = "gazelight", name = "EyeState", frozen, get_all)]
@@ -22,9 +22,15 @@ pub(crate) struct EyeState {
     /// Fused gaze, normalised image coordinates, top-left origin.
     pub(crate) gaze_uv: (f32, f32),
     pub(crate) gaze_valid: bool,
-    /// Filtered pupil per eye (0 right, 1 left), mm.
+    /// The model aperture per eye (0 right, 1 left), mm: the pupil the
+    /// glare PSF is built for (held through blinks; not a measurement).
     pub(crate) pupil_mm: (f32, f32),
-    /// Where each eye's pupil came from: measured, held, model, default.
+    /// The measured pupil per eye (0 right, 1 left) in `measured_unit`, the
+    /// newest clean sample's own value; None where the eye is not measured
+    /// now (decided a margin after the sample: see `read`).
+    pub(crate) measured: (Option<f32>, Option<f32>),
+    pub(crate) measured_unit: (Option<&'static str>, Option<&'static str>),
+    /// Where each eye's aperture came from: measured, held, model, default.
     pub(crate) pupil_origin: (&'static str, &'static str),
     /// Confidence of each eye's newest raw sample.
     pub(crate) confidence: (f32, f32),
@@ -35,11 +41,18 @@ pub(crate) struct EyeState {
 impl From<&gazelight_tracker::EyeState> for EyeState {
     fn from(s: &gazelight_tracker::EyeState) -> Self {
         let origin = |e: usize| ORIGINS[origin_code(s.eyes[e].pupil_origin) as usize];
+        let unit = |e: usize| {
+            s.eyes[e]
+                .measured_unit
+                .map(|u| UNITS[usize::from(unit_code(u))])
+        };
         Self {
             t_secs: s.t_secs,
             gaze_uv: (s.gaze_uv[0], s.gaze_uv[1]),
             gaze_valid: s.gaze_valid,
             pupil_mm: (s.eyes[0].pupil_mm, s.eyes[1].pupil_mm),
+            measured: (s.eyes[0].measured, s.eyes[1].measured),
+            measured_unit: (unit(0), unit(1)),
             pupil_origin: (origin(0), origin(1)),
             confidence: (s.eyes[0].confidence, s.eyes[1].confidence),
             blink: s.blink,
@@ -155,8 +168,11 @@ impl FilterChain {
     /// eye the diameters (mm unless `unit` says otherwise; NaN or 0: no
     /// pupil) — each row is one sample of the right eye, then one of the
     /// left, as a recording's importer delivers a binocular row.
-    /// Returns `(right_mm, left_mm)`: the filtered pupil after each sample
-    /// (None for an eye not given).
+    /// Returns `(right, left)`: each sample's measured pupil — its own
+    /// value where the guideline cleaning keeps it, NaN where it does not
+    /// (lost, within the margins of a blink, a speed outlier) — as `read`'s
+    /// `measured_value` (None for an eye not given). The series' end is the
+    /// end of the stream: its last samples are decided.
     #[pyo3(signature = (t_secs, right=None, left=None, confidence=None, unit="mm"))]
     #[allow(clippy::type_complexity)]
     fn filter_pupils<'py>(
@@ -194,6 +210,20 @@ impl FilterChain {
             )));
         }
         let mut out: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
+        // Per eye: the rows waiting for the chain's decision.
+        let mut pending: [std::collections::VecDeque<usize>; 2] = Default::default();
+        let chain = self.chain();
+        chain.keep_decided();
+        let decide = |chain: &mut Chain,
+                      out: &mut [Vec<f32>; 2],
+                      pending: &mut [std::collections::VecDeque<usize>; 2]| {
+            for d in chain.take_decided() {
+                let e = usize::from(d.eye & 1);
+                if let Some(i) = pending[e].pop_front() {
+                    out[e][i] = if d.fate.is_clean() { d.value } else { f32::NAN };
+                }
+            }
+        };
         for i in 0..t.len() {
             for (e, d) in eyes.iter().enumerate() {
                 let Some(d) = d else { continue };
@@ -207,9 +237,16 @@ impl FilterChain {
                     norm_pos: [f32::NAN; 2],
                     method: DetectorMethod::Other,
                 });
-                out[e].push(self.chain().push(&s).state.eyes[e].pupil_mm);
+                out[e].push(f32::NAN);
+                if t[i].is_finite() {
+                    pending[e].push_back(out[e].len() - 1);
+                }
+                chain.push(&s);
+                decide(chain, &mut out, &mut pending);
             }
         }
+        chain.flush_pending();
+        decide(chain, &mut out, &mut pending);
         let [r, l] = out;
         Ok((
             eyes[0].is_some().then(|| numpy::PyArray1::from_vec(py, r)),

@@ -26,8 +26,16 @@ def test_filter_chain_over_arrays_equals_read(data_dir):
         assert len(out) == len(rec.eyes[eye]) == len(raw)
         np.testing.assert_array_equal(rec.eyes[eye].t_secs, t)
         np.testing.assert_array_equal(out, rec.eyes[eye].pupil_mm)
-    # The last state is the chain's after the last sample.
-    assert chain.state.pupil_mm == (right[-1], left[-1])
+        # A clean sample's measured pupil is its own value.
+        clean = np.isfinite(out)
+        raw_eye = (raw["right"], raw["left"])[eye].astype(np.float32)
+        np.testing.assert_array_equal(out[clean], raw_eye[clean])
+        assert clean.mean() > 0.95
+    # The last state: the aperture is the last clean value (held), the
+    # measured pupil the last sample's where it is clean.
+    last = [right[np.isfinite(right)][-1], left[np.isfinite(left)][-1]]
+    assert chain.state.measured_unit == ("mm", "mm")
+    assert abs(chain.state.pupil_mm[0] - last[0]) < 0.5 and abs(chain.state.pupil_mm[1] - last[1]) < 0.5
     assert json.loads(chain.stats_json())["pupil_samples"] == [len(raw), len(raw)]
 
 
@@ -56,16 +64,23 @@ def test_calibration_changes_read_as_it_changes_inspect(tmp_path, data_dir, gaze
             rec = gazelight.read(asc, calibration=given)
         warned = [str(w.message) for w in caught if issubclass(w.category, gazelight.GazelightWarning)]
         assert_matches_inspect(rec, s, warned)
-    # Calibrated, the chain measures: most samples are no longer dropouts.
+    # Calibrated or not, the chain measures the raw pupil (no physical
+    # scale): most samples are clean, none in mm; the black/white map gives
+    # the aperture.
     assert rec.eyes[0].measured.mean() > 0.5
-    assert gazelight.read(asc).eyes[0].measured.sum() == 0
+    plain = gazelight.read(asc)
+    assert plain.eyes[0].measured.mean() > 0.5
+    assert np.all(np.isnan(plain.eyes[0].pupil_mm))
+    assert np.all(np.isnan(rec.eyes[0].pupil_mm))
 
 
 def test_config_changes_read_as_it_changes_replay(tmp_path, data_dir, gazelight_bin):
     rec_path = data_dir / "eye/neon-demo"
-    cfg = {"physio": {"max_rate_mm_per_s": 2.0}, "dropout": {"ease_rate_mm_per_s": 1.0}}
+    cfg = {"physio": {"max_rate_mm_per_s": 2.0}, "dropout": {"ease_rate_mm_per_s": 1.0},
+           "clean": {"margin_before_s": 0.1}}
     toml = tmp_path / "study.toml"
-    toml.write_text("[filter.physio]\nmax_rate_mm_per_s = 2.0\n[filter.dropout]\nease_rate_mm_per_s = 1.0\n")
+    toml.write_text("[filter.physio]\nmax_rate_mm_per_s = 2.0\n[filter.dropout]\nease_rate_mm_per_s = 1.0\n"
+                    "[filter.clean]\nmargin_before_s = 0.1\n")
     run_cli(gazelight_bin, "replay", str(rec_path), "--config", str(toml), "--stereo", "--backend", "cpu",
             "--size", "32x24", "--fps", str(FPS), "--no-frames", "--out", str(tmp_path / "out"))
     tl = _timeline(tmp_path / "out" / "timeline.csv")
@@ -73,5 +88,6 @@ def test_config_changes_read_as_it_changes_replay(tmp_path, data_dir, gazelight_
     default = gazelight.read(rec_path)
     check_timeline(rec, tl, "neon-demo with a config", 2.0, min_exact=0.8)
     for e in (0, 1):
-        # And the configuration made a difference.
-        assert not np.array_equal(rec.eyes[e].pupil_mm, default.eyes[e].pupil_mm)
+        # And the configuration made a difference: wider margins before the
+        # blinks discard more samples.
+        assert np.isnan(rec.eyes[e].pupil_mm).sum() > np.isnan(default.eyes[e].pupil_mm).sum()

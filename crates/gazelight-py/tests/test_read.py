@@ -16,9 +16,12 @@ from conftest import RECORDINGS, inspect_json, run_cli
 
 def _range(values: np.ndarray):
     """min / median / max as inspect computes them (finite values; the
-    median of an even count is the mean of the middle two, in f64)."""
+    median of an even count is the mean of the middle two, in f64); None
+    when there is none, as inspect's null."""
     v = np.sort(values[np.isfinite(values)]).astype(np.float64)
     n = len(v)
+    if n == 0:
+        return None
     med = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
     return {"min": v[0], "median": med, "max": v[-1]}
 
@@ -56,14 +59,17 @@ def assert_matches_inspect(rec, s, warned):
     for e in (0, 1):
         assert len(rec.blinks(e)[0]) == s["blinks"]["detected"][e], f"eye {e} blinks"
         assert len(rec.dropouts(e)[0]) == s["dropouts"][e], f"eye {e} dropouts"
-    # The filtered and raw pupils: the same values give the same ranges.
+    # The measured (clean) and raw pupils: the same values give the same
+    # ranges; mm where the pupil has a physical scale, else the raw unit.
     for e in (0, 1):
         eye, want = rec.eyes[e], s["pupil"][e]
         if len(eye) == 0:
             assert want["filtered_mm"] is None
             continue
         assert want["unit"] == eye.unit
-        assert _range(eye.pupil_mm) == want["filtered_mm"], f"eye {e} filtered"
+        assert _range(eye.pupil_mm) == want["filtered_mm"], f"eye {e} measured mm"
+        raw_clean = eye.measured_value[eye.measured_unit_code != 1]
+        assert _range(raw_clean) == want["measured_raw"], f"eye {e} measured raw"
         raw = eye.pupil_raw[(eye.pupil_raw > 0) & np.isfinite(eye.pupil_raw)]
         assert (_range(raw) if len(raw) else None) == want["raw"], f"eye {e} raw"
         conf = eye.confidence[np.isfinite(eye.confidence)].clip(0, 1).astype(np.float64)
@@ -113,9 +119,12 @@ def test_read_equals_replay_timeline(name, secs, data_dir, gazelight_bin, tmp_pa
 
 
 def check_timeline(rec, tl, name, max_rate_mm_per_s, min_exact=0.9):
-    """Each frame of a stereo replay's timeline shows the filtered pupil of
-    the last sample at or before the frame, moved from the previous
-    frame's by at most the rate limit per frame."""
+    """Each frame of a stereo replay's timeline shows the measured pupil of
+    the last sample at or before the frame — that sample's own value, never
+    rate-limited — where it is measured (`pupil_held` 0), and nothing where
+    that sample is not clean. (`max_rate_mm_per_s` bounds only the
+    aperture: each frame's `aperture_mm` moves from the previous one's by
+    at most it per frame.)"""
     # The timeline's clock starts at the recording's first sample.
     t0 = min(float(a.min()) for a in (rec.eyes[0].t_secs, rec.eyes[1].t_secs, rec.gaze.t_secs) if len(a))
     # Frames sit at t0 + k / fps (the column is rounded to 4 decimals).
@@ -126,17 +135,15 @@ def check_timeline(rec, tl, name, max_rate_mm_per_s, min_exact=0.9):
         eye = rec.eyes[e]
         i = np.searchsorted(eye.t_secs, t_frame, side="right") - 1
         ok = (i >= 0) & (tl["pupil_held" + suffix] == 0)
-        ok[0] = False
-        # The frame shows the last sample's filtered pupil, moved from the
-        # previous frame's by at most the physiological rate limit per
-        # frame (the live chain's slew at the frame clock).
-        prev = np.concatenate([[np.nan], tl["pupil_mm" + suffix][:-1]])
-        step = max_rate_mm_per_s / FPS
-        want = np.clip(eye.pupil_mm[np.maximum(i, 0)].astype(np.float64), prev - step, prev + step)
-        np.testing.assert_allclose(want[ok], tl["pupil_mm" + suffix][ok], atol=2.01e-4, err_msg=f"{name} eye {e}")
-        # Most frames need no rate step: the value itself, to 4 decimals.
-        exact = np.abs(np.round(eye.pupil_mm[i[ok]].astype(np.float64), 4) - tl["pupil_mm" + suffix][ok]) <= 1.01e-4
-        assert exact.mean() > min_exact, f"{name} eye {e}: {exact.mean():.3f} of the frames equal"
+        want = eye.pupil_mm[np.maximum(i, 0)].astype(np.float64)
+        # Measured frames show the last sample's own value (4 decimals).
+        np.testing.assert_allclose(want[ok], tl["pupil_mm" + suffix][ok], atol=1.01e-4, err_msg=f"{name} eye {e}")
+        # A frame whose last sample is not clean is held, not filled.
+        assert np.all(np.isnan(tl["pupil_mm" + suffix][(i >= 0) & np.isnan(want)])), f"{name} eye {e}"
+        exact = ok.mean()
+        assert exact > min_exact * 0.5, f"{name} eye {e}: only {exact:.3f} of the frames measured"
+        a = tl["aperture_mm" + suffix]
+        assert np.all(np.abs(np.diff(a)) <= max_rate_mm_per_s / FPS + 2.01e-4), f"{name} eye {e} aperture"
         checked += int(ok.sum())
     assert checked > len(tl["t_secs"]), f"only {checked} frames compared"
 
@@ -174,3 +181,24 @@ def test_dataframe_holds_both_eyes(data_dir, gazelight_bin):
         np.testing.assert_array_equal(sub["pupil_mm"].to_numpy(), rec.eyes[e].pupil_mm)
         assert set(sub["unit"].astype(str)) == {s["pupil"][e]["unit"]}
     assert df["blink"].dtype == bool and df["dropout"].dtype == bool
+
+
+def test_an_uncalibrated_eyelink_pupil_is_warned_about_as_the_cli_does(data_dir, gazelight_bin):
+    """Issue 45 item 7: Python says what the CLI says, from the same
+    function: an EyeLink file in area units with no physical scale is
+    measured in its raw unit (no mm, no made-up 3.85 mm), and read() and
+    inspect() warn as `gazelight inspect` does."""
+    path = data_dir / "eye/eyelink-psa/both_eyes.asc"
+    s = inspect_json(gazelight_bin, path)
+    cli = [w for w in s["warnings"] if "no physical scale" in w]
+    assert len(cli) == 1, s["warnings"]
+    rec, warned = _read(path)
+    assert [w for w in warned if "no physical scale" in w] == [f"{rec.path}: {cli[0]}"]
+    for eye in rec.eyes:
+        assert np.all(np.isnan(eye.pupil_mm)), "no mm without a physical scale"
+        clean = np.isfinite(eye.measured_value)
+        assert clean.mean() > 0.9
+        np.testing.assert_array_equal(eye.measured_value[clean], eye.pupil_raw[clean])
+        assert {eye.units[c] for c in eye.measured_unit_code[clean]} == {"arbitrary_area"}
+    with pytest.warns(gazelight.GazelightWarning, match="no physical scale"):
+        gazelight.inspect(path)

@@ -28,6 +28,8 @@ class EyeState:
     gaze_uv: Tuple[float, float]
     gaze_valid: bool
     pupil_mm: Tuple[float, float]
+    measured: Tuple[Optional[float], Optional[float]]
+    measured_unit: Tuple[Optional[str], Optional[str]]
     pupil_origin: Tuple[str, str]
     confidence: Tuple[float, float]
     blink: bool
