@@ -84,6 +84,8 @@ impl<I: Iterator<Item = Sample>> SampleFeed<I> {
         if let Some(l) = adaptation_cd_m2 {
             self.live.set_adaptation_luminance(l);
         }
+        // Nothing past the frame reaches the state while reading ahead.
+        self.live.set_horizon(t_secs);
         while self.backlog.front().is_some_and(|s| s.t_secs() <= t_secs) {
             if let Some(s) = self.backlog.pop_front() {
                 self.live.push(&s);
