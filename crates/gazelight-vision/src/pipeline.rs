@@ -79,7 +79,8 @@ pub struct GlareConfig {
     pub psf_rebuild_threshold_mm: f64,
     /// The CIE 146 veil of every pixel onto every other beyond the
     /// kernel, out to 90° ([`crate::far_glare`]; needs the physical
-    /// kernel's stray light).
+    /// kernel's stray light). Off by default while only the CPU pipeline
+    /// has it.
     pub far_field: bool,
 }
 
@@ -101,7 +102,10 @@ impl Default for GlareConfig {
             fade_sigma_deg: GlareWindow::default().fade_sigma_deg,
             psf: PsfParams::default(),
             psf_rebuild_threshold_mm: 0.1,
-            far_field: true,
+            // Opt-in until the GPU pass exists: `--backend gpu` (and
+            // `auto` on a machine with a GPU) must render what the CPU
+            // renders.
+            far_field: false,
         }
     }
 }
