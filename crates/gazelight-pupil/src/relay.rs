@@ -1057,7 +1057,13 @@ mod tests {
             ..EyeState::default()
         };
         for (e, ch) in s.eyes.iter_mut().enumerate() {
-            ch.pupil_mm = 3.0 + e as f32 + (k % 100) as f32 * 0.0125;
+            // The measured pupil, and apart from it the aperture: the relay
+            // publishes the measurement, never the aperture.
+            let mm = 3.0 + e as f32 + (k % 100) as f32 * 0.0125;
+            ch.measured = Some(mm);
+            ch.measured_unit = Some(PupilUnit::Mm);
+            ch.present = true;
+            ch.pupil_mm = mm + 0.5;
             ch.confidence = 0.8 + (k % 10) as f32 * 0.01;
             ch.pupil_origin = PupilOrigin::Measured;
             ch.last_valid_t_secs = Some(t_secs);
@@ -1216,7 +1222,7 @@ mod tests {
                 updated_host_secs: t,
                 updates: k,
             });
-            fed.insert(s.eyes[1].pupil_mm.to_bits(), (k, s));
+            fed.insert(s.eyes[1].measured.unwrap_or(f32::NAN).to_bits(), (k, s));
             fed_by_k.push(s);
             tokio::time::sleep(Duration::from_millis(2)).await;
         }
@@ -1251,11 +1257,11 @@ mod tests {
                     if p.eye == 0 {
                         // px known: `diameter` px, `diameter_3d` mm.
                         assert_eq!(p.unit, PupilUnit::Px);
-                        assert_eq!(p.diameter_mm, Some(ch.pupil_mm));
+                        assert_eq!(p.diameter_mm, ch.measured);
                         assert_eq!(p.norm_pos, [0.41, 0.52]);
                     } else {
                         assert_eq!(p.unit, PupilUnit::Mm);
-                        assert_eq!(p.diameter_raw, ch.pupil_mm);
+                        assert_eq!(Some(p.diameter_raw), ch.measured);
                         assert!(fed.contains_key(&p.diameter_raw.to_bits()));
                     }
                 }
@@ -1316,7 +1322,7 @@ mod tests {
         assert_eq!((st.pupil_published, st.gaze_published), (2, 2));
         // A pupil update of eye 1 alone.
         let mut p = g;
-        p.eyes[1].pupil_mm = 5.5;
+        p.eyes[1].measured = Some(5.5);
         tx.send_replace(LiveEyeState {
             state: p,
             updated_host_secs: t0,
@@ -1494,7 +1500,10 @@ mod tests {
                 let id = p["id"].as_u64().unwrap() as usize;
                 assert_eq!(topic, PUPIL_TOPICS[id]);
                 assert_eq!(p["method"], RELAY_METHOD);
-                close(&p["diameter_3d"], f64::from(state.eyes[id].pupil_mm));
+                close(
+                    &p["diameter_3d"],
+                    f64::from(state.eyes[id].measured.unwrap_or(f32::NAN)),
+                );
                 close(&p["confidence"], f64::from(state.eyes[id].confidence));
             } else {
                 assert_eq!(topic, GAZE_TOPIC);
@@ -1504,7 +1513,7 @@ mod tests {
                 close(&np[1], 1.0 - f64::from(state.gaze_uv[1]));
                 close(
                     &p["base_data"][1]["diameter_3d"],
-                    f64::from(state.eyes[1].pupil_mm),
+                    f64::from(state.eyes[1].measured.unwrap_or(f32::NAN)),
                 );
             }
         }
