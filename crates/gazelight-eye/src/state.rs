@@ -230,8 +230,13 @@ impl EyeState {
         match self.eyes.get(eye) {
             Some(e) => e.measured_map_mm,
             None => {
-                let v: Vec<f32> = self.eyes.iter().filter_map(|e| e.measured_map_mm).collect();
-                (!v.is_empty()).then(|| v.iter().sum::<f32>() / v.len() as f32)
+                // No allocation: it runs per view per frame.
+                let (sum, n) = self
+                    .eyes
+                    .iter()
+                    .filter_map(|e| e.measured_map_mm)
+                    .fold((0.0f32, 0u32), |(s, n), v| (s + v, n + 1));
+                (n > 0).then(|| sum / n as f32)
             }
         }
     }

@@ -243,46 +243,6 @@ fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
     let _ = std::fs::remove_dir_all(&root);
 }
 
-/// A left-eye-only copy of the shipped binocular EyeLink file, as an
-/// EyeLink writes a monocular recording: `START`/`SAMPLES`/`EVENTS` lines
-/// name `LEFT` only, sample lines are `time x y pupil flags`, the right
-/// eye's event lines are gone. Written by the test from the real file.
-fn monocular_eyelink(dir: &Path) -> PathBuf {
-    let text = std::fs::read_to_string(data("eyelink-psa/both_eyes.asc")).unwrap();
-    let mut out = String::with_capacity(text.len());
-    for line in text.lines() {
-        let first = line.split_whitespace().next().unwrap_or("");
-        let f: Vec<&str> = line.split_whitespace().collect();
-        if first.starts_with(|c: char| c.is_ascii_digit()) && f.len() >= 8 {
-            // time xL yL pL xR yR pR flags…
-            out.push_str(&format!("{}\t{}\t{}\t{}\t...\n", f[0], f[1], f[2], f[3]));
-        } else if [
-            "START",
-            "END",
-            "SAMPLES",
-            "EVENTS",
-            "PRESCALER",
-            "VPRESCALER",
-        ]
-        .contains(&first)
-        {
-            out.push_str(&line.replace("\tRIGHT", "").replace(" RIGHT", ""));
-            out.push('\n');
-        } else if ["SBLINK", "EBLINK", "SFIX", "EFIX", "SSACC", "ESACC"].contains(&first)
-            && f.get(1) == Some(&"R")
-        {
-            continue;
-        } else {
-            out.push_str(line);
-            out.push('\n');
-        }
-    }
-    let p = dir.join("left_eye.asc");
-    std::fs::create_dir_all(dir).unwrap();
-    std::fs::write(&p, out).unwrap();
-    p
-}
-
 /// The sidecars (`*.json`) under `dir`, recursively: (name, JSON).
 fn sidecars(dir: &Path) -> Vec<(String, serde_json::Value)> {
     let mut out = Vec::new();
@@ -310,7 +270,7 @@ fn sidecars(dir: &Path) -> Vec<(String, serde_json::Value)> {
 #[test]
 fn every_shipped_recording_and_one_eye_exports_a_valid_dataset() {
     let root = temp("all");
-    let mono = monocular_eyelink(&temp("mono-src"));
+    let mono = gazelight_test_support::data::left_eye_eyelink(&temp("mono-src"));
     let asc = std::fs::read_to_string(data("eyelink-psa/both_eyes.asc")).unwrap();
     let stated_rate: f64 = asc
         .lines()

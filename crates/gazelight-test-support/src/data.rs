@@ -103,6 +103,48 @@ fn is_workspace_manifest(path: &Path) -> bool {
     std::fs::read_to_string(path).is_ok_and(|text| text.lines().any(|l| l.trim() == "[workspace]"))
 }
 
+/// The shipped binocular EyeLink recording made a left-eye-only one, as
+/// EyeLink writes a monocular recording (`START`/`SAMPLES`/`EVENTS` lines
+/// without `RIGHT`, samples `time xL yL pL …`, no right-eye events), into
+/// `dir/left_eye.asc`: the monocular file the pupil, BIDS and CLI tests
+/// share.
+pub fn left_eye_eyelink(dir: &Path) -> PathBuf {
+    let src = data_path("eye/eyelink-psa/both_eyes.asc");
+    let text = std::fs::read_to_string(&src).unwrap_or_else(|e| panic!("{}: {e}", src.display()));
+    let mut out = String::with_capacity(text.len());
+    for line in text.lines() {
+        let first = line.split_whitespace().next().unwrap_or("");
+        let f: Vec<&str> = line.split_whitespace().collect();
+        if first.starts_with(|c: char| c.is_ascii_digit()) && f.len() >= 8 {
+            // time xL yL pL xR yR pR flags…
+            out.push_str(&format!("{}\t{}\t{}\t{}\t...\n", f[0], f[1], f[2], f[3]));
+        } else if [
+            "START",
+            "END",
+            "SAMPLES",
+            "EVENTS",
+            "PRESCALER",
+            "VPRESCALER",
+        ]
+        .contains(&first)
+        {
+            out.push_str(&line.replace("\tRIGHT", "").replace(" RIGHT", ""));
+            out.push('\n');
+        } else if ["SBLINK", "EBLINK", "SFIX", "EFIX", "SSACC", "ESACC"].contains(&first)
+            && f.get(1) == Some(&"R")
+        {
+            continue;
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    let p = dir.join("left_eye.asc");
+    std::fs::create_dir_all(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    std::fs::write(&p, out).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    p
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]

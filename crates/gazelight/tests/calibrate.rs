@@ -10,12 +10,13 @@ use std::process::Command;
 
 use common::{gazelight, python_ready, spawn_peer_any_port, tmp};
 
-/// Asks the peer for the stimuli it received (its `peer.stimulus` command),
-/// through a tiny pyzmq REQ client.
-fn peer_stimuli(port: u16) -> serde_json::Value {
+/// Runs `request` (Python lines using the REQ socket `s`, then printing
+/// its reply) against the peer's Pupil Remote through a tiny pyzmq client;
+/// its stdout.
+fn remote(port: u16, request: &str) -> Vec<u8> {
     let code = format!(
-        "import zmq,sys\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
-         s.connect('tcp://127.0.0.1:{port}')\ns.send_string('peer.stimulus')\nprint(s.recv_string())\n"
+        "import zmq,msgpack\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
+         s.connect('tcp://127.0.0.1:{port}')\n{request}\nprint(s.recv_string())\n"
     );
     let out = Command::new("python3")
         .args(["-c", &code])
@@ -26,7 +27,12 @@ fn peer_stimuli(port: u16) -> serde_json::Value {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    serde_json::from_slice(&out.stdout).expect("json")
+    out.stdout
+}
+
+/// Asks the peer for the stimuli it received (its `peer.stimulus` command).
+fn peer_stimuli(port: u16) -> serde_json::Value {
+    serde_json::from_slice(&remote(port, "s.send_string('peer.stimulus')")).expect("json")
 }
 
 #[test]
@@ -161,20 +167,12 @@ fn no_tracker_is_a_clear_error() {
 /// Sends the peer a `gazelight.stimulus` notification through Pupil
 /// Remote, as a host application showing the stimulus would.
 fn show(port: u16, color: &str) {
-    let code = format!(
-        "import zmq,msgpack\nc=zmq.Context()\ns=c.socket(zmq.REQ)\ns.setsockopt(zmq.RCVTIMEO,3000)\n\
-         s.connect('tcp://127.0.0.1:{port}')\n\
-         s.send_string('notify.gazelight.stimulus',zmq.SNDMORE)\n\
-         s.send(msgpack.packb({{'subject':'gazelight.stimulus','color':'{color}'}}))\nprint(s.recv_string())\n"
-    );
-    let out = Command::new("python3")
-        .args(["-c", &code])
-        .output()
-        .expect("python");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    remote(
+        port,
+        &format!(
+            "s.send_string('notify.gazelight.stimulus',zmq.SNDMORE)\n\
+             s.send(msgpack.packb({{'subject':'gazelight.stimulus','color':'{color}'}}))"
+        ),
     );
 }
 

@@ -123,37 +123,10 @@ fn inspect_of_a_relay_xdf_with_a_blink_counts_what_pyxdf_reads() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The shipped binocular EyeLink file as a left-eye-only recording.
-fn monocular_eyelink(dir: &Path) -> PathBuf {
-    let src = gazelight_test_support::data_path("eye").join("eyelink-psa/both_eyes.asc");
-    let text = std::fs::read_to_string(src).unwrap();
-    let mut out = String::with_capacity(text.len());
-    for line in text.lines() {
-        let f: Vec<&str> = line.split_whitespace().collect();
-        let first = f.first().copied().unwrap_or("");
-        if first.starts_with(|c: char| c.is_ascii_digit()) && f.len() >= 8 {
-            out.push_str(&format!("{}\t{}\t{}\t{}\t...\n", f[0], f[1], f[2], f[3]));
-        } else if ["START", "END", "SAMPLES", "EVENTS"].contains(&first) {
-            out.push_str(&line.replace("\tRIGHT", ""));
-            out.push('\n');
-        } else if ["SBLINK", "EBLINK", "SFIX", "EFIX", "SSACC", "ESACC"].contains(&first)
-            && f.get(1) == Some(&"R")
-        {
-            continue;
-        } else {
-            out.push_str(line);
-            out.push('\n');
-        }
-    }
-    let p = dir.join("left_eye.asc");
-    std::fs::write(&p, out).unwrap();
-    p
-}
-
 #[test]
 fn export_of_a_left_eye_eyelink_file_is_one_valid_eye() {
     let dir = tmp("bids");
-    let asc = monocular_eyelink(&dir);
+    let asc = gazelight_test_support::data::left_eye_eyelink(&dir);
     let ds = dir.join("ds");
     let out = gazelight(&[
         "export",
@@ -230,7 +203,7 @@ fn csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
 #[test]
 fn a_left_eye_eyelink_file_is_one_eye_in_inspect_and_replay() {
     let dir = tmp("mono");
-    let asc = monocular_eyelink(&dir);
+    let asc = gazelight_test_support::data::left_eye_eyelink(&dir);
     let a = asc.to_str().unwrap();
     let out = gazelight(&["inspect", "--json", a]);
     assert!(

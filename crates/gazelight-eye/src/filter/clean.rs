@@ -308,12 +308,7 @@ impl CleanTrack {
                 };
                 // The previous candidate's forward speed is this one's
                 // backward speed.
-                if let Some(p) = self
-                    .pending
-                    .iter_mut()
-                    .rev()
-                    .find(|p| p.s.fate != SampleFate::OtherStream)
-                {
+                if let Some(p) = self.last_of_stream() {
                     p.followed = true;
                     if p.s.fate == SampleFate::Clean {
                         p.speed_fwd = speed_back;
@@ -342,12 +337,7 @@ impl CleanTrack {
                 };
                 let reaches = t - first >= self.cfg.min_lost_s - TIME_EPS_S;
                 self.run = Some((first, t.max(first), long || reaches));
-                if let Some(p) = self
-                    .pending
-                    .iter_mut()
-                    .rev()
-                    .find(|p| p.s.fate != SampleFate::OtherStream)
-                {
+                if let Some(p) = self.last_of_stream() {
                     p.followed = true;
                 }
                 if reaches && !long {
@@ -373,6 +363,14 @@ impl CleanTrack {
                 });
             }
         }
+    }
+
+    /// The newest pending sample of the measured stream.
+    fn last_of_stream(&mut self) -> Option<&mut Pending> {
+        self.pending
+            .iter_mut()
+            .rev()
+            .find(|p| p.s.fate != SampleFate::OtherStream)
     }
 
     /// Gives up the pending samples as another stream's (the eye's
