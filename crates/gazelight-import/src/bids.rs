@@ -44,10 +44,12 @@ use flate2::write::GzEncoder;
 use serde_json::{Value, json};
 
 use super::{ImportError, ImportWarnings, Importer, Pending, Position};
+mod transaction;
 use gazelight_eye::filter::FilterChain;
 use gazelight_eye::sample::{
     BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
 };
+pub use transaction::Transaction;
 
 /// The BIDS version the files follow.
 pub const BIDS_VERSION: &str = "1.11.0";
@@ -834,8 +836,8 @@ struct TsvOut {
 }
 
 impl TsvOut {
-    fn create(path: &Path) -> Result<Self, ExportError> {
-        let f = File::create(path).map_err(wio(path))?;
+    fn create(tx: &mut Transaction, path: &Path) -> Result<Self, ExportError> {
+        let f = tx.create(path)?;
         Ok(Self {
             path: path.to_owned(),
             w: GzEncoder::new(std::io::BufWriter::new(f), Compression::default()),
@@ -872,6 +874,7 @@ impl TsvOut {
         let path = self.path.clone();
         let mut inner = self.w.finish().map_err(wio(&path))?;
         inner.flush().map_err(wio(&path))?;
+        inner.get_ref().sync_all().map_err(wio(&path))?;
         let (n, sum) = self.steps;
         let rate = if n > 0 && sum > 0.0 {
             n as f64 / sum
@@ -880,11 +883,6 @@ impl TsvOut {
         };
         Ok((self.rows, rate))
     }
-}
-
-fn write_json(path: &Path, v: &Value) -> Result<(), ExportError> {
-    let text = serde_json::to_string_pretty(v).map_err(|e| ExportError::Invalid(e.to_string()))?;
-    std::fs::write(path, text + "\n").map_err(wio(path))
 }
 
 /// What [`export_raw`] wrote.
@@ -942,35 +940,38 @@ pub fn source_name(path: &Path) -> String {
 
 /// Writes the samples of `importer` (the recording `recording`) as the raw
 /// per-eye physio files (and physioevents with the tracker's blinks) of
-/// `names` under `root`, and the dataset's top-level files if missing
-/// (`dataset_description.json`, `README`, `participants.tsv`/`.json`, the
-/// participant added). The sidecars' `SamplingFrequency` is the rate the
+/// `tx`'s recording in `tx`'s dataset, and the dataset's top-level files
+/// if missing (`dataset_description.json`, `README`,
+/// `participants.tsv`/`.json`, the participant added), all staged in `tx`
+/// until its commit. The sidecars' `SamplingFrequency` is the rate the
 /// recording states (else the rows' rate without the pauses),
 /// `Manufacturer`/`ManufacturersModelName` the recording's tracker, and
 /// `RecordingSource` the recording's name ([`RecordingMeta::of`]).
 pub fn export_raw(
     importer: &mut dyn Importer,
-    root: &Path,
-    names: &BidsNames,
+    tx: &mut Transaction,
     recording: &Path,
 ) -> Result<RawExport, ExportError> {
-    names.check()?;
-    let dir = root.join(names.dir());
-    std::fs::create_dir_all(&dir).map_err(wio(&dir))?;
-    write_dataset_files(root, names)?;
+    let names = tx.names().clone();
+    let dir = tx.root().join(names.dir());
+    write_dataset_files(tx)?;
     let prefix = names.prefix();
     let mut outs: [Option<TsvOut>; 3] = [None, None, None];
     let mut rows: [Option<Row>; 3] = [None; 3];
     let mut units: [Option<PupilUnit>; 3] = [None; 3];
     let mut events: [Option<TsvOut>; 3] = [None, None, None];
     let mut report = RawExport::default();
-    let flush = |outs: &mut [Option<TsvOut>; 3], k: usize, row: Row| -> Result<(), ExportError> {
+    let flush = |tx: &mut Transaction,
+                 outs: &mut [Option<TsvOut>; 3],
+                 k: usize,
+                 row: Row|
+     -> Result<(), ExportError> {
         if outs[k].is_none() {
             let p = dir.join(format!(
                 "{prefix}_recording-{}_physio.tsv.gz",
                 EYE_FILES[k].0
             ));
-            outs[k] = Some(TsvOut::create(&p)?);
+            outs[k] = Some(TsvOut::create(tx, &p)?);
         }
         let has_gaze = row.gaze_conf.is_some();
         let cells = [
@@ -1009,7 +1010,7 @@ pub fn export_raw(
                 let fits = rows[k].is_some_and(|r| r.t == p.t_secs && r.pupil_conf.is_none());
                 if !fits {
                     if let Some(r) = rows[k].take() {
-                        flush(&mut outs, k, r)?;
+                        flush(tx, &mut outs, k, r)?;
                     }
                     rows[k] = Some(Row {
                         t: p.t_secs,
@@ -1030,7 +1031,7 @@ pub fn export_raw(
                 let fits = rows[k].is_some_and(|r| r.t == g.t_secs && r.gaze_conf.is_none());
                 if !fits {
                     if let Some(r) = rows[k].take() {
-                        flush(&mut outs, k, r)?;
+                        flush(tx, &mut outs, k, r)?;
                     }
                     rows[k] = Some(Row {
                         t: g.t_secs,
@@ -1057,7 +1058,7 @@ pub fn export_raw(
                         "{prefix}_recording-{}_physioevents.tsv.gz",
                         EYE_FILES[k].0
                     ));
-                    events[k] = Some(TsvOut::create(&p)?);
+                    events[k] = Some(TsvOut::create(tx, &p)?);
                 }
                 if let Some(e) = events[k].as_mut() {
                     e.line(
@@ -1080,7 +1081,7 @@ pub fn export_raw(
     }
     for (k, row) in rows.iter_mut().enumerate() {
         if let Some(r) = row.take() {
-            flush(&mut outs, k, r)?;
+            flush(tx, &mut outs, k, r)?;
         }
     }
     // A blink file needs its eye's physio file beside it.
@@ -1120,7 +1121,7 @@ pub fn export_raw(
         });
         add_device(&mut sidecar, &meta.device);
         let json_path = dir.join(format!("{prefix}_recording-{label}_physio.json"));
-        write_json(&json_path, &sidecar)?;
+        tx.write_json(&json_path, &sidecar)?;
         report.files.push((path, n, rate));
     }
     for (k, ev) in events.into_iter().enumerate() {
@@ -1139,7 +1140,7 @@ pub fn export_raw(
             "{prefix}_recording-{}_physioevents.json",
             EYE_FILES[k].0
         ));
-        write_json(&p, &sidecar)?;
+        tx.write_json(&p, &sidecar)?;
     }
     if report.files.is_empty() {
         return Err(ExportError::Invalid(
@@ -1162,13 +1163,13 @@ fn add_device(sidecar: &mut Value, device: &crate::Device) {
     }
 }
 
-/// The dataset's top-level files, written when missing; the participant
-/// is added to `participants.tsv`.
-fn write_dataset_files(root: &Path, names: &BidsNames) -> Result<(), ExportError> {
-    std::fs::create_dir_all(root).map_err(wio(root))?;
+/// The dataset's top-level files, staged to be written where missing;
+/// the participant is added to `participants.tsv` (written last).
+fn write_dataset_files(tx: &mut Transaction) -> Result<(), ExportError> {
+    let root = tx.root().to_owned();
     let desc = root.join("dataset_description.json");
     if !desc.exists() {
-        write_json(
+        tx.write_json(
             &desc,
             &json!({
                 "Name": "gazelight eye-tracking export",
@@ -1179,43 +1180,20 @@ fn write_dataset_files(root: &Path, names: &BidsNames) -> Result<(), ExportError
             }),
         )?;
     }
-    let readme = root.join("README");
-    if !readme.exists() {
-        std::fs::write(
-            &readme,
-            "Eye-tracking recordings written by `gazelight export --bids` (BIDS eye-tracking, \
-             PhysioType eyetrack). derivatives/gazelight/ holds gazelight's filtered pupil \
-             and blinks.\n",
-        )
-        .map_err(wio(&readme))?;
-    }
-    let parts = root.join("participants.tsv");
-    let id = format!("sub-{}", names.subject);
-    let mut text = if parts.exists() {
-        gazelight_input::read_to_string(&parts, gazelight_input::MAX_TEXT_BYTES)
-            .map_err(wio(&parts))?
-    } else {
-        "participant_id\n".to_owned()
-    };
-    if !text
-        .lines()
-        .any(|l| l.split('\t').next() == Some(id.as_str()))
-    {
-        if !text.ends_with('\n') {
-            text.push('\n');
-        }
-        text.push_str(&id);
-        text.push('\n');
-        std::fs::write(&parts, text).map_err(wio(&parts))?;
-    }
+    tx.write_if_missing(
+        &root.join("README"),
+        "Eye-tracking recordings written by `gazelight export --bids` (BIDS eye-tracking, \
+         PhysioType eyetrack). derivatives/gazelight/ holds gazelight's filtered pupil \
+         and blinks.\n",
+    )?;
     let pj = root.join("participants.json");
     if !pj.exists() {
-        write_json(
+        tx.write_json(
             &pj,
             &json!({"participant_id": {"Description": "Participant label, as given to gazelight export."}}),
         )?;
     }
-    Ok(())
+    tx.add_participant()
 }
 
 /// What [`export_derivative`] wrote.
@@ -1241,16 +1219,14 @@ pub struct DerivativeExport {
 pub fn export_derivative(
     importer: &mut dyn Importer,
     chain: &mut FilterChain,
-    root: &Path,
-    names: &BidsNames,
+    tx: &mut Transaction,
     timeline: Option<&Path>,
 ) -> Result<DerivativeExport, ExportError> {
-    names.check()?;
-    let droot = root.join("derivatives").join("gazelight");
+    let names = tx.names().clone();
+    let droot = tx.root().join("derivatives").join("gazelight");
     let dir = droot.join(names.dir());
-    std::fs::create_dir_all(&dir).map_err(wio(&dir))?;
     let desc = droot.join("dataset_description.json");
-    write_json(
+    tx.write_json(
         &desc,
         &json!({
             "Name": "gazelight derivatives",
@@ -1264,22 +1240,19 @@ pub fn export_derivative(
             "SourceDatasets": [{"URL": "../../"}],
         }),
     )?;
-    let readme = droot.join("README");
-    if !readme.exists() {
-        std::fs::write(
-            &readme,
-            "gazelight's derivatives of the raw eye-tracking recordings two folders up: the \
-             filtered pupil and gaze (recording-eyeNfiltered), the filter chain's blinks and \
-             dropouts, and a replay's per-frame values (recording-eyeNreplay).\n",
-        )
-        .map_err(wio(&readme))?;
-    }
+    tx.write_if_missing(
+        &droot.join("README"),
+        "gazelight's derivatives of the raw eye-tracking recordings two folders up: the \
+         filtered pupil and gaze (recording-eyeNfiltered), the filter chain's blinks and \
+         dropouts, and a replay's per-frame values (recording-eyeNreplay).\n",
+    )?;
     let prefix = names.prefix();
     let mut report = DerivativeExport::default();
     let mut outs: [Option<TsvOut>; 2] = [None, None];
     // Each eye's closures beside that eye's filtered file.
     let mut events: [Option<TsvOut>; 2] = [None, None];
-    let closure_row = |events: &mut [Option<TsvOut>; 2],
+    let closure_row = |tx: &mut Transaction,
+                       events: &mut [Option<TsvOut>; 2],
                        c: gazelight_eye::filter::blink::Closure|
      -> Result<(), ExportError> {
         let k = usize::from(c.eye != 0);
@@ -1289,7 +1262,7 @@ pub fn export_derivative(
                 "{prefix}_recording-{}filtered_physioevents.tsv.gz",
                 EYE_FILES[k].0
             ));
-            *events = Some(TsvOut::create(&p)?);
+            *events = Some(TsvOut::create(tx, &p)?);
         }
         if let Some(e) = events.as_mut() {
             let kind = match c.kind {
@@ -1315,7 +1288,8 @@ pub fn export_derivative(
     let mut seq = 0u64;
     let mut units: [Option<gazelight_eye::sample::PupilUnit>; 2] = [None, None];
     chain.keep_decided();
-    let write_decided = |chain: &mut FilterChain,
+    let write_decided = |tx: &mut Transaction,
+                         chain: &mut FilterChain,
                          outs: &mut [Option<TsvOut>; 2],
                          at_sample: &mut [std::collections::VecDeque<(u64, f32, f32, bool)>; 2],
                          units: &mut [Option<gazelight_eye::sample::PupilUnit>; 2]|
@@ -1344,7 +1318,7 @@ pub fn export_derivative(
                     "{prefix}_recording-{}filtered_physio.tsv.gz",
                     EYE_FILES[e].0
                 ));
-                outs[e] = Some(TsvOut::create(&p)?);
+                outs[e] = Some(TsvOut::create(tx, &p)?);
             }
             let clean = d.fate.is_clean();
             if clean {
@@ -1383,7 +1357,7 @@ pub fn export_derivative(
             .max(if last_t.is_nan() { s.t_secs() } else { last_t });
         if let Some(c) = up.closure {
             report.closures += 1;
-            closure_row(&mut events, c)?;
+            closure_row(tx, &mut events, c)?;
         }
         if let Some(e) = up.pupil_eye.map(usize::from).filter(|e| *e < 2)
             && s.t_secs().is_finite()
@@ -1393,15 +1367,15 @@ pub fn export_derivative(
             at_sample[e].push_back((seq, gx, gy, st.blink));
             seq += 1;
         }
-        write_decided(chain, &mut outs, &mut at_sample, &mut units)?;
+        write_decided(tx, chain, &mut outs, &mut at_sample, &mut units)?;
     }
     if last_t.is_finite() {
         for c in chain.finish(last_t).into_iter().flatten() {
             report.closures += 1;
-            closure_row(&mut events, c)?;
+            closure_row(tx, &mut events, c)?;
         }
     }
-    write_decided(chain, &mut outs, &mut at_sample, &mut units)?;
+    write_decided(tx, chain, &mut outs, &mut at_sample, &mut units)?;
     let nominal = importer.nominal_rate_hz();
     for (k, out) in outs.into_iter().enumerate() {
         let Some(out) = out else { continue };
@@ -1409,7 +1383,7 @@ pub fn export_derivative(
         let (_, rows_rate) = out.finish()?;
         let rate = nominal.unwrap_or(rows_rate);
         let (label, eye) = EYE_FILES[k];
-        write_json(
+        tx.write_json(
             &dir.join(format!("{prefix}_recording-{label}filtered_physio.json")),
             &json!({
                 "Description": "gazelight's filtered, calibrated eye state after each pupil sample of this eye.",
@@ -1443,11 +1417,11 @@ pub fn export_derivative(
             // Closures of an eye without filtered samples (cannot happen
             // with the chain's closures, which come from that eye's
             // samples): no events file without its physio file.
-            std::fs::remove_file(&path).map_err(wio(&path))?;
+            tx.discard(&path);
             continue;
         }
         report.files.push(path);
-        write_json(
+        tx.write_json(
             &dir.join(format!(
                 "{prefix}_recording-{label}filtered_physioevents.json"
             )),
@@ -1462,7 +1436,9 @@ pub fn export_derivative(
         )?;
     }
     if let Some(tl) = timeline {
-        report.files.extend(timeline_derivative(tl, &dir, &prefix)?);
+        report
+            .files
+            .extend(timeline_derivative(tx, tl, &dir, &prefix)?);
     }
     Ok(report)
 }
@@ -1471,6 +1447,7 @@ pub fn export_derivative(
 /// physio files, one per view (`""` mono → eye3, `_right` → eye1,
 /// `_left` → eye2).
 fn timeline_derivative(
+    tx: &mut Transaction,
     timeline: &Path,
     dir: &Path,
     prefix: &str,
@@ -1551,7 +1528,7 @@ fn timeline_derivative(
             _ => "eye3",
         };
         let p = dir.join(format!("{prefix}_recording-{label}replay_physio.tsv.gz"));
-        outs.push((label.to_owned(), cols, TsvOut::create(&p)?));
+        outs.push((label.to_owned(), cols, TsvOut::create(tx, &p)?));
     }
     let mut line_no = 1u64;
     loop {
@@ -1598,7 +1575,7 @@ fn timeline_derivative(
                 obj.insert(name.into(), json!({"Description": d, "Units": u}));
             }
         }
-        write_json(
+        tx.write_json(
             &dir.join(format!("{prefix}_recording-{label}replay_physio.json")),
             &sidecar,
         )?;

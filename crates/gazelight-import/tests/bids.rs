@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use gazelight_eye::filter::FilterChain;
 use gazelight_eye::sample::Sample;
-use gazelight_import::bids::{BidsNames, export_derivative, export_raw};
+use gazelight_import::bids::{BidsNames, Transaction, export_derivative, export_raw};
 
 fn data(rel: &str) -> PathBuf {
     gazelight_test_support::data_path("eye").join(rel)
@@ -74,11 +74,13 @@ fn round_trip(recording: &Path, subject: &str, root: &Path) -> usize {
         run: None,
     };
     let mut imp = gazelight_import::open(recording).unwrap();
-    let report = export_raw(imp.as_mut(), root, &names, recording).unwrap();
+    let mut tx = Transaction::new(root, &names).unwrap();
+    let report = export_raw(imp.as_mut(), &mut tx, recording).unwrap();
     assert_eq!(report.unit_mismatch, 0);
     let mut chain = FilterChain::with_defaults();
     let mut again = gazelight_import::open(recording).unwrap();
-    export_derivative(again.as_mut(), &mut chain, root, &names, None).unwrap();
+    export_derivative(again.as_mut(), &mut chain, &mut tx, None).unwrap();
+    tx.commit().unwrap();
 
     let first = root
         .join(names.dir())
@@ -206,17 +208,12 @@ fn a_replay_timeline_becomes_per_eye_derivatives_that_validate() {
     // source; the timeline's frames are typed in above.
     let csv = data("piprkit-plr/pupil_trace.csv");
     let mut imp = gazelight_import::open(&csv).unwrap();
-    export_raw(imp.as_mut(), &root.join("ds"), &names, &csv).unwrap();
+    let mut tx = Transaction::new(&root.join("ds"), &names).unwrap();
+    export_raw(imp.as_mut(), &mut tx, &csv).unwrap();
     let mut again = gazelight_import::open(&csv).unwrap();
     let mut chain = FilterChain::with_defaults();
-    let report = export_derivative(
-        again.as_mut(),
-        &mut chain,
-        &root.join("ds"),
-        &names,
-        Some(&timeline),
-    )
-    .unwrap();
+    let report = export_derivative(again.as_mut(), &mut chain, &mut tx, Some(&timeline)).unwrap();
+    tx.commit().unwrap();
     let dir = root.join("ds/derivatives/gazelight/sub-01/ses-a/beh");
     let left =
         tsv_gz(&dir.join("sub-01_ses-a_task-night_run-2_recording-eye2replay_physio.tsv.gz"));
@@ -337,10 +334,12 @@ fn every_shipped_recording_and_one_eye_exports_a_valid_dataset() {
             run: None,
         };
         let mut imp = gazelight_import::open(recording).unwrap();
-        let report = export_raw(imp.as_mut(), &root, &names, recording).unwrap();
+        let mut tx = Transaction::new(&root, &names).unwrap();
+        let report = export_raw(imp.as_mut(), &mut tx, recording).unwrap();
         let mut chain = FilterChain::with_defaults();
         let mut again = gazelight_import::open(recording).unwrap();
-        let der = export_derivative(again.as_mut(), &mut chain, &root, &names, None).unwrap();
+        let der = export_derivative(again.as_mut(), &mut chain, &mut tx, None).unwrap();
+        tx.commit().unwrap();
         let raw_dir = root.join(names.dir());
         let der_dir = root.join("derivatives/gazelight").join(names.dir());
         let found = |dir: &Path, tail: &str| -> Vec<String> {

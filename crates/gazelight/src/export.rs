@@ -89,9 +89,13 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             .with_context(|| format!("--timeline: cannot read {}", path.display()))?;
     }
     let mut importer = import::open(&args.recording)?;
+    // Every file is staged and moved into place only when all are
+    // written: a failure (a full disk, a recording that breaks half-way)
+    // leaves the dataset as it was.
+    let mut tx = import::bids::Transaction::new(&args.bids, &names)?;
     // The sidecars name the recording by its own name (no path of this
     // machine), its tracker and its stated rate.
-    let raw = import::bids::export_raw(importer.as_mut(), &args.bids, &names, &args.recording)
+    let raw = import::bids::export_raw(importer.as_mut(), &mut tx, &args.recording)
         .with_context(|| format!("while writing {}", args.bids.display()))?;
     for (path, rows, rate) in &raw.files {
         println!("{}: {rows} rows, {rate:.2} Hz", path.display());
@@ -113,8 +117,7 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let der = import::bids::export_derivative(
         again.as_mut(),
         &mut chain,
-        &args.bids,
-        &names,
+        &mut tx,
         args.timeline.as_deref(),
     )
     .with_context(|| {
@@ -123,6 +126,15 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
             args.bids.display()
         )
     })?;
+    let stale = tx
+        .commit()
+        .with_context(|| format!("while moving the files into {}", args.bids.display()))?;
+    for path in &stale {
+        println!(
+            "{}: removed (an earlier export's file this recording no longer has)",
+            path.display()
+        );
+    }
     for path in &der.files {
         println!("{}", path.display());
     }

@@ -489,3 +489,146 @@ fn export_with_a_missing_calibration_or_timeline_writes_nothing() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Every file under `dir` (relative path → bytes).
+fn tree(dir: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut todo = vec![dir.to_owned()];
+    while let Some(d) = todo.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                todo.push(p);
+            } else {
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_owned(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    out
+}
+
+fn export(rec: &str, bids: &Path, subject: &str) -> Output {
+    gazelight_in(
+        &["export", rec, "--bids", s(bids), "--subject", subject],
+        &[],
+    )
+}
+
+/// `gazelight export` under a file-size limit (a full disk as the writes
+/// see it: EFBIG once a file passes ~16 KiB, SIGXFSZ ignored).
+fn export_on_a_full_disk(rec: &str, bids: &Path, subject: &str) -> Output {
+    let script = format!(
+        "trap '' XFSZ; ulimit -f 32; exec '{}' export '{rec}' --bids '{}' --subject {subject}",
+        env!("CARGO_BIN_EXE_gazelight"),
+        s(bids)
+    );
+    Command::new("sh")
+        .args(["-c", &script])
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run sh")
+}
+
+#[test]
+fn a_failed_export_leaves_the_dataset_as_it_was() {
+    let dir = tmp("export-full-disk");
+    let bids = dir.join("bids");
+    let asc = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let good = export(&asc, &bids, "01");
+    assert!(good.status.success(), "{}", stderr(&good));
+    let before = tree(&bids);
+    assert!(
+        before
+            .keys()
+            .any(|p| p.ends_with("sub-01/beh/sub-01_task-replay_recording-eye1_physio.tsv.gz")),
+        "{:?}",
+        before.keys().collect::<Vec<_>>()
+    );
+    // The same recording again, and a new participant, on a full disk.
+    for subject in ["01", "02"] {
+        let o = export_on_a_full_disk(&asc, &bids, subject);
+        assert!(
+            !o.status.success(),
+            "sub-{subject}: the export did not fail"
+        );
+        let e = stderr(&o);
+        assert!(e.contains("cannot write"), "sub-{subject}: {e}");
+        let after = tree(&bids);
+        assert_eq!(
+            after.keys().collect::<Vec<_>>(),
+            before.keys().collect::<Vec<_>>(),
+            "sub-{subject}: files added or removed (temporaries left?)"
+        );
+        for (p, bytes) in &before {
+            assert!(after[p] == *bytes, "sub-{subject}: {} changed", p.display());
+        }
+    }
+    let parts = std::fs::read_to_string(bids.join("participants.tsv")).unwrap();
+    assert!(!parts.contains("sub-02"), "{parts}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn re_exporting_with_fewer_eyes_removes_the_old_eyes_files() {
+    let dir = tmp("export-fewer-eyes");
+    let bids = dir.join("bids");
+    let both = shared_str("eye/eyelink-psa/both_eyes.asc");
+    let left = gazelight_test_support::data::left_eye_eyelink(&dir);
+    let o = export(&both, &bids, "01");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = export(s(&left), &bids, "01");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let names: Vec<String> = tree(&bids)
+        .keys()
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| !n.contains("recording-eye1")),
+        "the right eye's files of the first export are still there: {names:?}"
+    );
+    for kind in ["", "filtered"] {
+        assert!(
+            names
+                .iter()
+                .any(|n| n.ends_with(&format!("recording-eye2{kind}_physio.tsv.gz"))),
+            "{kind}: {names:?}"
+        );
+    }
+    // Read back, the dataset is the one-eye recording only.
+    let raw = bids.join("sub-01/beh/sub-01_task-replay_recording-eye2_physio.tsv.gz");
+    let o = gazelight_in(&["inspect", s(&raw)], &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("eye right (0): no samples") && !text.contains("eye left (1): no samples"),
+        "inspect does not find the left eye alone:\n{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_new_participant_row_is_padded_to_the_tables_columns() {
+    let dir = tmp("export-participants");
+    let bids = dir.join("bids");
+    std::fs::create_dir_all(&bids).unwrap();
+    // A table the user extended (as BIDS allows) before adding sub-02.
+    std::fs::write(
+        bids.join("participants.tsv"),
+        "participant_id\tage\tsex\nsub-01\t31\tF\n",
+    )
+    .unwrap();
+    let rec = shared_str("eye/piprkit-plr/pupil_trace.csv");
+    let o = export(&rec, &bids, "02");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = export(&rec, &bids, "02");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let parts = std::fs::read_to_string(bids.join("participants.tsv")).unwrap();
+    assert_eq!(
+        parts, "participant_id\tage\tsex\nsub-01\t31\tF\nsub-02\tn/a\tn/a\n",
+        "the row is padded and added once"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -97,6 +97,19 @@ struct Shot {
 }
 
 impl Shot {
+    /// Screenshots every 50 ms until one satisfies `shows` or `limit`
+    /// has passed; the last one taken.
+    fn until(display: &str, limit: Duration, shows: impl Fn(&Shot) -> bool) -> Shot {
+        let start = Instant::now();
+        loop {
+            let shot = Shot::take(display);
+            if shows(&shot) || start.elapsed() > limit {
+                return shot;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
     fn take(display: &str) -> Shot {
         let out = Command::new("xwd")
             .args(["-root", "-silent", "-display", display])
@@ -200,16 +213,25 @@ fn calibration_window_shows_black_then_white_full_screen() {
         .expect("spawn calibrate");
     let rx = lines_of(&mut child);
     let mut log = String::new();
+    // Each phase is on screen for its 1 s settle + 3 s: the screen is
+    // polled from the phase's own log line until it shows the phase (the
+    // window draws it a frame or more after the line), within the phase.
+    let points = |s: &Shot| [(5, 5), (s.width - 5, s.height - 5), (400, 300)];
+    let phase_secs = Duration::from_secs(4);
     wait_for(&rx, "showing BLACK", Duration::from_secs(20), &mut log);
-    std::thread::sleep(Duration::from_millis(1200));
-    let black = Shot::take(&x.display);
+    let black = Shot::until(&x.display, phase_secs, |s| {
+        points(s).iter().all(|&(sx, sy)| s.at(sx, sy) == [0, 0, 0])
+    });
     wait_for(&rx, "showing WHITE", Duration::from_secs(10), &mut log);
-    std::thread::sleep(Duration::from_millis(1200));
-    let white = Shot::take(&x.display);
+    let white = Shot::until(&x.display, phase_secs, |s| {
+        points(s)
+            .iter()
+            .all(|&(sx, sy)| s.at(sx, sy) == [255, 255, 255])
+    });
     let out = child.wait_with_output().expect("calibrate");
     drop(peer);
     // Full screen: every corner and the centre carry the stimulus.
-    for (sx, sy) in [(5, 5), (black.width - 5, black.height - 5), (400, 300)] {
+    for (sx, sy) in points(&black) {
         assert_eq!(black.at(sx, sy), [0, 0, 0], "black phase at ({sx},{sy})");
         assert_eq!(
             white.at(sx, sy),

@@ -447,8 +447,27 @@ impl Cursor {
         let mut buf = vec![0u8; n as usize];
         self.take(&mut buf, "the XML")?;
         let text = String::from_utf8_lossy(&buf);
-        xml::parse(&text).map_err(|e| self.err(format_args!("its XML is broken: {e}")))
+        // A header keeps no more channel entries than it declares (a list
+        // of 250 000 under `channel_count` 1 was parsed ~8× its text).
+        let keep = declared_channels(&text)
+            .unwrap_or(MAX_CHANNELS)
+            .min(MAX_CHANNELS);
+        let cap = xml::ListCap {
+            list: "channels",
+            keep,
+        };
+        xml::parse_capped(&text, Some(cap))
+            .map_err(|e| self.err(format_args!("its XML is broken: {e}")))
     }
+}
+
+/// The `<channel_count>` a header's text declares, read before it is
+/// parsed (the parse keeps no more channel entries than this).
+fn declared_channels(text: &str) -> Option<usize> {
+    const OPEN: &str = "<channel_count>";
+    let start = text.find(OPEN)? + OPEN.len();
+    let len = text[start..].find('<')?;
+    text[start..start + len].trim().parse().ok()
 }
 
 fn parse_header(id: u32, x: &xml::Element) -> Result<StreamInfo, String> {

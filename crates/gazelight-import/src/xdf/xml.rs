@@ -7,6 +7,23 @@
 
 /// Deepest element nesting accepted.
 pub const MAX_DEPTH: usize = 64;
+/// Most elements one document keeps: a stream header of the largest
+/// channel count ([`super::reader::MAX_CHANNELS`]) with four fields per
+/// channel, plus room for the rest. A parsed element costs ~100 bytes
+/// against the ~20 of its text, so this (not the text's size) bounds the
+/// tree: ~30 MB.
+pub const MAX_ELEMENTS: usize = 4 * super::reader::MAX_CHANNELS + 4096;
+
+/// A list element whose children beyond a count are read past and not
+/// kept: a stream header's `<channels>` holds at most its own
+/// `channel_count` entries.
+#[derive(Clone, Copy, Debug)]
+pub struct ListCap<'a> {
+    /// The list element's name (`channels`).
+    pub list: &'a str,
+    /// How many of its children are kept.
+    pub keep: usize,
+}
 
 /// One element: its name, its text (the concatenated character data
 /// directly inside it, entities decoded) and its child elements.
@@ -42,8 +59,17 @@ impl Element {
 /// Parses one XML document into its root element; the error says what is
 /// wrong and at which byte of the text.
 pub fn parse(text: &str) -> Result<Element, String> {
+    parse_capped(text, None)
+}
+
+/// [`parse`], keeping at most `cap.keep` children of each `cap.list`
+/// element and at most [`MAX_ELEMENTS`] elements in all (more is an
+/// error): the tree is bounded by what the document declares, not by how
+/// much it lists.
+pub fn parse_capped(text: &str, cap: Option<ListCap<'_>>) -> Result<Element, String> {
     let b = text.as_bytes();
     let mut i = 0usize;
+    let mut kept = 0usize;
     // The open elements; the root is the first one closed at depth 0.
     let mut stack: Vec<Element> = Vec::new();
     let mut root: Option<Element> = None;
@@ -76,7 +102,7 @@ pub fn parse(text: &str) -> Result<Element, String> {
                         open.name
                     ));
                 }
-                close(open, &mut stack, &mut root, i)?;
+                close(open, &mut stack, &mut root, i, cap, &mut kept)?;
                 i = end + 1;
             } else {
                 // A start tag: name, attributes (quoted values may hold '>').
@@ -114,7 +140,7 @@ pub fn parse(text: &str) -> Result<Element, String> {
                     ..Element::default()
                 };
                 if self_closing {
-                    close(el, &mut stack, &mut root, i)?;
+                    close(el, &mut stack, &mut root, i, cap, &mut kept)?;
                 } else {
                     stack.push(el);
                 }
@@ -149,13 +175,35 @@ fn close(
     stack: &mut [Element],
     root: &mut Option<Element>,
     at: usize,
+    cap: Option<ListCap<'_>>,
+    kept: &mut usize,
 ) -> Result<(), String> {
     match stack.last_mut() {
-        Some(parent) => parent.children.push(el),
+        Some(parent) => {
+            if cap.is_some_and(|c| parent.name == c.list && parent.children.len() >= c.keep) {
+                // Read past: its own children were counted as they closed.
+                *kept -= descendants(&el);
+                return Ok(());
+            }
+            *kept += 1;
+            if *kept > MAX_ELEMENTS {
+                return Err(format!(
+                    "byte {at}: more than {MAX_ELEMENTS} elements (a header of {} channels \
+                     has fewer)",
+                    super::reader::MAX_CHANNELS
+                ));
+            }
+            parent.children.push(el)
+        }
         None if root.is_none() => *root = Some(el),
         None => return Err(format!("byte {at}: a second root element")),
     }
     Ok(())
+}
+
+/// How many elements are below `el`.
+fn descendants(el: &Element) -> usize {
+    el.children.iter().map(|c| 1 + descendants(c)).sum()
 }
 
 /// Appends `raw` to `out` with the predefined entities and character
@@ -226,5 +274,25 @@ mod tests {
         }
         let deep = "<a>".repeat(MAX_DEPTH + 1);
         assert!(parse(&deep).unwrap_err().contains("nested"));
+        let flood = format!("<a>{}</a>", "<b/>".repeat(MAX_ELEMENTS + 1));
+        assert!(parse(&flood).unwrap_err().contains("elements"));
+    }
+
+    #[test]
+    fn a_list_keeps_only_its_declared_entries() {
+        let x = "<info><channels><channel>a</channel><channel>b</channel>\
+                 <channel>c</channel></channels><channel>d</channel></info>";
+        let cap = ListCap {
+            list: "channels",
+            keep: 2,
+        };
+        let e = parse_capped(x, Some(cap)).unwrap();
+        let kept: Vec<&str> = e.children[0]
+            .children
+            .iter()
+            .map(|c| c.text.as_str())
+            .collect();
+        assert_eq!(kept, ["a", "b"]);
+        assert_eq!(e.text_of("channel"), Some("d"), "only the list is capped");
     }
 }
