@@ -31,6 +31,10 @@
 //! - [`xdf`]: one eye stream of an XDF file (Lab Streaming Layer's
 //!   LabRecorder), `FILE.xdf?stream=NAME` or the first `Gaze`/`Pupil` stream.
 //!
+//! [`events::read`] reads a recording's events (EyeLink `MSG` lines and
+//! trials, XDF marker streams, Pupil annotations, Neon events, BIDS
+//! physioevents and `_events.tsv`) on the samples' clock, bounded.
+//!
 //! [`open`] picks the importer from the path; [`summary`] condenses a
 //! recording (or a stretch of a live Pupil stream) into counts, rates,
 //! pupil ranges and blinks.
@@ -59,6 +63,7 @@
 
 pub mod bids;
 pub mod csv;
+pub mod events;
 pub mod eyelink;
 mod lines;
 pub mod neon;

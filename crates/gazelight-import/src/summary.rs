@@ -158,6 +158,10 @@ pub struct RecordingSummary {
     pub eye_gaze: Option<crate::EyeGazeReport>,
     /// The chain's counters.
     pub chain: ChainStats,
+    /// The recording's events ([`crate::events`]), where the caller read
+    /// them (`inspect` does).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub events: Option<crate::events::EventSummary>,
 }
 
 /// A clock offset estimate (live sources).
@@ -369,6 +373,7 @@ impl Summarizer {
             skipped_records: warnings.skipped_records,
             warnings: warnings.messages.clone(),
             eye_gaze: None,
+            events: None,
             chain: stats,
         }
     }
@@ -718,6 +723,9 @@ impl fmt::Display for RecordingSummary {
             if let Some(d) = c.drift_s_per_s {
                 writeln!(f, "  clock drift {:.3e} s/s", d)?;
             }
+        }
+        if let Some(e) = &self.events {
+            write!(f, "{e}")?;
         }
         write!(f, "  skipped records: {}", self.skipped_records)?;
         for w in &self.warnings {

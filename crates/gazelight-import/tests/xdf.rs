@@ -461,7 +461,7 @@ fn eye_streams_in_each_layout_replay_the_recording_with_pyxdf_stamps() {
         .expect("markers")
         .to_string();
     assert!(
-        err.contains("markers") && err.contains("no events"),
+        err.contains("markers") && err.contains("events.csv"),
         "{err}"
     );
     let nope = PathBuf::from(format!("{}?stream=nope", path.display()));

@@ -12,9 +12,9 @@
 //!   ([`EyeLayout`]) onto [`Sample`]s.
 //!
 //! Marker (string) streams are listed in the import's notes with their
-//! counts; gazelight's [`Sample`] has no event kind, so their strings are
-//! not replayed (read them with [`XdfFile::samples`]). See
-//! `docs/xdf-bids.md`.
+//! counts; gazelight's [`Sample`] has no event kind: they are read as
+//! events by [`crate::events::read`] (`inspect`, `replay`'s `events.csv`,
+//! Python's `rec.events`). See `docs/xdf-bids.md` and `docs/events.md`.
 
 pub mod clock;
 pub mod reader;
@@ -399,8 +399,8 @@ impl XdfImporter {
         let info = &file.streams[index];
         if info.format == ChannelFormat::String {
             return Err(structure(format!(
-                "stream {} holds strings (markers), not eye samples; gazelight's samples \
-                 carry no events",
+                "stream {} holds strings (markers), not eye samples; markers are the \
+                 recording's events (`inspect` lists them, `replay` writes events.csv)",
                 describe(info)
             )));
         }
@@ -441,9 +441,7 @@ impl XdfImporter {
                 format!("; the other streams: {}", others.join(", "))
             },
             if markers > 0 {
-                format!(
-                    "; the {markers} markers are not replayed (gazelight's samples carry no events)"
-                )
+                format!("; the {markers} markers are read as the recording's events")
             } else {
                 String::new()
             },
