@@ -18,6 +18,7 @@ use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
+use gazelight_app::bounds;
 use gazelight_render::demo;
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
@@ -62,21 +63,10 @@ const UNSUPPORTED: [&str; 4] = [
     "source.calibration",
 ];
 
-/// `"WIDTHxHEIGHT"` (the CLI's `--size` and `display.size`).
+/// `"WIDTHxHEIGHT"` (the CLI's `--size` and `display.size`): the
+/// application core's rule, so Python and the CLI accept the same sizes.
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    let parse = |v: &str| {
-        v.trim()
-            .parse::<usize>()
-            .ok()
-            .filter(|n| (1..=16384).contains(n))
-    };
-    match s.split_once(['x', 'X']) {
-        Some((w, h)) => match (parse(w), parse(h)) {
-            (Some(w), Some(h)) => Ok((w, h)),
-            _ => Err(format!("{s:?}: expected WIDTHxHEIGHT, each 1..=16384")),
-        },
-        None => Err(format!("{s:?}: expected WIDTHxHEIGHT, each 1..=16384")),
-    }
+    bounds::parse_size(s).map_err(|e| e.to_string())
 }
 
 fn in_range(what: &str, v: f64, (lo, hi): (f64, f64)) -> Result<f64, String> {
@@ -399,7 +389,7 @@ fn scan_recording(path: &Path, part: bool) -> PyResult<gazelight_render::feed::S
 }
 
 /// Largest view side `render` accepts (`--size`), pixels.
-const MAX_SIDE: usize = 16384;
+const MAX_SIDE: usize = bounds::MAX_SIDE_PX;
 /// Widest frame [`write_png`] encodes: a stereo frame is two views side by
 /// side.
 const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
@@ -453,17 +443,13 @@ pub(crate) fn render_open(
         },
     };
     let (mut settings, ignored) = settings(table, &name)?;
-    // The CLI's bounds (crates/gazelight/src/bounds.rs).
-    if !(fps.is_finite() && (0.001..=1000.0).contains(&fps)) {
-        return Err(err(format!("fps {fps}: expected a rate 0.001 ≤ Hz ≤ 1000")));
-    }
+    // The CLI's bounds, by construction (the application core's).
+    bounds::fps("fps", fps).map_err(err)?;
     if trace.is_some() && recording.is_some() {
         return Err(err("give a trace or a recording, not both"));
     }
-    if let Some(n) = frames
-        && n == 0
-    {
-        return Err(err("--frames 0: nothing to render (0 frames)"));
+    if let Some(n) = frames {
+        bounds::frames(&format!("frames={n}"), n).map_err(err)?;
     }
     // `replay`'s pupil light flags (checked before anything is read, as
     // the CLI does).
@@ -518,11 +504,7 @@ pub(crate) fn render_open(
         // would give all-black frames.
         scene_img.check_luminance().map_err(err)?;
         let (width, height) = size.or(settings.size).unwrap_or((720, 800));
-        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
-            return Err(err(format!(
-                "size {width}x{height}: expected WIDTHxHEIGHT, each 1..={MAX_SIDE}"
-            )));
-        }
+        bounds::size(&format!("size=({width}, {height})"), width, height).map_err(err)?;
         let base = demo::default_view(width, height);
         let view = ViewParams {
             yaw_deg: yaw_deg.or(settings.yaw_deg).unwrap_or(base.yaw_deg),
@@ -556,13 +538,9 @@ pub(crate) fn render_open(
         let mut span = None;
         let (samples, t0, duration): (Samples, f64, f64) = match &recording {
             Some(path) => {
-                if !(from_secs.is_finite() && from_secs >= 0.0) {
-                    return Err(err(format!("--from-secs {from_secs}: expected a time ≥ 0")));
-                }
-                if let Some(s) = secs
-                    && !(s.is_finite() && s > 0.0)
-                {
-                    return Err(err(format!("--secs {s}: expected a duration > 0")));
+                bounds::from_secs("from_secs", from_secs).map_err(err)?;
+                if let Some(s) = secs {
+                    bounds::secs("secs", s).map_err(err)?;
                 }
                 let found = scan_recording(path, secs.is_some())?;
                 if calibration.is_none() && found.pupil_units.iter().any(|u| *u != PupilUnit::Mm) {
@@ -604,7 +582,11 @@ pub(crate) fn render_open(
         };
         let frames = match frames {
             Some(n) => n,
-            None => ((duration * fps).floor() as usize).saturating_add(1),
+            None => bounds::frames(
+                &format!("{duration:.1} s at fps={fps}"),
+                ((duration * fps).floor() as usize).saturating_add(1),
+            )
+            .map_err(err)?,
         };
         let pipeline_config = PipelineConfig {
             keep_retinal: retinal,

@@ -108,6 +108,24 @@ def test_render_refuses_the_luminance_scale_the_cli_refuses(tmp_path):
     assert got["type"] == "GazelightError" and "overflow" in got["message"], got
 
 
+def test_render_refuses_the_sizes_rates_and_counts_the_cli_refuses(tmp_path):
+    """The bounds are the CLI's by construction (gazelight_app::bounds):
+    the values `gazelight render --size/--fps/--frames` refuses, with the
+    CLI's ranges in the message (Python accepted 1..=16384 px before)."""
+    for call, words in [
+        ("size=(4, 4)", "8..=8192"),
+        ("size=(8193, 64)", "8..=8192"),
+        ("size=(16384, 16384)", "8..=8192"),
+        ("config='display.size = \"4x4\"'", "8..=8192"),
+        ("fps=1e4", "1000"),
+        ("fps=float('nan')", "1000"),
+        ("frames=1_000_001", "1000000"),
+    ]:
+        got = _catch(f"gazelight.render({call}, frames=1)" if "frames" not in call else f"gazelight.render({call})", tmp_path)
+        assert got["type"] == "GazelightError", (call, got)
+        assert words in got["message"], (call, got)
+
+
 def test_a_source_and_a_filter_chain_used_from_another_thread_raise_no_panic(tmp_path, data_dir):
     rec = str(data_dir / "eye/piprkit-plr/pupil_trace.csv")
     got = _catch(

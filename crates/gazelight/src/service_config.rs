@@ -185,23 +185,10 @@ pub fn check_fps(fps: f64) -> anyhow::Result<f64> {
     }
 }
 
-/// Parses `WIDTHxHEIGHT` (each side 8..=8192 pixels).
+/// Parses `WIDTHxHEIGHT` (each side 8..=8192 pixels:
+/// `gazelight_app::bounds::parse_size`, which Python uses too).
 pub fn parse_size(s: &str) -> anyhow::Result<(usize, usize)> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| anyhow::anyhow!("`{s}`: expected WIDTHxHEIGHT, e.g. 720x800"))?;
-    let w: usize = w
-        .trim()
-        .parse()
-        .map_err(|_| anyhow::anyhow!("`{s}`: width is not a number"))?;
-    let h: usize = h
-        .trim()
-        .parse()
-        .map_err(|_| anyhow::anyhow!("`{s}`: height is not a number"))?;
-    if !(8..=8192).contains(&w) || !(8..=8192).contains(&h) {
-        return Err(anyhow::anyhow!("`{s}`: each side must be 8..=8192 pixels"));
-    }
-    Ok((w, h))
+    Ok(crate::bounds::parse_size(s)?)
 }
 
 /// Parses a listening address; only a literal `IP:PORT` is accepted.

@@ -86,7 +86,7 @@ impl ViewArgs {
             (None, Some(key_cd_m2)) => LuminanceScale::MedianKey { key_cd_m2 },
             (None, None) => configured.unwrap_or_default(),
         };
-        crate::bounds::luminance_scale(scale)
+        Ok(crate::bounds::luminance_scale(scale)?)
     }
 
     /// Gives `scene` the projection of `--scene-projection` and
