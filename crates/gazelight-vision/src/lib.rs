@@ -26,6 +26,7 @@
 //! | [`glare`] | windowed FFT glare convolution at the gaze | 001 §4.2.3 |
 //! | [`kernel_policy`] | which glare kernel for which pupil (range, missing pupils, rebuild threshold, one kernel or one per eye) | 001 §5 |
 //! | [`scene`] | OpenEXR / Radiance loading, panorama views | 004 §3.3 |
+//! | [`scene_glare`], [`glare_indices`] | glare numbers of a scene image at a gaze: sources as evalglare finds them, veils, DGP/DGI/UGR/VCP/CGI | evalglare 3.06, CIE 146:2002 |
 //! | [`pipeline`] | the full frame pipeline, stages 1–8 | all |
 //! | `simd` | CPU feature tiers (`GAZELIGHT_SIMD`, `GAZELIGHT_REQUIRE_SIMD`), the AVX2 / AVX-512 kernels | – |
 //!
@@ -53,6 +54,7 @@ mod encode;
 pub mod error;
 pub mod far_glare;
 pub mod glare;
+pub mod glare_indices;
 pub mod image;
 pub mod kernel_policy;
 pub mod pipeline;

@@ -1,33 +1,51 @@
 //! Glare numbers of a scene image at a gaze: the vertical illuminance at
 //! the eye, the glare sources, the veiling luminance by CIE 146:2002 and by
-//! the Stiles–Holladay formula evalglare reports, and the threshold
-//! increment — for any [`SceneProjection`], each pixel weighted by its own
-//! solid angle, pixels outside the image's field ignored.
+//! the Stiles–Holladay formula evalglare reports, the threshold increment
+//! and the glare indices DGP, DGI, UGR, VCP and CGI
+//! ([`crate::glare_indices`]) — for any [`SceneProjection`], each pixel
+//! weighted by its own solid angle, pixels outside the image's field
+//! ignored. Sources are found as evalglare 3.06 finds them by default, so
+//! that the numbers at the image's own view direction are evalglare's.
 //!
 //! Definitions (for a gaze direction g; a pixel's luminance L in cd/m², its
 //! solid angle ω in sr, its direction d; only pixels in the field and in
-//! front of the eye, d·g > 0, count — the half space a fisheye centred on
+//! front of the eye, d·g ≥ 0, count — the half space a fisheye centred on
 //! g sees, as evalglare's `pict_is_validpixel`):
 //!
 //! * vertical illuminance at the eye, on the plane facing g:
 //!   `E_v = Σ L ω (d·g)` lux;
-//! * glare sources: pixels brighter than a threshold — evalglare's default
-//!   is 2000 cd/m² (its `-b` above 100 is an absolute luminance, at or
-//!   below 100 a factor of the average luminance Σ L ω / Σ ω; evalglare
-//!   2.10 `main`), grouped as evalglare groups them: a pixel joins a source
-//!   when it lies within half the search radius `-r` (default 0.2 rad:
-//!   evalglare compares twice the angle with it, `find_near_pgs`) of one of
-//!   its pixels. Each source: its solid angle Σ ω, its mean luminance
-//!   Σ L ω / Σ ω, its position the ω-weighted mean pixel position (and the
-//!   direction through it), its illuminance at the eye `E_i = Σ L ω (d·g)`.
-//!   evalglare's peak extraction (pixels above 50 000 cd/m² split into
-//!   sources of their own, `-y`) and smoothing (`-s`) are not done.
+//! * glare sources, evalglare 3.06's defaults (`main`, `find_near_pgs`,
+//!   `find_split`):
+//!   1. pixels brighter than a threshold: 2000 cd/m² (its `-b` above 100
+//!      is an absolute luminance, at or below 100 a factor of the average
+//!      luminance Σ L ω / Σ ω — of the task area when one is set, where the
+//!      factor defaults to 5: `-t`, here a disc around the gaze);
+//!   2. grouped: a pixel joins a source when it lies within half the
+//!      search radius `-r` (default 0.2 rad: evalglare compares twice the
+//!      angle with it) of one of its pixels;
+//!   3. peak extraction (`-y`, on by default; `-x` off; `-Y` sets the
+//!      level, default 50 000 cd/m²): the pixels of a source at or above
+//!      the level are taken out of it and grouped among themselves the
+//!      same way, each group a source of its own; a source left without
+//!      pixels is gone. evalglare's smoothing (`-s`) is off by default
+//!      and not done here.
+//!
+//!   Each source: its solid angle Σ ω, its mean luminance Σ L ω / Σ ω,
+//!   its position the L ω-weighted mean pixel position (evalglare 2.14
+//!   on) and the direction through it, its illuminance at the eye
+//!   `E_i = Σ L ω (d·g)`; evalglare then reads the direction of the whole
+//!   pixel its truncated position index names (its `(int)av_posx`, rows
+//!   counted from the bottom), up to a pixel off the position: that
+//!   pixel's direction gives the source's angle from the gaze for the
+//!   veil and its position index ([`crate::glare_indices::position_index`],
+//!   with the image's up, camera +y, as evalglare's `-vu`);
 //! * Stiles–Holladay veil (evalglare's `Lveil_cie`):
 //!   `L_v = Σ_i 10 E_i / θ_i²`, θ_i in degrees between g and source i's
-//!   position (evalglare 2.10, detailed output). evalglare takes the
-//!   position as the pixel its truncated mean pixel index names, up to a
-//!   pixel off the centroid (5 % of the veil for a source 13° from the gaze
-//!   at 0.7°/px); both are reported, the centroid's as the veil;
+//!   whole pixel. evalglare divides by θ² + 10⁻¹⁶, which a gaze on a
+//!   pixel centre turns into 10¹⁷ E; here θ is kept at least the angular
+//!   radius √(ω/π) of that pixel, so a gaze on or next to a source gives a
+//!   finite veil — evalglare's own, since at its image's axis (an even
+//!   number of pixels across) the nearest pixel centre is farther away;
 //! * CIE 146:2002 veil of the whole image at the observer's age and
 //!   pigmentation: `L_v = Σ L ω (d·g) f_CIE146(θ)` over the pixels with
 //!   θ ≥ [`GlareOptions::cie146_inner_deg`] (the central disc is what the
@@ -35,19 +53,35 @@
 //! * luminance at the gaze: the ω-weighted mean over a disc of
 //!   [`GlareOptions::gaze_disc_deg`] around g, and the same plus the CIE
 //!   146 veil ("as the eye sees it");
+//! * background luminance, evalglare's default (`-q 0`): `(E_v − Σ E_i) / π`;
 //! * threshold increment (CIE 140-2000 eq. 5 and 6, for road lighting):
 //!   `TI = 65 L_v / L_ad^0.8` % for L_ad ≤ 5 cd/m², `95 L_v / L_ad^1.05` %
 //!   above, with the CIE 146 veil and the adaptation luminance L_ad taken
-//!   as evalglare's background luminance `(E_v − Σ E_i) / π`.
+//!   as the background luminance.
 
 use glam::DVec3;
 use serde::Serialize;
 
 use crate::RgbImage;
+use crate::glare_indices::{
+    GlareIndices, IndexScene, IndexSource, glare_indices, position_index,
+    veil_stiles_holladay_cd_m2,
+};
 use crate::image::luminance;
 use crate::scene::SceneProjection;
 use crate::scene::projection::angles_from_direction;
 use crate::stray_light::cie146_veil_per_sr;
+
+/// evalglare's default fixed source threshold, cd/m² (evalglare 2.05 on,
+/// after C. Pierson's study).
+pub const EVALGLARE_DEFAULT_THRESHOLD_CD_M2: f64 = 2000.0;
+/// evalglare's default factor of the task luminance when a task area is
+/// set and `-b` is not (evalglare 2.06).
+pub const EVALGLARE_TASK_FACTOR: f64 = 5.0;
+/// evalglare's default peak extraction level `-y`, cd/m² (evalglare 0.9c).
+pub const EVALGLARE_PEAK_CD_M2: f64 = 50_000.0;
+/// evalglare's default search radius `-r`, radians.
+pub const EVALGLARE_SEARCH_RADIUS_RAD: f64 = 0.2;
 
 /// The glare source threshold (evalglare's `-b`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -55,7 +89,9 @@ use crate::stray_light::cie146_veil_per_sr;
 pub enum SourceThreshold {
     /// Pixels brighter than this luminance, cd/m².
     AbsoluteCdM2 { cd_m2: f64 },
-    /// Pixels brighter than this factor times the average luminance.
+    /// Pixels brighter than this factor times the average luminance: of
+    /// the task area when [`GlareOptions::task_opening_rad`] is set, else
+    /// of the whole half space in front of the eye.
     TimesAverage { factor: f64 },
 }
 
@@ -68,6 +104,20 @@ impl SourceThreshold {
             Self::TimesAverage { factor: b }
         }
     }
+
+    /// evalglare's default without `-b`: 2000 cd/m², or 5 × the task
+    /// luminance when a task area is set.
+    pub fn evalglare_default(task: bool) -> Self {
+        if task {
+            Self::TimesAverage {
+                factor: EVALGLARE_TASK_FACTOR,
+            }
+        } else {
+            Self::AbsoluteCdM2 {
+                cd_m2: EVALGLARE_DEFAULT_THRESHOLD_CD_M2,
+            }
+        }
+    }
 }
 
 /// Settings of a glare evaluation.
@@ -75,9 +125,18 @@ impl SourceThreshold {
 pub struct GlareOptions {
     /// Which pixels are glare sources (evalglare's default 2000 cd/m²).
     pub threshold: SourceThreshold,
+    /// evalglare's task area `-t`: a disc of this opening angle (its
+    /// diameter), radians, around the gaze, whose mean luminance a
+    /// [`SourceThreshold::TimesAverage`] factor multiplies. `None`: no
+    /// task area (evalglare's default).
+    pub task_opening_rad: Option<f64>,
     /// evalglare's search radius `-r`, radians (default 0.2): pixels within
     /// half of it join a source.
     pub search_radius_rad: f64,
+    /// evalglare's peak extraction (`-y`/`-Y`): source pixels at or above
+    /// this luminance, cd/m², become sources of their own (default 50 000);
+    /// `None` turns it off (`-x`).
+    pub peak_extraction_cd_m2: Option<f64>,
     /// Observer's age, years (CIE 146).
     pub age_years: f64,
     /// Ocular pigmentation (CIE 146: 0 very dark … 1.2 very light eyes).
@@ -92,8 +151,10 @@ pub struct GlareOptions {
 impl Default for GlareOptions {
     fn default() -> Self {
         Self {
-            threshold: SourceThreshold::AbsoluteCdM2 { cd_m2: 2000.0 },
-            search_radius_rad: 0.2,
+            threshold: SourceThreshold::evalglare_default(false),
+            task_opening_rad: None,
+            search_radius_rad: EVALGLARE_SEARCH_RADIUS_RAD,
+            peak_extraction_cd_m2: Some(EVALGLARE_PEAK_CD_M2),
             age_years: 25.0,
             pigmentation: 0.5,
             cie146_inner_deg: 1.0,
@@ -107,7 +168,10 @@ impl Default for GlareOptions {
 pub struct GlareSource {
     /// Pixels in it.
     pub pixels: usize,
-    /// ω-weighted mean pixel position (x right, y down; pixel centres at
+    /// Whether peak extraction made it (its pixels are all at or above
+    /// the peak level).
+    pub peak: bool,
+    /// L ω-weighted mean pixel position (x right, y down; pixel centres at
     /// +0.5).
     pub position_px: [f64; 2],
     /// The direction through that position, camera frame (−z forward,
@@ -116,8 +180,17 @@ pub struct GlareSource {
     /// Its azimuth (right) and elevation (up) from the image's view
     /// direction, degrees.
     pub azimuth_elevation_deg: [f64; 2],
-    /// Angle from the gaze, degrees.
+    /// Angle from the gaze to that direction, degrees.
     pub angle_from_gaze_deg: f64,
+    /// The direction of the whole pixel evalglare takes for the source
+    /// (its truncated mean pixel index, rows counted from the bottom),
+    /// camera frame: evalglare's `xdir ydir zdir`.
+    pub pixel_direction: [f64; 3],
+    /// The angle from the gaze to that pixel's centre, degrees (kept at
+    /// least the pixel's angular radius): the veil's θ.
+    pub angle_from_gaze_pixel_deg: f64,
+    /// Guth's position index at that pixel (evalglare's `Posindx`).
+    pub position_index: f64,
     /// Solid angle, sr.
     pub solid_angle_sr: f64,
     /// Mean luminance (ω-weighted), cd/m².
@@ -126,15 +199,9 @@ pub struct GlareSource {
     pub max_luminance_cd_m2: f64,
     /// Illuminance it gives at the eye on the plane facing the gaze, lux.
     pub illuminance_lux: f64,
-    /// Its Stiles–Holladay veil, 10 E / θ², cd/m².
+    /// Its Stiles–Holladay veil, 10 E / θ², cd/m² (evalglare's
+    /// `Lveil_cie` term).
     pub veil_stiles_holladay_cd_m2: f64,
-    /// The angle from the gaze as evalglare 2.10 takes it: to the centre
-    /// of the pixel its truncated mean pixel index names (its `x2 =
-    /// (int)av_posx`, rows counted from the bottom), degrees. Up to a
-    /// pixel off the source's centroid.
-    pub angle_from_gaze_evalglare_deg: f64,
-    /// 10 E / θ² with that angle: evalglare's own `Lveil_cie` term.
-    pub veil_stiles_holladay_evalglare_cd_m2: f64,
 }
 
 /// The glare numbers at one gaze.
@@ -152,6 +219,8 @@ pub struct GazeGlare {
     /// Solid angle with data in front of the eye, sr (2π for a full half
     /// space).
     pub solid_angle_with_data_sr: f64,
+    /// Mean luminance of the task area, cd/m², when one is set.
+    pub task_luminance_cd_m2: Option<f64>,
     /// The source threshold used, cd/m².
     pub source_threshold_cd_m2: f64,
     /// Luminance at the gaze (mean over the gaze disc), cd/m²; `None` when
@@ -162,17 +231,19 @@ pub struct GazeGlare {
     /// CIE 146:2002 veil of the whole image, cd/m².
     pub veil_cie146_cd_m2: f64,
     /// Stiles–Holladay veil of the glare sources, Σ 10 E_i / θ_i², θ_i to
-    /// each source's centroid, cd/m².
+    /// each source's whole pixel: evalglare's `Lveil_cie`, cd/m².
     pub veil_stiles_holladay_cd_m2: f64,
-    /// The same with evalglare's source positions (whole pixels, see
-    /// [`GlareSource::angle_from_gaze_evalglare_deg`]): its `Lveil_cie`.
-    pub veil_stiles_holladay_evalglare_cd_m2: f64,
-    /// The glare sources' illuminance at the eye, lux.
+    /// The glare sources' illuminance at the eye (evalglare's `E_v_dir`),
+    /// lux.
     pub source_illuminance_lux: f64,
-    /// Background (adaptation) luminance, (E_v − Σ E_i)/π, cd/m².
+    /// Background luminance, (E_v − Σ E_i)/π (evalglare's `lum_backg`),
+    /// cd/m².
     pub background_luminance_cd_m2: f64,
     /// Threshold increment, percent (CIE 140 eq. 5/6 with the CIE 146 veil).
     pub threshold_increment_pct: f64,
+    /// DGP, DGI, UGR, VCP and CGI as evalglare computes them.
+    #[serde(flatten)]
+    pub indices: GlareIndices,
     /// The glare sources, brightest illuminance first.
     pub sources: Vec<GlareSource>,
 }
@@ -187,6 +258,10 @@ pub struct SceneGlare {
     /// Pixels outside the field (no data).
     pub no_data_pixels: usize,
 }
+
+/// A pixel in front of the eye: its index, direction, solid angle and
+/// cosine to the gaze.
+type FrontPixel = (usize, DVec3, f64, f64);
 
 impl SceneGlare {
     /// Prepares `image` (cd/m²) seen through `projection` (whose size must
@@ -264,7 +339,7 @@ impl SceneGlare {
     /// The glare numbers at a gaze direction (camera frame).
     pub fn at_gaze(&self, gaze: DVec3, opts: &GlareOptions) -> GazeGlare {
         let g = gaze.normalize_or(DVec3::NEG_Z);
-        let front: Vec<(usize, DVec3, f64, f64)> = self
+        let front: Vec<FrontPixel> = self
             .pixels
             .iter()
             .filter_map(|&(i, d, om)| {
@@ -278,6 +353,9 @@ impl SceneGlare {
         let veil_cie = self.veil_cie146_cd_m2(g, opts);
         let disc_cos = (opts.gaze_disc_deg * 0.5).to_radians().cos();
         let (mut disc_l_om, mut disc_om) = (0.0, 0.0);
+        // evalglare get_task_lum: pixels within half the opening angle.
+        let task_cos = opts.task_opening_rad.map(|a| (a * 0.5).cos());
+        let (mut task_l_om, mut task_om) = (0.0, 0.0);
         for &(i, _, om, c) in &front {
             let l = self.luminance[i];
             e_v += l * om * c;
@@ -287,18 +365,25 @@ impl SceneGlare {
                 disc_l_om += l * om;
                 disc_om += om;
             }
+            if task_cos.is_some_and(|t| c >= t) {
+                task_l_om += l * om;
+                task_om += om;
+            }
         }
         let average = if sum_om > 0.0 { sum_l_om / sum_om } else { 0.0 };
+        let task = task_cos.map(|_| {
+            if task_om > 0.0 {
+                task_l_om / task_om
+            } else {
+                0.0
+            }
+        });
         let threshold = match opts.threshold {
             SourceThreshold::AbsoluteCdM2 { cd_m2 } => cd_m2,
-            SourceThreshold::TimesAverage { factor } => factor * average,
+            SourceThreshold::TimesAverage { factor } => factor * task.unwrap_or(average),
         };
-        let sources = self.sources(&front, g, threshold, opts.search_radius_rad);
+        let sources = self.sources(&front, g, threshold, opts);
         let veil_sh: f64 = sources.iter().map(|s| s.veil_stiles_holladay_cd_m2).sum();
-        let veil_sh_eg: f64 = sources
-            .iter()
-            .map(|s| s.veil_stiles_holladay_evalglare_cd_m2)
-            .sum();
         let e_sources: f64 = sources.iter().map(|s| s.illuminance_lux).sum();
         let gaze_px = self.projection.pixel(g);
         let gaze_in_field = gaze_px.is_some();
@@ -311,101 +396,166 @@ impl SceneGlare {
                 self.luminance[y * self.projection.width_px + x]
             }
         });
+        // evalglare -q 0 (default): L_b = (E_v − E_v_dir) / π.
         let background = ((e_v - e_sources) / std::f64::consts::PI).max(0.0);
+        let index_sources: Vec<IndexSource> = sources
+            .iter()
+            .map(|s| IndexSource {
+                luminance_cd_m2: s.luminance_cd_m2,
+                solid_angle_sr: s.solid_angle_sr,
+                position_index: s.position_index,
+            })
+            .collect();
+        let indices = glare_indices(
+            &index_sources,
+            &IndexScene {
+                vertical_illuminance_lux: e_v,
+                direct_illuminance_lux: e_sources,
+                background_luminance_cd_m2: background,
+                average_luminance_cd_m2: average,
+            },
+        );
         GazeGlare {
             gaze_deg: angles_from_direction(g),
             gaze_in_field,
             vertical_illuminance_lux: e_v,
             average_luminance_cd_m2: average,
             solid_angle_with_data_sr: sum_om,
+            task_luminance_cd_m2: task,
             source_threshold_cd_m2: threshold,
             luminance_at_gaze_cd_m2: at_gaze,
             luminance_at_gaze_with_veil_cd_m2: at_gaze.map(|l| l + veil_cie),
             veil_cie146_cd_m2: veil_cie,
             veil_stiles_holladay_cd_m2: veil_sh,
-            veil_stiles_holladay_evalglare_cd_m2: veil_sh_eg,
             source_illuminance_lux: e_sources,
             background_luminance_cd_m2: background,
             threshold_increment_pct: threshold_increment_pct(veil_cie, background),
+            indices,
             sources,
         }
     }
 
-    /// Groups the front pixels brighter than `threshold` into sources.
+    /// The front pixels brighter than `threshold` as evalglare's glare
+    /// sources: grouped, then their peaks extracted.
     fn sources(
         &self,
-        front: &[(usize, DVec3, f64, f64)],
+        front: &[FrontPixel],
         g: DVec3,
         threshold: f64,
-        search_radius_rad: f64,
+        opts: &GlareOptions,
     ) -> Vec<GlareSource> {
-        let bright: Vec<&(usize, DVec3, f64, f64)> = front
+        let bright: Vec<&FrontPixel> = front
             .iter()
             .filter(|p| self.luminance[p.0] > threshold)
             .collect();
-        let link = (search_radius_rad * 0.5).max(1e-6);
-        let labels = single_linkage(&bright.iter().map(|p| p.1).collect::<Vec<_>>(), link);
-        let n_groups = labels.iter().copied().max().map_or(0, |m| m + 1);
-        #[derive(Default, Clone)]
-        struct Acc {
-            n: usize,
-            om: f64,
-            l_om: f64,
-            x_om: f64,
-            y_om: f64,
-            l_max: f64,
-            e: f64,
-        }
-        let mut acc = vec![Acc::default(); n_groups];
-        let w = self.projection.width_px;
-        for (p, &label) in bright.iter().zip(&labels) {
-            let &&(i, _d, om, c) = p;
-            let l = self.luminance[i];
-            let a = &mut acc[label];
-            a.n += 1;
-            a.om += om;
-            a.l_om += l * om;
-            a.x_om += ((i % w) as f64 + 0.5) * om;
-            a.y_om += ((i / w) as f64 + 0.5) * om;
-            a.l_max = a.l_max.max(l);
-            a.e += l * om * c;
-        }
-        let mut out: Vec<GlareSource> = acc
-            .into_iter()
-            .filter(|a| a.n > 0 && a.om > 0.0)
-            .map(|a| {
-                let pos = [a.x_om / a.om, a.y_om / a.om];
-                let dir = self.projection.direction_any(pos).unwrap_or(DVec3::NEG_Z);
-                let theta_deg = dir.dot(g).clamp(-1.0, 1.0).acos().to_degrees();
-                // evalglare: the mean integer column and row-from-bottom
-                // index, truncated; here in top-down continuous pixels.
-                let (mean_col, mean_row) = (pos[0] - 0.5, pos[1] - 0.5);
-                let eg_px = [mean_col.floor() + 0.5, mean_row.ceil() + 0.5];
-                let theta_eg_deg = self
-                    .projection
-                    .direction_any(eg_px)
-                    .map_or(theta_deg, |d| d.dot(g).clamp(-1.0, 1.0).acos().to_degrees());
-                GlareSource {
-                    pixels: a.n,
-                    position_px: pos,
-                    direction: dir.to_array(),
-                    azimuth_elevation_deg: angles_from_direction(dir),
-                    angle_from_gaze_deg: theta_deg,
-                    solid_angle_sr: a.om,
-                    luminance_cd_m2: a.l_om / a.om,
-                    max_luminance_cd_m2: a.l_max,
-                    illuminance_lux: a.e,
-                    // evalglare 2.10: Lveil_cie = 10 Eglare / (θ² + 1e-16), θ in degrees
-                    veil_stiles_holladay_cd_m2: 10.0 * a.e / (theta_deg * theta_deg + 1e-16),
-                    angle_from_gaze_evalglare_deg: theta_eg_deg,
-                    veil_stiles_holladay_evalglare_cd_m2: 10.0 * a.e
-                        / (theta_eg_deg * theta_eg_deg + 1e-16),
+        // evalglare find_near_pgs: joined when 2 × angle ≤ r.
+        let link = (opts.search_radius_rad * 0.5).max(1e-6);
+        let mut groups = groups_of(&bright, link);
+        // Peak extraction, only when some source pixel exceeds the level
+        // (evalglare: lum_total_max > limit; pixels ≥ limit move).
+        if let Some(limit) = opts.peak_extraction_cd_m2
+            && bright.iter().any(|p| self.luminance[p.0] > limit)
+        {
+            let mut peaks = Vec::new();
+            for group in &mut groups {
+                let (high, low): (Vec<&FrontPixel>, Vec<&FrontPixel>) =
+                    group.iter().partition(|p| self.luminance[p.0] >= limit);
+                if high.is_empty() {
+                    continue;
                 }
-            })
+                *group = low;
+                // The split pixels are linked at r/4 and their groups
+                // merged at r/2 (evalglare find_split, then find_near_pgs
+                // among them): single linkage at r/2.
+                peaks.extend(groups_of(&high, link));
+            }
+            groups.retain(|grp| !grp.is_empty());
+            let n_primary = groups.len();
+            groups.extend(peaks);
+            let mut out: Vec<GlareSource> = groups
+                .iter()
+                .enumerate()
+                .filter_map(|(k, grp)| self.source(grp, g, k >= n_primary))
+                .collect();
+            out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
+            return out;
+        }
+        let mut out: Vec<GlareSource> = groups
+            .iter()
+            .filter_map(|grp| self.source(grp, g, false))
             .collect();
         out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
         out
     }
+
+    /// One source from its pixels.
+    fn source(&self, pixels: &[&FrontPixel], g: DVec3, peak: bool) -> Option<GlareSource> {
+        let w = self.projection.width_px;
+        let (mut om_sum, mut l_om, mut x_l_om, mut y_l_om, mut l_max, mut e) =
+            (0.0, 0.0, 0.0, 0.0, 0.0f64, 0.0);
+        for &&(i, _d, om, c) in pixels {
+            let l = self.luminance[i];
+            om_sum += om;
+            l_om += l * om;
+            x_l_om += ((i % w) as f64 + 0.5) * l * om;
+            y_l_om += ((i / w) as f64 + 0.5) * l * om;
+            l_max = l_max.max(l);
+            e += l * om * c;
+        }
+        if pixels.is_empty() || om_sum <= 0.0 || l_om <= 0.0 {
+            return None;
+        }
+        let pos = [x_l_om / l_om, y_l_om / l_om];
+        let dir = self.projection.direction_any(pos).unwrap_or(g);
+        let theta_deg = dir.dot(g).clamp(-1.0, 1.0).acos().to_degrees();
+        // evalglare: the mean integer column and row-from-bottom index,
+        // truncated; here in top-down continuous pixels.
+        let (mean_col, mean_row) = (pos[0] - 0.5, pos[1] - 0.5);
+        let col = (mean_col.floor().max(0.0) as usize).min(w - 1);
+        let row = (mean_row.ceil().max(0.0) as usize).min(self.projection.height_px - 1);
+        let px_centre = [col as f64 + 0.5, row as f64 + 0.5];
+        let px_dir = self.projection.direction_any(px_centre).unwrap_or(dir);
+        // The pixel's angular radius keeps θ, and the veil, finite.
+        let px_radius_deg = (self.projection.pixel_solid_angle_sr(col, row).max(0.0)
+            / std::f64::consts::PI)
+            .sqrt()
+            .to_degrees();
+        let theta_px_deg = px_dir
+            .dot(g)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+            .max(px_radius_deg)
+            .max(1e-6);
+        Some(GlareSource {
+            pixels: pixels.len(),
+            peak,
+            position_px: pos,
+            direction: dir.to_array(),
+            azimuth_elevation_deg: angles_from_direction(dir),
+            angle_from_gaze_deg: theta_deg,
+            pixel_direction: px_dir.to_array(),
+            angle_from_gaze_pixel_deg: theta_px_deg,
+            // The image's up (camera +y) as evalglare's -vu.
+            position_index: position_index(g, DVec3::Y, px_dir),
+            solid_angle_sr: om_sum,
+            luminance_cd_m2: l_om / om_sum,
+            max_luminance_cd_m2: l_max,
+            illuminance_lux: e,
+            veil_stiles_holladay_cd_m2: veil_stiles_holladay_cd_m2(e, theta_px_deg),
+        })
+    }
+}
+
+/// The single-linkage groups of `pixels` at `link_rad`.
+fn groups_of<'a>(pixels: &[&'a FrontPixel], link_rad: f64) -> Vec<Vec<&'a FrontPixel>> {
+    let labels = single_linkage(&pixels.iter().map(|p| p.1).collect::<Vec<_>>(), link_rad);
+    let n = labels.iter().copied().max().map_or(0, |m| m + 1);
+    let mut groups: Vec<Vec<&FrontPixel>> = vec![Vec::new(); n];
+    for (&p, &label) in pixels.iter().zip(&labels) {
+        groups[label].push(p);
+    }
+    groups
 }
 
 /// Threshold increment, percent: CIE 140-2000 eq. 5 (L_ad ≤ 5 cd/m²) and

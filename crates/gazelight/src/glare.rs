@@ -1,8 +1,10 @@
 //! `gazelight glare SCENE --gaze-deg AZ,EL [...]`: the glare numbers of a
 //! scene image at one or more gazes — vertical illuminance at the eye,
 //! luminance at the gaze with and without the veil, the CIE 146 and
-//! Stiles–Holladay (evalglare's) veils, the threshold increment and the
-//! glare sources — printed, and written as JSON with `--json`. The
+//! Stiles–Holladay (evalglare's) veils, the threshold increment, DGP, DGI,
+//! UGR, VCP and CGI, and the glare sources found as evalglare finds them
+//! (peaks above 50 000 cd/m² sources of their own) — printed, and written
+//! as JSON with `--json`. The
 //! definitions are [`gazelight_vision::scene_glare`]'s; the projection is
 //! the Radiance header's `VIEW=` or `--scene-projection`/`--scene-fov-deg`.
 
@@ -61,13 +63,27 @@ pub struct GlareArgs {
     #[arg(long)]
     pub adapt: bool,
     /// Glare source threshold as evalglare's `-b`: above 100 a luminance
-    /// in cd/m², at or below a factor of the average luminance (default
-    /// 2000, evalglare's default).
-    #[arg(long, value_name = "B", default_value_t = 2000.0)]
-    pub source_threshold: f64,
+    /// in cd/m², at or below a factor of the average luminance (of the
+    /// task area with `--task-opening-rad`). Default as evalglare's: 2000
+    /// cd/m², or 5 × the task luminance with a task area.
+    #[arg(long, value_name = "B")]
+    pub source_threshold: Option<f64>,
+    /// evalglare's task area `-t`: a disc of this opening angle, radians,
+    /// around each gaze; `--source-threshold` at or below 100 (default 5)
+    /// multiplies its mean luminance.
+    #[arg(long, value_name = "RAD")]
+    pub task_opening_rad: Option<f64>,
     /// evalglare's search radius `-r`, radians (default 0.2).
     #[arg(long, value_name = "RAD", default_value_t = 0.2)]
     pub search_radius_rad: f64,
+    /// evalglare's peak extraction level `-Y`, cd/m²: source pixels at or
+    /// above it become sources of their own (default 50 000, on as in
+    /// evalglare).
+    #[arg(long, value_name = "CD_M2", default_value_t = 50_000.0)]
+    pub peak_cd_m2: f64,
+    /// Turn peak extraction off (evalglare's `-x`).
+    #[arg(long, conflicts_with = "peak_cd_m2")]
+    pub no_peak_extraction: bool,
     /// Write the numbers as JSON to this file.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
@@ -204,8 +220,18 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
     {
         bail!("--pupil-mm {d}: expected 1..=10 mm");
     }
-    if !(args.source_threshold.is_finite() && args.source_threshold > 0.0) {
-        bail!("--source-threshold {}: expected > 0", args.source_threshold);
+    if let Some(b) = args.source_threshold
+        && !(b.is_finite() && b > 0.0)
+    {
+        bail!("--source-threshold {b}: expected > 0");
+    }
+    if let Some(t) = args.task_opening_rad
+        && !(t.is_finite() && t > 0.0 && t < 3.0)
+    {
+        bail!("--task-opening-rad {t}: expected 0 < t < 3");
+    }
+    if !(args.peak_cd_m2.is_finite() && args.peak_cd_m2 > 0.0) {
+        bail!("--peak-cd-m2 {}: expected > 0", args.peak_cd_m2);
     }
     if !(args.search_radius_rad.is_finite()
         && args.search_radius_rad > 0.0
@@ -268,8 +294,13 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
         ]
     };
     let opts = GlareOptions {
-        threshold: SourceThreshold::from_evalglare_b(args.source_threshold),
+        threshold: args.source_threshold.map_or(
+            SourceThreshold::evalglare_default(args.task_opening_rad.is_some()),
+            SourceThreshold::from_evalglare_b,
+        ),
+        task_opening_rad: args.task_opening_rad,
         search_radius_rad: args.search_radius_rad,
+        peak_extraction_cd_m2: (!args.no_peak_extraction).then_some(args.peak_cd_m2),
         age_years: age,
         pigmentation,
         ..GlareOptions::default()
@@ -327,9 +358,22 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             r.threshold_increment_pct,
             r.sources.len()
         );
+        println!(
+            "    DGP {:.3}  DGI {:.2}  UGR {}  VCP {:.1}  CGI {:.2}  L_b {:.2} cd/m²  E_dir {:.2} lx",
+            r.indices.dgp,
+            r.indices.dgi,
+            r.indices
+                .ugr
+                .map_or("none (no background)".into(), |u| format!("{u:.2}")),
+            r.indices.vcp,
+            r.indices.cgi,
+            r.background_luminance_cd_m2,
+            r.source_illuminance_lux
+        );
         for s in &r.sources {
             println!(
-                "    source at {:>6.1},{:>5.1}° ({:.1}, {:.1} px): {:.2e} sr, {:.0} cd/m², E {:.2} lx, {:.1}° from the gaze, veil {:.3} cd/m²",
+                "    {} at {:>6.1},{:>5.1}° ({:.1}, {:.1} px): {:.2e} sr, {:.0} cd/m², E {:.2} lx, {:.1}° from the gaze, P {:.2}, veil {:.3} cd/m²",
+                if s.peak { "peak  " } else { "source" },
                 s.azimuth_elevation_deg[0],
                 s.azimuth_elevation_deg[1],
                 s.position_px[0],
@@ -338,6 +382,7 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
                 s.luminance_cd_m2,
                 s.illuminance_lux,
                 s.angle_from_gaze_deg,
+                s.position_index,
                 s.veil_stiles_holladay_cd_m2
             );
         }
@@ -349,6 +394,9 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
             for (s, src) in sources.iter_mut().zip(&r.sources) {
                 let world = view.to_world(glam_dir(src.direction));
                 s["direction_radiance_world"] = serde_json::json!(world.map(|w| w.to_array()));
+                let px_world = view.to_world(glam_dir(src.pixel_direction));
+                s["pixel_direction_radiance_world"] =
+                    serde_json::json!(px_world.map(|w| w.to_array()));
             }
         }
         v["pupil_mm"] = serde_json::json!(pupil_mm);
@@ -358,7 +406,7 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.json {
         let doc = serde_json::json!({
-            "schema": "gazelight.glare/1",
+            "schema": "gazelight.glare/2",
             "scene": args.scene.display().to_string(),
             "projection": projection,
             "projection_known": scene.projection.is_some(),
