@@ -56,9 +56,9 @@ pub const DEFAULT_WHITE_CD_M2: f64 = 200.0;
 /// `scene_scale_cd_m2` when the file names none.
 pub const DEFAULT_SCENE_SCALE_CD_M2: f64 = 100.0;
 
-/// The source when the file names none: Pupil Capture's default address, as
-/// `gazelight run`'s default.
-pub const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
+/// The source when the file names none: the one default of every front
+/// end (Pupil Capture's default address).
+pub use gazelight_tracker::uri::DEFAULT_SOURCE;
 
 /// Where the gaze the app gets comes from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]

@@ -81,6 +81,10 @@ pub const SCHEMES: &[&str] = &[
 
 /// The only synthetic source.
 pub const SYNTHETIC_DEMO: &str = "demo";
+/// The source every front end uses when none is given (`run`, `calibrate`,
+/// `record`, the OpenXR layer's config): Pupil Capture's Pupil Remote on
+/// this machine, at its default port.
+pub const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
 /// Fastest replay speed `replay://…?speed=S` accepts (× real time).
 pub const MAX_REPLAY_SPEED: f64 = 1000.0;
 

@@ -138,8 +138,7 @@ impl StimulusSink for AnnouncingSink<'_> {
 }
 
 /// Runs `gazelight calibrate`.
-/// Pupil Remote's default address.
-const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
+use gazelight_tracker::uri::DEFAULT_SOURCE;
 
 impl CalibrateArgs {
     /// The source: `--source`, else (after [`Self::apply_config`]) the

@@ -43,7 +43,7 @@ pub struct RecordArgs {
     /// Tracker source: Pupil Capture's Pupil Remote (its bus bytes are
     /// kept as they are) or any other live source URI, e.g. `neon://HOST`
     /// (its samples are written as Pupil datums).
-    #[arg(long, value_name = "URI", default_value = "pupil://127.0.0.1:50020")]
+    #[arg(long, value_name = "URI", default_value = gazelight_tracker::uri::DEFAULT_SOURCE)]
     pub source: String,
     /// Recording directory (created). Refused when it holds another
     /// recording (a Pupil Capture or Neon one) or the replayed input, or a

@@ -51,8 +51,9 @@ use head::{Head, HeadTrace};
 use source_task::DemoContext;
 use writer::OutputWriter;
 
-/// The default source: Pupil Capture's Pupil Remote on this machine.
-pub const DEFAULT_SOURCE: &str = "pupil://127.0.0.1:50020";
+/// The default source: Pupil Capture's Pupil Remote on this machine (one
+/// default for every front end).
+pub use gazelight_tracker::uri::DEFAULT_SOURCE;
 /// The default display rate, Hz (the Vive Pro's).
 pub const DEFAULT_FPS: f64 = 90.0;
 
