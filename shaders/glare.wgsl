@@ -19,42 +19,14 @@
 // 4. `gather_coarse`: the same light box-summed into the coarse blocks;
 // 5. `multiply_fine`, `multiply_coarse`: data ·= kernel spectrum (forward
 //    FFT before, inverse FFT — with its 1/W² — after);
-// 6. `blend`: over the coarse window ∩ image, out = (1 − w)·img + fine +
+// 6. `blend`: over the coarse window ∩ image, out = keep(w)·img + fine +
 //    bilinear(coarse / b²) at the block centres (outside the fine window:
-//    img + coarse term).
-
-struct GlareParams {
-    // Fine window W_f, coarse window W_c (blocks), block b, r_fine.
-    wf: u32,
-    wc: u32,
-    block: u32,
-    r_fine: u32,
-    // Kernel size (centre size/2), frame size.
-    kernel_size: u32,
-    width: u32,
-    height: u32,
-    _pad0: u32,
-    // Window origins in the frame.
-    ofx: i32,
-    ofy: i32,
-    ocx: i32,
-    ocy: i32,
-    // Source box ∩ image, frame pixels: [sx0, sx1) × [sy0, sy1).
-    sx0: i32,
-    sx1: i32,
-    sy0: i32,
-    sy1: i32,
-    // Output region (coarse window ∩ image): [x0, x1) × [y0, y1).
-    x0: i32,
-    x1: i32,
-    y0: i32,
-    y1: i32,
-    // Gaze, frame pixels; full-weight radius and fade σ, pixels.
-    gaze_x: f32,
-    gaze_y: f32,
-    d_full: f32,
-    sigma: f32,
-}
+//    keep(0)·img + coarse term), keep(w) = keep0 − keep_slope·w: 1 − w
+//    without the far field, (1 − w)(1 − E_near) − E_tail with it
+//    (far_glare.wgsl adds its veil after this pass).
+//
+// GlareParams and the source weight are in glare_window.wgsl (prepended;
+// far_glare.wgsl shares them).
 
 @group(0) @binding(0) var<uniform> params: GlareParams;
 @group(0) @binding(1) var<storage, read> kernel: array<vec4<f32>>;
@@ -135,25 +107,9 @@ fn kernel_coarse(@builtin(global_invocation_id) gid: vec3<u32>) {
     coarse[2u * plane + index] = vec2<f32>(acc.z, 0.0);
 }
 
-// Source weight of frame pixel (x, y): 0 outside the source box.
+// Source weight of frame pixel (x, y) (glare_window.wgsl).
 fn source_weight(x: i32, y: i32) -> f32 {
-    if x < params.sx0 || x >= params.sx1 || y < params.sy0 || y >= params.sy1 {
-        return 0.0;
-    }
-    let dx = f32(x) + 0.5 - params.gaze_x;
-    let dy = f32(y) + 0.5 - params.gaze_y;
-    let d = sqrt(dx * dx + dy * dy);
-    if d <= params.d_full {
-        return 1.0;
-    }
-    let t = d - params.d_full;
-    let s = params.sigma;
-    if t >= 3.0 * s {
-        return 0.0;
-    }
-    // G(3σ) = exp(−9/2)
-    let g_r = exp(-4.5);
-    return clamp((exp(-t * t / (2.0 * s * s)) - g_r) / (1.0 - g_r), 0.0, 1.0);
+    return window_weight(params, x, y);
 }
 
 fn frame_index(x: i32, y: i32) -> u32 {
@@ -281,11 +237,11 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
     if fi >= 0 && fi < wf && fj >= 0 && fj < wf {
         let index = u32(fj * wf + fi);
         let plane = params.wf * params.wf;
-        let keep = 1.0 - source_weight(x, y);
+        let keep = params.keep0 - params.keep_slope * source_weight(x, y);
         let glare = vec3<f32>(fine[index].x, fine[plane + index].x, fine[2u * plane + index].x);
         p = p * keep + glare + add;
     } else {
-        p = p + add;
+        p = p * params.keep0 + add;
     }
     // w: the no-data flag of pooling.wgsl's import_scene, kept.
     work[f] = vec4<f32>(p, old.w);

@@ -8,7 +8,7 @@
 //! | 1 | scene import + block luminance + pooling reductions | `pooling.wgsl` ([`crate::pooling`]) |
 //! | 2 | adaptation step (1 thread) | `temporal.wgsl` ([`crate::temporal`]) |
 //! | 3 | PSF rebuild when the pupil moved more than `psf_rebuild_threshold_mm` (built on the GPU: `psf_aperture`, FFT, `psf_intensity`, `psf_spectral`, `psf_normalise`), then the split kernel's two spectra | [`crate::psf`], `psf_*.wgsl`, `glare.wgsl`, [`crate::fft`] |
-//! | 4 | glare at the gaze: full-resolution core in a fine FFT window, wide field on b×b blocks in a coarse one, full weight to `full_weight_deg`, Gaussian fade beyond | `glare.wgsl` ([`crate::glare`]) |
+//! | 4 | glare at the gaze: full-resolution core in a fine FFT window, wide field on b×b blocks in a coarse one, full weight to `full_weight_deg`, Gaussian fade beyond; then the full-field stray light (CIE 146 veil of every pixel on a 2° grid, block sums before the window's blend, the veil after it) | `glare.wgsl`, `far_glare.wgsl` ([`crate::glare`], [`crate::far_glare`]) |
 //! | 5 | per-pixel-σ separable Lab-lightness blur of the HDR frame (σ of the frame's adaptation for the stats, 1 thread) | `acuity.wgsl` ([`crate::acuity`]) |
 //! | 6–8 | tone + colour scalars (1 thread), per pixel tone + colour + encode | `tone.wgsl` ([`crate::tone`]) |
 //!
@@ -489,7 +489,14 @@ impl GpuFramePipeline {
         let acuity_params = write_static_uniforms(ctx, &config, &sizes, deg_per_px, &buffers);
         let groups = FrameGroups::new(ctx, &passes, &buffers)?;
         let glare = if config.glare.enabled {
-            let g = GlareStage::new(ctx, &config, deg_per_px, &sizes, &buffers.work)?;
+            let g = GlareStage::new(
+                ctx,
+                &config,
+                deg_per_px,
+                &sizes,
+                &buffers.work,
+                PlaneAngles::Uniform { deg_per_px },
+            )?;
             // The first kernel's spectrum.
             let mut encoder =
                 ctx.device()
@@ -576,6 +583,13 @@ impl GpuFramePipeline {
                 what: "the view frustum",
                 source,
             })?;
+        // The far field's grid follows the geometry: rebuilt (allocating)
+        // only when it changed, as on the CPU.
+        if angles != self.angles
+            && let Some(g) = self.glare.as_mut()
+        {
+            g.set_angles(&self.ctx, &self.config, angles, &self.buffers.work)?;
+        }
         self.angles = angles;
         Ok(())
     }
@@ -1182,11 +1196,10 @@ mod tests {
         config
     }
 
-    /// The GPU has no twin of the CPU's full-field stray light yet
-    /// (`gazelight_vision::far_glare`, issue 46 item 3): the CPU side of a
-    /// parity check runs without it.
-    fn no_far_field(mut config: PipelineConfig) -> PipelineConfig {
-        config.glare.far_field = false;
+    /// With the full-field stray light (`gazelight_vision::far_glare` and
+    /// its twin `crate::far_glare`), whatever the default.
+    fn with_far_field(mut config: PipelineConfig) -> PipelineConfig {
+        config.glare.far_field = true;
         config
     }
 
@@ -1363,7 +1376,7 @@ mod tests {
         }
         println!("no data: worst relative error of target and adaptation {worst:.2e}");
 
-        let config = no_far_field(PipelineConfig {
+        let config = with_far_field(PipelineConfig {
             keep_retinal: true,
             ..PipelineConfig::default()
         });
@@ -1448,12 +1461,15 @@ mod tests {
         // field goes through 5×5 blocks. Gazes near the borders clip the
         // windows.
         let (img, dpp) = view_fov("night.exr", -78.4, -6.0, 10.0, 120, 96);
-        // Acuity off: the retinal image is the glare output alone.
-        let config = PipelineConfig {
+        // Acuity off: the retinal image is the glare output alone; the
+        // window alone (the far field: crate::far_glare's test and the
+        // whole-frame test).
+        let mut config = PipelineConfig {
             keep_display_linear: true,
             acuity: AcuityModel::None,
             ..PipelineConfig::default()
         };
+        config.glare.far_field = false;
         let mut gpu = GpuFramePipeline::new(ctx, config.clone(), 120, 96, dpp).unwrap();
         let mut params = config.glare.psf.clone();
         params.ppd = 1.0 / dpp;
@@ -1756,7 +1772,7 @@ mod tests {
         // pipeline builds its kernels on the GPU (`crate::psf`), the CPU
         // pipeline with `PsfBuilder`.
         let clean = {
-            let mut c = no_far_field(PipelineConfig::default());
+            let mut c = with_far_field(PipelineConfig::default());
             c.glare.psf.particles = 0;
             c.glare.psf.stray_light = false;
             c
@@ -1768,7 +1784,7 @@ mod tests {
                 20.0,
                 128,
                 128,
-                no_far_field(PipelineConfig::default()),
+                with_far_field(PipelineConfig::default()),
             ),
             (
                 "city.exr",
@@ -1776,7 +1792,7 @@ mod tests {
                 40.0,
                 160,
                 144,
-                no_far_field(PipelineConfig::default()),
+                with_far_field(PipelineConfig::default()),
             ),
             ("night.exr", -78.4, 20.0, 128, 128, clean),
         ] {

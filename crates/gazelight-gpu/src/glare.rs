@@ -28,6 +28,7 @@ use gazelight_vision::glare::{GlareSizes, GlareWindow};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
+use crate::far_glare::FarStage;
 use crate::fft::{FftDirection, GpuFft2d};
 use crate::frame::{
     FrameSizes, STORAGE, TILE, UNIFORM, create_buffer, invalid, tiles, timestamp_writes,
@@ -37,6 +38,7 @@ use crate::psf::GpuPsfBuilder;
 use crate::shaders;
 use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
 use gazelight_vision::pipeline::PipelineConfig;
+use gazelight_vision::pooling::PlaneAngles;
 
 /// Largest GPU FFT window, samples per side ([`crate::fft`]).
 const MAX_GPU_WINDOW: usize = 2048;
@@ -170,6 +172,16 @@ pub struct GlareParams {
     pub d_full: f32,
     /// Fade σ, pixels.
     pub sigma: f32,
+    /// What a source pixel keeps of its own light, `keep0 − keep_slope·w`:
+    /// 1 and 1 without the far field, `1 − E_near − E_tail` and
+    /// `1 − E_near` with it ([`crate::far_glare`]).
+    pub keep0: f32,
+    /// See `keep0`.
+    pub keep_slope: f32,
+    /// Padding.
+    pub _pad1: u32,
+    /// Padding.
+    pub _pad2: u32,
 }
 
 impl GlareParams {
@@ -185,6 +197,8 @@ impl GlareParams {
             height,
             d_full: geometry.d_full as f32,
             sigma: geometry.sigma as f32,
+            keep0: 1.0,
+            keep_slope: 1.0,
             ..Self::zeroed()
         }
     }
@@ -309,6 +323,11 @@ pub(crate) struct GlareStage {
     coarse_spectrum: wgpu::Buffer,
     group: wgpu::BindGroup,
     pub(crate) policy: KernelPolicy,
+    /// The full-field stray light ([`crate::far_glare`]), when on.
+    far: Option<FarStage>,
+    /// The kernel's radius and pixel size, the far field's split.
+    kernel_deg_per_px: f64,
+    frame_size: (usize, usize),
 }
 
 impl GlareStage {
@@ -321,6 +340,7 @@ impl GlareStage {
         deg_per_px: f64,
         sizes: &FrameSizes,
         work: &wgpu::Buffer,
+        angles: PlaneAngles,
     ) -> Result<Self, GpuError> {
         let mut params = config.glare.psf.clone();
         params.ppd = 1.0 / deg_per_px;
@@ -359,9 +379,8 @@ impl GlareStage {
                 work,
             ],
         )?;
-        ctx.queue()
-            .write_buffer(&uniform, 0, bytemuck::bytes_of(&glare_params));
-        Ok(Self {
+        let kernel_deg_per_px = psf.setup().sampling().deg_per_px;
+        let mut stage = Self {
             psf,
             geometry,
             fine,
@@ -373,7 +392,51 @@ impl GlareStage {
             coarse_spectrum,
             group,
             policy: KernelPolicy::new(&config.glare),
-        })
+            far: None,
+            kernel_deg_per_px,
+            frame_size: (sizes.width as usize, sizes.height as usize),
+        };
+        stage.set_angles(ctx, config, angles, work)?;
+        Ok(stage)
+    }
+
+    /// Builds the far field for the view's geometry `angles` (its grid
+    /// follows the projection; allocating: call it when the geometry
+    /// changed), or none when the configuration has none
+    /// ([`gazelight_vision::pipeline::far_field`], the CPU's decision).
+    pub(crate) fn set_angles(
+        &mut self,
+        ctx: &GpuContext,
+        config: &PipelineConfig,
+        angles: PlaneAngles,
+        work: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let (width, height) = self.frame_size;
+        let cpu = gazelight_vision::pipeline::far_field(
+            &config.glare,
+            self.psf.params(),
+            self.psf.kernel_size(),
+            self.kernel_deg_per_px,
+            width,
+            height,
+            angles,
+        )
+        .map_err(invalid)?;
+        self.far = match cpu {
+            Some(cpu) => Some(FarStage::new(ctx, &cpu, work, &self.uniform)?),
+            None => None,
+        };
+        (self.params.keep0, self.params.keep_slope) =
+            self.far.as_ref().map_or((1.0, 1.0), FarStage::keep);
+        ctx.queue()
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
+        Ok(())
+    }
+
+    /// Whether the full-field stray light is on.
+    #[cfg(test)]
+    pub(crate) fn has_far_field(&self) -> bool {
+        self.far.is_some()
     }
 
     /// Records the split of the kernel in the PSF buffer into its fine and
@@ -417,11 +480,30 @@ impl GlareStage {
         gaze_px: [f64; 2],
         timestamps: Option<&wgpu::QuerySet>,
     ) {
-        if !self.params.place(&self.geometry, gaze_px) {
-            return;
+        let placed = self.params.place(&self.geometry, gaze_px);
+        if placed {
+            ctx.queue()
+                .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
         }
-        ctx.queue()
-            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
+        // The far field's block sums read the frame before the blend.
+        if let Some(far) = self.far.as_mut() {
+            far.encode_sums(ctx, encoder, placed);
+        }
+        if placed {
+            self.encode_placed(ctx, encoder, timestamps);
+        }
+        if let Some(far) = self.far.as_ref() {
+            far.encode_veil(ctx, encoder, timestamp_writes(timestamps, None, Some(7)));
+        }
+    }
+
+    /// [`GlareStage::encode_window`] of a placed window.
+    fn encode_placed(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        timestamps: Option<&wgpu::QuerySet>,
+    ) {
         let (wf, wc) = (self.params.wf, self.params.wc);
         let max = ctx.limits().max_compute_workgroups_per_dimension;
         let linear = |n: u32| {
@@ -465,9 +547,11 @@ impl GlareStage {
             self.fine.encode(encoder, direction, None);
             self.coarse.encode(encoder, direction, None);
         }
+        // The end timestamp after the far field's blend when it is on.
+        let end = if self.far.is_some() { None } else { Some(7) };
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("stage 4: glare blend"),
-            timestamp_writes: timestamp_writes(timestamps, None, Some(7)),
+            timestamp_writes: timestamp_writes(timestamps, None, end),
         });
         pass.set_bind_group(0, &self.group, &[]);
         pass.set_pipeline(&self.pass.blend);
@@ -530,6 +614,8 @@ mod tests {
         let (img, dpp) = panorama_view("night.exr", -78.4, -6.0, 80.0 / 14.0, [w, h]);
         let mut config = PipelineConfig::default();
         config.glare.psf.field_deg = 4.0;
+        // The window alone (the far field: crate::far_glare's test).
+        config.glare.far_field = false;
         let mut params = config.glare.psf.clone();
         params.ppd = 1.0 / dpp;
         params.pupil_mm = 4.0;
@@ -546,7 +632,8 @@ mod tests {
         let lamp = [(at % w) as f64 + 0.5, (at / w) as f64 + 0.5];
         for gaze_px in [lamp, [6.0, 58.0]] {
             let work = storage(ctx, &texels(&img));
-            let mut stage = GlareStage::new(ctx, &config, dpp, &sizes, &work).unwrap();
+            let angles = PlaneAngles::Uniform { deg_per_px: dpp };
+            let mut stage = GlareStage::new(ctx, &config, dpp, &sizes, &work, angles).unwrap();
             let mut encoder = ctx.device().create_command_encoder(&Default::default());
             stage.encode_kernel_spectrum(&mut encoder, None);
             stage.encode_window(ctx, &mut encoder, gaze_px, None);

@@ -20,6 +20,9 @@
 //!   light; unit energy), its pupil-independent tables made once on the CPU;
 //! - [`glare`] (stage 4): windowed FFT convolution at the gaze with the
 //!   Gaussian falloff blend, kernel spectrum cached between rebuilds;
+//! - [`far_glare`] (stage 4): the full-field stray light, the CIE 146 veil
+//!   of every pixel on a coarse angular grid, joined to the window glare
+//!   (the twin of [`gazelight_vision::far_glare::FarField`]);
 //! - [`acuity`] (stage 5): per-pixel σ from each pixel's own lightness
 //!   (001 eq 11–13), separable Lab-lightness blur of the HDR frame;
 //! - [`tone`] (stages 6–8): tone reproduction, colour, sRGB encoding;
@@ -46,6 +49,7 @@ pub mod acuity;
 pub mod context;
 pub mod cpu;
 pub mod error;
+pub mod far_glare;
 pub mod fft;
 pub mod frame;
 pub mod glare;

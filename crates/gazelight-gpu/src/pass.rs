@@ -240,6 +240,7 @@ pub const ALL: &[&PassDescriptor] = &[
     &crate::pooling::POOLING_PASS,
     &crate::temporal::TEMPORAL_PASS,
     &crate::glare::GLARE_PASS,
+    &crate::far_glare::FAR_GLARE_PASS,
     &crate::acuity::ACUITY_PASS,
     &crate::tone::TONE_PASS,
 ];

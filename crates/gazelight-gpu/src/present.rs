@@ -952,8 +952,7 @@ mod tests {
         let size = [w as u32, h as u32];
         for (k, input) in eyes.iter().enumerate() {
             let mut config = PipelineConfig::default();
-            // No GPU twin of the CPU's full-field stray light yet (issue 46).
-            config.glare.far_field = false;
+            config.glare.far_field = true;
             let mut cpu = FramePipeline::new(config.clone(), w, h, deg_per_px).unwrap();
             let mut gpu = crate::GpuFramePipeline::new(&caller, config, w, h, deg_per_px).unwrap();
             let mut reference = DisplayFrame::new(w, h);

@@ -126,10 +126,36 @@ pub const TEMPORAL: WgslShader = WgslShader {
     source: with_frame_state!("temporal.wgsl"),
 };
 
+/// `shaders/<file>` with `shaders/glare_window.wgsl` (the glare window's
+/// uniforms and source weight) prepended.
+macro_rules! with_glare_window {
+    ($file:literal) => {
+        concat!(
+            include_str!("../../../shaders/glare_window.wgsl"),
+            "\n",
+            include_str!(concat!("../../../shaders/", $file))
+        )
+    };
+}
+
+/// The glare window's uniform struct and source weight, shared by the
+/// window glare and the far field.
+pub const GLARE_WINDOW: WgslShader = WgslShader {
+    name: "glare_window.wgsl",
+    source: include_str!("../../../shaders/glare_window.wgsl"),
+};
+
 /// Stage 4: windowed FFT glare at the gaze with the Gaussian falloff blend.
 pub const GLARE: WgslShader = WgslShader {
     name: "glare.wgsl",
-    source: include_str!("../../../shaders/glare.wgsl"),
+    source: with_glare_window!("glare.wgsl"),
+};
+
+/// Stage 4: the full-field stray light (CIE 146 veil of every pixel on a
+/// coarse angular grid), after the window glare.
+pub const FAR_GLARE: WgslShader = WgslShader {
+    name: "far_glare.wgsl",
+    source: with_glare_window!("far_glare.wgsl"),
 };
 
 /// Stage 5 (+ 8): acuity blur of Lab lightness, then encoding.
@@ -163,7 +189,9 @@ pub const ALL: &[WgslShader] = &[
     PSF_NORMALISE,
     POOLING,
     TEMPORAL,
+    GLARE_WINDOW,
     GLARE,
+    FAR_GLARE,
     ACUITY,
     TONE,
     PRESENT,

@@ -15,6 +15,7 @@
 //! No device is needed: this runs everywhere.
 
 use gazelight_gpu::acuity::AcuityParams;
+use gazelight_gpu::far_glare::FarParams;
 use gazelight_gpu::fft::FftParams;
 use gazelight_gpu::frame::FrameState;
 use gazelight_gpu::glare::GlareParams;
@@ -182,33 +183,22 @@ fn stage_1_2_twins() -> Vec<(WgslShader, RustTwin)> {
 /// Stages 4–8's uniforms.
 fn stage_4_8_twins() -> Vec<(WgslShader, RustTwin)> {
     vec![
+        (shaders::GLARE_WINDOW, glare_params()),
         (
-            shaders::GLARE,
-            twin!(GlareParams {
-                wf,
-                wc,
-                block,
-                r_fine,
-                kernel_size,
+            shaders::FAR_GLARE,
+            twin!(FarParams {
                 width,
                 height,
+                block_px,
+                blocks_w,
+                blocks_h,
+                n,
+                placed,
+                cells_at,
+                entries_at,
+                cols_at,
+                rows_at,
                 _pad0,
-                ofx,
-                ofy,
-                ocx,
-                ocy,
-                sx0,
-                sx1,
-                sy0,
-                sy1,
-                x0,
-                x1,
-                y0,
-                y1,
-                gaze_x,
-                gaze_y,
-                d_full,
-                sigma,
             }),
         ),
         (shaders::ACUITY, acuity_twin!()),
@@ -234,6 +224,41 @@ fn stage_4_8_twins() -> Vec<(WgslShader, RustTwin)> {
             }),
         ),
     ]
+}
+
+/// The glare window's uniforms (`glare_window.wgsl`, prepended to the
+/// window glare and the far field).
+fn glare_params() -> RustTwin {
+    twin!(GlareParams {
+        wf,
+        wc,
+        block,
+        r_fine,
+        kernel_size,
+        width,
+        height,
+        _pad0,
+        ofx,
+        ofy,
+        ocx,
+        ocy,
+        sx0,
+        sx1,
+        sy0,
+        sy1,
+        x0,
+        x1,
+        y0,
+        y1,
+        gaze_x,
+        gaze_y,
+        d_full,
+        sigma,
+        keep0,
+        keep_slope,
+        _pad1,
+        _pad2,
+    })
 }
 
 fn frame_state() -> RustTwin {
@@ -357,6 +382,10 @@ fn every_uniform_struct_matches_its_repr_c_twin() {
         shaders::TONE,
     ] {
         diffs.extend(struct_differences(&shader, &frame_state()));
+    }
+    // Both glare passes see the same GlareParams.
+    for shader in [shaders::GLARE, shaders::FAR_GLARE] {
+        diffs.extend(struct_differences(&shader, &glare_params()));
     }
     // Every glare-kernel build pass sees the same PsfBuild.
     for shader in [

@@ -16,10 +16,14 @@
 //! `gazelight glare` and CIE 146 count it):
 //!
 //! ```text
-//! tail(θ) = CIE146(θ) · (1 − t(θ)) · cos θ            every source
-//! near(θ) = CIE146(θ) · t(θ) · h(θ) · cos θ           the (1 − w) share
+//! tail(θ) = CIE146(θ) · (1 − t(τ)) · cos θ            every source
+//! near(θ) = CIE146(θ) · t(τ) · h(θ) · cos θ           the (1 − w) share
 //! ```
 //!
+//! with τ the kernel's own measure of θ ([`FarSplit::kernel_angle_deg`]:
+//! `tan θ` in a rectilinear view, whose kernel runs in the plane at the
+//! centre's `deg_per_px`; θ in a uniform one), so that the kernel's taper
+//! and the tail meet where the kernel puts them;
 //! for 0 < θ ≤ 90°, with `h` a smoothstep from 0 at [`NEAR_START_DEG`] to 1
 //! at [`NEAR_FULL_DEG`] (the coarse grid cannot hold the steep veil next
 //! to a source away from the gaze; that light stays in its pixel). A source
@@ -96,6 +100,13 @@ pub struct FarSplit {
     /// The window kernel's radius, degrees: its taper `t` is 1 to
     /// [`FIELD_TAPER_START`] of it and falls by a smoothstep to 0 here.
     pub kernel_radius_deg: f64,
+    /// The window kernel measures angles in a rectilinear plane
+    /// (`deg_per_px` at the view's centre): a pair θ apart on the sphere
+    /// lies `tan θ` (in degrees) apart in the kernel's measure around the
+    /// view's centre, so its taper is taken there ([`FarField::new`] sets
+    /// it from the view's geometry). Without it (a uniform view) the two
+    /// measures agree.
+    pub planar_taper: bool,
 }
 
 impl FarSplit {
@@ -105,6 +116,19 @@ impl FarSplit {
             age_years,
             pigmentation,
             kernel_radius_deg,
+            planar_taper: false,
+        }
+    }
+
+    /// The kernel's own measure of the angle θ between two directions
+    /// (degrees): `tan θ` in a rectilinear plane, θ otherwise.
+    pub fn kernel_angle_deg(&self, theta_deg: f64) -> f64 {
+        if self.planar_taper && theta_deg < 89.0 {
+            theta_deg.to_radians().tan().to_degrees()
+        } else if self.planar_taper {
+            f64::INFINITY
+        } else {
+            theta_deg
         }
     }
 
@@ -133,7 +157,7 @@ impl FarSplit {
 
     /// `tail(θ)`, sr⁻¹: what every source adds beyond the window kernel.
     pub fn tail_per_sr(&self, theta_deg: f64) -> f64 {
-        let t = self.window_taper(theta_deg);
+        let t = self.window_taper(self.kernel_angle_deg(theta_deg));
         if t >= 1.0 {
             return 0.0;
         }
@@ -146,7 +170,14 @@ impl FarSplit {
         if h <= 0.0 {
             return 0.0;
         }
-        self.cie_cos(theta_deg) * self.window_taper(theta_deg) * h
+        self.cie_cos(theta_deg) * self.window_taper(self.kernel_angle_deg(theta_deg)) * h
+    }
+
+    /// `tail` and `near` (sr⁻¹, f32) at the grid offset (`dx`, `dy`)
+    /// cells: the far field's kernels as the CPU and GPU grids sample them.
+    pub fn cell_kernels(&self, dx_cells: f64, dy_cells: f64) -> (f32, f32) {
+        let th = dx_cells.hypot(dy_cells) * FAR_CELL_DEG;
+        (self.tail_per_sr(th) as f32, self.near_per_sr(th) as f32)
     }
 
     /// `2π ∫ f(θ) sin θ dθ` from 0 to [`FAR_MAX_DEG`] (midpoint rule,
@@ -310,6 +341,9 @@ pub struct FarField {
     /// Grid: `n × n` cells, the view within the first `g` rows/columns.
     n: usize,
     g: usize,
+    /// Cells per side a linear convolution needs (`g` + the kernel's
+    /// reach): any FFT size from here on gives the same veil.
+    needed: usize,
     fwd: Arc<dyn Fft<f32>>,
     inv: Arc<dyn Fft<f32>>,
     scratch: Vec<Vec<C32>>,
@@ -357,6 +391,10 @@ impl FarField {
             ));
         }
         angles.validate()?;
+        let split = FarSplit {
+            planar_taper: matches!(angles, PlaneAngles::Rectilinear { .. }),
+            ..split
+        };
         let (wf, hf) = (width as f64, height as f64);
         // Degrees per pixel at the centre.
         let centre = plane_direction(angles, wf, hf, 0.5 * wf, 0.5 * hf).0;
@@ -389,7 +427,8 @@ impl FarField {
         let origin = [lo[0] - FAR_CELL_DEG, lo[1] - FAR_CELL_DEG];
         let g = (((hi[0] - lo[0]).max(hi[1] - lo[1]) / FAR_CELL_DEG).ceil() as usize) + 3;
         let reach = ((FAR_MAX_DEG / FAR_CELL_DEG).ceil() as usize + 1).min(g);
-        let n = crate::glare::good_fft_size(g + reach);
+        let needed = g + reach;
+        let n = crate::glare::good_fft_size(needed);
         let block_cell = ae
             .iter()
             .map(|a| {
@@ -431,6 +470,7 @@ impl FarField {
             xhat,
             n,
             g,
+            needed,
             fwd,
             inv,
             scratch: (0..workers).map(|_| vec![ZERO; scratch_len]).collect(),
@@ -461,13 +501,9 @@ impl FarField {
                     } else {
                         ix as f64 - n as f64
                     };
-                    let th = dx.hypot(dy) * FAR_CELL_DEG;
-                    let v = if k == 0 {
-                        split.tail_per_sr(th)
-                    } else {
-                        split.near_per_sr(th)
-                    };
-                    far.za1[iy * n + ix] = Complex::new(v as f32, 0.0);
+                    let (t, q) = split.cell_kernels(dx, dy);
+                    let v = if k == 0 { t } else { q };
+                    far.za1[iy * n + ix] = Complex::new(v, 0.0);
                 }
             }
             far.fft2_forward(0, n);
@@ -502,6 +538,44 @@ impl FarField {
     /// The frame size it was built for.
     pub fn size(&self) -> (usize, usize) {
         (self.width, self.height)
+    }
+
+    /// Blocks per row and per column.
+    pub fn blocks(&self) -> (usize, usize) {
+        (self.bw, self.bh)
+    }
+
+    /// Grid cells per side a linear convolution needs: an FFT of any size
+    /// from here on gives the same veil (the GPU twin takes the next power
+    /// of two).
+    pub fn grid_needed(&self) -> usize {
+        self.needed
+    }
+
+    /// Per block (row-major): Ω of one of its pixels (sr), the grid cell
+    /// (column, row) of the top-left of its bilinear four and the fractions
+    /// toward the next column and row.
+    pub fn block_cells(&self) -> impl Iterator<Item = (f32, [usize; 2], f32, f32)> + '_ {
+        let n = self.n;
+        self.block_omega
+            .iter()
+            .zip(&self.block_cell)
+            .map(move |(&om, &(c, fx, fy))| (om, [c as usize % n, c as usize / n], fx, fy))
+    }
+
+    /// Per display column: the block column left of its centre and the
+    /// fraction toward the next.
+    pub fn column_hat(&self) -> &[(u32, f32)] {
+        &self.xhat
+    }
+
+    /// Display row `y`'s two block rows and the fraction toward the second.
+    pub fn row_hat(&self, y: usize) -> (usize, usize, f32) {
+        let bp = self.block_px as f64;
+        let b = ((y as f64 + 0.5) / bp - 0.5).clamp(0.0, (self.bh - 1) as f64);
+        let j0 = (b.floor() as usize).min(self.bh.saturating_sub(2));
+        let fy = (b - j0 as f64) as f32;
+        (j0, (j0 + 1).min(self.bh - 1), fy)
     }
 
     /// Forward 2-D FFT of `za1` (rows `0..rows_in` non-zero); the
@@ -730,11 +804,7 @@ impl FarField {
             return;
         }
         let cols = cols.start.min(self.width)..cols.end.min(self.width);
-        let bp = self.block_px as f64;
-        let b = ((y as f64 + 0.5) / bp - 0.5).clamp(0.0, (self.bh - 1) as f64);
-        let j0 = (b.floor() as usize).min(self.bh.saturating_sub(2));
-        let fy = (b - j0 as f64) as f32;
-        let j1 = (j0 + 1).min(self.bh - 1);
+        let (j0, j1, fy) = self.row_hat(y);
         let w3 = self.width * 3;
         let (c0, c1) = (cols.start * 3, cols.end * 3);
         let lo = &self.hrows[j0 * w3 + c0..j0 * w3 + c1];
@@ -793,8 +863,10 @@ mod tests {
             *img.get_mut(31, 40) = [2e5, 1e5, 5e4];
             let split = FarSplit::new(25.0, 0.5, 20.0);
             let weight = |x: usize, _y: usize| if x < 20 { 1.0 } else { 0.0 };
-            let want = far_veil_reference(&img, angles, &split, weight);
             let mut far = FarField::new(split, w, h, angles).unwrap();
+            // The split as the view's geometry sets it (the taper in the
+            // plane's measure for the rectilinear view).
+            let want = far_veil_reference(&img, angles, &far.split(), weight);
             far.sum_frame(&img);
             far.add_weighted_rows(0, h, |y, row, bp| {
                 for x in 0..20 {

@@ -78,9 +78,9 @@ pub struct GlareConfig {
     /// The PSF is rebuilt when the pupil moved more than this, mm.
     pub psf_rebuild_threshold_mm: f64,
     /// The CIE 146 veil of every pixel onto every other beyond the
-    /// kernel, out to 90° ([`crate::far_glare`]; needs the physical
-    /// kernel's stray light). Off by default while only the CPU pipeline
-    /// has it.
+    /// kernel, out to 90° ([`crate::far_glare`], and its GPU twin
+    /// `gazelight-gpu/src/far_glare.rs`; needs the physical kernel's stray
+    /// light). On by default.
     pub far_field: bool,
 }
 
@@ -102,10 +102,7 @@ impl Default for GlareConfig {
             fade_sigma_deg: GlareWindow::default().fade_sigma_deg,
             psf: PsfParams::default(),
             psf_rebuild_threshold_mm: 0.1,
-            // Opt-in until the GPU pass exists: `--backend gpu` (and
-            // `auto` on a machine with a GPU) must render what the CPU
-            // renders.
-            far_field: false,
+            far_field: true,
         }
     }
 }
@@ -831,8 +828,9 @@ impl FramePipeline {
 
 /// The far field of a pipeline's glare (`None` when off or without the
 /// physical kernel's stray light): the CIE 146 split at the kernel's
-/// radius, for the view's geometry.
-fn far_field(
+/// radius, for the view's geometry. The one decision, for the CPU pipeline
+/// and its GPU twin (`gazelight-gpu/src/far_glare.rs`).
+pub fn far_field(
     glare: &GlareConfig,
     psf: &PsfParams,
     kernel_size: usize,
