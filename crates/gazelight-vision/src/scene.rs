@@ -515,14 +515,61 @@ fn decode_radiance(bytes: &[u8]) -> Result<(RgbImage, RadianceHeader), String> {
 
 /// Writes a linear RGB float32 OpenEXR file.
 pub fn write_exr(path: &Path, image: &RgbImage) -> Result<(), VisionError> {
-    exr::prelude::write_rgb_file(path, image.width, image.height, |x, y| {
+    write_exr_with_attributes(path, image, None, &[])
+}
+
+/// A header attribute of an OpenEXR file ([`write_exr_with_attributes`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum ExrAttribute {
+    /// OpenEXR `string` (Latin-1; gazelight writes ASCII).
+    Text(String),
+    /// OpenEXR `double`.
+    F64(f64),
+    /// OpenEXR `v2f`.
+    Vec2([f32; 2]),
+}
+
+/// Writes `image` as an RGB OpenEXR file (as [`write_exr`]) with the
+/// standard `whiteLuminance` attribute (the cd/m² of RGB (1, 1, 1):
+/// `Some(1.0)` for values in cd/m²) when given, and `attributes` (name,
+/// value) in its header. Fails on a name or text that is not Latin-1 or
+/// on an empty name.
+pub fn write_exr_with_attributes(
+    path: &Path,
+    image: &RgbImage,
+    white_luminance_cd_m2: Option<f32>,
+    attributes: &[(String, ExrAttribute)],
+) -> Result<(), VisionError> {
+    use exr::prelude::{AttributeValue, Image, SpecificChannels, Text, Vec2, WritableImage};
+    let failed = |reason: String| VisionError::SceneRead {
+        path: PathBuf::from(path),
+        reason: format!("cannot write OpenEXR: {reason}"),
+    };
+    let text = |s: &str| {
+        Some(s)
+            .filter(|s| !s.is_empty())
+            .and_then(Text::new_or_none)
+            .ok_or_else(|| failed(format!("header text {s:?} is empty or not Latin-1")))
+    };
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let p = image.get(x, y);
         (p[0], p[1], p[2])
-    })
-    .map_err(|e| VisionError::SceneRead {
-        path: PathBuf::from(path),
-        reason: format!("cannot write OpenEXR: {e}"),
-    })
+    });
+    let mut exr_image = Image::from_channels((image.width, image.height), channels);
+    let layer = &mut exr_image.layer_data.attributes;
+    layer.white_luminance = white_luminance_cd_m2;
+    for (name, value) in attributes {
+        let value = match value {
+            ExrAttribute::Text(t) => AttributeValue::Text(text(t)?),
+            ExrAttribute::F64(v) => AttributeValue::F64(*v),
+            ExrAttribute::Vec2([x, y]) => AttributeValue::FloatVec2(Vec2(*x, *y)),
+        };
+        layer.other.insert(text(name)?, value);
+    }
+    exr_image
+        .write()
+        .to_file(path)
+        .map_err(|e| failed(e.to_string()))
 }
 
 /// A perspective view into a panorama.

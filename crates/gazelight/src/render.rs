@@ -88,6 +88,11 @@ pub struct RenderArgs {
     /// cd/m², as frames/veil.exr (see docs/lighting-research.md).
     #[arg(long, conflicts_with = "no_frames")]
     pub exr: bool,
+    /// Write the PNG frames' pixels without data (outside the scene's
+    /// field) as transparent (RGBA, alpha 0), for compositing, instead of
+    /// the opaque dark hatch the contact sheet's legend explains.
+    #[arg(long, conflicts_with = "no_frames")]
+    pub no_data_alpha: bool,
     /// Render both eyes: one pipeline per eye on that eye's own gaze (where
     /// the tracker gives one) and pupil, so pooling, adaptation, glare and
     /// acuity run per eye. Frames are left | right side by side;
@@ -166,7 +171,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     if no_data > 0 {
         tracing::warn!(
             scene = %scene.name,
-            "{no_data} of {} view pixels look outside the scene's field ({}): no data: left out of pooling and glare, transparent (alpha 0) in PNG frames, NaN in EXR frames",
+            "{no_data} of {} view pixels look outside the scene's field ({}): no data: left out of pooling and glare, drawn as a dark hatch in PNG frames and the contact sheet (transparent with --no-data-alpha), NaN in EXR frames",
             width * height,
             scene.effective_projection().kind.name()
         );
@@ -417,7 +422,12 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .map(|_| Vec::with_capacity(frames.min(4096)))
         .collect();
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
-    let mut sheet = output::ContactSheet::new(width * n_views, height);
+    let mut sheet = output::ContactSheet::new(width * n_views, height, n_views > 1);
+    let no_data_style = if args.no_data_alpha {
+        gazelight_render::png::NoDataStyle::Transparent
+    } else {
+        gazelight_render::png::NoDataStyle::Hatch
+    };
     let progress = indicatif::ProgressBar::new(frames as u64);
     progress.set_style(
         indicatif::ProgressStyle::with_template(
@@ -448,12 +458,24 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         let out = step.display();
         if !args.no_frames {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
-            output::write_png(&path, out, output::PngCompression::Default)?;
+            gazelight_render::png::write_styled(
+                &path,
+                out,
+                output::PngCompression::Default,
+                no_data_style,
+            )?;
         }
         if args.exr {
             let path = frames_dir.join(format!("frame_{i:05}.exr"));
-            gazelight_vision::scene::write_exr(&path, step.retinal())
-                .with_context(|| format!("cannot write {}", path.display()))?;
+            let last: Vec<&TimelineRow> = timeline.iter().filter_map(|r| r.last()).collect();
+            let attributes = exr_frame_attributes(t_secs - t0, i, view, views, &last);
+            gazelight_vision::scene::write_exr_with_attributes(
+                &path,
+                step.retinal(),
+                Some(1.0),
+                &attributes,
+            )
+            .with_context(|| format!("cannot write {}", path.display()))?;
         }
         if i % sheet_every == 0 {
             let rows: Vec<&TimelineRow> = timeline.iter().filter_map(|r| r.last()).collect();
@@ -462,15 +484,18 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 .enumerate()
                 .map(|(k, r)| [(k as f32 + r.gaze_u) / n_views as f32, r.gaze_v])
                 .collect();
-            let join = |f: &dyn Fn(&TimelineRow) -> String| {
-                rows.iter().map(|r| f(r)).collect::<Vec<_>>().join(" / ")
+            let join = |f: &dyn Fn(&TimelineRow) -> f64| {
+                rows.iter()
+                    .map(|r| output::engineering(f(r)))
+                    .collect::<Vec<_>>()
+                    .join(" | ")
             };
-            let label = format!(
-                "pupil {} mm · adapt. {} cd/m²",
-                join(&|r| format!("{:.1}", r.pupil_mm)),
-                join(&|r| format!("{:.3}", r.stats.adaptation_cd_m2)),
-            );
-            sheet.add(out, t_secs - t0, &gaze, label);
+            let caption = vec![
+                format!("t = {:.2} s", t_secs - t0),
+                format!("pupil {} mm", join(&|r| f64::from(r.pupil_mm))),
+                format!("adapt. {} cd/m²", join(&|r| r.stats.adaptation_cd_m2)),
+            ];
+            sheet.add(out, &gaze, caption);
         }
         rendered += 1;
         progress.inc(1);
@@ -491,7 +516,11 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .collect();
     output::write_timeline(&args.out.join("timeline.csv"), &eyes)?;
     sheet.write(&args.out.join("contact_sheet.png"))?;
-    output::write_plot(&args.out.join("plot.png"), &eyes)?;
+    output::write_plot(
+        &args.out.join("plot.png"),
+        &eyes,
+        config.pipeline.glare.psf.pupil_range_mm,
+    )?;
     let all_rows = || timeline.iter().flatten();
     let mean_ms = all_rows().map(|r| r.stats.timings.total_ms).sum::<f64>() / frames as f64;
     let rebuilds = match step.stereo_kernel_builds() {
@@ -550,6 +579,64 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         );
     }
     Ok(())
+}
+
+/// The header attributes of an EXR frame (docs/lighting-research.md): the
+/// unit, the eye(s), the frame's time and index, each view's gaze and the
+/// view. `rows` are the frame's timeline rows, one per view.
+fn exr_frame_attributes(
+    t_secs: f64,
+    frame: usize,
+    view: &ViewParams,
+    views: &[View],
+    rows: &[&TimelineRow],
+) -> Vec<(String, gazelight_vision::scene::ExrAttribute)> {
+    use gazelight_vision::scene::ExrAttribute::{F64, Text, Vec2};
+    let eye = if views.len() > 1 {
+        "left | right (side by side: the left half is the left eye)"
+    } else {
+        "mono (the binocular gaze)"
+    };
+    let mut a = vec![
+        (
+            "gazelight.unit".to_owned(),
+            Text(
+                "cd/m^2: linear RGB, Y = 0.2126 R + 0.7152 G + 0.0722 B is the luminance; \
+                 NaN = no data (outside the scene's field)"
+                    .to_owned(),
+            ),
+        ),
+        ("gazelight.eye".to_owned(), Text(eye.to_owned())),
+        ("gazelight.t_secs".to_owned(), F64(t_secs)),
+        (
+            "gazelight.t_clock".to_owned(),
+            Text(
+                "seconds from the first sample of the trace or recording (timeline.csv's t_secs)"
+                    .to_owned(),
+            ),
+        ),
+        ("gazelight.frame".to_owned(), F64(frame as f64)),
+        ("gazelight.view.yaw_deg".to_owned(), F64(view.yaw_deg)),
+        ("gazelight.view.pitch_deg".to_owned(), F64(view.pitch_deg)),
+        ("gazelight.view.hfov_deg".to_owned(), F64(view.hfov_deg)),
+        (
+            "gazelight.view.size_px".to_owned(),
+            Vec2([view.width as f32, view.height as f32]),
+        ),
+        (
+            "gazelight.gaze_uv.convention".to_owned(),
+            Text("each view's gaze, u from its left edge, v from its top edge, 0..1".to_owned()),
+        ),
+    ];
+    for (v, row) in views.iter().zip(rows) {
+        let name = if views.len() > 1 {
+            format!("gazelight.gaze_uv{}", v.suffix())
+        } else {
+            "gazelight.gaze_uv".to_owned()
+        };
+        a.push((name, Vec2([row.gaze_u, row.gaze_v])));
+    }
+    a
 }
 
 /// What a stereo render says of its gaze: whether each eye had its own
@@ -672,11 +759,12 @@ mod tests {
     }
 
     /// A view past a real fisheye's field (evalglare's 182° test image,
-    /// turned 60° right with a 90° field): the PNG frame is written as
-    /// RGBA and marks exactly the view's no-data pixels with alpha 0;
-    /// every other pixel is opaque.
+    /// turned 60° right with a 90° field), with `--no-data-alpha`: the PNG
+    /// frame is written as RGBA and marks exactly the view's no-data
+    /// pixels with alpha 0; every other pixel is opaque. (Without the flag
+    /// they are an opaque hatch: `tests/images.rs`.)
     #[test]
-    fn png_frames_mark_no_data_with_alpha_0() {
+    fn png_frames_mark_no_data_with_alpha_0_when_asked() {
         let dir = std::env::temp_dir().join(format!("gazelight-nodata-{}", std::process::id()));
         let scene_path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
             .join("../../tests/data/radiance/evalglare_testimage.hdr");
@@ -695,6 +783,7 @@ mod tests {
             "0",
             "--frames",
             "1",
+            "--no-data-alpha",
             "--backend",
             "cpu",
             "--out",

@@ -412,7 +412,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if no_data > 0 {
         tracing::warn!(
             scene = %scene.name,
-            "{no_data} of {} view pixels look outside the scene's field: no data: left out of pooling and glare, transparent (alpha 0) in PNG frames, NaN in EXR frames",
+            "{no_data} of {} view pixels look outside the scene's field: no data: left out of pooling and glare, drawn as a dark hatch in PNG frames, NaN in EXR frames",
             view.width * view.height
         );
     }
