@@ -176,10 +176,17 @@ fn a_relay_layout_stream_is_read_lost_and_resumed() {
             .status()
             .unwrap()
     };
+    // The read ends on an event, not a clock: half a second after the
+    // second peer's process has exited (its last sample sent), so a slow
+    // start of either Python peer on a loaded machine cannot cut it short.
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let peers_done = done.clone();
     let peers = std::thread::spawn(move || {
-        assert!(relay("2.5").success());
+        let first = relay("2.5").success();
         std::thread::sleep(Duration::from_secs(1));
-        assert!(relay("8").success());
+        let second = relay("8").success();
+        peers_done.store(true, std::sync::atomic::Ordering::SeqCst);
+        assert!(first && second, "a relay peer failed");
     });
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -191,10 +198,24 @@ fn a_relay_layout_stream_is_read_lost_and_resumed() {
             LslConfig::default(),
         )
         .unwrap();
-        let deadline = tokio::time::Instant::now() + Duration::from_secs(14);
+        // A bound only against a hang: the peers take 11.5 s and their
+        // start-ups.
+        let hang = tokio::time::Instant::now() + Duration::from_secs(120);
+        let mut drained_at: Option<tokio::time::Instant> = None;
         let (mut before, mut after, mut lost) = (0u32, 0u32, 0u32);
         let mut lags = Vec::new();
-        while let Ok(r) = tokio::time::timeout_at(deadline, src.next()).await {
+        loop {
+            let now = tokio::time::Instant::now();
+            assert!(now < hang, "the peers never finished");
+            if done.load(std::sync::atomic::Ordering::SeqCst) {
+                let at = *drained_at.get_or_insert(now + Duration::from_millis(500));
+                if now >= at {
+                    break;
+                }
+            }
+            let Ok(r) = tokio::time::timeout(Duration::from_millis(100), src.next()).await else {
+                continue;
+            };
             match r {
                 Ok(Some(Sample::Pupil(p))) => {
                     // Published: diameter0_3d 3.75 mm (right), diameter1_3d 4.25 mm.
