@@ -106,6 +106,10 @@ pub struct RecordingEvents {
     pub dropped: u64,
     /// Texts cut to [`MAX_TEXT_BYTES`].
     pub truncated: u64,
+    /// The files the events were read from (beside the recording's own,
+    /// e.g. a Cloud export's `events.csv`), so a writer never overwrites
+    /// one.
+    pub files: Vec<PathBuf>,
     /// Skipped records and notes (file and line named).
     #[serde(skip)]
     pub warnings: ImportWarnings,
@@ -555,6 +559,7 @@ pub fn pupil_core(dir: &Path) -> Result<RecordingEvents, ImportError> {
     let mut out = RecordingEvents::new("pupil-core", "Pupil time, s");
     let (pldata, _) = gazelight_pupil::recording::stream_paths(dir, "annotation");
     if crate::data_file(&pldata)? {
+        out.files.push(pldata.clone());
         let reader =
             gazelight_pupil::PldataReader::open(&pldata).map_err(|e| recording_err(&pldata, e))?;
         for record in reader {
@@ -647,6 +652,8 @@ pub fn neon_native(dir: &Path) -> Result<RecordingEvents, ImportError> {
     let Some(time_path) = time_path else {
         return Ok(out);
     };
+    out.files.push(time_path.clone());
+    out.files.push(txt_path.clone());
     let info_path = dir.join("info.json");
     let mut start_ns =
         gazelight_input::read_config(&info_path, gazelight_input::ConfigSyntax::Json)
@@ -803,6 +810,7 @@ fn table_events(
     out: &mut RecordingEvents,
     spec: TableSpec<'_>,
 ) -> Result<(), ImportError> {
+    out.files.push(path.to_owned());
     let mut reader = open_text(path)?;
     let mut line = String::new();
     let mut line_no = 0u64;
@@ -952,6 +960,7 @@ pub fn bids(path: &Path) -> Result<RecordingEvents, ImportError> {
     let ev_json = dir.join(format!("{stem}_physioevents.json"));
     let ev_tsv = dir.join(format!("{stem}_physioevents.tsv.gz"));
     if ev_json.is_file() && ev_tsv.is_file() {
+        out.files.push(ev_tsv.clone());
         let cols: Vec<String> = read_json(&ev_json)?
             .get("Columns")
             .and_then(serde_json::Value::as_array)
@@ -1046,6 +1055,7 @@ pub fn bids(path: &Path) -> Result<RecordingEvents, ImportError> {
                 source: "events",
             },
         )?;
+        out.files.extend(table.files);
         for e in table.events {
             let t = first + (e.t_secs - start_time);
             out.push(

@@ -348,6 +348,58 @@ fn events_dict<'py>(py: Python<'py>, e: Events, closures: bool) -> PyResult<Boun
     Ok(d)
 }
 
+/// A recording's events ([`import::events`]) as columns: `t_secs`,
+/// `t_clock`, `duration_secs` (NaN: none) and `trial` (-1: none) as
+/// arrays, `text` and `source` as lists, the trials as dicts, the clock
+/// and the counts of events dropped and texts cut.
+fn recording_events<'py>(
+    py: Python<'py>,
+    ev: import::events::RecordingEvents,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let n = ev.events.len();
+    let (mut t, mut clock, mut dur, mut trial) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
+    let (mut text, mut source) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for e in ev.events {
+        t.push(e.t_secs);
+        clock.push(e.t_clock);
+        dur.push(e.duration_secs.unwrap_or(f64::NAN));
+        trial.push(e.trial.map_or(-1, i64::from));
+        text.push(e.text);
+        source.push(e.source);
+    }
+    d.set_item("t_secs", PyArray1::from_vec(py, t))?;
+    d.set_item("t_clock", PyArray1::from_vec(py, clock))?;
+    d.set_item("duration_secs", PyArray1::from_vec(py, dur))?;
+    d.set_item("trial", PyArray1::from_vec(py, trial))?;
+    d.set_item("text", text)?;
+    d.set_item("source", source)?;
+    let trials = PyList::empty(py);
+    for tr in ev.trials {
+        let td = PyDict::new(py);
+        td.set_item("id", tr.id)?;
+        td.set_item("start_t_secs", tr.start_t_secs)?;
+        td.set_item("end_t_secs", tr.end_t_secs)?;
+        td.set_item("result", tr.result)?;
+        let vars = PyDict::new(py);
+        for (k, v) in tr.vars {
+            vars.set_item(k, v)?;
+        }
+        td.set_item("vars", vars)?;
+        trials.append(td)?;
+    }
+    d.set_item("trials", trials)?;
+    d.set_item("clock", ev.clock)?;
+    d.set_item("dropped", ev.dropped)?;
+    d.set_item("truncated", ev.truncated)?;
+    Ok(d)
+}
+
 /// Reads a recording (any format `gazelight inspect` reads) through the
 /// filter chain; returns a dict of numpy columns (the Python `read` wraps
 /// it). Raises `GazelightError` with the CLI's message.
@@ -360,12 +412,32 @@ pub(crate) fn read_recording<'py>(
     calibration: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let chain = chain_for(config, calibration)?;
-    let cols = py
-        .detach(|| -> Result<Columns, String> {
-            let mut importer = import::open(&path).map_err(|e| crate::chain_msg(&e))?;
-            collect(importer.as_mut(), chain, &path)
-        })
+    let (mut cols, events) = py
+        .detach(
+            || -> Result<(Columns, import::events::RecordingEvents), String> {
+                let mut importer = import::open(&path).map_err(|e| crate::chain_msg(&e))?;
+                let cols = collect(importer.as_mut(), chain, &path)?;
+                // The recording's events (bounded); one that cannot be read is
+                // a warning, as `inspect` says it.
+                let events = match import::events::read(&path) {
+                    Ok(ev) => ev,
+                    Err(e) => {
+                        let mut ev = import::events::RecordingEvents::default();
+                        ev.warnings.messages.push(format!("events not read: {e}"));
+                        ev
+                    }
+                };
+                Ok((cols, events))
+            },
+        )
         .map_err(err)?;
+    cols.warnings.extend(
+        events
+            .warnings
+            .messages
+            .iter()
+            .map(|m| format!("events: {m}")),
+    );
     let d = PyDict::new(py);
     d.set_item("path", &path)?;
     d.set_item("format", cols.format)?;
@@ -408,6 +480,7 @@ pub(crate) fn read_recording<'py>(
         events_dict(py, cols.recording_blinks, false)?,
     )?;
     d.set_item("closures", events_dict(py, cols.closures, true)?)?;
+    d.set_item("events", recording_events(py, events)?)?;
     d.set_item("stats", serde_json::to_string(&cols.stats).map_err(err)?)?;
     d.set_item("warnings", cols.warnings)?;
     d.set_item("skipped_records", cols.skipped_records)?;
@@ -446,6 +519,16 @@ pub(crate) fn inspect_json(
             .to_string());
         }
         let mut summary = summary;
+        // The recording's events, as `gazelight inspect` adds them.
+        match import::events::read(&path) {
+            Ok(ev) => {
+                summary
+                    .warnings
+                    .extend(ev.warnings.messages.iter().map(|m| format!("events: {m}")));
+                summary.events = Some(ev.summary());
+            }
+            Err(e) => summary.warnings.push(format!("events not read: {e}")),
+        }
         // The CLI's own warning, from the same function.
         if let Some(w) = gazelight_tracker::summary::pupil_rejection(&summary.chain) {
             summary.warnings.push(w);

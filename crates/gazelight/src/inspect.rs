@@ -170,6 +170,20 @@ pub fn run(args: InspectArgs) -> anyhow::Result<()> {
                 &importer.data_files(),
             ));
         }
+        let mut summary = summary;
+        // The recording's events: counts per source and kind, the first few.
+        match import::events::read(&args.path) {
+            Ok(ev) => {
+                summary
+                    .warnings
+                    .extend(ev.warnings.messages.iter().map(|m| format!("events: {m}")));
+                summary.events = Some(ev.summary());
+            }
+            Err(e) => {
+                eprintln!("warning: {}: events not read: {e}", args.path.display());
+                summary.warnings.push(format!("events not read: {e}"));
+            }
+        }
         summary
     };
     let mut summary = summary;

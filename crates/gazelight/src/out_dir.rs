@@ -22,7 +22,7 @@
 //!
 //! Refused **unless `--force`**: an `--out` that already holds what the
 //! command writes — a previous run's outputs (any of `timeline.csv`,
-//! `psf.csv`, `xr.csv`, `session.json`, `contact_sheet.png`, `plot.png`, `frames/frame_*`
+//! `events.csv`, `psf.csv`, `xr.csv`, `session.json`, `contact_sheet.png`, `plot.png`, `frames/frame_*`
 //! for `render`/`replay`/`run`; a gazelight recording for `record`;
 //! `kernel.exr`, `kernel.png`, `psf.json` for `psf`; the profile itself for
 //! `calibrate`). With `--force` those are **removed first**, so nothing of
@@ -51,8 +51,9 @@ pub enum OutKind {
 /// The top-level files of a [`OutKind::Frames`] output (`render`, `replay`
 /// and `run` clear each other's: any of them left from another command
 /// would be stale beside the new ones).
-const FRAMES_FILES: [&str; 6] = [
+const FRAMES_FILES: [&str; 7] = [
     "timeline.csv",
+    "events.csv",
     "session.json",
     "psf.csv",
     "xr.csv",

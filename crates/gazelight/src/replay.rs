@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::bail;
+use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_render::feed::{ImporterSamples, Scan, scan};
 use gazelight_tracker::PupilUnit;
@@ -215,9 +215,14 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         args.recording.display().to_string(),
         Origin::Flag,
     );
-    // The inputs are checked; now where the outputs go.
+    // The recording's events (bounded), for events.csv.
+    let events = import::events::read(&args.recording)
+        .with_context(|| format!("reading the events of {}", args.recording.display()))?;
+    // The inputs are checked; now where the outputs go (never over an
+    // events file read, such as a Cloud export's events.csv).
     let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
         .chain(calibration_path.map(|p| p.as_path()))
+        .chain(events.files.iter().map(|p| p.as_path()))
         .collect();
     render::prepare_out("replay", &args.render, &inputs)?;
     let filter = setup.config.filter;
@@ -238,6 +243,29 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         t_last,
         &new_feed,
     )?;
+    if !events.events.is_empty() || events.dropped > 0 {
+        let summary = events.summary();
+        let sources: Vec<String> = summary
+            .sources
+            .iter()
+            .map(|c| format!("{} {}", c.name, c.count))
+            .collect();
+        let set = setup.settings.set(
+            "replay.events",
+            format!(
+                "{} events ({}) in events.csv, t_clock: {}",
+                summary.total,
+                sources.join(", "),
+                events.clock
+            ),
+            Origin::Source,
+        );
+        set.note = Some(
+            "each event's time on the samples' clock (recording_t_secs), from the first frame \
+             (t_secs, timeline.csv's clock) and the frame it falls on"
+                .to_owned(),
+        );
+    }
     let mut feeder = new_feed()?;
     render::render_sequence(
         &args.render,
@@ -248,6 +276,27 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         started,
         Some(&mut plr),
     )?;
+    let frames = match args.render.frames {
+        Some(n) => n,
+        None => ((duration * args.render.fps).floor() as usize).saturating_add(1),
+    };
+    let on_frames = write_events(
+        &args.render.out.join("events.csv"),
+        &events,
+        t0,
+        args.render.fps,
+        frames,
+    )?;
+    if !events.events.is_empty() {
+        println!(
+            "wrote {}/events.csv: {} events, {on_frames} on the replayed frames",
+            args.render.out.display(),
+            events.events.len()
+        );
+    }
+    for m in events.warnings.messages.iter().take(5) {
+        eprintln!("warning: {}: events: {m}", args.recording.display());
+    }
     let w = feeder.samples().warnings();
     if w.skipped_records > 0 {
         println!(
@@ -286,6 +335,74 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The columns of `events.csv`.
+pub const EVENTS_COLUMNS: [&str; 8] = [
+    "t_secs",
+    "recording_t_secs",
+    "t_clock",
+    "duration_secs",
+    "source",
+    "text",
+    "trial",
+    "frame",
+];
+
+/// A CSV field: quoted (RFC 4180) when it holds a comma, quote or line
+/// break.
+fn csv_field(s: &str) -> std::borrow::Cow<'_, str> {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\"")).into()
+    } else {
+        s.into()
+    }
+}
+
+/// Writes `events.csv`: every event of the recording with its time from
+/// the first frame (`t_secs`, timeline.csv's clock), on the samples' clock
+/// (`recording_t_secs`) and the recording's own (`t_clock`), its source,
+/// text, trial id and the frame it falls on (frame i shows
+/// `[t0 + i/fps, t0 + (i+1)/fps)`; empty outside the replayed frames).
+/// Returns how many fall on a frame.
+pub(crate) fn write_events(
+    path: &std::path::Path,
+    events: &import::events::RecordingEvents,
+    t0: f64,
+    fps: f64,
+    frames: usize,
+) -> anyhow::Result<usize> {
+    use std::io::Write;
+    let f =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(f);
+    let mut on_frames = 0;
+    writeln!(w, "{}", EVENTS_COLUMNS.join(","))?;
+    for e in &events.events {
+        let rel = e.t_secs - t0;
+        // A small tolerance: an event at a frame's own time is that frame's.
+        let k = (rel * fps + 1e-6).floor();
+        let frame = (k >= 0.0 && k < frames as f64).then_some(k as usize);
+        on_frames += usize::from(frame.is_some());
+        let trial = e
+            .trial
+            .and_then(|k| events.trials.get(k as usize))
+            .map_or("", |t| t.id.as_str());
+        writeln!(
+            w,
+            "{rel:.6},{:.6},{},{},{},{},{},{}",
+            e.t_secs,
+            e.t_clock,
+            e.duration_secs.map_or(String::new(), |d| format!("{d:.6}")),
+            csv_field(&e.source),
+            csv_field(&e.text),
+            csv_field(trial),
+            frame.map_or(String::new(), |f| f.to_string()),
+        )?;
+    }
+    w.flush()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(on_frames)
 }
 
 /// A raw pupil unit in a user's words.

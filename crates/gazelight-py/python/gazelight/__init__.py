@@ -5,7 +5,9 @@ chain, calibration profiles), with numpy arrays out:
 
 - :func:`read` -- a recording (Pupil Core directory, Neon, EyeLink ``.asc``, XDF, BIDS,
   pupil ``.csv``, and every format ``gazelight inspect`` reads) through the
-  filter chain, as per-eye arrays (or a pandas DataFrame);
+  filter chain, as per-eye arrays (or a pandas DataFrame), with its events
+  (``rec.events``: EyeLink messages and trials, XDF markers, Pupil
+  annotations, Neon events, BIDS events);
 - :class:`FilterChain` -- the chain itself, sample by sample or over arrays;
 - :class:`Calibration` -- a calibration profile (raw tracker units -> mm);
 - :class:`PupilLightResponse` -- the pupil's light response (W&Y target,
@@ -52,6 +54,7 @@ __all__ = [
     "Calibration",
     "Eye",
     "EyeState",
+    "Events",
     "FilterChain",
     "Gaze",
     "GazelightError",
@@ -170,6 +173,78 @@ class Gaze:
 
 
 @dataclass(frozen=True)
+class Events:
+    """A recording's events (EyeLink ``MSG`` lines, XDF marker streams,
+    Pupil annotations, Neon events, BIDS physioevents and ``_events.tsv``),
+    sorted by time; see docs/events.md.
+
+    ``t_secs``: on the clock the recording's samples use (``Eye.t_secs``);
+    ``t_clock``: on the recording's own clock, in :attr:`clock`'s unit;
+    ``duration_secs``: NaN where the recording gives none; ``text`` and
+    ``source`` (``MSG``, an XDF stream's name, ``annotation``, ``event``,
+    ``physioevents``, ``events``) as lists of str; ``trial``: an index into
+    :attr:`trials` (-1: none). ``trials``: EyeLink's ``TRIALID`` ..
+    ``TRIAL_RESULT`` spans as dicts (``id``, ``start_t_secs``,
+    ``end_t_secs``, ``result``, ``vars``: the ``!V TRIAL_VAR`` values).
+    ``dropped``: events past the import's bound, counted, not kept.
+    """
+
+    t_secs: np.ndarray
+    t_clock: np.ndarray
+    duration_secs: np.ndarray
+    text: List[str]
+    source: List[str]
+    trial: np.ndarray
+    trials: List[Dict[str, Any]]
+    clock: str
+    dropped: int = 0
+    truncated: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t_secs)
+
+    def to_dataframe(self):
+        """The events as a pandas DataFrame: ``t_secs``, ``t_clock``,
+        ``duration_secs``, ``source``, ``text``, ``trial`` (the trial's
+        id, None outside trials) and one column per trial variable; needs
+        pandas."""
+        try:
+            import pandas as pd
+        except ImportError as e:  # pragma: no cover - depends on the env
+            raise ImportError("Events.to_dataframe needs pandas (pip install pandas)") from e
+        trial_ids = [t["id"] for t in self.trials]
+        cols: Dict[str, Any] = {
+            "t_secs": self.t_secs,
+            "t_clock": self.t_clock,
+            "duration_secs": self.duration_secs,
+            "source": pd.Categorical(self.source),
+            "text": list(self.text),
+            "trial": [trial_ids[k] if k >= 0 else None for k in self.trial],
+        }
+        names: List[str] = []
+        for t in self.trials:
+            names.extend(n for n in t["vars"] if n not in names)
+        for n in names:
+            cols[n] = [self.trials[k]["vars"].get(n) if k >= 0 else None for k in self.trial]
+        return pd.DataFrame(cols)
+
+
+def _events(d: Dict[str, Any]) -> Events:
+    return Events(
+        t_secs=d["t_secs"],
+        t_clock=d["t_clock"],
+        duration_secs=d["duration_secs"],
+        text=list(d["text"]),
+        source=list(d["source"]),
+        trial=d["trial"],
+        trials=list(d["trials"]),
+        clock=d["clock"],
+        dropped=int(d["dropped"]),
+        truncated=int(d["truncated"]),
+    )
+
+
+@dataclass(frozen=True)
 class Recording:
     """A recording read through the filter chain (see :func:`read`)."""
 
@@ -183,6 +258,8 @@ class Recording:
     warnings: List[str]
     skipped_records: int
     eye_gaze: Optional[Dict[str, Any]] = field(default=None)
+    events: Optional[Events] = field(default=None)
+    """The recording's events (:class:`Events`; ``events.to_dataframe()``)."""
 
     @property
     def right(self) -> Eye:
@@ -303,6 +380,7 @@ def read(
         warnings=list(d["warnings"]),
         skipped_records=int(d["skipped_records"]),
         eye_gaze=json.loads(d["eye_gaze"]) if d["eye_gaze"] else None,
+        events=_events(d["events"]),
     )
     for w in rec.warnings:
         warnings.warn(GazelightWarning(f"{rec.path}: {w}"), stacklevel=2)
