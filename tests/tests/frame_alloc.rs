@@ -62,10 +62,16 @@ fn steady_state_frames_do_not_allocate() {
     PanoramaView::new(view)
         .expect("view")
         .render(&scene.image, &mut frame);
-    // The default glare: ±20° kernel, fine core + coarse wide field.
+    // The default glare: ±20° kernel, fine core + coarse wide field, and
+    // the full-field stray light (issue 46) on the view's rectilinear
+    // geometry, set every frame as the live loop does (its grid is rebuilt
+    // only when the geometry changes).
     let config = PipelineConfig::default();
+    assert!(config.glare.far_field, "the far field is on by default");
     let mut pipeline =
         FramePipeline::new(config, view.width, view.height, view.deg_per_px()).expect("pipeline");
+    let tans = PanoramaView::new(view).expect("view").frustum_tans();
+    pipeline.set_view_frustum(tans).expect("frustum");
     let mut out = DisplayFrame::new(view.width, view.height);
     pool.install(|| {
         let input = |i: usize| FrameInput {
@@ -82,6 +88,7 @@ fn steady_state_frames_do_not_allocate() {
         ALLOCS.store(0, Ordering::SeqCst);
         COUNTING.store(true, Ordering::SeqCst);
         for i in 0..60 {
+            pipeline.set_view_frustum(tans).expect("frustum");
             pipeline
                 .process(&frame, &input(i), &mut out)
                 .expect("frame");

@@ -461,17 +461,24 @@ fn run_format(format: wgpu::TextureFormat) {
     let a = 45f32.to_radians();
     let tan = fov_tangents(-a, a, a, -a);
     let config = PipelineConfig::default();
+    // The full-field stray light (issue 46) is part of what is compared:
+    // on by default, and it changes the frame (against the same pipeline
+    // without it, below).
+    assert!(config.glare.far_field, "the far field is on by default");
     let spec = eye_spec(format, tan, scale);
     let mut processor = EyeProcessor::new(&ctx, &config, spec).expect("eye processor");
-    let mut reference = GpuFramePipeline::new(
-        &ctx,
-        config.clone(),
-        W as usize,
-        H as usize,
-        deg_per_px(tan, W),
-    )
-    .expect("reference pipeline");
-    reference.set_view_frustum(tan).expect("frustum");
+    let reference_of = |config: PipelineConfig| {
+        let mut p = GpuFramePipeline::new(&ctx, config, W as usize, H as usize, deg_per_px(tan, W))
+            .expect("reference pipeline");
+        p.set_view_frustum(tan).expect("frustum");
+        p
+    };
+    let mut reference = reference_of(config.clone());
+    let mut without_far = reference_of({
+        let mut c = config.clone();
+        c.glare.far_field = false;
+        c
+    });
     let tb = image_format.texel_bytes() as usize;
     let cpu_scene = imported(&input_texels, image_format, scale);
     let inputs = two_frames(1.0 / 60.0);
@@ -535,6 +542,15 @@ fn run_format(format: wgpu::TextureFormat) {
             .process(&cpu_scene, input)
             .expect("reference frame");
         let display = reference.display().expect("display").clone();
+        without_far
+            .process(&cpu_scene, input)
+            .expect("frame without the far field");
+        let far_changed = display
+            .rgba8
+            .iter()
+            .zip(&without_far.display().expect("display").rgba8)
+            .filter(|(a, b)| a != b)
+            .count();
         let mut worst = 0.0f32;
         let mut changed = 0usize;
         let input_codes = as_codes(&input_texels, image_format);
@@ -548,8 +564,9 @@ fn run_format(format: wgpu::TextureFormat) {
         }
         let n = (W * H) as usize;
         println!(
-            "parity {format:?} frame {k}: worst difference {worst:.2} codes, {changed} of {n} pixels changed by the effects"
+            "parity {format:?} frame {k}: worst difference {worst:.2} codes, {changed} of {n} pixels changed by the effects, {far_changed} channel values by the far field"
         );
+        assert!(far_changed > 0, "the far field changed nothing");
         // Half floats: the layer's value decoded and re-encoded here.
         let tolerance = 1.0 + 1e-3;
         assert!(
@@ -564,6 +581,7 @@ fn run_format(format: wgpu::TextureFormat) {
     drop(wrapped);
     drop(processor);
     drop(reference);
+    drop(without_far);
     drop(app_texture);
     ctx.wait_idle().expect("wait");
     drop(ctx);
