@@ -763,6 +763,22 @@ impl GpuFramePipeline {
         Ok(())
     }
 
+    /// The light the first frame adapts to when its pooling reaches no
+    /// data, cd/m² (the CPU's `FramePipeline::set_initial_target`): the
+    /// frame state's target, which pooling keeps when it finds no data.
+    /// Only before the first frame; a value that is not finite and ≥ 0 is
+    /// ignored.
+    pub fn set_initial_target(&mut self, cd_m2: f64) {
+        if !self.has_state && cd_m2.is_finite() && cd_m2 >= 0.0 {
+            // target_cd_m2 is at bytes 0..4.
+            self.ctx.queue().write_buffer(
+                &self.buffers.state,
+                0,
+                bytemuck::bytes_of(&(cd_m2 as f32)),
+            );
+        }
+    }
+
     /// Sets the adaptation state (e.g. to start a replay adapted): the next
     /// frame steps from it instead of starting adapted to its target.
     pub fn set_adaptation(&mut self, state: AdaptationState) {

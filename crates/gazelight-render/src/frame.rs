@@ -167,6 +167,9 @@ pub trait ViewRenderer {
     fn set_psf_auto_rebuild(&mut self, on: bool);
     /// Installs a kernel built elsewhere with the pipeline's PSF parameters.
     fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), RenderError>;
+    /// The light (cd/m²) the first frame adapts to when its pooling
+    /// reaches no data (`FramePipeline::set_initial_target`).
+    fn set_initial_target(&mut self, cd_m2: f64);
 }
 
 /// The CPU reference pipeline. A stereo pair runs side by side on the
@@ -227,6 +230,10 @@ impl ViewRenderer for FramePipeline {
 
     fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), RenderError> {
         Ok(FramePipeline::set_kernel(self, kernel)?)
+    }
+
+    fn set_initial_target(&mut self, cd_m2: f64) {
+        FramePipeline::set_initial_target(self, cd_m2);
     }
 }
 
@@ -383,6 +390,9 @@ pub struct FrameStep<R> {
     eye_retinal: RgbImage,
     retinal: RgbImage,
     last_adaptation: Option<f64>,
+    /// The view's frustum (tangents left, right, up, down): the first
+    /// frame's fallback light is the view's field mean over it.
+    frustum_tans: [f64; 4],
     own_gaze_frames: [usize; 2],
     width: usize,
     t0_secs: f64,
@@ -418,6 +428,7 @@ impl<R: ViewRenderer> FrameStep<R> {
             None
         };
         let exr_w = if keep_retinal { width } else { 0 };
+        let frustum_tans = PanoramaView::new(*view)?.frustum_tans();
         Ok(Self {
             views,
             pipelines,
@@ -431,6 +442,7 @@ impl<R: ViewRenderer> FrameStep<R> {
             eye_retinal: RgbImage::new(exr_w, height),
             retinal: RgbImage::new(exr_w * n_views, height),
             last_adaptation: None,
+            frustum_tans,
             own_gaze_frames: [0; 2],
             width,
             t0_secs,
@@ -452,6 +464,16 @@ impl<R: ViewRenderer> FrameStep<R> {
         let t_secs = self.t0_secs + i as f64 * self.dt_secs;
         let state = feed.state(t_secs, self.last_adaptation);
         let dt = if i == 0 { 0.0 } else { self.dt_secs as f32 };
+        if i == 0 {
+            // No first frame from an unset state: where the first gaze's
+            // pooling reaches no data (outside the scene's field), the eye
+            // starts adapted to the light measured in the rest of the view
+            // (its solid-angle mean over the pixels with data), not 0 cd/m².
+            let field_cd_m2 = crate::pupil_light::field_mean_cd_m2(view_img, self.frustum_tans, 4);
+            for p in &mut self.pipelines {
+                p.set_initial_target(field_cd_m2);
+            }
+        }
         let inputs: Vec<(FrameInput, bool)> =
             self.views.iter().map(|v| v.input(&state, dt)).collect();
         for (k, v) in self.views.iter().enumerate().take(2) {

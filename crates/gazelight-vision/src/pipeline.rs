@@ -438,6 +438,19 @@ impl FramePipeline {
         self.state
     }
 
+    /// The light the first frame adapts to when its pooling reaches no
+    /// data (a gaze outside the scene's field), cd/m²: the light measured
+    /// elsewhere in the view (`gazelight_render` gives the view's field
+    /// mean) instead of an unset 0 cd/m², which would draw a blown-out
+    /// first frame. Later frames whose pooling reaches no data hold the
+    /// last target, starting from this one. Only before the first frame;
+    /// a value that is not finite and ≥ 0 is ignored.
+    pub fn set_initial_target(&mut self, cd_m2: f64) {
+        if self.state.is_none() && cd_m2.is_finite() && cd_m2 >= 0.0 {
+            self.last_target_cd_m2 = cd_m2;
+        }
+    }
+
     /// Sets the adaptation state (e.g. to start a replay adapted).
     pub fn set_adaptation(&mut self, state: AdaptationState) {
         self.state = Some(state);

@@ -518,6 +518,13 @@ impl gazelight_render::frame::ViewRenderer for Renderer {
     fn set_kernel(&mut self, kernel: &PsfKernel) -> Result<(), RenderError> {
         Renderer::set_kernel(self, kernel).map_err(pipeline_error)
     }
+
+    fn set_initial_target(&mut self, cd_m2: f64) {
+        match self {
+            Renderer::Cpu(p, _) => p.set_initial_target(cd_m2),
+            Renderer::Gpu(g, _) => g.pipeline.set_initial_target(cd_m2),
+        }
+    }
 }
 
 fn pipeline_error(e: anyhow::Error) -> RenderError {

@@ -384,3 +384,95 @@ fn contact_sheet_marks_gaze_and_captions_readably_on_a_bright_sky() {
     assert!(mean >= 100.0, "not a bright scene: {mean:.0}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// No first frame from an unset state: a gaze that starts where the view
+/// has no data (evalglare's fisheye, the view turned 100° right with a
+/// 120° field: the right edge of the view lies outside the scene's field)
+/// pools no light, and the eye starts adapted to the light of the rest of
+/// the view — the solid-angle mean of the first EXR frame's luminance over
+/// its pixels with data (each pixel weighted by (1 + sx² + sy²)^-3/2, sx,
+/// sy its tangent coordinates), within 25 % (the EXR frame is after glare
+/// and blur) — and holds it while the gaze stays there; not 0 cd/m², which
+/// drew a blown-out first frame. The CPU and GPU pipelines agree.
+#[test]
+fn first_frame_with_the_gaze_outside_the_field_starts_adapted_to_the_view() {
+    let dir = tmp("first-frame");
+    let trace = dir.join("trace.csv");
+    std::fs::write(
+        &trace,
+        "t_secs,gaze_u,gaze_v,pupil_mm\n0,0.99,0.5,4\n0.5,0.99,0.5,4\n0.6,0.3,0.5,4\n1.0,0.3,0.5,4\n",
+    )
+    .expect("trace");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/radiance/evalglare_testimage.hdr");
+    let mut first = Vec::new();
+    for backend in ["cpu", "gpu"] {
+        let out = dir.join(backend);
+        run_ok(&[
+            "render",
+            "--scene",
+            scene.to_str().expect("utf-8"),
+            "--size",
+            "96x72",
+            "--hfov-deg",
+            "120",
+            "--yaw-deg",
+            "100",
+            "--pitch-deg",
+            "0",
+            "--trace",
+            trace.to_str().expect("utf-8"),
+            "--frames",
+            "20",
+            "--exr",
+            "--backend",
+            backend,
+            "--out",
+            out.to_str().expect("utf-8"),
+        ]);
+        let timeline = std::fs::read_to_string(out.join("timeline.csv")).expect("timeline");
+        let adaptation = column(&timeline, "adaptation_cd_m2");
+        let gaze_u = column(&timeline, "gaze_u");
+        // The field mean of frame 0's EXR over its pixels with data.
+        let exr = read_exr(&out.join("frames/frame_00000.exr"));
+        let (w, h) = (96.0f64, 72.0f64);
+        let tan_h = (60f64).to_radians().tan();
+        let tan_v = tan_h * h / w;
+        let (mut sum, mut weight) = (0.0, 0.0);
+        for (k, p) in exr.pixels.iter().enumerate() {
+            if p.iter().any(|v| v.is_nan()) {
+                continue;
+            }
+            let sx = -tan_h + ((k % 96) as f64 + 0.5) / w * 2.0 * tan_h;
+            let sy = tan_v - ((k / 96) as f64 + 0.5) / h * 2.0 * tan_v;
+            let omega = (1.0 + sx * sx + sy * sy).powf(-1.5);
+            let y = 0.2126 * f64::from(p[0]) + 0.7152 * f64::from(p[1]) + 0.0722 * f64::from(p[2]);
+            sum += omega * y;
+            weight += omega;
+        }
+        let field = sum / weight;
+        assert!(
+            adaptation[0] > 0.75 * field && adaptation[0] < 1.25 * field,
+            "{backend}: first frame adapted to {} cd/m², the view's field mean {field} cd/m²",
+            adaptation[0]
+        );
+        for i in 0..20 {
+            if gaze_u[i] > 0.98 {
+                assert!(
+                    (adaptation[i] / adaptation[0] - 1.0).abs() < 1e-4,
+                    "{backend} frame {i}: {} vs {}",
+                    adaptation[i],
+                    adaptation[0]
+                );
+            }
+        }
+        first.push(adaptation[0]);
+    }
+    assert!(
+        (first[1] / first[0] - 1.0).abs() < 1e-3,
+        "cpu {} vs gpu {}",
+        first[0],
+        first[1]
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
