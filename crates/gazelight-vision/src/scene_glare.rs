@@ -27,8 +27,11 @@
 //!      level, default 50 000 cd/m²): the pixels of a source at or above
 //!      the level are taken out of it and grouped among themselves the
 //!      same way, each group a source of its own; a source left without
-//!      pixels is gone. evalglare's smoothing (`-s`) is off by default
-//!      and not done here.
+//!      pixels is gone;
+//!   4. smoothing (`-s`), off by default as in evalglare
+//!      ([`GlareOptions::smoothing`]), before the peak extraction: a pixel
+//!      in no source joins one that holds more than a fifth of a disc of
+//!      pixels around it.
 //!
 //!   Each source: its solid angle Σ ω, its mean luminance Σ L ω / Σ ω,
 //!   its position the L ω-weighted mean pixel position (evalglare 2.14
@@ -137,6 +140,10 @@ pub struct GlareOptions {
     /// this luminance, cd/m², become sources of their own (default 50 000);
     /// `None` turns it off (`-x`).
     pub peak_extraction_cd_m2: Option<f64>,
+    /// evalglare's smoothing `-s` (off by default, as in evalglare): a
+    /// pixel in no source joins one whose own pixels hold more than a
+    /// fifth of the solid angle of a disc of pixels around it.
+    pub smoothing: bool,
     /// Observer's age, years (CIE 146).
     pub age_years: f64,
     /// Ocular pigmentation (CIE 146: 0 very dark … 1.2 very light eyes).
@@ -155,6 +162,7 @@ impl Default for GlareOptions {
             task_opening_rad: None,
             search_radius_rad: EVALGLARE_SEARCH_RADIUS_RAD,
             peak_extraction_cd_m2: Some(EVALGLARE_PEAK_CD_M2),
+            smoothing: false,
             age_years: 25.0,
             pigmentation: 0.5,
             cie146_inner_deg: 1.0,
@@ -451,6 +459,9 @@ impl SceneGlare {
         // evalglare find_near_pgs: joined when 2 × angle ≤ r.
         let link = (opts.search_radius_rad * 0.5).max(1e-6);
         let mut groups = groups_of(&bright, link);
+        if opts.smoothing {
+            self.smooth(front, &mut groups, opts.search_radius_rad);
+        }
         // Peak extraction, only when some source pixel exceeds the level
         // (evalglare: lum_total_max > limit; pixels ≥ limit move).
         if let Some(limit) = opts.peak_extraction_cd_m2
@@ -486,6 +497,101 @@ impl SceneGlare {
             .collect();
         out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
         out
+    }
+
+    /// evalglare's smoothing (`-s`, its `add_secondary_gs`): the disc of
+    /// pixels of radius r / (1.75 δ) around each pixel in front of the
+    /// eye and in no source, δ evalglare's pixel pitch at the image's
+    /// centre (a fifth of the angle across a 10 × 10 px diagonal); the
+    /// pixel joins the source whose own pixels hold the largest share of
+    /// the disc's solid angle when that share exceeds 0.2 (evalglare adds
+    /// it to every such source; with two, this is the larger). Joined
+    /// pixels do not count for others.
+    fn smooth<'a>(
+        &self,
+        front: &'a [FrontPixel],
+        groups: &mut [Vec<&'a FrontPixel>],
+        search_radius_rad: f64,
+    ) {
+        let (w, h) = (self.projection.width_px, self.projection.height_px);
+        let (cx, cy) = (w / 2, h / 2);
+        let (Some(a), Some(b)) = (
+            self.projection.pixel_direction(cx, cy),
+            self.projection.pixel_direction(cx + 10, cy + 10),
+        ) else {
+            return;
+        };
+        // evalglare: r_center = 2 × angle / 10, search_pix = r / r_center / 1.75.
+        let r_center = a.dot(b).clamp(-1.0, 1.0).acos() * 2.0 / 10.0;
+        if r_center <= 0.0 {
+            return;
+        }
+        let radius = search_radius_rad / r_center / 1.75;
+        let mut omega = vec![0.0f64; w * h];
+        for &(i, _, om) in &self.pixels {
+            omega[i] = om;
+        }
+        // The source of each pixel (its index + 1), 0 for none.
+        let mut label = vec![0usize; w * h];
+        for (k, grp) in groups.iter().enumerate() {
+            for p in grp {
+                label[p.0] = k + 1;
+            }
+        }
+        let reach = radius.floor() as usize;
+        let mut candidate = vec![false; w * h];
+        for grp in groups.iter() {
+            for p in grp {
+                let (x, y) = (p.0 % w, p.0 / w);
+                for yy in y.saturating_sub(reach)..=(y + reach).min(h - 1) {
+                    for xx in x.saturating_sub(reach)..=(x + reach).min(w - 1) {
+                        candidate[yy * w + xx] = label[yy * w + xx] == 0;
+                    }
+                }
+            }
+        }
+        let mut shares: Vec<(usize, f64)> = Vec::new();
+        let mut joins: Vec<(usize, &FrontPixel)> = Vec::new();
+        for p in front {
+            if !candidate[p.0] {
+                continue;
+            }
+            let (x, y) = ((p.0 % w) as f64, (p.0 / w) as f64);
+            // evalglare's window: truncated bounds, the last column and
+            // row left out at the far edges.
+            let lo = |c: f64| (c - radius).max(0.0) as usize;
+            let hi = |c: f64, n: usize| {
+                let m = (c + radius) as usize;
+                if m > n - 1 { n.saturating_sub(2) } else { m }
+            };
+            let (mut total, r2) = (0.0, radius * radius);
+            shares.clear();
+            for iy in lo(y)..=hi(y, h) {
+                for ix in lo(x)..=hi(x, w) {
+                    let (dx, dy) = (x - ix as f64, y - iy as f64);
+                    if dx * dx + dy * dy > r2 {
+                        continue;
+                    }
+                    let j = iy * w + ix;
+                    total += omega[j];
+                    if label[j] > 0 {
+                        match shares.iter_mut().find(|s| s.0 == label[j]) {
+                            Some(s) => s.1 += omega[j],
+                            None => shares.push((label[j], omega[j])),
+                        }
+                    }
+                }
+            }
+            if let Some(&(k, om)) = shares.iter().max_by(|a, b| a.1.total_cmp(&b.1))
+                && total > 0.0
+                && om / total > 0.2
+            {
+                joins.push((k - 1, p));
+            }
+        }
+        for (k, p) in joins {
+            groups[k].push(p);
+        }
     }
 
     /// One source from its pixels.

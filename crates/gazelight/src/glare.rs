@@ -84,6 +84,11 @@ pub struct GlareArgs {
     /// Turn peak extraction off (evalglare's `-x`).
     #[arg(long, conflicts_with = "peak_cd_m2")]
     pub no_peak_extraction: bool,
+    /// evalglare's smoothing `-s` (off by default, as in evalglare): a
+    /// pixel next to a source joins it when the source holds more than a
+    /// fifth of a small disc around it.
+    #[arg(long)]
+    pub smooth: bool,
     /// Write the numbers as JSON to this file.
     #[arg(long, value_name = "FILE")]
     pub json: Option<PathBuf>,
@@ -301,6 +306,7 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
         task_opening_rad: args.task_opening_rad,
         search_radius_rad: args.search_radius_rad,
         peak_extraction_cd_m2: (!args.no_peak_extraction).then_some(args.peak_cd_m2),
+        smoothing: args.smooth,
         age_years: age,
         pigmentation,
         ..GlareOptions::default()

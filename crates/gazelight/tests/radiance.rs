@@ -140,7 +140,12 @@ struct Evalglare {
 }
 
 fn evalglare(r: &Radiance, image: &Path) -> Evalglare {
-    let text = r.sh(&format!("evalglare -d {}", image.display()));
+    evalglare_with(r, "", image)
+}
+
+/// [`evalglare`] with extra options.
+fn evalglare_with(r: &Radiance, options: &str, image: &Path) -> Evalglare {
+    let text = r.sh(&format!("evalglare -d {options} {}", image.display()));
     let mut sources = Vec::new();
     let mut values = HashMap::new();
     let mut in_sources = false;
@@ -185,7 +190,18 @@ fn evalglare(r: &Radiance, image: &Path) -> Evalglare {
 }
 
 fn glare_json(image: &Path, gazes: &[[f64; 2]], out: &Path) -> serde_json::Value {
+    glare_json_with(image, gazes, &[], out)
+}
+
+/// [`glare_json`] with extra options.
+fn glare_json_with(
+    image: &Path,
+    gazes: &[[f64; 2]],
+    extra: &[&str],
+    out: &Path,
+) -> serde_json::Value {
     let mut args: Vec<String> = vec!["glare".into(), image.display().to_string()];
+    args.extend(extra.iter().map(|a| (*a).to_owned()));
     for g in gazes {
         args.push("--gaze-deg".into());
         args.push(format!("{},{}", g[0], g[1]));
@@ -535,10 +551,23 @@ struct Figure {
 /// its solid angle within 10 %; Lveil_cie within 5 %; DGP, DGI, UGR, VCP,
 /// CGI within 2 %. Returns the number of peak sources of ours.
 fn against_evalglare(r: &Radiance, name: &str, image: &Path) -> usize {
-    let eg = evalglare(r, image);
-    let json = glare_json(
+    against_evalglare_with(r, name, image, "", &[])
+}
+
+/// [`against_evalglare`] with evalglare's options and `glare`'s
+/// equivalents.
+fn against_evalglare_with(
+    r: &Radiance,
+    name: &str,
+    image: &Path,
+    eg_options: &str,
+    glare_options: &[&str],
+) -> usize {
+    let eg = evalglare_with(r, eg_options, image);
+    let json = glare_json_with(
         image,
         &[[0.0, 0.0]],
+        glare_options,
         &r.dir.join(format!("{name}.glare.json")),
     );
     let g = &json["gazes"][0];
@@ -739,6 +768,15 @@ fn evalglare_test_image_glare_indices_agree_with_evalglare() {
     let image = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../tests/data/radiance/evalglare_testimage.hdr");
     against_evalglare(&r, "evalglare test image", &image);
+    // evalglare's task method: a 0.5 rad task area at the centre, the
+    // threshold 5 × its luminance.
+    against_evalglare_with(
+        &r,
+        "evalglare test image, task area",
+        &image,
+        "-t 393 393 0.5",
+        &["--task-opening-rad", "0.5"],
+    );
 }
 
 /// An office at night rendered by rpict: two ceiling luminaires, each a
@@ -772,11 +810,22 @@ panel polygon p 0 0 12 -3.99 3 1  -3.99 5 1  -3.99 5 2  -3.99 3 2
         "rpict -vta -vp 0 0 1.5 -vd 0 1 0 -vu 0 0 1 -vh 180 -vv 180 -x 1024 -y 1024 \
          -ab 0 -ps 1 -pj 0 -dj 0 room.oct | pfilt -1 -x /2 -y /2 > room.hdr",
     );
-    let peaks = against_evalglare(&r, "rpict luminaires", &r.dir.join("room.hdr"));
+    let room = r.dir.join("room.hdr");
+    let peaks = against_evalglare(&r, "rpict luminaires", &room);
     assert!(
         peaks >= 2,
         "the lamps are split off their rings: {peaks} peaks"
     );
+    // evalglare's smoothing (-s) and no peak extraction (-x).
+    against_evalglare_with(&r, "rpict luminaires, smoothed", &room, "-s", &["--smooth"]);
+    let none = against_evalglare_with(
+        &r,
+        "rpict luminaires, no peak extraction",
+        &room,
+        "-x",
+        &["--no-peak-extraction"],
+    );
+    assert_eq!(none, 0);
 }
 
 /// A real HDR photograph with the sun: the city panorama of the shared
@@ -849,6 +898,13 @@ fn photograph_with_the_sun_glare_indices_agree_with_evalglare() {
     std::fs::write(&image, hdr).unwrap();
     let peaks = against_evalglare(&r, "photograph with the sun", &image);
     assert!(peaks >= 1, "the sun is a peak source of its own");
+    against_evalglare_with(
+        &r,
+        "photograph with the sun, smoothed",
+        &image,
+        "-s",
+        &["--smooth"],
+    );
     // The gaze on the sun and half a degree beside it: a finite veil, the
     // sun's θ kept at least its pixel's angular radius (0.17° here).
     let json = glare_json(&image, &[[0.0, 0.0]], &r.dir.join("sun_axis.json"));
