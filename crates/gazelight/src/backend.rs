@@ -106,6 +106,22 @@ fn adapter_label(info: &gazelight_gpu::context::AdapterInfo) -> String {
     )
 }
 
+/// Prints `line` on stderr unless this process printed it already, and
+/// says whether it did: a stereo run builds one renderer per eye, and
+/// says (and logs) which backend once.
+fn first_time(line: String) -> bool {
+    static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+    let mut said = SAID
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if said.contains(&line) {
+        return false;
+    }
+    eprintln!("{line}");
+    said.push(line);
+    true
+}
+
 impl Renderer {
     /// Picks and builds the pipeline for `width × height` frames whose
     /// pixels subtend `deg_per_px` degrees (see the module docs for `auto`).
@@ -137,8 +153,9 @@ impl Renderer {
             Renderer::Cpu(_, why) => ("cpu", "-", why.as_str()),
             Renderer::Gpu(g, why) => ("gpu", g.adapter.as_str(), why.as_str()),
         };
-        tracing::info!(backend, adapter, reason, requested = %choice, "frame pipeline backend");
-        eprintln!("backend: {} ({reason})", renderer.describe());
+        if first_time(format!("backend: {} ({reason})", renderer.describe())) {
+            tracing::info!(backend, adapter, reason, requested = %choice, "frame pipeline backend");
+        }
         Ok(renderer)
     }
 

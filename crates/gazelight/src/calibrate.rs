@@ -407,8 +407,12 @@ async fn calibrate(
     ] {
         if let Some(c) = eye {
             println!(
-                "eye {name}: raw {:.3} (black) → {:.1} mm, raw {:.3} (white) → {:.1} mm [{:?}]",
-                c.raw_black, c.mm_max, c.raw_white, c.mm_min, c.raw_unit
+                "eye {name}: raw {:.3} (black) → {:.1} mm, raw {:.3} (white) → {:.1} mm [raw: {}]",
+                c.raw_black,
+                c.mm_max,
+                c.raw_white,
+                c.mm_min,
+                crate::session::raw_pupil_words(c.raw_unit)
             );
         }
     }
@@ -421,18 +425,18 @@ fn print_summary(summary: &[PhaseSummary]) {
         println!("no pupil samples were received");
         return;
     }
-    println!("eye    phase  unit            samples  valid   raw min   raw median   raw max");
+    println!("eye    phase  samples  valid   raw min   raw median   raw max  raw unit");
     for s in summary {
         println!(
-            "{:<6} {:<6} {:<15} {:>7}  {:>5.1}%  {:>8.3}  {:>10.3}  {:>8.3}",
+            "{:<6} {:<6} {:>7}  {:>5.1}%  {:>8.3}  {:>10.3}  {:>8.3}  {}",
             if s.eye == 0 { "right" } else { "left" },
             format!("{:?}", s.phase).to_lowercase(),
-            format!("{:?}", s.unit),
             s.samples,
             100.0 * s.valid_fraction(),
             s.raw_min,
             s.raw_median,
-            s.raw_max
+            s.raw_max,
+            crate::session::raw_pupil_words(s.unit)
         );
     }
 }

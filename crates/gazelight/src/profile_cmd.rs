@@ -140,12 +140,13 @@ pub fn scale_profile(unit: PupilUnit, mm_per_unit: f64) -> anyhow::Result<PupilC
     Ok(PupilCalibration {
         schema: SCHEMA.to_owned(),
         description: Some(format!(
-            "gazelight profile scale: {mm_per_unit} mm per unit of {} ({unit:?})",
+            "gazelight profile scale: {mm_per_unit} mm per unit of {} ({})",
             if unit == PupilUnit::ArbitraryArea {
                 "√area"
             } else {
                 "diameter"
-            }
+            },
+            crate::session::pupil_unit_words(unit)
         )),
         eyes: EyeCalibrations {
             right: Some(map),
@@ -209,8 +210,13 @@ pub fn phases_profile(
         .iter()
         .map(|s| {
             format!(
-                "eye {} {:?}: {} of {} samples valid, raw median {:.3} {:?}",
-                s.eye, s.phase, s.valid, s.samples, s.raw_median, s.unit
+                "eye {} {}: {} of {} samples valid, raw median {:.3} {}",
+                s.eye,
+                format!("{:?}", s.phase).to_lowercase(),
+                s.valid,
+                s.samples,
+                s.raw_median,
+                crate::session::raw_pupil_words(s.unit)
             )
         })
         .collect();
@@ -239,10 +245,10 @@ pub fn run(args: ProfileArgs) -> anyhow::Result<()> {
             let profile = scale_profile(a.unit.into(), a.mm_per_unit)?;
             profile.save(&a.out).map_err(|e| anyhow::anyhow!("{e}"))?;
             println!(
-                "wrote {}: {} mm per unit ({:?}); give it with --calibration",
+                "wrote {}: {} mm per unit ({}); give it with --calibration",
                 a.out.display(),
                 a.mm_per_unit,
-                PupilUnit::from(a.unit)
+                crate::session::pupil_unit_words(PupilUnit::from(a.unit))
             );
             Ok(())
         }

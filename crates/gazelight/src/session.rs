@@ -245,8 +245,12 @@ impl SessionSettings {
                 ""
             };
             notes.push(format!(
-                "{eye} eye: raw {:?} black {:.3} → {} mm, white {:.3} → {} mm{replaces}",
-                m.raw_unit, m.raw_black, m.mm_max, m.raw_white, m.mm_min
+                "{eye} eye: raw pupil in {}: black {:.3} → {} mm, white {:.3} → {} mm{replaces}",
+                raw_pupil_words(m.raw_unit),
+                m.raw_black,
+                m.mm_max,
+                m.raw_white,
+                m.mm_min
             ));
         }
         if notes.is_empty() {
@@ -256,16 +260,26 @@ impl SessionSettings {
             .note = Some(notes.join("; "));
     }
 
-    /// The settings as indented text lines (`observer.age_years = 70
-    /// (config)`), ignored configuration keys last.
+    /// The settings as indented text lines, one per setting
+    /// (`observer.age_years = 70.0 [config]`); a setting whose value is a
+    /// table (the pipeline's models, a luminance scale) gets one line per
+    /// leaf (`pipeline.tone.model = "ward_ferwerda" [default]`), its note
+    /// after its last line; ignored configuration keys last.
     pub fn summary(&self) -> String {
         let mut out = String::from("settings in effect (source in brackets):\n");
         for (key, s) in &self.settings {
-            out.push_str(&format!("  {key} = {} [{}]", s.value, s.source.as_str()));
-            if let Some(n) = &s.note {
-                out.push_str(&format!(" — {n}"));
+            let mut leaves = Vec::new();
+            flatten(key, &s.value, &mut leaves);
+            let last = leaves.len().saturating_sub(1);
+            for (i, (k, v)) in leaves.iter().enumerate() {
+                out.push_str(&format!("  {k} = {v} [{}]", s.source.as_str()));
+                if i == last
+                    && let Some(n) = &s.note
+                {
+                    out.push_str(&format!(" — {n}"));
+                }
+                out.push('\n');
             }
-            out.push('\n');
         }
         if !self.ignored_config_keys.is_empty() {
             out.push_str(&format!(
@@ -283,6 +297,40 @@ impl SessionSettings {
         let text = serde_json::to_string_pretty(self).context("session settings as JSON")?;
         // `.session.json.tmp`, removed when the write or the rename fails.
         crate::out_dir::write_atomic(&path, (text + "\n").as_bytes())
+    }
+}
+
+/// A raw pupil unit in a user's words.
+pub(crate) fn pupil_unit_words(u: PupilUnit) -> &'static str {
+    match u {
+        PupilUnit::Px => "eye-camera pixels",
+        PupilUnit::Mm => "mm",
+        PupilUnit::ArbitraryArea => "arbitrary area units",
+        PupilUnit::Arbitrary => "arbitrary diameter units",
+    }
+}
+
+/// What a calibration's raw pupil value is, in a user's words: a
+/// diameter in the tracker's unit, or for an area the square root of the
+/// area (the calibration maps √area, which is linear in diameter).
+pub(crate) fn raw_pupil_words(u: PupilUnit) -> &'static str {
+    match u {
+        PupilUnit::ArbitraryArea => "√area (square root of the arbitrary area units)",
+        u => pupil_unit_words(u),
+    }
+}
+
+/// `value`'s leaves under `key` (`key.field.…`, in the object's order),
+/// each with its value as JSON; an empty object or a non-object is one
+/// leaf.
+fn flatten(key: &str, value: &serde_json::Value, out: &mut Vec<(String, String)>) {
+    match value {
+        serde_json::Value::Object(map) if !map.is_empty() => {
+            for (k, v) in map {
+                flatten(&format!("{key}.{k}"), v, out);
+            }
+        }
+        v => out.push((key.to_owned(), v.to_string())),
     }
 }
 
@@ -312,6 +360,22 @@ mod tests {
             text.contains("ignored in the configuration file: http.addr"),
             "{text}"
         );
+        // A table: one line per leaf, the note after the last.
+        s.set(
+            "pipeline",
+            serde_json::json!({"tone": {"model": "ward_ferwerda", "peak": 100.0}, "range": [1.5, 9.0]}),
+            Origin::Default,
+        )
+        .note = Some("the models".into());
+        let text = s.summary();
+        for line in [
+            "  pipeline.range = [1.5,9.0] [default]\n",
+            "  pipeline.tone.model = \"ward_ferwerda\" [default]\n",
+            "  pipeline.tone.peak = 100.0 [default] — the models\n",
+        ] {
+            assert!(text.contains(line), "lacks {line:?}: {text}");
+        }
+        assert!(text.lines().all(|l| l.len() < 200), "{text}");
         let json = serde_json::to_value(&s).unwrap();
         assert_eq!(json["settings"]["observer.age_years"]["source"], "config");
         assert_eq!(json["config_file"], "a.toml");

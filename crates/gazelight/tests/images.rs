@@ -267,7 +267,8 @@ fn text_extent(
 /// with its three caption lines (time, pupil, adaptation) drawn inside
 /// its cell — text on every line, none in the cell's outer 2 px columns
 /// (a caption cut off at the cell's edge or spilling into the next cell
-/// would have some).
+/// would have some). The run says its backend once, and prints its
+/// settings one per line.
 #[test]
 fn contact_sheet_captions_fit_at_the_smallest_size() {
     for stereo in [false, true] {
@@ -289,7 +290,16 @@ fn contact_sheet_captions_fit_at_the_smallest_size() {
         if stereo {
             args.push("--stereo");
         }
-        run_ok(&args);
+        let log = run_ok(&args);
+        // Each message once (a stereo run builds two renderers), and the
+        // settings one line per setting: the pipeline's table is split
+        // into its leaves, no line is a long JSON object.
+        assert_eq!(log.matches("backend: ").count(), 1, "{log}");
+        assert!(
+            log.contains("  pipeline.tone.model = \"ward_ferwerda\" [default]\n"),
+            "{log}"
+        );
+        assert!(!log.contains("pipeline = {"), "{log}");
         let sheet = image::open(out.join("contact_sheet.png"))
             .expect("sheet")
             .to_rgb8();

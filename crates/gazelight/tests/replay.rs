@@ -254,7 +254,7 @@ fn replay_reports_every_setting_and_its_source() {
     assert_eq!(s["calibration.profile"]["source"], "config");
     let note = s["calibration.profile"]["note"].as_str().expect("note");
     assert!(
-        note.contains("ArbitraryArea") && note.contains("8 mm"),
+        note.contains("arbitrary area units") && note.contains("8 mm"),
         "{note}"
     );
     assert_eq!(s["scene.cd_m2_per_unit"]["source"], "default");
