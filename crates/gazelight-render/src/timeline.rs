@@ -95,3 +95,139 @@ impl TimelineRow {
         ]
     }
 }
+
+/// `timeline.csv` written as the frames are made: a row per frame (every
+/// view's [`TIMELINE_COLUMNS`], then, with the pupil light response, every
+/// view's [`PUPIL_LIGHT_COLUMNS`]), flushed at least once a second, so a
+/// replay ended by SIGKILL or a crash keeps every row older than a second.
+/// The row is formatted into one reused buffer: no allocation per frame.
+pub struct TimelineWriter<W: std::io::Write> {
+    out: W,
+    views: usize,
+    pupil_light: bool,
+    line: String,
+    last_flush: std::time::Instant,
+}
+
+/// How often the rows reach the file at the latest.
+pub const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+
+impl TimelineWriter<std::io::BufWriter<std::fs::File>> {
+    /// Creates `path` and writes the header: `t_secs`, then each column
+    /// with each view's suffix (`""` mono, `_right`/`_left` stereo).
+    pub fn create(
+        path: &std::path::Path,
+        suffixes: &[&str],
+        pupil_light: bool,
+    ) -> std::io::Result<Self> {
+        let file = std::fs::File::create(path)?;
+        Self::new(std::io::BufWriter::new(file), suffixes, pupil_light)
+    }
+}
+
+impl<W: std::io::Write> TimelineWriter<W> {
+    /// A writer onto `out`, its header written.
+    pub fn new(mut out: W, suffixes: &[&str], pupil_light: bool) -> std::io::Result<Self> {
+        let mut header = String::from("t_secs");
+        for suffix in suffixes {
+            for c in TIMELINE_COLUMNS {
+                header.push_str(&format!(",{c}{suffix}"));
+            }
+        }
+        if pupil_light {
+            for suffix in suffixes {
+                for c in PUPIL_LIGHT_COLUMNS {
+                    header.push_str(&format!(",{c}{suffix}"));
+                }
+            }
+        }
+        header.push('\n');
+        out.write_all(header.as_bytes())?;
+        out.flush()?;
+        Ok(Self {
+            out,
+            views: suffixes.len(),
+            pupil_light,
+            line: String::with_capacity(512 * suffixes.len().max(1)),
+            last_flush: std::time::Instant::now(),
+        })
+    }
+
+    /// Writes one frame's rows (one per view, in the header's order).
+    pub fn push(&mut self, rows: &[TimelineRow]) -> std::io::Result<()> {
+        use std::fmt::Write as _;
+        if rows.len() != self.views {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("{} rows for {} views", rows.len(), self.views),
+            ));
+        }
+        let line = &mut self.line;
+        line.clear();
+        let fmt = std::io::Error::other;
+        if let Some(r) = rows.first() {
+            write!(line, "{:.4}", r.t_secs).map_err(fmt)?;
+        }
+        for r in rows {
+            let s = &r.stats;
+            let t = &s.timings;
+            write!(line, ",{:.5},{:.5}", r.gaze_u, r.gaze_v).map_err(fmt)?;
+            for v in [r.pupil_mm, r.pupil_raw, r.pupil_map_mm] {
+                cell(line, v, 4).map_err(fmt)?;
+            }
+            match r.pupil_held {
+                Some(h) => write!(line, ",{}", u8::from(h)).map_err(fmt)?,
+                None => line.push(','),
+            }
+            write!(
+                line,
+                ",{:.4},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
+                r.aperture_mm,
+                s.target_cd_m2,
+                s.adaptation_cd_m2,
+                s.psf_pupil_mm,
+                u8::from(s.psf_rebuilt),
+                s.acuity_sigma_px,
+                t.pooling_ms,
+                t.temporal_ms,
+                t.psf_ms,
+                t.glare_ms,
+                t.acuity_ms,
+                t.tone_colour_encode_ms,
+                t.total_ms
+            )
+            .map_err(fmt)?;
+        }
+        if self.pupil_light {
+            for r in rows {
+                for v in [r.pupil_light_mm, r.pupil_residual_mm] {
+                    cell(line, v, 4).map_err(fmt)?;
+                }
+            }
+        }
+        line.push('\n');
+        self.out.write_all(line.as_bytes())?;
+        if self.last_flush.elapsed() >= FLUSH_EVERY {
+            self.out.flush()?;
+            self.last_flush = std::time::Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Flushes what is left and gives the output back.
+    pub fn finish(mut self) -> std::io::Result<W> {
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+/// `,value` with `decimals`, or `,` (an empty cell) where it is not finite.
+fn cell(line: &mut String, v: f32, decimals: usize) -> std::fmt::Result {
+    use std::fmt::Write as _;
+    if v.is_finite() {
+        write!(line, ",{v:.decimals$}")
+    } else {
+        line.push(',');
+        Ok(())
+    }
+}

@@ -1,7 +1,6 @@
-//! Files written by `render`: PNG frames, the contact sheet, the timeline
-//! CSV and the plot.
+//! Files written by `render`: PNG frames, the contact sheet and the plot
+//! (the timeline CSV is `gazelight_render::timeline::TimelineWriter`).
 
-use std::io::Write;
 use std::path::Path;
 
 use anyhow::Context;
@@ -39,7 +38,6 @@ const FONT: &[u8] = include_bytes!("../../../assets/DejaVuSans.ttf");
 
 pub use gazelight_render::png::PngCompression;
 pub use gazelight_render::timeline::TimelineRow;
-use gazelight_render::timeline::{PUPIL_LIGHT_COLUMNS, TIMELINE_COLUMNS};
 
 /// Writes an RGBA display frame as an RGB PNG, or as an RGBA PNG when
 /// the frame has pixels without data (alpha 0, outside the scene's field:
@@ -387,94 +385,6 @@ fn fitting_font<'a>(
             return Ok(style);
         }
         px -= 1;
-    }
-}
-
-/// Writes `timeline.csv`: `t_secs`, then each view's columns with its
-/// suffix (`""` for a mono frame; `_left`, `_right` for stereo); then, when
-/// the pupil light response was computed (`replay`), each view's
-/// `pupil_light_mm` and `pupil_residual_mm` (empty where not defined). The
-/// views' rows are frame by frame, so row `i` of every view is frame `i`.
-pub fn write_timeline(path: &Path, views: &[(&str, &[TimelineRow])]) -> anyhow::Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut w = std::io::BufWriter::new(file);
-    write!(w, "t_secs")?;
-    for (suffix, _) in views {
-        for c in TIMELINE_COLUMNS {
-            write!(w, ",{c}{suffix}")?;
-        }
-    }
-    let pupil_light = views
-        .iter()
-        .any(|(_, rows)| rows.iter().any(|r| r.pupil_light_mm.is_finite()));
-    if pupil_light {
-        for (suffix, _) in views {
-            for c in PUPIL_LIGHT_COLUMNS {
-                write!(w, ",{c}{suffix}")?;
-            }
-        }
-    }
-    writeln!(w)?;
-    let frames = views.iter().map(|(_, r)| r.len()).min().unwrap_or(0);
-    for i in 0..frames {
-        if let Some(r) = views.first().and_then(|(_, rows)| rows.get(i)) {
-            write!(w, "{:.4}", r.t_secs)?;
-        }
-        for (_, rows) in views {
-            let r = &rows[i];
-            let s = &r.stats;
-            let t = &s.timings;
-            write!(w, ",{:.5},{:.5}", r.gaze_u, r.gaze_v)?;
-            write_opt(&mut w, r.pupil_mm, 4)?;
-            write_opt(&mut w, r.pupil_raw, 4)?;
-            write_opt(&mut w, r.pupil_map_mm, 4)?;
-            match r.pupil_held {
-                Some(h) => write!(w, ",{}", u8::from(h))?,
-                None => write!(w, ",")?,
-            }
-            write!(
-                w,
-                ",{:.4},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
-                r.aperture_mm,
-                s.target_cd_m2,
-                s.adaptation_cd_m2,
-                s.psf_pupil_mm,
-                u8::from(s.psf_rebuilt),
-                s.acuity_sigma_px,
-                t.pooling_ms,
-                t.temporal_ms,
-                t.psf_ms,
-                t.glare_ms,
-                t.acuity_ms,
-                t.tone_colour_encode_ms,
-                t.total_ms
-            )?;
-        }
-        if pupil_light {
-            for (_, rows) in views {
-                let r = &rows[i];
-                for v in [r.pupil_light_mm, r.pupil_residual_mm] {
-                    if v.is_finite() {
-                        write!(w, ",{v:.4}")?;
-                    } else {
-                        write!(w, ",")?;
-                    }
-                }
-            }
-        }
-        writeln!(w)?;
-    }
-    w.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
-}
-
-/// `,value` with `decimals`, or `,` (an empty cell) where it is not finite.
-fn write_opt(w: &mut impl Write, v: f32, decimals: usize) -> std::io::Result<()> {
-    if v.is_finite() {
-        write!(w, ",{v:.decimals$}")
-    } else {
-        write!(w, ",")
     }
 }
 

@@ -421,6 +421,17 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .iter()
         .map(|_| Vec::with_capacity(frames.min(4096)))
         .collect();
+    // timeline.csv is written as the frames are made and flushed every
+    // second: a replay killed half-way keeps its rows (the rows are also
+    // kept for the plot and the summary, ≤ MAX_FRAMES of them).
+    let timeline_path = args.out.join("timeline.csv");
+    let suffixes: Vec<&str> = views.iter().map(|v| v.suffix()).collect();
+    let mut timeline_out = gazelight_render::timeline::TimelineWriter::create(
+        &timeline_path,
+        &suffixes,
+        pupil_light.is_some(),
+    )
+    .with_context(|| format!("cannot write {}", timeline_path.display()))?;
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
     let mut sheet = output::ContactSheet::new(width * n_views, height, n_views > 1);
     let no_data_style = if args.no_data_alpha {
@@ -452,6 +463,9 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         if let Some(plr) = pupil_light.as_deref_mut() {
             plr.apply(t_secs - t0, &state, &inputs, &mut rows);
         }
+        timeline_out
+            .push(&rows)
+            .with_context(|| format!("cannot write {}", timeline_path.display()))?;
         for (k, row) in rows.into_iter().enumerate() {
             timeline[k].push(row);
         }
@@ -514,7 +528,9 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .zip(&timeline)
         .map(|(v, rows)| (v.suffix(), rows.as_slice()))
         .collect();
-    output::write_timeline(&args.out.join("timeline.csv"), &eyes)?;
+    timeline_out
+        .finish()
+        .with_context(|| format!("cannot write {}", timeline_path.display()))?;
     sheet.write(&args.out.join("contact_sheet.png"))?;
     output::write_plot(
         &args.out.join("plot.png"),

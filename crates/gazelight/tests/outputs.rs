@@ -312,7 +312,7 @@ fn previous_outputs_are_refused_unless_force_which_clears_them() {
 }
 
 #[test]
-fn a_rerun_of_render_after_sigkill_keeps_none_of_the_killed_runs_frames() {
+fn a_sigkilled_render_keeps_its_timeline_and_a_rerun_none_of_its_frames() {
     let config = fast_config("sigkill-render-config");
     let out = tmp_path("sigkill-render");
     let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
@@ -322,7 +322,10 @@ fn a_rerun_of_render_after_sigkill_keeps_none_of_the_killed_runs_frames() {
         .stderr(Stdio::null())
         .spawn()
         .expect("render");
-    // Wait until it has written a few dozen frames, then SIGKILL it.
+    // Wait until it has written a few dozen frames, note how many, and
+    // SIGKILL it 1.1 s later: timeline.csv is flushed every second, so it
+    // must hold a row for every frame on disk a second before the kill (a
+    // frame's row is written before its image).
     let t = Instant::now();
     let count = || std::fs::read_dir(out.join("frames")).map_or(0, |d| d.count());
     while count() < 30 {
@@ -332,12 +335,26 @@ fn a_rerun_of_render_after_sigkill_keeps_none_of_the_killed_runs_frames() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
+    let older_than_a_second = count();
+    std::thread::sleep(Duration::from_millis(1100));
     child.kill().unwrap();
     child.wait().unwrap();
     let killed = count();
+    let rows = Csv::read(&out.join("timeline.csv")).rows;
+    eprintln!(
+        "SIGKILL: {older_than_a_second} frames 1.1 s before it, {killed} at it, {} timeline rows",
+        rows.len()
+    );
     assert!(
-        !out.join("timeline.csv").exists(),
-        "killed before its timeline"
+        rows.len() >= older_than_a_second,
+        "{} timeline rows for the {older_than_a_second} frames written more than a second \
+         before the SIGKILL",
+        rows.len()
+    );
+    let width = Csv::read(&out.join("timeline.csv")).header.len();
+    assert!(
+        rows.iter().all(|r| r.len() == width),
+        "a torn row in the killed run's timeline"
     );
 
     // Without --force the killed run's frames are refused, not mixed in.
