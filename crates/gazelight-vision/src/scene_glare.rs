@@ -754,6 +754,63 @@ mod tests {
     }
 
     #[test]
+    fn a_lamp_brighter_than_the_peak_level_is_split_off_its_diffuser() {
+        use crate::scene::ProjectionKind;
+        use crate::scene::projection::direction_from_angles;
+        // A 180° angular fisheye; a 3° diffuser disc of 5000 cd/m² with a
+        // 1° lamp of 10⁶ cd/m² at its centre, 20° right and 10° up.
+        let n = 801;
+        let p = SceneProjection::new(ProjectionKind::Angular, 180.0, 180.0, n, n).unwrap();
+        let centre = direction_from_angles(20.0, 10.0);
+        let mut img = RgbImage::new(n, n);
+        for y in 0..n {
+            for x in 0..n {
+                if let Some(d) = p.pixel_direction(x, y) {
+                    let a = d.dot(centre).clamp(-1.0, 1.0).acos().to_degrees();
+                    let l = if a <= 1.0 {
+                        1e6
+                    } else if a <= 3.0 {
+                        5000.0
+                    } else {
+                        10.0
+                    };
+                    *img.get_mut(x, y) = [l; 3];
+                }
+            }
+        }
+        let cap = |deg: f64| std::f64::consts::TAU * (1.0 - deg.to_radians().cos());
+        let glare = SceneGlare::new(&img, p);
+        let split = glare.at_gaze(DVec3::NEG_Z, &GlareOptions::default());
+        assert_eq!(split.sources.len(), 2, "{:?}", split.sources);
+        let lamp = split.sources.iter().find(|s| s.peak).unwrap();
+        let ring = split.sources.iter().find(|s| !s.peak).unwrap();
+        assert!((lamp.solid_angle_sr / cap(1.0) - 1.0).abs() < 0.1);
+        assert!((ring.solid_angle_sr / (cap(3.0) - cap(1.0)) - 1.0).abs() < 0.1);
+        assert!((lamp.luminance_cd_m2 / 1e6 - 1.0).abs() < 1e-6);
+        assert!((ring.luminance_cd_m2 / 5000.0 - 1.0).abs() < 1e-6);
+        let off = DVec3::from_array(lamp.direction)
+            .dot(centre)
+            .clamp(-1.0, 1.0)
+            .acos();
+        assert!(off.to_degrees() < 0.3, "{}", off.to_degrees());
+        // evalglare's -x: one source, the disc.
+        let whole = glare.at_gaze(
+            DVec3::NEG_Z,
+            &GlareOptions {
+                peak_extraction_cd_m2: None,
+                ..GlareOptions::default()
+            },
+        );
+        assert_eq!(whole.sources.len(), 1);
+        assert!((whole.sources[0].solid_angle_sr / cap(3.0) - 1.0).abs() < 0.1);
+        // The indices see the split: a small bright source glares more.
+        assert!(split.indices.dgp > whole.indices.dgp);
+        // The gaze on the lamp: a finite veil.
+        let on = glare.at_gaze(centre, &GlareOptions::default());
+        assert!(on.veil_stiles_holladay_cd_m2.is_finite());
+    }
+
+    #[test]
     fn threshold_increment_follows_cie_140() {
         // CIE 140 eq. 5 at L_av = 1: TI = 65 L_v.
         assert!((threshold_increment_pct(0.1, 1.0) - 6.5).abs() < 1e-12);
