@@ -846,6 +846,44 @@ mod tests {
         assert!(en > 0.005 && en < 0.05, "{en}");
     }
 
+    /// In a rectilinear view the kernel (a convolution on the plane at the
+    /// centre's degrees per pixel) puts a direction θ from the centre at
+    /// tan θ (in degrees): its taper there, t = 1 − smoothstep((τ − 12)/8)
+    /// for the ±20° kernel, written out here; the tail and near parts still
+    /// add up to CIE 146 · cos θ beyond the window.
+    #[test]
+    fn a_rectilinear_split_tapers_at_the_planes_angle() {
+        let s = FarSplit {
+            planar_taper: true,
+            ..FarSplit::new(25.0, 0.5, 20.0)
+        };
+        for th in [12.0f64, 14.0, 16.0, 17.4, 18.0, 19.0, 25.0, 60.0, 89.0] {
+            let tau = th.to_radians().tan().to_degrees();
+            let x = ((tau - 12.0) / 8.0).clamp(0.0, 1.0);
+            let t = 1.0 - x * x * (3.0 - 2.0 * x);
+            let full = cie(th, 25.0, 0.5) * th.to_radians().cos();
+            let tail = s.tail_per_sr(th);
+            assert!(
+                (tail - full * (1.0 - t)).abs() <= 1e-12 * full,
+                "{th}: {tail}"
+            );
+            let all = tail + s.near_per_sr(th);
+            assert!((all - full).abs() <= 1e-12 * full, "{th}");
+        }
+        // 17.4° on the sphere is 17.96° on the plane.
+        assert!((s.kernel_angle_deg(17.4) - 17.96).abs() < 0.01);
+        assert_eq!(FarSplit::new(25.0, 0.5, 20.0).kernel_angle_deg(17.4), 17.4);
+        // A rectilinear view's far field takes the plane's measure.
+        let far = FarField::new(
+            FarSplit::new(25.0, 0.5, 20.0),
+            64,
+            48,
+            PlaneAngles::symmetric(90.0, 64, 48),
+        )
+        .unwrap();
+        assert!(far.split().planar_taper);
+    }
+
     /// The FFT on the grid against the plain f64 sum over every pair of
     /// pixels: a lamp and a dim field in a 100° view.
     #[test]
