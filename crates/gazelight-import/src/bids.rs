@@ -888,6 +888,11 @@ impl TsvOut {
 /// What [`export_raw`] wrote.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct RawExport {
+    /// The recording's events written as physioevents messages (into each
+    /// eye's file; [`export_raw_with_events`]).
+    pub messages: u64,
+    /// Trials written to the task's `_events.tsv`.
+    pub trials: u64,
     /// Per written eye file: (path, rows, sampling frequency Hz).
     pub files: Vec<(PathBuf, u64, f64)>,
     /// Blink events written.
@@ -952,6 +957,60 @@ pub fn export_raw(
     tx: &mut Transaction,
     recording: &Path,
 ) -> Result<RawExport, ExportError> {
+    export_raw_with_events(importer, tx, recording, None)
+}
+
+/// A message's text as one TSV cell: tabs and line breaks as spaces,
+/// `n/a` when empty.
+fn tsv_text(s: &str) -> String {
+    let t: String = s
+        .chars()
+        .map(|c| {
+            if matches!(c, '\t' | '\n' | '\r') {
+                ' '
+            } else {
+                c
+            }
+        })
+        .collect();
+    if t.trim().is_empty() { "n/a".into() } else { t }
+}
+
+/// Writes the recording's messages `msgs[*next..]` up to time `until`
+/// (inclusive) into a physioevents file with the `message` column.
+fn write_messages(
+    out: &mut TsvOut,
+    msgs: &[crate::events::Event],
+    next: &mut usize,
+    until: f64,
+) -> Result<(), ExportError> {
+    while let Some(e) = msgs.get(*next).filter(|e| e.t_secs <= until) {
+        let duration = e.duration_secs.map_or("n/a".into(), |d| format!("{d}"));
+        out.line(
+            e.t_secs,
+            &[duration, "message".into(), "n/a".into(), tsv_text(&e.text)],
+        )?;
+        *next += 1;
+    }
+    Ok(())
+}
+
+/// [`export_raw`] with the recording's events ([`crate::events`]): each
+/// eye's `*_physioevents.tsv.gz` then also holds every event as a
+/// `message` row (`trial_type` `message`, the text in the `message`
+/// column) in time order among the blinks, and, where the recording has
+/// trials (EyeLink's `TRIALID`), the task's `*_events.tsv` holds one row
+/// per trial (onset in seconds from the first sample, its duration to
+/// `TRIAL_RESULT`, `trial_type` `trial`, its id, result and `TRIAL_VAR`s).
+pub fn export_raw_with_events(
+    importer: &mut dyn Importer,
+    tx: &mut Transaction,
+    recording: &Path,
+    recording_events: Option<&crate::events::RecordingEvents>,
+) -> Result<RawExport, ExportError> {
+    let msgs: &[crate::events::Event] = recording_events.map_or(&[], |e| e.events.as_slice());
+    let mut next_msg = [0usize; 3];
+    let mut first_t = f64::INFINITY;
     let names = tx.names().clone();
     let dir = tx.root().join(names.dir());
     write_dataset_files(tx)?;
@@ -1007,6 +1066,7 @@ pub fn export_raw(
                     report.unit_mismatch += 1;
                     continue;
                 }
+                first_t = first_t.min(p.t_secs);
                 let fits = rows[k].is_some_and(|r| r.t == p.t_secs && r.pupil_conf.is_none());
                 if !fits {
                     if let Some(r) = rows[k].take() {
@@ -1028,6 +1088,7 @@ pub fn export_raw(
                     GazeEyes::Left => 1,
                     GazeEyes::Binocular => 2,
                 };
+                first_t = first_t.min(g.t_secs);
                 let fits = rows[k].is_some_and(|r| r.t == g.t_secs && r.gaze_conf.is_none());
                 if !fits {
                     if let Some(r) = rows[k].take() {
@@ -1061,19 +1122,21 @@ pub fn export_raw(
                     events[k] = Some(TsvOut::create(tx, &p)?);
                 }
                 if let Some(e) = events[k].as_mut() {
-                    e.line(
-                        b.start_t_secs,
-                        &[
-                            format!("{}", b.end_t_secs - b.start_t_secs),
-                            "blink".into(),
-                            if b.eye.is_none() {
-                                "both"
-                            } else {
-                                EYE_FILES[k].1
-                            }
-                            .into(),
-                        ],
-                    )?;
+                    write_messages(e, msgs, &mut next_msg[k], b.start_t_secs)?;
+                    let mut cells = vec![
+                        format!("{}", b.end_t_secs - b.start_t_secs),
+                        "blink".into(),
+                        if b.eye.is_none() {
+                            "both"
+                        } else {
+                            EYE_FILES[k].1
+                        }
+                        .into(),
+                    ];
+                    if !msgs.is_empty() {
+                        cells.push("n/a".into());
+                    }
+                    e.line(b.start_t_secs, &cells)?;
                 }
                 report.blinks += 1;
             }
@@ -1083,6 +1146,29 @@ pub fn export_raw(
         if let Some(r) = row.take() {
             flush(tx, &mut outs, k, r)?;
         }
+    }
+    // Every eye file's events: the messages after its last blink (or all).
+    if !msgs.is_empty() {
+        for k in 0..3 {
+            if outs[k].is_none() {
+                continue;
+            }
+            if events[k].is_none() {
+                let p = dir.join(format!(
+                    "{prefix}_recording-{}_physioevents.tsv.gz",
+                    EYE_FILES[k].0
+                ));
+                events[k] = Some(TsvOut::create(tx, &p)?);
+            }
+            if let Some(e) = events[k].as_mut() {
+                write_messages(e, msgs, &mut next_msg[k], f64::INFINITY)?;
+            }
+        }
+        report.messages = msgs.len() as u64;
+    }
+    if let Some(ev) = recording_events.filter(|e| !e.trials.is_empty() && first_t.is_finite()) {
+        write_trials(tx, &dir.join(format!("{prefix}_events.tsv")), ev, first_t)?;
+        report.trials = ev.trials.len() as u64;
     }
     // A blink file needs its eye's physio file beside it.
     for (k, ev) in events.iter().enumerate() {
@@ -1127,7 +1213,7 @@ pub fn export_raw(
     for (k, ev) in events.into_iter().enumerate() {
         let Some(ev) = ev else { continue };
         ev.finish()?;
-        let sidecar = json!({
+        let mut sidecar = json!({
             "Columns": ["onset", "duration", "trial_type", "eyes"],
             "OnsetSource": "timestamp",
             "Description": "Blinks the eye tracker reported.",
@@ -1136,6 +1222,16 @@ pub fn export_raw(
             "trial_type": {"Description": "Event kind.", "Levels": {"blink": "a blink the tracker reported"}},
             "eyes": {"Description": "Which eyes the event covers.", "Levels": {"right": "right eye", "left": "left eye", "both": "both eyes"}},
         });
+        if !msgs.is_empty() {
+            sidecar["Columns"] = json!(["onset", "duration", "trial_type", "eyes", "message"]);
+            sidecar["Description"] = json!(
+                "Blinks the eye tracker reported and the recording's messages (EyeLink MSG lines, XDF markers, Pupil annotations, Neon events)."
+            );
+            sidecar["onset"] = json!({"Description": "Event time on the clock of the physio file's timestamp column.", "Units": "s"});
+            sidecar["duration"] = json!({"Description": "Blink duration; a message's duration where the recording gives one.", "Units": "s"});
+            sidecar["trial_type"] = json!({"Description": "Event kind.", "Levels": {"blink": "a blink the tracker reported", "message": "a message the recording holds (its text in the message column)"}});
+            sidecar["message"] = json!({"Description": "The message's text as the recording holds it (an EyeLink message after its time offset); tabs and line breaks as spaces."});
+        }
         let p = dir.join(format!(
             "{prefix}_recording-{}_physioevents.json",
             EYE_FILES[k].0
@@ -1148,6 +1244,73 @@ pub fn export_raw(
         ));
     }
     Ok(report)
+}
+
+/// The task events `path` (`*_events.tsv` + `.json`): one row per trial
+/// of `ev`, onset in seconds from the first sample (`t0`, the physio
+/// files' `StartTime` 0), duration to its end (`n/a` where it has none),
+/// `trial_type` `trial`, its id and result, one column per `TRIAL_VAR`
+/// name (`n/a` where a trial lacks it).
+fn write_trials(
+    tx: &mut Transaction,
+    path: &Path,
+    ev: &crate::events::RecordingEvents,
+    t0: f64,
+) -> Result<(), ExportError> {
+    let mut vars: Vec<&str> = Vec::new();
+    for t in &ev.trials {
+        for (n, _) in &t.vars {
+            if !vars.contains(&n.as_str()) {
+                vars.push(n);
+            }
+        }
+    }
+    // A variable's column name: letters, digits and `_` (BIDS columns).
+    let column = |n: &str| -> String {
+        let c: String = n
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        format!("var_{c}")
+    };
+    let mut text = String::from("onset\tduration\ttrial_type\ttrial\tresult");
+    for n in &vars {
+        text.push('\t');
+        text.push_str(&column(n));
+    }
+    text.push('\n');
+    for t in &ev.trials {
+        let cell = |s: Option<&str>| s.map_or("n/a".to_owned(), tsv_text);
+        text.push_str(&format!(
+            "{:.6}\t{}\ttrial\t{}\t{}",
+            t.start_t_secs - t0,
+            t.end_t_secs
+                .map_or("n/a".into(), |e| format!("{:.6}", e - t.start_t_secs)),
+            cell(Some(&t.id)),
+            cell(t.result.as_deref()),
+        ));
+        for n in &vars {
+            text.push('\t');
+            text.push_str(&cell(
+                t.vars.iter().find(|(k, _)| k == n).map(|(_, v)| v.as_str()),
+            ));
+        }
+        text.push('\n');
+    }
+    tx.write(path, &text)?;
+    let mut sidecar = json!({
+        "TaskName": tx.names().task,
+        "onset": {"Description": "The trial's start (its TRIALID message), seconds from the first sample of the recording's physio files (their StartTime 0).", "Units": "s"},
+        "duration": {"Description": "To the trial's TRIAL_RESULT (or the next TRIALID).", "Units": "s"},
+        "trial_type": {"Description": "Event kind.", "Levels": {"trial": "a trial of the recording (EyeLink TRIALID .. TRIAL_RESULT)"}},
+        "trial": {"Description": "The trial's id: its TRIALID message's text."},
+        "result": {"Description": "Its TRIAL_RESULT message's text."},
+    });
+    for n in &vars {
+        sidecar[column(n)] =
+            json!({"Description": format!("The trial's `!V TRIAL_VAR {n}` value.")});
+    }
+    tx.write_json(&path.with_extension("json"), &sidecar)
 }
 
 /// The recording's `Manufacturer` and `ManufacturersModelName`, where it

@@ -843,7 +843,11 @@ fn table_events(
         let fields = split_csv(l, sep);
         let Some((ti, xi, di)) = header else {
             let names: Vec<String> = fields.iter().map(|f| normalise(f)).collect();
-            let find = |want: &[&str]| names.iter().position(|n| want.contains(&n.as_str()));
+            // The first of `want` (in its order of preference) the header has.
+            let find = |want: &[&str]| {
+                want.iter()
+                    .find_map(|w| names.iter().position(|n| n.as_str() == *w))
+            };
             match (find(spec.time), find(spec.text)) {
                 (Some(t), Some(x)) => {
                     header = Some((t, x, spec.duration.and_then(|d| find(&[d]))));
@@ -1049,7 +1053,7 @@ pub fn bids(path: &Path) -> Result<RecordingEvents, ImportError> {
             &mut table,
             TableSpec {
                 time: &["onset"],
-                text: &["trial_type", "value"],
+                text: &["message", "trial_type", "value"],
                 duration: Some("duration"),
                 scale: 1.0,
                 source: "events",

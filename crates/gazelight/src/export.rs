@@ -95,13 +95,28 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     let mut tx = import::bids::Transaction::new(&args.bids, &names)?;
     // The sidecars name the recording by its own name (no path of this
     // machine), its tracker and its stated rate.
-    let raw = import::bids::export_raw(importer.as_mut(), &mut tx, &args.recording)
-        .with_context(|| format!("while writing {}", args.bids.display()))?;
+    // The recording's events: messages in each eye's physioevents, the
+    // trials in the task's _events.tsv (docs/events.md).
+    let events = import::events::read(&args.recording)
+        .with_context(|| format!("reading the events of {}", args.recording.display()))?;
+    let raw = import::bids::export_raw_with_events(
+        importer.as_mut(),
+        &mut tx,
+        &args.recording,
+        Some(&events),
+    )
+    .with_context(|| format!("while writing {}", args.bids.display()))?;
     for (path, rows, rate) in &raw.files {
         println!("{}: {rows} rows, {rate:.2} Hz", path.display());
     }
     if raw.blinks > 0 {
         println!("{} blinks the tracker reported (physioevents)", raw.blinks);
+    }
+    if raw.messages > 0 {
+        println!(
+            "{} events of the recording as messages (physioevents), {} trials (_events.tsv)",
+            raw.messages, raw.trials
+        );
     }
     if raw.unit_mismatch > 0 {
         eprintln!(

@@ -322,3 +322,122 @@ fn pupil_annotations_in_events_csv_at_their_times() {
     }
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn the_eyelink_recordings_messages_and_trials_in_the_bids_export_validate_and_read_back() {
+    let rec = shared("eye/eyelink-psa/both_eyes.asc");
+    let text = std::fs::read_to_string(&rec).unwrap();
+    // The truth, from the text: the MSG texts in time order, the trials'
+    // TRIALID times and Trial_Index_ values.
+    let mut msgs: Vec<(f64, String)> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("MSG"))
+        .map(|rest| {
+            let (t, m) = rest.trim_start().split_once(char::is_whitespace).unwrap();
+            let t: f64 = t.parse().unwrap();
+            let m = m.trim();
+            match m.split_once(char::is_whitespace) {
+                Some((o, after)) if o.parse::<i64>().is_ok() => {
+                    (t - o.parse::<f64>().unwrap(), after.trim().to_owned())
+                }
+                _ => (t, m.to_owned()),
+            }
+        })
+        .collect();
+    msgs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let first_sample_ms: f64 = text
+        .lines()
+        .find(|l| l.starts_with(|c: char| c.is_ascii_digit()))
+        .and_then(|l| l.split_whitespace().next())
+        .unwrap()
+        .parse()
+        .unwrap();
+    let trialids: Vec<f64> = msgs
+        .iter()
+        .filter(|m| m.1.starts_with("TRIALID"))
+        .map(|m| m.0)
+        .collect();
+
+    let out = tmp("bids");
+    let ds = out.join("ds");
+    let o = gazelight(&[
+        "export",
+        "--bids",
+        ds.to_str().unwrap(),
+        rec.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        stdout.contains("308 events of the recording as messages (physioevents), 4 trials"),
+        "{stdout}"
+    );
+    gazelight_test_support::bids::validate(&ds);
+    let beh = ds.join("sub-01/beh");
+    // Each eye's physioevents: its blinks and every message, in time order.
+    for eye in ["eye1", "eye2", "eye3"] {
+        let gz = beh.join(format!(
+            "sub-01_task-replay_recording-{eye}_physioevents.tsv.gz"
+        ));
+        let out = Command::new("gzip").arg("-dc").arg(&gz).output().unwrap();
+        assert!(out.status.success());
+        let body = String::from_utf8(out.stdout).unwrap();
+        let rows: Vec<Vec<&str>> = body.lines().map(|l| l.split('\t').collect()).collect();
+        let onsets: Vec<f64> = rows.iter().map(|r| r[0].parse().unwrap()).collect();
+        assert!(
+            onsets.windows(2).all(|w| w[0] <= w[1]),
+            "{eye}: not in time order"
+        );
+        let messages: Vec<&Vec<&str>> = rows.iter().filter(|r| r[2] == "message").collect();
+        assert_eq!(messages.len(), msgs.len(), "{eye}");
+        for (r, (t_ms, m)) in messages.iter().zip(&msgs) {
+            assert!((r[0].parse::<f64>().unwrap() - t_ms * 1e-3).abs() < 1e-9);
+            assert_eq!(r[4], m.replace('\t', " "));
+        }
+    }
+    // The task events: one row per trial, from the first sample.
+    let tsv = std::fs::read_to_string(beh.join("sub-01_task-replay_events.tsv")).unwrap();
+    let mut lines = tsv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split('\t').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split('\t').collect()).collect();
+    assert_eq!(rows.len(), trialids.len());
+    for (k, (r, t_ms)) in rows.iter().zip(&trialids).enumerate() {
+        let onset: f64 = r[col("onset")].parse().unwrap();
+        assert!((onset - (t_ms - first_sample_ms) * 1e-3).abs() < 1e-6);
+        assert_eq!(r[col("trial")], k.to_string());
+        assert_eq!(r[col("var_Trial_Index_")], (k + 1).to_string());
+    }
+    // Read back: the exported recording's events are the messages at
+    // their times, and the trials at their TRIALIDs.
+    let eye1 = beh.join("sub-01_task-replay_recording-eye1_physio.tsv.gz");
+    let o = gazelight(&["inspect", "--json", eye1.to_str().unwrap()]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ev = &v["events"];
+    assert_eq!(ev["total"], msgs.len() + trialids.len());
+    let sources: Vec<(String, u64)> = ev["sources"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["name"].as_str().unwrap().to_owned(),
+                c["count"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        sources,
+        [
+            ("events".to_owned(), trialids.len() as u64),
+            ("physioevents".to_owned(), msgs.len() as u64)
+        ]
+    );
+    assert_eq!(ev["first"][0]["text"], msgs[0].1);
+    assert!((ev["first"][0]["t_secs"].as_f64().unwrap() - msgs[0].0 * 1e-3).abs() < 1e-9);
+    std::fs::remove_dir_all(&out).ok();
+}

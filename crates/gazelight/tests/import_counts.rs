@@ -155,6 +155,9 @@ fn export_of_a_left_eye_eyelink_file_is_one_valid_eye() {
     assert_eq!(
         names(&beh),
         [
+            // The trials of its TRIALID messages (issue 47, docs/events.md).
+            "sub-left_task-replay_events.json",
+            "sub-left_task-replay_events.tsv",
             "sub-left_task-replay_recording-eye2_physio.json",
             "sub-left_task-replay_recording-eye2_physio.tsv.gz",
             "sub-left_task-replay_recording-eye2_physioevents.json",
