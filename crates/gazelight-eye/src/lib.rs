@@ -40,6 +40,7 @@
 //! ```
 
 pub mod calibration;
+pub mod channel_layout;
 pub mod clock;
 pub mod filter;
 pub mod profile;

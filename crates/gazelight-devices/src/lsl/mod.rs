@@ -20,7 +20,9 @@ mod source;
 use std::ffi::c_char;
 
 pub use config::{InletMapping, LslConfig, ResolveScope};
-pub use source::{Layout, LayoutError, LslQuery, LslQueryError, LslSource, StreamFacts};
+pub use source::{
+    Layout, LayoutError, LslQuery, LslQueryError, LslSource, StreamFacts, detect_layout,
+};
 
 use ffi::{Api, Ptr};
 

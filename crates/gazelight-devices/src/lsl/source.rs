@@ -1,12 +1,14 @@
 //! `lsl://?name=…` / `lsl://?type=…`: an LSL stream as a [`SampleSource`].
 //!
 //! A reader thread resolves the stream, opens an inlet, reads the
-//! channel labels from the stream's description and picks a [`Layout`]:
-//! Pupil Capture's LSL relay (`pupil_capture`: `confidence`,
-//! `norm_pos_x`, `norm_pos_y`, …, `diameter0_2d`, `diameter1_2d`,
-//! `diameter0_3d`, `diameter1_3d`), Neon's stream (`x`, `y` in scene
-//! camera pixels, `pupil_diameter_left`, `pupil_diameter_right` in mm), or
-//! the mapping in `[lsl.inlet]`. Every sample becomes gaze and per-eye
+//! channel labels from the stream's description and picks a [`Layout`]
+//! (the rule the XDF importer uses too, `gazelight_eye::channel_layout`):
+//! gazelight's own outlet, Pupil Capture's LSL relay (`pupil_capture`:
+//! `confidence`, `norm_pos_x`, `norm_pos_y`, …, `diameter0_2d`,
+//! `diameter1_2d`, `diameter0_3d`, `diameter1_3d`), Neon's stream (`x`, `y`
+//! in scene camera pixels, `pupil_diameter_left`, `pupil_diameter_right` in
+//! mm), a generic `pupil` stream, or the mapping in `[lsl.inlet]`. A lost
+//! pupil (0, NaN) is a sample of confidence 0, as in a replay. Every sample becomes gaze and per-eye
 //! pupil samples on the host clock: its timestamp goes through the
 //! stream's [`SourceClock`], anchored on the inlet's `time_correction()`
 //! (refreshed every few seconds; it gives this machine's LSL clock) and
@@ -28,7 +30,7 @@ use tokio::sync::mpsc;
 use super::{Inlet, InletMapping, LslClock, LslConfig, LslError, Pulled, resolve};
 use crate::{ThreadItem, ThreadedSource, recv_reopenable, send_blocking};
 use gazelight_eye::clock::{SharedClockStats, SourceClock, SourceClockConfig, host_now_secs};
-use gazelight_eye::sample::{DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample};
+use gazelight_eye::sample::{PupilUnit, Sample};
 use gazelight_eye::source::{SampleSource, SourceError};
 
 /// How often the time correction is refreshed, seconds.
@@ -37,12 +39,7 @@ const TIME_CORRECTION_PERIOD_SECS: f64 = 5.0;
 const PULL_TIMEOUT_SECS: f64 = 0.05;
 /// How long one resolve waits before the stop flag is checked, seconds.
 const RESOLVE_STEP_SECS: f64 = 0.5;
-/// Neon's scene camera, pixels (`gazelight_eye`'s one definition): its gaze
-/// x/y are in these pixels.
-const NEON_SCENE_PX: [f64; 2] = [
-    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[0] as f64,
-    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[1] as f64,
-];
+use gazelight_eye::channel_layout::NEON_SCENE_PX;
 
 /// Why an `lsl://` URI names no stream; the message quotes the URI.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -71,9 +68,11 @@ pub enum LayoutError {
     MissingChannel(String),
     /// Neither a known layout nor a mapping.
     #[error(
-        "channel labels [{}] are neither Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, \
-         diameter0_3d, …) nor Neon's (x, y, pupil_diameter_left, …): map them in [lsl.inlet] \
-         (gaze_x, gaze_y, gaze_range, pupil_right, pupil_left, pupil_unit, confidence)",
+        "channel labels [{}] are none of gazelight's own outlet (gaze_x, gaze_y, \
+         pupil_right_mm, pupil_left_mm, …), Pupil Capture's LSL relay (norm_pos_x, norm_pos_y, \
+         diameter0_3d, …), Neon's (x, y, pupil_diameter_left, …) or a generic pupil stream \
+         (pupil): map them in [lsl.inlet] (gaze_x, gaze_y, gaze_range, pupil_right, \
+         pupil_left, pupil_unit, confidence)",
         .labels.join(", ")
     )]
     Unknown { labels: Vec<String> },
@@ -160,146 +159,44 @@ fn percent_decode(s: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
-/// How a stream's channels are read.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Layout {
-    /// `pupil-capture-relay`, `neon` or `mapped`.
-    pub kind: &'static str,
-    /// Channel indices.
-    pub gaze_x: Option<usize>,
-    pub gaze_y: Option<usize>,
-    /// Gaze value range (divided by it → normalised).
-    pub gaze_range: [f64; 2],
-    /// Whether gaze y = 0 is the bottom (Pupil's `norm_pos`).
-    pub gaze_y_up: bool,
-    pub confidence: Option<usize>,
-    /// [right, left]: (channel, unit) in order of preference.
-    pub pupil: [Vec<(usize, PupilUnit)>; 2],
-}
+/// How a stream's channels are read: the one rule shared with the XDF
+/// importer (`gazelight_eye::channel_layout`).
+pub use gazelight_eye::channel_layout::ChannelLayout as Layout;
 
-impl Layout {
-    /// Picks the layout from the channel labels (or `mapping` when set).
-    pub fn detect(labels: &[String], mapping: &InletMapping) -> Result<Self, LayoutError> {
-        let idx = |l: &str| labels.iter().position(|x| x == l);
-        let need = |l: &str| idx(l).ok_or_else(|| LayoutError::MissingChannel(l.to_owned()));
-        if mapping.is_set() {
-            let unit = match mapping.pupil_unit.as_deref() {
-                None | Some("mm") => PupilUnit::Mm,
-                Some("px") => PupilUnit::Px,
-                _ => PupilUnit::Arbitrary,
-            };
-            let opt = |l: &Option<String>| l.as_deref().map(need).transpose();
-            let eye = |l: &Option<String>| -> Result<Vec<(usize, PupilUnit)>, LayoutError> {
-                Ok(opt(l)?.map(|i| vec![(i, unit)]).unwrap_or_default())
-            };
-            return Ok(Self {
-                kind: "mapped",
-                gaze_x: opt(&mapping.gaze_x)?,
-                gaze_y: opt(&mapping.gaze_y)?,
-                gaze_range: mapping.gaze_range.unwrap_or([1.0, 1.0]),
-                gaze_y_up: mapping.gaze_origin.as_deref() == Some("bottom"),
-                confidence: opt(&mapping.confidence)?,
-                pupil: [eye(&mapping.pupil_right)?, eye(&mapping.pupil_left)?],
-            });
-        }
-        if idx("norm_pos_x").is_some() && idx("norm_pos_y").is_some() {
-            // Pupil Capture LSL relay: eye 0 = right, eye 1 = left; the 3D
-            // diameter (mm) is preferred, the 2D one (px) is the fallback.
-            let eye = |e: u8| {
-                let mut v = Vec::new();
-                if let Some(i) = idx(&format!("diameter{e}_3d")) {
-                    v.push((i, PupilUnit::Mm));
-                }
-                if let Some(i) = idx(&format!("diameter{e}_2d")) {
-                    v.push((i, PupilUnit::Px));
-                }
-                v
-            };
-            return Ok(Self {
-                kind: "pupil-capture-relay",
-                gaze_x: idx("norm_pos_x"),
-                gaze_y: idx("norm_pos_y"),
-                gaze_range: [1.0, 1.0],
-                gaze_y_up: true,
-                confidence: idx("confidence"),
-                pupil: [eye(0), eye(1)],
-            });
-        }
-        if idx("x").is_some() && idx("y").is_some() {
-            let eye = |side: &str| {
-                idx(&format!("pupil_diameter_{side}"))
-                    .map(|i| vec![(i, PupilUnit::Mm)])
-                    .unwrap_or_default()
-            };
-            return Ok(Self {
-                kind: "neon",
-                gaze_x: idx("x"),
-                gaze_y: idx("y"),
-                gaze_range: mapping.scene_camera_px.unwrap_or(NEON_SCENE_PX),
-                gaze_y_up: false,
-                confidence: None,
-                pupil: [eye("right"), eye("left")],
-            });
-        }
-        Err(LayoutError::Unknown {
+/// Picks the layout from the channel labels, or from `mapping` when it is
+/// set (`[lsl.inlet]`: kind `mapped`).
+pub fn detect_layout(labels: &[String], mapping: &InletMapping) -> Result<Layout, LayoutError> {
+    let idx = |l: &str| labels.iter().position(|x| x == l);
+    let need = |l: &str| idx(l).ok_or_else(|| LayoutError::MissingChannel(l.to_owned()));
+    if !mapping.is_set() {
+        let scene_px = mapping.scene_camera_px.unwrap_or(NEON_SCENE_PX);
+        // liblsl gives the labels only: no units.
+        return Layout::detect(labels, None, scene_px).ok_or_else(|| LayoutError::Unknown {
             labels: labels.to_vec(),
-        })
+        });
     }
-
-    /// The samples of one LSL sample at host time `t_secs`, appended to `out`.
-    pub fn decode(&self, values: &[f64], t_secs: f64, out: &mut Vec<Sample>) {
-        let get = |i: Option<usize>| i.and_then(|i| values.get(i).copied());
-        let confidence = get(self.confidence)
-            .filter(|c| c.is_finite())
-            .map_or(1.0, |c| c.clamp(0.0, 1.0)) as f32;
-        let mut valid = [false; 2];
-        for (e, prefs) in self.pupil.iter().enumerate() {
-            let Some((d, unit)) = prefs.iter().find_map(|&(i, u)| {
-                values
-                    .get(i)
-                    .copied()
-                    .filter(|v| v.is_finite() && *v > 0.0)
-                    .map(|v| (v, u))
-            }) else {
-                continue;
-            };
-            valid[e] = true;
-            out.push(Sample::Pupil(PupilSample {
-                t_secs,
-                eye: e as u8,
-                diameter_raw: d as f32,
-                unit,
-                diameter_mm: (unit == PupilUnit::Mm).then_some(d as f32),
-                confidence,
-                norm_pos: [f32::NAN; 2],
-                method: if unit == PupilUnit::Mm && self.kind == "pupil-capture-relay" {
-                    DetectorMethod::Pupil3d
-                } else if self.kind == "pupil-capture-relay" {
-                    DetectorMethod::Pupil2d
-                } else {
-                    DetectorMethod::Other
-                },
-            }));
-        }
-        if let (Some(x), Some(y)) = (get(self.gaze_x), get(self.gaze_y))
-            && x.is_finite()
-            && y.is_finite()
-        {
-            let u = x / self.gaze_range[0];
-            let v = y / self.gaze_range[1];
-            let v = if self.gaze_y_up { 1.0 - v } else { v };
-            out.push(Sample::Gaze(GazeSample {
-                t_secs,
-                gaze_uv: [u as f32, v as f32],
-                confidence,
-                eyes: match valid {
-                    [true, false] => GazeEyes::Right,
-                    [false, true] => GazeEyes::Left,
-                    _ => GazeEyes::Binocular,
-                },
-            }));
-        }
-    }
+    let unit = match mapping.pupil_unit.as_deref() {
+        None | Some("mm") => PupilUnit::Mm,
+        Some("px") => PupilUnit::Px,
+        _ => PupilUnit::Arbitrary,
+    };
+    let opt = |l: &Option<String>| l.as_deref().map(need).transpose();
+    let eye = |l: &Option<String>| -> Result<Vec<(usize, PupilUnit)>, LayoutError> {
+        Ok(opt(l)?.map(|i| vec![(i, unit)]).unwrap_or_default())
+    };
+    Ok(Layout {
+        kind: "mapped",
+        gaze_x: opt(&mapping.gaze_x)?,
+        gaze_y: opt(&mapping.gaze_y)?,
+        gaze_range: mapping.gaze_range.unwrap_or([1.0, 1.0]),
+        gaze_y_up: mapping.gaze_origin.as_deref() == Some("bottom"),
+        gaze_valid: None,
+        confidence: opt(&mapping.confidence)?,
+        pupil: [eye(&mapping.pupil_right)?, eye(&mapping.pupil_left)?],
+        eye_confidence: [None, None],
+        eye_valid: [None, None],
+        blink: None,
+    })
 }
 
 /// What the reader thread learnt about the stream it opened.
@@ -458,7 +355,7 @@ fn read_stream(
         }
     };
     let labels = full.channel_labels();
-    let layout = match Layout::detect(&labels, &config.inlet) {
+    let layout = match detect_layout(&labels, &config.inlet) {
         Ok(l) => l,
         Err(reason) => {
             let source_name = format!("{query} (`{}`)", full.name());
@@ -533,7 +430,7 @@ fn read_stream(
                     continue;
                 };
                 out.clear();
-                layout.decode(&buf, host, &mut out);
+                layout.decode(&buf, host, &mut |s| out.push(s));
                 for s in out.drain(..) {
                     if !send_blocking(tx, stop, Ok(s)) {
                         return;
@@ -612,7 +509,7 @@ mod tests {
 
     #[test]
     fn relay_layout_reads_gaze_and_prefers_3d_diameters() {
-        let l = Layout::detect(&labels(&RELAY), &InletMapping::default()).unwrap();
+        let l = detect_layout(&labels(&RELAY), &InletMapping::default()).unwrap();
         assert_eq!(l.kind, "pupil-capture-relay");
         let mut v = vec![f64::NAN; 22];
         v[0] = 0.9;
@@ -622,7 +519,7 @@ mod tests {
         v[19] = 33.0;
         v[20] = 3.5;
         let mut out = Vec::new();
-        l.decode(&v, 10.0, &mut out);
+        l.decode(&v, 10.0, &mut |s| out.push(s));
         // Right eye: 3D mm; left eye: no 3D (NaN) → 2D px.
         let Sample::Pupil(r) = out[0] else { panic!() };
         assert_eq!(
@@ -640,20 +537,20 @@ mod tests {
 
     #[test]
     fn neon_and_mapped_layouts() {
-        let l = Layout::detect(
+        let l = detect_layout(
             &labels(&["x", "y", "pupil_diameter_left", "pupil_diameter_right"]),
             &InletMapping::default(),
         )
         .unwrap();
         assert_eq!(l.kind, "neon");
         let mut out = Vec::new();
-        l.decode(&[800.0, 300.0, 4.0, 3.0], 1.0, &mut out);
+        l.decode(&[800.0, 300.0, 4.0, 3.0], 1.0, &mut |s| out.push(s));
         let Sample::Pupil(r) = out[0] else { panic!() };
         assert_eq!((r.eye, r.diameter_mm), (0, Some(3.0)));
         let Sample::Gaze(g) = out[2] else { panic!() };
         assert_eq!(g.gaze_uv, [0.5, 0.25]);
 
-        let err = Layout::detect(&labels(&["a", "b"]), &InletMapping::default())
+        let err = detect_layout(&labels(&["a", "b"]), &InletMapping::default())
             .unwrap_err()
             .to_string();
         assert!(err.contains("[lsl.inlet]") && err.contains("a, b"), "{err}");
@@ -665,9 +562,9 @@ mod tests {
             pupil_unit: Some("px".into()),
             ..InletMapping::default()
         };
-        let l = Layout::detect(&labels(&["a", "b"]), &m).unwrap();
+        let l = detect_layout(&labels(&["a", "b"]), &m).unwrap();
         out.clear();
-        l.decode(&[540.0, 960.0], 2.0, &mut out);
+        l.decode(&[540.0, 960.0], 2.0, &mut |s| out.push(s));
         let Sample::Pupil(p) = out[0] else { panic!() };
         assert_eq!((p.eye, p.unit, p.diameter_raw), (1, PupilUnit::Px, 540.0));
         let Sample::Gaze(g) = out[1] else { panic!() };
@@ -677,7 +574,7 @@ mod tests {
             ..InletMapping::default()
         };
         assert!(
-            Layout::detect(&labels(&["a"]), &bad)
+            detect_layout(&labels(&["a"]), &bad)
                 .unwrap_err()
                 .to_string()
                 .contains("zz")

@@ -25,16 +25,9 @@ use std::path::{Path, PathBuf};
 pub use reader::{ChannelFormat, ChannelInfo, StreamInfo, StreamSamples, XdfFile};
 
 use super::{ImportError, ImportWarnings, Importer, Pending, Position};
-use gazelight_eye::sample::{
-    BlinkEvent, DetectorMethod, GazeEyes, GazeSample, PupilSample, PupilUnit, Sample,
-};
+use gazelight_eye::sample::{BlinkEvent, Sample};
 
-/// Neon's scene camera, pixels (`gazelight_eye`'s one definition): Neon's
-/// LSL gaze x/y are in these pixels.
-pub const NEON_SCENE_PX: [f64; 2] = [
-    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[0] as f64,
-    gazelight_eye::sample::NEON_SCENE_CAMERA_PX[1] as f64,
-];
+pub use gazelight_eye::channel_layout::{ChannelLayout as EyeLayout, NEON_SCENE_PX};
 
 /// The stream types picked when no `?stream=` is given, in this order of
 /// preference (the first stream of either type wins).
@@ -76,33 +69,8 @@ fn percent_decode(s: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
-/// How an eye stream's channels become samples.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct EyeLayout {
-    /// `gazelight-eye`, `pupil-capture-relay`, `neon` or `generic`.
-    pub kind: &'static str,
-    pub gaze_x: Option<usize>,
-    pub gaze_y: Option<usize>,
-    /// Gaze value range: divided by it → normalised.
-    pub gaze_range: [f64; 2],
-    /// Whether gaze y = 0 is the bottom (Pupil's `norm_pos`).
-    pub gaze_y_up: bool,
-    /// A channel that says whether the gaze is valid (> 0.5).
-    pub gaze_valid: Option<usize>,
-    /// One confidence for the sample.
-    pub confidence: Option<usize>,
-    /// [right, left]: (channel, unit) in order of preference.
-    pub pupil: [Vec<(usize, PupilUnit)>; 2],
-    /// [right, left]: per-eye confidence channels.
-    pub eye_confidence: [Option<usize>; 2],
-    /// [right, left]: per-eye validity channels (> 0.5 valid).
-    pub eye_valid: [Option<usize>; 2],
-    /// A blink channel (> 0.5 during a blink).
-    pub blink: Option<usize>,
-}
-
 /// Why an eye stream's channels match no layout.
-fn layout_error(info: &StreamInfo) -> String {
+pub(crate) fn layout_error(info: &StreamInfo) -> String {
     let labels = info.labels();
     let channels = if labels.iter().all(String::is_empty) {
         format!("{} channels without labels", labels.len())
@@ -117,208 +85,6 @@ fn layout_error(info: &StreamInfo) -> String {
          x, y, pupil (normalised gaze, origin top-left)",
         info.name, info.kind,
     )
-}
-
-fn unit_of(unit: &str) -> PupilUnit {
-    match unit.trim().to_ascii_lowercase().as_str() {
-        "mm" | "millimeters" | "millimetres" => PupilUnit::Mm,
-        "px" | "pixel" | "pixels" => PupilUnit::Px,
-        _ => PupilUnit::Arbitrary,
-    }
-}
-
-impl EyeLayout {
-    /// Picks the layout from the stream's channel labels.
-    pub fn detect(info: &StreamInfo) -> Result<Self, String> {
-        let labels = info.labels();
-        let idx = |l: &str| labels.iter().position(|x| x.eq_ignore_ascii_case(l));
-        let none = Self {
-            kind: "generic",
-            gaze_x: None,
-            gaze_y: None,
-            gaze_range: [1.0, 1.0],
-            gaze_y_up: false,
-            gaze_valid: None,
-            confidence: None,
-            pupil: [Vec::new(), Vec::new()],
-            eye_confidence: [None, None],
-            eye_valid: [None, None],
-            blink: None,
-        };
-        if let (Some(x), Some(y), Some(r), Some(l)) = (
-            idx("gaze_x"),
-            idx("gaze_y"),
-            idx("pupil_right_mm"),
-            idx("pupil_left_mm"),
-        ) {
-            // gazelight's own outlet (crates/gazelight/src/lsl_outlets.rs).
-            return Ok(Self {
-                kind: "gazelight-eye",
-                gaze_x: Some(x),
-                gaze_y: Some(y),
-                gaze_valid: idx("gaze_valid"),
-                pupil: [vec![(r, PupilUnit::Mm)], vec![(l, PupilUnit::Mm)]],
-                eye_confidence: [idx("confidence_right"), idx("confidence_left")],
-                eye_valid: [idx("pupil_valid_right"), idx("pupil_valid_left")],
-                blink: idx("blink"),
-                ..none
-            });
-        }
-        if let (Some(x), Some(y)) = (idx("norm_pos_x"), idx("norm_pos_y")) {
-            // Pupil Capture's LSL relay: eye 0 = right, 1 = left; the 3D
-            // diameter (mm) first, the 2D one (px) as the fallback.
-            let eye = |e: u8| {
-                let mut v = Vec::new();
-                if let Some(i) = idx(&format!("diameter{e}_3d")) {
-                    v.push((i, PupilUnit::Mm));
-                }
-                if let Some(i) = idx(&format!("diameter{e}_2d")) {
-                    v.push((i, PupilUnit::Px));
-                }
-                v
-            };
-            return Ok(Self {
-                kind: "pupil-capture-relay",
-                gaze_x: Some(x),
-                gaze_y: Some(y),
-                gaze_y_up: true,
-                confidence: idx("confidence"),
-                pupil: [eye(0), eye(1)],
-                ..none
-            });
-        }
-        let x = idx("x");
-        let y = idx("y");
-        let px = |i: Option<usize>| {
-            i.and_then(|i| info.channels.get(i))
-                .is_some_and(|c| unit_of(&c.unit) == PupilUnit::Px)
-        };
-        let neon_pupils = [idx("pupil_diameter_right"), idx("pupil_diameter_left")];
-        if x.is_some() && y.is_some() && (px(x) || neon_pupils.iter().any(Option::is_some)) {
-            return Ok(Self {
-                kind: "neon",
-                gaze_x: x,
-                gaze_y: y,
-                gaze_range: NEON_SCENE_PX,
-                pupil: neon_pupils.map(|i| i.map(|i| vec![(i, PupilUnit::Mm)]).unwrap_or_default()),
-                ..none
-            });
-        }
-        let pupil = idx("pupil");
-        if (x.is_some() && y.is_some()) || pupil.is_some() {
-            let unit = pupil
-                .and_then(|i| info.channels.get(i))
-                .map_or(PupilUnit::Arbitrary, |c| unit_of(&c.unit));
-            let p = pupil.map(|i| vec![(i, unit)]).unwrap_or_default();
-            return Ok(Self {
-                kind: "generic",
-                gaze_x: x.and(y).and(x),
-                gaze_y: x.and(y),
-                confidence: idx("confidence"),
-                // One pupil for the stream: given to both eyes.
-                pupil: [p.clone(), p],
-                ..none
-            });
-        }
-        Err(layout_error(info))
-    }
-
-    /// The samples of one stream sample (values `v` at time `t_secs`).
-    fn decode(&self, v: &[f64], t_secs: f64, out: &mut Pending<4>) {
-        let get = |i: Option<usize>| i.and_then(|i| v.get(i).copied());
-        let flag = |i: Option<usize>| get(i).map(|x| x > 0.5);
-        let confidence = get(self.confidence)
-            .filter(|c| c.is_finite())
-            .map_or(1.0, |c| c.clamp(0.0, 1.0)) as f32;
-        let mut valid = [false; 2];
-        for (e, prefs) in self.pupil.iter().enumerate() {
-            let found = prefs.iter().find_map(|&(i, u)| {
-                v.get(i)
-                    .copied()
-                    .filter(|d| d.is_finite() && *d > 0.0)
-                    .map(|d| (d, u))
-            });
-            let eye_valid = flag(self.eye_valid[e]).unwrap_or(true);
-            let conf = get(self.eye_confidence[e])
-                .filter(|c| c.is_finite())
-                .map_or(confidence, |c| c.clamp(0.0, 1.0) as f32);
-            // The detector of the value found; a lost pupil belongs to the
-            // preferred one (the 3D model where the relay has it).
-            let unit = found.map(|f| f.1).or(prefs.first().map(|p| p.1));
-            let method = match (self.kind, unit) {
-                ("pupil-capture-relay", Some(PupilUnit::Mm)) => DetectorMethod::Pupil3d,
-                ("pupil-capture-relay", _) => DetectorMethod::Pupil2d,
-                _ => DetectorMethod::Other,
-            };
-            if prefs.is_empty() {
-                // The layout has no pupil channel for this eye.
-                continue;
-            }
-            match found {
-                Some((d, unit)) if eye_valid => {
-                    valid[e] = true;
-                    out.push(Sample::Pupil(PupilSample {
-                        t_secs,
-                        eye: e as u8,
-                        diameter_raw: d as f32,
-                        unit,
-                        diameter_mm: (unit == PupilUnit::Mm).then_some(d as f32),
-                        confidence: conf,
-                        norm_pos: [f32::NAN; 2],
-                        method,
-                    }));
-                }
-                // No usable diameter (0, NaN, negative: a blink or a lost
-                // pupil), or a validity channel that says so: still a
-                // sample of this eye, lost (confidence 0), so blinks and
-                // dropouts are counted downstream and the counts equal
-                // the stream's rows.
-                _ => out.push(Sample::Pupil(PupilSample {
-                    t_secs,
-                    eye: e as u8,
-                    diameter_raw: 0.0,
-                    unit: prefs.first().map_or(PupilUnit::Mm, |p| p.1),
-                    diameter_mm: None,
-                    confidence: 0.0,
-                    norm_pos: [f32::NAN; 2],
-                    method,
-                })),
-            }
-        }
-        let (Some(_), Some(_)) = (self.gaze_x, self.gaze_y) else {
-            return;
-        };
-        let eyes = match valid {
-            [true, false] => GazeEyes::Right,
-            [false, true] => GazeEyes::Left,
-            _ => GazeEyes::Binocular,
-        };
-        let xy = (get(self.gaze_x), get(self.gaze_y));
-        let gaze = match xy {
-            (Some(x), Some(y))
-                if x.is_finite() && y.is_finite() && flag(self.gaze_valid) != Some(false) =>
-            {
-                let u = x / self.gaze_range[0];
-                let v = y / self.gaze_range[1];
-                let v = if self.gaze_y_up { 1.0 - v } else { v };
-                GazeSample {
-                    t_secs,
-                    gaze_uv: [u as f32, v as f32],
-                    confidence,
-                    eyes,
-                }
-            }
-            // A row without a usable gaze (NaN, or its validity channel
-            // says lost): a lost gaze sample, confidence 0, NaN position.
-            _ => GazeSample {
-                t_secs,
-                gaze_uv: [f32::NAN; 2],
-                confidence: 0.0,
-                eyes,
-            },
-        };
-        out.push(Sample::Gaze(gaze));
-    }
 }
 
 /// Streaming importer of one eye stream of an XDF file.
@@ -404,7 +170,9 @@ impl XdfImporter {
                 describe(info)
             )));
         }
-        let layout = EyeLayout::detect(info).map_err(structure)?;
+        let units: Vec<String> = info.channels.iter().map(|c| c.unit.clone()).collect();
+        let layout = EyeLayout::detect(&info.labels(), Some(&units), NEON_SCENE_PX)
+            .ok_or_else(|| structure(layout_error(info)))?;
         let mut warnings = ImportWarnings::default();
         let others: Vec<String> = file
             .streams
@@ -529,7 +297,8 @@ impl XdfImporter {
             return Ok(false);
         };
         let v = self.samples.numeric();
-        self.layout.decode(v, t, &mut self.pending);
+        let pending = &mut self.pending;
+        self.layout.decode(v, t, &mut |s| pending.push(s));
         if let Some(b) = self.layout.blink {
             let on = v.get(b).is_some_and(|x| *x > 0.5);
             match (on, self.blink_start) {
