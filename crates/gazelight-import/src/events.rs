@@ -563,7 +563,19 @@ pub fn pupil_core(dir: &Path) -> Result<RecordingEvents, ImportError> {
         let reader =
             gazelight_pupil::PldataReader::open(&pldata).map_err(|e| recording_err(&pldata, e))?;
         for record in reader {
-            let record = record.map_err(|e| recording_err(&pldata, e))?;
+            // A file that breaks (a megabyte of garbage, an I/O error)
+            // keeps the annotations before the break, with a warning.
+            let record = match record {
+                Ok(r) => r,
+                Err(e) => {
+                    out.warnings.note(
+                        &pldata,
+                        Position::File,
+                        format_args!("the rest of the annotations not read: {e}"),
+                    );
+                    break;
+                }
+            };
             if !record.topic.starts_with("annotation") {
                 continue;
             }
@@ -685,7 +697,17 @@ pub fn neon_native(dir: &Path) -> Result<RecordingEvents, ImportError> {
         let mut b = [0u8; 8];
         match times.read_exact(&mut b) {
             Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => break,
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
+                let len = std::fs::metadata(&time_path).map_or(0, |m| m.len());
+                if len % 8 != 0 {
+                    out.warnings.skip(
+                        &time_path,
+                        Position::Byte(len - len % 8),
+                        format_args!("{} trailing bytes, not a whole u64 time", len % 8),
+                    );
+                }
+                break;
+            }
             Err(source) => {
                 return Err(ImportError::Io {
                     path: time_path,

@@ -330,3 +330,121 @@ fn a_neon_cloud_events_csv_beside_an_export() {
     assert!((ev.events[1].t_secs - first - 0.0025).abs() < 1e-6);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+fn gz(path: &Path, text: &str) {
+    use std::io::Write;
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    e.write_all(text.as_bytes()).unwrap();
+    std::fs::write(path, e.finish().unwrap()).unwrap();
+}
+
+/// A BIDS recording written here (timestamps in ms, `StartTime` −2 s):
+/// its physioevents messages at their onsets, its `_events.tsv` onsets
+/// moved onto the physio clock (first sample 1.000 s, at `StartTime`).
+#[test]
+fn bids_physioevents_messages_and_task_events_on_the_physio_clock() {
+    let dir = tmp("bids");
+    let stem = "sub-01_task-x_recording-eye1";
+    gz(
+        &dir.join(format!("{stem}_physio.tsv.gz")),
+        "1000\t0.5\t0.5\t4.0\n1002\t0.5\t0.5\t4.1\n1004\t0.5\t0.5\t4.2\n",
+    );
+    std::fs::write(
+        dir.join(format!("{stem}_physio.json")),
+        r#"{"PhysioType": "eyetrack", "RecordedEye": "right", "SamplingFrequency": 500,
+            "StartTime": -2.0, "Columns": ["timestamp", "x_coordinate", "y_coordinate", "pupil_size"],
+            "timestamp": {"Units": "ms"}, "pupil_size": {"Units": "mm"}}"#,
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join(format!("{stem}_physioevents.json")),
+        r#"{"Columns": ["onset", "duration", "trial_type", "message"]}"#,
+    )
+    .unwrap();
+    gz(
+        &dir.join(format!("{stem}_physioevents.tsv.gz")),
+        "1001\tn/a\tn/a\tSTIM on\n1002\t100\tblink\tn/a\n1003\tn/a\tfixation\tn/a\n1004\t2\tcue\tn/a\n",
+    );
+    std::fs::write(
+        dir.join("sub-01_task-x_events.tsv"),
+        "onset\tduration\ttrial_type\n3.5\t1\tgo\nbad\t1\tx\n",
+    )
+    .unwrap();
+    let ev = events::read(&dir.join(format!("{stem}_physio.tsv.gz"))).unwrap();
+    let got: Vec<(f64, &str, &str, Option<f64>)> = ev
+        .events
+        .iter()
+        .map(|e| {
+            (
+                e.t_secs,
+                e.text.as_str(),
+                e.source.as_str(),
+                e.duration_secs,
+            )
+        })
+        .collect();
+    assert_eq!(got.len(), 3, "{got:?}");
+    assert!(
+        (got[0].0 - 1.001).abs() < 1e-12 && got[0].1 == "STIM on" && got[0].2 == "physioevents"
+    );
+    assert!((got[1].0 - 1.004).abs() < 1e-12 && got[1].1 == "cue");
+    assert!((got[1].3.unwrap() - 0.002).abs() < 1e-12, "ms → s");
+    // 1.000 s + (3.5 − (−2.0)) s.
+    assert!((got[2].0 - 6.5).abs() < 1e-12 && got[2].1 == "go" && got[2].2 == "events");
+    assert_eq!(ev.warnings.skipped_records, 1);
+    // The samples are on the same clock.
+    let first = gazelight_import::open(&dir.join(format!("{stem}_physio.tsv.gz")))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .t_secs();
+    assert!((first - 1.0).abs() < 1e-12);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Hostile event files: a Neon `event.time` cut mid-record and a Pupil
+/// `annotation.pldata` whose tail is garbage keep what came before, with
+/// counted warnings, never an error.
+#[test]
+fn damaged_event_files_keep_what_is_readable() {
+    let dir = tmp("damaged");
+    pupil_recording_with_annotations(&dir, &[(5001.0, "a"), (5002.0, "b")]);
+    let mut bytes = std::fs::read(dir.join("annotation.pldata")).unwrap();
+    bytes.extend(std::iter::repeat_n(0xc1u8, 2 << 20));
+    std::fs::write(dir.join("annotation.pldata"), bytes).unwrap();
+    let ev = events::read(&dir).unwrap();
+    assert_eq!(ev.events.len(), 2);
+    assert!(
+        ev.warnings
+            .messages
+            .iter()
+            .any(|m| m.contains("annotation.pldata")),
+        "{:?}",
+        ev.warnings.messages
+    );
+    std::fs::remove_dir_all(&dir).ok();
+
+    let neon = tmp("neon-cut");
+    let demo = data_path("eye/neon-demo");
+    for e in std::fs::read_dir(&demo).unwrap().flatten() {
+        std::fs::copy(e.path(), neon.join(e.file_name())).unwrap();
+    }
+    let mut t = std::fs::read(neon.join("event.time")).unwrap();
+    t.extend([1, 2, 3]);
+    std::fs::set_permissions(
+        neon.join("event.time"),
+        <std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o644),
+    )
+    .unwrap();
+    std::fs::write(neon.join("event.time"), t).unwrap();
+    let ev = events::read(&neon).unwrap();
+    assert_eq!(ev.events.len(), 2);
+    assert_eq!(ev.warnings.skipped_records, 1);
+    assert!(
+        ev.warnings.messages[0].contains("3 trailing bytes"),
+        "{:?}",
+        ev.warnings.messages
+    );
+    std::fs::remove_dir_all(&neon).ok();
+}

@@ -97,8 +97,15 @@ pub fn run(args: ExportArgs) -> anyhow::Result<()> {
     // machine), its tracker and its stated rate.
     // The recording's events: messages in each eye's physioevents, the
     // trials in the task's _events.tsv (docs/events.md).
-    let events = import::events::read(&args.recording)
-        .with_context(|| format!("reading the events of {}", args.recording.display()))?;
+    // Events that cannot be read are a warning, not the end of the run
+    // (inspect says the same).
+    let events = import::events::read(&args.recording).unwrap_or_else(|e| {
+        eprintln!(
+            "warning: {}: events not read: {e}",
+            args.recording.display()
+        );
+        import::events::RecordingEvents::default()
+    });
     let raw = import::bids::export_raw_with_events(
         importer.as_mut(),
         &mut tx,

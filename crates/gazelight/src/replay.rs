@@ -216,8 +216,15 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         Origin::Flag,
     );
     // The recording's events (bounded), for events.csv.
-    let events = import::events::read(&args.recording)
-        .with_context(|| format!("reading the events of {}", args.recording.display()))?;
+    // Events that cannot be read are a warning, not the end of the run
+    // (inspect says the same).
+    let events = import::events::read(&args.recording).unwrap_or_else(|e| {
+        eprintln!(
+            "warning: {}: events not read: {e}",
+            args.recording.display()
+        );
+        import::events::RecordingEvents::default()
+    });
     // The inputs are checked; now where the outputs go (never over an
     // events file read, such as a Cloud export's events.csv).
     let inputs: Vec<&std::path::Path> = std::iter::once(args.recording.as_path())
