@@ -468,8 +468,9 @@ impl<R: ViewRenderer> FrameStep<R> {
             // No first frame from an unset state: where the first gaze's
             // pooling reaches no data (outside the scene's field), the eye
             // starts adapted to the light measured in the rest of the view
-            // (its solid-angle mean over the pixels with data), not 0 cd/m².
-            let field_cd_m2 = crate::pupil_light::field_mean_cd_m2(view_img, self.frustum_tans, 4);
+            // (its solid-angle mean over every pixel with data: a few bright
+            // lamps can carry a night view's mean), not 0 cd/m².
+            let field_cd_m2 = crate::pupil_light::field_mean_cd_m2(view_img, self.frustum_tans, 1);
             for p in &mut self.pipelines {
                 p.set_initial_target(field_cd_m2);
             }

@@ -82,7 +82,11 @@ pub fn engineering(v: f64) -> String {
     // Round to three significant digits first, so 999.6 becomes 1.00e3.
     let exp10 = v.abs().log10().floor() as i32;
     let scale = 10f64.powi(2 - exp10);
-    let rounded = (v * scale).round() / scale;
+    let rounded = match (v * scale).round() / scale {
+        r if r.is_finite() && r != 0.0 => r,
+        // Subnormal: the scale overflowed.
+        _ => v,
+    };
     let a = rounded.abs();
     if (0.01..1000.0).contains(&a) {
         let digits = (2 - a.log10().floor() as i32).max(0) as usize;
@@ -661,6 +665,7 @@ mod tests {
             (999.6, "1.00e3"),
             (12_345.0, "12.3e3"),
             (1e-9, "1.00e-9"),
+            (1e-300, "1.00e-300"),
             (0.0, "0"),
             (f64::NAN, "–"),
         ] {

@@ -285,6 +285,14 @@ impl FrameLoop {
         }
         let mut view_img = RgbImage::new(view.width, view.height);
         PanoramaView::new(view)?.render_scene(&pano, &mut view_img);
+        // No first frame from an unset state: a first gaze whose pooling
+        // reaches no data starts adapted to the view's field mean (every
+        // pixel: a few bright lamps can carry a night view's mean).
+        let field_cd_m2 = pupil_light::field_mean_cd_m2(&view_img, view_tans(&view), 1);
+        for e in &mut eyes {
+            gazelight_render::frame::ViewRenderer::set_initial_target(&mut e.pipeline, field_cd_m2);
+        }
+        let field = field_of(&view, &view_img);
         let kernel_len = match eyes.first_mut() {
             Some(e) => e.pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size),
             None => 0,
@@ -294,7 +302,7 @@ impl FrameLoop {
         let pupil_light = PupilLight::new(
             views,
             &[pupil_light::params(age_years, ObserverRange::IDENTITY); 2][..views.len()],
-            field_of(&view, &view_img),
+            field,
         )?;
         let pace_builds = psf_worker.is_some() && eyes.iter().all(|e| !e.pipeline.is_gpu());
         let n = eyes.len();
@@ -1179,6 +1187,49 @@ mod tests {
         assert!(
             (summary.eye_state_age_median_ms - 4.0).abs() < 0.5,
             "{summary:?}"
+        );
+    }
+
+    /// No first frame from an unset state: a first gaze far outside the
+    /// scene's field (the embedded panorama read as a forward fisheye, the
+    /// demo view turned 78° left: its left third has no data) pools no
+    /// light; the eye starts adapted to the light of the rest of the view
+    /// (within a factor 1.5 of the plain mean luminance of its pixels with
+    /// data, and not 0 cd/m², which drew a blown-out frame).
+    #[test]
+    fn first_frame_with_the_gaze_outside_the_field_starts_adapted_to_the_view() {
+        let (mut fl, tx) = small_loop_in(live_state(0.0, 4.0, 0.5, 1), None, false, true);
+        let img = &fl.view_img;
+        let (w, h) = (img.width, img.height);
+        let no_data =
+            |x: usize, y: usize| gazelight_vision::image::is_no_data(img.pixels[y * w + x]);
+        // The middle row's pixel without data farthest from any with data.
+        let y = h / 2;
+        let data_x: Vec<usize> = (0..w).filter(|&x| !no_data(x, y)).collect();
+        let gaze_x = (0..w)
+            .filter(|&x| no_data(x, y))
+            .max_by_key(|&x| data_x.iter().map(|&d| d.abs_diff(x)).min().unwrap_or(0))
+            .expect("a pixel without data on the middle row");
+        let far = data_x
+            .iter()
+            .map(|&d| d.abs_diff(gaze_x))
+            .min()
+            .unwrap_or(0);
+        assert!(far > w / 5, "no wide region without data: {far} px");
+        let with_data: Vec<f64> = img
+            .pixels
+            .iter()
+            .filter(|p| !gazelight_vision::image::is_no_data(**p))
+            .map(|p| f64::from(gazelight_vision::image::luminance(*p)))
+            .collect();
+        let mean = with_data.iter().sum::<f64>() / with_data.len() as f64;
+        let u = (gaze_x as f32 + 0.5) / w as f32;
+        tx.send_replace(live_state(0.0, 4.0, u, 2));
+        fl.step(0.0, 0.0, 0.0).expect("frame");
+        let a = fl.hub.frame().adaptation_cd_m2;
+        assert!(
+            a > mean / 1.5 && a < mean * 1.5,
+            "gaze u {u}: first adaptation {a} cd/m², view mean {mean} cd/m²"
         );
     }
 
