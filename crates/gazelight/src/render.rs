@@ -569,16 +569,22 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     }
     if let Some(plr) = pupil_light.as_deref() {
         for s in plr.spreads() {
+            let eye = if s.suffix.is_empty() {
+                String::new()
+            } else {
+                format!(" ({} eye)", s.suffix.trim_start_matches('_'))
+            };
+            if s.frames == 0 || !(s.residual_sd_mm.is_finite() && s.raw_sd_mm.is_finite()) {
+                // Not a NaN spread: say why there is none.
+                println!(
+                    "pupil light response{eye}: no residual: no frame has a measured pupil in \
+                     mm or in a calibration profile's mm (a raw unit without --calibration)"
+                );
+                continue;
+            }
             println!(
-                "pupil light response{}: residual SD {:.3} mm vs raw pupil SD {:.3} mm over {} measured frames",
-                if s.suffix.is_empty() {
-                    String::new()
-                } else {
-                    format!(" ({} eye)", s.suffix.trim_start_matches('_'))
-                },
-                s.residual_sd_mm,
-                s.raw_sd_mm,
-                s.frames
+                "pupil light response{eye}: residual SD {:.3} mm vs raw pupil SD {:.3} mm over {} measured frames",
+                s.residual_sd_mm, s.raw_sd_mm, s.frames
             );
         }
     }

@@ -486,3 +486,37 @@ fn first_frame_with_the_gaze_outside_the_field_starts_adapted_to_the_view() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A replay whose pupil has no physical scale (the shipped EyeLink file,
+/// in area units, without --calibration) says why it has no pupil light
+/// residual, instead of "residual SD NaN mm vs raw pupil SD NaN mm", and
+/// prints no NaN anywhere in its summary.
+#[test]
+fn replay_summary_says_why_there_is_no_residual_instead_of_nan() {
+    let dir = tmp("no-residual");
+    let out = dir.join("out");
+    let recording = shared("eye/eyelink-psa/both_eyes.asc");
+    let result = gazelight(&[
+        "replay",
+        recording.to_str().expect("utf-8"),
+        "--secs",
+        "1",
+        "--no-frames",
+        "--size",
+        "120x120",
+        "--out",
+        out.to_str().expect("utf-8"),
+    ]);
+    let stdout = String::from_utf8_lossy(&result.stdout);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    assert!(
+        stdout.contains("pupil light response: no residual"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("NaN"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
