@@ -175,9 +175,26 @@ impl FarSplit {
 
     /// `tail` and `near` (sr⁻¹, f32) at the grid offset (`dx`, `dy`)
     /// cells: the far field's kernels as the CPU and GPU grids sample them.
+    /// The tail is sharpened by one Van Cittert step against the grid's own
+    /// blur, `2·tail − B∗tail` with `B` the cubic B-spline at the cells
+    /// (weights 1/6, 4/6, 1/6 per axis: the bilinear splat and read-back
+    /// together, averaged over where a source falls in its cell): the tail
+    /// rises steeply from the window kernel's taper (12°) to its radius
+    /// (20°) and the blur took up to 6 % off its peak at 17–19°. The sum
+    /// over the grid, the tail's light, is unchanged.
     pub fn cell_kernels(&self, dx_cells: f64, dy_cells: f64) -> (f32, f32) {
+        let tail = |x: f64, y: f64| self.tail_per_sr(x.hypot(y) * FAR_CELL_DEG);
+        // Cubic B-spline at integer offsets (de Boor, A Practical Guide to
+        // Splines, ch. IX).
+        const B: [(f64, f64); 3] = [(-1.0, 1.0 / 6.0), (0.0, 4.0 / 6.0), (1.0, 1.0 / 6.0)];
+        let blurred: f64 = B
+            .iter()
+            .flat_map(|&(i, wi)| B.iter().map(move |&(j, wj)| (i, j, wi * wj)))
+            .map(|(i, j, w)| w * tail(dx_cells + i, dy_cells + j))
+            .sum();
+        let sharp = 2.0 * tail(dx_cells, dy_cells) - blurred;
         let th = dx_cells.hypot(dy_cells) * FAR_CELL_DEG;
-        (self.tail_per_sr(th) as f32, self.near_per_sr(th) as f32)
+        (sharp as f32, self.near_per_sr(th) as f32)
     }
 
     /// `2π ∫ f(θ) sin θ dθ` from 0 to [`FAR_MAX_DEG`] (midpoint rule,
