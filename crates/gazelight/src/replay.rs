@@ -324,7 +324,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         eprintln!("warning: {}: {m}", args.recording.display());
     }
     if let Some(warning) = input_report::pupil_rejection(feeder.stats()) {
-        tracing::warn!(recording = %args.recording.display(), "{warning}");
+        // Said once (a log line beside it repeated it).
         eprintln!("warning: {}: {warning}", args.recording.display());
     }
     // A recording's eyes are its eyes: a monocular one in stereo.

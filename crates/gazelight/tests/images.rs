@@ -489,8 +489,8 @@ fn first_frame_with_the_gaze_outside_the_field_starts_adapted_to_the_view() {
 
 /// A replay whose pupil has no physical scale (the shipped EyeLink file,
 /// in area units, without --calibration) says why it has no pupil light
-/// residual, instead of "residual SD NaN mm vs raw pupil SD NaN mm", and
-/// prints no NaN anywhere in its summary.
+/// residual, instead of "residual SD NaN mm vs raw pupil SD NaN mm",
+/// prints no NaN anywhere in its summary, and warns of the raw unit once.
 #[test]
 fn replay_summary_says_why_there_is_no_residual_instead_of_nan() {
     let dir = tmp("no-residual");
@@ -518,5 +518,15 @@ fn replay_summary_says_why_there_is_no_residual_instead_of_nan() {
         "{stdout}"
     );
     assert!(!stdout.contains("NaN"), "{stdout}");
+    // Its warning that the pupil has no physical scale is said once (a
+    // log line repeated it).
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(
+        stderr
+            .matches("the pupil is measured in raw tracker units")
+            .count(),
+        1,
+        "{stderr}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
