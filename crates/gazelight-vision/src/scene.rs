@@ -17,6 +17,8 @@
 //! loader divides the pixels by EXPOSURE and COLORCORR and multiplies them
 //! by 179, so a Radiance file's unit is cd/m² and the default
 //! [`LuminanceScale`] (1) reads an absolute rendering as it was rendered.
+//! Its RGBE pixels are decoded as Radiance decodes them, (c + ½)·2^(e−136)
+//! ([`rgbe_to_rgb`]), so a pixel's luminance is rtrace's and evalglare's.
 //! OpenEXR files carry no such convention: their unit is the file's own.
 //!
 //! ## Panorama convention
@@ -49,8 +51,10 @@ use crate::{RgbImage, VisionError};
 
 mod exr_header;
 pub mod projection;
+mod rgbe;
 pub use exr_header::{MAX_PIXELS, MAX_SIDE_PX};
 pub use projection::{ProjectionKind, RadianceView, RadianceViewError, SceneProjection};
+pub use rgbe::rgbe_to_rgb;
 
 /// Radiance's luminous efficacy of its white, lm/W: luminance =
 /// 179 × (0.265 R + 0.670 G + 0.065 B) / EXPOSURE (Radiance reference
@@ -434,7 +438,6 @@ fn decode_exr(reader: impl Read + Seek + Send, rgb: bool) -> Result<RgbImage, ex
 /// claimed size against [`MAX_SIDE_PX`], [`MAX_PIXELS`] and the file size
 /// before allocating, then applies 179 / (EXPOSURE × COLORCORR).
 fn decode_radiance(bytes: &[u8]) -> Result<(RgbImage, RadianceHeader), String> {
-    use image::ImageDecoder;
     let decoder = image::codecs::hdr::HdrDecoder::new(Cursor::new(bytes))
         .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
     let meta = decoder.metadata();
@@ -477,32 +480,34 @@ fn decode_radiance(bytes: &[u8]) -> Result<(RgbImage, RadianceHeader), String> {
             "corrupt Radiance HDR: EXPOSURE {exposure} / COLORCORR {corr:?} must be finite and > 0"
         ));
     }
-    let mut buf = vec![0u8; decoder.total_bytes() as usize];
-    decoder
-        .read_image(&mut buf)
-        .map_err(|e| format!("corrupt Radiance HDR: {e}"))?;
     let k64 = corr.map(|c| RADIANCE_EFFICACY_LM_PER_W / (exposure * c));
-    let brightest = buf
-        .chunks_exact(4)
-        .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
-        .filter(|v| v.is_finite())
-        .fold(0.0f32, f32::max);
+    // The pixels as Radiance reads them ((c + ½)·2^(e−136), see `rgbe`),
+    // not as the `image` crate does (c·2^(e−136)).
+    let offset = rgbe::pixel_data_offset(bytes)
+        .ok_or("corrupt Radiance HDR: no resolution line after the header")?;
+    let mut lines = rgbe::ScanLines::new(&bytes[offset..]);
+    let (w_px, h_px) = (w as usize, h as usize);
+    let mut line = vec![[0u8; 4]; w_px];
+    let mut pixels = Vec::with_capacity(w_px * h_px);
+    let mut brightest = 0.0f64;
+    for y in 0..h_px {
+        lines
+            .read(&mut line)
+            .map_err(|e| format!("corrupt Radiance HDR: scan line {y}: {e}"))?;
+        pixels.extend(line.iter().map(|&p| {
+            let rgb = rgbe::rgbe_to_rgb(p);
+            brightest = rgb.iter().copied().fold(brightest, f64::max);
+            [0, 1, 2].map(|i| (rgb[i] * k64[i]) as f32)
+        }));
+    }
     let k_max = k64.iter().copied().fold(0.0, f64::max);
-    if f64::from(brightest) * k_max > f64::from(f32::MAX) {
+    if brightest * k_max > f64::from(f32::MAX) {
         return Err(format!(
             "Radiance HDR values overflow single precision in cd/m²: the brightest, \
              {brightest:e} W/sr/m², is {:e} cd/m² after Radiance's 179 lm/W / EXPOSURE",
-            f64::from(brightest) * k_max
+            brightest * k_max
         ));
     }
-    let k = k64.map(|k| k as f32);
-    let pixels = buf
-        .chunks_exact(12)
-        .map(|p| {
-            let f = |i: usize| f32::from_ne_bytes([p[i], p[i + 1], p[i + 2], p[i + 3]]);
-            [f(0) * k[0], f(4) * k[1], f(8) * k[2]]
-        })
-        .collect();
     Ok((
         RgbImage {
             width: w as usize,
@@ -1124,10 +1129,12 @@ mod tests {
 
     #[test]
     fn radiance_exposure_is_honoured() {
-        // RGBE (128, 128, 128, 129) = 0.5·2¹ = 1.0 W/sr/m² per channel
-        // (Ward's RGBE: value = (m + 0.5)/256 · 2^(e−128); the decoder
-        // drops the +0.5). Radiance: L = 179 × (0.265+0.670+0.065)·1.0 /
-        // EXPOSURE = 179 / EXPOSURE cd/m².
+        // RGBE (128, 128, 128, 129), as Radiance's colr_color reads it:
+        // (128 + ½)·2^(129−136) = 128.5/128 = 1.00390625 W/sr/m² per
+        // channel (the `image` crate's c·2^(e−136) would give 1.0).
+        // Radiance: L = 179 × (0.265+0.670+0.065)·1.00390625 / EXPOSURE
+        // = 179.69921875 / EXPOSURE cd/m²; the Rec. 709 weights also sum
+        // to 1, so grey reads the same.
         for (header, exposure) in [
             ("", 1.0f32),
             ("EXPOSURE=0.5\n", 0.5),
@@ -1136,8 +1143,8 @@ mod tests {
             let b = radiance_file(header, 8, 4, [128, 128, 128, 129]);
             let s = Scene::from_bytes(&b, Path::new("sky.hdr"), LuminanceScale::default()).unwrap();
             let l = luminance(s.image.get(3, 2));
-            let want = 179.0 / exposure;
-            assert!((l - want).abs() < 1e-3 * want, "{header:?}: {l} vs {want}");
+            let want = 179.699_22 / exposure;
+            assert!((l - want).abs() < 1e-5 * want, "{header:?}: {l} vs {want}");
         }
         let b = radiance_file("EXPOSURE=0\n", 8, 4, [128, 128, 128, 129]);
         assert!(Scene::from_bytes(&b, Path::new("z.hdr"), LuminanceScale::default()).is_err());
