@@ -5,7 +5,9 @@
 //! into calls on it.
 //!
 //! Today it holds [`bounds`], the limits on every number a user gives
-//! (rates, durations, frame counts, image sizes, luminance scales). The
+//! (rates, durations, frame counts, image sizes, luminance scales), and
+//! [`observer`], the observer's age and pigmentation and where they come
+//! from. The
 //! rest of the application core (configuration, the renderer choice, the
 //! render/replay session and its streaming per-frame writer, source
 //! opening, the kernel follower) is still in the binary crate and moves
@@ -13,3 +15,4 @@
 //! differ").
 
 pub mod bounds;
+pub mod observer;

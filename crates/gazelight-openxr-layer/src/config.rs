@@ -26,8 +26,8 @@
 //! `[filter]` and `[pipeline]` are the library types `run` reads
 //! (`gazelight_tracker::filter::FilterConfig`,
 //! `gazelight_vision::pipeline::PipelineConfig`), checked the same way;
-//! `[observer]` is parsed here (the binary's `ObserverSettings` lives in the
-//! `gazelight` bin crate) with the same keys and ranges. The run's other
+//! `[observer]` is the application core's
+//! (`gazelight_app::observer::ObserverSettings`), as `run` and Python read it. The run's other
 //! sections (`[scene]`, `[display]`, …) are refused: they do not apply to a
 //! layer. An error names the file, line, column and field.
 //!
@@ -41,7 +41,6 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use gazelight_tracker::filter::FilterConfig;
-use gazelight_tracker::profile::{AGE_YEARS_RANGE, PIGMENTATION_RANGE};
 use gazelight_tracker::uri::SourceUri;
 use gazelight_vision::pipeline::PipelineConfig;
 use serde::Deserialize;
@@ -80,15 +79,9 @@ pub enum Effects {
     Off,
 }
 
-/// `[observer]`: the same keys and ranges as `run`'s.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct ObserverSettings {
-    /// Years; 0..=120.
-    pub age_years: Option<f64>,
-    /// CIE 146 pigmentation factor; 0..=1.2.
-    pub pigmentation: Option<f64>,
-}
+/// `[observer]`: the application core's table, so its keys, ranges and
+/// messages are `run`'s and Python's.
+pub use gazelight_app::observer::ObserverSettings;
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -268,19 +261,25 @@ impl LayerConfig {
         }
         if let Some(o) = &raw.observer {
             let v = o.get_ref();
-            for (key, value, (lo, hi)) in [
-                ("observer.age_years", v.age_years, AGE_YEARS_RANGE),
-                ("observer.pigmentation", v.pigmentation, PIGMENTATION_RANGE),
+            // Field by field, so the error names the one that is wrong.
+            for (key, one) in [
+                (
+                    "observer.age_years",
+                    ObserverSettings {
+                        age_years: v.age_years,
+                        pigmentation: None,
+                    },
+                ),
+                (
+                    "observer.pigmentation",
+                    ObserverSettings {
+                        age_years: None,
+                        pigmentation: v.pigmentation,
+                    },
+                ),
             ] {
-                if let Some(x) = value
-                    && !(x.is_finite() && (lo..=hi).contains(&x))
-                {
-                    return Err(invalid(
-                        Some(o.span()),
-                        Some(key.into()),
-                        format!("{x}: expected a number in {lo}..={hi}"),
-                    ));
-                }
+                one.validate()
+                    .map_err(|e| invalid(Some(o.span()), Some(key.into()), e.to_string()))?;
             }
         }
         // The luminance bound every front end shares

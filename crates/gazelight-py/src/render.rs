@@ -19,6 +19,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 use gazelight_app::bounds;
+use gazelight_app::observer::{ObserverFlags, ObserverSettings};
 use gazelight_render::demo;
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
@@ -28,7 +29,7 @@ use gazelight_render::pupil_light::{
 };
 use gazelight_render::timeline::{PUPIL_LIGHT_COLUMNS, TIMELINE_COLUMNS};
 use gazelight_tracker::filter::{FilterChain, FilterConfig};
-use gazelight_tracker::profile::{AGE_YEARS_RANGE, PIGMENTATION_RANGE, PupilCalibration};
+use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::pupil_response::ResponseParams;
 use gazelight_tracker::{GazeTrace, PupilUnit, Sample, trace_source};
 use gazelight_vision::RgbImage;
@@ -50,8 +51,8 @@ struct Settings {
     pitch_deg: Option<f64>,
     hfov_deg: Option<f64>,
     size: Option<(usize, usize)>,
-    age_years: Option<f64>,
-    pigmentation: Option<f64>,
+    /// `[observer]`.
+    observer: ObserverSettings,
 }
 
 /// The keys of the CLI's configuration that `render`/`replay` use but this
@@ -67,14 +68,6 @@ const UNSUPPORTED: [&str; 4] = [
 /// application core's rule, so Python and the CLI accept the same sizes.
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
     bounds::parse_size(s).map_err(|e| e.to_string())
-}
-
-fn in_range(what: &str, v: f64, (lo, hi): (f64, f64)) -> Result<f64, String> {
-    if v.is_finite() && (lo..=hi).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("{what} {v}: expected a number in {lo}..={hi}"))
-    }
 }
 
 /// Reads the configuration table; returns the settings and the keys that
@@ -109,25 +102,13 @@ fn settings(table: toml::Table, name: &str) -> PyResult<(Settings, Vec<String>)>
                     .map_err(|e| fail(format!("filter.{e}")))?;
             }
             "observer" => {
-                for (k, v) in keys(value)? {
-                    let v = v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
-                    let v = v.ok_or_else(|| fail(format!("observer.{k}: expected a number")))?;
-                    match k.as_str() {
-                        "age_years" => {
-                            s.age_years = Some(
-                                in_range("observer.age_years =", v, AGE_YEARS_RANGE)
-                                    .map_err(fail)?,
-                            );
-                        }
-                        "pigmentation" => {
-                            s.pigmentation = Some(
-                                in_range("observer.pigmentation =", v, PIGMENTATION_RANGE)
-                                    .map_err(fail)?,
-                            );
-                        }
-                        _ => return Err(fail(format!("observer: unknown field `{k}`"))),
-                    }
-                }
+                // The application core's table and checks (the CLI's and
+                // the layer's).
+                let o: ObserverSettings = value
+                    .try_into()
+                    .map_err(|e| fail(format!("observer: {e}")))?;
+                o.validate().map_err(|e| fail(e.to_string()))?;
+                s.observer = o;
             }
             "scene" | "display" | "source" => {
                 for (k, v) in keys(value)? {
@@ -477,16 +458,13 @@ pub(crate) fn render_open(
             None => None,
         };
         let profile_observer = calibration.as_ref().map(|c| c.observer);
-        let psf = &mut settings.pipeline.glare.psf;
-        if let Some(a) = settings.age_years.or(profile_observer.map(|o| o.age_years)) {
-            psf.age_years = a;
-        }
-        if let Some(p) = settings
-            .pigmentation
-            .or(profile_observer.map(|o| o.pigmentation))
-        {
-            psf.pigmentation = p;
-        }
+        gazelight_app::observer::apply(
+            &mut settings.pipeline.glare.psf,
+            &ObserverFlags::default(),
+            Some(&settings.observer),
+            profile_observer.as_ref(),
+        )
+        .map_err(err)?;
         // The scene.
         let scale = match luminance_scale {
             Some(factor) => LuminanceScale::CdM2PerUnit { factor },
