@@ -15,6 +15,9 @@
 //!   in its GPU renderer through [`frame::ViewRenderer`]) → the display
 //!   frame (stereo: left | right) and each view's [`timeline::TimelineRow`].
 //! * [`timeline`]: the rows and the columns of `timeline.csv`.
+//! * [`gaze_glare`]: `--glare-numbers`, the CIE 146 veil at each frame's
+//!   gaze and the DGP and UGR of its line of sight, by `gazelight glare`'s
+//!   functions on the frame's scene view.
 //! * [`pupil_light`]: `replay`'s pupil light response per view (the pupil
 //!   the light predicts and the residual columns, each view's parameters
 //!   from the observer, a calibration profile or a `--pupil-fit` block);
@@ -29,6 +32,7 @@
 pub mod demo;
 pub mod feed;
 pub mod frame;
+pub mod gaze_glare;
 pub mod png;
 pub mod pupil_light;
 pub mod timeline;

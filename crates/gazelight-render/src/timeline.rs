@@ -3,6 +3,8 @@
 
 use gazelight_vision::pipeline::FrameStats;
 
+use crate::gaze_glare::{GLARE_COLUMNS, GlareNumbers};
+
 /// One view's row of `timeline.csv`.
 #[derive(Clone, Copy, Debug)]
 pub struct TimelineRow {
@@ -98,13 +100,15 @@ impl TimelineRow {
 
 /// `timeline.csv` written as the frames are made: a row per frame (every
 /// view's [`TIMELINE_COLUMNS`], then, with the pupil light response, every
-/// view's [`PUPIL_LIGHT_COLUMNS`]), flushed at least once a second, so a
+/// view's [`PUPIL_LIGHT_COLUMNS`], then, with the glare numbers, every
+/// view's [`GLARE_COLUMNS`]), flushed at least once a second, so a
 /// replay ended by SIGKILL or a crash keeps every row older than a second.
 /// The row is formatted into one reused buffer: no allocation per frame.
 pub struct TimelineWriter<W: std::io::Write> {
     out: W,
     views: usize,
     pupil_light: bool,
+    glare_numbers: bool,
     line: String,
     last_flush: std::time::Instant,
 }
@@ -127,7 +131,19 @@ impl TimelineWriter<std::io::BufWriter<std::fs::File>> {
 
 impl<W: std::io::Write> TimelineWriter<W> {
     /// A writer onto `out`, its header written.
-    pub fn new(mut out: W, suffixes: &[&str], pupil_light: bool) -> std::io::Result<Self> {
+    pub fn new(out: W, suffixes: &[&str], pupil_light: bool) -> std::io::Result<Self> {
+        Self::with_glare_numbers(out, suffixes, pupil_light, false)
+    }
+
+    /// [`Self::new`], and with `glare_numbers` each view's
+    /// [`GLARE_COLUMNS`] last (rows then come through
+    /// [`Self::push_with_glare`]).
+    pub fn with_glare_numbers(
+        mut out: W,
+        suffixes: &[&str],
+        pupil_light: bool,
+        glare_numbers: bool,
+    ) -> std::io::Result<Self> {
         let mut header = String::from("t_secs");
         for suffix in suffixes {
             for c in TIMELINE_COLUMNS {
@@ -141,6 +157,13 @@ impl<W: std::io::Write> TimelineWriter<W> {
                 }
             }
         }
+        if glare_numbers {
+            for suffix in suffixes {
+                for c in GLARE_COLUMNS {
+                    header.push_str(&format!(",{c}{suffix}"));
+                }
+            }
+        }
         header.push('\n');
         out.write_all(header.as_bytes())?;
         out.flush()?;
@@ -148,18 +171,36 @@ impl<W: std::io::Write> TimelineWriter<W> {
             out,
             views: suffixes.len(),
             pupil_light,
+            glare_numbers,
             line: String::with_capacity(512 * suffixes.len().max(1)),
             last_flush: std::time::Instant::now(),
         })
     }
 
-    /// Writes one frame's rows (one per view, in the header's order).
+    /// Writes one frame's rows (one per view, in the header's order); a
+    /// writer with glare numbers leaves their cells empty.
     pub fn push(&mut self, rows: &[TimelineRow]) -> std::io::Result<()> {
+        self.push_with_glare(rows, &[])
+    }
+
+    /// [`Self::push`] with each view's glare numbers (in the rows' order;
+    /// empty cells for a view without), written when the writer has the
+    /// glare columns.
+    pub fn push_with_glare(
+        &mut self,
+        rows: &[TimelineRow],
+        glare: &[GlareNumbers],
+    ) -> std::io::Result<()> {
         use std::fmt::Write as _;
-        if rows.len() != self.views {
+        if rows.len() != self.views || glare.len() > self.views {
             return Err(std::io::Error::new(
                 std::io::ErrorKind::InvalidInput,
-                format!("{} rows for {} views", rows.len(), self.views),
+                format!(
+                    "{} rows and {} glare numbers for {} views",
+                    rows.len(),
+                    glare.len(),
+                    self.views
+                ),
             ));
         }
         let line = &mut self.line;
@@ -205,6 +246,16 @@ impl<W: std::io::Write> TimelineWriter<W> {
                 }
             }
         }
+        if self.glare_numbers {
+            for k in 0..self.views {
+                let g = glare.get(k).unwrap_or(&GlareNumbers::NONE);
+                // The veil and UGR over decades: 6 significant digits; DGP
+                // (0.16…1) to 1e-5.
+                cell64(line, g.veil_cie146_cd_m2, Cell::Exp).map_err(fmt)?;
+                cell64(line, g.dgp, Cell::Fixed(5)).map_err(fmt)?;
+                cell64(line, g.ugr, Cell::Fixed(3)).map_err(fmt)?;
+            }
+        }
         line.push('\n');
         self.out.write_all(line.as_bytes())?;
         if self.last_flush.elapsed() >= FLUSH_EVERY {
@@ -221,6 +272,27 @@ impl<W: std::io::Write> TimelineWriter<W> {
     }
 }
 
+/// How a glare cell is written.
+enum Cell {
+    /// `{:.6e}`.
+    Exp,
+    /// That many decimals.
+    Fixed(usize),
+}
+
+/// `,value` as `how`, or `,` (an empty cell) where it is not finite.
+fn cell64(line: &mut String, v: f64, how: Cell) -> std::fmt::Result {
+    use std::fmt::Write as _;
+    match how {
+        _ if !v.is_finite() => {
+            line.push(',');
+            Ok(())
+        }
+        Cell::Exp => write!(line, ",{v:.6e}"),
+        Cell::Fixed(d) => write!(line, ",{v:.d$}"),
+    }
+}
+
 /// `,value` with `decimals`, or `,` (an empty cell) where it is not finite.
 fn cell(line: &mut String, v: f32, decimals: usize) -> std::fmt::Result {
     use std::fmt::Write as _;
@@ -229,5 +301,66 @@ fn cell(line: &mut String, v: f32, decimals: usize) -> std::fmt::Result {
     } else {
         line.push(',');
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row() -> TimelineRow {
+        TimelineRow {
+            t_secs: 0.5,
+            gaze_u: 0.5,
+            gaze_v: 0.25,
+            pupil_mm: 4.0,
+            pupil_raw: f32::NAN,
+            pupil_map_mm: f32::NAN,
+            pupil_held: Some(false),
+            aperture_mm: 4.0,
+            stats: FrameStats::default(),
+            pupil_light_mm: f32::NAN,
+            pupil_residual_mm: f32::NAN,
+        }
+    }
+
+    /// The glare columns come last, suffixed per view, with empty cells
+    /// where a number is undefined; without them the header is as before.
+    #[test]
+    fn glare_columns_are_last_and_per_view() {
+        let mut w =
+            TimelineWriter::with_glare_numbers(Vec::new(), &["_left", "_right"], false, true)
+                .unwrap();
+        let g = GlareNumbers {
+            veil_cie146_cd_m2: 1.25,
+            dgp: 0.2,
+            ugr: f64::NAN,
+        };
+        w.push_with_glare(&[row(), row()], &[g, GlareNumbers::NONE])
+            .unwrap();
+        let text = String::from_utf8(w.finish().unwrap()).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        let header: Vec<&str> = lines[0].split(',').collect();
+        let cells: Vec<&str> = lines[1].split(',').collect();
+        assert_eq!(header.len(), 1 + 2 * (TIMELINE_COLUMNS.len() + 3));
+        assert_eq!(cells.len(), header.len());
+        assert_eq!(
+            header[header.len() - 6..],
+            [
+                "glare_veil_cie146_cd_m2_left",
+                "glare_dgp_left",
+                "glare_ugr_left",
+                "glare_veil_cie146_cd_m2_right",
+                "glare_dgp_right",
+                "glare_ugr_right"
+            ]
+        );
+        assert_eq!(
+            cells[cells.len() - 6..],
+            ["1.250000e0", "0.20000", "", "", "", ""]
+        );
+        let plain = TimelineWriter::new(Vec::new(), &[""], false).unwrap();
+        let text = String::from_utf8(plain.finish().unwrap()).unwrap();
+        assert!(!text.contains("glare_veil"), "{text}");
     }
 }

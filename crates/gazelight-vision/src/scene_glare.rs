@@ -274,7 +274,8 @@ type FrontPixel = (usize, DVec3, f64, f64);
 impl SceneGlare {
     /// Prepares `image` (cd/m²) seen through `projection` (whose size must
     /// be the image's; the caller checks). Pixels outside the field are
-    /// never read.
+    /// never read; a pixel whose luminance is not a number (a rendered
+    /// view's "no data", NaN) counts as outside the field.
     pub fn new(image: &RgbImage, projection: SceneProjection) -> Self {
         use rayon::prelude::*;
         let w = image.width;
@@ -288,6 +289,9 @@ impl SceneGlare {
             .into_par_iter()
             .filter_map(|i| {
                 let (x, y) = (i % w, i / w);
+                if image.pixels[i].iter().any(|c| c.is_nan()) {
+                    return None;
+                }
                 let d = projection.pixel_direction(x, y)?;
                 let om = projection.pixel_solid_angle_sr(x, y);
                 (om > 0.0).then_some((i, d, om))

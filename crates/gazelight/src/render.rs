@@ -11,6 +11,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use gazelight_render::frame::{FrameStep, Step};
+use gazelight_render::gaze_glare::{GlareNumbers, ViewGlare};
 use gazelight_render::pupil_light::PupilLight;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::profile::PupilCalibration;
@@ -100,6 +101,15 @@ pub struct RenderArgs {
     /// share one glare kernel while their pupils agree.
     #[arg(long)]
     pub stereo: bool,
+    /// Also write, per frame and view, the glare along the eye's gaze into
+    /// `timeline.csv`: the CIE 146 veil at the gaze (cd/m²) and the DGP
+    /// and UGR of its line of sight (`glare_veil_cie146_cd_m2`,
+    /// `glare_dgp`, `glare_ugr`, suffixed per view), computed as
+    /// `gazelight glare` computes them on the frame's scene view (the
+    /// observer's age and pigmentation). Off by default: each frame then
+    /// costs a pass over the view's pixels per view.
+    #[arg(long)]
+    pub glare_numbers: bool,
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
@@ -426,12 +436,30 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     // kept for the plot and the summary, ≤ MAX_FRAMES of them).
     let timeline_path = args.out.join("timeline.csv");
     let suffixes: Vec<&str> = views.iter().map(|v| v.suffix()).collect();
-    let mut timeline_out = gazelight_render::timeline::TimelineWriter::create(
-        &timeline_path,
+    let mut timeline_out = gazelight_render::timeline::TimelineWriter::with_glare_numbers(
+        std::io::BufWriter::new(
+            std::fs::File::create(&timeline_path)
+                .with_context(|| format!("cannot write {}", timeline_path.display()))?,
+        ),
         &suffixes,
         pupil_light.is_some(),
+        args.glare_numbers,
     )
     .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+    // --glare-numbers: the view is the same every frame, so its pixels are
+    // prepared once; each frame asks for each view's gaze.
+    let view_glare = if args.glare_numbers {
+        let psf = &config.pipeline.glare.psf;
+        Some(ViewGlare::new(
+            view_img,
+            view,
+            psf.age_years,
+            psf.pigmentation,
+        )?)
+    } else {
+        None
+    };
+    let mut glare_numbers: Vec<GlareNumbers> = Vec::with_capacity(n_views);
     let sheet_every = frames.div_ceil(output::SHEET_TILES).max(1);
     let mut sheet = output::ContactSheet::new(width * n_views, height, n_views > 1);
     let no_data_style = if args.no_data_alpha {
@@ -463,8 +491,12 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         if let Some(plr) = pupil_light.as_deref_mut() {
             plr.apply(t_secs - t0, &state, &inputs, &mut rows);
         }
+        glare_numbers.clear();
+        if let Some(vg) = &view_glare {
+            glare_numbers.extend(inputs.iter().map(|(input, _)| vg.at(input.gaze_uv)));
+        }
         timeline_out
-            .push(&rows)
+            .push_with_glare(&rows, &glare_numbers)
             .with_context(|| format!("cannot write {}", timeline_path.display()))?;
         for (k, row) in rows.into_iter().enumerate() {
             timeline[k].push(row);
