@@ -327,6 +327,7 @@ fn render_writes_the_glare_along_the_gaze() {
             assert!(hand.lamp_theta_deg > 90.0, "{}", hand.lamp_theta_deg);
             let bg = hand_sums(gaze, false);
             assert!((veil / bg.veil - 1.0).abs() < 0.02, "{veil} vs {}", bg.veil);
+            // Wienold & Christoffersen 2006 without a source term.
             let dgp_bg = 5.87e-5 * bg.e_v + 0.159;
             assert!((dgp - dgp_bg).abs() < 1e-4, "DGP {dgp} vs {dgp_bg}");
             assert_eq!(ugr, 0.0, "no glare source: UGR 0");
@@ -339,6 +340,7 @@ fn render_writes_the_glare_along_the_gaze() {
                 hand.lamp_veil
             );
             // A glare source in view: DGP above the background's.
+            // Wienold & Christoffersen 2006 without a source term.
             let dgp_bg = 5.87e-5 * hand.e_v + 0.159;
             assert!(dgp > dgp_bg + 0.01, "frame {k}: DGP {dgp} vs {dgp_bg}");
             assert!(ugr > 0.0, "frame {k}: UGR {ugr}");
