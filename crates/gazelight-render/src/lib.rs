@@ -30,12 +30,14 @@
 //! binary crate.
 
 pub mod demo;
+pub mod display_light;
 pub mod feed;
 pub mod frame;
 pub mod gaze_glare;
 pub mod png;
 pub mod pupil_light;
 pub mod timeline;
+pub mod trials;
 
 /// What can go wrong in a render step. The messages are the CLI's: it
 /// prints them as they are (`error: {message}`), and the Python package

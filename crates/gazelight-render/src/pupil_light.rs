@@ -55,6 +55,7 @@ use gazelight_vision::pipeline::{FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::pooling::{PlaneAngles, PoolingModel};
 use gazelight_vision::scene::ViewParams;
 
+use crate::display_light::DisplayLight;
 use crate::feed::SampleFeed;
 use crate::frame::View;
 use crate::timeline::TimelineRow;
@@ -407,6 +408,9 @@ pub struct PupilLight {
     n_views: usize,
     models: [Option<PupilLightResponse>; 2],
     field: FieldLight,
+    /// The display's light instead of the field's (`--display-light`),
+    /// and the seconds from the recording's first sample to `t_secs` 0.
+    display: Option<(DisplayLight, f64)>,
     /// Per view: sums for the spreads of the raw pupil and the residual
     /// over frames where both are defined.
     spread: [Spread; 2],
@@ -465,6 +469,7 @@ impl PupilLight {
             n_views: views.len(),
             models,
             field,
+            display: None,
             spread: [Spread::default(); 2],
         })
     }
@@ -480,7 +485,18 @@ impl PupilLight {
         pupils: [(f32, bool); 2],
     ) -> [(f32, f32); 2] {
         let n = self.n_views;
-        let light = self.field.light(&self.views[..n], &gaze_cd_m2[..n]);
+        let light = match &self.display {
+            Some((d, offset_secs)) => {
+                let input = d.input_at(t_secs + offset_secs);
+                let field = FieldLight {
+                    field_mean_cd_m2: input.field_mean_luminance_cd_m2,
+                    field_area_deg2: input.field_area_deg2,
+                };
+                let gaze = [input.gaze_luminance_cd_m2; 2];
+                field.light(&self.views[..n], &gaze[..n])
+            }
+            None => self.field.light(&self.views[..n], &gaze_cd_m2[..n]),
+        };
         let mut out = [(f32::NAN, f32::NAN); 2];
         for k in 0..n {
             let Some(model) = self.models[k].as_mut() else {
@@ -532,6 +548,13 @@ impl PupilLight {
             row.pupil_light_mm = predicted;
             row.pupil_residual_mm = residual;
         }
+    }
+
+    /// Drives the models with the display's light (`--display-light`)
+    /// instead of the view's: each frame's `t_secs` + `offset_secs` is
+    /// the time from the recording's first sample.
+    pub fn set_display(&mut self, display: DisplayLight, offset_secs: f64) {
+        self.display = Some((display, offset_secs));
     }
 
     /// A new field (the view moved: a head turn), from the next frame on.

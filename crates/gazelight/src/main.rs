@@ -44,6 +44,7 @@ mod service_config;
 mod session;
 mod shutdown;
 mod stereo;
+mod trials;
 mod veil_map;
 mod view_args;
 mod window;
@@ -121,6 +122,11 @@ enum Command {
     /// at the gaze with and without the veil, CIE 146 and Stiles–Holladay
     /// (evalglare's) veils, threshold increment, glare sources; --json.
     Glare(glare::GlareArgs),
+    /// The per-trial table of a replay (its timeline.csv and events.csv):
+    /// one row per event matching --events, with the subtractive baseline,
+    /// peak and mean dilation, the light-driven and residual pupil over the
+    /// window, the share without a measured pupil and a validity flag.
+    Trials(trials::TrialsArgs),
     /// The OpenXR API layer (gazelight-openxr-layer): `install
     /// [--implicit]`, `uninstall` or `status` of its manifest under
     /// $XDG_DATA_HOME/openxr/1/api_layers/.
@@ -169,7 +175,8 @@ fn check(command: &Command) -> anyhow::Result<()> {
         | Command::Devices(_)
         | Command::Config(_)
         | Command::Profile(_)
-        | Command::Glare(_) => Ok(()),
+        | Command::Glare(_)
+        | Command::Trials(_) => Ok(()),
     }
 }
 
@@ -230,6 +237,7 @@ fn main() -> std::process::ExitCode {
         Command::Devices(args) => devices::run(args),
         Command::Config(args) => config_cmd::run(args),
         Command::Glare(args) => glare::run(args),
+        Command::Trials(args) => trials::run(args),
         Command::Profile(args) => profile_cmd::run(args),
         Command::Layer(args) => layer::run(args),
     };

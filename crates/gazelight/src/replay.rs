@@ -20,6 +20,7 @@ use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
 
+use gazelight_render::display_light::{DisplayGeometry, DisplayLight, DisplayLightTable};
 use gazelight_render::pupil_light::{
     self, ParamSource, PupilLight, PupilLightOptions, PupilLightPlan, which_eye,
 };
@@ -63,6 +64,23 @@ pub struct ReplayArgs {
     /// was made, cd/m².
     #[arg(long, value_name = "CD_M2")]
     pub pupil_white_cd_m2: Option<f64>,
+    /// The display's light drives the pupil light response instead of the
+    /// scene: a CSV of `t_secs,luminance_cd_m2` (seconds from the first
+    /// sample, each value held until the next row) or of
+    /// `event,luminance_cd_m2` (an event pattern and the luminance the
+    /// display shows from each matching event on); docs/screen-experiment.md.
+    #[arg(long, value_name = "FILE")]
+    pub display_light: Option<PathBuf>,
+    /// The display's angular size, WxH degrees (with --display-light;
+    /// default 40x30 unless --display-cm gives it).
+    #[arg(long, value_name = "WxH", conflicts_with = "display_cm")]
+    pub display_deg: Option<String>,
+    /// The display's size, WxH cm, seen from --viewing-distance-cm.
+    #[arg(long, value_name = "WxH", requires = "viewing_distance_cm")]
+    pub display_cm: Option<String>,
+    /// The eye's distance from the display, cm (with --display-cm).
+    #[arg(long, value_name = "CM", requires = "display_cm")]
+    pub viewing_distance_cm: Option<f64>,
     #[command(flatten)]
     pub render: RenderArgs,
 }
@@ -83,8 +101,38 @@ pub(crate) fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     }
     pupil_light::check_calibration_luminance("--pupil-black-cd-m2", args.pupil_black_cd_m2)?;
     pupil_light::check_calibration_luminance("--pupil-white-cd-m2", args.pupil_white_cd_m2)?;
+    display_geometry(args)?;
+    if args.display_light.is_some() && args.pupil_fit.is_some() {
+        bail!(
+            "--pupil-fit fits the observer on the scene's light; with --display-light it is not \
+             available yet"
+        );
+    }
     Ok(())
 }
+
+/// The display's angular size (`--display-deg`, or `--display-cm` at
+/// `--viewing-distance-cm`; default 40x30 degrees).
+fn display_geometry(args: &ReplayArgs) -> anyhow::Result<(DisplayGeometry, Origin)> {
+    Ok(
+        match (
+            &args.display_deg,
+            &args.display_cm,
+            args.viewing_distance_cm,
+        ) {
+            (Some(d), _, _) => (DisplayGeometry::parse_deg(d)?, Origin::Flag),
+            (None, Some(c), Some(dist)) => (DisplayGeometry::from_cm(c, dist)?, Origin::Flag),
+            _ => (
+                DisplayGeometry::parse_deg(DEFAULT_DISPLAY_DEG)?,
+                Origin::Default,
+            ),
+        },
+    )
+}
+
+/// The display's angular size without `--display-deg`/`--display-cm`: a
+/// 24" 16:10 monitor (51.8 × 32.4 cm) at 70 cm is 40.6° × 26.1°, rounded.
+const DEFAULT_DISPLAY_DEG: &str = "40x30";
 
 /// `GAZELIGHT_PARSE_ONLY`: the flag and configuration checks of `replay`;
 /// the recording is not opened.
@@ -250,6 +298,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         t_last,
         &new_feed,
     )?;
+    light_input(&args, &mut setup, &mut plr, &events, t_first, t0)?;
     if !events.events.is_empty() || events.dropped > 0 {
         let summary = events.summary();
         let sources: Vec<String> = summary
@@ -420,6 +469,83 @@ fn unit_words(u: PupilUnit) -> &'static str {
         PupilUnit::ArbitraryArea => "arbitrary area units",
         PupilUnit::Arbitrary => "arbitrary diameter units",
     }
+}
+
+/// Which light drives the pupil light response, in `session.json`
+/// (`pupil_light.input`) and said once where it is the embedded demo
+/// panorama; with `--display-light`, the display's light over time.
+fn light_input(
+    args: &ReplayArgs,
+    setup: &mut render::Setup,
+    plr: &mut PupilLight,
+    events: &import::events::RecordingEvents,
+    t_first: f64,
+    t0: f64,
+) -> anyhow::Result<()> {
+    let scene = args
+        .render
+        .scene
+        .as_ref()
+        .or(setup.config.scene_file.as_ref());
+    let Some(path) = &args.display_light else {
+        let what = match scene {
+            Some(p) => format!("the scene {} at the gaze", p.display()),
+            None => {
+                eprintln!(
+                    "note: the pupil light response's light input is the embedded demo panorama \
+                     (a night street): no --scene and no --display-light was given, so \
+                     pupil_light_mm and pupil_residual_mm are not about this recording's light \
+                     (docs/screen-experiment.md)"
+                );
+                "the embedded demo panorama (no --scene, no --display-light)".to_owned()
+            }
+        };
+        setup
+            .settings
+            .set("pupil_light.input", what, Origin::Default);
+        return Ok(());
+    };
+    let (geometry, origin) = display_geometry(args)?;
+    let table = DisplayLightTable::load(path)?;
+    let display = DisplayLight::new(
+        &table,
+        geometry,
+        events
+            .events
+            .iter()
+            .map(|e| (e.t_secs - t_first, e.text.as_str())),
+        &path.display().to_string(),
+    )?;
+    let form = match &table {
+        DisplayLightTable::Times(t) => format!("{} rows of t_secs → cd/m²", t.len()),
+        DisplayLightTable::Events(p) => format!(
+            "{} event patterns → cd/m², {} of the recording's events matched",
+            p.len(),
+            display.events_matched
+        ),
+    };
+    let set = setup.settings.set(
+        "pupil_light.input",
+        format!("display light: {} ({form})", path.display()),
+        Origin::Flag,
+    );
+    set.note = Some(
+        "the display's luminance at the gaze and over its field replaces the scene's (a uniform \
+         screen); pupil_light.field_mean_cd_m2 is the scene's, unused"
+            .to_owned(),
+    );
+    setup.settings.set(
+        "pupil_light.display_deg",
+        [geometry.width_deg, geometry.height_deg],
+        origin,
+    );
+    setup.settings.set(
+        "pupil_light.display_area_deg2",
+        geometry.solid_angle_deg2(),
+        origin,
+    );
+    plr.set_display(display, t0 - t_first);
+    Ok(())
 }
 
 /// The pupil light response of this replay: each view's parameters (a
