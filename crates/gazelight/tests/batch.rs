@@ -192,6 +192,7 @@ fn batch_rows_are_single_replays_and_the_summary_collects() {
     assert!(stderr.contains("frames/s · ETA"), "{stderr}");
 
     // Each row's outputs are a single replay's with the same options.
+    let mut warned = Vec::new();
     for (id, rec, opts) in rows() {
         let single = dir.join(format!("single-{id}"));
         let mut argv = vec!["replay", rec.as_str()];
@@ -199,12 +200,31 @@ fn batch_rows_are_single_replays_and_the_summary_collects() {
         let out_flag = format!("--out={}", single.display());
         argv.push(&out_flag);
         let r = gazelight(&argv);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.success(), "{err}");
         assert_same_outputs(&out.join(id), &single);
+        warned.push((
+            id,
+            err.lines().filter(|l| l.starts_with("warning:")).count(),
+        ));
     }
 
     // The summary: one line per row in manifest order.
     let (header, lines) = summary(&out);
+    // Its warnings are the ones the row's replay gave: the EyeLink file
+    // without a profile warns of its raw pupil unit, the Neon one of
+    // nothing; the same count as the single replay's `warning:` lines.
+    assert_eq!(cell(&header, &lines[0], "warnings"), "0");
+    let eyelink: usize = cell(&header, &lines[1], "warnings").parse().unwrap();
+    assert!(eyelink >= 1, "{:?}", lines[1]);
+    for (i, id) in [(0, "neon"), (1, "eyelink"), (3, "piprkit")] {
+        let single = warned.iter().find(|w| w.0 == id).unwrap().1;
+        assert_eq!(
+            cell(&header, &lines[i], "warnings"),
+            single.to_string(),
+            "{id}"
+        );
+    }
     assert_eq!(&header[..4], ["id", "recording", "status", "message"]);
     let ids: Vec<&str> = lines.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(ids, ["neon", "eyelink", "missing", "piprkit"]);
@@ -670,5 +690,76 @@ fn batch_bids_writes_a_dataset_that_validates() {
     assert!(r.status.success(), "{e}");
     assert!(e.contains("batch: skip eye-link: finished earlier"), "{e}");
     assert!(e.contains("batch: skip plr: finished earlier"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The ETA each progress line prints, in seconds (`ETA h:mm:ss`).
+fn eta_of(line: &str) -> Option<f64> {
+    let hms = line.split("ETA ").nth(1)?.trim();
+    let mut parts = hms.split(':').map(|p| p.parse::<f64>().ok());
+    let (h, m, s) = (parts.next()??, parts.next()??, parts.next()??);
+    Some(h * 3600.0 + m * 60.0 + s)
+}
+
+/// Three rows of the same cost (the same replay of the Neon recording),
+/// two at a time: the ETA printed when a row ends is the time the batch
+/// then still took, within 40 % and the 1 s the line rounds to. The rows
+/// ÷ elapsed estimate printed 2× the time left after the first row and
+/// ½ of it after the second (two rows had ended in one row's time).
+#[test]
+fn the_batch_eta_is_the_time_it_still_takes() {
+    let _serial = serial();
+    let dir = tmp("eta");
+    let manifest = dir.join("same.csv");
+    let rec = shared_str("eye/neon-demo");
+    let mut csv = String::from("id,recording,secs,size,fps,backend,no_frames\n");
+    for id in ["a", "b", "c"] {
+        csv.push_str(&format!("{id},{rec},8,64x48,20,cpu,yes\n"));
+    }
+    std::fs::write(&manifest, csv).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "batch",
+            manifest.to_str().unwrap(),
+            "--out",
+            dir.join("out").to_str().unwrap(),
+            "--jobs",
+            "2",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    // Each stderr line with the time it came.
+    let lines: Vec<(Instant, String)> = {
+        use std::io::BufRead;
+        std::io::BufReader::new(stderr)
+            .lines()
+            .map(|l| (Instant::now(), l.unwrap()))
+            .collect()
+    };
+    let status = common::wait_exit(&mut child, Duration::from_secs(300));
+    let end = Instant::now();
+    let text: Vec<&str> = lines.iter().map(|l| l.1.as_str()).collect();
+    assert!(status.success(), "{text:#?}");
+    // The progress lines after a row ended (after "done …").
+    let after_done: Vec<(Instant, f64)> = lines
+        .windows(2)
+        .filter(|w| w[0].1.starts_with("batch: done "))
+        .map(|w| (w[1].0, eta_of(&w[1].1).expect("an ETA")))
+        .collect();
+    assert_eq!(after_done.len(), 3, "{text:#?}");
+    for (k, (at, eta)) in after_done.iter().enumerate() {
+        let left = end.duration_since(*at).as_secs_f64();
+        let margin = 0.4 * left + 1.0;
+        assert!(
+            (eta - left).abs() <= margin,
+            "after row {}: ETA {eta} s, {left:.2} s left (margin {margin:.2} s)\n{text:#?}",
+            k + 1
+        );
+    }
+    // The first two rows' ETAs: a row's time left, not 0.
+    assert!(after_done[0].1 >= 1.0, "{text:#?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

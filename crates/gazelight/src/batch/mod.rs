@@ -263,10 +263,15 @@ struct Progress {
     done: usize,
     skipped: usize,
     failed: usize,
-    /// Rows run (not skipped) that have ended, and their frames.
+    /// Rows run (not skipped) that have ended, their frames and the sum
+    /// of their wall times (each from its start to its end, in its worker).
     ran: usize,
     frames: u64,
+    row_secs: f64,
     to_run: usize,
+    jobs: usize,
+    /// When each running row started (rows started, not yet ended).
+    running: Vec<Instant>,
     started: Instant,
 }
 
@@ -278,9 +283,19 @@ impl Progress {
         } else {
             0.0
         };
-        let eta = if self.ran > 0 && self.to_run >= self.ran {
-            let left = secs / self.ran as f64 * (self.to_run - self.ran) as f64;
-            hms(left)
+        let eta = if self.ran > 0 {
+            let running: Vec<f64> = self
+                .running
+                .iter()
+                .map(|t| t.elapsed().as_secs_f64())
+                .collect();
+            let unstarted = self.to_run.saturating_sub(self.ran + running.len());
+            hms(eta_secs(
+                self.row_secs / self.ran as f64,
+                &running,
+                unstarted,
+                self.jobs,
+            ))
         } else {
             "-".to_owned()
         };
@@ -289,6 +304,33 @@ impl Progress {
             self.done, self.total, self.skipped, self.failed, self.frames
         )
     }
+}
+
+/// The time left, in seconds, when rows take `row_secs` each (the mean
+/// of the rows ended so far: their measured rate), `running_secs` holds
+/// how long each running row has run, `unstarted` rows wait and `jobs`
+/// workers take the next row as soon as theirs ends: each worker's load
+/// is what its running row has left (at least 0), the unstarted rows go
+/// to the least loaded workers in turn, and the batch ends with the most
+/// loaded one.
+fn eta_secs(row_secs: f64, running_secs: &[f64], unstarted: usize, jobs: usize) -> f64 {
+    let jobs = jobs.max(1);
+    let mut loads: Vec<f64> = running_secs
+        .iter()
+        .map(|e| (row_secs - e).max(0.0))
+        .collect();
+    loads.resize(jobs.max(loads.len()), 0.0);
+    loads.sort_by(f64::total_cmp);
+    // Every load is within one row of every other (0..=row_secs), so the
+    // least loaded worker after each added row is the next in this order:
+    // whole rounds for all, then one more row for the least loaded.
+    let rounds = unstarted / loads.len();
+    let extra = unstarted % loads.len();
+    loads
+        .iter()
+        .enumerate()
+        .map(|(i, l)| l + row_secs * (rounds + usize::from(i < extra)) as f64)
+        .fold(0.0, f64::max)
 }
 
 fn hms(secs: f64) -> String {
@@ -326,7 +368,10 @@ fn run_rows(
         failed: 0,
         ran: 0,
         frames: 0,
+        row_secs: 0.0,
         to_run: todo.len(),
+        jobs,
+        running: Vec::new(),
         started: Instant::now(),
     });
     if let Ok(p) = progress.lock() {
@@ -346,10 +391,20 @@ fn run_rows(
                     }
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(row) = todo.get(i) else { break };
+                    let row_started = Instant::now();
+                    if let Ok(mut p) = progress.lock() {
+                        p.running.push(row_started);
+                    }
                     let ended = run_row(&exe, row, out, state, stop.as_deref(), export);
                     let (Ok(mut p), Ok(mut o)) = (progress.lock(), outcome.lock()) else {
                         break;
                     };
+                    if let Some(k) = p.running.iter().position(|t| *t == row_started) {
+                        p.running.swap_remove(k);
+                    }
+                    if !matches!(ended, RowEnd::Interrupted) {
+                        p.row_secs += row_started.elapsed().as_secs_f64();
+                    }
                     match ended {
                         RowEnd::Done(r) => {
                             eprintln!(
@@ -458,7 +513,9 @@ fn run_row(
         }
         return fail(error_of(&state.log_path(&row.id), status));
     }
-    let values = match row_values(row, &dir) {
+    // The replay's own warnings, before an export appends to its log.
+    let warnings = summary::count_warnings(&std::fs::read_to_string(&log).unwrap_or_default());
+    let values = match row_values(row, &dir, warnings) {
         Ok(v) => v,
         Err(e) => return fail(format!("summary: {e:#}")),
     };
@@ -504,11 +561,11 @@ fn run_row(
 }
 
 /// The row's summary values from its outputs and recording.
-fn row_values(row: &Row, dir: &Path) -> anyhow::Result<Vec<String>> {
+fn row_values(row: &Row, dir: &Path, warnings: usize) -> anyhow::Result<Vec<String>> {
     let args = row.replay_args(dir)?;
     let timeline = summary::read_timeline(&dir.join("timeline.csv"))?;
     let recording = summary::read_recording(&args, timeline.duration_secs)?;
-    Ok(summary::values(&timeline, &recording))
+    Ok(summary::values(&timeline, &recording, warnings))
 }
 
 /// `gazelight export --bids DIR …` of `row` with its replay's timeline in
@@ -716,4 +773,60 @@ fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyh
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::eta_secs;
+
+    /// Rows of `row_secs` each run by `jobs` workers from time 0 (each
+    /// takes the next row as its own ends): at every row's end, the ETA
+    /// from the measured row time against the real time left.
+    fn check_schedule(rows: usize, jobs: usize, row_secs: f64) {
+        let end = rows.div_ceil(jobs) as f64 * row_secs;
+        // Each worker's running row's start, or None when idle.
+        let mut busy: Vec<Option<f64>> = vec![None; jobs];
+        let mut started = 0;
+        for slot in busy.iter_mut().take(rows) {
+            *slot = Some(0.0);
+            started += 1;
+        }
+        // The next row to end (the lowest worker on a tie).
+        while let Some((k, now)) = busy
+            .iter()
+            .enumerate()
+            .filter_map(|(k, s)| s.map(|t| (k, t + row_secs)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+        {
+            busy[k] = None;
+            let running: Vec<f64> = busy.iter().flatten().map(|t| now - t).collect();
+            let eta = eta_secs(row_secs, &running, rows - started, jobs);
+            assert!(
+                (eta - (end - now)).abs() < 1e-9,
+                "{rows} rows, {jobs} jobs, a row ends at {now}: ETA {eta}, left {}",
+                end - now
+            );
+            if started < rows {
+                busy[k] = Some(now);
+                started += 1;
+            }
+        }
+    }
+
+    #[test]
+    fn the_eta_is_the_time_left_for_rows_of_known_time() {
+        for jobs in 1..=4 {
+            for rows in 1..=9 {
+                check_schedule(rows, jobs, 10.0);
+            }
+        }
+        // Four jobs, five rows of 10 s: after the first four (10 s in),
+        // 10 s are left; rows ÷ elapsed (the old estimate) said 2.5 s.
+        assert_eq!(eta_secs(10.0, &[], 1, 4), 10.0);
+        // A row halfway through and two waiting, two jobs: 5 + 10 on one
+        // worker, 10 on the other.
+        assert_eq!(eta_secs(10.0, &[5.0], 2, 2), 15.0);
+        // A row running longer than the mean counts as ending now.
+        assert_eq!(eta_secs(10.0, &[12.0], 0, 2), 0.0);
+    }
 }

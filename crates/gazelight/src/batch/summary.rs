@@ -1,8 +1,8 @@
 //! One recording's line of the batch summary (`summary.csv`): what its
 //! replay wrote (`timeline.csv`: frames, pupil, adaptation, light-driven
 //! pupil and residual) and what its recording holds over the replayed
-//! window (rates, dropout, blinks, warnings, through the replay's filter
-//! chain). Every value is a fixed-precision string, so the summary of the
+//! window (rates, dropout, blinks, through the replay's filter chain),
+//! and the `warning:` lines its replay printed. Every value is a fixed-precision string, so the summary of the
 //! same rows is the same file wherever it was computed (a local run, a
 //! Slurm array's `--collect`).
 
@@ -13,7 +13,6 @@ use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::summary::Summarizer;
-use gazelight_tracker::{PupilUnit, Sample};
 
 use crate::config::RenderConfig;
 use crate::inspect_timeline::{Stats, TimelineReader, number};
@@ -130,15 +129,11 @@ pub struct RecordingFigures {
     pub dropout: [f64; 2],
     pub blinks: [u64; 2],
     pub blink_events: u64,
-    pub warnings: usize,
 }
 
 /// Summarises the recording of `args` over `[t0, t0 + duration_secs]`
 /// (t0 = its first sample + `--from-secs`), through the filter chain the
 /// replay ran (the configuration's `[filter]`, the calibration profile).
-/// Warnings are the ones `gazelight inspect` lists (the importer's notes,
-/// a pupil stream the chain rejects) and the replay's own (pupils not in
-/// millimetres without a calibration).
 pub fn read_recording(args: &ReplayArgs, duration_secs: f64) -> anyhow::Result<RecordingFigures> {
     let config = match &args.render.config {
         Some(p) => RenderConfig::load(p, ConfigUser::Replay)?,
@@ -170,28 +165,15 @@ pub fn read_recording(args: &ReplayArgs, duration_secs: f64) -> anyhow::Result<R
     }
     let mut summarizer = Summarizer::new(chain);
     let mut importer = import::open(path)?;
-    let mut raw_units = false;
     for s in importer.by_ref() {
         let Ok(s) = s else { break };
         let t = s.t_secs();
         if !(t >= t0 && t <= t1) {
             continue;
         }
-        if let Sample::Pupil(p) = &s
-            && p.unit != PupilUnit::Mm
-        {
-            raw_units = true;
-        }
         summarizer.push(&s);
     }
     let summary = summarizer.finish(Some(importer.format()), importer.warnings());
-    let mut warnings = summary.warnings.len();
-    if crate::input_report::pupil_rejection(&summary.chain).is_some() {
-        warnings += 1;
-    }
-    if raw_units && calibration.is_none() {
-        warnings += 1;
-    }
     Ok(RecordingFigures {
         pupil_rate_hz: summary.rate_hz.pupil,
         gaze_rate_hz: summary.rate_hz.gaze,
@@ -201,7 +183,6 @@ pub fn read_recording(args: &ReplayArgs, duration_secs: f64) -> anyhow::Result<R
         ],
         blinks: summary.blinks.detected,
         blink_events: summary.blinks.recording.iter().sum(),
-        warnings,
     })
 }
 
@@ -212,8 +193,17 @@ fn fixed(v: Option<f64>, digits: usize) -> String {
     }
 }
 
-/// The row's values in [`COLUMNS`] order.
-pub fn values(t: &TimelineFigures, r: &RecordingFigures) -> Vec<String> {
+/// The `warning:` lines a row's replay printed (its log, `text`): what
+/// the run told its user, each warning once.
+pub fn count_warnings(text: &str) -> usize {
+    text.lines()
+        .filter(|l| l.trim_start().starts_with("warning:"))
+        .count()
+}
+
+/// The row's values in [`COLUMNS`] order; `warnings` from
+/// [`count_warnings`] on its replay's log.
+pub fn values(t: &TimelineFigures, r: &RecordingFigures, warnings: usize) -> Vec<String> {
     let mm = |v: Option<f64>| fixed(v, 4);
     let cd = |v: Option<f64>| match v {
         Some(v) if v.is_finite() => format!("{v:.6e}"),
@@ -246,7 +236,7 @@ pub fn values(t: &TimelineFigures, r: &RecordingFigures) -> Vec<String> {
         mm(t.residual.sd()),
         mm(t.residual.min()),
         mm(t.residual.max()),
-        r.warnings.to_string(),
+        warnings.to_string(),
     ]
 }
 
@@ -281,7 +271,7 @@ mod tests {
         )
         .unwrap();
         let t = read_timeline(&p).unwrap();
-        let v = values(&t, &RecordingFigures::default());
+        let v = values(&t, &RecordingFigures::default(), 2);
         let get = |name: &str| v[COLUMNS.iter().position(|c| *c == name).unwrap()].clone();
         assert_eq!(get("frames"), "4");
         assert_eq!(get("duration_secs"), "0.1500");
@@ -299,11 +289,23 @@ mod tests {
         assert_eq!(get("residual_frames"), "3");
         assert_eq!(get("residual_mean_mm"), "0.0000");
         assert_eq!(get("residual_sd_mm"), "0.1000");
+        assert_eq!(get("warnings"), "2");
         // A short row is named.
         std::fs::write(&p, "t_secs,pupil_mm,pupil_held,adaptation_cd_m2\n0,4,0\n").unwrap();
         let e = read_timeline(&p).unwrap_err().to_string();
         assert!(e.contains("(line 2): 3 cells, the header has 4"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn warnings_are_the_replays_warning_lines() {
+        let log = "2026-12-07T11:46:34Z  WARN gazelight::replay: not in mm\n\
+                   replay: 41 frames\n\
+                   warning: a.asc: raw unit\n\
+                   note: a warning: is not one here\n\
+                   warning: a.asc: events: cut\n";
+        assert_eq!(count_warnings(log), 2);
+        assert_eq!(count_warnings(""), 0);
     }
 
     #[test]
