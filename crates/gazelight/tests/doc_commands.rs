@@ -26,9 +26,11 @@
 //! | `<!-- doc-test: data NAME=REL -->` | before the block, `NAME` in the working directory links to `REL` under the shared test data; without the data the block is skipped (SKIP) outside CI and fails in CI |
 //! | `<!-- doc-test: config run\|render\|batch\|layer -->` | a toml block is loaded by that command's loader (`--config`, parse-only; `batch`: as its manifest; `layer`: as the OpenXR layer's `layer.toml`, by `gazelight layer status` with `GAZELIGHT_LAYER_CONFIG`, parse-only); default `run` |
 //! | `<!-- doc-test: save NAME -->` | a toml or csv block is also saved as `NAME` in the working directory, for later blocks of the same page |
+//! | `<!-- doc-test: input -->` | a csv block is an input file for later blocks (with `save NAME`), not a batch manifest: saved, not run |
 //!
 //! Each page runs in its own temporary working directory, its blocks in
-//! page order. `a_broken_page_fails` shows that a misspelt flag, a bad TOML
+//! page order (`GAZELIGHT_DOC_PAGE=NAME`: only the pages whose path holds
+//! NAME). `a_broken_page_fails` shows that a misspelt flag, a bad TOML
 //! key, an unknown command and a missing directive target each fail.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code may panic on a failed setup
@@ -267,7 +269,15 @@ fn directive<'a>(block: &'a Block, name: &str) -> impl Iterator<Item = &'a [Stri
 }
 
 fn run_block(env: &Env, block: &Block, work: &Path, report: &mut Report) -> Result<(), String> {
-    const KNOWN: [&str; 6] = ["parse-only", "set", "append", "data", "config", "save"];
+    const KNOWN: [&str; 7] = [
+        "parse-only",
+        "set",
+        "append",
+        "data",
+        "config",
+        "save",
+        "input",
+    ];
     for d in &block.directives {
         let name = d.first().map(String::as_str).unwrap_or("");
         if !KNOWN.contains(&name) {
@@ -371,6 +381,10 @@ fn run_manifest(
             return Err(format!("`save` takes one NAME, got {args:?}"));
         };
         std::fs::write(work.join(name), &block.body).map_err(|e| e.to_string())?;
+    }
+    if directive(block, "input").next().is_some() {
+        // An input file of later blocks (e.g. `replay --display-light`).
+        return Ok(());
     }
     let argv = vec!["batch".to_owned(), file];
     invoke(env, &argv, &[], true, work).map_err(|e| format!("[batch manifest] {e}"))?;
@@ -515,6 +529,11 @@ fn pages(repo: &Path) -> Vec<PathBuf> {
         .collect();
     docs.sort();
     pages.extend(docs);
+    // `GAZELIGHT_DOC_PAGE=NAME`: only the pages whose path holds NAME
+    // (checking one page while writing it).
+    if let Ok(only) = std::env::var("GAZELIGHT_DOC_PAGE") {
+        pages.retain(|p| p.to_string_lossy().contains(only.as_str()));
+    }
     pages
 }
 

@@ -57,7 +57,7 @@ fn hl(t: f64) -> f64 {
 }
 
 fn is_dark(trial: usize) -> bool {
-    trial % 2 == 0
+    trial.is_multiple_of(2)
 }
 
 /// Writes the recording (gaze.csv + events.csv) into `dir`.
@@ -231,7 +231,7 @@ fn display_light_and_trials_recover_the_task_dilations() {
         // The light the display drove: dark trials' predicted pupil larger.
         let light = num(r, "pupil_light_mean_mm");
         let other = num(
-            &rows[if k % 2 == 0 { k + 1 } else { k - 1 }],
+            &rows[if k.is_multiple_of(2) { k + 1 } else { k - 1 }],
             "pupil_light_mean_mm",
         );
         assert_eq!(
@@ -313,7 +313,7 @@ fn eyelink_dark_and_bright_phases_from_its_messages() {
     }
     let first_ms = first_ms.unwrap();
     assert_eq!(trials.len(), 4);
-    let mut own_mean = vec![(0.0, 0usize); 4];
+    let mut own_mean = [(0.0, 0usize); 4];
     for line in asc.lines() {
         let f: Vec<&str> = line.split_whitespace().collect();
         if f.len() < 7 || !f[0].chars().all(|c| c.is_ascii_digit()) {
