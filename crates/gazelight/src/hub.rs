@@ -70,9 +70,15 @@ pub struct FrameStatus {
     pub pupil_residual_mm: [f32; 2],
     /// Age of the `EyeState` the frame used, ms.
     pub eye_state_age_ms: f64,
-    /// Whole-frame processing time, ms.
+    /// The frame time, ms: from the frame's start (the `EyeState` read)
+    /// to its image handed on (shown in the window's slot, read back for
+    /// the status page and files); the sum of [`Self::parts`]. Not in it:
+    /// the wait for the next frame's deadline, and the status and file
+    /// rows written after it.
     pub frame_ms: f64,
-    /// Per-stage times of the newest frame, ms.
+    /// [`Self::frame_ms`] in consecutive parts, ms.
+    pub parts: FrameParts,
+    /// Per-stage times of the newest frame's first view, ms.
     pub timings: gazelight_vision::pipeline::StageTimings,
     /// PSF rebuilds since start.
     pub psf_rebuilds: u64,
@@ -81,6 +87,37 @@ pub struct FrameStatus {
     pub frames_read_back: u64,
     /// Surface images the window presented since start (0 headless).
     pub frames_presented: u64,
+}
+
+/// A frame's time in consecutive parts, ms: each from one checkpoint of
+/// the frame loop to the next, so they add up to [`FrameStatus::frame_ms`]
+/// (to rounding).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct FrameParts {
+    /// Reading the `EyeState`, the mouse and each view's input.
+    pub prepare_ms: f64,
+    /// The panorama view re-rendered for a new head orientation (0 when
+    /// the head did not move).
+    pub view_ms: f64,
+    /// A glare kernel the PSF worker built, installed into the pipelines
+    /// (0 on most frames).
+    pub psf_install_ms: f64,
+    /// The pipeline stages (pooling, temporal, PSF, glare, acuity,
+    /// tone/colour/encode): every view's, added, where the views run one
+    /// after another; the slower view's where they run at once (CPU
+    /// stereo).
+    pub stages_ms: f64,
+    /// The pipeline call's wall time less [`Self::stages_ms`]: uploading
+    /// the view, submitting to and waiting for the GPU, and the work
+    /// between stages.
+    pub render_other_ms: f64,
+    /// The pupil light response stepped, adaptation handed back to the
+    /// eye task.
+    pub pupil_light_ms: f64,
+    /// The frame handed on: shown in the window's slot, read back from the
+    /// GPU (for the status page and files), the stereo views placed side
+    /// by side; a wait on the GPU is here.
+    pub present_ms: f64,
 }
 
 impl FrameStatus {

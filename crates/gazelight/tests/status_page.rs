@@ -149,6 +149,45 @@ fn status_page_of_a_live_session() {
     let psf_mm = s2["psf"]["pupil_mm"].as_f64().unwrap();
     let binocular_mm = s2["eye"]["binocular_pupil_mm"].as_f64().unwrap();
     assert!((psf_mm - binocular_mm).abs() <= 0.1 + 1e-6, "{s2}");
+    // The frame time is the sum of its named parts (consecutive
+    // checkpoints of the frame loop), on this and a few later statuses;
+    // its stages part is the pipeline's own stage times (one view).
+    for k in 0..5 {
+        let s = if k == 0 {
+            s2.clone()
+        } else {
+            std::thread::sleep(Duration::from_millis(150));
+            get_json(http_port, "/api/status")
+        };
+        let fr = &s["frame"];
+        let frame_ms = fr["frame_ms"].as_f64().unwrap();
+        let parts = fr["parts"].as_object().unwrap();
+        let names: Vec<&str> = parts.keys().map(String::as_str).collect();
+        assert_eq!(names.len(), 7, "{names:?}");
+        let sum: f64 = parts.values().map(|v| v.as_f64().unwrap()).sum();
+        assert!(frame_ms > 0.0, "{fr}");
+        assert!(
+            (sum - frame_ms).abs() <= 1e-6 * frame_ms.max(1.0),
+            "frame time {frame_ms} ms, its parts add to {sum} ms: {fr}"
+        );
+        let t = &fr["timings"];
+        let stages: f64 = [
+            "pooling_ms",
+            "temporal_ms",
+            "psf_ms",
+            "glare_ms",
+            "acuity_ms",
+            "tone_colour_encode_ms",
+        ]
+        .iter()
+        .map(|k| t[k].as_f64().unwrap())
+        .sum();
+        assert!(
+            (parts["stages_ms"].as_f64().unwrap() - stages).abs() < 1e-9,
+            "{fr}"
+        );
+        eprintln!("frame time {frame_ms:.3} ms = {parts:?}");
+    }
     let h = get_json(http_port, "/api/history");
     assert!(h["t_secs"].as_array().unwrap().len() > 10);
     assert_eq!(

@@ -44,7 +44,7 @@ use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 use super::head::Head;
 use super::writer::{OutputWriter, PsfEvent, Row, ViewRow, WriterReport};
 use crate::backend::{BackendChoice, Renderer};
-use crate::hub::{FrameStatus, Hub};
+use crate::hub::{FrameParts, FrameStatus, Hub};
 use crate::stereo::{self, MONO, STEREO, View};
 use crate::window::{DisplaySlot, MouseGaze};
 use gazelight_psf_worker::{Priority, PsfWorker};
@@ -533,6 +533,7 @@ impl FrameLoop {
                 slot.0.gaze_uv = uv;
             }
         }
+        let at_view = Instant::now();
         if let Some(projections) = views {
             for ((eye, p), mean) in self
                 .eyes
@@ -574,10 +575,12 @@ impl FrameLoop {
                 .set_field(field_of(&self.view, &self.view_img));
         }
 
+        let at_psf = Instant::now();
         let building = self.psf_worker.as_ref().is_some_and(PsfWorker::building);
         let installed = self.follow_psf([inputs[0].0.pupil_mm, inputs[1].0.pupil_mm], t_secs)?;
         self.rebuild_frame = building || installed.contains(&true);
         self.frames_near_rebuilds += u64::from(self.rebuild_frame);
+        let at_render = Instant::now();
         let mut all_stats = [FrameStats::default(); 2];
         let mut self_rebuilt = false;
         let mut log_adaptation = 0.0;
@@ -598,6 +601,7 @@ impl FrameLoop {
                 }
             }
         }
+        let at_rendered = Instant::now();
         for (k, stats) in all_stats.iter_mut().enumerate().take(n) {
             // Only without a worker (the pipeline rebuilt synchronously).
             self_rebuilt |= stats.psf_rebuilt;
@@ -635,6 +639,7 @@ impl FrameLoop {
             self.ages_ms[self.age_next] = age_ms as f32;
             self.age_next = (self.age_next + 1) % self.ages_ms.len();
         }
+        let at_present = Instant::now();
         // The host consumers of the frame: the status page (at most every
         // DISPLAY_PUBLISH_SECS), the file writer (every frame) and, in
         // stereo, the window (one side-by-side frame).
@@ -664,8 +669,35 @@ impl FrameLoop {
         } else {
             &self.composed
         };
-        let frame_ms = started.elapsed().as_secs_f64() * 1e3;
+        let at_end = Instant::now();
+        let ms = |a: Instant, b: Instant| b.duration_since(a).as_secs_f64() * 1e3;
+        let frame_ms = ms(started, at_end);
         self.frame_ms_sum += frame_ms;
+        // CPU stereo renders its two views at once (rayon::join).
+        let parallel = n == 2
+            && self
+                .eyes
+                .iter()
+                .all(|e| matches!(e.pipeline, Renderer::Cpu(..)));
+        let view_stages: Vec<f64> = all_stats
+            .iter()
+            .take(n)
+            .map(|s| stages_ms(&s.timings))
+            .collect();
+        let stages = if parallel {
+            view_stages.iter().copied().fold(0.0, f64::max)
+        } else {
+            view_stages.iter().sum()
+        };
+        let parts = FrameParts {
+            prepare_ms: ms(started, at_view),
+            view_ms: ms(at_view, at_psf),
+            psf_install_ms: ms(at_psf, at_render),
+            stages_ms: stages,
+            render_other_ms: ms(at_render, at_rendered) - stages,
+            pupil_light_ms: ms(at_rendered, at_present),
+            present_ms: ms(at_present, at_end),
+        };
         let mut status = FrameStatus {
             frames: self.frames,
             frames_late: self.late,
@@ -684,6 +716,7 @@ impl FrameLoop {
             target_cd_m2: stats.target_cd_m2,
             eye_state_age_ms: age_ms,
             frame_ms,
+            parts,
             timings: stats.timings,
             psf_rebuilds: self.psf_rebuilds,
             ..FrameStatus::default()
@@ -939,6 +972,12 @@ fn publish_psf(
             view: p.view,
         });
     }
+}
+
+/// A view's pipeline stages added, ms (its `total_ms` left out: it is the
+/// whole call, not a stage).
+fn stages_ms(t: &gazelight_vision::pipeline::StageTimings) -> f64 {
+    t.pooling_ms + t.temporal_ms + t.psf_ms + t.glare_ms + t.acuity_ms + t.tone_colour_encode_ms
 }
 
 #[cfg(test)]

@@ -134,6 +134,10 @@
     set("frame-pupil", fmt(fr.frame_pupil_mm, 3, "mm"));
     set("frame-age", fmt(fr.eye_state_age_ms, 2, "ms"));
     set("frame-ms", fmt(fr.frame_ms, 2, "ms"));
+    const pt = fr.parts || {};
+    set("p-render", fmt(pt.stages_ms, 2) + " + " + fmt(pt.render_other_ms, 2) + " ms");
+    set("p-prep", fmt(pt.prepare_ms, 2) + " / " + fmt(pt.view_ms, 2) + " / " + fmt(pt.psf_install_ms, 2) + " ms");
+    set("p-present", fmt(pt.pupil_light_ms, 2) + " / " + fmt(pt.present_ms, 2) + " ms");
     set("t-pool", fmt(tm.pooling_ms, 2) + " / " + fmt(tm.temporal_ms, 2) + " ms");
     set("t-glare", fmt(tm.psf_ms, 2) + " / " + fmt(tm.glare_ms, 2) + " ms");
     set("t-tone", fmt(tm.acuity_ms, 2) + " / " + fmt(tm.tone_colour_encode_ms, 2) + " ms");
