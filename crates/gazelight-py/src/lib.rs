@@ -26,6 +26,7 @@ mod pupil;
 mod read;
 mod render;
 mod source;
+mod trials;
 
 create_exception!(
     _gazelight,
@@ -110,5 +111,6 @@ fn _gazelight(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(pupil::psf, m)?)?;
     m.add_function(wrap_pyfunction!(read::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(read::inspect_json, m)?)?;
+    m.add_function(wrap_pyfunction!(trials::trials_csv, m)?)?;
     Ok(())
 }

@@ -96,7 +96,8 @@ pub struct TrialOptions {
     /// The analysis window, seconds from the onset (default 0..3).
     pub window_secs: [f64; 2],
     /// A trial is valid when at most this share of its window, and of its
-    /// baseline, lacks a measured pupil (default 0.5).
+    /// baseline, lacks a measured pupil (default 0.5: a choice, not a
+    /// published value; a study sets its own exclusion rule).
     pub max_invalid_fraction: f64,
 }
 

@@ -47,6 +47,7 @@ from ._gazelight import (  # noqa: F401
     read_config_text as _read_config_text,
     read_recording as _read_recording,
     render_open as _render_open,
+    trials_csv as _trials_csv,
     write_png,
 )
 
@@ -67,6 +68,7 @@ __all__ = [
     "psf",
     "read",
     "render",
+    "trials",
     "write_png",
 ]
 
@@ -516,3 +518,35 @@ def render(
     for w in r.warnings:
         warnings.warn(GazelightWarning(w), stacklevel=2)
     return r
+
+def trials(
+    replay_dir: PathLike,
+    events: str,
+    baseline: Tuple[float, float] = (-0.2, 0.0),
+    window: Tuple[float, float] = (0.0, 3.0),
+    max_invalid: float = 0.5,
+    eye: Optional[str] = None,
+):
+    """The per-trial table of a replay (its ``timeline.csv`` and
+    ``events.csv``), as ``gazelight trials`` writes it: one row per event
+    whose text matches ``events`` (``*`` any run of characters; without
+    ``*``, texts that start with it), the subtractive baseline over
+    ``baseline`` s from the onset, peak and mean dilation, the
+    light-driven and residual pupil over ``window``, the share without a
+    measured pupil and ``valid`` (docs/screen-experiment.md). A pandas
+    DataFrame; needs pandas."""
+    try:
+        import io
+
+        import pandas as pd
+    except ImportError as e:  # pragma: no cover - depends on the env
+        raise ImportError("gazelight.trials needs pandas (pip install pandas)") from e
+    text, _unit = _trials_csv(
+        os.fspath(replay_dir),
+        events,
+        f"{baseline[0]}..{baseline[1]}",
+        f"{window[0]}..{window[1]}",
+        max_invalid,
+        eye,
+    )
+    return pd.read_csv(io.StringIO(text), dtype={"event": str, "trial": str}, keep_default_na=False, na_values=[""])
