@@ -265,6 +265,31 @@ fn display_light_and_trials_recover_the_task_dilations() {
     assert!(blinked > 0.04 && blinked < 0.5, "{text}");
     eprintln!("{report}");
 
+    // The same display as a time table (seconds from the first sample):
+    // the same light-driven pupil, frame by frame.
+    let times = dir.join("display-times.csv");
+    let mut t = String::from("t_secs,luminance_cd_m2\n");
+    for k in 0..TRIALS {
+        let l = if is_dark(k) { DARK_CD_M2 } else { BRIGHT_CD_M2 };
+        t.push_str(&format!("{},{l}\n", k as f64 * TRIAL_SECS));
+    }
+    std::fs::write(&times, t).unwrap();
+    let out_t = dir.join("out-times");
+    replay(
+        gaze.to_str().unwrap(),
+        &out_t,
+        &["--fps", "25", "--display-light", times.to_str().unwrap()],
+    );
+    let light = |d: &Path| -> Vec<String> {
+        let text = std::fs::read_to_string(d.join("timeline.csv")).unwrap();
+        let rows = table(&text);
+        rows.iter().map(|r| r["pupil_light_mm"].clone()).collect()
+    };
+    let (by_event, by_time) = (light(&out), light(&out_t));
+    assert_eq!(by_event.len(), by_time.len());
+    assert!(by_event.iter().all(|v| !v.is_empty()));
+    assert_eq!(by_event, by_time);
+
     // The same recording without a scene or display light: said once.
     let (_, stderr) = replay(
         gaze.to_str().unwrap(),
