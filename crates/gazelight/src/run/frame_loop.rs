@@ -679,15 +679,12 @@ impl FrameLoop {
                 .eyes
                 .iter()
                 .all(|e| matches!(e.pipeline, Renderer::Cpu(..)));
-        let view_stages: Vec<f64> = all_stats
-            .iter()
-            .take(n)
-            .map(|s| stages_ms(&s.timings))
-            .collect();
+        // No Vec: the frame loop allocates nothing per frame.
+        let view_stages = || all_stats.iter().take(n).map(|s| stages_ms(&s.timings));
         let stages = if parallel {
-            view_stages.iter().copied().fold(0.0, f64::max)
+            view_stages().fold(0.0, f64::max)
         } else {
-            view_stages.iter().sum()
+            view_stages().sum()
         };
         let parts = FrameParts {
             prepare_ms: ms(started, at_view),
