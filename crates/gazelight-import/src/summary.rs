@@ -136,6 +136,11 @@ pub struct RecordingSummary {
     /// Importer format, when known.
     pub format: Option<String>,
     pub duration_s: f64,
+    /// The first sample's time on the recording's clock (the samples'
+    /// `t_secs`, Python's `read()` times), s; `None` without samples.
+    /// `replay`/`render`'s `timeline.csv` counts from the first frame:
+    /// their `t_secs` + this (+ `--from-secs`) is the recording's time.
+    pub first_sample_secs: Option<f64>,
     pub samples: SampleCounts,
     pub rate_hz: Rates,
     pub pupil: [EyePupil; 2],
@@ -352,6 +357,7 @@ impl Summarizer {
             } else {
                 0.0
             },
+            first_sample_secs: self.first_t.is_finite().then_some(self.first_t),
             samples: self.counts,
             rate_hz: Rates {
                 pupil: eye_rate,
@@ -607,6 +613,13 @@ impl fmt::Display for RecordingSummary {
                 .unwrap_or_default(),
             self.duration_s
         )?;
+        if let Some(t0) = self.first_sample_secs {
+            writeln!(
+                f,
+                "  times: the recording's clock, s (first sample at {t0:.6} s; replay's \
+                 timeline.csv counts from it: t_secs + {t0:.6} s)"
+            )?;
+        }
         write!(
             f,
             "  gaze: {} samples, {:.1} Hz",

@@ -221,6 +221,20 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             t_last - t_first
         );
     }
+    // One time base: say which clock each output counts on, and the offset.
+    setup.settings.set(
+        "time.timeline_clock",
+        "seconds from the first frame (timeline.csv, events.csv: t_secs); on the recording's \
+         clock (inspect, Python read()) = t_secs + time.first_frame_recording_secs",
+        Origin::Default,
+    );
+    setup
+        .settings
+        .set("time.first_frame_recording_secs", t0, Origin::Source)
+        .note = Some(format!(
+        "the recording's first sample ({t_first:.6} s) + --from-secs ({} s)",
+        args.from_secs
+    ));
     let mut duration = t_last - t0;
     if let Some(s) = args.secs {
         duration = duration.min(s);

@@ -248,7 +248,10 @@ def _events(d: Dict[str, Any]) -> Events:
 
 @dataclass(frozen=True)
 class Recording:
-    """A recording read through the filter chain (see :func:`read`)."""
+    """A recording read through the filter chain (see :func:`read`).
+
+    Its times are on the recording's clock (see :attr:`first_sample_secs`).
+    """
 
     path: str
     format: str
@@ -262,6 +265,22 @@ class Recording:
     eye_gaze: Optional[Dict[str, Any]] = field(default=None)
     events: Optional[Events] = field(default=None)
     """The recording's events (:class:`Events`; ``events.to_dataframe()``)."""
+
+    @property
+    def first_sample_secs(self) -> Optional[float]:
+        """The first sample's time (s), or None without samples.
+
+        Every time of a :class:`Recording` (``Eye.t_secs``, ``Gaze.t_secs``,
+        blinks, ``events.t_secs``) is on the recording's clock, as ``gazelight
+        inspect`` prints them (``inspect``'s ``first_sample_secs`` is this
+        value). :func:`render` rows and the CLI's ``timeline.csv`` count
+        seconds from the first frame instead: their ``t_secs`` +
+        ``first_sample_secs`` + ``from_secs`` is the recording's time (the
+        replay's ``session.json`` names it
+        ``time.first_frame_recording_secs``).
+        """
+        firsts = [float(np.min(a)) for a in (self.eyes[0].t_secs, self.eyes[1].t_secs, self.gaze.t_secs) if len(a)]
+        return min(firsts) if firsts else None
 
     @property
     def right(self) -> Eye:
