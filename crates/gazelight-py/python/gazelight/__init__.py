@@ -538,6 +538,7 @@ def render(
         warnings.warn(GazelightWarning(w), stacklevel=2)
     return r
 
+
 def trials(
     replay_dir: PathLike,
     events: str,
