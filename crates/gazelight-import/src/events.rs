@@ -803,28 +803,6 @@ fn normalise(name: &str) -> String {
     s.trim_matches('_').to_owned()
 }
 
-/// Splits a CSV line (`,`; `"` quotes, `""` inside them).
-fn split_csv(line: &str, sep: char) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut cur = String::new();
-    let mut quoted = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                cur.push('"');
-                chars.next();
-            }
-            ('"', true) => quoted = false,
-            ('"', false) if cur.is_empty() => quoted = true,
-            (c, false) if c == sep => out.push(std::mem::take(&mut cur)),
-            (c, _) => cur.push(c),
-        }
-    }
-    out.push(cur);
-    out
-}
-
 /// Reads an events table (a header line, then one event a line) into
 /// `out`; `t_clock` is the time column's own value.
 fn table_events(
@@ -862,7 +840,7 @@ fn table_events(
         if l.trim().is_empty() {
             continue;
         }
-        let fields = split_csv(l, sep);
+        let fields = gazelight_input::split_csv_line(l, sep);
         let Some((ti, xi, di)) = header else {
             let names: Vec<String> = fields.iter().map(|f| normalise(f)).collect();
             // The first of `want` (in its order of preference) the header has.
@@ -1214,7 +1192,7 @@ mod tests {
     #[test]
     fn csv_fields_and_names() {
         assert_eq!(
-            split_csv("1,\"a, \"\"b\"\"\",c", ','),
+            gazelight_input::split_csv_line("1,\"a, \"\"b\"\"\",c", ','),
             vec!["1", "a, \"b\"", "c"]
         );
         assert_eq!(normalise("timestamp [ns]"), "timestamp_ns");

@@ -192,28 +192,6 @@ fn read_text(path: &Path) -> Result<String, TrialsError> {
     })
 }
 
-/// Splits a CSV line (`,`; `"` quotes with `""` inside).
-fn split_csv(line: &str) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut cur = String::new();
-    let mut quoted = false;
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                cur.push('"');
-                chars.next();
-            }
-            ('"', true) => quoted = false,
-            ('"', false) if cur.is_empty() => quoted = true,
-            (',', false) => out.push(std::mem::take(&mut cur)),
-            (c, _) => cur.push(c),
-        }
-    }
-    out.push(cur);
-    out
-}
-
 fn number(path: &Path, line: usize, column: &str, v: &str) -> Result<f64, TrialsError> {
     let v = v.trim();
     if v.is_empty() || v.eq_ignore_ascii_case("nan") {
@@ -232,7 +210,10 @@ fn number(path: &Path, line: usize, column: &str, v: &str) -> Result<f64, Trials
 pub fn read_timeline(path: &Path, suffix: &str) -> Result<TimelineSeries, TrialsError> {
     let text = read_text(path)?;
     let mut lines = text.lines().enumerate();
-    let header = lines.next().map(|(_, l)| split_csv(l)).unwrap_or_default();
+    let header = lines
+        .next()
+        .map(|(_, l)| gazelight_input::split_csv_line(l, ','))
+        .unwrap_or_default();
     let find = |name: &str| header.iter().position(|h| h == name);
     let need = |name: &str| {
         find(name).ok_or_else(|| TrialsError::Column {
@@ -258,7 +239,7 @@ pub fn read_timeline(path: &Path, suffix: &str) -> Result<TimelineSeries, Trials
         if line.trim().is_empty() {
             continue;
         }
-        let f = split_csv(line);
+        let f = gazelight_input::split_csv_line(line, ',');
         let get = |c: Option<usize>, name: &str| -> Result<f64, TrialsError> {
             match c.and_then(|c| f.get(c)) {
                 Some(v) => number(path, i + 1, name, v),
@@ -294,7 +275,10 @@ pub fn read_timeline(path: &Path, suffix: &str) -> Result<TimelineSeries, Trials
 pub fn read_events(path: &Path) -> Result<Vec<EventRow>, TrialsError> {
     let text = read_text(path)?;
     let mut lines = text.lines().enumerate();
-    let header = lines.next().map(|(_, l)| split_csv(l)).unwrap_or_default();
+    let header = lines
+        .next()
+        .map(|(_, l)| gazelight_input::split_csv_line(l, ','))
+        .unwrap_or_default();
     let need = |name: &str| {
         header
             .iter()
@@ -312,7 +296,7 @@ pub fn read_events(path: &Path) -> Result<Vec<EventRow>, TrialsError> {
         if line.is_empty() {
             continue;
         }
-        let f = split_csv(line);
+        let f = gazelight_input::split_csv_line(line, ',');
         let t = number(
             path,
             i + 1,
