@@ -110,7 +110,8 @@ fn split_recording(stem: &str) -> Option<(&str, String, &str)> {
     Some((&stem[..k + "_recording-".len()], kind, &rest[end..]))
 }
 
-fn read_json(path: &Path) -> Result<Value, ImportError> {
+/// A sidecar's JSON (at most [`MAX_SIDECAR_BYTES`]); also the events reader's.
+pub(crate) fn read_json(path: &Path) -> Result<Value, ImportError> {
     let text =
         gazelight_input::read_to_string(path, MAX_SIDECAR_BYTES).map_err(|e| io_err(path, e))?;
     serde_json::from_str(&text).map_err(|e| {
@@ -145,7 +146,8 @@ enum Recorded {
     Cyclopean,
 }
 
-fn time_scale(units: &str) -> Option<f64> {
+/// Seconds per unit of a time column's `Units` (`s`, `ms`, `us`, `ns`).
+pub(crate) fn time_scale(units: &str) -> Option<f64> {
     Some(match units.trim() {
         "s" | "sec" | "seconds" => 1.0,
         "ms" => 1e-3,

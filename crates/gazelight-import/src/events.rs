@@ -897,33 +897,6 @@ fn table_events(
 
 // -------------------------------------------------------------------- BIDS
 
-/// Largest BIDS sidecar read, bytes.
-const MAX_SIDECAR_BYTES: u64 = 1 << 20;
-
-fn read_json(path: &Path) -> Result<serde_json::Value, ImportError> {
-    let text = gazelight_input::read_to_string(path, MAX_SIDECAR_BYTES).map_err(|source| {
-        ImportError::Io {
-            path: path.to_owned(),
-            source,
-        }
-    })?;
-    serde_json::from_str(&text).map_err(|e| ImportError::Structure {
-        path: path.to_owned(),
-        position: Position::Line(e.line() as u64),
-        reason: format!("not JSON: {e}"),
-    })
-}
-
-fn seconds_per(units: &str) -> Option<f64> {
-    Some(match units.trim() {
-        "s" | "sec" | "seconds" => 1.0,
-        "ms" => 1e-3,
-        "us" | "µs" | "μs" => 1e-6,
-        "ns" => 1e-9,
-        _ => return None,
-    })
-}
-
 /// A gzipped TSV, decompressed within [`gazelight_input::MAX_EXPANSION_RATIO`].
 fn open_gz(path: &Path) -> Result<impl BufRead, ImportError> {
     let io = |source| ImportError::Io {
@@ -953,19 +926,19 @@ pub fn bids(path: &Path) -> Result<RecordingEvents, ImportError> {
         .parent()
         .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let sidecar_path = dir.join(format!("{stem}_physio.json"));
-    let sidecar = read_json(&sidecar_path)?;
+    let sidecar = crate::bids::read_json(&sidecar_path)?;
     let t_scale = sidecar
         .get("timestamp")
         .and_then(|t| t.get("Units"))
         .and_then(serde_json::Value::as_str)
-        .and_then(seconds_per)
+        .and_then(crate::bids::time_scale)
         .unwrap_or(1.0);
     // physioevents: the tracker's messages.
     let ev_json = dir.join(format!("{stem}_physioevents.json"));
     let ev_tsv = dir.join(format!("{stem}_physioevents.tsv.gz"));
     if ev_json.is_file() && ev_tsv.is_file() {
         out.files.push(ev_tsv.clone());
-        let cols: Vec<String> = read_json(&ev_json)?
+        let cols: Vec<String> = crate::bids::read_json(&ev_json)?
             .get("Columns")
             .and_then(serde_json::Value::as_array)
             .map(|a| {
