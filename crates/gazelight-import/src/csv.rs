@@ -163,7 +163,7 @@ pub struct CsvColumns {
 
 impl CsvColumns {
     /// Maps a header line; `Err` says why it cannot be used.
-    pub fn from_header(line: &str) -> Result<Self, String> {
+    pub(crate) fn from_header(line: &str) -> Result<Self, String> {
         let separator = if line.contains('\t') {
             '\t'
         } else if line.contains(';') && !line.contains(',') {

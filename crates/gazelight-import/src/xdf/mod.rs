@@ -116,9 +116,29 @@ fn describe(s: &StreamInfo) -> String {
     )
 }
 
+/// Why no stream of a file could be chosen to replay.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StreamChoiceError {
+    #[error("the file holds no stream")]
+    NoStreams,
+    #[error("no stream named `{name}`; the file has {streams}")]
+    NoSuchName {
+        name: String,
+        /// Every stream of the file, described.
+        streams: String,
+    },
+    #[error(
+        "no stream of type Gaze or Pupil (pick one with FILE.xdf?stream=NAME); the file has {streams}"
+    )]
+    NoEyeStream {
+        /// Every stream of the file, described.
+        streams: String,
+    },
+}
+
 /// Which stream of `file` to replay: by name, else the first of type
 /// Gaze, else the first of type Pupil.
-pub fn choose_stream(file: &XdfFile, name: Option<&str>) -> Result<usize, String> {
+pub fn choose_stream(file: &XdfFile, name: Option<&str>) -> Result<usize, StreamChoiceError> {
     let list = || {
         file.streams
             .iter()
@@ -127,14 +147,17 @@ pub fn choose_stream(file: &XdfFile, name: Option<&str>) -> Result<usize, String
             .join(", ")
     };
     if file.streams.is_empty() {
-        return Err("the file holds no stream".into());
+        return Err(StreamChoiceError::NoStreams);
     }
     if let Some(name) = name {
         return file
             .streams
             .iter()
             .position(|s| s.name == name)
-            .ok_or_else(|| format!("no stream named `{name}`; the file has {}", list()));
+            .ok_or_else(|| StreamChoiceError::NoSuchName {
+                name: name.to_owned(),
+                streams: list(),
+            });
     }
     EYE_STREAM_TYPES
         .iter()
@@ -143,12 +166,7 @@ pub fn choose_stream(file: &XdfFile, name: Option<&str>) -> Result<usize, String
                 .iter()
                 .position(|s| s.kind.eq_ignore_ascii_case(t))
         })
-        .ok_or_else(|| {
-            format!(
-                "no stream of type Gaze or Pupil (pick one with FILE.xdf?stream=NAME); the file has {}",
-                list()
-            )
-        })
+        .ok_or_else(|| StreamChoiceError::NoEyeStream { streams: list() })
 }
 
 impl XdfImporter {
@@ -161,7 +179,8 @@ impl XdfImporter {
             position: Position::File,
             reason,
         };
-        let index = choose_stream(&file, stream.as_deref()).map_err(structure)?;
+        let index =
+            choose_stream(&file, stream.as_deref()).map_err(|e| structure(e.to_string()))?;
         let info = &file.streams[index];
         if info.format == ChannelFormat::String {
             return Err(structure(format!(

@@ -1,9 +1,15 @@
-//! The small XML subset an XDF header or footer is written in (liblsl's
-//! pugixml output): elements, text, entity and character references,
-//! CDATA, comments, the `<?xml …?>` declaration and attributes (read past,
-//! not kept). The input is bounded by the caller (a chunk of at most
-//! [`super::MAX_XML_BYTES`]) and the nesting by [`MAX_DEPTH`], so nothing
-//! here grows without a bound.
+//! An XDF header or footer (liblsl's pugixml output) as a small element
+//! tree: names, text (entity and character references decoded, CDATA
+//! kept) and child elements; attributes, comments, the `<?xml …?>`
+//! declaration and processing instructions are read past. The tokenizer
+//! is `quick-xml` (well-formedness: matching end tags, one root, quoted
+//! attributes); this module keeps the tree bounded: the input by the
+//! caller (a chunk of at most [`super::MAX_XML_BYTES`]), the nesting by
+//! [`MAX_DEPTH`], the element count by [`MAX_ELEMENTS`] and a list by
+//! [`ListCap`].
+
+use quick_xml::events::Event;
+use quick_xml::reader::Reader;
 
 /// Deepest element nesting accepted.
 pub const MAX_DEPTH: usize = 64;
@@ -13,6 +19,16 @@ pub const MAX_DEPTH: usize = 64;
 /// against the ~20 of its text, so this (not the text's size) bounds the
 /// tree: ~30 MB.
 pub const MAX_ELEMENTS: usize = 4 * super::reader::MAX_CHANNELS + 4096;
+
+/// What is wrong with an XML document, and at which byte of its text.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("byte {byte}: {what}")]
+pub struct XmlError {
+    /// Offset into the document's text where the problem was found.
+    pub byte: u64,
+    /// What is wrong.
+    pub what: String,
+}
 
 /// A list element whose children beyond a count are read past and not
 /// kept: a stream header's `<channels>` holds at most its own
@@ -58,7 +74,7 @@ impl Element {
 
 /// Parses one XML document into its root element; the error says what is
 /// wrong and at which byte of the text.
-pub fn parse(text: &str) -> Result<Element, String> {
+pub fn parse(text: &str) -> Result<Element, XmlError> {
     parse_capped(text, None)
 }
 
@@ -66,180 +82,144 @@ pub fn parse(text: &str) -> Result<Element, String> {
 /// element and at most [`MAX_ELEMENTS`] elements in all (more is an
 /// error): the tree is bounded by what the document declares, not by how
 /// much it lists.
-pub fn parse_capped(text: &str, cap: Option<ListCap<'_>>) -> Result<Element, String> {
-    let b = text.as_bytes();
-    let mut i = 0usize;
-    let mut kept = 0usize;
-    // The open elements; the root is the first one closed at depth 0.
-    let mut stack: Vec<Element> = Vec::new();
-    let mut root: Option<Element> = None;
-    while i < b.len() {
-        if b[i] == b'<' {
-            if text[i..].starts_with("<?") {
-                i = find(text, i, "?>")? + 2;
-            } else if text[i..].starts_with("<!--") {
-                i = find(text, i, "-->")? + 3;
-            } else if text[i..].starts_with("<![CDATA[") {
-                let end = find(text, i, "]]>")?;
-                match stack.last_mut() {
-                    Some(e) => e.text.push_str(&text[i + 9..end]),
-                    None => return Err(format!("byte {i}: CDATA outside the root element")),
+pub fn parse_capped(text: &str, cap: Option<ListCap<'_>>) -> Result<Element, XmlError> {
+    let mut reader = Reader::from_str(text);
+    // Ends must match their starts (quick-xml's default, said here
+    // because the tree below relies on it).
+    reader.config_mut().check_end_names = true;
+    let mut tree = Tree {
+        stack: Vec::new(),
+        root: None,
+        kept: 0,
+        cap,
+    };
+    loop {
+        let at = reader.buffer_position();
+        let event = reader.read_event().map_err(|e| XmlError {
+            byte: reader.error_position(),
+            what: e.to_string(),
+        })?;
+        let fail = |what: String| XmlError { byte: at, what };
+        match event {
+            Event::Start(ref start) | Event::Empty(ref start) => {
+                let empty = matches!(event, Event::Empty(_));
+                let name = String::from_utf8_lossy(start.name().as_ref()).into_owned();
+                if tree.stack.len() >= MAX_DEPTH {
+                    return Err(fail(format!("elements nested deeper than {MAX_DEPTH}")));
                 }
-                i = end + 3;
-            } else if text[i..].starts_with("<!") {
-                i = find(text, i, ">")? + 1;
-            } else if text[i..].starts_with("</") {
-                let end = find(text, i, ">")?;
-                let name = text[i + 2..end].trim();
-                let Some(open) = stack.pop() else {
-                    return Err(format!(
-                        "byte {i}: closing tag </{name}> with no open element"
-                    ));
-                };
-                if open.name != name {
-                    return Err(format!(
-                        "byte {i}: closing tag </{name}> does not match <{}>",
-                        open.name
-                    ));
-                }
-                close(open, &mut stack, &mut root, i, cap, &mut kept)?;
-                i = end + 1;
-            } else {
-                // A start tag: name, attributes (quoted values may hold '>').
-                let mut j = i + 1;
-                while j < b.len() && !matches!(b[j], b' ' | b'\t' | b'\r' | b'\n' | b'/' | b'>') {
-                    j += 1;
-                }
-                let name = &text[i + 1..j];
-                if name.is_empty() {
-                    return Err(format!("byte {i}: a `<` that starts no tag"));
-                }
-                let mut quote: Option<u8> = None;
-                while j < b.len() {
-                    match (quote, b[j]) {
-                        (Some(q), c) if c == q => quote = None,
-                        (Some(_), _) => {}
-                        (None, b'"' | b'\'') => quote = Some(b[j]),
-                        (None, b'>') => break,
-                        _ => {}
-                    }
-                    j += 1;
-                }
-                if j >= b.len() {
-                    return Err(format!("byte {i}: tag <{name} is never closed"));
-                }
-                let self_closing = b[j - 1] == b'/';
-                if stack.len() >= MAX_DEPTH {
-                    return Err(format!("byte {i}: elements nested deeper than {MAX_DEPTH}"));
-                }
-                if root.is_some() {
-                    return Err(format!("byte {i}: a second root element <{name}>"));
+                if tree.root.is_some() {
+                    return Err(fail(format!("a second root element <{name}>")));
                 }
                 let el = Element {
-                    name: name.to_owned(),
+                    name,
                     ..Element::default()
                 };
-                if self_closing {
-                    close(el, &mut stack, &mut root, i, cap, &mut kept)?;
+                if empty {
+                    tree.close(el).map_err(fail)?;
                 } else {
-                    stack.push(el);
+                    tree.stack.push(el);
                 }
-                i = j + 1;
             }
-        } else {
-            let end = text[i..].find('<').map_or(b.len(), |k| i + k);
-            let raw = &text[i..end];
-            match stack.last_mut() {
-                Some(e) => decode_into(raw, &mut e.text, i)?,
-                None if raw.trim().is_empty() => {}
-                None => return Err(format!("byte {i}: text outside the root element")),
+            Event::End(_) => {
+                // quick-xml has checked that the name matches.
+                let Some(open) = tree.stack.pop() else {
+                    return Err(fail("a closing tag with no open element".to_owned()));
+                };
+                tree.close(open).map_err(fail)?;
             }
-            i = end;
+            Event::Text(t) => {
+                let raw = t.decode().map_err(|e| fail(e.to_string()))?;
+                tree.text(&raw).map_err(fail)?;
+            }
+            Event::CData(c) => {
+                let raw = c.decode().map_err(|e| fail(e.to_string()))?;
+                match tree.stack.last_mut() {
+                    Some(e) => e.text.push_str(&raw),
+                    None => return Err(fail("CDATA outside the root element".to_owned())),
+                }
+            }
+            Event::GeneralRef(r) => {
+                let c = if r.is_char_ref() {
+                    r.resolve_char_ref().ok().flatten().map(String::from)
+                } else {
+                    let name = r.decode().map_err(|e| fail(e.to_string()))?;
+                    quick_xml::escape::resolve_xml_entity(&name).map(str::to_owned)
+                };
+                let Some(c) = c else {
+                    let name = String::from_utf8_lossy(&r);
+                    return Err(fail(format!("unknown entity `&{name};`")));
+                };
+                tree.text(&c).map_err(fail)?;
+            }
+            Event::Comment(_) | Event::Decl(_) | Event::PI(_) | Event::DocType(_) => {}
+            Event::Eof => break,
         }
     }
-    if let Some(open) = stack.last() {
-        return Err(format!("the text ends inside <{}>", open.name));
+    if let Some(open) = tree.stack.last() {
+        return Err(XmlError {
+            byte: text.len() as u64,
+            what: format!("the text ends inside <{}>", open.name),
+        });
     }
-    root.ok_or_else(|| "no element".to_owned())
+    tree.root.ok_or_else(|| XmlError {
+        byte: 0,
+        what: "no element".to_owned(),
+    })
 }
 
-fn find(text: &str, from: usize, what: &str) -> Result<usize, String> {
-    text[from..]
-        .find(what)
-        .map(|k| from + k)
-        .ok_or_else(|| format!("byte {from}: no `{what}` to end what starts here"))
+/// The tree being built: the open elements (the root is the first one
+/// closed at depth 0) and the count of elements kept.
+struct Tree<'c> {
+    stack: Vec<Element>,
+    root: Option<Element>,
+    kept: usize,
+    cap: Option<ListCap<'c>>,
 }
 
-fn close(
-    el: Element,
-    stack: &mut [Element],
-    root: &mut Option<Element>,
-    at: usize,
-    cap: Option<ListCap<'_>>,
-    kept: &mut usize,
-) -> Result<(), String> {
-    match stack.last_mut() {
-        Some(parent) => {
-            if cap.is_some_and(|c| parent.name == c.list && parent.children.len() >= c.keep) {
-                // Read past: its own children were counted as they closed.
-                *kept -= descendants(&el);
-                return Ok(());
-            }
-            *kept += 1;
-            if *kept > MAX_ELEMENTS {
-                return Err(format!(
-                    "byte {at}: more than {MAX_ELEMENTS} elements (a header of {} channels \
-                     has fewer)",
-                    super::reader::MAX_CHANNELS
-                ));
-            }
-            parent.children.push(el)
+impl Tree<'_> {
+    /// Character data: kept in the open element; outside the root only
+    /// whitespace may stand.
+    fn text(&mut self, raw: &str) -> Result<(), String> {
+        match self.stack.last_mut() {
+            Some(e) => e.text.push_str(raw),
+            None if raw.trim().is_empty() => {}
+            None => return Err("text outside the root element".to_owned()),
         }
-        None if root.is_none() => *root = Some(el),
-        None => return Err(format!("byte {at}: a second root element")),
+        Ok(())
     }
-    Ok(())
+
+    /// An element is complete: into its parent (unless its list is full)
+    /// or, at depth 0, the root.
+    fn close(&mut self, el: Element) -> Result<(), String> {
+        match self.stack.last_mut() {
+            Some(parent) => {
+                if self
+                    .cap
+                    .is_some_and(|c| parent.name == c.list && parent.children.len() >= c.keep)
+                {
+                    // Read past: its own children were counted as they closed.
+                    self.kept -= descendants(&el);
+                    return Ok(());
+                }
+                self.kept += 1;
+                if self.kept > MAX_ELEMENTS {
+                    return Err(format!(
+                        "more than {MAX_ELEMENTS} elements (a header of {} channels has fewer)",
+                        super::reader::MAX_CHANNELS
+                    ));
+                }
+                parent.children.push(el)
+            }
+            None if self.root.is_none() => self.root = Some(el),
+            None => return Err("a second root element".to_owned()),
+        }
+        Ok(())
+    }
 }
 
 /// How many elements are below `el`.
 fn descendants(el: &Element) -> usize {
     el.children.iter().map(|c| 1 + descendants(c)).sum()
-}
-
-/// Appends `raw` to `out` with the predefined entities and character
-/// references decoded.
-fn decode_into(raw: &str, out: &mut String, at: usize) -> Result<(), String> {
-    let mut rest = raw;
-    while let Some(k) = rest.find('&') {
-        out.push_str(&rest[..k]);
-        let tail = &rest[k..];
-        let Some(semi) = tail.find(';') else {
-            return Err(format!("byte {at}: `&` starts no entity"));
-        };
-        let name = &tail[1..semi];
-        let c = match name {
-            "lt" => '<',
-            "gt" => '>',
-            "amp" => '&',
-            "quot" => '"',
-            "apos" => '\'',
-            _ => {
-                let code = if let Some(h) = name.strip_prefix("#x").or(name.strip_prefix("#X")) {
-                    u32::from_str_radix(h, 16).ok()
-                } else if let Some(d) = name.strip_prefix('#') {
-                    d.parse::<u32>().ok()
-                } else {
-                    None
-                };
-                code.and_then(char::from_u32)
-                    .ok_or_else(|| format!("byte {at}: unknown entity `&{name};`"))?
-            }
-        };
-        out.push(c);
-        rest = &tail[semi + 1..];
-    }
-    out.push_str(rest);
-    Ok(())
 }
 
 #[cfg(test)]
@@ -273,9 +253,9 @@ mod tests {
             assert!(parse(bad).is_err(), "{bad}");
         }
         let deep = "<a>".repeat(MAX_DEPTH + 1);
-        assert!(parse(&deep).unwrap_err().contains("nested"));
+        assert!(parse(&deep).unwrap_err().to_string().contains("nested"));
         let flood = format!("<a>{}</a>", "<b/>".repeat(MAX_ELEMENTS + 1));
-        assert!(parse(&flood).unwrap_err().contains("elements"));
+        assert!(parse(&flood).unwrap_err().to_string().contains("elements"));
     }
 
     #[test]
