@@ -14,6 +14,10 @@
 //!   input → the frame pipeline(s) (the CPU reference here; the CLI plugs
 //!   in its GPU renderer through [`frame::ViewRenderer`]) → the display
 //!   frame (stereo: left | right) and each view's [`timeline::TimelineRow`].
+//! * [`analysis`]: the same rows without the image pipeline, for a run
+//!   that writes no image (`--no-frames`): the view's block plane once,
+//!   then per frame only what the numbers need (issue 47); and the few
+//!   frames a contact sheet shows, drawn in the state the numbers carried.
 //! * [`timeline`]: the rows and the columns of `timeline.csv`.
 //! * [`gaze_glare`]: `--glare-numbers`, the CIE 146 veil at each frame's
 //!   gaze and the DGP and UGR of its line of sight, by `gazelight glare`'s
@@ -29,6 +33,7 @@
 //! flags and configuration file, and the GPU backend stay in the `gazelight`
 //! binary crate.
 
+pub mod analysis;
 pub mod demo;
 pub mod display_light;
 pub mod feed;

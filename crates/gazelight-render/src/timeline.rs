@@ -222,22 +222,28 @@ impl<W: std::io::Write> TimelineWriter<W> {
             }
             write!(
                 line,
-                ",{:.4},{:.6e},{:.6e},{:.4},{},{:.3},{:.3},{:.4},{:.3},{:.3},{:.3},{:.3},{:.3}",
+                ",{:.4},{:.6e},{:.6e},{:.4},{},{:.3}",
                 r.aperture_mm,
                 s.target_cd_m2,
                 s.adaptation_cd_m2,
                 s.psf_pupil_mm,
                 u8::from(s.psf_rebuilt),
                 s.acuity_sigma_px,
-                t.pooling_ms,
-                t.temporal_ms,
-                t.psf_ms,
-                t.glare_ms,
-                t.acuity_ms,
-                t.tone_colour_encode_ms,
-                t.total_ms
             )
             .map_err(fmt)?;
+            // The stage timings: empty cells where no image pipeline ran
+            // (`crate::analysis`: NaN).
+            for (v, d) in [
+                (t.pooling_ms, 3),
+                (t.temporal_ms, 4),
+                (t.psf_ms, 3),
+                (t.glare_ms, 3),
+                (t.acuity_ms, 3),
+                (t.tone_colour_encode_ms, 3),
+                (t.total_ms, 3),
+            ] {
+                cell64(line, v, Cell::Fixed(d)).map_err(fmt)?;
+            }
         }
         if self.pupil_light {
             for r in rows {

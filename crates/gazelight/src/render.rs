@@ -10,7 +10,8 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use gazelight_render::frame::{FrameStep, Step};
+use gazelight_render::analysis::{AnalysisStep, SheetFrames};
+use gazelight_render::frame::FrameStep;
 use gazelight_render::gaze_glare::{GlareNumbers, ViewGlare};
 use gazelight_render::pupil_light::PupilLight;
 use gazelight_tracker::filter::FilterChain;
@@ -110,6 +111,21 @@ pub struct RenderArgs {
     /// costs a pass over the view's pixels per view.
     #[arg(long)]
     pub glare_numbers: bool,
+    /// Run the whole image pipeline for every frame even when no frame
+    /// image is written (`--no-frames`). Without it such a run computes
+    /// only what its numbers need (`gazelight_render::analysis`, the same
+    /// values; docs/replay.md "Analysis at study speed"). For comparing
+    /// the two paths and for timing the pipeline.
+    #[arg(long, hide = true)]
+    pub full_pipeline: bool,
+}
+
+/// What makes a run's frames: the image pipeline per view, or, for a run
+/// that writes no frame image, only its numbers (and the contact sheet's
+/// frames drawn in the state they carried).
+enum Frames {
+    Full(Box<FrameStep<Renderer>>),
+    Numbers(Box<AnalysisStep>, Box<SheetFrames>),
 }
 
 /// What `render` and `replay` share: the configuration, the scene and its
@@ -394,39 +410,50 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         eyes = n_views,
         "rendering"
     );
-    // The CPU pipeline keeps the retinal image only for the EXR frames.
-    let pipeline_config = PipelineConfig {
-        keep_retinal: args.exr,
-        ..config.pipeline.clone()
-    };
-    let pipelines = views
-        .iter()
-        .map(|_| {
-            Renderer::new(
-                args.backend,
-                &pipeline_config,
-                width,
-                height,
-                view.deg_per_px(),
-            )
-            .and_then(|mut r| {
-                // Pooling measures angles through the view's projection.
-                r.set_view_frustum(PanoramaView::new(*view)?.frustum_tans())?;
-                Ok(r)
+    // A run that writes no frame image runs only what its numbers need
+    // (`gazelight_render::analysis`: the same rows, stage timings empty).
+    let numbers_only = args.no_frames && !args.exr && !args.full_pipeline;
+    let mut frames_src = if numbers_only {
+        let analysis =
+            AnalysisStep::new(args.stereo, &config.pipeline, view, view_img, t0, args.fps)?;
+        let sheet = SheetFrames::new(&analysis, &config.pipeline, view)?;
+        Frames::Numbers(Box::new(analysis), Box::new(sheet))
+    } else {
+        // The CPU pipeline keeps the retinal image only for the EXR frames.
+        let pipeline_config = PipelineConfig {
+            keep_retinal: args.exr,
+            ..config.pipeline.clone()
+        };
+        let pipelines = views
+            .iter()
+            .map(|_| {
+                Renderer::new(
+                    args.backend,
+                    &pipeline_config,
+                    width,
+                    height,
+                    view.deg_per_px(),
+                )
+                .and_then(|mut r| {
+                    // Pooling measures angles through the view's projection.
+                    r.set_view_frustum(PanoramaView::new(*view)?.frustum_tans())?;
+                    Ok(r)
+                })
             })
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // The per-frame step (gazelight_render::frame, shared with the Python
-    // package): state → each view's pipeline → the display frame and rows.
-    let mut step = FrameStep::new(
-        pipelines,
-        args.stereo,
-        &config.pipeline,
-        view,
-        t0,
-        args.fps,
-        args.exr,
-    )?;
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        // The per-frame step (gazelight_render::frame, shared with the
+        // Python package): state → each view's pipeline → the display
+        // frame and rows.
+        Frames::Full(Box::new(FrameStep::new(
+            pipelines,
+            args.stereo,
+            &config.pipeline,
+            view,
+            t0,
+            args.fps,
+            args.exr,
+        )?))
+    };
     let mut timeline: Vec<Vec<TimelineRow>> = views
         .iter()
         .map(|_| Vec::with_capacity(frames.min(4096)))
@@ -479,30 +506,54 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         if stop.as_ref().is_some_and(|s| s.requested()) {
             break;
         }
-        let Step {
-            t_secs,
-            state,
-            inputs,
-            mut rows,
-            ..
-        } = step.step(eye, view_img)?;
+        let mut frame = match &mut frames_src {
+            Frames::Full(step) => step.step(eye, view_img)?,
+            Frames::Numbers(analysis, _) => analysis.step(eye)?,
+        };
+        let t_secs = frame.t_secs;
+        let rows = &mut frame.rows;
         // The pupil light response: fed every frame with each view's
         // pooled luminance (no allocation).
         if let Some(plr) = pupil_light.as_deref_mut() {
-            plr.apply(t_secs - t0, &state, &inputs, &mut rows);
+            plr.apply(t_secs - t0, &frame.state, &frame.inputs, rows);
         }
         glare_numbers.clear();
         if let Some(vg) = &view_glare {
-            glare_numbers.extend(inputs.iter().map(|(input, _)| vg.at(input.gaze_uv)));
+            glare_numbers.extend(frame.inputs.iter().map(|(input, _)| vg.at(input.gaze_uv)));
         }
         timeline_out
-            .push_with_glare(&rows, &glare_numbers)
+            .push_with_glare(&frame.rows, &glare_numbers)
             .with_context(|| format!("cannot write {}", timeline_path.display()))?;
-        for (k, row) in rows.into_iter().enumerate() {
-            timeline[k].push(row);
+        for (k, row) in frame.rows.iter().enumerate() {
+            timeline[k].push(*row);
         }
-        let out = step.display();
-        if !args.no_frames {
+        let on_sheet = i % sheet_every == 0;
+        let out = match &mut frames_src {
+            Frames::Full(step) => {
+                if args.exr {
+                    let path = frames_dir.join(format!("frame_{i:05}.exr"));
+                    let last: Vec<&TimelineRow> =
+                        timeline.iter().filter_map(|r| r.last()).collect();
+                    let attributes = exr_frame_attributes(t_secs - t0, i, view, views, &last);
+                    gazelight_vision::scene::write_exr_with_attributes(
+                        &path,
+                        step.retinal(),
+                        Some(1.0),
+                        &attributes,
+                    )
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                }
+                Some(step.display())
+            }
+            // Only the contact sheet's frames are drawn.
+            Frames::Numbers(analysis, sheet) if on_sheet => {
+                Some(sheet.draw(analysis, &frame, view_img)?)
+            }
+            Frames::Numbers(..) => None,
+        };
+        if !args.no_frames
+            && let Some(out) = out
+        {
             let path = frames_dir.join(format!("frame_{i:05}.png"));
             gazelight_render::png::write_styled(
                 &path,
@@ -511,19 +562,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                 no_data_style,
             )?;
         }
-        if args.exr {
-            let path = frames_dir.join(format!("frame_{i:05}.exr"));
-            let last: Vec<&TimelineRow> = timeline.iter().filter_map(|r| r.last()).collect();
-            let attributes = exr_frame_attributes(t_secs - t0, i, view, views, &last);
-            gazelight_vision::scene::write_exr_with_attributes(
-                &path,
-                step.retinal(),
-                Some(1.0),
-                &attributes,
-            )
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        }
-        if i % sheet_every == 0 {
+        if on_sheet && let Some(out) = out {
             let rows: Vec<&TimelineRow> = timeline.iter().filter_map(|r| r.last()).collect();
             let gaze: Vec<[f32; 2]> = rows
                 .iter()
@@ -570,33 +609,61 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         config.pipeline.glare.psf.pupil_range_mm,
     )?;
     let all_rows = || timeline.iter().flatten();
-    let mean_ms = all_rows().map(|r| r.stats.timings.total_ms).sum::<f64>() / frames as f64;
-    let rebuilds = match step.stereo_kernel_builds() {
+    let (stereo_builds, own_gaze_frames) = match &frames_src {
+        Frames::Full(step) => (step.stereo_kernel_builds(), step.own_gaze_frames()),
+        Frames::Numbers(a, _) => (a.stereo_kernel_builds(), a.own_gaze_frames()),
+    };
+    let rebuilds = match stereo_builds {
         Some(builds) => builds as usize,
         None => all_rows().filter(|r| r.stats.psf_rebuilt).count(),
     };
-    println!(
-        "rendered {frames} {}frames ({width}x{height}{}, {:.2} ppd) of {} in {:.1} s: {:.1} ms/frame in the pipeline ({}), {rebuilds} PSF rebuilds",
-        if n_views > 1 { "stereo " } else { "" },
-        if n_views > 1 { " per eye" } else { "" },
-        view.ppd(),
-        scene.name,
-        started.elapsed().as_secs_f64(),
-        mean_ms,
-        step.pipelines()
-            .first()
-            .map_or_else(String::new, Renderer::describe)
-    );
-    println!(
-        "backend {}",
-        step.pipelines()
-            .first()
-            .map_or_else(String::new, Renderer::describe)
-    );
     let mut settings = settings.clone();
+    let elapsed_secs = started.elapsed().as_secs_f64();
+    match &frames_src {
+        Frames::Full(step) => {
+            let mean_ms = all_rows().map(|r| r.stats.timings.total_ms).sum::<f64>() / frames as f64;
+            let backend = step
+                .pipelines()
+                .first()
+                .map_or_else(String::new, Renderer::describe);
+            println!(
+                "rendered {frames} {}frames ({width}x{height}{}, {:.2} ppd) of {} in {elapsed_secs:.1} s: {mean_ms:.1} ms/frame in the pipeline ({backend}), {rebuilds} PSF rebuilds",
+                if n_views > 1 { "stereo " } else { "" },
+                if n_views > 1 { " per eye" } else { "" },
+                view.ppd(),
+                scene.name,
+            );
+            println!("backend {backend}");
+        }
+        Frames::Numbers(..) => {
+            println!(
+                "analysed {frames} {}frames ({width}x{height}{}, {:.2} ppd) of {} in {elapsed_secs:.1} s: numbers only, no image pipeline but the contact sheet's {} frames (CPU), {rebuilds} PSF rebuilds decided",
+                if n_views > 1 { "stereo " } else { "" },
+                if n_views > 1 { " per eye" } else { "" },
+                view.ppd(),
+                scene.name,
+                frames.div_ceil(sheet_every),
+            );
+            settings
+                .set(
+                    "render.path",
+                    "numbers only: no frame image is written, so the image pipeline does not \
+                     run; each row is computed from the view's block-mean luminance plane \
+                     (the same values as the CPU pipeline's); the stage timing columns \
+                     (pooling_ms … total_ms) are empty",
+                    Origin::Flag,
+                )
+                .note = Some(
+                "--full-pipeline runs the image pipeline anyway (docs/replay.md, \
+                 \"Analysis at study speed\"); the contact sheet's frames are drawn by the CPU \
+                 pipeline in the state the numbers carried"
+                    .to_owned(),
+            );
+        }
+    }
     if n_views == 2 {
         // Said once: in the settings summary below and session.json.
-        let (value, note) = per_eye_gaze_setting(step.own_gaze_frames(), rendered);
+        let (value, note) = per_eye_gaze_setting(own_gaze_frames, rendered);
         settings.set("gaze.per_eye", value, Origin::Source).note = Some(note);
     }
     if let Some(plr) = pupil_light.as_deref() {
