@@ -161,7 +161,11 @@ fn load_config(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<RenderConf
 /// `GAZELIGHT_PARSE_ONLY`: the configuration and flag checks of `render`
 /// (and `replay`), nothing loaded or written.
 pub(crate) fn check(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<()> {
-    load_config(args, user).map(|_| ())
+    load_config(args, user)?;
+    if let Some(n) = args.frames {
+        crate::bounds::frames(&format!("--frames {n}"), n)?;
+    }
+    Ok(())
 }
 
 /// Loads the configuration (for `user`: `render` or `replay`) and scene and

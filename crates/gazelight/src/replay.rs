@@ -90,9 +90,7 @@ pub(crate) fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     if args.render.trace.is_some() {
         bail!("replay takes the recording as its argument; --trace belongs to `render`");
     }
-    if !(args.from_secs.is_finite() && args.from_secs >= 0.0) {
-        bail!("--from-secs {}: expected a time ≥ 0", args.from_secs);
-    }
+    crate::bounds::from_secs("--from-secs", args.from_secs)?;
     if let Some(s) = args.secs {
         crate::bounds::secs("--secs", s)?;
     }
