@@ -20,7 +20,7 @@ use gazelight_gpu::present::{FrameSource, TexturePresenter};
 use gazelight_gpu::psf::REBUILD_TIMESTAMPS;
 use gazelight_gpu::{EncodedFrame, FrameTimestamps, GpuContext, GpuError, GpuFramePipeline};
 use gazelight_psf_worker::{Priority, PsfWorker};
-use gazelight_vision::kernel_policy::KernelPolicy;
+use gazelight_vision::kernel_policy::{KernelFollower, KernelPolicy};
 use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
 
 use crate::import::{ImageFormat, ImportPass};
@@ -99,9 +99,8 @@ pub struct EyeProcessor {
 /// The eye's kernels built off the app's thread.
 struct EyePsf {
     worker: PsfWorker,
-    policy: KernelPolicy,
-    /// The pupil of the newest kernel asked for (or installed), mm.
-    target_mm: f64,
+    /// The rule and the pupil of the newest kernel asked for, mm.
+    follower: KernelFollower,
     /// The pupil of the kernel installed, mm.
     kernel_mm: f64,
 }
@@ -124,8 +123,11 @@ impl EyePsf {
                 pipeline.set_psf_auto_rebuild(false);
                 Ok(Some(Self {
                     worker,
-                    policy: KernelPolicy::new(&config.glare),
-                    target_mm: initial.pupil_mm,
+                    follower: KernelFollower::new(
+                        KernelPolicy::new(&config.glare),
+                        1,
+                        initial.pupil_mm,
+                    ),
                     kernel_mm: initial.pupil_mm,
                 }))
             }
@@ -144,8 +146,7 @@ impl EyePsf {
     /// Asks for a kernel when `pupil_mm` moved past the threshold and
     /// installs a finished one; whether one was installed. Never waits.
     fn follow(&mut self, pipeline: &mut GpuFramePipeline, pupil_mm: f32) -> Result<bool, GpuError> {
-        if let Some(p) = self.policy.decide(pupil_mm, self.target_mm) {
-            self.target_mm = p;
+        if let Some(p) = self.follower.follow_one(pupil_mm) {
             self.worker.request_views([Some(p), None]);
         }
         let kernel_mm = &mut self.kernel_mm;
@@ -358,7 +359,12 @@ impl EyeProcessor {
         let t0 = std::time::Instant::now();
         loop {
             psf.follow(&mut self.pipeline, pupil_mm)?;
-            if psf.policy.decide(pupil_mm, psf.kernel_mm).is_none() {
+            if psf
+                .follower
+                .policy()
+                .decide(pupil_mm, psf.kernel_mm)
+                .is_none()
+            {
                 return Ok(true);
             }
             if t0.elapsed() >= timeout {

@@ -22,7 +22,7 @@
 
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState, PupilUnit, Sample};
 use gazelight_vision::RgbImage;
-use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
+use gazelight_vision::kernel_policy::{KernelFollower, KernelPolicy};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, FrameStats, PipelineConfig,
 };
@@ -259,9 +259,8 @@ pub fn cpu_pipelines(
 /// `replay` are offline) and installs them.
 pub struct StereoKernels {
     builder: PsfBuilder,
-    policy: KernelPolicy,
-    /// The pupil each eye's installed kernel was built for, mm.
-    installed_mm: [f64; 2],
+    /// The pupil each eye's installed kernel was built for, and the rule.
+    follower: KernelFollower,
     /// Kernels built so far.
     pub builds: u64,
 }
@@ -294,8 +293,7 @@ impl StereoKernels {
         }
         Ok(Some(Self {
             builder,
-            policy: KernelPolicy::new(&config.glare),
-            installed_mm: [initial_mm; 2],
+            follower: KernelFollower::new(KernelPolicy::new(&config.glare), 2, initial_mm),
             builds: 0,
         }))
     }
@@ -315,29 +313,26 @@ impl StereoKernels {
             )));
         }
         let mut changed = [false; 2];
-        match self
-            .policy
-            .plan(inputs.map(|i| i.pupil_mm), self.installed_mm)
+        let wanted = self.follower.follow(inputs.map(|i| i.pupil_mm));
+        if let [Some(p), Some(q)] = wanted
+            && p == q
         {
-            KernelPlan::Keep => {}
-            KernelPlan::Shared(p) => {
+            // Two eyes sharing one kernel: built once, installed in both.
+            let kernel = self.builder.try_rebuild(p)?;
+            self.builds += 1;
+            for (e, r) in renderers.iter_mut().enumerate() {
+                r.set_kernel(kernel)?;
+                self.follower.built(e, kernel.pupil_mm);
+                changed[e] = true;
+            }
+        } else {
+            for (e, p) in wanted.into_iter().enumerate() {
+                let Some(p) = p else { continue };
                 let kernel = self.builder.try_rebuild(p)?;
                 self.builds += 1;
-                for (e, r) in renderers.iter_mut().enumerate() {
-                    r.set_kernel(kernel)?;
-                    self.installed_mm[e] = kernel.pupil_mm;
-                    changed[e] = true;
-                }
-            }
-            KernelPlan::Own(own) => {
-                for (e, p) in own.into_iter().enumerate() {
-                    let Some(p) = p else { continue };
-                    let kernel = self.builder.try_rebuild(p)?;
-                    self.builds += 1;
-                    renderers[e].set_kernel(kernel)?;
-                    self.installed_mm[e] = kernel.pupil_mm;
-                    changed[e] = true;
-                }
+                renderers[e].set_kernel(kernel)?;
+                self.follower.built(e, kernel.pupil_mm);
+                changed[e] = true;
             }
         }
         Ok(changed)

@@ -1,6 +1,8 @@
 //! Which glare kernel for which pupil: the one rule every kernel path
 //! follows — the offline [`crate::pipeline::FramePipeline`], the GPU frame
-//! (`gazelight-gpu`), the stereo plan and the live PSF worker (`gazelight`).
+//! (`gazelight-gpu`), the stereo plan, the live PSF worker (`gazelight`)
+//! and the OpenXR layer — and the one [`KernelFollower`] that applies it
+//! frame by frame.
 //!
 //! * **Range.** A finite pupil is clamped to the physiological range
 //!   [`PUPIL_MM_RANGE`] (1.5–9 mm, defined in `gazelight-eye`), then to the
@@ -136,6 +138,85 @@ impl KernelPolicy {
     }
 }
 
+/// The one follower of the rule: the pupil each view's kernel was built
+/// (or asked) for, and which kernels this frame's pupils need. Every
+/// kernel path keeps one — the offline [`crate::pipeline::FramePipeline`]
+/// and the GPU frame (one view each), `gazelight-render`'s stereo kernels,
+/// the live frame loop's PSF worker and the OpenXR layer's — so the
+/// decision and its bookkeeping exist once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KernelFollower {
+    policy: KernelPolicy,
+    /// The pupil each view's kernel was built or asked for, mm (NaN: none
+    /// yet).
+    kernels_mm: [f64; 2],
+    /// 1 or 2 views; two are planned together ([`KernelPolicy::plan`]).
+    views: usize,
+}
+
+impl KernelFollower {
+    /// `views` (1 or 2; more are treated as 2) whose kernels start at
+    /// `initial_mm` (NaN: no kernel yet).
+    pub fn new(policy: KernelPolicy, views: usize, initial_mm: f64) -> Self {
+        Self {
+            policy,
+            kernels_mm: [initial_mm; 2],
+            views: views.clamp(1, 2),
+        }
+    }
+
+    /// The rule it follows.
+    pub fn policy(&self) -> &KernelPolicy {
+        &self.policy
+    }
+
+    /// The pupil view `view`'s kernel was built or asked for, mm.
+    pub fn kernel_mm(&self, view: usize) -> f64 {
+        self.kernels_mm[view.min(1)]
+    }
+
+    /// The kernels to build for this frame's pupils (indexed like the
+    /// views; one view reads `pupils_mm[0]`): `Some(mm)` where a view
+    /// needs a new one — both the same while two eyes share one — which
+    /// is from now that view's kernel.
+    pub fn follow(&mut self, pupils_mm: [f32; 2]) -> [Option<f64>; 2] {
+        let wanted = if self.views == 1 {
+            [self.policy.decide(pupils_mm[0], self.kernels_mm[0]), None]
+        } else {
+            match self.policy.plan(pupils_mm, self.kernels_mm) {
+                KernelPlan::Keep => [None, None],
+                KernelPlan::Shared(mm) => [Some(mm), Some(mm)],
+                KernelPlan::Own(own) => own,
+            }
+        };
+        for (k, w) in self.kernels_mm.iter_mut().zip(wanted) {
+            if let Some(mm) = w {
+                *k = mm;
+            }
+        }
+        wanted
+    }
+
+    /// One view: [`Self::follow`] for its pupil.
+    pub fn follow_one(&mut self, pupil_mm: f32) -> Option<f64> {
+        self.follow([pupil_mm, f32::NAN])[0]
+    }
+
+    /// View `view` got a kernel built for `mm` (a builder may round the
+    /// pupil it was asked for): its kernel from now.
+    pub fn built(&mut self, view: usize, mm: f64) {
+        self.kernels_mm[view.min(1)] = mm;
+    }
+
+    /// Whether view `view`'s kernel is the one `pupil_mm` wants (no
+    /// rebuild due).
+    pub fn is_current(&self, view: usize, pupil_mm: f32) -> bool {
+        self.policy
+            .decide(pupil_mm, self.kernels_mm[view.min(1)])
+            .is_none()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,6 +267,35 @@ mod tests {
         assert_eq!(p.decide(0.0, 4.0), Some(2.0));
         assert_eq!(p.decide(1.5, 2.0), None);
         assert_eq!(p.decide(20.0, 4.0), Some(8.0));
+    }
+
+    /// The follower on a pupil trace written here: one view rebuilds only
+    /// past the threshold and keeps its kernel over a lost sample; two
+    /// agreeing eyes get one shared kernel, parted eyes one each.
+    #[test]
+    fn the_follower_asks_for_what_the_rule_says_once() {
+        let mut one = KernelFollower::new(policy(0.1), 1, 4.0);
+        let got: Vec<Option<f64>> = [4.05_f32, 4.2, 4.25, f32::NAN, 4.4, 20.0, 20.0]
+            .into_iter()
+            .map(|p| one.follow_one(p))
+            .collect();
+        let want: [Option<f64>; 7] = [None, Some(4.2), None, None, Some(4.4), Some(9.0), None];
+        for (g, w) in got.iter().zip(want) {
+            assert_eq!(g.map(|m| (m * 1e4).round()), w.map(|m| (m * 1e4).round()));
+        }
+        assert_eq!(one.kernel_mm(0), 9.0);
+        assert!(one.is_current(0, 12.0));
+
+        let mut two = KernelFollower::new(policy(0.1), 2, 4.0);
+        assert_eq!(two.follow([4.02, 4.05]), [None, None]);
+        let [a, b] = two.follow([5.0, 5.04]);
+        assert!(a.is_some() && a == b, "{a:?} {b:?}");
+        let parted = two.follow([3.0, 6.0]);
+        assert_eq!(parted, [Some(3.0), Some(6.0)]);
+        assert_eq!([two.kernel_mm(0), two.kernel_mm(1)], [3.0, 6.0]);
+        // A builder that rounds: the follower keeps what was built.
+        two.built(1, 6.01);
+        assert_eq!(two.follow([3.0, 6.05]), [None, None]);
     }
 
     #[test]

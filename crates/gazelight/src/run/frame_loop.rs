@@ -35,7 +35,7 @@ use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::pupil_response::ObserverRange;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT};
 use gazelight_vision::RgbImage;
-use gazelight_vision::kernel_policy::{KernelPlan, KernelPolicy};
+use gazelight_vision::kernel_policy::{KernelFollower, KernelPolicy};
 use gazelight_vision::pipeline::{DisplayFrame, FrameInput, FrameStats, PipelineConfig};
 use gazelight_vision::pooling::PlaneAngles;
 use gazelight_vision::psf::PsfKernel;
@@ -160,8 +160,9 @@ pub struct FrameLoop {
     /// Whether the worker's builds wait for the gaps between frames (the
     /// CPU backend only; see [`Self::step_views`]).
     pace_builds: bool,
-    /// Which kernel for which pupil.
-    psf_policy: KernelPolicy,
+    /// Which kernel for which pupil, and the pupil each view's kernel was
+    /// asked for (NaN with glare off).
+    psf_follower: KernelFollower,
     /// Per view: mean luminance of its own image ([`Self::view_means`]).
     view_means: [f64; 2],
     /// The pupil light response per view (W&Y with the observer's age; the
@@ -186,9 +187,6 @@ struct EyePipe {
     /// The view's own panorama image when each view has its own pose and
     /// field ([`FrameLoop::step_views`]; empty otherwise).
     view_img: RgbImage,
-    /// The pupil of the last kernel requested for this view (or
-    /// installed), mm; NaN with glare off.
-    psf_target_mm: f64,
 }
 
 impl EyePipe {
@@ -214,19 +212,18 @@ impl EyePipe {
             pipeline,
             out: DisplayFrame::new(w, h),
             view_img: RgbImage::new(if device.is_some() { w } else { 0 }, h),
-            psf_target_mm: f64::NAN,
         })
     }
 }
 
 /// Starts the one PSF worker that builds every view's kernels off the
 /// frame thread (`None` with glare off) and turns the pipelines' own
-/// rebuilding off.
+/// rebuilding off; with the pupil of the initial kernel, mm.
 fn start_psf_worker(
     eyes: &mut [EyePipe],
     config: &PipelineConfig,
     view: &ViewParams,
-) -> anyhow::Result<Option<PsfWorker>> {
+) -> anyhow::Result<Option<(PsfWorker, f64)>> {
     let Some(first) = eyes.first_mut() else {
         return Ok(None);
     };
@@ -243,10 +240,9 @@ fn start_psf_worker(
     let worker = PsfWorker::start(psf, &initial, preparer, eyes.len(), Priority::Idle)
         .map_err(|e| anyhow::anyhow!("cannot start the PSF worker thread: {e}"))?;
     for eye in eyes.iter_mut() {
-        eye.psf_target_mm = initial.pupil_mm;
         eye.pipeline.set_psf_auto_rebuild(false);
     }
-    Ok(Some(worker))
+    Ok(Some((worker, initial.pupil_mm)))
 }
 
 impl FrameLoop {
@@ -297,7 +293,15 @@ impl FrameLoop {
             Some(e) => e.pipeline.psf_kernel()?.map_or(0, |k| k.size * k.size),
             None => 0,
         };
-        let psf_worker = start_psf_worker(&mut eyes, &config, &view)?;
+        let (psf_worker, initial_kernel_mm) = match start_psf_worker(&mut eyes, &config, &view)? {
+            Some((worker, mm)) => (Some(worker), mm),
+            None => (None, f64::NAN),
+        };
+        let psf_follower = KernelFollower::new(
+            KernelPolicy::new(&config.glare),
+            eyes.len(),
+            initial_kernel_mm,
+        );
         let age_years = config.glare.psf.age_years;
         let pupil_light = PupilLight::new(
             views,
@@ -332,7 +336,7 @@ impl FrameLoop {
             psf_worker,
             view_means: [f64::NAN; 2],
             pupil_light,
-            psf_policy: KernelPolicy::new(&config.glare),
+            psf_follower,
             ages_ms: Vec::with_capacity(AGE_SAMPLES),
             age_next: 0,
             frame_ms_sum: 0.0,
@@ -384,32 +388,10 @@ impl FrameLoop {
     /// and installs finished ones that are ready. Returns per view whether
     /// a kernel was installed. Never blocks.
     fn follow_psf(&mut self, pupils_mm: [f32; 2], t_secs: f64) -> anyhow::Result<[bool; 2]> {
-        let policy = self.psf_policy;
         let Some(worker) = &self.psf_worker else {
             return Ok([false; 2]);
         };
-        let mut requests = [None; 2];
-        match self.eyes.as_mut_slice() {
-            [one] => {
-                requests[0] = policy.decide(pupils_mm[0], one.psf_target_mm);
-                if let Some(p) = requests[0] {
-                    one.psf_target_mm = p;
-                }
-            }
-            [a, b] => {
-                requests = match policy.plan(pupils_mm, [a.psf_target_mm, b.psf_target_mm]) {
-                    KernelPlan::Keep => [None, None],
-                    KernelPlan::Shared(p) => [Some(p), Some(p)],
-                    KernelPlan::Own(own) => own,
-                };
-                for (eye, r) in [a, b].into_iter().zip(requests) {
-                    if let Some(p) = r {
-                        eye.psf_target_mm = p;
-                    }
-                }
-            }
-            _ => {}
-        }
+        let requests = self.psf_follower.follow(pupils_mm);
         worker.request_views(requests);
         let mut installed = [false; 2];
         for (k, eye) in self.eyes.iter_mut().enumerate() {
@@ -787,6 +769,7 @@ impl FrameLoop {
     pub fn run(mut self) -> anyhow::Result<RunSummary> {
         let period_secs = 1.0 / self.fps;
         let start = Instant::now();
+        self.start_clock(start);
         let mut deadline_index: u64 = 0;
         let mut prev: Option<Instant> = None;
         let mut result = Ok(());
@@ -824,6 +807,14 @@ impl FrameLoop {
             }
         }
         self.finish(start.elapsed().as_secs_f64(), result)
+    }
+
+    /// The run's clock starts at `start` (`t_secs` = 0 there): the
+    /// writer's `events.csv` counts from its host time.
+    pub fn start_clock(&mut self, start: Instant) {
+        if let Some(w) = &mut self.writer {
+            w.clock_origin(gazelight_tracker::pupil::clock::host_secs_of(start));
+        }
     }
 
     /// Counts a frame that missed its display slot (the OpenXR loop's
@@ -1093,7 +1084,7 @@ mod tests {
         let writer = out.map(|dir| {
             let mut psf = config.glare.psf.clone();
             psf.ppd = view.ppd();
-            OutputWriter::start(dir, view.width * views, view.height, psf, true, stereo)
+            OutputWriter::start(dir, view.width * views, view.height, psf, true, stereo, None)
                 .expect("writer")
         });
         let fl = FrameLoop::new(FrameLoopSetup {
@@ -1158,14 +1149,15 @@ mod tests {
             // last request (within the threshold of 5 mm) is installed.
             // Every view's kernel is the one last requested for it.
             let kernels_current = |fl: &mut FrameLoop| {
-                fl.eyes.iter_mut().all(|e| {
+                let follower = fl.psf_follower;
+                fl.eyes.iter_mut().enumerate().all(|(k, e)| {
                     let mm = e
                         .pipeline
                         .psf_kernel()
                         .ok()
                         .flatten()
                         .map_or(f64::NAN, |k| k.pupil_mm);
-                    mm == e.psf_target_mm
+                    mm == follower.kernel_mm(k)
                 })
             };
             let mut last_pupil = 0.0f32;
@@ -1180,10 +1172,10 @@ mod tests {
                 t += dt;
                 i += 1;
             }
-            let base_mm = fl.eyes[0].psf_target_mm;
+            let base_mm = fl.psf_follower.kernel_mm(0);
             assert!((base_mm - 5.0).abs() <= 0.1, "kernel at {base_mm} mm");
             // Both eyes' pupils agree: one kernel, the same pupil.
-            assert!(fl.eyes.iter().all(|e| e.psf_target_mm == base_mm));
+            assert!((0..fl.eyes.len()).all(|k| fl.psf_follower.kernel_mm(k) == base_mm));
             let warm_frames = fl.frames;
             let rebuilds = fl.psf_rebuilds;
             COUNT_HERE.with(|c| c.set(true));
@@ -1347,7 +1339,9 @@ mod tests {
                     updates += 1;
                     frames += 1;
                     let got = installed(&mut fl);
-                    let targets: Vec<f64> = fl.eyes.iter().map(|e| e.psf_target_mm).collect();
+                    let targets: Vec<f64> = (0..fl.eyes.len())
+                        .map(|k| fl.psf_follower.kernel_mm(k))
+                        .collect();
                     let settled = got
                         .iter()
                         .chain(&targets)
