@@ -146,9 +146,7 @@ impl EyePsf {
     /// Asks for a kernel when `pupil_mm` moved past the threshold and
     /// installs a finished one; whether one was installed. Never waits.
     fn follow(&mut self, pipeline: &mut GpuFramePipeline, pupil_mm: f32) -> Result<bool, GpuError> {
-        if let Some(p) = self.follower.follow_one(pupil_mm) {
-            self.worker.request_views([Some(p), None]);
-        }
+        self.worker.follow(&mut self.follower, [pupil_mm, f32::NAN]);
         let kernel_mm = &mut self.kernel_mm;
         self.worker
             .take(0, |prepared, _ring_rad| {

@@ -83,6 +83,7 @@ use std::thread::{JoinHandle, Thread};
 use std::time::{Duration, Instant};
 
 use gazelight_vision::glare::{GlarePreparer, PreparedKernel};
+use gazelight_vision::kernel_policy::KernelFollower;
 use gazelight_vision::psf::{PsfBuilder, PsfKernel, PsfParams};
 
 /// The request slot's "empty" value (a NaN bit pattern no request uses:
@@ -275,6 +276,19 @@ impl PsfWorker {
         if any {
             self.thread.unpark();
         }
+    }
+
+    /// This frame's pupils (indexed like the views) through the one
+    /// kernel rule, `follower`: asks for the kernels it says are due (one
+    /// wake-up for both views) and returns them. Never blocks.
+    pub fn follow(&self, follower: &mut KernelFollower, pupils_mm: [f32; 2]) -> [Option<f64>; 2] {
+        let wanted = follower.follow(pupils_mm);
+        let mut requests = [None; MAX_VIEWS];
+        for (r, w) in requests.iter_mut().zip(wanted) {
+            *r = w;
+        }
+        self.request_views(requests);
+        wanted
     }
 
     /// If a finished kernel for view `view` is waiting and its slot is free

@@ -391,8 +391,7 @@ impl FrameLoop {
         let Some(worker) = &self.psf_worker else {
             return Ok([false; 2]);
         };
-        let requests = self.psf_follower.follow(pupils_mm);
-        worker.request_views(requests);
+        worker.follow(&mut self.psf_follower, pupils_mm);
         let mut installed = [false; 2];
         for (k, eye) in self.eyes.iter_mut().enumerate() {
             // Generation 1 is the initial kernel; this is rebuild
@@ -1084,8 +1083,16 @@ mod tests {
         let writer = out.map(|dir| {
             let mut psf = config.glare.psf.clone();
             psf.ppd = view.ppd();
-            OutputWriter::start(dir, view.width * views, view.height, psf, true, stereo, None)
-                .expect("writer")
+            OutputWriter::start(
+                dir,
+                view.width * views,
+                view.height,
+                psf,
+                true,
+                stereo,
+                None,
+            )
+            .expect("writer")
         });
         let fl = FrameLoop::new(FrameLoopSetup {
             hub,
