@@ -43,6 +43,7 @@ pub mod calibration;
 pub mod channel_layout;
 pub mod clock;
 pub mod filter;
+pub mod live_events;
 pub mod profile;
 pub mod pupil_model;
 pub mod pupil_response;

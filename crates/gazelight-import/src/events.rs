@@ -580,9 +580,19 @@ pub fn pupil_core(dir: &Path) -> Result<RecordingEvents, ImportError> {
                 continue;
             }
             let pos = Position::Byte(record.offset);
-            match annotation(&record.payload) {
-                Ok((t, label, duration)) => {
-                    out.push(&pldata, pos, t, t, duration, &label, "annotation", None);
+            match gazelight_pupil::msg::decode_annotation(&record.payload) {
+                Ok(a) => {
+                    let t = a.timestamp;
+                    out.push(
+                        &pldata,
+                        pos,
+                        t,
+                        t,
+                        a.duration_secs,
+                        &a.label,
+                        "annotation",
+                        None,
+                    );
                 }
                 Err(why) => out.warnings.skip(&pldata, pos, why),
             }
@@ -611,27 +621,6 @@ fn recording_err(path: &Path, e: gazelight_pupil::RecordingError) -> ImportError
         position: Position::File,
         reason: e.to_string(),
     }
-}
-
-/// An annotation datum (a msgpack map, checked whole by the reader):
-/// its `timestamp`, `label` and optional `duration`.
-fn annotation(payload: &[u8]) -> Result<(f64, String, Option<f64>), String> {
-    let v = rmpv::decode::read_value(&mut &payload[..])
-        .map_err(|e| format!("annotation: not msgpack ({e})"))?;
-    let map = v.as_map().ok_or("annotation: not a msgpack map")?;
-    let get = |k: &str| {
-        map.iter()
-            .find(|(key, _)| key.as_str() == Some(k))
-            .map(|(_, v)| v)
-    };
-    let num = |v: &rmpv::Value| v.as_f64().or_else(|| v.as_i64().map(|i| i as f64));
-    let t = get("timestamp")
-        .and_then(num)
-        .ok_or("annotation: no numeric `timestamp`")?;
-    let label = get("label")
-        .and_then(|l| l.as_str().map(str::to_owned))
-        .ok_or("annotation: no text `label`")?;
-    Ok((t, label, get("duration").and_then(num)))
 }
 
 /// `exports/NNN/annotations.csv` with the largest NNN.
@@ -1170,25 +1159,5 @@ mod tests {
         );
         assert_eq!(normalise("timestamp [ns]"), "timestamp_ns");
         assert_eq!(normalise("Recording ID"), "recording_id");
-    }
-
-    #[test]
-    fn annotation_payloads() {
-        let v = rmpv::Value::Map(vec![
-            ("topic".into(), "annotation".into()),
-            ("label".into(), "flash".into()),
-            ("timestamp".into(), 12.5.into()),
-            ("duration".into(), 0.25.into()),
-        ]);
-        let mut b = Vec::new();
-        rmpv::encode::write_value(&mut b, &v).unwrap();
-        assert_eq!(
-            annotation(&b).unwrap(),
-            (12.5, "flash".to_owned(), Some(0.25))
-        );
-        let v = rmpv::Value::Map(vec![("label".into(), "x".into())]);
-        let mut b = Vec::new();
-        rmpv::encode::write_value(&mut b, &v).unwrap();
-        assert!(annotation(&b).unwrap_err().contains("timestamp"));
     }
 }

@@ -510,10 +510,30 @@ pub fn split_csv_line(line: &str, sep: char) -> Vec<String> {
     out
 }
 
+/// One field for a comma-separated table: quoted (RFC 4180, `"` doubled)
+/// when it holds a comma, quote or line break; the writer of the tables
+/// [`split_csv_line`] reads (`events.csv`, live and replayed).
+pub fn csv_field(s: &str) -> std::borrow::Cow<'_, str> {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\"")).into()
+    } else {
+        s.into()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::time::{Duration, Instant};
+
+    #[test]
+    fn csv_fields_read_back_whole() {
+        for text in ["plain", "a,b", "say \"hi\"", "two\nlines", ""] {
+            let line = format!("{},{}", csv_field(text), csv_field("x"));
+            assert_eq!(split_csv_line(&line, ','), [text, "x"], "{line}");
+        }
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+    }
 
     fn tmp(name: &str) -> std::path::PathBuf {
         let d = std::env::temp_dir().join(format!("gazelight-input-{}-{name}", std::process::id()));

@@ -57,6 +57,7 @@ use gazelight_eye::clock::{
     ClockEstimate, ClockProbe, ClockStats, ClockTracker, SharedClockStats, SourceClock,
     SourceClockConfig, host_now_secs, parse_time_reply,
 };
+use gazelight_eye::live_events::{EventQueue, LiveEvent};
 use gazelight_eye::sample::Sample;
 use gazelight_eye::source::{SampleSource, SourceError};
 
@@ -127,6 +128,12 @@ pub struct PupilConfig {
     pub bus_max_message_bytes: usize,
     /// Most frames of one message, on both sockets.
     pub max_message_frames: usize,
+    /// Where Pupil Capture's annotations go (`None`: not subscribed).
+    /// With a queue the client also subscribes to [`msg::ANNOTATION_TOPIC`]
+    /// and puts each annotation's `timestamp` on the host clock with the
+    /// measured offset (not checked against its arrival: an annotation may
+    /// mark a moment before it was sent); a full queue drops and counts.
+    pub events: Option<Arc<EventQueue>>,
 }
 
 impl Default for PupilConfig {
@@ -149,6 +156,7 @@ impl Default for PupilConfig {
             remote_max_message_bytes: limits.pupil_remote_max_message_bytes,
             bus_max_message_bytes: limits.pupil_bus_max_message_bytes,
             max_message_frames: limits.max_message_frames,
+            events: None,
         }
     }
 }
@@ -185,6 +193,8 @@ pub struct PupilStats {
     pub malformed: u64,
     /// Samples dropped because the sample channel was full or closed.
     pub dropped: u64,
+    /// Annotations decoded and queued ([`PupilConfig::events`]).
+    pub annotations: u64,
     /// Raw messages dropped because the raw channel was full.
     pub raw_dropped: u64,
     /// Successful re-connections after a lost connection.
@@ -216,6 +226,7 @@ struct Counters {
     unknown_fields: AtomicU64,
     malformed: AtomicU64,
     dropped: AtomicU64,
+    annotations: AtomicU64,
     raw_dropped: AtomicU64,
     reconnects: AtomicU64,
     too_large: AtomicU64,
@@ -362,6 +373,7 @@ impl PupilClient {
             unknown_fields: c.unknown_fields.load(Ordering::Relaxed),
             malformed: c.malformed.load(Ordering::Relaxed),
             dropped: c.dropped.load(Ordering::Relaxed),
+            annotations: c.annotations.load(Ordering::Relaxed),
             raw_dropped: c.raw_dropped.load(Ordering::Relaxed),
             reconnects: c.reconnects.load(Ordering::Relaxed),
             too_large: c.too_large.load(Ordering::Relaxed),
@@ -627,7 +639,18 @@ impl Worker {
             SubSocket::with_options(self.socket_options(self.config.bus_max_message_bytes));
         let bus = format!("tcp://{}:{}", self.config.host, sub_port);
         self.connect(&mut sub, &bus).await?;
-        for topic in &self.config.topics {
+        let annotations = self
+            .config
+            .events
+            .is_some()
+            .then_some(msg::ANNOTATION_TOPIC);
+        for topic in self
+            .config
+            .topics
+            .iter()
+            .map(String::as_str)
+            .chain(annotations)
+        {
             let r = timeout(self.config.request_timeout, sub.subscribe(topic)).await;
             match r {
                 Ok(Ok(())) => {}
@@ -726,6 +749,11 @@ impl Worker {
             }
             return;
         };
+        if let Some(events) = &self.config.events
+            && topic.starts_with(msg::ANNOTATION_TOPIC.as_bytes())
+        {
+            return self.annotation(events.clone(), payload, arrival);
+        }
         match msg::decode_message(topic, payload) {
             Ok(datum) => {
                 c.decoded.fetch_add(1, Ordering::Relaxed);
@@ -764,6 +792,43 @@ impl Worker {
                 let count = c.malformed.fetch_add(1, Ordering::Relaxed) + 1;
                 if should_log(count) {
                     tracing::warn!(error = %e, message = n, malformed = count, "bus message skipped");
+                }
+            }
+        }
+    }
+}
+
+impl Worker {
+    /// Queues one annotation datum that arrived at host time `arrival`.
+    fn annotation(&mut self, events: Arc<EventQueue>, payload: &[u8], arrival: f64) {
+        let c = &self.counters;
+        match msg::decode_annotation(payload) {
+            Ok(a) if a.timestamp.is_finite() => {
+                c.decoded.fetch_add(1, Ordering::Relaxed);
+                // host − Pupil, measured by the `t` round trips (set before
+                // the bus is subscribed); the arrival if there is none yet.
+                let host = self
+                    .clock
+                    .offset_secs()
+                    .map_or(arrival, |o| a.timestamp + o);
+                let e = LiveEvent::new(
+                    host,
+                    a.timestamp,
+                    a.duration_secs,
+                    msg::ANNOTATION_TOPIC,
+                    &a.label,
+                );
+                if events.push(e) {
+                    c.annotations.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Ok(_) | Err(_) => {
+                let count = c.malformed.fetch_add(1, Ordering::Relaxed) + 1;
+                if should_log(count) {
+                    tracing::warn!(
+                        malformed = count,
+                        "annotation skipped: no finite `timestamp` or no text `label`"
+                    );
                 }
             }
         }

@@ -1593,6 +1593,49 @@ pub fn decode_record_sample_as(
     }
 }
 
+/// The topic prefix of Pupil Capture's annotations (its Annotation
+/// plugin and the Network API publish `annotation` datums on the bus; a
+/// `.pldata` recording stores them in `annotation.pldata`).
+pub const ANNOTATION_TOPIC: &str = "annotation";
+
+/// One Pupil Capture annotation: a label at a Pupil time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Annotation {
+    /// `timestamp`, Pupil time, s (the moment it marks, which may be
+    /// before the datum was sent).
+    pub timestamp: f64,
+    pub label: String,
+    /// `duration`, s, where given.
+    pub duration_secs: Option<f64>,
+}
+
+/// Decodes an annotation datum (a msgpack map with a numeric `timestamp`,
+/// a text `label` and an optional numeric `duration`; other keys, such as
+/// `topic` and custom fields, are ignored): the one reader of live and
+/// recorded annotations.
+pub fn decode_annotation(payload: &[u8]) -> Result<Annotation, String> {
+    let v = rmpv::decode::read_value(&mut &payload[..])
+        .map_err(|e| format!("annotation: not msgpack ({e})"))?;
+    let map = v.as_map().ok_or("annotation: not a msgpack map")?;
+    let get = |k: &str| {
+        map.iter()
+            .find(|(key, _)| key.as_str() == Some(k))
+            .map(|(_, v)| v)
+    };
+    let num = |v: &rmpv::Value| v.as_f64().or_else(|| v.as_i64().map(|i| i as f64));
+    let timestamp = get("timestamp")
+        .and_then(num)
+        .ok_or("annotation: no numeric `timestamp`")?;
+    let label = get("label")
+        .and_then(|l| l.as_str().map(str::to_owned))
+        .ok_or("annotation: no text `label`")?;
+    Ok(Annotation {
+        timestamp,
+        label,
+        duration_secs: get("duration").and_then(num),
+    })
+}
+
 /// Builds a notification message: topic `notify.<subject>` and a msgpack
 /// map with `subject` and the given fields, as Pupil Remote expects it.
 pub fn encode_notification(
@@ -2165,5 +2208,31 @@ mod tests {
         assert_eq!(m[0].0.as_str(), Some("subject"));
         assert_eq!(m[0].1.as_str(), Some("gazelight.stimulus"));
         assert_eq!(m[1].1.as_str(), Some("black"));
+    }
+
+    #[test]
+    fn annotation_payloads() {
+        let v = rmpv::Value::Map(vec![
+            ("topic".into(), "annotation".into()),
+            ("label".into(), "flash".into()),
+            ("timestamp".into(), 12.5.into()),
+            ("duration".into(), 0.25.into()),
+            ("custom".into(), 3.into()),
+        ]);
+        let mut b = Vec::new();
+        rmpv::encode::write_value(&mut b, &v).unwrap();
+        assert_eq!(
+            decode_annotation(&b).unwrap(),
+            Annotation {
+                timestamp: 12.5,
+                label: "flash".to_owned(),
+                duration_secs: Some(0.25)
+            }
+        );
+        let v = rmpv::Value::Map(vec![("label".into(), "x".into())]);
+        let mut b = Vec::new();
+        rmpv::encode::write_value(&mut b, &v).unwrap();
+        assert!(decode_annotation(&b).unwrap_err().contains("timestamp"));
+        assert!(decode_annotation(&[0xc1]).is_err());
     }
 }

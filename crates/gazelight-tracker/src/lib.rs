@@ -33,7 +33,8 @@ pub use gazelight_eye::{
     GazeTrace, LiveEyeState, PupilOrigin, PupilSample, PupilUnit, Sample, TraceError, TraceSample,
 };
 pub use gazelight_eye::{
-    calibration, filter, profile, pupil_model, pupil_response, sample, state, synthetic, trace,
+    calibration, filter, live_events, profile, pupil_model, pupil_response, sample, state,
+    synthetic, trace,
 };
 pub use gazelight_import as import;
 pub use gazelight_import::summary;
@@ -55,7 +56,7 @@ pub mod pupil {
 /// Hardware transports (`gazelight-devices`), the source URIs that name
 /// them and [`open`](crate::open::open).
 pub mod transport {
-    pub use crate::open::{AnySource, OpenOptions, open, open_with};
+    pub use crate::open::{AnySource, OpenOptions, open, open_markers, open_with};
     pub use crate::uri;
     pub use crate::uri::{SourceUri, UriError};
     pub use gazelight_devices::{

@@ -5,9 +5,11 @@
 
 use std::sync::Arc;
 
+use gazelight_devices::lsl::LslMarkers;
 use gazelight_devices::lsl::{LslConfig, LslSource};
 use gazelight_devices::{gazepoint, hid, serial, usb};
 use gazelight_eye::clock::SharedClockStats;
+use gazelight_eye::live_events::EventQueue;
 use gazelight_eye::source::{SampleSource, SourceError};
 use gazelight_eye::{Sample, TraceSample};
 use gazelight_import::Importer;
@@ -29,6 +31,10 @@ pub struct OpenOptions {
     /// (the binary builds it for its scene and view); without one,
     /// `synthetic://demo` is refused.
     pub synthetic: Option<(Vec<TraceSample>, f64)>,
+    /// Where a source that carries events beside its samples (Pupil
+    /// Capture's annotations) puts them, on the host clock; `None`: they
+    /// are not read.
+    pub events: Option<Arc<EventQueue>>,
 }
 
 /// Any source, as opened from a [`SourceUri`].
@@ -143,9 +149,10 @@ pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, So
     };
     match uri {
         SourceUri::Pupil { .. } => {
-            let config = uri
+            let mut config = uri
                 .pupil_config()
                 .ok_or_else(|| fatal("not a Pupil URI".to_owned()))?;
+            config.events = options.events.clone();
             let (source, _raw) = PupilSource::spawn(config);
             Ok(AnySource::Pupil(source))
         }
@@ -210,6 +217,31 @@ pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, So
     }
 }
 
+/// Starts reading the marker stream `uri` names (`lsl://?name=…`,
+/// `?type=…`, `?source_id=…`: a string stream) into `events`, on the host
+/// clock; the only scheme whose stream is events alone. The stream may
+/// appear later: it is resolved by the reader.
+pub fn open_markers(
+    uri: &str,
+    lsl: &LslConfig,
+    events: Arc<EventQueue>,
+) -> Result<LslMarkers, SourceError> {
+    let fatal = |reason: String| SourceError::Fatal {
+        source_name: uri.to_owned(),
+        reason,
+    };
+    match SourceUri::parse(uri).map_err(|e| fatal(e.to_string()))? {
+        SourceUri::Lsl(query) => {
+            LslMarkers::start(query, lsl, events).map_err(|e| fatal(e.to_string()))
+        }
+        _ => Err(fatal(
+            "events are read from an LSL marker stream (lsl://?name=NAME or \
+             lsl://?type=Markers); a Pupil source's annotations come with it"
+                .to_owned(),
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -226,6 +258,17 @@ mod tests {
         };
         assert!(source_name.contains("/nonexistent/gazelight/rec.csv"));
         assert!(reason.contains("cannot open the recording"), "{reason}");
+    }
+
+    #[test]
+    fn markers_come_from_lsl_only() {
+        let q = Arc::new(EventQueue::default());
+        let Err(SourceError::Fatal { reason, .. }) =
+            open_markers("pupil://127.0.0.1:9", &LslConfig::default(), q)
+        else {
+            panic!("a Pupil URI is not a marker stream");
+        };
+        assert!(reason.contains("LSL marker stream"), "{reason}");
     }
 
     #[test]

@@ -464,3 +464,162 @@ fn run_reads_neon_layout_stream_through_the_chain() {
     // The age is measured from the stream's own (corrected) timestamps.
     assert!(num(col("eye_state_age_ms")) < 100.0, "{last:?}");
 }
+
+#[test]
+fn run_writes_an_lsl_marker_stream_to_events_csv_at_its_stamps() {
+    use std::io::Write;
+    if !in_netns("run_writes_an_lsl_marker_stream_to_events_csv_at_its_stamps") {
+        return;
+    }
+    let labels = ["onset 1", "onset 2", "say \"hi\"", "past", "onset 4"];
+    // "past" is stamped 0.5 s before its push (a sender that stamps the
+    // stimulus's moment): the event is at the stamp, not the arrival.
+    let back = [0.0, 0.0, 0.0, 0.5, 0.0];
+    let back_arg: Vec<String> = back.iter().map(f64::to_string).collect();
+    let mut pusher = Proc(
+        Command::new("python3")
+            .arg(script())
+            .args(["markers", "--name", "stim-markers", "--labels"])
+            .arg(labels.join(","))
+            .arg("--back")
+            .arg(back_arg.join(","))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap(),
+    );
+    let mut pusher_out = BufReader::new(pusher.0.stdout.take().unwrap());
+    let mut line = String::new();
+    pusher_out.read_line(&mut line).unwrap();
+    assert_eq!(line.trim(), "READY", "{line}");
+    let out = tmp("run-markers").join("out");
+    let child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            "--source",
+            "synthetic://demo",
+            "--events",
+            "lsl://?name=stim-markers",
+            "--headless",
+            "--backend",
+            "cpu",
+            "--size",
+            "64x48",
+            "--fps",
+            "60",
+            "--secs",
+            "60",
+            "--no-frames",
+            "--out",
+        ])
+        .arg(&out)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let run = child;
+    // Pushed once the run has written frames: the newest run time then.
+    let timeline_path = out.join("timeline.csv");
+    let t_seen = {
+        let start = std::time::Instant::now();
+        loop {
+            let rows = std::fs::read_to_string(&timeline_path).unwrap_or_default();
+            let whole = rows.rfind('\n').map_or("", |i| &rows[..i]);
+            if let Some(last) = whole.lines().skip(1).last() {
+                break last.split(',').nth(1).unwrap().parse::<f64>().unwrap();
+            }
+            assert!(start.elapsed() < Duration::from_secs(60), "no frames");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    pusher.0.stdin.take().unwrap().write_all(b"go\n").unwrap();
+    line.clear();
+    pusher_out.read_line(&mut line).unwrap();
+    let pushed: Vec<(String, f64, f64)> =
+        serde_json::from_str(line.trim()).unwrap_or_else(|e| panic!("{e}: {line}"));
+    assert_eq!(pushed.len(), labels.len());
+    let events_path = out.join("events.csv");
+    let start = std::time::Instant::now();
+    while std::fs::read_to_string(&events_path)
+        .unwrap_or_default()
+        .lines()
+        .count()
+        <= labels.len()
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no events.csv rows"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = Command::new("kill")
+        .args(["-INT", &run.id().to_string()])
+        .status();
+    let o = wait_bounded(run, Duration::from_secs(30));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("events.csv (5 events, 0 dropped"),
+        "{stdout}"
+    );
+
+    let text = std::fs::read_to_string(&events_path).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_secs,recording_t_secs,t_clock,duration_secs,source,text,trial,frame")
+    );
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| gazelight_input::split_csv_line(l, ','))
+        .collect();
+    assert_eq!(rows.len(), labels.len(), "{text}");
+    let num = |s: &str| s.parse::<f64>().unwrap_or(f64::NAN);
+    for (r, (label, _, stamp)) in rows.iter().zip(&pushed) {
+        assert_eq!(&r[4], "stim-markers");
+        assert_eq!(&r[5], label);
+        // The sender's own stamp, as pushed.
+        assert!((num(&r[2]) - stamp).abs() < 1e-5, "{r:?} vs {stamp}");
+    }
+    // On the run's clock, each marker lies where the sender's clock put
+    // its stamp relative to the first (the pushes the pusher timed, less
+    // the back-dating): within a millisecond (the LSL clock and the run's
+    // are both the machine's monotonic clock).
+    let t: Vec<f64> = rows.iter().map(|r| num(&r[0])).collect();
+    for i in 1..t.len() {
+        let sender_dt = (pushed[i].1 - back[i]) - pushed[0].1;
+        assert!(
+            ((t[i] - t[0]) - sender_dt).abs() < 1e-3,
+            "marker {i}: {} s after the first on the run's clock, {sender_dt} s on the sender's",
+            t[i] - t[0]
+        );
+    }
+    assert!(t[0] > t_seen - 1e-3, "{} vs {t_seen}", t[0]);
+    // Each marker on the newest frame at or before it: (frame, t_secs).
+    let timeline = std::fs::read_to_string(&timeline_path).unwrap();
+    let frames: Vec<(u64, f64)> = timeline
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let mut c = l.split(',');
+            let f = c.next().unwrap().parse().unwrap();
+            (f, num(c.next().unwrap()))
+        })
+        .collect();
+    for (r, &te) in rows.iter().zip(&t) {
+        let f: u64 = r[7].parse().unwrap_or_else(|e| panic!("{e}: {r:?}"));
+        let k = frames.iter().position(|&(x, _)| x == f).unwrap();
+        assert!(
+            frames[k].1 <= te + 1e-3,
+            "marker at {te} on {:?}",
+            frames[k]
+        );
+        assert!(
+            k + 1 == frames.len() || frames[k + 1].1 > te - 1e-3,
+            "marker at {te}: the next frame {:?}",
+            frames[k + 1]
+        );
+    }
+    let _ = pusher.0.wait();
+}

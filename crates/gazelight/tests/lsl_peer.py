@@ -19,6 +19,14 @@ relay: a pylsl outlet with Pupil Capture's LSL relay layout (name
        keep the LSL clock); with --scale-at T --scale G every diameter is
        multiplied by G from T s on. Prints READY when the outlet exists.
 
+markers: a string outlet (--name, type Markers, one channel, irregular
+       rate) as a stimulus program publishes; prints READY, then on a line
+       `go` on stdin waits for a consumer and pushes each of --labels
+       (comma-separated) --gap s apart, stamped with local_clock() at the
+       push less its --back seconds (comma-separated, default 0), prints
+       one JSON list [label, local_clock at the push, stamp] and keeps the
+       outlet --linger s.
+
 Run with LSLAPICFG pointing at a machine-only configuration.
 """
 
@@ -207,6 +215,29 @@ def relay(args):
     return 0
 
 
+def markers(args):
+    info = pylsl.StreamInfo(args.name, "Markers", 1, pylsl.IRREGULAR_RATE, pylsl.cf_string, args.name + "-src")
+    outlet = pylsl.StreamOutlet(info)
+    print("READY", flush=True)
+    if sys.stdin.readline().strip() != "go":
+        return 1
+    if not outlet.wait_for_consumers(20.0):
+        print(json.dumps({"error": "no consumer within 20 s"}), flush=True)
+        return 1
+    labels = args.labels.split(",")
+    backs = [float(b) for b in args.back.split(",")] if args.back else [0.0] * len(labels)
+    out = []
+    for label, back in zip(labels, backs):
+        now = pylsl.local_clock()
+        stamp = now - back
+        outlet.push_sample([label], stamp)
+        out.append([label, now, stamp])
+        time.sleep(args.gap)
+    print(json.dumps(out), flush=True)
+    time.sleep(args.linger)
+    return 0
+
+
 def main():
     ap = argparse.ArgumentParser()
     sp = ap.add_subparsers(dest="cmd", required=True)
@@ -227,8 +258,15 @@ def main():
     p.add_argument("--outlier-secs", type=float, default=1e5)
     p.add_argument("--scale-at", type=float, default=0.0)
     p.add_argument("--scale", type=float, default=1.0)
+    m = sp.add_parser("markers")
+    m.add_argument("--name", required=True)
+    m.add_argument("--labels", required=True)
+    m.add_argument("--back", default="")
+    m.add_argument("--gap", type=float, default=0.3)
+    m.add_argument("--linger", type=float, default=5.0)
     args = ap.parse_args()
-    sys.exit(read(args) if args.cmd == "read" else relay(args))
+    run = {"read": read, "relay": relay, "markers": markers}[args.cmd]
+    sys.exit(run(args))
 
 
 if __name__ == "__main__":

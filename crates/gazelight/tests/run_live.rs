@@ -612,3 +612,201 @@ fn http_status_and_relay_run_beside_the_frame_loop() {
     assert!(body.starts_with("HTTP/1.1 200"), "{body}");
     assert!(body.contains("eye_state_age_ms"), "{body}");
 }
+
+/// One annotation the test sent: its label, the test's monotonic instant
+/// at the send and the Pupil time it was stamped with.
+struct Sent {
+    label: String,
+    mono_secs: f64,
+    stamp_secs: f64,
+}
+
+/// Sends annotations through the peer's Pupil Remote (a two-frame
+/// `[annotation, msgpack]` request, forwarded onto the bus as Pupil
+/// Capture does), each stamped with the Pupil time of its send
+/// (time.time() + `offset`) less its `back_secs`, 0.3 s apart.
+fn annotate(remote_port: u16, offset: f64, items: &[(&str, f64)]) -> Vec<Sent> {
+    let list: Vec<String> = items.iter().map(|(l, b)| format!("('{l}', {b})")).collect();
+    let script = format!(
+        "import zmq, msgpack, time, json\n\
+         c = zmq.Context.instance(); s = c.socket(zmq.REQ)\n\
+         s.setsockopt(zmq.LINGER, 0); s.setsockopt(zmq.RCVTIMEO, 3000)\n\
+         s.connect('tcp://127.0.0.1:{remote_port}')\n\
+         out = []\n\
+         for label, back in [{}]:\n\
+         \x20   mono = time.monotonic(); ts = time.time() + {offset} - back\n\
+         \x20   s.send_multipart([b'annotation', msgpack.packb({{'topic': 'annotation', 'label': label, 'timestamp': ts, 'duration': 0.25, 'custom': 7}}, use_bin_type=True)])\n\
+         \x20   assert s.recv_string() == 'Message forwarded.'\n\
+         \x20   out.append([label, mono, ts])\n\
+         \x20   time.sleep(0.3)\n\
+         print(json.dumps(out))\n",
+        list.join(", ")
+    );
+    let out = Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "annotate: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Vec<(String, f64, f64)> =
+        serde_json::from_slice(&out.stdout).expect("the sender's JSON");
+    v.into_iter()
+        .map(|(label, mono_secs, stamp_secs)| Sent {
+            label,
+            mono_secs,
+            stamp_secs,
+        })
+        .collect()
+}
+
+/// Seconds of the test's monotonic clock (CLOCK_MONOTONIC, as Python's
+/// time.monotonic() on Linux).
+fn mono_now_secs() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: a plain clock read into a local.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+#[test]
+fn pupil_annotations_are_written_to_events_csv_at_their_times() {
+    if !python_ready() {
+        return;
+    }
+    // Pupil time = wall clock + offset (the peer's rule).
+    let offset = 1234.5;
+    let peer = spawn_peer(&[
+        "--remote-port",
+        "0",
+        "--rate",
+        "200",
+        "--offset",
+        &offset.to_string(),
+        "--timeout",
+        "40",
+    ]);
+    let dir = tmp("annotations");
+    let spawned = mono_now_secs();
+    let mut run = spawn_run(&[
+        "--source",
+        &format!("pupil://127.0.0.1:{}", peer.remote_port),
+        "--headless",
+        "--backend",
+        "cpu",
+        "--secs",
+        "120",
+        "--size",
+        "64x48",
+        "--fps",
+        "60",
+        "--no-frames",
+        "--out",
+        dir.to_str().expect("utf-8"),
+    ]);
+    let log = LogWatch::start(&mut run);
+    let timeline_path = dir.join("timeline.csv");
+    // Sent once the run records live frames; the newest run time then.
+    let (t_seen, _) = wait_for(WAIT_LIMIT, "live rows in timeline.csv", || {
+        let c = rows_so_far(&timeline_path)?;
+        let live = c.strs("source_health").iter().any(|h| h == "live");
+        live.then(|| c.f64s("t_secs").last().copied()).flatten()
+    });
+    let sent = annotate(
+        peer.remote_port,
+        offset,
+        &[
+            ("stim-1", 0.0),
+            ("stim-2", 0.0),
+            ("stim,3", 0.0),
+            // Marks a moment 0.5 s before it is sent (a stimulus PC's
+            // stamp): the event is at the moment, not the arrival.
+            ("past", 0.5),
+            ("stim-4", 0.0),
+        ],
+    );
+    let events_path = dir.join("events.csv");
+    wait_for(WAIT_LIMIT, "5 events in events.csv", || {
+        let text = std::fs::read_to_string(&events_path).ok()?;
+        (text.lines().count() > sent.len()).then_some(())
+    });
+    signal(&run, "INT");
+    let out = wait_bounded(run, Duration::from_secs(60));
+    let stderr = log.finish();
+    assert_success_with(&out, &stderr);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("events.csv (5 events, 0 dropped"),
+        "{stdout}"
+    );
+
+    // The columns of replay's events.csv, one row per annotation, in order
+    // (a label with a comma quoted).
+    let text = std::fs::read_to_string(&events_path).expect("events.csv");
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_secs,recording_t_secs,t_clock,duration_secs,source,text,trial,frame")
+    );
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| gazelight_input::split_csv_line(l, ','))
+        .collect();
+    assert_eq!(rows.len(), sent.len(), "{text}");
+    let num = |s: &str| s.parse::<f64>().unwrap_or(f64::NAN);
+    // One sample of the peer's 200 Hz stream.
+    let sample_secs = 1.0 / 200.0;
+    for (r, s) in rows.iter().zip(&sent) {
+        assert_eq!(r[4], "annotation");
+        assert_eq!(r[5], s.label);
+        assert_eq!(r[6], "");
+        assert!((num(&r[3]) - 0.25).abs() < 1e-9, "duration {r:?}");
+        // Pupil time as stamped.
+        assert!((num(&r[2]) - s.stamp_secs).abs() < 1e-5, "{r:?}");
+    }
+    // On the run's clock, every event lies where the test's own clock put
+    // its moment (the send, less the back-dating), relative to the first:
+    // within one sample.
+    let t: Vec<f64> = rows.iter().map(|r| num(&r[0])).collect();
+    let back = [0.0, 0.0, 0.0, 0.5, 0.0];
+    for i in 1..sent.len() {
+        let run_dt = t[i] - t[0];
+        let test_dt = (sent[i].mono_secs - back[i]) - sent[0].mono_secs;
+        assert!(
+            (run_dt - test_dt).abs() <= sample_secs + T_ROUNDING_SECS,
+            "event {i}: {run_dt} s after the first on the run's clock, {test_dt} s on the test's"
+        );
+    }
+    // And on the run's clock at all: after the newest frame the test saw
+    // before sending, before the time since the run was started.
+    assert!(t[0] > t_seen - T_ROUNDING_SECS, "{} vs {t_seen}", t[0]);
+    assert!(t[0] < sent[0].mono_secs - spawned, "{}", t[0]);
+    // recording_t_secs is the host clock: the same intervals.
+    let host: Vec<f64> = rows.iter().map(|r| num(&r[1])).collect();
+    for i in 0..t.len() {
+        assert!(((host[i] - host[0]) - (t[i] - t[0])).abs() < 2e-6);
+    }
+    // Each event's frame is the newest frame at or before it.
+    let timeline = Csv::read(&timeline_path);
+    let ft = timeline.f64s("t_secs");
+    let frames = timeline.f64s("frame");
+    for (r, &te) in rows.iter().zip(&t) {
+        let k = ft.partition_point(|&x| x <= te + T_ROUNDING_SECS) - 1;
+        let f = num(&r[7]);
+        let row = frames
+            .iter()
+            .position(|&x| x == f)
+            .expect("the event's frame");
+        // Equal within the rounding of the two files' times.
+        assert!(
+            (f - frames[k]).abs() <= 1.0 && ft[row] <= te + T_ROUNDING_SECS,
+            "event at {te} on frame {f}, the frame then {}",
+            frames[k]
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

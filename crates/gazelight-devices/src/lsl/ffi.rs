@@ -64,6 +64,11 @@ pub(crate) struct Api {
     pub get_fullinfo: unsafe extern "C" fn(Ptr, f64, *mut i32) -> Ptr,
     pub pull_sample_d: unsafe extern "C" fn(Ptr, *mut f64, i32, f64, *mut i32) -> f64,
     pub time_correction: unsafe extern "C" fn(Ptr, f64, *mut i32) -> f64,
+    /// `lsl_pull_sample_buf`: each channel's string allocated by liblsl
+    /// (freed with `destroy_string`) with its length.
+    pub pull_sample_buf:
+        unsafe extern "C" fn(Ptr, *mut *mut c_char, *mut u32, i32, f64, *mut i32) -> f64,
+    pub destroy_string: unsafe extern "C" fn(*mut c_char),
     // Keeps the symbols above valid for the life of the process.
     _lib: libloading::Library,
 }
@@ -147,6 +152,8 @@ fn load(config: &LslConfig) -> Result<Api, LslError> {
             get_fullinfo: sym!("lsl_get_fullinfo"),
             pull_sample_d: sym!("lsl_pull_sample_d"),
             time_correction: sym!("lsl_time_correction"),
+            pull_sample_buf: sym!("lsl_pull_sample_buf"),
+            destroy_string: sym!("lsl_destroy_string"),
             path,
             _lib: lib,
         };

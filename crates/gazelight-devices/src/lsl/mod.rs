@@ -1,7 +1,8 @@
 //! Lab Streaming Layer through the real liblsl, loaded at run time
 //! ([`ffi`]): outlets gazelight publishes ([`Outlet`]), streams it reads
 //! ([`Inlet`], and the [`LslSource`] behind `lsl://?name=…` /
-//! `lsl://?type=…`), and the clocks between them.
+//! `lsl://?type=…`), marker streams read as events ([`LslMarkers`]), and
+//! the clocks between them.
 //!
 //! Clocks: liblsl's `local_clock()` and gazelight's host clock
 //! ([`gazelight_eye::clock::host_now_secs`]) are both the process's
@@ -15,11 +16,13 @@
 
 mod config;
 pub(crate) mod ffi;
+mod markers;
 mod source;
 
 use std::ffi::c_char;
 
 pub use config::{InletMapping, LslConfig, ResolveScope};
+pub use markers::LslMarkers;
 pub use source::{
     Layout, LayoutError, LslQuery, LslQueryError, LslSource, StreamFacts, detect_layout,
 };

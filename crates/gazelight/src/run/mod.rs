@@ -143,6 +143,12 @@ pub struct RunArgs {
     /// configuration; discovery stays on this machine by default).
     #[arg(long)]
     pub lsl: bool,
+    /// Read an LSL marker stream (lsl://?name=NAME or lsl://?type=Markers:
+    /// a string stream, such as a stimulus program's markers) into
+    /// `--out`'s events.csv, beside the events the source carries itself
+    /// (Pupil Capture's annotations); repeatable.
+    #[arg(long = "events", value_name = "URI")]
+    pub events: Vec<String>,
     /// Render both eyes every frame, each on its own gaze (where the
     /// tracker gives one per eye) and pupil: pooling, adaptation, glare
     /// kernel and acuity per eye. The window, `--out` frames and the status
@@ -343,9 +349,30 @@ fn run_settings(
 /// the source URI parsed.
 pub fn check(args: &RunArgs) -> anyhow::Result<()> {
     let r = resolve(args)?;
+    check_events(args, &r)?;
     gazelight_tracker::uri::SourceUri::parse(&r.uri)
         .map(|_| ())
         .map_err(|e| anyhow::anyhow!("--source {}: {e}", r.uri))
+}
+
+/// `--events`: each an LSL URI, and an `--out` to write them to.
+fn check_events(args: &RunArgs, r: &Resolved) -> anyhow::Result<()> {
+    use gazelight_tracker::uri::SourceUri;
+    for uri in &args.events {
+        match SourceUri::parse(uri) {
+            Ok(SourceUri::Lsl(_)) => {}
+            Ok(_) => bail!(
+                "--events {uri}: events are read from an LSL marker stream \
+                 (lsl://?name=NAME or lsl://?type=Markers); a pupil:// source's annotations \
+                 come with it"
+            ),
+            Err(e) => bail!("--events {uri}: {e}"),
+        }
+    }
+    if !args.events.is_empty() && r.out.is_none() {
+        bail!("--events writes the markers to --out's events.csv: give --out DIR");
+    }
+    Ok(())
 }
 
 /// Checks (and with `--force` clears) `--out` against the run's inputs:
@@ -383,6 +410,7 @@ fn prepare_out(args: &RunArgs, r: &Resolved, scene: Option<&Path>) -> anyhow::Re
 /// Runs `gazelight run`.
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let r = resolve(&args)?;
+    check_events(&args, &r)?;
     let cfg = &r.config;
 
     // Scene and view.
@@ -468,6 +496,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
 
     // Outputs: the inputs are checked; now where the outputs go.
     prepare_out(&args, &r, scene_path.as_deref())?;
+    // The events of the source and of --events, for --out's events.csv.
+    let events = r
+        .out
+        .as_ref()
+        .map(|_| Arc::new(gazelight_tracker::live_events::EventQueue::default()));
     let writer = match &r.out {
         Some(dir) => {
             let mut psf = cfg.pipeline.glare.psf.clone();
@@ -485,6 +518,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 psf,
                 !args.no_frames && !r.xr,
                 stereo,
+                events.clone(),
             )?)
         }
         None => None,
@@ -516,8 +550,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 view_img: &view_img,
             },
             &cfg.lsl,
+            events.clone(),
         )?;
         let hub = source.hub.clone();
+        // --events: each marker stream read by its own thread until the
+        // session ends (dropped with `_markers`).
+        let _markers = match &events {
+            Some(q) => args
+                .events
+                .iter()
+                .map(|uri| {
+                    let m = gazelight_tracker::transport::open_markers(uri, &cfg.lsl, q.clone())
+                        .with_context(|| format!("--events {uri}"))?;
+                    tracing::info!(markers = %m.describe(), "reading events");
+                    anyhow::Ok(m)
+                })
+                .collect::<anyhow::Result<Vec<_>>>()
+                .inspect_err(|_| hub.request_shutdown())?,
+            None => Vec::new(),
+        };
         hub.set_settings(settings.clone());
         tracing::info!(
             source = %source.describe,
@@ -835,6 +886,13 @@ fn print_summary(
             w.frames_written,
             s.frames_not_written
         );
+        if let Some(n) = w.events {
+            println!(
+                "wrote {}/events.csv ({n} events, {} dropped: more than the queue holds)",
+                dir.display(),
+                w.events_dropped
+            );
+        }
         for e in &w.errors {
             println!("write error: {e}");
         }

@@ -12,6 +12,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::live::{self, LiveConfig};
+use gazelight_tracker::live_events::EventQueue;
 use gazelight_tracker::lsl::LslConfig;
 use gazelight_tracker::transport::{self, OpenOptions, SourceUri};
 use gazelight_vision::RgbImage;
@@ -40,12 +41,15 @@ pub struct DemoContext<'a> {
 }
 
 /// Opens the source named by `uri` with the session's `[lsl]` settings and
-/// starts its live eye task. Must be called inside a tokio runtime.
+/// starts its live eye task; the events it carries (Pupil Capture's
+/// annotations) go to `events` when given. Must be called inside a tokio
+/// runtime.
 pub fn open_source_with(
     uri: &str,
     chain: FilterChain,
     demo_ctx: &DemoContext<'_>,
     lsl: &LslConfig,
+    events: Option<Arc<EventQueue>>,
 ) -> anyhow::Result<SourceHandle> {
     let parsed = SourceUri::parse(uri)?;
     let synthetic = match &parsed {
@@ -59,6 +63,7 @@ pub fn open_source_with(
     let options = OpenOptions {
         lsl: lsl.clone(),
         synthetic,
+        events,
     };
     let source =
         transport::open_with(&parsed, &options).with_context(|| format!("source `{uri}`"))?;
@@ -120,6 +125,7 @@ mod tests {
                 FilterChain::with_defaults(),
                 &ctx,
                 &LslConfig::default(),
+                None,
             ) else {
                 panic!("{uri}: expected an error");
             };

@@ -17,6 +17,17 @@
 //!   pipeline) it is computed from the kernel's parameters
 //!   ([`MonoPsf::first_minimum_rad`]).
 //!
+//! - `events.csv`: the events the live source carries (Pupil Capture's
+//!   annotations) and the `--events` marker streams, one row each with
+//!   replay's `events.csv` columns ([`crate::replay::EVENTS_COLUMNS`]):
+//!   `t_secs` on the run's clock (timeline.csv's), `recording_t_secs` the
+//!   host clock the live samples are on, `t_clock` the source's own stamp,
+//!   and `frame`, the newest frame whose `t_secs` is at or before the
+//!   event's. The sources put them in a bounded [`EventQueue`] (a flood is
+//!   dropped and counted there) that this thread drains at every message
+//!   and at least every second; an event waits (bounded) for the frame
+//!   after it, so its frame is known when it is written.
+//!
 //! The frame loop hands rows, frames and kernel events over bounded
 //! `sync_channel`s (preallocated ring buffers: sending does not allocate).
 //!
@@ -27,9 +38,11 @@
 //! is removed and the images stop. The errors are in [`WriterReport::errors`]
 //! for the summary.
 
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::Path;
+use std::sync::Arc;
 use std::sync::mpsc::{
     Receiver, RecvTimeoutError, SyncSender, TryRecvError, TrySendError, sync_channel,
 };
@@ -43,6 +56,7 @@ use crate::output;
 use crate::stereo::View;
 use gazelight_tracker::EYE_LEFT;
 use gazelight_tracker::live::SourceHealth;
+use gazelight_tracker::live_events::{EventQueue, LiveEvent};
 
 /// Frame buffers in flight between the loop and the PNG encoder.
 const FRAME_POOL: usize = 4;
@@ -120,6 +134,8 @@ enum Msg {
     Row(Row),
     Psf(PsfEvent),
     Xr(XrRow),
+    /// The host time (s) of the run clock's zero (`t_secs` = 0).
+    ClockOrigin(f64),
 }
 
 /// One row of `xr.csv` (an OpenXR session's frame, `run --display xr`).
@@ -185,6 +201,11 @@ pub struct WriterReport {
     pub frames_written: u64,
     /// `psf.csv` rows on disk.
     pub psf_rows: u64,
+    /// `events.csv` rows on disk (`None`: no events were read).
+    pub events: Option<u64>,
+    /// Events dropped: the sources' queue full, or waiting for the run's
+    /// clock too long.
+    pub events_dropped: u64,
     /// Write errors (a full disk): each names the file, the error and where
     /// the file stops; each was printed when it happened.
     pub errors: Vec<String>,
@@ -352,6 +373,7 @@ impl OutputWriter {
         psf: PsfParams,
         write_frames: bool,
         stereo: bool,
+        events: Option<Arc<EventQueue>>,
     ) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let frames_dir = dir.join("frames");
@@ -368,7 +390,22 @@ impl OutputWriter {
         let psf_path = dir.join("psf.csv");
         let mut psf_csv = RowFile::create(&psf_path, PSF_HEADER);
         psf_csv.flush();
-        for f in [&timeline, &psf_csv] {
+        let mut events = events.map(|queue| {
+            let mut file = RowFile::create(
+                &dir.join("events.csv"),
+                &crate::replay::EVENTS_COLUMNS.join(","),
+            );
+            file.flush();
+            LiveEvents::new(queue, file)
+        });
+        for f in [
+            Some(&timeline),
+            Some(&psf_csv),
+            events.as_ref().map(|e| &e.file),
+        ]
+        .into_iter()
+        .flatten()
+        {
             if let Some(e) = f.failure() {
                 anyhow::bail!("{e}");
             }
@@ -434,6 +471,15 @@ impl OutputWriter {
                         Err(RecvTimeoutError::Timeout) => None,
                         Err(RecvTimeoutError::Disconnected) => break,
                     };
+                    if let Some(ev) = &mut events {
+                        if let Some(Msg::Row(r)) = &msg {
+                            ev.frame(r.frame, r.t_secs);
+                        }
+                        if let Some(Msg::ClockOrigin(host)) = &msg {
+                            ev.origin_host_secs = Some(*host);
+                        }
+                        ev.take(&mut line, false);
+                    }
                     if last_flush.elapsed() >= FLUSH_EVERY {
                         last_flush = std::time::Instant::now();
                         timeline.flush();
@@ -441,9 +487,13 @@ impl OutputWriter {
                         if let Some(x) = &mut xr_csv {
                             x.flush();
                         }
+                        if let Some(ev) = &mut events {
+                            ev.file.flush();
+                        }
                     }
                     let Some(msg) = msg else { continue };
                     match msg {
+                        Msg::ClockOrigin(_) => {}
                         Msg::Row(r) => {
                             line.clear();
                             format_row(&mut line, &r, stereo);
@@ -488,19 +538,37 @@ impl OutputWriter {
                         }
                     }
                 }
-                for f in [Some(&mut timeline), Some(&mut psf_csv), xr_csv.as_mut()]
-                    .into_iter()
-                    .flatten()
+                if let Some(ev) = &mut events {
+                    ev.take(&mut line, true);
+                    report.events_dropped = ev.dropped + ev.queue.dropped();
+                }
+                let events_file = events.as_mut().map(|e| &mut e.file);
+                for f in [
+                    Some(&mut timeline),
+                    Some(&mut psf_csv),
+                    xr_csv.as_mut(),
+                    events_file,
+                ]
+                .into_iter()
+                .flatten()
                 {
                     f.flush();
                 }
                 report.rows = timeline.rows_on_disk;
                 report.psf_rows = psf_csv.rows_on_disk;
+                if let Some(ev) = &events {
+                    report.events = Some(ev.file.rows_on_disk);
+                }
                 report.errors.extend(
-                    [Some(&timeline), Some(&psf_csv), xr_csv.as_ref()]
-                        .into_iter()
-                        .flatten()
-                        .filter_map(|f| f.failure()),
+                    [
+                        Some(&timeline),
+                        Some(&psf_csv),
+                        xr_csv.as_ref(),
+                        events.as_ref().map(|e| &e.file),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    .filter_map(|f| f.failure()),
                 );
                 Ok(report)
             })
@@ -531,6 +599,12 @@ impl OutputWriter {
     /// Queues a timeline row (never blocks).
     pub fn row(&mut self, row: Row) {
         let _ = self.send(Msg::Row(row));
+    }
+
+    /// Sets the run clock's zero (`t_secs` = 0) at host time `host_secs`:
+    /// the frame loop's start, which `events.csv` counts from.
+    pub fn clock_origin(&mut self, host_secs: f64) {
+        let _ = self.send(Msg::ClockOrigin(host_secs));
     }
 
     /// Queues an `xr.csv` row (never blocks).
@@ -592,6 +666,123 @@ impl OutputWriter {
         }
         Ok(report)
     }
+}
+
+/// Frames remembered for placing late events (about 45 s at 90 Hz).
+const FRAMES_KEPT: usize = 4096;
+
+/// The live `events.csv` on the writer thread: the events drained from the
+/// sources' queue wait here for the run clock's zero and for a frame after
+/// them, then are written in arrival order.
+struct LiveEvents {
+    queue: Arc<EventQueue>,
+    file: RowFile,
+    /// Host time of `t_secs` = 0, once the frame loop started.
+    origin_host_secs: Option<f64>,
+    /// Drained, not yet written (at most [`QUEUE`]; more are dropped).
+    pending: VecDeque<LiveEvent>,
+    drained: Vec<LiveEvent>,
+    /// The newest frames: (frame, t_secs), oldest first.
+    frames: VecDeque<(u64, f64)>,
+    dropped: u64,
+}
+
+impl LiveEvents {
+    fn new(queue: Arc<EventQueue>, file: RowFile) -> Self {
+        Self {
+            queue,
+            file,
+            origin_host_secs: None,
+            pending: VecDeque::with_capacity(256),
+            drained: Vec::with_capacity(256),
+            frames: VecDeque::with_capacity(FRAMES_KEPT),
+            dropped: 0,
+        }
+    }
+
+    /// A frame was rendered at run time `t_secs`.
+    fn frame(&mut self, frame: u64, t_secs: f64) {
+        if self.frames.len() == FRAMES_KEPT {
+            self.frames.pop_front();
+        }
+        self.frames.push_back((frame, t_secs));
+    }
+
+    /// The newest frame at or before run time `t` (`None`: before the
+    /// first frame, or older than the frames kept). At the end
+    /// (`finishing`) an event after the last frame is on it when it lies
+    /// within one frame interval of it.
+    fn frame_at(&self, t: f64, finishing: bool) -> Option<u64> {
+        let k = self.frames.partition_point(|&(_, ft)| ft <= t);
+        if k == 0 {
+            return None;
+        }
+        let (frame, ft) = self.frames[k - 1];
+        if k == self.frames.len() && finishing {
+            let interval = self
+                .frames
+                .len()
+                .checked_sub(2)
+                .map_or(0.0, |i| ft - self.frames[i].1);
+            return (t - ft < interval).then_some(frame);
+        }
+        Some(frame)
+    }
+
+    /// Drains the queue and writes every pending event whose frame is
+    /// known (a frame after it exists), or all of them when `finishing`.
+    fn take(&mut self, line: &mut String, finishing: bool) {
+        self.queue.drain_into(&mut self.drained);
+        for e in self.drained.drain(..) {
+            if self.pending.len() >= QUEUE {
+                self.dropped += 1;
+            } else {
+                self.pending.push_back(e);
+            }
+        }
+        let Some(origin) = self.origin_host_secs else {
+            // No frame ever ran: the events on the host clock alone.
+            if finishing {
+                while let Some(e) = self.pending.pop_front() {
+                    write_event(line, &e, f64::NAN, None);
+                    self.file.push(line);
+                }
+            }
+            return;
+        };
+        let newest = self.frames.back().map(|&(_, t)| t);
+        while let Some(e) = self.pending.front() {
+            let t = e.host_secs - origin;
+            if !finishing && newest.is_none_or(|n| n <= t) {
+                break;
+            }
+            let frame = self.frame_at(t, finishing);
+            write_event(line, e, t, frame);
+            self.file.push(line);
+            self.pending.pop_front();
+        }
+    }
+}
+
+/// Formats one `events.csv` row (with its newline) into `w`; a NaN run
+/// time (no frame ever ran) is a blank cell.
+fn write_event(w: &mut String, e: &LiveEvent, t_secs: f64, frame: Option<u64>) {
+    use gazelight_input::csv_field;
+    w.clear();
+    if t_secs.is_finite() {
+        let _ = write!(w, "{t_secs:.6}");
+    }
+    let _ = write!(w, ",{:.6},{:.6},", e.host_secs, e.source_secs);
+    if let Some(d) = e.duration_secs {
+        let _ = write!(w, "{d:.6}");
+    }
+    let _ = write!(w, ",{},{},", csv_field(&e.source), csv_field(&e.text));
+    if let Some(f) = frame {
+        let _ = write!(w, ",{f}");
+    } else {
+        w.push(',');
+    }
+    w.push('\n');
 }
 
 /// Formats one timeline row (with its newline) into `w`: the one view's
@@ -687,5 +878,73 @@ fn lower_this_threads_priority() {
                 std::io::Error::last_os_error()
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn live_events_land_on_the_frame_at_or_before_them_and_a_flood_is_counted() {
+        let dir =
+            std::env::temp_dir().join(format!("gazelight-writer-events-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let queue = Arc::new(EventQueue::new(4));
+        let mut w = OutputWriter::start(
+            &dir,
+            8,
+            8,
+            PsfParams::default(),
+            false,
+            false,
+            Some(queue.clone()),
+        )
+        .expect("writer");
+        let origin = 100.0;
+        let ev = |t: f64, text: &str| LiveEvent::new(origin + t, 5000.0 + t, None, "m", text);
+        // Before the clock starts: waits for it.
+        assert!(queue.push(ev(-0.05, "early")));
+        w.clock_origin(origin);
+        for (i, t) in [0.0, 0.1, 0.2].into_iter().enumerate() {
+            w.row(Row {
+                frame: i as u64,
+                t_secs: t,
+                ..Row::default()
+            });
+        }
+        assert!(queue.push(ev(0.15, "mid, quoted")));
+        assert!(queue.push(ev(0.2, "on frame 2")));
+        // After the last frame: within one frame interval → the last
+        // frame; beyond → none.
+        assert!(queue.push(ev(0.25, "late")));
+        // The queue holds 4: a fifth is dropped and counted.
+        assert!(!queue.push(ev(0.26, "flood")));
+        let report = w.finish().expect("finish");
+        assert_eq!(report.events, Some(4));
+        assert_eq!(report.events_dropped, 1);
+        let text = std::fs::read_to_string(dir.join("events.csv")).expect("events.csv");
+        let rows: Vec<Vec<String>> = text
+            .lines()
+            .skip(1)
+            .map(|l| gazelight_input::split_csv_line(l, ','))
+            .collect();
+        let got: Vec<(&str, &str, &str)> = rows
+            .iter()
+            .map(|r| (r[0].as_str(), r[5].as_str(), r[7].as_str()))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                ("-0.050000", "early", ""),
+                ("0.150000", "mid, quoted", "1"),
+                ("0.200000", "on frame 2", "2"),
+                ("0.250000", "late", "2"),
+            ]
+        );
+        // The host clock and the source's own stamp.
+        assert_eq!(rows[1][1], "100.150000");
+        assert_eq!(rows[1][2], "5000.150000");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -126,6 +126,7 @@ pub fn run(mut setup: FrameLoopSetup) -> anyhow::Result<(RunSummary, XrReport)> 
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let start = Instant::now();
+    fl.start_clock(start);
     let mut exit_asked: Option<Instant> = None;
     let mut prev_display_ns: Option<i64> = None;
     let mut first_orientation: Option<[f32; 4]> = None;
