@@ -33,7 +33,7 @@
 use gazelight_tracker::{EyeState, Sample};
 use gazelight_vision::RgbImage;
 use gazelight_vision::image::{is_no_data, luminance};
-use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPlan, KernelPolicy};
+use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelFollower, KernelPolicy};
 use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, FrameStats, PipelineConfig, StageTimings,
 };
@@ -179,17 +179,6 @@ pub struct ViewCarry {
     pub psf_pupil_mm: f64,
 }
 
-/// How the kernels are chosen: one view's pipeline rebuilding its own, or
-/// the stereo pair's shared plan ([`crate::frame::StereoKernels`]).
-enum Kernels {
-    /// Glare off: no kernel.
-    Off,
-    /// One view: its pipeline's own rule.
-    Own(KernelPolicy),
-    /// Two views: the stereo plan.
-    Stereo(KernelPolicy),
-}
-
 /// The numbers-only twin of [`crate::frame::FrameStep`]: the same rows
 /// (stage timings NaN) and the same state fed back to the filter chain,
 /// from the view's block plane computed once (see the module docs).
@@ -198,7 +187,10 @@ pub struct AnalysisStep {
     config: PipelineConfig,
     plane: BlockPlane,
     deg_per_px: f64,
-    kernels: Kernels,
+    /// Which kernel each view's pipeline would build (`None`: glare off):
+    /// the one follower of the kernel rule, as the pipeline (one view) and
+    /// [`crate::frame::StereoKernels`] (two) keep it.
+    kernels: Option<KernelFollower>,
     carry: [ViewCarry; 2],
     /// The carry before the last step (what a pipeline had before drawing
     /// that frame), and whether each view's pooling reached data then.
@@ -244,12 +236,13 @@ impl AnalysisStep {
         } else {
             0.0
         };
-        let policy = KernelPolicy::new(&config.glare);
-        let kernels = match (config.glare.enabled, views.len()) {
-            (false, _) => Kernels::Off,
-            (true, 2) => Kernels::Stereo(policy),
-            (true, _) => Kernels::Own(policy),
-        };
+        let kernels = config.glare.enabled.then(|| {
+            KernelFollower::new(
+                KernelPolicy::new(&config.glare),
+                views.len(),
+                INITIAL_PUPIL_MM,
+            )
+        });
         let carry = ViewCarry {
             state: None,
             last_target_cd_m2: initial,
@@ -297,43 +290,22 @@ impl AnalysisStep {
         // The kernels (which pupil each view's kernel is for, and whether
         // it changed this frame), decided as the pipelines decide them.
         let mut rebuilt = [false; 2];
-        match (&self.kernels, inputs.as_slice()) {
-            (Kernels::Off, _) => {}
-            (Kernels::Stereo(policy), [(left, _), (right, _)]) => {
-                let installed = [self.carry[0].psf_pupil_mm, self.carry[1].psf_pupil_mm];
-                match policy.plan([left.pupil_mm, right.pupil_mm], installed) {
-                    KernelPlan::Keep => {}
-                    KernelPlan::Shared(p) => {
-                        self.stereo_builds += 1;
-                        for k in 0..2 {
-                            self.carry[k].psf_pupil_mm = p;
-                            rebuilt[k] = true;
-                        }
-                    }
-                    KernelPlan::Own(own) => {
-                        for (k, p) in own.into_iter().enumerate() {
-                            let Some(p) = p else { continue };
-                            self.stereo_builds += 1;
-                            self.carry[k].psf_pupil_mm = p;
-                            rebuilt[k] = true;
-                        }
-                    }
+        if let Some(follower) = self.kernels.as_mut() {
+            let pupil = |k: usize| inputs.get(k).map_or(f32::NAN, |(i, _)| i.pupil_mm);
+            let wanted = follower.follow([pupil(0), pupil(1)]);
+            // Two eyes sharing one kernel build it once.
+            self.stereo_builds += match wanted {
+                [Some(p), Some(q)] if p == q => 1,
+                w => w.iter().flatten().count() as u64,
+            };
+            for (k, w) in wanted.into_iter().enumerate().take(n_views) {
+                // A builder asked for a pupil in its range builds for it
+                // (`PsfBuilder::rebuild` clamps to the range the rule has
+                // clamped to).
+                if let Some(p) = w {
+                    self.carry[k].psf_pupil_mm = p;
+                    rebuilt[k] = true;
                 }
-            }
-            (Kernels::Own(policy), _) => {
-                for (k, (input, _)) in inputs.iter().enumerate().take(2) {
-                    if let Some(p) = policy.decide(input.pupil_mm, self.carry[k].psf_pupil_mm) {
-                        // `PsfBuilder::rebuild` clamps to the builder's
-                        // range, which the policy has done.
-                        self.carry[k].psf_pupil_mm = p;
-                        rebuilt[k] = true;
-                    }
-                }
-            }
-            (Kernels::Stereo(_), _) => {
-                return Err(RenderError::Pipeline(
-                    "stereo kernels: a frame without two views".into(),
-                ));
             }
         }
         let mut log_adaptation = 0.0;
@@ -405,7 +377,7 @@ impl AnalysisStep {
     /// Kernels the stereo plan would have built (`None` in mono or with
     /// glare off), as [`crate::frame::FrameStep::stereo_kernel_builds`].
     pub fn stereo_kernel_builds(&self) -> Option<u64> {
-        matches!(self.kernels, Kernels::Stereo(_)).then_some(self.stereo_builds)
+        (self.kernels.is_some() && self.views.len() == 2).then_some(self.stereo_builds)
     }
 
     /// Stereo: frames in which each view (left, right) had its eye's own

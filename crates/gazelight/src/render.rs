@@ -72,6 +72,9 @@ pub struct RenderArgs {
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Write only the contact sheet, timeline and plot, not every frame.
+    /// The numbers are then computed without the image pipeline (the same
+    /// values, the stage timing columns empty); it draws only the contact
+    /// sheet's frames (docs/replay.md, "Analysis at study speed").
     #[arg(long)]
     pub no_frames: bool,
     /// Frame pipeline: `gpu` = the wgpu pipeline on the best adapter
