@@ -5,14 +5,34 @@
 //! into calls on it.
 //!
 //! Today it holds [`bounds`], the limits on every number a user gives
-//! (rates, durations, frame counts, image sizes, luminance scales), and
+//! (rates, durations, frame counts, image sizes, luminance scales);
 //! [`observer`], the observer's age and pigmentation and where they come
-//! from. The
-//! rest of the application core (configuration, the renderer choice, the
-//! render/replay session and its streaming per-frame writer, source
-//! opening, the kernel follower) is still in the binary crate and moves
-//! here piece by piece (ARCHITECTURE.md, "Where the front ends still
+//! from; [`config`], the one configuration schema and loader of the CLI's
+//! commands and Python's `render` (and the `[filter]` table Python's
+//! `read`/`FilterChain` take alone); and [`layer_config`], the OpenXR
+//! layer's `layer.toml`. The rest of the application core (the renderer
+//! choice, the render/replay session and its streaming per-frame writer,
+//! source opening, the kernel follower) is still in the binary crate and
+//! moves here piece by piece (ARCHITECTURE.md, "Where the front ends still
 //! differ").
 
 pub mod bounds;
+pub mod config;
+pub mod layer_config;
 pub mod observer;
+
+#[cfg(test)]
+pub(crate) mod tests {
+    /// An error and its sources, `outer: inner: …`, as the CLI prints it
+    /// (anyhow's alternate format).
+    pub(crate) fn chain(e: &(dyn std::error::Error + 'static)) -> String {
+        let mut msg = e.to_string();
+        let mut source = e.source();
+        while let Some(s) = source {
+            msg.push_str(": ");
+            msg.push_str(&s.to_string());
+            source = s.source();
+        }
+        msg
+    }
+}

@@ -52,11 +52,19 @@ impl ObserverSettings {
     /// Checks both fields; the error names the field
     /// (`observer.age_years = …`).
     pub fn validate(&self) -> Result<()> {
+        self.validate_fields().map_err(|(_, e)| e)
+    }
+
+    /// [`Self::validate`], with the key of the field that is wrong
+    /// (`observer.age_years`) beside the sentence.
+    pub fn validate_fields(&self) -> std::result::Result<(), (&'static str, BoundsError)> {
         if let Some(a) = self.age_years {
-            check("observer.age_years =", a, AGE_YEARS_RANGE)?;
+            check("observer.age_years =", a, AGE_YEARS_RANGE)
+                .map_err(|e| ("observer.age_years", e))?;
         }
         if let Some(p) = self.pigmentation {
-            check("observer.pigmentation =", p, PIGMENTATION_RANGE)?;
+            check("observer.pigmentation =", p, PIGMENTATION_RANGE)
+                .map_err(|e| ("observer.pigmentation", e))?;
         }
         Ok(())
     }

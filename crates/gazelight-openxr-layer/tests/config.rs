@@ -75,7 +75,7 @@ fn values_out_of_range_are_refused_with_their_field() {
 
 #[test]
 fn the_module_doc_example_loads() {
-    let src = include_str!("../src/config.rs");
+    let src = include_str!("../../gazelight-app/src/layer_config.rs");
     let text: String = src
         .lines()
         .skip_while(|l| l.trim() != "//! ```toml")

@@ -1,16 +1,12 @@
 //! The view and scene-scale flags `render`, `replay` and `run` share, and
 //! how they override a configuration.
 
-use anyhow::Context;
 use clap::Args;
-use gazelight_vision::scene::{LuminanceScale, ProjectionKind, Scene, SceneProjection, ViewParams};
+use gazelight_vision::scene::{LuminanceScale, ProjectionKind, Scene, ViewParams};
 
-/// `--scene-fov-deg H[,V]`: the scene's full field, degrees.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SceneFov {
-    pub h_deg: f64,
-    pub v_deg: Option<f64>,
-}
+/// `--scene-fov-deg H[,V]` and what a configuration file says about the
+/// view: the application core's types (`gazelight_app::config`).
+pub use gazelight_app::config::{SceneFov, ViewDefaults};
 
 fn parse_fov(s: &str) -> Result<SceneFov, String> {
     let num = |t: &str| {
@@ -69,14 +65,6 @@ pub struct ViewArgs {
     pub scene_fov_deg: Option<SceneFov>,
 }
 
-/// What a configuration file says about the view (each `None` = unset).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct ViewDefaults {
-    pub yaw_deg: Option<f64>,
-    pub pitch_deg: Option<f64>,
-    pub hfov_deg: Option<f64>,
-}
-
 impl ViewArgs {
     /// The luminance scale: a flag, else the configuration's, else the
     /// default; bounded ([`crate::bounds::luminance_scale`]).
@@ -103,20 +91,12 @@ impl ViewArgs {
             (None, None) => return Ok(()),
         };
         let (w, h) = (scene.image.width, scene.image.height);
-        scene.projection = Some(match (kind, fov) {
-            (ProjectionKind::Equirectangular, _) => SceneProjection::equirectangular(w, h),
-            (_, None) => anyhow::bail!("--scene-projection {} needs --scene-fov-deg", kind.name()),
-            (_, Some(SceneFov { h_deg, v_deg: None })) => {
-                SceneProjection::with_square_pixels(kind, h_deg, w, h).context("--scene-fov-deg")?
-            }
-            (
-                _,
-                Some(SceneFov {
-                    h_deg,
-                    v_deg: Some(v),
-                }),
-            ) => SceneProjection::new(kind, h_deg, v, w, h).context("--scene-fov-deg")?,
-        });
+        // The application core's rule (Python's config takes it too).
+        scene.projection = Some(gazelight_app::config::render::scene_projection(
+            (kind, fov),
+            w,
+            h,
+        )?);
         Ok(())
     }
 
