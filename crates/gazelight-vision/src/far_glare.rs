@@ -64,6 +64,7 @@ use rustfft::{Fft, FftPlanner};
 use crate::pipeline::sanitize;
 use crate::pooling::PlaneAngles;
 use crate::psf::FIELD_TAPER_START;
+use crate::simd::Simd;
 use crate::stray_light::cie146_veil_per_sr;
 use crate::{RgbImage, VisionError};
 
@@ -385,6 +386,99 @@ pub struct FarField {
     ready: bool,
 }
 
+/// The block sums of one frame's light ([`FarField::frame_parts`]): taken
+/// by [`BlockSums::take`] while the glare window prepares its own part
+/// ([`WeightedSums`]) on the other workers.
+pub(crate) struct BlockSums<'a> {
+    width: usize,
+    block_px: usize,
+    bw: usize,
+    sums: &'a mut [[f32; 3]],
+    /// Per block row, `width × 3` accumulators (the far field's `hrows`,
+    /// free until [`FarField::compute`]).
+    acc: &'a mut [f32],
+}
+
+impl BlockSums<'_> {
+    /// Sums the sanitised frame `img` (of the far field's size) over the
+    /// blocks, block rows in parallel: each block row's pixel rows are
+    /// first added column by column into its row of accumulators (one
+    /// vector add per sample), then that row is summed over the blocks.
+    pub(crate) fn take(&mut self, img: &RgbImage) {
+        let (w, bp, bw) = (self.width, self.block_px, self.bw);
+        let simd = Simd::host();
+        img.pixels
+            .par_chunks(w * bp)
+            .zip(self.sums.par_chunks_mut(bw))
+            .zip(self.acc.par_chunks_mut(w * 3))
+            .for_each(|((rows, sums), acc)| {
+                // Vectorised for the CPU's tier (the same adds, in the
+                // same order: the same bits).
+                simd.compiled(
+                    #[inline(always)]
+                    || {
+                        acc.fill(0.0);
+                        for row in rows.chunks_exact(w) {
+                            for (a, &v) in acc.iter_mut().zip(row.as_flattened()) {
+                                *a += sanitize(v);
+                            }
+                        }
+                        for (blk, s) in acc.chunks(bp * 3).zip(sums.iter_mut()) {
+                            let mut t = [0.0f32; 3];
+                            for p in blk.chunks_exact(3) {
+                                t[0] += p[0];
+                                t[1] += p[1];
+                                t[2] += p[2];
+                            }
+                            *s = t;
+                        }
+                    },
+                )
+            });
+    }
+}
+
+/// The block sums of one frame's weighted sources `w · L`
+/// ([`FarField::frame_parts`]), which the glare window adds from its own
+/// weighted plane ([`WeightedSums::add_rows`]).
+pub(crate) struct WeightedSums<'a> {
+    block_px: usize,
+    bw: usize,
+    bh: usize,
+    wsums: &'a mut [[f32; 3]],
+}
+
+impl WeightedSums<'_> {
+    /// Display block size, pixels.
+    pub(crate) fn block_px(&self) -> usize {
+        self.block_px
+    }
+
+    /// One block row at a time, in parallel: `f(y, row)` adds row `y`'s
+    /// weighted sources to `row` (the block row's sums); rows `y0..y1`.
+    pub(crate) fn add_rows(
+        &mut self,
+        y0: usize,
+        y1: usize,
+        f: impl Fn(usize, &mut [[f32; 3]]) + Sync,
+    ) {
+        let (bp, bw) = (self.block_px, self.bw);
+        let (j0, j1) = (y0 / bp, y1.div_ceil(bp).min(self.bh));
+        if j0 >= j1 {
+            return;
+        }
+        self.wsums[j0 * bw..j1 * bw]
+            .par_chunks_mut(bw)
+            .enumerate()
+            .for_each(|(k, row)| {
+                let j = j0 + k;
+                for y in (j * bp).max(y0)..((j + 1) * bp).min(y1) {
+                    f(y, row);
+                }
+            });
+    }
+}
+
 impl FarField {
     /// A far field for `width × height` frames of the geometry `angles`.
     pub fn new(
@@ -631,64 +725,73 @@ impl FarField {
     }
 
     /// Sums the sanitised frame over the blocks and clears the weighted
-    /// sums (first step of a frame).
+    /// sums (first step of a frame; [`crate::glare::GlareConvolver::prepare`]
+    /// takes the same sums while its window prepares, [`FarField::frame_parts`]).
     pub fn sum_frame(&mut self, img: &RgbImage) {
+        if let Some((mut sums, _)) = self.frame_parts(img) {
+            sums.take(img);
+            self.ready = true;
+        }
+    }
+
+    /// Starts a frame: clears the weighted sums and hands out the two
+    /// parts a frame fills, apart, so that they can be filled at the same
+    /// time: the block sums of the frame's light ([`BlockSums::take`]) and
+    /// of its weighted sources ([`WeightedSums::add_rows`]). Then
+    /// [`FarField::sums_taken`] readies the veil. `None` (no veil this
+    /// frame) for a frame of another size.
+    pub(crate) fn frame_parts(
+        &mut self,
+        img: &RgbImage,
+    ) -> Option<(BlockSums<'_>, WeightedSums<'_>)> {
         self.ready = false;
         if img.width != self.width || img.height != self.height {
-            return;
+            return None;
         }
-        let (w, bp, bw) = (self.width, self.block_px, self.bw);
         self.wsums.fill([0.0; 3]);
-        // Each block row's pixel rows are first added column by column
-        // into a row of `hrows` (free until `compute`; one vector add per
-        // sample), then that row is summed over the blocks.
-        img.pixels
-            .par_chunks(w * bp)
-            .zip(self.sums.par_chunks_mut(bw))
-            .zip(self.hrows.par_chunks_mut(w * 3))
-            .for_each(|((rows, sums), acc)| {
-                acc.fill(0.0);
-                for row in rows.chunks_exact(w) {
-                    for (a, &v) in acc.iter_mut().zip(row.as_flattened()) {
-                        *a += sanitize(v);
-                    }
-                }
-                for (blk, s) in acc.chunks(bp * 3).zip(sums.iter_mut()) {
-                    let mut t = [0.0f32; 3];
-                    for p in blk.chunks_exact(3) {
-                        t[0] += p[0];
-                        t[1] += p[1];
-                        t[2] += p[2];
-                    }
-                    *s = t;
-                }
-            });
+        Some((
+            BlockSums {
+                width: self.width,
+                block_px: self.block_px,
+                bw: self.bw,
+                sums: &mut self.sums,
+                acc: &mut self.hrows,
+            },
+            WeightedSums {
+                block_px: self.block_px,
+                bw: self.bw,
+                bh: self.bh,
+                wsums: &mut self.wsums,
+            },
+        ))
+    }
+
+    /// Both parts of [`FarField::frame_parts`] are filled: the veil can be
+    /// computed.
+    pub(crate) fn sums_taken(&mut self) {
         self.ready = true;
     }
 
     /// The block sums of weighted sources, one block row at a time, in
-    /// parallel: `f(y, row)` adds row `y`'s weighted sources to `row` (the
-    /// block row's sums); rows `y0..y1`.
+    /// parallel: `f(y, row, block_px)` adds row `y`'s weighted sources to
+    /// `row` (the block row's sums); rows `y0..y1`. After
+    /// [`FarField::sum_frame`] (which clears them). The tests' way in; a
+    /// frame's own go through [`FarField::frame_parts`].
+    #[cfg(test)]
     pub(crate) fn add_weighted_rows(
         &mut self,
         y0: usize,
         y1: usize,
         f: impl Fn(usize, &mut [[f32; 3]], usize) + Sync,
     ) {
-        let (bp, bw) = (self.block_px, self.bw);
-        let (j0, j1) = (y0 / bp, y1.div_ceil(bp).min(self.bh));
-        if j0 >= j1 {
-            return;
-        }
-        self.wsums[j0 * bw..j1 * bw]
-            .par_chunks_mut(bw)
-            .enumerate()
-            .for_each(|(k, row)| {
-                let j = j0 + k;
-                for y in (j * bp).max(y0)..((j + 1) * bp).min(y1) {
-                    f(y, row, bp);
-                }
-            });
+        let bp = self.block_px;
+        let mut part = WeightedSums {
+            block_px: bp,
+            bw: self.bw,
+            bh: self.bh,
+            wsums: &mut self.wsums,
+        };
+        part.add_rows(y0, y1, |y, row| f(y, row, bp));
     }
 
     /// Convolves the block sums with `tail` and `near` on the grid and
@@ -813,9 +916,50 @@ impl FarField {
         self.blend_cols(y, row, 1.0, 0..self.width);
     }
 
+    /// Columns `cols` of row `y` made from the scene row `src`: each
+    /// pixel's sanitised light times `keep`, plus the veil — the values of
+    /// sanitising, then [`FarField::blend_cols`], in one pass. Without a
+    /// veil (not ready, a row outside the frame) only sanitised.
+    #[inline(always)]
+    pub fn fill_cols(
+        &self,
+        y: usize,
+        src: &[[f32; 3]],
+        row: &mut [[f32; 3]],
+        keep: f32,
+        cols: Range<usize>,
+    ) {
+        let cols = cols.start.min(row.len()).min(src.len())..cols.end.min(row.len()).min(src.len());
+        if cols.is_empty() {
+            return;
+        }
+        let (dst, src) = (&mut row[cols.clone()], &src[cols.clone()]);
+        if !self.ready || y >= self.height || cols.end > self.width {
+            for (d, s) in dst.as_flattened_mut().iter_mut().zip(src.as_flattened()) {
+                *d = sanitize(*s);
+            }
+            return;
+        }
+        let (j0, j1, fy) = self.row_hat(y);
+        let w3 = self.width * 3;
+        let (c0, c1) = (cols.start * 3, cols.end * 3);
+        let lo = &self.hrows[j0 * w3 + c0..j0 * w3 + c1];
+        let hi = &self.hrows[j1 * w3 + c0..j1 * w3 + c1];
+        for (((p, &s), &a), &c) in dst
+            .as_flattened_mut()
+            .iter_mut()
+            .zip(src.as_flattened())
+            .zip(lo)
+            .zip(hi)
+        {
+            *p = sanitize(s) * keep + (a + (c - a) * fy);
+        }
+    }
+
     /// Columns `cols` of row `y`: each pixel's own light times `keep`, plus
-    /// the veil.
-    #[inline]
+    /// the veil. Always inlined: the band pass's row source compiles it
+    /// inside its AVX-512 and AVX2 twins (a call ran it on SSE's 4 lanes).
+    #[inline(always)]
     pub fn blend_cols(&self, y: usize, row: &mut [[f32; 3]], keep: f32, cols: Range<usize>) {
         if !self.ready || y >= self.height || row.len() < self.width || cols.is_empty() {
             return;

@@ -92,7 +92,7 @@ use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
-use crate::far_glare::FarField;
+use crate::far_glare::{FarField, WeightedSums};
 use crate::pipeline::sanitize;
 use crate::psf::PsfKernel;
 use crate::{RgbImage, VisionError};
@@ -1165,19 +1165,37 @@ impl GlareConvolver {
     /// frame's rows are blended later, each as it is needed (the CPU
     /// pipeline blends them inside its band pass). Prepares nothing for a
     /// non-finite gaze or an empty image.
+    ///
+    /// With the far field on, its block sums of the whole frame (a read of
+    /// the frame, memory-bound) are taken while the window's FFTs
+    /// (compute-bound) run on the other workers (`rayon::join`).
     pub fn prepare(&mut self, img: &RgbImage, gaze_px: [f64; 2]) {
-        if let Some(far) = self.far.as_mut() {
-            far.sum_frame(img);
+        // Out of `self` for the join (a move: no allocation).
+        let mut far = self.far.take();
+        match far.as_mut().and_then(|f| f.frame_parts(img)) {
+            Some((mut sums, mut weighted)) => {
+                rayon::join(
+                    || sums.take(img),
+                    || self.prepare_window(img, gaze_px, Some(&mut weighted)),
+                );
+            }
+            None => self.prepare_window(img, gaze_px, None),
         }
-        self.prepare_window(img, gaze_px);
-        if let Some(far) = self.far.as_mut() {
-            far.compute();
+        if let Some(f) = far.as_mut().filter(|f| f.size() == (img.width, img.height)) {
+            f.sums_taken();
+            f.compute();
         }
+        self.far = far;
     }
 
     /// [`GlareConvolver::prepare`] of the window at the gaze (and the far
-    /// field's weighted block sums).
-    fn prepare_window(&mut self, img: &RgbImage, gaze_px: [f64; 2]) {
+    /// field's weighted block sums into `weighted`).
+    fn prepare_window(
+        &mut self,
+        img: &RgbImage,
+        gaze_px: [f64; 2],
+        weighted: Option<&mut WeightedSums<'_>>,
+    ) {
         self.plan = None;
         if !gaze_px[0].is_finite()
             || !gaze_px[1].is_finite()
@@ -1332,20 +1350,32 @@ impl GlareConvolver {
                     }
                 }
             });
-        // The far field's weighted sources (w · L), from the fine plane.
-        if let Some(far) = self.far.as_mut().filter(|f| f.is_ready()) {
+        // The far field's weighted sources (w · L), from the fine plane,
+        // a block's columns at a time.
+        if let Some(weighted) = weighted {
             let fine = &self.fine;
-            let sx = sx0 as usize;
-            far.add_weighted_rows(sy0 as usize, sy1 as usize, |y, row, bp| {
+            let (sx, sx_end) = (sx0 as usize, sx1 as usize);
+            let bp = weighted.block_px();
+            weighted.add_rows(sy0 as usize, sy1 as usize, |y, row| {
                 let fj = (y as i64 - ofy) as usize;
                 let rg = &fine.rg[fj * wf + fx0..fj * wf + fx1];
                 let bl = &fine.b[fj / 2 * wf + fx0..fj / 2 * wf + fx1];
                 let odd = fj % 2 == 1;
-                for (k, (v, b)) in rg.iter().zip(bl).enumerate() {
-                    let acc = &mut row[(sx + k) / bp];
-                    acc[0] += v.re;
-                    acc[1] += v.im;
-                    acc[2] += if odd { b.im } else { b.re };
+                let mut x = sx;
+                while x < sx_end {
+                    let end = ((x / bp + 1) * bp).min(sx_end);
+                    let (k0, k1) = (x - sx, end - sx);
+                    let mut t = [0.0f32; 3];
+                    for (v, b) in rg[k0..k1].iter().zip(&bl[k0..k1]) {
+                        t[0] += v.re;
+                        t[1] += v.im;
+                        t[2] += if odd { b.im } else { b.re };
+                    }
+                    let acc = &mut row[x / bp];
+                    for ch in 0..3 {
+                        acc[ch] += t[ch];
+                    }
+                    x = end;
                 }
             });
         }
@@ -1462,6 +1492,23 @@ impl GlareConvolver {
     /// AVX-512 and AVX2 twins.
     #[inline(always)]
     pub fn blend_row(&self, y: usize, row: &mut [[f32; 3]]) {
+        self.make_row(y, None, row);
+    }
+
+    /// Row `y` of the frame made from its scene row `src` (as long as
+    /// `row`): sanitised ([`crate::pipeline::sanitize`]), then
+    /// [`GlareConvolver::blend_row`] — the same values, with the far
+    /// field's columns sanitised, kept and veiled in one pass. Always
+    /// inlined, as `blend_row`.
+    #[inline(always)]
+    pub(crate) fn fill_row(&self, y: usize, src: &[[f32; 3]], row: &mut [[f32; 3]]) {
+        self.make_row(y, Some(src), row);
+    }
+
+    /// [`GlareConvolver::blend_row`] of `row`, or of the sanitised `src`
+    /// written to `row` ([`GlareConvolver::fill_row`]).
+    #[inline(always)]
+    fn make_row(&self, y: usize, src: Option<&[[f32; 3]]>, row: &mut [[f32; 3]]) {
         let far = self
             .far
             .as_ref()
@@ -1483,10 +1530,25 @@ impl GlareConvolver {
         let seg = plan.filter(|p| p.fine_rows.contains(&y)).map_or(0..0, |p| {
             p.fine_cols.start as usize..p.fine_cols.end as usize
         });
-        if let Some(f) = far {
-            let width = f.size().0;
-            f.blend_cols(yu, row, k0, 0..seg.start.min(width));
-            f.blend_cols(yu, row, k0, seg.end.min(width)..width);
+        match (far, src) {
+            (Some(f), Some(src)) if src.len() == row.len() => {
+                let width = f.size().0;
+                let (s0, s1) = (seg.start.min(width), seg.end.min(width));
+                f.fill_cols(yu, src, row, k0, 0..s0);
+                sanitize_into(&mut row[s0..s1], &src[s0..s1]);
+                f.fill_cols(yu, src, row, k0, s1..width);
+                sanitize_into(&mut row[width..], &src[width..]);
+            }
+            (far, src) => {
+                if let Some(src) = src {
+                    sanitize_into(row, src);
+                }
+                if let Some(f) = far {
+                    let width = f.size().0;
+                    f.blend_cols(yu, row, k0, 0..seg.start.min(width));
+                    f.blend_cols(yu, row, k0, seg.end.min(width)..width);
+                }
+            }
         }
         if let Some(plan) = plan {
             self.blend_window_row(plan, y, row, k0, ks);
@@ -1561,6 +1623,14 @@ fn source_weight(d: f64, d_full: f64, sigma: f64) -> f64 {
 fn split_weight(d: f64, r_fine: f64) -> f64 {
     let s = ((d - 0.5 * r_fine) / (0.5 * r_fine)).clamp(0.0, 1.0);
     s * s * (3.0 - 2.0 * s)
+}
+
+/// `dst = sanitize(src)`, sample by sample.
+#[inline(always)]
+fn sanitize_into(dst: &mut [[f32; 3]], src: &[[f32; 3]]) {
+    for (d, s) in dst.as_flattened_mut().iter_mut().zip(src.as_flattened()) {
+        *d = sanitize(*s);
+    }
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@
 //! | – | 2 temporal | [`TemporalModel::step`] from the carried [`AdaptationState`] |
 //! | – | 3 PSF | [`PsfBuilder::rebuild`] only when the pupil moved more than `psf_rebuild_threshold_mm` |
 //! | B | 4 glare | [`GlareConvolver::prepare`]: FFT convolution at the gaze (full-resolution core + coarse wide field), full weight within `full_weight_deg`, Gaussian fade beyond; nothing is written to the frame yet |
-//! | C | 1 + 4 (rows) + 5 acuity + 6 tone + 7 colour + 8 encode | one streaming pass in bands of rows on the rayon pool: each row of the working frame is made just before the band first reads it (the scene row sanitised, the glare blended in with [`GlareConvolver::blend_row`]), so the frame is read from memory once; then separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13, [`AcuityBlur`]); each row, as soon as its blur is final and while it is in cache, goes through tone reproduction and colour (one affine map per frame for the linear operators) and sRGB encoding ([`crate::encode`]) |
+//! | C | 1 + 4 (rows) + 5 acuity + 6 tone + 7 colour + 8 encode | one streaming pass in bands of rows on the rayon pool: each row of the working frame is made just before the band first reads it (the scene row sanitised, the glare blended in: [`GlareConvolver::blend_row`]'s values, in one pass with the sanitising where only the far field's veil reaches), so the frame is read from memory once; then separable blur of Lab lightness, σ per pixel from its own lightness (001 eq 11–13, [`AcuityBlur`]); each row, as soon as its blur is final and while it is in cache, goes through tone reproduction and colour (one affine map per frame for the linear operators) and sRGB encoding ([`crate::encode`]) |
 //!
 //! Acuity loss (stage 5) runs on the HDR frame in cd/m², after glare and
 //! before tone reproduction, as in 001 §4.3.1 ("the linear HDR values (i.e.,
@@ -26,7 +26,10 @@
 //! display frame; pass A reads only the blocks the pooling reaches (for
 //! the default Gaussian at 1440×1600 and 12.6 px/deg, about 41 × 41
 //! blocks of 8 × 8 pixels, 4.7 % of the frame; a model that weights every
-//! pixel reads it all); glare touches only its FFT windows. The retinal
+//! pixel reads it all); the window's glare touches only its FFT windows,
+//! and the full-field stray light ([`crate::far_glare`], on by default)
+//! reads the whole frame once for its block sums, while the window's FFTs
+//! run on the other workers ([`GlareConvolver::prepare`]). The retinal
 //! image is written to a frame-sized buffer only when
 //! [`PipelineConfig::keep_retinal`] asks for it; otherwise each band of
 //! pass C keeps just the 2r + 1 rows its blur is working on.
@@ -989,11 +992,14 @@ impl FrameRows<'_> {
     fn fill_portable(&self, y: usize, row: &mut [[f32; 3]]) {
         let w = self.scene.width;
         let src = &self.scene.pixels[y * w..(y + 1) * w];
-        for (d, s) in row.as_flattened_mut().iter_mut().zip(src.as_flattened()) {
-            *d = sanitize(*s);
-        }
-        if let Some(glare) = self.glare {
-            glare.blend_row(y, row);
+        match self.glare {
+            // Sanitised and blended in one pass where the far field veils.
+            Some(glare) => glare.fill_row(y, src, row),
+            None => {
+                for (d, s) in row.as_flattened_mut().iter_mut().zip(src.as_flattened()) {
+                    *d = sanitize(*s);
+                }
+            }
         }
         // The band makes its rows in order: the next scene row arrives
         // while this one goes through the blur, tone and encoding.

@@ -62,6 +62,8 @@
 //!   above, with the CIE 146 veil and the adaptation luminance L_ad taken
 //!   as the background luminance.
 
+use std::sync::Mutex;
+
 use glam::DVec3;
 use serde::Serialize;
 
@@ -265,6 +267,46 @@ pub struct SceneGlare {
     pixels: Vec<(usize, DVec3, f64)>,
     /// Pixels outside the field (no data).
     pub no_data_pixels: usize,
+    /// The buffers of [`SceneGlare::at_gaze`], kept between gazes so that
+    /// a gaze trace allocates nothing once they are large enough (a gaze
+    /// evaluated while another holds them gets its own).
+    scratch: Mutex<Scratch>,
+}
+
+/// The working buffers of one glare evaluation (indices into `front`).
+#[derive(Default)]
+struct Scratch {
+    front: Vec<FrontPixel>,
+    /// The front pixels above the source threshold.
+    bright: Vec<u32>,
+    /// The groups (sources), the first `n_groups` in use; their vectors
+    /// keep their capacity.
+    groups: Vec<Vec<u32>>,
+    n_groups: usize,
+    /// A group's pixels at or above the peak level.
+    high: Vec<u32>,
+    linkage: Linkage,
+    /// The sources in group order, then the order of their illuminance.
+    found: Vec<GlareSource>,
+    order: Vec<u32>,
+    index_sources: Vec<IndexSource>,
+    /// Smoothing (`-s`): per image pixel its solid angle, its source
+    /// (+1) and whether it may join one; the shares and joins.
+    omega: Vec<f64>,
+    label: Vec<usize>,
+    candidate: Vec<bool>,
+    shares: Vec<(usize, f64)>,
+    joins: Vec<(usize, u32)>,
+}
+
+/// The buffers of [`single_linkage`].
+#[derive(Default)]
+struct Linkage {
+    dirs: Vec<DVec3>,
+    cells: Vec<([i64; 3], u32)>,
+    parent: Vec<usize>,
+    dense: Vec<usize>,
+    labels: Vec<usize>,
 }
 
 /// A pixel in front of the eye: its index, direction, solid angle and
@@ -303,6 +345,7 @@ impl SceneGlare {
             luminance,
             pixels,
             no_data_pixels,
+            scratch: Mutex::new(Scratch::default()),
         }
     }
 
@@ -350,15 +393,43 @@ impl SceneGlare {
 
     /// The glare numbers at a gaze direction (camera frame).
     pub fn at_gaze(&self, gaze: DVec3, opts: &GlareOptions) -> GazeGlare {
+        self.evaluate(gaze, opts, Vec::new())
+    }
+
+    /// [`SceneGlare::at_gaze`] into `out`, reusing its source list: with
+    /// the scene's own buffers kept between gazes, a gaze trace allocates
+    /// nothing once they have grown to its largest gaze (the counting
+    /// allocator test `tests/tests/glare_alloc.rs`).
+    pub fn at_gaze_into(&self, gaze: DVec3, opts: &GlareOptions, out: &mut GazeGlare) {
+        let sources = std::mem::take(&mut out.sources);
+        *out = self.evaluate(gaze, opts, sources);
+    }
+
+    /// The glare numbers, the sources written into `sources` (cleared).
+    fn evaluate(&self, gaze: DVec3, opts: &GlareOptions, sources: Vec<GlareSource>) -> GazeGlare {
+        match self.scratch.try_lock() {
+            Ok(mut scratch) => self.evaluate_with(gaze, opts, &mut scratch, sources),
+            // Held by another gaze (or poisoned by a panic in one): buffers
+            // of its own.
+            Err(_) => self.evaluate_with(gaze, opts, &mut Scratch::default(), sources),
+        }
+    }
+
+    fn evaluate_with(
+        &self,
+        gaze: DVec3,
+        opts: &GlareOptions,
+        scratch: &mut Scratch,
+        mut sources: Vec<GlareSource>,
+    ) -> GazeGlare {
         let g = gaze.normalize_or(DVec3::NEG_Z);
-        let front: Vec<FrontPixel> = self
-            .pixels
-            .iter()
-            .filter_map(|&(i, d, om)| {
+        scratch.front.clear();
+        scratch
+            .front
+            .extend(self.pixels.iter().filter_map(|&(i, d, om)| {
                 let c = d.dot(g);
                 (c >= 0.0).then_some((i, d, om, c))
-            })
-            .collect();
+            }));
         let mut e_v = 0.0;
         let mut sum_l_om = 0.0;
         let mut sum_om = 0.0;
@@ -368,7 +439,7 @@ impl SceneGlare {
         // evalglare get_task_lum: pixels within half the opening angle.
         let task_cos = opts.task_opening_rad.map(|a| (a * 0.5).cos());
         let (mut task_l_om, mut task_om) = (0.0, 0.0);
-        for &(i, _, om, c) in &front {
+        for &(i, _, om, c) in &scratch.front {
             let l = self.luminance[i];
             e_v += l * om * c;
             sum_l_om += l * om;
@@ -394,7 +465,7 @@ impl SceneGlare {
             SourceThreshold::AbsoluteCdM2 { cd_m2 } => cd_m2,
             SourceThreshold::TimesAverage { factor } => factor * task.unwrap_or(average),
         };
-        let sources = self.sources(&front, g, threshold, opts);
+        self.sources(scratch, g, threshold, opts, &mut sources);
         let veil_sh: f64 = sources.iter().map(|s| s.veil_stiles_holladay_cd_m2).sum();
         let e_sources: f64 = sources.iter().map(|s| s.illuminance_lux).sum();
         let gaze_px = self.projection.pixel(g);
@@ -410,16 +481,16 @@ impl SceneGlare {
         });
         // evalglare -q 0 (default): L_b = (E_v − E_v_dir) / π.
         let background = ((e_v - e_sources) / std::f64::consts::PI).max(0.0);
-        let index_sources: Vec<IndexSource> = sources
-            .iter()
-            .map(|s| IndexSource {
+        scratch.index_sources.clear();
+        scratch
+            .index_sources
+            .extend(sources.iter().map(|s| IndexSource {
                 luminance_cd_m2: s.luminance_cd_m2,
                 solid_angle_sr: s.solid_angle_sr,
                 position_index: s.position_index,
-            })
-            .collect();
+            }));
         let indices = glare_indices(
-            &index_sources,
+            &scratch.index_sources,
             &IndexScene {
                 vertical_illuminance_lux: e_v,
                 direct_illuminance_lux: e_sources,
@@ -448,59 +519,102 @@ impl SceneGlare {
     }
 
     /// The front pixels brighter than `threshold` as evalglare's glare
-    /// sources: grouped, then their peaks extracted.
+    /// sources: grouped, then their peaks extracted; into `out`, brightest
+    /// illuminance first (ties in group order).
     fn sources(
         &self,
-        front: &[FrontPixel],
+        scratch: &mut Scratch,
         g: DVec3,
         threshold: f64,
         opts: &GlareOptions,
-    ) -> Vec<GlareSource> {
-        let bright: Vec<&FrontPixel> = front
-            .iter()
-            .filter(|p| self.luminance[p.0] > threshold)
-            .collect();
+        out: &mut Vec<GlareSource>,
+    ) {
+        out.clear();
+        let lum = &self.luminance;
+        let Scratch {
+            front,
+            bright,
+            groups,
+            n_groups,
+            linkage,
+            ..
+        } = scratch;
+        bright.clear();
+        bright.extend((0..front.len() as u32).filter(|&k| lum[front[k as usize].0] > threshold));
         // evalglare find_near_pgs: joined when 2 × angle ≤ r.
         let link = (opts.search_radius_rad * 0.5).max(1e-6);
-        let mut groups = groups_of(&bright, link);
+        *n_groups = 0;
+        add_groups(front, bright, link, linkage, groups, n_groups);
         if opts.smoothing {
-            self.smooth(front, &mut groups, opts.search_radius_rad);
+            self.smooth(scratch, opts.search_radius_rad);
         }
+        let Scratch {
+            front,
+            bright,
+            groups,
+            n_groups,
+            high,
+            linkage,
+            found,
+            order,
+            ..
+        } = scratch;
+        let mut n_primary = *n_groups;
         // Peak extraction, only when some source pixel exceeds the level
         // (evalglare: lum_total_max > limit; pixels ≥ limit move).
         if let Some(limit) = opts.peak_extraction_cd_m2
-            && bright.iter().any(|p| self.luminance[p.0] > limit)
+            && bright.iter().any(|&k| lum[front[k as usize].0] > limit)
         {
-            let mut peaks = Vec::new();
-            for group in &mut groups {
-                let (high, low): (Vec<&FrontPixel>, Vec<&FrontPixel>) =
-                    group.iter().partition(|p| self.luminance[p.0] >= limit);
+            for k in 0..n_primary {
+                high.clear();
+                high.extend(
+                    groups[k]
+                        .iter()
+                        .copied()
+                        .filter(|&p| lum[front[p as usize].0] >= limit),
+                );
                 if high.is_empty() {
                     continue;
                 }
-                *group = low;
+                groups[k].retain(|&p| lum[front[p as usize].0] < limit);
                 // The split pixels are linked at r/4 and their groups
                 // merged at r/2 (evalglare find_split, then find_near_pgs
                 // among them): single linkage at r/2.
-                peaks.extend(groups_of(&high, link));
+                add_groups(front, high, link, linkage, groups, n_groups);
             }
-            groups.retain(|grp| !grp.is_empty());
-            let n_primary = groups.len();
-            groups.extend(peaks);
-            let mut out: Vec<GlareSource> = groups
-                .iter()
-                .enumerate()
-                .filter_map(|(k, grp)| self.source(grp, g, k >= n_primary))
-                .collect();
-            out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
-            return out;
+            // Groups left without pixels are gone (in order; their vectors
+            // move behind the ones in use).
+            let (mut kept, mut kept_primary) = (0, 0);
+            for k in 0..*n_groups {
+                if groups[k].is_empty() {
+                    continue;
+                }
+                groups.swap(kept, k);
+                kept += 1;
+                if k < n_primary {
+                    kept_primary += 1;
+                }
+            }
+            n_primary = kept_primary;
+            *n_groups = kept;
         }
-        let mut out: Vec<GlareSource> = groups
-            .iter()
-            .filter_map(|grp| self.source(grp, g, false))
-            .collect();
-        out.sort_by(|a, b| b.illuminance_lux.total_cmp(&a.illuminance_lux));
-        out
+        found.clear();
+        order.clear();
+        for (k, grp) in groups[..*n_groups].iter().enumerate() {
+            if let Some(s) = self.source(front, grp, g, k >= n_primary) {
+                order.push(found.len() as u32);
+                found.push(s);
+            }
+        }
+        // Brightest first; ties keep their order (a stable sort, without
+        // its buffer).
+        order.sort_unstable_by(|&a, &b| {
+            found[b as usize]
+                .illuminance_lux
+                .total_cmp(&found[a as usize].illuminance_lux)
+                .then(a.cmp(&b))
+        });
+        out.extend(order.iter().map(|&k| found[k as usize].clone()));
     }
 
     /// evalglare's smoothing (`-s`, its `add_secondary_gs`): the disc of
@@ -511,12 +625,7 @@ impl SceneGlare {
     /// the disc's solid angle when that share exceeds 0.2 (evalglare adds
     /// it to every such source; with two, this is the larger). Joined
     /// pixels do not count for others.
-    fn smooth<'a>(
-        &self,
-        front: &'a [FrontPixel],
-        groups: &mut [Vec<&'a FrontPixel>],
-        search_radius_rad: f64,
-    ) {
+    fn smooth(&self, scratch: &mut Scratch, search_radius_rad: f64) {
         let (w, h) = (self.projection.width_px, self.projection.height_px);
         let (cx, cy) = (w / 2, h / 2);
         let (Some(a), Some(b)) = (
@@ -530,23 +639,39 @@ impl SceneGlare {
         if r_center <= 0.0 {
             return;
         }
+        let Scratch {
+            front,
+            groups,
+            n_groups,
+            omega,
+            label,
+            candidate,
+            shares,
+            joins,
+            ..
+        } = scratch;
+        let groups = &mut groups[..*n_groups];
         let radius = search_radius_rad / r_center / 1.75;
-        let mut omega = vec![0.0f64; w * h];
+        omega.clear();
+        omega.resize(w * h, 0.0);
         for &(i, _, om) in &self.pixels {
             omega[i] = om;
         }
         // The source of each pixel (its index + 1), 0 for none.
-        let mut label = vec![0usize; w * h];
+        label.clear();
+        label.resize(w * h, 0);
         for (k, grp) in groups.iter().enumerate() {
-            for p in grp {
-                label[p.0] = k + 1;
+            for &p in grp.iter() {
+                label[front[p as usize].0] = k + 1;
             }
         }
         let reach = radius.floor() as usize;
-        let mut candidate = vec![false; w * h];
+        candidate.clear();
+        candidate.resize(w * h, false);
         for grp in groups.iter() {
-            for p in grp {
-                let (x, y) = (p.0 % w, p.0 / w);
+            for &p in grp.iter() {
+                let i = front[p as usize].0;
+                let (x, y) = (i % w, i / w);
                 for yy in y.saturating_sub(reach)..=(y + reach).min(h - 1) {
                     for xx in x.saturating_sub(reach)..=(x + reach).min(w - 1) {
                         candidate[yy * w + xx] = label[yy * w + xx] == 0;
@@ -554,9 +679,8 @@ impl SceneGlare {
                 }
             }
         }
-        let mut shares: Vec<(usize, f64)> = Vec::new();
-        let mut joins: Vec<(usize, &FrontPixel)> = Vec::new();
-        for p in front {
+        joins.clear();
+        for (k, p) in front.iter().enumerate() {
             if !candidate[p.0] {
                 continue;
             }
@@ -586,24 +710,31 @@ impl SceneGlare {
                     }
                 }
             }
-            if let Some(&(k, om)) = shares.iter().max_by(|a, b| a.1.total_cmp(&b.1))
+            if let Some(&(g, om)) = shares.iter().max_by(|a, b| a.1.total_cmp(&b.1))
                 && total > 0.0
                 && om / total > 0.2
             {
-                joins.push((k - 1, p));
+                joins.push((g - 1, k as u32));
             }
         }
-        for (k, p) in joins {
-            groups[k].push(p);
+        for &(g, p) in joins.iter() {
+            groups[g].push(p);
         }
     }
 
-    /// One source from its pixels.
-    fn source(&self, pixels: &[&FrontPixel], g: DVec3, peak: bool) -> Option<GlareSource> {
+    /// One source from its pixels (indices into `front`).
+    fn source(
+        &self,
+        front: &[FrontPixel],
+        pixels: &[u32],
+        g: DVec3,
+        peak: bool,
+    ) -> Option<GlareSource> {
         let w = self.projection.width_px;
         let (mut om_sum, mut l_om, mut x_l_om, mut y_l_om, mut l_max, mut e) =
             (0.0, 0.0, 0.0, 0.0, 0.0f64, 0.0);
-        for &&(i, _d, om, c) in pixels {
+        for &k in pixels {
+            let (i, _d, om, c) = front[k as usize];
             let l = self.luminance[i];
             om_sum += om;
             l_om += l * om;
@@ -657,15 +788,33 @@ impl SceneGlare {
     }
 }
 
-/// The single-linkage groups of `pixels` at `link_rad`.
-fn groups_of<'a>(pixels: &[&'a FrontPixel], link_rad: f64) -> Vec<Vec<&'a FrontPixel>> {
-    let labels = single_linkage(&pixels.iter().map(|p| p.1).collect::<Vec<_>>(), link_rad);
-    let n = labels.iter().copied().max().map_or(0, |m| m + 1);
-    let mut groups: Vec<Vec<&FrontPixel>> = vec![Vec::new(); n];
-    for (&p, &label) in pixels.iter().zip(&labels) {
-        groups[label].push(p);
+/// Groups `members` (indices into `front`) by single linkage at
+/// `link_rad` and appends the groups, in the order of their first member,
+/// after the `n_groups` in use (reusing the vectors there).
+fn add_groups(
+    front: &[FrontPixel],
+    members: &[u32],
+    link_rad: f64,
+    linkage: &mut Linkage,
+    groups: &mut Vec<Vec<u32>>,
+    n_groups: &mut usize,
+) {
+    linkage.dirs.clear();
+    linkage
+        .dirs
+        .extend(members.iter().map(|&k| front[k as usize].1));
+    let n = single_linkage(linkage, link_rad);
+    let base = *n_groups;
+    if groups.len() < base + n {
+        groups.resize_with(base + n, Vec::new);
     }
-    groups
+    for grp in &mut groups[base..base + n] {
+        grp.clear();
+    }
+    for (&k, &label) in members.iter().zip(&linkage.labels) {
+        groups[base + label].push(k);
+    }
+    *n_groups = base + n;
 }
 
 /// Threshold increment, percent: CIE 140-2000 eq. 5 (L_ad ≤ 5 cd/m²) and
@@ -683,13 +832,23 @@ pub fn threshold_increment_pct(veil_cd_m2: f64, adaptation_cd_m2: f64) -> f64 {
     }
 }
 
-/// Single-linkage groups of unit directions: two join when their angle is
-/// at most `link_rad`. Returns a group label per direction (0-based,
-/// dense). A hash grid of cell size the link's chord keeps it linear.
-fn single_linkage(dirs: &[DVec3], link_rad: f64) -> Vec<usize> {
-    use std::collections::HashMap;
+/// Single-linkage groups of the unit directions `linkage.dirs`: two join
+/// when their angle is at most `link_rad`. Writes a group label per
+/// direction into `linkage.labels` (0-based, dense, in the order of each
+/// group's first direction) and returns the number of groups. A grid of
+/// cells the link's chord wide (sorted, searched by bisection: nothing
+/// allocated once the buffers have grown) keeps it linear.
+fn single_linkage(linkage: &mut Linkage, link_rad: f64) -> usize {
+    let Linkage {
+        dirs,
+        cells,
+        parent,
+        dense,
+        labels,
+    } = linkage;
     let n = dirs.len();
-    let mut parent: Vec<usize> = (0..n).collect();
+    parent.clear();
+    parent.extend(0..n);
     fn find(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
             parent[i] = parent[parent[i]];
@@ -706,21 +865,23 @@ fn single_linkage(dirs: &[DVec3], link_rad: f64) -> Vec<usize> {
             (d.z / chord).floor() as i64,
         ]
     };
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, &d) in dirs.iter().enumerate() {
-        grid.entry(cell(d)).or_default().push(i);
-    }
+    cells.clear();
+    cells.extend(dirs.iter().enumerate().map(|(i, &d)| (cell(d), i as u32)));
+    cells.sort_unstable();
     for (i, &d) in dirs.iter().enumerate() {
         let c = cell(d);
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
-                    let Some(members) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        continue;
-                    };
-                    for &j in members {
+                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
+                    let start = cells.partition_point(|e| e.0 < key);
+                    for &(k, j) in &cells[start..] {
+                        if k != key {
+                            break;
+                        }
+                        let j = j as usize;
                         if j > i && dirs[j].dot(d) >= cos_link {
-                            let (a, b) = (find(&mut parent, i), find(&mut parent, j));
+                            let (a, b) = (find(parent, i), find(parent, j));
                             if a != b {
                                 parent[a.max(b)] = a.min(b);
                             }
@@ -730,14 +891,19 @@ fn single_linkage(dirs: &[DVec3], link_rad: f64) -> Vec<usize> {
             }
         }
     }
-    let mut dense: HashMap<usize, usize> = HashMap::new();
-    (0..n)
-        .map(|i| {
-            let r = find(&mut parent, i);
-            let next = dense.len();
-            *dense.entry(r).or_insert(next)
-        })
-        .collect()
+    dense.clear();
+    dense.resize(n, usize::MAX);
+    labels.clear();
+    let mut groups = 0;
+    for i in 0..n {
+        let r = find(parent, i);
+        if dense[r] == usize::MAX {
+            dense[r] = groups;
+            groups += 1;
+        }
+        labels.push(dense[r]);
+    }
+    groups
 }
 
 #[cfg(test)]
@@ -751,7 +917,15 @@ mod tests {
             DVec3::new(r.sin(), 0.0, -r.cos())
         };
         // 0°, 4°, 8° chain at a 5° link; 20° alone.
-        let labels = single_linkage(&[at(0.0), at(4.0), at(20.0), at(8.0)], 5f64.to_radians());
+        let mut linkage = Linkage {
+            dirs: vec![at(0.0), at(4.0), at(20.0), at(8.0)],
+            ..Linkage::default()
+        };
+        assert_eq!(single_linkage(&mut linkage, 5f64.to_radians()), 2);
+        let labels = &linkage.labels;
+        // Dense, in the order of each group's first direction.
+        assert_eq!(labels[0], 0);
+        assert_eq!(labels[2], 1);
         assert_eq!(labels[0], labels[1]);
         assert_eq!(labels[1], labels[3]);
         assert_ne!(labels[0], labels[2]);
