@@ -7,6 +7,7 @@
 
 mod common;
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
@@ -776,4 +777,128 @@ fn the_batch_eta_is_the_time_it_still_takes() {
     // The first row's ETA: a row's time left, not 0.
     assert!(after_done[0].1 >= 1.0, "{text:#?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A recording written here (CSV with a Cloud-style events.csv beside it):
+/// 100 Hz, a 4 mm pupil with ±0.02 mm of deterministic noise, an event
+/// `stim K` at each onset, and at the onsets given a task dilation of the
+/// amplitude given (Hoeks & Levelt 1993's response, n = 10.1,
+/// t_max = 0.93 s, peak 1 at t_max).
+fn write_trial_recording(dir: &Path, secs: f64, onsets: &[(f64, f64)]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let hl = |t: f64| -> f64 {
+        if t <= 0.0 {
+            return 0.0;
+        }
+        let h = |t: f64| t.powf(10.1) * (-10.1 * t / 0.93).exp();
+        h(t) / h(0.93)
+    };
+    let t0_ns: i64 = 1_700_000_000_000_000_000;
+    let mut csv = String::from("timestamp [ns],gaze_u,gaze_v,pupil_mm\n");
+    let mut seed: u64 = 99;
+    for i in 0..(secs * 100.0) as usize {
+        let t = i as f64 / 100.0;
+        let task: f64 = onsets.iter().map(|(o, a)| a * hl(t - o)).sum();
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        let noise = ((seed >> 33) as f64 / (1u64 << 31) as f64 - 0.5) * 0.04;
+        let ns = t0_ns + (t * 1e9).round() as i64;
+        csv.push_str(&format!("{ns},0.5,0.5,{:.4}\n", 4.0 + task + noise));
+    }
+    std::fs::write(dir.join("gaze.csv"), csv).unwrap();
+    let mut ev = String::from("timestamp [ns],name\n");
+    for (k, (o, _)) in onsets.iter().enumerate() {
+        ev.push_str(&format!("{},stim {}\n", t0_ns + (o * 1e9) as i64, k + 1));
+    }
+    std::fs::write(dir.join("events.csv"), ev).unwrap();
+}
+
+#[test]
+fn batch_trials_writes_each_recordings_table_and_one_for_the_study() {
+    let _serial = serial();
+    let dir = tmp("trials");
+    // Two participants: onsets (s) and their task dilations (mm; 0 = none).
+    let a = [(2.0, 0.0), (6.0, 0.5), (10.0, 0.0), (14.0, 0.4)];
+    let b = [(3.0, 0.3), (8.0, 0.0), (13.0, 0.0)];
+    write_trial_recording(&dir.join("rec-a"), 18.0, &a);
+    write_trial_recording(&dir.join("rec-b"), 17.0, &b);
+    std::fs::write(
+        dir.join("noglare.toml"),
+        "[pipeline]\nglare = { enabled = false }\n",
+    )
+    .unwrap();
+    let manifest = dir.join("study.csv");
+    std::fs::write(
+        &manifest,
+        "id,recording,subject,size,fps,backend,no_frames,config\n\
+         pa,rec-a/gaze.csv,01,32x24,20,cpu,true,noglare.toml\n\
+         pb,rec-b/gaze.csv,02,32x24,20,cpu,true,noglare.toml\n",
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = common::gazelight(&[
+        "batch",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--trials",
+        "stim",
+        "--baseline",
+        "-0.5..0",
+        "--window",
+        "0..2.5",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(stdout.contains("trials.csv: 7 trials"), "{stdout}");
+    let read = |p: &Path| -> Vec<HashMap<String, String>> {
+        let text = std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        let mut lines = text.lines();
+        let header = gazelight_input::split_csv_line(lines.next().unwrap(), ',');
+        lines
+            .map(|l| {
+                header
+                    .iter()
+                    .cloned()
+                    .zip(gazelight_input::split_csv_line(l, ','))
+                    .collect()
+            })
+            .collect()
+    };
+    let all = read(&out.join("trials.csv"));
+    assert_eq!(all.len(), a.len() + b.len());
+    for (id, participant, truth) in [("pa", "01", &a[..]), ("pb", "02", &b[..])] {
+        let own = read(&out.join(id).join("trials.csv"));
+        let mine: Vec<&HashMap<String, String>> =
+            all.iter().filter(|r| r["recording"] == id).collect();
+        assert_eq!(own.len(), truth.len(), "{id}");
+        assert_eq!(mine.len(), truth.len(), "{id}");
+        for ((row, joined), (onset, amp)) in own.iter().zip(&mine).zip(truth) {
+            assert_eq!(joined["participant"], participant);
+            // The study's table is the recording's, cell for cell.
+            for (k, v) in row {
+                assert_eq!(&joined[k], v, "{id} {k}");
+            }
+            let f = |k: &str| row[k].parse::<f64>().unwrap();
+            // Onsets from the first sample (= the first frame here).
+            assert!((f("onset_secs") - onset).abs() < 1e-3, "{row:?}");
+            // The baseline is the resting 4 mm; the peak dilation the
+            // amplitude written (within the noise and 20 Hz sampling).
+            assert!((f("baseline_mm") - 4.0).abs() < 0.03, "{row:?}");
+            let peak = f("peak_dilation_mm");
+            if *amp > 0.0 {
+                assert!(
+                    (peak - amp).abs() < 0.15 * amp,
+                    "{id} {onset}: {peak} vs {amp}"
+                );
+            } else {
+                assert!(peak < 0.06, "{id} {onset}: {peak} without a dilation");
+            }
+        }
+    }
 }

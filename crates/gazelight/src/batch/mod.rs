@@ -22,6 +22,13 @@
 //! - Slurm ([`slurm`]): `--slurm` writes a job-array script whose task K
 //!   runs `--task K --tasks N` (rows K, K + N, …), `--submit` submits it,
 //!   `--collect` merges the records into `summary.csv`.
+//! - `--trials PATTERN` (with `gazelight trials`' `--baseline`,
+//!   `--window`, `--max-invalid`, `--eye`): at the end (and with
+//!   `--collect`), every finished row's per-trial table from its replay's
+//!   `timeline.csv` and `events.csv` (`OUT/ID/trials.csv`) and
+//!   `OUT/trials.csv` with them all, `recording` and `participant` first;
+//!   the tables come from the replays' outputs, so other trial options
+//!   need no replay again.
 //! - `--bids DIR`: after its replay, each row's recording and timeline are
 //!   exported into the BIDS dataset DIR (`gazelight export --bids`, its
 //!   entities from the row), one export at a time; the row is finished
@@ -109,6 +116,15 @@ pub struct BatchArgs {
     /// or has not run.
     #[arg(long)]
     pub collect: bool,
+    /// Per-trial tables: which events open a trial (as `gazelight trials
+    /// --events`). Each finished recording's table goes to OUT/ID/trials.csv
+    /// and all of them to OUT/trials.csv (a `recording` and a
+    /// `participant` column first), at the end of the batch or with
+    /// `--collect`.
+    #[arg(long, value_name = "PATTERN")]
+    pub trials: Option<String>,
+    #[command(flatten)]
+    pub trial_window: crate::trials::TrialWindowArgs,
 }
 
 /// The default output folder: `DIR/STEM-out` for `DIR/STEM.EXT`.
@@ -138,6 +154,11 @@ pub fn load_rows(args: &BatchArgs) -> anyhow::Result<Vec<Row>> {
 /// Runs `gazelight batch`.
 pub fn run(args: BatchArgs) -> anyhow::Result<()> {
     let rows = load_rows(&args)?;
+    let trials = args
+        .trials
+        .as_deref()
+        .map(|p| args.trial_window.spec(p))
+        .transpose()?;
     let out = args
         .out
         .clone()
@@ -164,7 +185,11 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
     };
     let bids = bids.as_deref();
     if args.collect {
-        return collect(&rows, &out, &state, bids);
+        let collected = collect(&rows, &out, &state, bids);
+        if let Some(spec) = &trials {
+            write_trials(&rows, &out, &state, bids, spec)?;
+        }
+        return collected;
     }
     if args.slurm {
         return slurm::write_and_submit(&args, &rows, &out, &state);
@@ -186,6 +211,9 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
     if args.task.is_none() {
         let path = write_summary(&rows, &out, &state, bids)?;
         println!("wrote {}", path.display());
+        if let Some(spec) = &trials {
+            write_trials(&rows, &out, &state, bids, spec)?;
+        }
     }
     if let Some(sig) = outcome.interrupted {
         bail!(
@@ -216,8 +244,10 @@ fn check_out_dir(out: &Path, rows: &[Row]) -> anyhow::Result<()> {
         return Ok(());
     }
     let mut clashes: Vec<String> = Vec::new();
-    if std::fs::symlink_metadata(out.join("summary.csv")).is_ok() {
-        clashes.push("summary.csv".to_owned());
+    for name in ["summary.csv", "trials.csv"] {
+        if std::fs::symlink_metadata(out.join(name)).is_ok() {
+            clashes.push(name.to_owned());
+        }
     }
     for row in rows {
         if std::fs::symlink_metadata(out.join(&row.id)).is_ok() {
@@ -718,6 +748,62 @@ fn write_summary(
     let path = out.join("summary.csv");
     crate::out_dir::write_atomic(&path, text.as_bytes())?;
     Ok(path)
+}
+
+/// Writes every finished row's per-trial table (`OUT/ID/trials.csv`) and
+/// `OUT/trials.csv` with them all; a row whose table cannot be made (no
+/// `events.csv`) is named, and the batch then fails.
+fn write_trials(
+    rows: &[Row],
+    out: &Path,
+    state: &State,
+    bids: Option<&Path>,
+    spec: &crate::trials::TrialSpec,
+) -> anyhow::Result<()> {
+    let mut tables = Vec::new();
+    let mut failed = Vec::new();
+    let (mut n, mut valid) = (0, 0);
+    for row in rows {
+        if !finished(row, out, state, bids) {
+            continue;
+        }
+        let dir = out.join(&row.id);
+        match spec.table(&dir) {
+            Ok((trials, unit)) => {
+                if trials.is_empty() {
+                    eprintln!(
+                        "batch: trials of {}: no event matches --trials {:?}",
+                        row.id, spec.options.pattern
+                    );
+                }
+                n += trials.len();
+                valid += trials.iter().filter(|t| t.valid).count();
+                let text = gazelight_render::trials::to_csv(&trials, unit);
+                crate::out_dir::write_atomic(&dir.join("trials.csv"), text.as_bytes())?;
+                let participant = row.entities.subject.clone().unwrap_or_default();
+                tables.push((row.id.clone(), participant, text));
+            }
+            Err(e) => {
+                eprintln!("batch: trials of {}: {e:#}", row.id);
+                failed.push(row.id.as_str());
+            }
+        }
+    }
+    let path = out.join("trials.csv");
+    crate::out_dir::write_atomic(&path, crate::trials::combine(&tables).as_bytes())?;
+    println!(
+        "wrote {}: {n} trials ({valid} valid) of {} recordings",
+        path.display(),
+        tables.len()
+    );
+    if !failed.is_empty() {
+        bail!(
+            "--trials: {} recordings have no table [{}] (the reason above each)",
+            failed.len(),
+            some_ids(&failed)
+        );
+    }
+    Ok(())
 }
 
 /// Most row ids an error message lists.
