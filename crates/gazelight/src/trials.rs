@@ -127,6 +127,9 @@ pub fn run(args: TrialsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// One table parsed: recording, participant, header, rows.
+type Parsed<'a> = (&'a str, &'a str, Vec<String>, Vec<Vec<String>>);
+
 /// Joins per-recording tables (`(recording, participant, table CSV)`)
 /// into one: `recording`, `participant`, then every column of the tables
 /// in the order first seen (recordings with other `TRIAL_VAR`s or another
@@ -134,7 +137,7 @@ pub fn run(args: TrialsArgs) -> anyhow::Result<()> {
 pub fn combine(tables: &[(String, String, String)]) -> String {
     use gazelight_input::{csv_field, split_csv_line};
     let mut columns: Vec<String> = Vec::new();
-    let parsed: Vec<(&str, &str, Vec<String>, Vec<Vec<String>>)> = tables
+    let parsed: Vec<Parsed<'_>> = tables
         .iter()
         .filter_map(|(rec, part, text)| {
             let mut lines = text.lines();
