@@ -536,9 +536,10 @@ mod tests {
                             continue;
                         }
                         with_data += 1;
-                        sum += 0.2126 * f64::from(p[0])
-                            + 0.7152 * f64::from(p[1])
-                            + 0.0722 * f64::from(p[2]);
+                        // Y of linear RGB, 001 eq 1's weights.
+                        sum += 0.2125 * f64::from(p[0])
+                            + 0.7154 * f64::from(p[1])
+                            + 0.0721 * f64::from(p[2]);
                     }
                 }
                 let k = by * 3 + bx;
