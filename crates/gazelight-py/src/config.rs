@@ -1,7 +1,9 @@
 //! Configuration from Python: a TOML string (the CLI's `[filter]` table's
-//! contents) or a dict of the same keys. A dict is converted to a TOML
-//! value as it is (NaN stays NaN), so the library's own deserialisation and
-//! `validate` say what is wrong, in the CLI's words.
+//! contents, or the whole configuration file for `render`) or a dict of the
+//! same keys. A dict is converted to a TOML value as it is (NaN stays NaN)
+//! and handed to the application core (`gazelight_app::config`), whose
+//! loader reads, deserialises and checks it and says what is wrong, in the
+//! CLI's words; nothing here knows the schema.
 
 use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
@@ -53,30 +55,22 @@ pub(crate) fn to_toml(value: &Bound<'_, PyAny>, key: &str) -> PyResult<toml::Val
 }
 
 /// The filter configuration from `None` (the defaults), a TOML string or
-/// a dict; validated.
+/// a dict; read and checked by the application core
+/// (`gazelight_app::config::filter_from_str` / `filter_from_value`).
 pub(crate) fn filter_config(config: Option<&Bound<'_, PyAny>>) -> PyResult<FilterConfig> {
-    let cfg: FilterConfig = match config {
-        None => FilterConfig::default(),
-        Some(c) if c.is_none() => FilterConfig::default(),
+    match config {
+        None => Ok(FilterConfig::default()),
+        Some(c) if c.is_none() => Ok(FilterConfig::default()),
         Some(c) if c.is_instance_of::<PyString>() => {
             let text: String = c.extract()?;
-            toml::from_str(&text).map_err(|e| crate::err(format!("filter configuration: {e}")))?
+            gazelight_app::config::filter_from_str(&text).map_err(crate::err)
         }
         Some(c) if c.is_instance_of::<PyDict>() => {
-            let value = to_toml(c, "")?;
-            value
-                .try_into()
-                .map_err(|e| crate::err(format!("filter configuration: {e}")))?
+            gazelight_app::config::filter_from_value(to_toml(c, "")?).map_err(crate::err)
         }
-        Some(c) => {
-            return Err(PyTypeError::new_err(format!(
-                "config: expected a dict or a TOML string, not {}",
-                c.get_type().name()?
-            )));
-        }
-    };
-    // The CLI's words for a `[filter]` table (service_config.rs).
-    cfg.validate()
-        .map_err(|e| crate::err(format!("filter.{e}")))?;
-    Ok(cfg)
+        Some(c) => Err(PyTypeError::new_err(format!(
+            "config: expected a dict or a TOML string, not {}",
+            c.get_type().name()?
+        ))),
+    }
 }

@@ -19,7 +19,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 use gazelight_app::bounds;
-use gazelight_app::observer::{ObserverFlags, ObserverSettings};
+use gazelight_app::config::render::scene_projection;
+use gazelight_app::config::{ConfigUser, RenderConfig};
+use gazelight_app::observer::ObserverFlags;
 use gazelight_render::demo;
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
@@ -28,7 +30,7 @@ use gazelight_render::pupil_light::{
     self, ParamSource, PupilLight, PupilLightOptions, PupilLightPlan,
 };
 use gazelight_render::timeline::{PUPIL_LIGHT_COLUMNS, TIMELINE_COLUMNS};
-use gazelight_tracker::filter::{FilterChain, FilterConfig};
+use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::pupil_response::ResponseParams;
 use gazelight_tracker::{GazeTrace, PupilUnit, Sample, trace_source};
@@ -40,148 +42,32 @@ use crate::err;
 
 type Samples = Box<dyn Iterator<Item = Sample> + Send>;
 
-/// What `render` reads of the CLI's configuration file (the keys
-/// `gazelight render`/`replay` use, `docs/configuration.md`).
-#[derive(Default)]
-struct Settings {
-    pipeline: PipelineConfig,
-    filter: FilterConfig,
-    luminance_scale: Option<LuminanceScale>,
-    yaw_deg: Option<f64>,
-    pitch_deg: Option<f64>,
-    hfov_deg: Option<f64>,
-    size: Option<(usize, usize)>,
-    /// `[observer]`.
-    observer: ObserverSettings,
-}
-
-/// The keys of the CLI's configuration that `render`/`replay` use but this
-/// function does not take from a file (give them as arguments instead).
-const UNSUPPORTED: [&str; 4] = [
-    "scene.file",
-    "scene.projection",
-    "scene.fov_deg",
-    "source.calibration",
-];
-
-/// `"WIDTHxHEIGHT"` (the CLI's `--size` and `display.size`): the
-/// application core's rule, so Python and the CLI accept the same sizes.
-fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    bounds::parse_size(s).map_err(|e| e.to_string())
-}
-
-/// Reads the configuration table; returns the settings and the keys that
-/// do not apply to a render (the CLI reports those as ignored).
-fn settings(table: toml::Table, name: &str) -> PyResult<(Settings, Vec<String>)> {
-    let fail = |e: String| err(format!("config {name}: {e}"));
-    let mut s = Settings::default();
-    let mut ignored = Vec::new();
-    for (section, value) in table {
-        let keys = |value: toml::Value| -> PyResult<toml::Table> {
-            match value {
-                toml::Value::Table(t) => Ok(t),
-                other => Err(fail(format!(
-                    "{section}: expected a table, not {}",
-                    other.type_str()
-                ))),
-            }
-        };
-        match section.as_str() {
-            "pipeline" => {
-                s.pipeline = value
-                    .try_into()
-                    .map_err(|e| fail(format!("pipeline: {e}")))?;
-                s.pipeline
-                    .validate()
-                    .map_err(|e| fail(format!("pipeline: {e}")))?;
-            }
-            "filter" => {
-                s.filter = value.try_into().map_err(|e| fail(format!("filter: {e}")))?;
-                s.filter
-                    .validate()
-                    .map_err(|e| fail(format!("filter.{e}")))?;
-            }
-            "observer" => {
-                // The application core's table and checks (the CLI's and
-                // the layer's).
-                let o: ObserverSettings = value
-                    .try_into()
-                    .map_err(|e| fail(format!("observer: {e}")))?;
-                o.validate().map_err(|e| fail(e.to_string()))?;
-                s.observer = o;
-            }
-            "scene" | "display" | "source" => {
-                for (k, v) in keys(value)? {
-                    let dotted = format!("{section}.{k}");
-                    if UNSUPPORTED.contains(&dotted.as_str()) {
-                        return Err(fail(format!(
-                            "{dotted}: not taken from a file by gazelight.render; give it as an argument"
-                        )));
-                    }
-                    let angle = |v: &toml::Value| {
-                        v.as_float()
-                            .or_else(|| v.as_integer().map(|i| i as f64))
-                            .ok_or_else(|| fail(format!("{dotted}: expected a number")))
-                    };
-                    match dotted.as_str() {
-                        "scene.luminance_scale" => {
-                            let scale: LuminanceScale =
-                                v.try_into().map_err(|e| fail(format!("{dotted}: {e}")))?;
-                            scale
-                                .validate()
-                                .map_err(|e| fail(format!("{dotted}: {e}")))?;
-                            s.luminance_scale = Some(scale);
-                        }
-                        "scene.yaw_deg" => s.yaw_deg = Some(angle(&v)?),
-                        "scene.pitch_deg" => s.pitch_deg = Some(angle(&v)?),
-                        "scene.hfov_deg" => s.hfov_deg = Some(angle(&v)?),
-                        "scene.view" => {
-                            let view: ViewParams =
-                                v.try_into().map_err(|e| fail(format!("{dotted}: {e}")))?;
-                            view.validate()
-                                .map_err(|e| fail(format!("{dotted}: {e}")))?;
-                            s.yaw_deg = Some(view.yaw_deg);
-                            s.pitch_deg = Some(view.pitch_deg);
-                            s.hfov_deg = Some(view.hfov_deg);
-                            s.size = Some((view.width, view.height));
-                        }
-                        "display.size" => {
-                            let text = v.as_str().ok_or_else(|| {
-                                fail(format!("{dotted}: expected \"WIDTHxHEIGHT\""))
-                            })?;
-                            s.size = Some(
-                                parse_size(text).map_err(|e| fail(format!("{dotted} = {e}")))?,
-                            );
-                        }
-                        _ => ignored.push(dotted),
-                    }
-                }
-            }
-            _ => ignored.push(section),
+/// The CLI's configuration from what the Python side passed: `None`, TOML
+/// text (a file's, read with the bounded reader, named by `name`) or a
+/// dict converted as it is; the application core loads and checks it
+/// (`gazelight_app::config::RenderConfig`, `render`'s and `replay`'s
+/// loader), so every key, range and message is the CLI's.
+fn load_config(
+    config: Option<&Bound<'_, PyAny>>,
+    name: &str,
+    user: ConfigUser,
+) -> PyResult<RenderConfig> {
+    let origin = Path::new(name);
+    let fail = |e: gazelight_app::config::ConfigError| err(crate::chain_msg(&e));
+    match config {
+        None => Ok(RenderConfig::default()),
+        Some(c) if c.is_none() => Ok(RenderConfig::default()),
+        Some(c) if c.is_instance_of::<PyString>() => {
+            let text: String = c.extract()?;
+            RenderConfig::from_str(&text, origin, user).map_err(fail)
         }
+        Some(c) => match crate::config::to_toml(c, "")? {
+            toml::Value::Table(t) => RenderConfig::from_table(t, origin, user).map_err(fail),
+            _ => Err(pyo3::exceptions::PyTypeError::new_err(
+                "config: expected a dict, a TOML string or a path",
+            )),
+        },
     }
-    if let Some(y) = s.yaw_deg
-        && !y.is_finite()
-    {
-        return Err(fail(format!(
-            "scene.yaw_deg = {y}: expected a finite angle"
-        )));
-    }
-    if let Some(p) = s.pitch_deg
-        && !(p.is_finite() && p.abs() <= 90.0)
-    {
-        return Err(fail(format!(
-            "scene.pitch_deg = {p}: expected −90 ≤ pitch ≤ 90"
-        )));
-    }
-    if let Some(f) = s.hfov_deg
-        && !(f > 0.0 && f < 179.0)
-    {
-        return Err(fail(format!(
-            "scene.hfov_deg = {f}: expected 0 < hfov < 179"
-        )));
-    }
-    Ok((s, ignored))
 }
 
 /// One render in progress: an iterator of `(frame, row)`.
@@ -376,12 +262,17 @@ const MAX_SIDE: usize = bounds::MAX_SIDE_PX;
 const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
 
 /// `gazelight.render`'s native half; the Python wrapper picks `trace` or
-/// `recording` and turns `warnings` into Python warnings.
+/// `recording` and turns `warnings` into Python warnings. With
+/// `check_only` (`gazelight.check_render`) it makes the checks that need
+/// no file but the configuration (the CLI's `GAZELIGHT_PARSE_ONLY` ones:
+/// the configuration, `fps`, `size`, `frames`, `from_secs`, `secs`, the
+/// pupil light options) and returns `None`.
 #[pyfunction]
 #[pyo3(signature = (scene=None, trace=None, recording=None, *, size=None, stereo=false,
     config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
     from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
-    luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None))]
+    luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None,
+    check_only=false))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_open(
     py: Python<'_>,
@@ -405,25 +296,20 @@ pub(crate) fn render_open(
     pupil_fit: Option<String>,
     pupil_black_cd_m2: Option<f64>,
     pupil_white_cd_m2: Option<f64>,
-) -> PyResult<Render> {
+    check_only: bool,
+) -> PyResult<Option<Render>> {
     let name = config_name.unwrap_or_else(|| "<config>".to_owned());
-    let table: toml::Table = match config {
-        None => toml::Table::new(),
-        Some(c) if c.is_none() => toml::Table::new(),
-        Some(c) if c.is_instance_of::<PyString>() => {
-            let text: String = c.extract()?;
-            toml::from_str(&text).map_err(|e| err(format!("config {name}: {e}")))?
-        }
-        Some(c) => match crate::config::to_toml(c, "")? {
-            toml::Value::Table(t) => t,
-            _ => {
-                return Err(pyo3::exceptions::PyTypeError::new_err(
-                    "config: expected a dict, a TOML string or a path",
-                ));
-            }
-        },
+    // A recording is `replay`'s (its keys, `source.calibration` too), a
+    // trace `render`'s.
+    let user = if recording.is_some() {
+        ConfigUser::Replay
+    } else {
+        ConfigUser::Render
     };
-    let (mut settings, ignored) = settings(table, &name)?;
+    let mut settings = load_config(config, &name, user)?;
+    let ignored = std::mem::take(&mut settings.ignored);
+    let scene = scene.or_else(|| settings.scene_file.clone());
+    let calibration = calibration.or_else(|| settings.calibration.clone());
     // The CLI's bounds, by construction (the application core's).
     bounds::fps("fps", fps).map_err(err)?;
     if trace.is_some() && recording.is_some() {
@@ -449,6 +335,19 @@ pub(crate) fn render_open(
         .map_err(err)?;
     pupil_light::check_calibration_luminance("--pupil-white-cd-m2", pupil_white_cd_m2)
         .map_err(err)?;
+    let (width, height) = size.or(settings.size).unwrap_or((720, 800));
+    bounds::size(&format!("size=({width}, {height})"), width, height).map_err(err)?;
+    if recording.is_some() {
+        bounds::from_secs("from_secs", from_secs).map_err(err)?;
+        if let Some(s) = secs {
+            bounds::secs("secs", s).map_err(err)?;
+        }
+    }
+    // `check_render`: the checks above (the CLI's `GAZELIGHT_PARSE_ONLY`
+    // ones), nothing opened.
+    if check_only {
+        return Ok(None);
+    }
     let mut notes = Vec::new();
     py.detach(|| -> PyResult<Render> {
         // The observer: arguments none here; the configuration, else the
@@ -473,21 +372,27 @@ pub(crate) fn render_open(
         scale
             .validate()
             .map_err(|e| err(format!("--luminance-scale: {e}")))?;
-        let scene_img = match &scene {
+        let mut scene_img = match &scene {
             Some(p) => Scene::load(p, scale),
             None => Scene::from_bytes(demo::NIGHT_EXR, demo::name_path(), scale),
         }
         .map_err(err)?;
+        // `scene.projection`/`scene.fov_deg`, the CLI's rule.
+        if let Some(p) = settings.projection {
+            let (w, h) = (scene_img.image.width, scene_img.image.height);
+            scene_img.projection =
+                Some(scene_projection(p, w, h).map_err(|e| err(crate::chain_msg(&e)))?);
+        }
         // The shared bound on the scaled scene (as `render`'s): an overflow
         // would give all-black frames.
         scene_img.check_luminance().map_err(err)?;
-        let (width, height) = size.or(settings.size).unwrap_or((720, 800));
-        bounds::size(&format!("size=({width}, {height})"), width, height).map_err(err)?;
         let base = demo::default_view(width, height);
         let view = ViewParams {
-            yaw_deg: yaw_deg.or(settings.yaw_deg).unwrap_or(base.yaw_deg),
-            pitch_deg: pitch_deg.or(settings.pitch_deg).unwrap_or(base.pitch_deg),
-            hfov_deg: hfov_deg.or(settings.hfov_deg).unwrap_or(base.hfov_deg),
+            yaw_deg: yaw_deg.or(settings.view.yaw_deg).unwrap_or(base.yaw_deg),
+            pitch_deg: pitch_deg
+                .or(settings.view.pitch_deg)
+                .unwrap_or(base.pitch_deg),
+            hfov_deg: hfov_deg.or(settings.view.hfov_deg).unwrap_or(base.hfov_deg),
             width,
             height,
         };
@@ -516,10 +421,6 @@ pub(crate) fn render_open(
         let mut span = None;
         let (samples, t0, duration): (Samples, f64, f64) = match &recording {
             Some(path) => {
-                bounds::from_secs("from_secs", from_secs).map_err(err)?;
-                if let Some(s) = secs {
-                    bounds::secs("secs", s).map_err(err)?;
-                }
                 let found = scan_recording(path, secs.is_some())?;
                 if calibration.is_none() && found.pupil_units.iter().any(|u| *u != PupilUnit::Mm) {
                     notes.push(format!(
@@ -640,6 +541,7 @@ pub(crate) fn render_open(
             pupil_light_params,
         })
     })
+    .map(Some)
 }
 
 /// Writes an H×W×4 uint8 frame as a PNG with the CLI's encoder (the bytes

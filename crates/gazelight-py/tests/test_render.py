@@ -131,6 +131,34 @@ def test_config_file_is_the_clis(gazelight_bin, tmp_path):
         gazelight.render(config={"observer": {"age_years": 400.0}})
 
 
+def test_a_config_with_its_scene_and_projection_is_the_clis(gazelight_bin, tmp_path):
+    """`scene.file` (relative to the file) and `scene.projection`/`fov_deg`
+    from the configuration: Python takes them through the CLI's loader (it
+    refused them from a file before, issue 44), so the same frames."""
+    study = tmp_path / "study"
+    study.mkdir()
+    w, h = 64, 32
+    pixels = b"".join(bytes([128, 64 + 2 * x, 32 + 4 * y, 126 + (x + y) % 6]) for y in range(h) for x in range(w))
+    (study / "gradient.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {h} +X {w}\n".encode() + pixels)
+    cfg = study / "study.toml"
+    cfg.write_text('[scene]\nfile = "gradient.hdr"\nprojection = "perspective"\nfov_deg = [100.0]\n'
+                   "yaw_deg = 5.0\npitch_deg = 0.0\nhfov_deg = 60.0\n")
+    out = tmp_path / "cli"
+    run_cli(gazelight_bin, "render", "--backend", "cpu", "--size", "48x32", "--frames", "2", "--config", str(cfg),
+            "--out", str(out))
+    frames = list(gazelight.render(size=(48, 32), frames=2, config=cfg))
+    _check_same_frames(out, frames, tmp_path)
+    # The projection was applied: without it the same picture is an
+    # equirectangular panorama and the frame differs.
+    cfg.write_text('[scene]\nfile = "gradient.hdr"\nyaw_deg = 5.0\npitch_deg = 0.0\nhfov_deg = 60.0\n')
+    plain = list(gazelight.render(size=(48, 32), frames=1, config=cfg))
+    assert not np.array_equal(plain[0][0], frames[0][0])
+    # A projection without its field: the CLI's words.
+    cfg.write_text('[scene]\nfile = "gradient.hdr"\nprojection = "angular"\n')
+    with pytest.raises(gazelight.GazelightError, match="--scene-projection angular needs --scene-fov-deg"):
+        gazelight.render(size=(48, 32), frames=1, config=cfg)
+
+
 def _without_samples(data_dir: Path, tmp_path: Path):
     """Recordings that hold no sample: the PiPrKit CSV's header alone, and
     the Neon recording's descriptions with empty streams."""

@@ -64,6 +64,7 @@ __all__ = [
     "Recording",
     "Render",
     "Source",
+    "check_render",
     "inspect",
     "psf",
     "read",
@@ -432,6 +433,46 @@ def _is_trace(path: PathLike) -> bool:
     return _input_kind(os.fspath(path)) == "trace"
 
 
+
+def _config_name(config) -> Optional[str]:
+    """The path of a ``config`` that names a file (a path, or a string of
+    one line naming a file that exists), else None."""
+    if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and os.path.isfile(config)):
+        return os.fspath(config)
+    return None
+
+
+def _render_inputs(scene, trace_or_recording, config):
+    """``render``'s positional inputs for the native half, and the config:
+    a file's text (read with the bounded reader: a regular file, at most 1
+    MiB, structure checked, as the CLI reads its config) with its name, a
+    TOML string or a dict as given."""
+    config_name = _config_name(config)
+    if config_name is not None:
+        config = _read_config_text(config_name)
+    trace = recording = None
+    if trace_or_recording is not None:
+        if _is_trace(trace_or_recording):
+            trace = os.fspath(trace_or_recording)
+        else:
+            recording = os.fspath(trace_or_recording)
+    return dict(
+        scene=None if scene is None else os.fspath(scene),
+        trace=trace,
+        recording=recording,
+        config=config,
+        config_name=config_name,
+    )
+
+
+def _fit_range(pupil_fit):
+    if isinstance(pupil_fit, (tuple, list)):
+        if len(pupil_fit) != 2:
+            raise ValueError(f"pupil_fit: expected \"FROM..TO\" or (FROM, TO), got {pupil_fit!r}")
+        return f"{pupil_fit[0]}..{pupil_fit[1]}"
+    return pupil_fit
+
+
 def render(
     scene: Optional[PathLike] = None,
     trace_or_recording: Optional[PathLike] = None,
@@ -477,10 +518,13 @@ def render(
     ``gazelight replay`` reads (Neon or Pupil Core directory, EyeLink
     ``.asc``, pupil ``.csv``, ...); default the demo trace on the embedded
     scene, a slow gaze sweep on a scene of your own. ``config``: the CLI's
-    TOML configuration (a path, a TOML string or a dict): its
-    ``[pipeline]``, ``[filter]``, ``[observer]``, ``scene.luminance_scale``,
-    the view (``scene.yaw_deg``, ``pitch_deg``, ``hfov_deg``, ``view``)
-    and ``display.size``; keyword arguments override it. The frames are
+    TOML configuration (a path, a TOML string or a dict), loaded and
+    checked by the CLI's own loader: its ``[pipeline]``, ``[filter]``,
+    ``[observer]``, ``scene.file``, ``scene.luminance_scale``,
+    ``scene.projection``/``fov_deg``, the view (``scene.yaw_deg``,
+    ``pitch_deg``, ``hfov_deg``, ``view``), ``display.size`` and, for a
+    recording, ``source.calibration``; keyword arguments override it. The
+    frames are
     rendered on the CPU pipeline (``--backend cpu``), with the GIL
     released; a recording is streamed, never loaded whole.
 
@@ -493,30 +537,10 @@ def render(
     Each view's parameters and where they came from:
     :attr:`Render.pupil_light_params`.
     """
-    if isinstance(pupil_fit, (tuple, list)):
-        if len(pupil_fit) != 2:
-            raise ValueError(f"pupil_fit: expected \"FROM..TO\" or (FROM, TO), got {pupil_fit!r}")
-        pupil_fit = f"{pupil_fit[0]}..{pupil_fit[1]}"
-    config_name = None
-    if isinstance(config, os.PathLike) or (isinstance(config, str) and "\n" not in config and os.path.isfile(config)):
-        config_name = os.fspath(config)
-        # The bounded reader (regular file, at most 1 MiB, structure
-        # checked), as the CLI reads its config.
-        config = _read_config_text(config_name)
-    trace = recording = None
-    if trace_or_recording is not None:
-        if _is_trace(trace_or_recording):
-            trace = os.fspath(trace_or_recording)
-        else:
-            recording = os.fspath(trace_or_recording)
     r = _render_open(
-        None if scene is None else os.fspath(scene),
-        trace,
-        recording,
+        **_render_inputs(scene, trace_or_recording, config),
         size=None if size is None else (int(size[0]), int(size[1])),
         stereo=stereo,
-        config=config,
-        config_name=config_name,
         fps=fps,
         frames=frames,
         retinal=retinal,
@@ -527,16 +551,52 @@ def render(
         pitch_deg=pitch_deg,
         hfov_deg=hfov_deg,
         luminance_scale=luminance_scale,
-        pupil_fit=pupil_fit,
+        pupil_fit=_fit_range(pupil_fit),
         pupil_black_cd_m2=pupil_black_cd_m2,
         pupil_white_cd_m2=pupil_white_cd_m2,
     )
+    config_name = _config_name(config)
     where = f"config {config_name}" if config_name else "config"
     for key in r.ignored:
         warnings.warn(GazelightWarning(f"{where}: `{key}` does not apply to gazelight.render; ignored"), stacklevel=2)
     for w in r.warnings:
         warnings.warn(GazelightWarning(w), stacklevel=2)
     return r
+
+
+def check_render(
+    scene: Optional[PathLike] = None,
+    trace_or_recording: Optional[PathLike] = None,
+    *,
+    size: Optional[Tuple[int, int]] = None,
+    config: Union[None, PathLike, str, Dict[str, Any]] = None,
+    fps: float = 30.0,
+    frames: Optional[int] = None,
+    from_secs: float = 0.0,
+    secs: Optional[float] = None,
+    pupil_fit: Union[None, str, Tuple[float, float]] = None,
+    pupil_black_cd_m2: Optional[float] = None,
+    pupil_white_cd_m2: Optional[float] = None,
+) -> None:
+    """The checks :func:`render` makes before it opens the scene or reads a
+    sample, with the same arguments: the configuration (loaded and checked
+    as the CLI loads it), ``size``, ``fps``, ``frames``, ``from_secs``,
+    ``secs`` and the pupil light options, against the CLI's bounds (those
+    ``GAZELIGHT_PARSE_ONLY=1 gazelight render``/``replay`` checks). Raises
+    what ``render`` would raise; returns None when they pass. Nothing is
+    rendered: a size of 8192x8192 is checked, not allocated."""
+    _render_open(
+        **_render_inputs(scene, trace_or_recording, config),
+        size=None if size is None else (int(size[0]), int(size[1])),
+        fps=fps,
+        frames=frames,
+        from_secs=from_secs,
+        secs=secs,
+        pupil_fit=_fit_range(pupil_fit),
+        pupil_black_cd_m2=pupil_black_cd_m2,
+        pupil_white_cd_m2=pupil_white_cd_m2,
+        check_only=True,
+    )
 
 
 def trials(
