@@ -638,13 +638,17 @@ pub fn which_eye(v: View) -> String {
 
 /// The first pass of `--pupil-fit`: frames at `fps` over the block
 /// `t_from..t_to` (recording clock) through `feed`, each view's pupil
-/// (NaN unless measured) and the light at its gaze; then one fit per
-/// view, started from `initial[k]`. `flag` (`--pupil-fit FROM..TO`) names
-/// the block in the error.
+/// (NaN unless measured) and the light at its gaze — the scene's, or with
+/// `display` (`--display-light` and the recording's first sample on its
+/// clock) the display's then, as the replay's models get it; then one fit
+/// per view, started from `initial[k]`. `flag` (`--pupil-fit FROM..TO`)
+/// names the block in the error.
+#[allow(clippy::too_many_arguments)]
 pub fn fit_block<I: Iterator<Item = Sample>>(
     feed: &mut SampleFeed<I>,
     views: &[View],
     scene: &SceneLight,
+    display: Option<(&DisplayLight, f64)>,
     (t_from, t_to): (f64, f64),
     fps: f64,
     initial: &[ResponseParams],
@@ -661,7 +665,17 @@ pub fn fit_block<I: Iterator<Item = Sample>>(
             let (input, _) = v.input(&state, 0.0);
             gaze_cd_m2[k] = scene.pooled_at(input.gaze_uv);
         }
-        let light = scene.field.light(views, &gaze_cd_m2[..views.len()]);
+        let light = match display {
+            Some((d, t_first)) => {
+                let input = d.input_at(t - t_first);
+                let field = FieldLight {
+                    field_mean_cd_m2: input.field_mean_luminance_cd_m2,
+                    field_area_deg2: input.field_area_deg2,
+                };
+                field.light(views, &[input.gaze_luminance_cd_m2; 2][..views.len()])
+            }
+            None => scene.field.light(views, &gaze_cd_m2[..views.len()]),
+        };
         for (k, v) in views.iter().enumerate() {
             let pupil = residual_pupil_mm(*v, &state).map_or(f64::NAN, f64::from);
             rows[k].push(PupilRow {
@@ -726,6 +740,9 @@ pub struct PupilLightPlan {
     pub fit_block_secs: Option<[f64; 2]>,
     /// `--pupil-fit FROM..TO` as given (for the fit's error).
     fit_flag: String,
+    /// The display's light the fit block sees (`--display-light`), in
+    /// place of the scene's.
+    fit_display: Option<DisplayLight>,
 }
 
 impl PupilLightPlan {
@@ -815,7 +832,14 @@ impl PupilLightPlan {
             white_cd_m2: white,
             fit_block_secs,
             fit_flag,
+            fit_display: None,
         })
+    }
+
+    /// The fit block sees the display's light (`--display-light`, times
+    /// from the recording's first sample), as the replay's models will.
+    pub fn set_fit_display(&mut self, display: DisplayLight) {
+        self.fit_display = Some(display);
     }
 
     /// With a fit block: fits each view's observer on it (frames at `fps`
@@ -835,6 +859,7 @@ impl PupilLightPlan {
             feed,
             self.views,
             &self.scene,
+            self.fit_display.as_ref().map(|d| (d, t_first_secs)),
             (t_first_secs + from, t_first_secs + to),
             fps,
             &self.params,

@@ -100,12 +100,6 @@ pub(crate) fn check_flags(args: &ReplayArgs) -> anyhow::Result<()> {
     pupil_light::check_calibration_luminance("--pupil-black-cd-m2", args.pupil_black_cd_m2)?;
     pupil_light::check_calibration_luminance("--pupil-white-cd-m2", args.pupil_white_cd_m2)?;
     display_geometry(args)?;
-    if args.display_light.is_some() && args.pupil_fit.is_some() {
-        bail!(
-            "--pupil-fit fits the observer on the scene's light; with --display-light it is not \
-             available yet"
-        );
-    }
     Ok(())
 }
 
@@ -302,15 +296,17 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         }
         Ok(SampleFeed::new(ImporterSamples::new(importer), chain))
     };
+    let display = load_display(&args, &events, t_first)?;
     let mut plr = pupil_light_setup(
         &args,
         &mut setup,
         calibration.as_ref(),
+        display.as_ref().map(|(d, _)| d),
         t_first,
         t_last,
         &new_feed,
     )?;
-    light_input(&args, &mut setup, &mut plr, &events, t_first, t0)?;
+    light_input(&args, &mut setup, &mut plr, display, t0 - t_first)?;
     if !events.events.is_empty() || events.dropped > 0 {
         let summary = events.summary();
         let sources: Vec<String> = summary
@@ -483,23 +479,48 @@ fn unit_words(u: PupilUnit) -> &'static str {
     }
 }
 
+/// `--display-light`: the display's light over the recording (times from
+/// its first sample, `t_first` on its clock; an event table matched
+/// against its events), with the table it came from.
+fn load_display(
+    args: &ReplayArgs,
+    events: &import::events::RecordingEvents,
+    t_first: f64,
+) -> anyhow::Result<Option<(DisplayLight, DisplayLightTable)>> {
+    let Some(path) = &args.display_light else {
+        return Ok(None);
+    };
+    let (geometry, _) = display_geometry(args)?;
+    let table = DisplayLightTable::load(path)?;
+    let display = DisplayLight::new(
+        &table,
+        geometry,
+        events
+            .events
+            .iter()
+            .map(|e| (e.t_secs - t_first, e.text.as_str())),
+        &path.display().to_string(),
+    )?;
+    Ok(Some((display, table)))
+}
+
 /// Which light drives the pupil light response, in `session.json`
 /// (`pupil_light.input`) and said once where it is the embedded demo
-/// panorama; with `--display-light`, the display's light over time.
+/// panorama; with `--display-light` ([`load_display`]), the display's
+/// light over time, `first_frame_secs` after the first sample at frame 0.
 fn light_input(
     args: &ReplayArgs,
     setup: &mut render::Setup,
     plr: &mut PupilLight,
-    events: &import::events::RecordingEvents,
-    t_first: f64,
-    t0: f64,
+    display: Option<(DisplayLight, DisplayLightTable)>,
+    first_frame_secs: f64,
 ) -> anyhow::Result<()> {
     let scene = args
         .render
         .scene
         .as_ref()
         .or(setup.config.scene_file.as_ref());
-    let Some(path) = &args.display_light else {
+    let (Some(path), Some((display, table))) = (&args.display_light, display) else {
         let what = match scene {
             Some(p) => format!("the scene {} at the gaze", p.display()),
             None => {
@@ -518,16 +539,6 @@ fn light_input(
         return Ok(());
     };
     let (geometry, origin) = display_geometry(args)?;
-    let table = DisplayLightTable::load(path)?;
-    let display = DisplayLight::new(
-        &table,
-        geometry,
-        events
-            .events
-            .iter()
-            .map(|e| (e.t_secs - t_first, e.text.as_str())),
-        &path.display().to_string(),
-    )?;
     let form = match &table {
         DisplayLightTable::Times(t) => format!("{} rows of t_secs → cd/m²", t.len()),
         DisplayLightTable::Events(p) => format!(
@@ -556,7 +567,7 @@ fn light_input(
         geometry.solid_angle_deg2(),
         origin,
     );
-    plr.set_display(display, t0 - t_first);
+    plr.set_display(display, first_frame_secs);
     Ok(())
 }
 
@@ -568,6 +579,7 @@ fn pupil_light_setup(
     args: &ReplayArgs,
     setup: &mut render::Setup,
     calibration: Option<&PupilCalibration>,
+    display: Option<&DisplayLight>,
     t_first: f64,
     t_last: f64,
     new_feed: &dyn Fn() -> anyhow::Result<SampleFeed<ImporterSamples>>,
@@ -589,6 +601,10 @@ fn pupil_light_setup(
         t_last - t_first,
     )?;
     if let Some([from, to_clamped]) = plan.fit_block_secs {
+        // The block sees the light the replay's models will see.
+        if let Some(d) = display {
+            plan.set_fit_display(d.clone());
+        }
         let mut feed = new_feed()?;
         let fits = plan.fit(&mut feed, t_first, args.render.fps)?;
         for (v, fit) in views.iter().zip(&fits) {

@@ -413,3 +413,92 @@ fn eyelink_dark_and_bright_phases_from_its_messages() {
     eprintln!("dark phases (trial ids): {dark:?}; own means {own:?}; table {table_mean:?}");
     assert_eq!(dark, vec![1, 2]);
 }
+
+/// `--pupil-fit` with `--display-light`: the observer's light response is
+/// fitted on a block of the recording while the display's light drives
+/// the model, and the fitted model follows this test's eye (its own
+/// first-order response between a 6.0 and a 3.6 mm pupil), not W&Y's
+/// default observer: the settled light-driven pupil of dark and bright
+/// trials outside the task dilations lies on the test's pupils, and the
+/// residual there is small.
+#[test]
+fn pupil_fit_with_display_light_fits_the_eye_on_the_display() {
+    let dir = tmp("screen-fit");
+    let rec = dir.join("rec");
+    write_experiment(&rec);
+    let display = dir.join("display.csv");
+    std::fs::write(
+        &display,
+        format!("event,luminance_cd_m2\nlight dark*,{DARK_CD_M2}\nlight bright*,{BRIGHT_CD_M2}\n"),
+    )
+    .unwrap();
+    let gaze = rec.join("gaze.csv");
+    // The block: trial 2 (dark) and 3 (bright), after trial 1's dilation
+    // ended and before trial 4's begins; a light change at 24 and 36 s.
+    let run = |name: &str, fit: bool| -> (Vec<HashMap<String, String>>, String) {
+        let out = dir.join(name);
+        let mut extra = vec!["--fps", "25", "--display-light", display.to_str().unwrap()];
+        if fit {
+            extra.extend(["--pupil-fit", "23..48"]);
+        }
+        let (stdout, _) = replay(gaze.to_str().unwrap(), &out, &extra);
+        let text = std::fs::read_to_string(out.join("timeline.csv")).unwrap();
+        (table(&text), stdout)
+    };
+    let (fitted, stdout) = run("fit", true);
+    assert!(stdout.contains("pupil light fit over 23..48 s"), "{stdout}");
+    let (default, _) = run("default", false);
+    // Settled frames (the last 3 s before each light change, 5 s after
+    // it) away from every task dilation (target at +7 s, ~3 s long).
+    let settled = |rows: &[HashMap<String, String>]| -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let (mut dark, mut bright, mut residual) = (Vec::new(), Vec::new(), Vec::new());
+        for r in rows {
+            let t = num(r, "t_secs");
+            let k = (t / TRIAL_SECS) as usize;
+            let in_trial = t - k as f64 * TRIAL_SECS;
+            if !(4.0..7.0).contains(&in_trial) || k >= TRIALS {
+                continue;
+            }
+            let light = num(r, "pupil_light_mm");
+            if is_dark(k) {
+                dark.push(light)
+            } else {
+                bright.push(light)
+            }
+            let res = num(r, "pupil_residual_mm");
+            if res.is_finite() {
+                residual.push(res);
+            }
+        }
+        (dark, bright, residual)
+    };
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let (dark, bright, residual) = settled(&fitted);
+    let (_, _, residual_default) = settled(&default);
+    let report = format!(
+        "fitted: dark {:.3} mm, bright {:.3} mm, residual rms {:.3} mm; default W&Y: residual rms {:.3} mm\n{stdout}",
+        mean(&dark),
+        mean(&bright),
+        rms(&residual),
+        rms(&residual_default)
+    );
+    eprintln!("{report}");
+    assert!((mean(&dark) - DARK_PUPIL_MM).abs() < 0.1, "{report}");
+    assert!((mean(&bright) - BRIGHT_PUPIL_MM).abs() < 0.1, "{report}");
+    assert!(rms(&residual) < 0.1, "{report}");
+    assert!(rms(&residual) < 0.5 * rms(&residual_default), "{report}");
+    // The fitted dynamics are the test eye's own.
+    let after = |key: &str| -> f64 {
+        let rest = &stdout[stdout
+            .find(key)
+            .unwrap_or_else(|| panic!("{key}: {stdout}"))
+            + key.len()..];
+        rest.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    assert!((after("latency ") - LATENCY_SECS).abs() < 0.03, "{report}");
+    let tc = after("constriction τ ");
+    let td = after("redilation τ ");
+    assert!((tc / CONSTRICT_TAU_SECS - 1.0).abs() < 0.1, "{report}");
+    assert!((td / DILATE_TAU_SECS - 1.0).abs() < 0.1, "{report}");
+}
