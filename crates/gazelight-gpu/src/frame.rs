@@ -361,7 +361,6 @@ pub struct GpuFramePipeline {
     /// `deg_per_px` until [`GpuFramePipeline::set_view_frustum`]).
     angles: PlaneAngles,
     has_state: bool,
-    psf_pupil_mm: f64,
     /// Rebuild the PSF in the frame when the pupil moves (off: the host
     /// installs kernels with [`GpuFramePipeline::set_kernel`]).
     psf_auto_rebuild: bool,
@@ -515,7 +514,6 @@ impl GpuFramePipeline {
             deg_per_px,
             angles: PlaneAngles::Uniform { deg_per_px },
             has_state: false,
-            psf_pupil_mm: INITIAL_PUPIL_MM,
             psf_auto_rebuild: true,
             kernel_pending: false,
             passes,
@@ -758,7 +756,7 @@ impl GpuFramePipeline {
             )));
         };
         g.psf.upload(kernel)?;
-        self.psf_pupil_mm = kernel.pupil_mm;
+        g.follower.built(0, kernel.pupil_mm);
         self.kernel_pending = true;
         Ok(())
     }
@@ -822,7 +820,10 @@ impl GpuFramePipeline {
         let psf_rebuilt = self.encode_glare(encoder, gaze_px, input.pupil_mm, timestamps);
         self.encode_acuity_tone(encoder, frame_queries);
         EncodedFrame {
-            psf_pupil_mm: self.psf_pupil_mm,
+            psf_pupil_mm: self
+                .glare
+                .as_ref()
+                .map_or(INITIAL_PUPIL_MM, |g| g.follower.kernel_mm(0)),
             psf_rebuilt,
         }
     }
@@ -924,10 +925,11 @@ impl GpuFramePipeline {
         let frame_queries = timestamps.map(|t| t.frame);
         let mut psf_rebuilt = false;
         if self.psf_auto_rebuild
-            && let Some(pupil_mm) = g.policy.decide(pupil_mm, self.psf_pupil_mm)
+            && let Some(pupil_mm) = g.follower.follow_one(pupil_mm)
         {
             let psf_queries = timestamps.map(|t| t.psf);
-            self.psf_pupil_mm = g.psf.encode_rebuild_timed(encoder, pupil_mm, psf_queries);
+            let built_mm = g.psf.encode_rebuild_timed(encoder, pupil_mm, psf_queries);
+            g.follower.built(0, built_mm);
             g.encode_kernel_spectrum(encoder, frame_queries);
             self.kernel_pending = false;
             psf_rebuilt = true;

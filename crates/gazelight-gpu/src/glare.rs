@@ -36,7 +36,7 @@ use crate::frame::{
 use crate::pass::{Binding, PassDescriptor, PassLayout};
 use crate::psf::GpuPsfBuilder;
 use crate::shaders;
-use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
+use gazelight_vision::kernel_policy::{INITIAL_PUPIL_MM, KernelFollower, KernelPolicy};
 use gazelight_vision::pipeline::PipelineConfig;
 use gazelight_vision::pooling::PlaneAngles;
 
@@ -322,7 +322,8 @@ pub(crate) struct GlareStage {
     fine_spectrum: wgpu::Buffer,
     coarse_spectrum: wgpu::Buffer,
     group: wgpu::BindGroup,
-    pub(crate) policy: KernelPolicy,
+    /// The pupil of the kernel on the GPU, and the one rule for the next.
+    pub(crate) follower: KernelFollower,
     /// The full-field stray light ([`crate::far_glare`]), when on.
     far: Option<FarStage>,
     /// The kernel's radius and pixel size, the far field's split.
@@ -391,7 +392,7 @@ impl GlareStage {
             fine_spectrum,
             coarse_spectrum,
             group,
-            policy: KernelPolicy::new(&config.glare),
+            follower: KernelFollower::new(KernelPolicy::new(&config.glare), 1, INITIAL_PUPIL_MM),
             far: None,
             kernel_deg_per_px,
             frame_size: (sizes.width as usize, sizes.height as usize),

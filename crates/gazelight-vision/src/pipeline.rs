@@ -57,7 +57,7 @@ use crate::encode::{self, DisplayLinear, EncodeRgba8, Map, PixelMap, SrgbLut};
 use crate::far_glare::{FarField, FarSplit};
 use crate::glare::{GlareConvolver, GlareWindow};
 use crate::image::luminance;
-use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelPolicy};
+use crate::kernel_policy::{INITIAL_PUPIL_MM, KernelFollower, KernelPolicy};
 use crate::pooling::{PlaneAngles, PoolingModel};
 use crate::psf::{PsfBuilder, PsfParams};
 use crate::simd::{LANES, Simd, Tier};
@@ -279,7 +279,8 @@ pub struct FramePipeline {
     psf_params: PsfParams,
     kernel_size: usize,
     kernel_deg_per_px: f64,
-    psf_pupil_mm: f64,
+    /// The pupil of the installed kernel, and the one rule for the next.
+    psf_follower: KernelFollower,
     /// Rebuild the PSF in [`FramePipeline::process`] when the pupil moves
     /// (off: the caller installs kernels with [`FramePipeline::set_kernel`]).
     psf_auto_rebuild: bool,
@@ -325,6 +326,7 @@ impl FramePipeline {
         let keep_display = config.keep_display_linear;
         let keep_retinal = config.keep_retinal;
         let psf_pupil_mm = INITIAL_PUPIL_MM;
+        let psf_follower = KernelFollower::new(KernelPolicy::new(&config.glare), 1, psf_pupil_mm);
         let mut psf_params = config.glare.psf.clone();
         psf_params.ppd = 1.0 / deg_per_px;
         psf_params.pupil_mm = psf_pupil_mm;
@@ -379,7 +381,7 @@ impl FramePipeline {
             psf_params,
             kernel_size,
             kernel_deg_per_px,
-            psf_pupil_mm,
+            psf_follower,
             psf_auto_rebuild: true,
             installed: None,
             acuity,
@@ -535,7 +537,7 @@ impl FramePipeline {
             }
             slot => *slot = Some(kernel.clone()),
         }
-        self.psf_pupil_mm = kernel.pupil_mm;
+        self.psf_follower.built(0, kernel.pupil_mm);
         Ok(())
     }
 
@@ -578,7 +580,7 @@ impl FramePipeline {
             Some(s) if s.pupil_mm() == k.pupil_mm => conv.install(s)?,
             _ => conv.set_kernel(k)?,
         }
-        self.psf_pupil_mm = k.pupil_mm;
+        self.psf_follower.built(0, k.pupil_mm);
         let empty = crate::psf::PsfKernel {
             size: 0,
             deg_per_px: k.deg_per_px,
@@ -722,9 +724,8 @@ impl FramePipeline {
         // Stages 3 + 4: PSF (cached) and glare at the gaze.
         let mut psf_rebuilt = false;
         if let Some((builder, conv)) = self.glare.as_mut() {
-            let policy = KernelPolicy::new(&self.config.glare);
             if self.psf_auto_rebuild
-                && let Some(pupil_mm) = policy.decide(input.pupil_mm, self.psf_pupil_mm)
+                && let Some(pupil_mm) = self.psf_follower.follow_one(input.pupil_mm)
             {
                 if builder.is_none() {
                     *builder = Some(PsfBuilder::new(self.psf_params.clone())?);
@@ -733,7 +734,7 @@ impl FramePipeline {
                 if let Some(b) = builder.as_mut()
                     && conv.set_kernel(b.rebuild(pupil_mm)).is_ok()
                 {
-                    self.psf_pupil_mm = b.kernel().pupil_mm;
+                    self.psf_follower.built(0, b.kernel().pupil_mm);
                     self.installed = None;
                     psf_rebuilt = true;
                 }
@@ -834,7 +835,7 @@ impl FramePipeline {
         Ok(FrameStats {
             target_cd_m2,
             adaptation_cd_m2,
-            psf_pupil_mm: self.psf_pupil_mm,
+            psf_pupil_mm: self.psf_follower.kernel_mm(0),
             psf_rebuilt,
             acuity_sigma_px,
             timings,
