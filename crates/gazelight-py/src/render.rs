@@ -22,6 +22,7 @@ use gazelight_app::bounds;
 use gazelight_app::config::render::scene_projection;
 use gazelight_app::config::{ConfigUser, RenderConfig};
 use gazelight_app::observer::ObserverFlags;
+use gazelight_render::analysis::AnalysisStep;
 use gazelight_render::demo;
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
@@ -98,8 +99,16 @@ pub(crate) struct Render {
     pupil_light_params: Vec<(&'static str, ResponseParams, ParamSource)>,
 }
 
+/// What makes the frames: the image pipeline, or with `images=False`
+/// only the rows (`gazelight_render::analysis`, the CLI's `--no-frames`
+/// path: the same values, the stage timings NaN).
+enum Steps {
+    Images(Box<FrameStep<FramePipeline>>),
+    Numbers(Box<AnalysisStep>),
+}
+
 struct Running {
-    step: FrameStep<FramePipeline>,
+    step: Steps,
     feed: SampleFeed<Samples>,
     view_img: RgbImage,
     retinal: bool,
@@ -143,7 +152,12 @@ impl Render {
             t0_secs,
             ..
         } = &mut *r;
-        let mut out = py.detach(|| step.step(feed, view_img)).map_err(err)?;
+        let mut out = py
+            .detach(|| match step {
+                Steps::Images(s) => s.step(feed, view_img),
+                Steps::Numbers(a) => a.step(feed),
+            })
+            .map_err(err)?;
         if let Some(plr) = pupil_light {
             plr.apply(
                 out.t_secs - *t0_secs,
@@ -152,19 +166,24 @@ impl Render {
                 &mut out.rows,
             );
         }
-        let image: Py<PyAny> = if r.retinal {
-            let img = r.step.retinal();
+        let image: Py<PyAny> = if let Steps::Numbers(_) = &r.step {
+            // `images=False`: no image was made.
+            py.None()
+        } else if let (true, Steps::Images(step)) = (r.retinal, &r.step) {
+            let img = step.retinal();
             let flat: Vec<f32> = img.pixels.iter().flatten().copied().collect();
             PyArray1::from_vec(py, flat)
                 .reshape([img.height, img.width, 3])?
                 .into_any()
                 .unbind()
-        } else {
-            let d = r.step.display();
+        } else if let Steps::Images(step) = &r.step {
+            let d = step.display();
             PyArray1::from_slice(py, &d.rgba8)
                 .reshape([d.height, d.width, 4])?
                 .into_any()
                 .unbind()
+        } else {
+            py.None()
         };
         let row = PyDict::new(py);
         let t_secs = out.rows.first().map_or(f64::NAN, |r| r.t_secs);
@@ -245,7 +264,10 @@ impl Render {
 
 impl Running {
     fn step_count(&self) -> usize {
-        self.step.frames_rendered()
+        match &self.step {
+            Steps::Images(s) => s.frames_rendered(),
+            Steps::Numbers(a) => a.frames_rendered(),
+        }
     }
 }
 
@@ -272,7 +294,7 @@ const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
     config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
     from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
     luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None,
-    check_only=false))]
+    check_only=false, images=true))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_open(
     py: Python<'_>,
@@ -297,6 +319,7 @@ pub(crate) fn render_open(
     pupil_black_cd_m2: Option<f64>,
     pupil_white_cd_m2: Option<f64>,
     check_only: bool,
+    images: bool,
 ) -> PyResult<Option<Render>> {
     let name = config_name.unwrap_or_else(|| "<config>".to_owned());
     // A recording is `replay`'s (its keys, `source.calibration` too), a
@@ -342,6 +365,11 @@ pub(crate) fn render_open(
         if let Some(s) = secs {
             bounds::secs("secs", s).map_err(err)?;
         }
+    }
+    if retinal && !images {
+        return Err(err(
+            "retinal=True asks for the retinal images; images=False makes none",
+        ));
     }
     // `check_render`: the checks above (the CLI's `GAZELIGHT_PARSE_ONLY`
     // ones), nothing opened.
@@ -467,30 +495,40 @@ pub(crate) fn render_open(
             )
             .map_err(err)?,
         };
-        let pipeline_config = PipelineConfig {
-            keep_retinal: retinal,
-            ..settings.pipeline.clone()
+        let views = gazelight_render::frame::views(stereo);
+        let step = if images {
+            let pipeline_config = PipelineConfig {
+                keep_retinal: retinal,
+                ..settings.pipeline.clone()
+            };
+            let pipelines = cpu_pipelines(&pipeline_config, &view, stereo).map_err(err)?;
+            Steps::Images(Box::new(
+                FrameStep::new(
+                    pipelines,
+                    stereo,
+                    &settings.pipeline,
+                    &view,
+                    t0,
+                    fps,
+                    retinal,
+                )
+                .map_err(err)?,
+            ))
+        } else {
+            Steps::Numbers(Box::new(
+                AnalysisStep::new(stereo, &settings.pipeline, &view, &view_img, t0, fps)
+                    .map_err(err)?,
+            ))
         };
-        let pipelines = cpu_pipelines(&pipeline_config, &view, stereo).map_err(err)?;
-        let step = FrameStep::new(
-            pipelines,
-            stereo,
-            &settings.pipeline,
-            &view,
-            t0,
-            fps,
-            retinal,
-        )
-        .map_err(err)?;
-        let suffixes = step.views().iter().map(|v| v.suffix()).collect();
-        let n_views = step.views().len();
+        let suffixes = views.iter().map(|v| v.suffix()).collect();
+        let n_views = views.len();
         // A recording: `replay`'s pupil light response (its parameters
         // fitted first on a `pupil_fit` block: a pass of its own over it).
         let mut pupil_light_params = Vec::new();
         let pupil_light = match (&recording, span) {
             (Some(path), Some((t_first, t_last))) => {
                 let mut plan = PupilLightPlan::new(
-                    step.views(),
+                    views,
                     &view_img,
                     &view,
                     &settings.pipeline,

@@ -493,6 +493,7 @@ def render(
     pupil_fit: Union[None, str, Tuple[float, float]] = None,
     pupil_black_cd_m2: Optional[float] = None,
     pupil_white_cd_m2: Optional[float] = None,
+    images: bool = True,
 ) -> Render:
     """Render frames as ``gazelight render`` (a trace) or ``gazelight
     replay`` (a recording) does, one at a time: an iterator of
@@ -536,6 +537,12 @@ def render(
     (``--pupil-black-cd-m2``, ``--pupil-white-cd-m2``; default 0.1 and 100).
     Each view's parameters and where they came from:
     :attr:`Render.pupil_light_params`.
+
+    ``images=False``: only the rows, without the image pipeline (the CLI's
+    ``--no-frames`` path; ``frame`` is ``None``): the same values, the
+    stage timings (``pooling_ms`` ... ``total_ms``) NaN; thousands of frames
+    a second on one core instead of tens (docs/replay.md, "Analysis at
+    study speed"). Not with ``retinal=True``.
     """
     r = _render_open(
         **_render_inputs(scene, trace_or_recording, config),
@@ -554,6 +561,7 @@ def render(
         pupil_fit=_fit_range(pupil_fit),
         pupil_black_cd_m2=pupil_black_cd_m2,
         pupil_white_cd_m2=pupil_white_cd_m2,
+        images=images,
     )
     config_name = _config_name(config)
     where = f"config {config_name}" if config_name else "config"
