@@ -424,6 +424,11 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         let analysis =
             AnalysisStep::new(args.stereo, &config.pipeline, view, view_img, t0, args.fps)?;
         let sheet = SheetFrames::new(&analysis, &config.pipeline, view)?;
+        // Said once, where a renderer says its backend.
+        eprintln!(
+            "backend: none (--no-frames: the numbers without the image pipeline, \
+             the contact sheet's frames on the CPU; --full-pipeline renders every frame)"
+        );
         Frames::Numbers(Box::new(analysis), Box::new(sheet))
     } else {
         // The CPU pipeline keeps the retinal image only for the EXR frames.
