@@ -6,17 +6,21 @@
 //! cd/m² — looking along the frame's gaze.
 //!
 //! The view's pixels (their directions and solid angles) are prepared once
-//! per view image; per frame and view one [`SceneGlare::at_gaze`] runs (a
-//! pass over the view's pixels; it allocates its source list). Pixels
+//! per view image; per frame and view one [`SceneGlare::at_gaze_into`]
+//! runs (a pass over the view's pixels), reusing the last gaze's source
+//! list: no allocation per frame once the buffers have grown
+//! (`tests/tests/glare_alloc.rs`). Pixels
 //! without data (outside the scene's field, NaN in the view) are left out
 //! as `glare` leaves out pixels outside an image's field. Only what the
 //! view shows counts: light outside the display's field of view adds
 //! nothing, so the numbers are those of the view, not of the whole scene.
 
+use std::sync::Mutex;
+
 use gazelight_vision::RgbImage;
 use gazelight_vision::scene::ViewParams;
 use gazelight_vision::scene::projection::{DVec3, ProjectionKind, SceneProjection};
-use gazelight_vision::scene_glare::{GlareOptions, SceneGlare};
+use gazelight_vision::scene_glare::{GazeGlare, GlareOptions, SceneGlare};
 
 use crate::RenderError;
 
@@ -55,6 +59,10 @@ impl GlareNumbers {
 pub struct ViewGlare {
     glare: SceneGlare,
     options: GlareOptions,
+    /// The last gaze's numbers, their source list reused by the next
+    /// ([`SceneGlare::at_gaze_into`]): a trace allocates nothing once the
+    /// buffers have grown.
+    last: Mutex<Option<GazeGlare>>,
 }
 
 impl ViewGlare {
@@ -83,6 +91,7 @@ impl ViewGlare {
         )?;
         Ok(Self {
             glare: SceneGlare::new(view_img, projection),
+            last: Mutex::new(None),
             options: GlareOptions {
                 age_years,
                 pigmentation,
@@ -113,11 +122,21 @@ impl ViewGlare {
         let Some(dir) = self.gaze_direction(gaze_uv) else {
             return GlareNumbers::NONE;
         };
-        let g = self.glare.at_gaze(dir, &self.options);
-        GlareNumbers {
+        let numbers = |g: &GazeGlare| GlareNumbers {
             veil_cie146_cd_m2: g.veil_cie146_cd_m2,
             dgp: g.indices.dgp,
             ugr: g.indices.ugr.unwrap_or(f64::NAN),
+        };
+        match self.last.try_lock() {
+            Ok(mut last) => match last.as_mut() {
+                Some(g) => {
+                    self.glare.at_gaze_into(dir, &self.options, g);
+                    numbers(g)
+                }
+                None => numbers(last.insert(self.glare.at_gaze(dir, &self.options))),
+            },
+            // Held by another thread's gaze (or poisoned): a list of its own.
+            Err(_) => numbers(&self.glare.at_gaze(dir, &self.options)),
         }
     }
 
