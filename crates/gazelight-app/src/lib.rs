@@ -10,12 +10,15 @@
 //! from; [`config`], the one configuration schema and loader of the CLI's
 //! commands and Python's `render` (and the `[filter]` table Python's
 //! `read`/`FilterChain` take alone); and [`layer_config`], the OpenXR
-//! layer's `layer.toml`. The rest of the application core (the renderer
-//! choice, the render/replay session and its streaming per-frame writer,
-//! source opening, the kernel follower) is still in the binary crate and
-//! moves here piece by piece (ARCHITECTURE.md, "Where the front ends still
+//! layer's `layer.toml`; and [`backend`], the renderer choice (`auto`,
+//! `gpu`, `cpu`: the rule, the fallback and the GPU/CPU `Renderer` the
+//! CLI's commands and Python's `render` drive). The rest of the
+//! application core (the render/replay session and its streaming per-frame
+//! writer, source opening) is still in the binary crate and moves here
+//! piece by piece (ARCHITECTURE.md, "Where the front ends still
 //! differ").
 
+pub mod backend;
 pub mod bounds;
 pub mod config;
 pub mod layer_config;

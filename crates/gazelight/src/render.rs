@@ -452,7 +452,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
                     Ok(r)
                 })
             })
-            .collect::<anyhow::Result<Vec<_>>>()?;
+            .collect::<Result<Vec<_>, _>>()?;
         // The per-frame step (gazelight_render::frame, shared with the
         // Python package): state → each view's pipeline → the display
         // frame and rows.
