@@ -24,6 +24,7 @@ use gazelight_app::config::{ConfigUser, RenderConfig};
 use gazelight_app::observer::ObserverFlags;
 use gazelight_render::analysis::AnalysisStep;
 use gazelight_render::demo;
+use gazelight_render::display_light::{DisplayGeometry, DisplayLight, DisplayLightTable};
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
 use gazelight_render::frame::{FrameStep, cpu_pipelines};
 use gazelight_render::png::PngCompression;
@@ -294,7 +295,8 @@ const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
     config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
     from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
     luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None,
-    check_only=false, images=true))]
+    check_only=false, images=true, display_light=None, display_deg=None, display_cm=None,
+    viewing_distance_cm=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_open(
     py: Python<'_>,
@@ -320,6 +322,10 @@ pub(crate) fn render_open(
     pupil_white_cd_m2: Option<f64>,
     check_only: bool,
     images: bool,
+    display_light: Option<PathBuf>,
+    display_deg: Option<String>,
+    display_cm: Option<String>,
+    viewing_distance_cm: Option<f64>,
 ) -> PyResult<Option<Render>> {
     let name = config_name.unwrap_or_else(|| "<config>".to_owned());
     // A recording is `replay`'s (its keys, `source.calibration` too), a
@@ -366,6 +372,13 @@ pub(crate) fn render_open(
             bounds::secs("secs", s).map_err(err)?;
         }
     }
+    let display_geometry = display_geometry(
+        recording.is_some(),
+        display_light.is_some(),
+        display_deg.as_deref(),
+        display_cm.as_deref(),
+        viewing_distance_cm,
+    )?;
     if retinal && !images {
         return Err(err(
             "retinal=True asks for the retinal images; images=False makes none",
@@ -542,6 +555,17 @@ pub(crate) fn render_open(
                     t_last - t_first,
                 )
                 .map_err(err)?;
+                // `display_light`: replay's --display-light, for the fit
+                // block and the models alike.
+                let display = match (&display_light, display_geometry) {
+                    (Some(table), Some(geometry)) => {
+                        Some(load_display(path, table, geometry, t_first, &mut notes)?)
+                    }
+                    _ => None,
+                };
+                if let Some(d) = &display {
+                    plan.set_fit_display(d.clone());
+                }
                 if plan.fit_block_secs.is_some() {
                     let samples = ImporterSamples::open(path).map_err(err)?;
                     let mut fit_feed = SampleFeed::new(samples, new_chain()?);
@@ -553,7 +577,11 @@ pub(crate) fn render_open(
                     .zip(plan.params.iter().zip(&plan.sources))
                     .map(|(v, (p, s))| (v.suffix(), *p, *s))
                     .collect();
-                Some(plan.start().map_err(err)?)
+                let mut plr = plan.start().map_err(err)?;
+                if let Some(d) = display {
+                    plr.set_display(d, t0 - t_first);
+                }
+                Some(plr)
             }
             _ => None,
         };
@@ -611,5 +639,79 @@ pub(crate) fn write_png(
     py.detach(|| {
         gazelight_render::png::write_rgba8(&path, &bytes, width, height, PngCompression::Default)
     })
+    .map_err(err)
+}
+
+/// `display_light=`'s geometry (`display_deg="WxH"`, or `display_cm="WxH"`
+/// at `viewing_distance_cm`; default 40x30 degrees, as `replay`'s
+/// `--display-deg`/`--display-cm`); `None` without a display light. Only
+/// for a recording (the light drives its pupil light response).
+fn display_geometry(
+    recording: bool,
+    display_light: bool,
+    display_deg: Option<&str>,
+    display_cm: Option<&str>,
+    viewing_distance_cm: Option<f64>,
+) -> PyResult<Option<DisplayGeometry>> {
+    let given = display_deg.is_some() || display_cm.is_some() || viewing_distance_cm.is_some();
+    if !display_light {
+        if given {
+            return Err(err(
+                "display_deg, display_cm and viewing_distance_cm describe display_light's display: \
+                 give display_light",
+            ));
+        }
+        return Ok(None);
+    }
+    if !recording {
+        return Err(err(
+            "display_light drives a recording's pupil light response (`gazelight replay \
+             --display-light`), not a trace's",
+        ));
+    }
+    let geometry = match (display_deg, display_cm, viewing_distance_cm) {
+        (Some(_), Some(_), _) => {
+            return Err(err("give display_deg or display_cm, not both"));
+        }
+        (Some(d), None, None) => DisplayGeometry::parse_deg(d),
+        (None, Some(c), Some(dist)) => DisplayGeometry::from_cm(c, dist),
+        (None, Some(_), None) | (_, None, Some(_)) => {
+            return Err(err(
+                "display_cm and viewing_distance_cm go together (the display's size and the \
+                 eye's distance from it)",
+            ));
+        }
+        (None, None, None) => DisplayGeometry::parse_deg(DEFAULT_DISPLAY_DEG),
+    };
+    geometry.map(Some).map_err(err)
+}
+
+/// The display's angular size when none is given, degrees (`replay`'s).
+const DEFAULT_DISPLAY_DEG: &str = "40x30";
+
+/// The display light of `recording` from `table` (`t_secs,luminance_cd_m2`
+/// or `event,luminance_cd_m2`, matched against the recording's events;
+/// times from its first sample `t_first`).
+fn load_display(
+    recording: &std::path::Path,
+    table: &std::path::Path,
+    geometry: DisplayGeometry,
+    t_first: f64,
+    notes: &mut Vec<String>,
+) -> PyResult<DisplayLight> {
+    let events = gazelight_tracker::import::events::read(recording).unwrap_or_else(|e| {
+        notes.push(format!("{}: events not read: {e}", recording.display()));
+        gazelight_tracker::import::events::RecordingEvents::default()
+    });
+    let loaded = DisplayLightTable::load(table).map_err(err)?;
+    DisplayLight::new(
+        &loaded,
+        geometry,
+        events
+            .events
+            .iter()
+            .map(|e| (e.t_secs - t_first, e.text.as_str())),
+        &table.display().to_string(),
+    )
     .map_err(err)
 }

@@ -494,6 +494,10 @@ def render(
     pupil_black_cd_m2: Optional[float] = None,
     pupil_white_cd_m2: Optional[float] = None,
     images: bool = True,
+    display_light: Optional[PathLike] = None,
+    display_deg: Union[None, str, Tuple[float, float]] = None,
+    display_cm: Union[None, str, Tuple[float, float]] = None,
+    viewing_distance_cm: Optional[float] = None,
 ) -> Render:
     """Render frames as ``gazelight render`` (a trace) or ``gazelight
     replay`` (a recording) does, one at a time: an iterator of
@@ -543,6 +547,15 @@ def render(
     stage timings (``pooling_ms`` ... ``total_ms``) NaN; thousands of frames
     a second on one core instead of tens (docs/replay.md, "Analysis at
     study speed"). Not with ``retinal=True``.
+
+    ``display_light``: a recording's pupil light response driven by the
+    display's light instead of the scene's (``replay --display-light``): a
+    CSV of ``t_secs,luminance_cd_m2`` (seconds from the first sample) or
+    ``event,luminance_cd_m2`` (an event pattern of the recording's events),
+    with the display's size as ``display_deg`` (``(W, H)`` degrees or
+    ``"WxH"``; default 40 x 30) or ``display_cm`` at
+    ``viewing_distance_cm``. A ``pupil_fit`` block then sees the display's
+    light too (docs/screen-experiment.md).
     """
     r = _render_open(
         **_render_inputs(scene, trace_or_recording, config),
@@ -562,6 +575,10 @@ def render(
         pupil_black_cd_m2=pupil_black_cd_m2,
         pupil_white_cd_m2=pupil_white_cd_m2,
         images=images,
+        display_light=None if display_light is None else os.fspath(display_light),
+        display_deg=_wxh(display_deg),
+        display_cm=_wxh(display_cm),
+        viewing_distance_cm=viewing_distance_cm,
     )
     config_name = _config_name(config)
     where = f"config {config_name}" if config_name else "config"
@@ -570,6 +587,14 @@ def render(
     for w in r.warnings:
         warnings.warn(GazelightWarning(w), stacklevel=2)
     return r
+
+
+def _wxh(v: Union[None, str, Tuple[float, float]]) -> Optional[str]:
+    """``(W, H)`` or ``"WxH"`` as the CLI's ``WxH``."""
+    if v is None or isinstance(v, str):
+        return v
+    w, h = v
+    return f"{float(w)!r}x{float(h)!r}"
 
 
 def check_render(

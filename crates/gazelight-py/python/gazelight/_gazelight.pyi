@@ -146,6 +146,10 @@ def render_open(
     pupil_white_cd_m2: Optional[float] = None,
     check_only: bool = False,
     images: bool = True,
+    display_light: Optional[_Path] = None,
+    display_deg: Optional[str] = None,
+    display_cm: Optional[str] = None,
+    viewing_distance_cm: Optional[float] = None,
 ) -> Optional[Render]: ...
 def write_png(path: _Path, frame: npt.NDArray[np.uint8]) -> None: ...
 def input_kind(path: _Path) -> str: ...
