@@ -48,6 +48,7 @@ use gazelight_vision::pipeline::{
     DisplayFrame, FrameInput, FramePipeline, FrameStats, PipelineConfig,
 };
 use gazelight_vision::psf::PsfKernel;
+use gazelight_vision::scene::{PanoramaView, ViewParams};
 use gazelight_vision::{RgbImage, VisionError};
 
 /// The backend a front end asks for (the CLI's `--backend`, Python's
@@ -694,6 +695,37 @@ impl Renderer {
             Renderer::Gpu(g, _) => g.pipeline.set_adaptation(state),
         }
     }
+}
+
+/// One renderer per view of `view` (`gazelight_render::frame::views(stereo)`:
+/// one, or a stereo pair), chosen by `choice` as [`Renderer::choose`] does
+/// (named in messages as `spelling` writes it), for `view`'s frames with
+/// `config`; pooling measures angles through the view's projection. The
+/// choosable counterpart of `gazelight_render::frame::cpu_pipelines`
+/// (Python's `render`).
+pub fn view_renderers(
+    choice: BackendChoice,
+    spelling: Spelling,
+    config: &PipelineConfig,
+    view: &ViewParams,
+    stereo: bool,
+) -> Result<Vec<Renderer>, BackendError> {
+    let frustum = PanoramaView::new(*view)?.frustum_tans();
+    gazelight_render::frame::views(stereo)
+        .iter()
+        .map(|_| {
+            let mut r = Renderer::choose(
+                choice,
+                spelling,
+                config,
+                view.width,
+                view.height,
+                view.deg_per_px(),
+            )?;
+            r.set_view_frustum(frustum)?;
+            Ok(r)
+        })
+        .collect()
 }
 
 /// The frame step of `render` and `replay` (`gazelight_render::frame`)

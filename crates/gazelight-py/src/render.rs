@@ -1,6 +1,8 @@
 //! `gazelight.render`: a scene and a gaze/pupil trace or a recording →
 //! frames, one at a time, through `gazelight_render`'s frame step — the
-//! code `gazelight render` and `replay` run — on the CPU pipeline.
+//! code `gazelight render` and `replay` run — on the CPU or the GPU
+//! pipeline, chosen as the CLI's `--backend` chooses
+//! (`gazelight_app::backend`; `backend="auto"|"gpu"|"cpu"`).
 //!
 //! Nothing is loaded whole: a recording is scanned once for its time range
 //! and then streamed just ahead of the frame clock; each `next()` renders
@@ -18,6 +20,7 @@ use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
+use gazelight_app::backend::{BackendChoice, BackendError, Renderer, Spelling, view_renderers};
 use gazelight_app::bounds;
 use gazelight_app::config::render::scene_projection;
 use gazelight_app::config::{ConfigUser, RenderConfig};
@@ -26,7 +29,7 @@ use gazelight_render::analysis::AnalysisStep;
 use gazelight_render::demo;
 use gazelight_render::display_light::{DisplayGeometry, DisplayLight, DisplayLightTable};
 use gazelight_render::feed::{ImporterSamples, SampleFeed, scan};
-use gazelight_render::frame::{FrameStep, cpu_pipelines};
+use gazelight_render::frame::FrameStep;
 use gazelight_render::png::PngCompression;
 use gazelight_render::pupil_light::{
     self, ParamSource, PupilLight, PupilLightOptions, PupilLightPlan,
@@ -37,7 +40,7 @@ use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::pupil_response::ResponseParams;
 use gazelight_tracker::{GazeTrace, PupilUnit, Sample, trace_source};
 use gazelight_vision::RgbImage;
-use gazelight_vision::pipeline::{FramePipeline, PipelineConfig};
+use gazelight_vision::pipeline::PipelineConfig;
 use gazelight_vision::scene::{LuminanceScale, PanoramaView, Scene, ViewParams};
 
 use crate::err;
@@ -95,6 +98,14 @@ pub(crate) struct Render {
     /// Notes for the Python side to raise as warnings.
     #[pyo3(get)]
     warnings: Vec<String>,
+    /// The frame pipeline that renders, as the CLI's summary names it
+    /// (`cpu`, `gpu: ADAPTER (BACKEND, hardware|software)`); `None` with
+    /// `images=False` (no image pipeline).
+    #[pyo3(get)]
+    backend: Option<String>,
+    /// Why that pipeline (`backend="cpu"`, `auto: no GPU adapter found …`).
+    #[pyo3(get)]
+    backend_reason: Option<String>,
     /// A recording's pupil light response: each view's parameters and
     /// where they came from (empty for a trace).
     pupil_light_params: Vec<(&'static str, ResponseParams, ParamSource)>,
@@ -104,7 +115,7 @@ pub(crate) struct Render {
 /// only the rows (`gazelight_render::analysis`, the CLI's `--no-frames`
 /// path: the same values, the stage timings NaN).
 enum Steps {
-    Images(Box<FrameStep<FramePipeline>>),
+    Images(Box<FrameStep<Renderer>>),
     Numbers(Box<AnalysisStep>),
 }
 
@@ -295,7 +306,7 @@ const MAX_FRAME_WIDTH: usize = 2 * MAX_SIDE;
     config=None, config_name=None, fps=30.0, frames=None, retinal=false, calibration=None,
     from_secs=0.0, secs=None, yaw_deg=None, pitch_deg=None, hfov_deg=None,
     luminance_scale=None, pupil_fit=None, pupil_black_cd_m2=None, pupil_white_cd_m2=None,
-    check_only=false, images=true, display_light=None, display_deg=None, display_cm=None,
+    check_only=false, images=true, backend="auto", display_light=None, display_deg=None, display_cm=None,
     viewing_distance_cm=None))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_open(
@@ -322,6 +333,7 @@ pub(crate) fn render_open(
     pupil_white_cd_m2: Option<f64>,
     check_only: bool,
     images: bool,
+    backend: &str,
     display_light: Option<PathBuf>,
     display_deg: Option<String>,
     display_cm: Option<String>,
@@ -384,6 +396,11 @@ pub(crate) fn render_open(
             "retinal=True asks for the retinal images; images=False makes none",
         ));
     }
+    // The CLI's `--backend` values; the choice itself is made when the
+    // pipelines are built (`gazelight_app::backend`, the CLI's rule).
+    let backend: BackendChoice = backend
+        .parse()
+        .map_err(|e: BackendError| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
     // `check_render`: the checks above (the CLI's `GAZELIGHT_PARSE_ONLY`
     // ones), nothing opened.
     if check_only {
@@ -514,7 +531,11 @@ pub(crate) fn render_open(
                 keep_retinal: retinal,
                 ..settings.pipeline.clone()
             };
-            let pipelines = cpu_pipelines(&pipeline_config, &view, stereo).map_err(err)?;
+            // The CLI's renderer choice (`--backend`), named in its
+            // messages as Python writes it (`backend="gpu"`).
+            let pipelines =
+                view_renderers(backend, Spelling::Keyword, &pipeline_config, &view, stereo)
+                    .map_err(|e| err(crate::chain_msg(&e)))?;
             Steps::Images(Box::new(
                 FrameStep::new(
                     pipelines,
@@ -532,6 +553,14 @@ pub(crate) fn render_open(
                 AnalysisStep::new(stereo, &settings.pipeline, &view, &view_img, t0, fps)
                     .map_err(err)?,
             ))
+        };
+        let (backend_name, backend_reason) = match &step {
+            Steps::Images(s) => s
+                .pipelines()
+                .first()
+                .map(|r| (r.describe(), r.reason().to_owned()))
+                .unzip(),
+            Steps::Numbers(_) => (None, None),
         };
         let suffixes = views.iter().map(|v| v.suffix()).collect();
         let n_views = views.len();
@@ -604,6 +633,8 @@ pub(crate) fn render_open(
             fps,
             ignored,
             warnings: std::mem::take(&mut notes),
+            backend: backend_name,
+            backend_reason,
             pupil_light_params,
         })
     })

@@ -62,7 +62,7 @@ def test_demo_frames_equal_the_cli_render(gazelight_bin, tmp_path):
     out = tmp_path / "cli"
     run_cli(gazelight_bin, "render", "--backend", "cpu", "--size", "96x80", "--fps", "0.6667",
             "--out", str(out))
-    r = gazelight.render(size=(96, 80), fps=0.6667)
+    r = gazelight.render(size=(96, 80), fps=0.6667, backend="cpu")
     assert r.frames >= 8 and r.size == (96, 80)
     frames = list(r)
     assert all(f.shape == (80, 96, 4) and f.dtype == np.uint8 for f, _ in frames)
@@ -86,7 +86,7 @@ def test_replay_frames_equal_the_cli_replay(name, flags, stereo, data_dir, gazel
     run_cli(gazelight_bin, "replay", str(path), "--backend", "cpu", "--size", "48x40", *flags,
             *(["--stereo"] if stereo else []), "--out", str(out))
     kw = dict(zip((f.lstrip("-").replace("-", "_") for f in flags[::2]), (float(v) for v in flags[1::2])))
-    r = gazelight.render(None, path, size=(48, 40), stereo=stereo, **kw)
+    r = gazelight.render(None, path, size=(48, 40), stereo=stereo, backend="cpu", **kw)
     frames = list(r)
     assert frames[0][0].shape == (40, 96 if stereo else 48, 4)
     _check_same_frames(out, frames, tmp_path, ("_left", "_right") if stereo else ("",))
@@ -124,7 +124,7 @@ def test_config_file_is_the_clis(gazelight_bin, tmp_path):
     run_cli(gazelight_bin, "render", "--backend", "cpu", "--size", "64x48", "--frames", "3", "--config", str(cfg),
             "--out", str(out))
     with pytest.warns(gazelight.GazelightWarning, match="http"):
-        r = gazelight.render(size=(64, 48), frames=3, config=cfg)
+        r = gazelight.render(size=(64, 48), frames=3, config=cfg, backend="cpu")
     _check_same_frames(out, list(r), tmp_path)
     # A bad value: the CLI's words.
     with pytest.raises(gazelight.GazelightError, match="observer.age_years = 400"):
@@ -146,7 +146,7 @@ def test_a_config_with_its_scene_and_projection_is_the_clis(gazelight_bin, tmp_p
     out = tmp_path / "cli"
     run_cli(gazelight_bin, "render", "--backend", "cpu", "--size", "48x32", "--frames", "2", "--config", str(cfg),
             "--out", str(out))
-    frames = list(gazelight.render(size=(48, 32), frames=2, config=cfg))
+    frames = list(gazelight.render(size=(48, 32), frames=2, config=cfg, backend="cpu"))
     _check_same_frames(out, frames, tmp_path)
     # The projection was applied: without it the same picture is an
     # equirectangular panorama and the frame differs.

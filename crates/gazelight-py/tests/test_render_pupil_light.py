@@ -96,7 +96,7 @@ def test_eyelink_mono_with_a_profile_equals_the_cli_replay(data_dir, gazelight_b
     run_cli(gazelight_bin, "replay", str(rec), "--backend", "cpu", "--calibration", str(profile),
             "--pupil-black-cd-m2", "0.05", "--pupil-white-cd-m2", "200", "--size", "48x40", "--fps", "1",
             "--secs", "85", "--no-frames", "--out", str(out))
-    r = gazelight.render(None, rec, size=(48, 40), fps=1.0, secs=85.0, calibration=profile,
+    r = gazelight.render(None, rec, backend="cpu", size=(48, 40), fps=1.0, secs=85.0, calibration=profile,
                          pupil_black_cd_m2=0.05, pupil_white_cd_m2=200.0)
     _compare_params(out, r, ("",), "profile")
     _compare(out, r, ("",), min_residuals=50)
@@ -109,7 +109,7 @@ def test_neon_stereo_equals_the_cli_replay(data_dir, gazelight_bin, tmp_path):
     out = tmp_path / "cli"
     run_cli(gazelight_bin, "replay", str(rec), "--backend", "cpu", "--stereo", "--size", "48x40", "--fps", "10",
             "--secs", "3", "--no-frames", "--out", str(out))
-    r = gazelight.render(None, rec, size=(48, 40), fps=10.0, secs=3.0, stereo=True)
+    r = gazelight.render(None, rec, backend="cpu", size=(48, 40), fps=10.0, secs=3.0, stereo=True)
     _compare_params(out, r, ("_left", "_right"), "default")
     _compare(out, r, ("_left", "_right"), min_residuals=30)
 
@@ -126,7 +126,7 @@ def test_a_fitted_block_equals_the_cli_replay(data_dir, gazelight_bin, tmp_path)
                 "--backend", "cpu", "--pupil-fit", "0..20", "--size", "32x24", "--fps", "5", "--secs", "3",
                 "--no-frames", "--out", str(out))
     assert "pupil light fit over 0..8.963258 s" in p.stdout, p.stdout
-    r = gazelight.render(scene, rec, luminance_scale=1000.0, size=(32, 24), fps=5.0, secs=3.0, pupil_fit=(0, 20))
+    r = gazelight.render(scene, rec, luminance_scale=1000.0, backend="cpu", size=(32, 24), fps=5.0, secs=3.0, pupil_fit=(0, 20))
     _compare_params(out, r, ("",), "fit")
     _compare(out, r, ("",), min_residuals=10)
 

@@ -494,6 +494,7 @@ def render(
     pupil_black_cd_m2: Optional[float] = None,
     pupil_white_cd_m2: Optional[float] = None,
     images: bool = True,
+    backend: str = "auto",
     display_light: Optional[PathLike] = None,
     display_deg: Union[None, str, Tuple[float, float]] = None,
     display_cm: Union[None, str, Tuple[float, float]] = None,
@@ -548,6 +549,17 @@ def render(
     a second on one core instead of tens (docs/replay.md, "Analysis at
     study speed"). Not with ``retinal=True``.
 
+    ``backend``: the frame pipeline, chosen as the CLI's ``--backend``
+    chooses (the same rule, in the application core): ``"auto"`` (the
+    default, as the CLI's) a hardware GPU when there is one, else the CPU
+    pipeline (a software adapter such as lavapipe runs on the same cores and
+    is slower than the CPU pipeline, so ``auto`` does not pick it);
+    ``"gpu"`` the GPU pipeline on the best adapter, a software one included,
+    and a :class:`GazelightError` when there is none; ``"cpu"`` the CPU
+    reference pipeline. The two pipelines' frames agree within 1/255.
+    :attr:`Render.backend` names the pipeline chosen and
+    :attr:`Render.backend_reason` why (``None`` with ``images=False``).
+
     ``display_light``: a recording's pupil light response driven by the
     display's light instead of the scene's (``replay --display-light``): a
     CSV of ``t_secs,luminance_cd_m2`` (seconds from the first sample) or
@@ -575,6 +587,7 @@ def render(
         pupil_black_cd_m2=pupil_black_cd_m2,
         pupil_white_cd_m2=pupil_white_cd_m2,
         images=images,
+        backend=backend,
         display_light=None if display_light is None else os.fspath(display_light),
         display_deg=_wxh(display_deg),
         display_cm=_wxh(display_cm),
