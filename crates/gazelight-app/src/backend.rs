@@ -130,28 +130,29 @@ pub enum BackendError {
     /// `gpu` was asked for and no GPU device can be made (`error` says
     /// why; no adapter, typically).
     #[error(
-        "{asked}: {error}. Use {cpu} to render on the CPU \
-         (or {auto} to fall back to it when there is no hardware GPU)"
+        "{}: {error}. Use {} to render on the CPU \
+         (or {} to fall back to it when there is no hardware GPU)",
+        spelling.of(BackendChoice::Gpu),
+        spelling.of(BackendChoice::Cpu),
+        spelling.of(BackendChoice::Auto)
     )]
     NoGpu {
-        /// The choice as the user wrote it (`--backend gpu`).
-        asked: String,
-        /// The CPU choice, spelled the same way.
-        cpu: String,
-        /// The `auto` choice, spelled the same way.
-        auto: String,
+        /// How the front end names the choices.
+        spelling: Spelling,
         /// Why no device: part of the message, not a cause (the CLI prints
         /// causes after the message).
         error: GpuError,
     },
     /// `gpu` was asked for; there is a device, but the pipeline cannot be
     /// built on it.
-    #[error("{asked}: cannot build the GPU pipeline (try {cpu})")]
+    #[error(
+        "{}: cannot build the GPU pipeline (try {})",
+        spelling.of(BackendChoice::Gpu),
+        spelling.of(BackendChoice::Cpu)
+    )]
     GpuPipeline {
-        /// The choice as the user wrote it.
-        asked: String,
-        /// The CPU choice, spelled the same way.
-        cpu: String,
+        /// How the front end names the choices.
+        spelling: Spelling,
         /// What failed.
         #[source]
         source: GpuError,
@@ -328,21 +329,12 @@ impl Renderer {
         match choice {
             BackendChoice::Cpu => Self::cpu(config, width, height, deg_per_px, spelling.of(choice)),
             BackendChoice::Gpu => {
-                let asked = spelling.of(choice);
-                let cpu = spelling.of(BackendChoice::Cpu);
-                let ctx = GpuContext::new(&ContextOptions::default()).map_err(|error| {
-                    BackendError::NoGpu {
-                        asked: asked.clone(),
-                        cpu: cpu.clone(),
-                        auto: spelling.of(BackendChoice::Auto),
-                        error,
-                    }
-                })?;
-                Self::on_device(&ctx, config, width, height, deg_per_px, &asked).map_err(
+                let ctx = GpuContext::new(&ContextOptions::default())
+                    .map_err(|error| BackendError::NoGpu { spelling, error })?;
+                let why = spelling.of(choice);
+                Self::on_device(&ctx, config, width, height, deg_per_px, &why).map_err(
                     |e| match e {
-                        BackendError::Gpu(source) => {
-                            BackendError::GpuPipeline { asked, cpu, source }
-                        }
+                        BackendError::Gpu(source) => BackendError::GpuPipeline { spelling, source },
                         other => other,
                     },
                 )
