@@ -24,6 +24,32 @@ fn png_size(path: &Path) -> (u32, u32) {
     (be(16), be(20))
 }
 
+/// The complete lines of a CSV being written (a last line without its
+/// newline is not yet a row), as maps from column to text.
+fn complete_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
+    let complete = match text.rfind('\n') {
+        Some(k) => &text[..k],
+        None => return Vec::new(),
+    };
+    let mut lines = complete.lines();
+    let Some(header) = lines.next() else {
+        return Vec::new();
+    };
+    let names: Vec<&str> = header.split(',').collect();
+    lines
+        .map(|l| {
+            names
+                .iter()
+                .zip(l.split(','))
+                .map(|(n, v)| ((*n).to_owned(), v.to_owned()))
+                .collect()
+        })
+        .collect()
+}
+
 fn success(out: &std::process::Output) -> String {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "exit {:?}: {stderr}", out.status);
@@ -311,8 +337,10 @@ fn stereo_run_follows_each_eye() {
             "96x80",
             "--fps",
             "30",
+            // A cap for a hung run only: the run is ended (SIGINT) once
+            // the events the checks need are on disk.
             "--secs",
-            "4",
+            "120",
             "--out",
             dir.to_str().unwrap(),
         ])
@@ -321,6 +349,41 @@ fn stereo_run_follows_each_eye() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("spawn");
+    // The events, not a duration: each eye's kernel for its pupil
+    // installed (psf.csv; the PSF worker runs at idle priority, so on a
+    // loaded machine that takes as long as the machine makes it take),
+    // then 30 frames on the timeline after both. Both files are flushed
+    // at least every second.
+    let started = std::time::Instant::now();
+    let kernels_at = loop {
+        let kernels_at = [("left", 4.25), ("right", 3.75)].map(|(view, want)| {
+            complete_rows(&dir.join("psf.csv"))
+                .iter()
+                .find(|r| {
+                    (r["view"] == view || r["view"] == "both")
+                        && r["pupil_mm"]
+                            .parse::<f64>()
+                            .is_ok_and(|p| (p - want).abs() <= 0.1 + 1e-3)
+                })
+                .and_then(|r| r["t_secs"].parse().ok())
+                .unwrap_or(f64::NAN)
+        });
+        let after = kernels_at[0].max(kernels_at[1]);
+        let frames_after = complete_rows(&dir.join("timeline.csv"))
+            .iter()
+            .filter(|r| r["t_secs"].parse::<f64>().is_ok_and(|t| t >= after))
+            .count();
+        if after.is_finite() && frames_after >= 30 {
+            break kernels_at;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(110),
+            "kernels for the pupils at t = {kernels_at:?} s, {frames_after} frames after"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // SAFETY: a plain signal to the child this test spawned.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let out = wait_bounded(child, Duration::from_secs(60));
     drop(peer);
     let stdout = success(&out);
@@ -328,7 +391,18 @@ fn stereo_run_follows_each_eye() {
     let csv = Csv::read(&dir.join("timeline.csv"));
     let n = csv.rows.len();
     assert!(n > 30, "{n} frames");
-    let tail = |name: &str| median(csv.f64s(name)[n / 2..].to_vec());
+    let t = csv.f64s("t_secs");
+    // The frames after both kernels were installed.
+    let settled = |name: &str| -> Vec<f64> {
+        let after = kernels_at[0].max(kernels_at[1]);
+        csv.f64s(name)
+            .into_iter()
+            .zip(&t)
+            .filter(|(_, t)| **t >= after)
+            .map(|(v, _)| v)
+            .collect()
+    };
+    let tail = |name: &str| median(settled(name));
     // Pupil's eye 1 is the left eye (3D diameters 4.25 mm), eye 0 the right
     // (3.75 mm).
     // (The live timeline's measured pupils per eye; each view's aperture.)
