@@ -44,8 +44,7 @@ use gazelight_vision::temporal::AdaptationState;
 
 use crate::RenderError;
 use crate::feed::SampleFeed;
-use crate::frame::{Step, View, place_side_by_side, views};
-use crate::timeline::TimelineRow;
+use crate::frame::{Step, View, place_side_by_side, view_row, views};
 
 /// The stage timings of a row no image pipeline made: every one NaN (an
 /// empty cell).
@@ -339,19 +338,7 @@ impl AnalysisStep {
             };
             log_adaptation += stats.adaptation_cd_m2.max(1e-9).ln() / n_views as f64;
             let pupil = self.views[k].pupil(&state);
-            rows.push(TimelineRow {
-                t_secs: t_secs - self.t0_secs,
-                gaze_u: input.gaze_uv[0],
-                gaze_v: input.gaze_uv[1],
-                pupil_mm: pupil.mm(),
-                pupil_raw: pupil.raw(),
-                pupil_map_mm: pupil.map_mm.unwrap_or(f32::NAN),
-                pupil_held: pupil.held(),
-                aperture_mm: input.pupil_mm,
-                stats,
-                pupil_light_mm: f32::NAN,
-                pupil_residual_mm: f32::NAN,
-            });
+            rows.push(view_row(t_secs - self.t0_secs, input, &pupil, stats));
         }
         self.last_adaptation = Some(log_adaptation.exp());
         self.next += 1;

@@ -339,6 +339,31 @@ impl StereoKernels {
     }
 }
 
+/// A view's timeline row for its frame input, pupil and pipeline stats
+/// (`t_rel_secs` from the first frame; no pupil light response yet: NaN,
+/// which the caller may fill in). The full and the analysis path both
+/// write their rows through it.
+pub fn view_row(
+    t_rel_secs: f64,
+    input: &FrameInput,
+    pupil: &ViewPupil,
+    stats: FrameStats,
+) -> TimelineRow {
+    TimelineRow {
+        t_secs: t_rel_secs,
+        gaze_u: input.gaze_uv[0],
+        gaze_v: input.gaze_uv[1],
+        pupil_mm: pupil.mm(),
+        pupil_raw: pupil.raw(),
+        pupil_map_mm: pupil.map_mm.unwrap_or(f32::NAN),
+        pupil_held: pupil.held(),
+        aperture_mm: input.pupil_mm,
+        stats,
+        pupil_light_mm: f32::NAN,
+        pupil_residual_mm: f32::NAN,
+    }
+}
+
 /// Copies `src` (rows of `row_len` elements) into column `slot` of a
 /// side-by-side image of `slots` such columns.
 pub fn place_side_by_side<T: Copy>(
@@ -533,19 +558,7 @@ impl<R: ViewRenderer> FrameStep<R> {
                     n_views,
                 );
             }
-            rows.push(TimelineRow {
-                t_secs: t_secs - self.t0_secs,
-                gaze_u: input.gaze_uv[0],
-                gaze_v: input.gaze_uv[1],
-                pupil_mm: pupil.mm(),
-                pupil_raw: pupil.raw(),
-                pupil_map_mm: pupil.map_mm.unwrap_or(f32::NAN),
-                pupil_held: pupil.held(),
-                aperture_mm: input.pupil_mm,
-                stats,
-                pupil_light_mm: f32::NAN,
-                pupil_residual_mm: f32::NAN,
-            });
+            rows.push(view_row(t_secs - self.t0_secs, input, &pupil, stats));
         }
         self.last_adaptation = Some(log_adaptation.exp());
         self.next += 1;
