@@ -70,16 +70,7 @@ impl MarkerInlet {
                 ),
             });
         }
-        // SAFETY: live info; liblsl copies it. Buffer 10 × 100 markers
-        // (an irregular stream's buffer is counted in hundreds of
-        // samples), no chunking, recover = 0 (a lost stream is resolved
-        // again by the reader).
-        let ptr = unsafe { (info.api.create_inlet)(info.ptr, 10, 0, 0) };
-        if ptr.is_null() {
-            return Err(LslError::Create {
-                what: format!("an inlet for `{name}`"),
-            });
-        }
+        let ptr = info.create_inlet()?;
         Ok(Self {
             api: info.api,
             ptr,

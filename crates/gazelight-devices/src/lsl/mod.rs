@@ -348,6 +348,21 @@ pub struct StreamInfo {
 unsafe impl Send for StreamInfo {}
 
 impl StreamInfo {
+    /// An inlet on this stream: a buffer of 10 (seconds of a regular
+    /// stream, hundreds of samples of an irregular one such as markers),
+    /// no chunking, no automatic recovery (a lost stream is resolved again
+    /// by the caller).
+    pub(crate) fn create_inlet(&self) -> Result<Ptr, LslError> {
+        // SAFETY: live info; liblsl copies it.
+        let ptr = unsafe { (self.api.create_inlet)(self.ptr, 10, 0, 0) };
+        if ptr.is_null() {
+            return Err(LslError::Create {
+                what: format!("an inlet for `{}`", self.name()),
+            });
+        }
+        Ok(ptr)
+    }
+
     fn text(&self, f: unsafe extern "C" fn(Ptr) -> *const c_char) -> String {
         // SAFETY: live info; liblsl returns a string it owns.
         unsafe { ffi::copy_str(f(self.ptr)) }.unwrap_or_default()
@@ -479,14 +494,7 @@ impl Inlet {
                 reason: format!("stream `{name}`: {channels} channels"),
             });
         }
-        // SAFETY: live info; liblsl copies it. Buffer 10 s, no chunking,
-        // recover = 0.
-        let ptr = unsafe { (info.api.create_inlet)(info.ptr, 10, 0, 0) };
-        if ptr.is_null() {
-            return Err(LslError::Create {
-                what: format!("an inlet for `{name}`"),
-            });
-        }
+        let ptr = info.create_inlet()?;
         Ok(Self {
             api: info.api,
             ptr,
