@@ -12,7 +12,8 @@
 //! `read`/`FilterChain` take alone); and [`layer_config`], the OpenXR
 //! layer's `layer.toml`; and [`backend`], the renderer choice (`auto`,
 //! `gpu`, `cpu`: the rule, the fallback and the GPU/CPU `Renderer` the
-//! CLI's commands and Python's `render` drive). The rest of the
+//! CLI's commands and Python's `render` drive); and [`session`], the
+//! settings in effect with where each came from (`session.json`). The rest of the
 //! application core (the render/replay session and its streaming per-frame
 //! writer, source opening) is still in the binary crate and moves here
 //! piece by piece (ARCHITECTURE.md, "Where the front ends still
@@ -23,6 +24,7 @@ pub mod bounds;
 pub mod config;
 pub mod layer_config;
 pub mod observer;
+pub mod session;
 
 #[cfg(test)]
 pub(crate) mod tests {

@@ -30,7 +30,6 @@ mod isolated;
 mod layer;
 mod lsl_outlets;
 mod observer;
-mod out_dir;
 mod output;
 mod profile_cmd;
 mod psf;
@@ -41,7 +40,6 @@ mod replay;
 mod run;
 mod serve;
 mod service_config;
-mod session;
 mod shutdown;
 mod stereo;
 mod trials;
@@ -50,6 +48,8 @@ mod view_args;
 mod window;
 
 /// The embedded scene and demo trace (shared with the Python package).
+use gazelight_app::session;
+use gazelight_output::out_dir;
 use gazelight_render::demo;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};

@@ -28,6 +28,16 @@ pub struct ObserverArgs {
 
 pub use gazelight_app::observer::ObserverSettings;
 
+impl ObserverArgs {
+    /// The flags as the application core takes them.
+    pub fn flags(&self) -> gazelight_app::observer::ObserverFlags {
+        gazelight_app::observer::ObserverFlags {
+            age_years: self.age_years,
+            pigmentation: self.pigmentation,
+        }
+    }
+}
+
 /// The observer's age and pigmentation from the flags, else the
 /// configuration's `[observer]`, else the profile's
 /// (`gazelight_app::observer::apply`, the rule Python and the OpenXR layer
@@ -38,11 +48,10 @@ pub fn apply(
     settings: Option<&ObserverSettings>,
     profile: Option<&Observer>,
 ) -> anyhow::Result<()> {
-    let flags = gazelight_app::observer::ObserverFlags {
-        age_years: args.age_years,
-        pigmentation: args.pigmentation,
-    };
     Ok(gazelight_app::observer::apply(
-        psf, &flags, settings, profile,
+        psf,
+        &args.flags(),
+        settings,
+        profile,
     )?)
 }

@@ -226,7 +226,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
         tracing::warn!(scene = %scene.name, "{note}");
         factor.note = Some(note);
     }
-    settings.set_view(&view, v, c.view);
+    settings.set_view(&view, v.angle_flags(), c.view);
     settings.set(
         "view.size",
         format!("{width}x{height}"),
@@ -234,7 +234,7 @@ pub(crate) fn prepare(args: &RenderArgs, user: ConfigUser) -> anyhow::Result<Set
     );
     settings.set_observer(
         &config.pipeline.glare.psf,
-        &args.observer,
+        &args.observer.flags(),
         &c.observer,
         None,
     );
@@ -305,13 +305,13 @@ pub(crate) fn prepare_out(
             .flatten()
             .map(PathBuf::as_path),
     );
-    crate::out_dir::prepare(
+    Ok(crate::out_dir::prepare(
         command,
         &args.out,
         crate::out_dir::OutKind::Frames,
         &all,
         args.force,
-    )
+    )?)
 }
 
 /// Runs `gazelight render`.

@@ -251,7 +251,7 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     )?;
     setup.settings.set_observer(
         &setup.config.pipeline.glare.psf,
-        &args.render.observer,
+        &args.render.observer.flags(),
         &observer,
         calibration.as_ref().map(|c| c.observer),
     );

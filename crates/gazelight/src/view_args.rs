@@ -66,6 +66,16 @@ pub struct ViewArgs {
 }
 
 impl ViewArgs {
+    /// The view angles the flags gave, as `session.json`'s record takes
+    /// them.
+    pub fn angle_flags(&self) -> gazelight_app::session::ViewAngleFlags {
+        gazelight_app::session::ViewAngleFlags {
+            yaw_deg: self.yaw_deg,
+            pitch_deg: self.pitch_deg,
+            hfov_deg: self.hfov_deg,
+        }
+    }
+
     /// The luminance scale: a flag, else the configuration's, else the
     /// default; bounded ([`crate::bounds::luminance_scale`]).
     pub fn scale(&self, configured: Option<LuminanceScale>) -> anyhow::Result<LuminanceScale> {

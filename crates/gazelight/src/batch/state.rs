@@ -176,7 +176,7 @@ impl State {
         let path = self.record_path(&record.id);
         let text = serde_json::to_string_pretty(record).context("batch record as JSON")? + "\n";
         // `.ID.json.tmp`, removed when the write or the rename fails.
-        crate::out_dir::write_atomic(&path, text.as_bytes())
+        Ok(crate::out_dir::write_atomic(&path, text.as_bytes())?)
     }
 }
 

@@ -317,7 +317,7 @@ fn run_settings(
     s.set("scene.cd_m2_per_unit", scene.cd_m2_per_unit, scale_origin);
     s.set_view(
         view,
-        v,
+        v.angle_flags(),
         crate::view_args::ViewDefaults {
             yaw_deg: c.scene.yaw_deg,
             pitch_deg: c.scene.pitch_deg,
@@ -326,7 +326,7 @@ fn run_settings(
     );
     s.set_observer(
         &cfg.pipeline.glare.psf,
-        &args.observer,
+        &args.observer.flags(),
         &c.observer,
         r.calibration.as_ref().map(|_| calibration.observer),
     );
@@ -398,13 +398,13 @@ fn prepare_out(args: &RunArgs, r: &Resolved, scene: Option<&Path>) -> anyhow::Re
     .into_iter()
     .flatten()
     .collect();
-    crate::out_dir::prepare(
+    Ok(crate::out_dir::prepare(
         "run",
         out,
         crate::out_dir::OutKind::Frames,
         &inputs,
         args.force,
-    )
+    )?)
 }
 
 /// Runs `gazelight run`.

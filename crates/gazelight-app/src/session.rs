@@ -23,10 +23,32 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use gazelight_tracker::PupilUnit;
 use gazelight_tracker::profile::PupilCalibration;
 use serde::Serialize;
+
+/// Why `session.json` could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionWriteError {
+    /// The settings did not serialise (a non-finite number in a table).
+    #[error("session settings as JSON")]
+    Json(#[source] serde_json::Error),
+    /// The file could not be written.
+    #[error(transparent)]
+    Write(#[from] gazelight_output::OutError),
+}
+
+/// The view angles the flags gave (`--yaw-deg`, `--pitch-deg`,
+/// `--hfov-deg`; `None`: not given).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ViewAngleFlags {
+    /// `--yaw-deg`.
+    pub yaw_deg: Option<f64>,
+    /// `--pitch-deg`.
+    pub pitch_deg: Option<f64>,
+    /// `--hfov-deg`.
+    pub hfov_deg: Option<f64>,
+}
 
 /// Where a setting's value came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -128,8 +150,8 @@ impl SessionSettings {
     pub fn set_view(
         &mut self,
         view: &gazelight_vision::scene::ViewParams,
-        flags: &crate::view_args::ViewArgs,
-        config: crate::view_args::ViewDefaults,
+        flags: ViewAngleFlags,
+        config: crate::config::ViewDefaults,
     ) {
         for (key, value, flag, configured) in [
             ("view.yaw_deg", view.yaw_deg, flags.yaw_deg, config.yaw_deg),
@@ -155,7 +177,7 @@ impl SessionSettings {
     pub fn set_observer(
         &mut self,
         psf: &gazelight_vision::psf::PsfParams,
-        flags: &crate::observer::ObserverArgs,
+        flags: &crate::observer::ObserverFlags,
         config: &crate::observer::ObserverSettings,
         profile: Option<gazelight_tracker::profile::Observer>,
     ) {
@@ -292,16 +314,19 @@ impl SessionSettings {
 
     /// Writes `dir/session.json` (a temporary file renamed into place, so
     /// a reader never sees half of it).
-    pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
+    pub fn write(&self, dir: &Path) -> Result<(), SessionWriteError> {
         let path = dir.join("session.json");
-        let text = serde_json::to_string_pretty(self).context("session settings as JSON")?;
+        let text = serde_json::to_string_pretty(self).map_err(SessionWriteError::Json)?;
         // `.session.json.tmp`, removed when the write or the rename fails.
-        crate::out_dir::write_atomic(&path, (text + "\n").as_bytes())
+        Ok(gazelight_output::write_atomic(
+            &path,
+            (text + "\n").as_bytes(),
+        )?)
     }
 }
 
 /// A raw pupil unit in a user's words.
-pub(crate) fn pupil_unit_words(u: PupilUnit) -> &'static str {
+pub fn pupil_unit_words(u: PupilUnit) -> &'static str {
     match u {
         PupilUnit::Px => "eye-camera pixels",
         PupilUnit::Mm => "mm",
@@ -313,7 +338,7 @@ pub(crate) fn pupil_unit_words(u: PupilUnit) -> &'static str {
 /// What a calibration's raw pupil value is, in a user's words: a
 /// diameter in the tracker's unit, or for an area the square root of the
 /// area (the calibration maps √area, which is linear in diameter).
-pub(crate) fn raw_pupil_words(u: PupilUnit) -> &'static str {
+pub fn raw_pupil_words(u: PupilUnit) -> &'static str {
     match u {
         PupilUnit::ArbitraryArea => "√area (square root of the arbitrary area units)",
         u => pupil_unit_words(u),

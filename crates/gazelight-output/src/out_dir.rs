@@ -32,7 +32,34 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+/// Why `--out` may not be written, or a file could not be.
+#[derive(Debug, thiserror::Error)]
+pub enum OutError {
+    /// A refusal; the message says what was found and what to do.
+    #[error("{0}")]
+    Refused(String),
+    /// A filesystem call failed on what `what` names.
+    #[error("{what}")]
+    Io {
+        /// What was being done, and on which path.
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// `Err(OutError::Refused(format!(…)))`.
+macro_rules! refuse {
+    ($($arg:tt)*) => {
+        return Err(OutError::Refused(format!($($arg)*)))
+    };
+}
+
+/// Wraps an I/O error with what was being done.
+fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> OutError {
+    let what = what.into();
+    move |source| OutError::Io { what, source }
+}
 
 /// What a command writes into its `--out`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -82,17 +109,17 @@ pub fn prepare(
     kind: OutKind,
     inputs: &[&Path],
     force: bool,
-) -> anyhow::Result<()> {
+) -> Result<(), OutError> {
     let shown = out.display();
     let meta = match std::fs::symlink_metadata(out) {
         Ok(m) => Some(m),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => return Err(e).with_context(|| format!("{command} --out {shown}")),
+        Err(e) => return Err(io(format!("{command} --out {shown}"))(e)),
     };
     // A symlink to a directory is followed, as `create_dir_all` would.
     let is_dir = out.is_dir();
     if let Some(input) = held_input(out, kind, inputs) {
-        bail!(
+        refuse!(
             "{command} --out {shown}: it holds the input {}; writing there would overwrite or clear it \
              (--force does not change this): choose another directory",
             input.display()
@@ -105,12 +132,12 @@ pub fn prepare(
         return Ok(());
     }
     if !is_dir {
-        bail!("{command} --out {shown}: exists and is not a directory");
+        refuse!("{command} --out {shown}: exists and is not a directory");
     }
     let recording = recording_in(out)?;
     match (recording, kind) {
         (Some(Recording::Gazelight), OutKind::Recording) | (None, _) => {}
-        (Some(r), _) => bail!(
+        (Some(r), _) => refuse!(
             "{command} --out {shown}: the directory holds {}; gazelight never writes into another \
              recording (--force does not change this): choose another directory",
             r.describe()
@@ -121,7 +148,7 @@ pub fn prepare(
         return Ok(());
     }
     if !force {
-        bail!(
+        refuse!(
             "{command} --out {shown}: holds a previous run's outputs ({}); give --force to clear \
              them first, or choose another directory",
             list(&previous)
@@ -141,10 +168,10 @@ pub fn check_out_file(
     flag: &str,
     out: &Path,
     inputs: &[&Path],
-) -> anyhow::Result<()> {
+) -> Result<(), OutError> {
     let shown = out.display();
     if out.is_dir() {
-        bail!("{command} {flag} {shown}: is a directory; a file name is expected");
+        refuse!("{command} {flag} {shown}: is a directory; a file name is expected");
     }
     let Some(target) = canonical(out) else {
         return Ok(());
@@ -160,7 +187,7 @@ pub fn check_out_file(
             && input.is_dir()
             && input_path.as_ref().is_some_and(|i| target.starts_with(i));
         if same_path || same_file || inside {
-            bail!(
+            refuse!(
                 "{command} {flag} {shown}: is the input {}; writing it would destroy what the \
                  command reads: choose another file",
                 input.display()
@@ -179,22 +206,22 @@ fn file_id(path: &Path) -> Option<(u64, u64)> {
 /// Writes `bytes` to `path` through a temporary beside it
 /// (`.NAME.tmp`, flushed, renamed into place): a reader never sees half a
 /// file, and when writing or the rename fails the temporary is removed.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), OutError> {
     use std::io::Write;
     let name = path
         .file_name()
-        .with_context(|| format!("{}: not a file name", path.display()))?;
+        .ok_or_else(|| OutError::Refused(format!("{}: not a file name", path.display())))?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
     tmp_name.push(".tmp");
     let tmp = path.with_file_name(tmp_name);
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
+        let mut f =
+            std::fs::File::create(&tmp).map_err(io(format!("cannot write {}", tmp.display())))?;
         f.write_all(bytes)
             .and_then(|()| f.sync_all())
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+            .map_err(io(format!("cannot write {}", tmp.display())))?;
+        std::fs::rename(&tmp, path).map_err(io(format!("cannot write {}", path.display())))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -209,13 +236,15 @@ fn prepare_file(
     is_dir: bool,
     exists: bool,
     force: bool,
-) -> anyhow::Result<()> {
+) -> Result<(), OutError> {
     let shown = out.display();
     if is_dir {
-        bail!("{command} --out {shown}: is a directory; the profile is a file (e.g. profile.json)");
+        refuse!(
+            "{command} --out {shown}: is a directory; the profile is a file (e.g. profile.json)"
+        );
     }
     if exists && !force {
-        bail!(
+        refuse!(
             "{command} --out {shown}: the file exists (a previous profile?); give --force to \
              replace it, or choose another name"
         );
@@ -300,11 +329,11 @@ impl Recording {
 }
 
 /// The entries of `dir` (names only; unreadable names are skipped).
-fn entries(dir: &Path) -> anyhow::Result<Vec<String>> {
-    let read = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+fn entries(dir: &Path) -> Result<Vec<String>, OutError> {
+    let read = std::fs::read_dir(dir).map_err(io(format!("cannot read {}", dir.display())))?;
     let mut names = Vec::new();
     for entry in read {
-        let entry = entry.with_context(|| format!("cannot read {}", dir.display()))?;
+        let entry = entry.map_err(io(format!("cannot read {}", dir.display())))?;
         if let Some(name) = entry.file_name().to_str() {
             names.push(name.to_owned());
         }
@@ -319,7 +348,7 @@ fn present(path: &Path) -> bool {
 }
 
 /// Which recording `dir` holds, if any.
-fn recording_in(dir: &Path) -> anyhow::Result<Option<Recording>> {
+fn recording_in(dir: &Path) -> Result<Option<Recording>, OutError> {
     if present(&dir.join("info.csv")) {
         return Ok(Some(Recording::PupilCapture1));
     }
@@ -358,7 +387,7 @@ fn player_software(path: &Path) -> Option<String> {
 
 /// The entries of `out` a run of `kind` would write (its previous outputs),
 /// relative to `out`.
-fn previous_outputs(out: &Path, kind: OutKind) -> anyhow::Result<Vec<PathBuf>> {
+fn previous_outputs(out: &Path, kind: OutKind) -> Result<Vec<PathBuf>, OutError> {
     let mut found = Vec::new();
     match kind {
         OutKind::Frames => {
@@ -399,19 +428,19 @@ fn previous_outputs(out: &Path, kind: OutKind) -> anyhow::Result<Vec<PathBuf>> {
 
 /// Removes `names` (relative to `out`; files and symlinks, never what a
 /// symlink points to).
-fn clear(out: &Path, names: &[PathBuf]) -> anyhow::Result<()> {
+fn clear(out: &Path, names: &[PathBuf]) -> Result<(), OutError> {
     for name in names {
         let path = out.join(name);
         let meta = std::fs::symlink_metadata(&path)
-            .with_context(|| format!("--force: cannot clear {}", path.display()))?;
+            .map_err(io(format!("--force: cannot clear {}", path.display())))?;
         if meta.is_dir() {
-            bail!(
+            refuse!(
                 "--force: {} is a directory where gazelight writes a file; remove it yourself",
                 path.display()
             );
         }
         std::fs::remove_file(&path)
-            .with_context(|| format!("--force: cannot clear {}", path.display()))?;
+            .map_err(io(format!("--force: cannot clear {}", path.display())))?;
     }
     Ok(())
 }
