@@ -13,7 +13,8 @@
 //! layer's `layer.toml`; and [`backend`], the renderer choice (`auto`,
 //! `gpu`, `cpu`: the rule, the fallback and the GPU/CPU `Renderer` the
 //! CLI's commands and Python's `render` drive); and [`session`], the
-//! settings in effect with where each came from (`session.json`). The rest of the
+//! settings in effect with where each came from (`session.json`);
+//! [`shutdown`], the signals that end a session with its outputs whole. The rest of the
 //! application core (the render/replay session and its streaming per-frame
 //! writer, source opening) is still in the binary crate and moves here
 //! piece by piece (ARCHITECTURE.md, "Where the front ends still
@@ -25,6 +26,7 @@ pub mod config;
 pub mod layer_config;
 pub mod observer;
 pub mod session;
+pub mod shutdown;
 
 #[cfg(test)]
 pub(crate) mod tests {

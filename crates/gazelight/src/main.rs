@@ -40,7 +40,6 @@ mod replay;
 mod run;
 mod serve;
 mod service_config;
-mod shutdown;
 mod stereo;
 mod trials;
 mod veil_map;
@@ -48,7 +47,7 @@ mod view_args;
 mod window;
 
 /// The embedded scene and demo trace (shared with the Python package).
-use gazelight_app::session;
+use gazelight_app::{session, shutdown};
 use gazelight_output::out_dir;
 use gazelight_render::demo;
 
