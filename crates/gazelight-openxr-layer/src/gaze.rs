@@ -36,7 +36,7 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 use gazelight_tracker::EyeState;
 use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::filter::FilterChain;
-use gazelight_tracker::live::{self, LiveConfig};
+use gazelight_tracker::live::LiveConfig;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::transport::{self, OpenOptions};
@@ -164,23 +164,18 @@ pub fn start(
     let uri = config.source.to_string();
     let chain = FilterChain::new(config.filter, PupilCalibration::identity())
         .map_err(|e| format!("filter: {e}"))?;
-    let source = {
-        let _in = runtime.enter();
-        transport::open_with(&config.source, &OpenOptions::default())
-            .map_err(|e| format!("source `{uri}`: {e}"))?
-    };
-    let age_clock = source.age_clock();
     let (shutdown, shutdown_rx) = watch::channel(false);
     let live = {
         let _in = runtime.enter();
-        live::spawn(
+        transport::open_live(
             &uri,
-            source,
+            &config.source,
+            &OpenOptions::default(),
             chain,
-            age_clock,
             shutdown_rx,
             LiveConfig::default(),
         )
+        .map_err(|e| format!("{e}: {}", e.source))?
     };
     if serve_gaze {
         log(

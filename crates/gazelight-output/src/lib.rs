@@ -2,8 +2,28 @@
 //! for "may this command write its `--out` here" (inputs never
 //! overwritten, other programs' recordings never written into, a previous
 //! run's outputs cleared only with `--force`) and [`write_atomic`], the
-//! whole-file write a reader never sees half of.
+//! whole-file write a reader never sees half of; what `render` writes
+//! besides the timeline ([`sheet`]: PNG frames and the contact sheet;
+//! [`plot`]: `plot.png` and the chart writer, with the one embedded
+//! [`font`]); and [`live`], the writer thread of a live run's `--out`
+//! (`timeline.csv`, `psf.csv`, `xr.csv`, `events.csv`, `frames/`).
 
+pub mod font;
+pub mod live;
 pub mod out_dir;
+pub mod plot;
+pub mod sheet;
 
 pub use out_dir::{OutError, OutKind, write_atomic};
+
+/// The columns of `events.csv` (replay's and a live run's).
+pub const EVENTS_COLUMNS: [&str; 8] = [
+    "t_secs",
+    "recording_t_secs",
+    "t_clock",
+    "duration_secs",
+    "source",
+    "text",
+    "trial",
+    "frame",
+];

@@ -19,7 +19,7 @@ use tokio::sync::watch;
 
 use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::filter::FilterChain;
-use gazelight_tracker::live::{self, LiveConfig};
+use gazelight_tracker::live::LiveConfig;
 use gazelight_tracker::transport::{self, SourceUri};
 
 use crate::err;
@@ -78,17 +78,15 @@ impl Source {
         let uri = self.uri.clone();
         let (shutdown, shutdown_rx) = watch::channel(false);
         let opened = runtime.block_on(async {
-            let source = transport::open(&parsed)
-                .map_err(|e| format!("source `{uri}`: {}", crate::chain_msg(&e)))?;
-            let age_clock = source.age_clock();
-            Ok::<_, String>(live::spawn(
+            transport::open_live(
                 &uri,
-                source,
+                &parsed,
+                &transport::OpenOptions::default(),
                 chain,
-                age_clock,
                 shutdown_rx,
                 LiveConfig::default(),
-            ))
+            )
+            .map_err(|e| crate::chain_msg(&e))
         });
         let live = match opened {
             Ok(l) => l,

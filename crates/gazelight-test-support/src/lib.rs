@@ -11,6 +11,8 @@
 //!   ([`bids::validate`]).
 //! - [`chromium`]: headless Chromium with a throw-away profile, and the
 //!   status page's state as the page shows it.
+//! - [`isolated`]: a test re-run alone in a child process of its test
+//!   binary, for measurements of the whole process (its memory).
 //! - [`netns`]: a test re-run inside a private network namespace
 //!   (`unshare -n`, loopback up), so no discovery packet leaves the machine.
 //! - [`seam`]: straight seams in a glare veil, from frames rendered with
@@ -23,6 +25,7 @@
 pub mod bids;
 pub mod chromium;
 pub mod data;
+pub mod isolated;
 pub mod netns;
 pub mod seam;
 

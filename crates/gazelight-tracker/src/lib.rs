@@ -20,9 +20,11 @@
 //! Eye indices follow Pupil Core: index 0 is the right eye, index 1 the
 //! left eye.
 
+pub mod calibrate;
 pub mod live;
 pub mod lsl;
 pub mod open;
+pub mod record;
 pub mod source;
 pub mod summarize;
 pub mod trace_source;
@@ -56,7 +58,9 @@ pub mod pupil {
 /// Hardware transports (`gazelight-devices`), the source URIs that name
 /// them and [`open`](crate::open::open).
 pub mod transport {
-    pub use crate::open::{AnySource, OpenOptions, open, open_markers, open_with};
+    pub use crate::open::{
+        AnySource, OpenLiveError, OpenOptions, open, open_live, open_markers, open_with,
+    };
     pub use crate::uri;
     pub use crate::uri::{SourceUri, UriError};
     pub use gazelight_devices::{

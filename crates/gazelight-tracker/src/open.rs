@@ -217,6 +217,40 @@ pub fn open_with(uri: &SourceUri, options: &OpenOptions) -> Result<AnySource, So
     }
 }
 
+/// A source could not be opened ([`open_live`]): its URI as the user
+/// wrote it, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("source `{uri}`")]
+pub struct OpenLiveError {
+    /// The URI as given.
+    pub uri: String,
+    /// Why it could not be opened.
+    #[source]
+    pub source: SourceError,
+}
+
+/// Opens `uri` (written `name` by the user) with `options` and starts its
+/// live eye task ([`crate::live::spawn`]): the one way every front end — the
+/// CLI's `run`, the OpenXR layer, Python's `Source` — turns a source URI
+/// into a running, filtered eye. Must be called inside a tokio runtime.
+pub fn open_live(
+    name: &str,
+    uri: &SourceUri,
+    options: &OpenOptions,
+    chain: crate::filter::FilterChain,
+    shutdown: tokio::sync::watch::Receiver<bool>,
+    config: crate::live::LiveConfig,
+) -> Result<crate::live::LiveEye, OpenLiveError> {
+    let source = open_with(uri, options).map_err(|source| OpenLiveError {
+        uri: name.to_owned(),
+        source,
+    })?;
+    let age_clock = source.age_clock();
+    Ok(crate::live::spawn(
+        name, source, chain, age_clock, shutdown, config,
+    ))
+}
+
 /// Starts reading the marker stream `uri` names (`lsl://?name=…`,
 /// `?type=…`, `?source_id=…`: a string stream) into `events`, on the host
 /// clock; the only scheme whose stream is events alone. The stream may

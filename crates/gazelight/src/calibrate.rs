@@ -19,13 +19,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
+use gazelight_tracker::calibrate::{CalibrateOptions, Event, StimulusTarget};
 use gazelight_tracker::calibration::{
-    CalibrationConfig, CalibrationSession, LogSink, Phase, PhaseSummary, Progress, Stimulus,
-    StimulusError, StimulusSink,
+    CalibrationConfig, Phase, PhaseSummary, Stimulus, StimulusError, StimulusSink,
 };
-use gazelight_tracker::pupil::{PupilConfig, PupilSource, RemoteSink};
-use gazelight_tracker::source::SampleSource;
-use gazelight_tracker::{Sample, SourceError};
+use gazelight_tracker::pupil::PupilConfig;
 
 use crate::service_config::ConfigUser;
 use crate::window::{self, Content, SolidColour, WindowOptions};
@@ -108,33 +106,6 @@ pub struct CalibrateArgs {
     /// Give up when the tracker sends nothing for this long, s.
     #[arg(long, value_name = "S", default_value_t = 5.0)]
     pub silence_secs: f64,
-}
-
-/// Prints every stimulus change as it happens (the technician's cue) and
-/// forwards it to an inner sink, if any.
-struct AnnouncingSink<'a> {
-    inner: Option<&'a mut (dyn StimulusSink + Send)>,
-    phase_secs: f64,
-    first_t: Option<f64>,
-}
-
-impl StimulusSink for AnnouncingSink<'_> {
-    fn show(&mut self, stimulus: Stimulus, at_t_secs: f64) -> Result<(), StimulusError> {
-        let t0 = *self.first_t.get_or_insert(at_t_secs);
-        match stimulus {
-            Stimulus::None => eprintln!("[{:5.1} s] stimulus off", at_t_secs - t0),
-            s => eprintln!(
-                "[{:5.1} s] showing {} for {:.1} s",
-                at_t_secs - t0,
-                format!("{s:?}").to_uppercase(),
-                self.phase_secs
-            ),
-        }
-        match &mut self.inner {
-            Some(sink) => sink.show(stimulus, at_t_secs),
-            None => Ok(()),
-        }
-    }
 }
 
 /// Runs `gazelight calibrate`.
@@ -275,6 +246,8 @@ impl StimulusSink for WindowSink {
     }
 }
 
+/// The routine ([`gazelight_tracker::calibrate`]) with the signals, the
+/// printing and the profile written.
 async fn calibrate(
     args: CalibrateArgs,
     cfg: CalibrationConfig,
@@ -285,112 +258,56 @@ async fn calibrate(
     // stimulus is turned off and no profile is written.
     let signals = crate::shutdown::Signals::new()
         .context("cannot install the SIGINT/SIGTERM/SIGHUP handlers")?;
-    let signal = signals.first();
-    tokio::pin!(signal);
-    let (mut source, _raw) = PupilSource::spawn(pupil);
-    let connect = crate::bounds::secs("--silence-secs", args.silence_secs)?;
-    source.client().wait_connected(connect).await.with_context(|| {
-        format!(
-            "no tracker at {}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?",
-            args.source()
-        )
-    })?;
-    eprintln!(
-        "connected to {} ({}); calibrating: {:?} then {:?}, {:.1} s each, {:.1} s settle",
-        args.source(),
-        source.client().stats().version.unwrap_or_default(),
-        cfg.order[0],
-        cfg.order[1],
-        cfg.phase_duration_s,
-        cfg.settle_s
-    );
-    let mut remote = match args.stimulus {
-        StimulusKind::Remote => Some(RemoteSink::new(
-            source.client().notifier(),
-            &tokio::runtime::Handle::current(),
-        )),
-        _ => None,
+    let opts = CalibrateOptions {
+        uri: args.source().to_owned(),
+        silence: crate::bounds::secs("--silence-secs", args.silence_secs)?,
+        silence_secs: args.silence_secs,
     };
-    let mut log = LogSink::default();
     let mut window_sink = window.as_ref().map(|(c, _)| WindowSink(c.clone()));
-    let cancelled = window.as_ref().map(|(_, ctl)| ctl.clone());
-    let inner: &mut (dyn StimulusSink + Send) = match (&mut remote, &mut window_sink) {
-        (Some(r), _) => r,
-        (None, Some(w)) => w,
-        (None, None) => &mut log,
+    let target = match (args.stimulus, &mut window_sink) {
+        (StimulusKind::Remote, _) => StimulusTarget::Remote,
+        (_, Some(w)) => StimulusTarget::Sink(w),
+        (_, None) => StimulusTarget::Log,
     };
-    let mut sink = AnnouncingSink {
-        inner: Some(inner),
-        phase_secs: cfg.phase_duration_s,
-        first_t: None,
-    };
-
-    let mut session = CalibrationSession::new(cfg)?;
-    let silence = connect;
-    let mut skipped = 0u64;
-    let outcome: anyhow::Result<()> = loop {
-        if cancelled
+    let control = window.as_ref().map(|(_, ctl)| ctl.clone());
+    let cancelled = || {
+        control
             .as_ref()
             .is_some_and(|c| c.cancelled.load(Ordering::Relaxed))
-        {
-            break Err(anyhow::anyhow!("the calibration window was closed"));
-        }
-        let next = tokio::select! {
-            name = &mut signal => {
-                break Err(anyhow::anyhow!("{name}: calibration aborted; no profile written"));
-            }
-            r = tokio::time::timeout(silence, source.next()) => r,
-        };
-        let next = match next {
-            Ok(r) => r,
-            Err(_) => {
-                break Err(anyhow::anyhow!(
-                    "{}: no samples for {:.1} s ({:?})",
-                    args.source(),
-                    args.silence_secs,
-                    session.progress()
-                ));
-            }
-        };
-        match next {
-            Ok(Some(Sample::Pupil(p))) => match session.feed(&p, &mut sink) {
-                Ok(Progress::Done) => break Ok(()),
-                Ok(_) => {}
-                Err(e) => break Err(e.into()),
-            },
-            Ok(Some(_)) => {}
-            Ok(None) => {
-                break Err(anyhow::anyhow!(
-                    "{} ended before the calibration finished",
-                    args.source()
-                ));
-            }
-            Err(e @ (SourceError::Item { .. } | SourceError::Disconnected { .. })) => {
-                skipped += 1;
-                if skipped <= 10 {
-                    tracing::warn!(error = %e, "calibration: source item skipped");
-                }
-            }
-            Err(e @ SourceError::Fatal { .. }) => break Err(e.into()),
-        }
     };
-    // Whatever happened, turn the stimulus off and make sure it arrived.
-    if outcome.is_err()
-        && let Some(r) = &mut remote
-    {
-        let _ = r.show(Stimulus::None, f64::NAN);
-    }
-    if let Some(r) = &mut remote {
-        r.flush()
-            .await
-            .context("the host application did not receive every stimulus")?;
-    }
-    print_summary(&session.summary());
-    outcome?;
-
-    let mut profile = session
-        .finish()
-        .context("calibration refused; no profile written")?;
+    let on_event = |event: Event<'_>| match event {
+        Event::Connected { version } => eprintln!(
+            "connected to {} ({version}); calibrating: {:?} then {:?}, {:.1} s each, {:.1} s settle",
+            args.source(),
+            cfg.order[0],
+            cfg.order[1],
+            cfg.phase_duration_s,
+            cfg.settle_s
+        ),
+        Event::Stimulus {
+            stimulus: Stimulus::None,
+            since_first_secs,
+        } => eprintln!("[{since_first_secs:5.1} s] stimulus off"),
+        Event::Stimulus {
+            stimulus,
+            since_first_secs,
+        } => eprintln!(
+            "[{since_first_secs:5.1} s] showing {} for {:.1} s",
+            format!("{stimulus:?}").to_uppercase(),
+            cfg.phase_duration_s
+        ),
+        Event::Summary(summary) => print_summary(summary),
+    };
+    let mut profile = gazelight_tracker::calibrate::calibrate(
+        pupil,
+        cfg,
+        &opts,
+        target,
+        cancelled,
+        signals.first(),
+        on_event,
+    )
+    .await?;
     profile.description = args.description.clone().or_else(|| {
         Some(format!(
             "gazelight calibrate --source {} ({:?} stimulus)",

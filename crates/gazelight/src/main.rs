@@ -21,24 +21,26 @@ mod config_cmd;
 mod devices;
 mod export;
 mod glare;
-mod hub;
 mod input_report;
 mod inspect;
-mod inspect_timeline;
+use gazelight_batch::inspect_timeline;
 #[cfg(test)]
-mod isolated;
+use gazelight_test_support::isolated;
 mod layer;
-mod lsl_outlets;
 mod observer;
-mod output;
+/// What `render` writes besides the timeline: the PNG frames, the contact
+/// sheet, the plot (and the chart writer `psf` shares).
+mod output {
+    pub use gazelight_output::font::register_font;
+    pub use gazelight_output::plot::*;
+    pub use gazelight_output::sheet::*;
+}
 mod profile_cmd;
 mod psf;
 mod record;
-mod relay;
 mod render;
 mod replay;
 mod run;
-mod serve;
 mod service_config;
 mod stereo;
 mod trials;
@@ -50,6 +52,9 @@ mod window;
 use gazelight_app::{session, shutdown};
 use gazelight_output::out_dir;
 use gazelight_render::demo;
+// What a live `run` publishes: the hub, the status server, the LSL
+// outlets, the relay.
+use gazelight_status::{hub, lsl_outlets, relay, serve};
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 

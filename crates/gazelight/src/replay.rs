@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use gazelight_output::EVENTS_COLUMNS;
 use gazelight_render::feed::{ImporterSamples, Scan, scan};
 use gazelight_tracker::PupilUnit;
 use gazelight_tracker::filter::FilterChain;
@@ -400,18 +401,6 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     }
     Ok(())
 }
-
-/// The columns of `events.csv`.
-pub const EVENTS_COLUMNS: [&str; 8] = [
-    "t_secs",
-    "recording_t_secs",
-    "t_clock",
-    "duration_secs",
-    "source",
-    "text",
-    "trial",
-    "frame",
-];
 
 /// A CSV field: quoted (RFC 4180) when it holds a comma, quote or line
 /// break.

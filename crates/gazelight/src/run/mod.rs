@@ -25,7 +25,7 @@
 pub mod frame_loop;
 pub mod head;
 pub mod source_task;
-pub mod writer;
+pub use gazelight_output::live as writer;
 pub mod xr;
 
 use std::net::SocketAddr;
@@ -623,7 +623,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 Ok(o) => Some(o),
                 Err(e) => {
                     hub.request_shutdown();
-                    return Err(e);
+                    return Err(e.into());
                 }
             }
         } else {

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use gazelight_tracker::filter::FilterChain;
-use gazelight_tracker::live::{self, LiveConfig};
+use gazelight_tracker::live::LiveConfig;
 use gazelight_tracker::live_events::EventQueue;
 use gazelight_tracker::lsl::LslConfig;
 use gazelight_tracker::transport::{self, OpenOptions, SourceUri};
@@ -65,22 +65,19 @@ pub fn open_source_with(
         synthetic,
         events,
     };
-    let source =
-        transport::open_with(&parsed, &options).with_context(|| format!("source `{uri}`"))?;
-    let age_clock = source.age_clock();
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
-    let live = live::spawn(
+    let live = transport::open_live(
         uri,
-        source,
+        &parsed,
+        &options,
         chain,
-        age_clock,
         shutdown_rx,
         LiveConfig::default(),
-    );
+    )?;
     let hub = Hub::for_live(&live, shutdown_tx);
     Ok(SourceHandle {
         hub,
-        age_clock,
+        age_clock: live.age_clock,
         adaptation: live.adaptation,
         tasks: vec![live.task],
         describe: live.describe,

@@ -13,12 +13,12 @@ pub fn in_own_process(name: &str) -> bool {
     if std::env::var(CHILD_ENV).as_deref() == Ok(name) {
         return true;
     }
-    let exe = std::env::current_exe().expect("the test binary's path");
+    let exe = std::env::current_exe().unwrap_or_else(|e| panic!("the test binary's path: {e}"));
     let out = std::process::Command::new(exe)
         .args([name, "--exact", "--test-threads=1", "--nocapture"])
         .env(CHILD_ENV, name)
         .output()
-        .expect("the test binary runs");
+        .unwrap_or_else(|e| panic!("the test binary runs: {e}"));
     let text = format!(
         "{}{}",
         String::from_utf8_lossy(&out.stdout),

@@ -15,9 +15,9 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+use crate::{Context, ReplayCommand, Result};
 
-use super::manifest::{self, Cell, Entities, Row, Value};
+use crate::manifest::{self, Cell, Entities, Row, Value};
 
 /// Largest sidecar read, bytes.
 const MAX_SIDECAR_BYTES: u64 = 1 << 20;
@@ -25,7 +25,7 @@ const MAX_SIDECAR_BYTES: u64 = 1 << 20;
 const MAX_RECORDINGS: usize = 100_000;
 
 /// Sorted entries of `dir` that are folders named `PREFIX…`.
-fn subdirs(dir: &Path, prefix: &str) -> anyhow::Result<Vec<PathBuf>> {
+fn subdirs(dir: &Path, prefix: &str) -> Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for e in std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))? {
         let e = e.with_context(|| format!("cannot read {}", dir.display()))?;
@@ -57,7 +57,7 @@ fn split_recording(stem: &str) -> (String, String) {
 }
 
 /// The entities of a file name's stem (`sub-01_ses-1_task-x_run-2`).
-fn entities(stem: &str, file: &Path) -> anyhow::Result<Entities> {
+fn entities(stem: &str, file: &Path) -> Result<Entities> {
     let mut e = Entities::default();
     for part in stem.split('_') {
         let Some((key, value)) = part.split_once('-') else {
@@ -68,7 +68,7 @@ fn entities(stem: &str, file: &Path) -> anyhow::Result<Entities> {
             "ses" => e.session = Some(value.to_owned()),
             "task" => e.task = Some(value.to_owned()),
             "run" => {
-                e.run = Some(value.parse().with_context(|| {
+                e.run = Some(value.parse::<u32>().with_context(|| {
                     format!(
                         "{}: run-{value}: a BIDS run is a whole number",
                         file.display()
@@ -86,7 +86,7 @@ fn entities(stem: &str, file: &Path) -> anyhow::Result<Entities> {
 
 /// The rows of the BIDS dataset at `root`, with the `[defaults]` of
 /// `defaults` (a TOML file) as every row's replay options.
-pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
+pub fn load(root: &Path, defaults: Option<&Path>, replay: &dyn ReplayCommand) -> Result<Vec<Row>> {
     let root = std::fs::canonicalize(root)
         .with_context(|| format!("cannot resolve {}", root.display()))?;
     if !root.join("dataset_description.json").is_file() {
@@ -98,7 +98,7 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
     }
     let (default_cells, base) = match defaults {
         Some(p) => {
-            let (c, b) = manifest::load_defaults(p)?;
+            let (c, b) = manifest::load_defaults(p, replay)?;
             (c, Some(b))
         }
         None => (Vec::new(), None),
@@ -155,7 +155,7 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
             }
         }
     }
-    let flags = manifest::replay_flags();
+    let flags = replay.flags();
     let mut rows: Vec<Row> = Vec::with_capacity(groups.len());
     // Each id's index in `rows`.
     let mut seen: HashMap<String, usize> = HashMap::with_capacity(groups.len());
@@ -185,8 +185,7 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
             );
         }
         seen.insert(id.clone(), rows.len());
-        let id =
-            manifest::check_id(&id).map_err(|e| anyhow::anyhow!("{}: {e}", first.display()))?;
+        let id = manifest::check_id(&id).map_err(|e| err!("{}: {e}", first.display()))?;
         let mut cells: Vec<Cell> = default_cells
             .iter()
             .map(|c| Cell {
@@ -203,12 +202,18 @@ pub fn load(root: &Path, defaults: Option<&Path>) -> anyhow::Result<Vec<Row>> {
             field: "recording".to_owned(),
             value: Value::Text(tsv.display().to_string()),
         });
-        let mut row =
-            manifest::build_row(index, 0, cells, base.as_deref().unwrap_or(&root), &flags)
-                .map_err(|e| match defaults {
-                    Some(d) => anyhow::anyhow!("{}: {e} (for {})", d.display(), tsv.display()),
-                    None => anyhow::anyhow!("{}: {e}", tsv.display()),
-                })?;
+        let mut row = manifest::build_row(
+            index,
+            0,
+            cells,
+            base.as_deref().unwrap_or(&root),
+            &flags,
+            replay,
+        )
+        .map_err(|e| match defaults {
+            Some(d) => err!("{}: {e} (for {})", d.display(), tsv.display()),
+            None => err!("{}: {e}", tsv.display()),
+        })?;
         row.id = id.clone();
         row.entities = entities(&id, first)?;
         rows.push(row);

@@ -33,12 +33,34 @@
 //!   exported into the BIDS dataset DIR (`gazelight export --bids`, its
 //!   entities from the row), one export at a time; the row is finished
 //!   only when its export is.
+//!
+//! The binary gives the batch what is clap's: its parser of `gazelight
+//! replay` ([`ReplayCommand`]: a row is checked by the parser that will
+//! read it) and the batch's options ([`BatchOptions`]); the rows then run
+//! as child processes of that same executable.
+
+// The error macros come first: the modules below use them.
+
+/// `return Err(BatchError::Msg(format!(…)))`.
+macro_rules! bail {
+    ($($t:tt)*) => {
+        return Err($crate::BatchError::Msg(format!($($t)*)).into())
+    };
+}
+/// `BatchError::Msg(format!(…))`.
+macro_rules! err {
+    ($($t:tt)*) => {
+        $crate::BatchError::Msg(format!($($t)*))
+    };
+}
 
 pub mod bids_root;
+pub mod inspect_timeline;
 pub mod manifest;
 pub mod slurm;
 pub mod state;
 pub mod summary;
+pub mod trials;
 
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -47,11 +69,132 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, bail};
-use clap::Args;
-
 use manifest::Row;
 use state::{Record, State, Status};
+
+/// Why a batch (or one of its steps) failed. Printed as the CLI prints
+/// errors (each source after a `: `), every message is the one the batch
+/// gave before it was a library.
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    /// The message says it all (a manifest's line and field, a flag out
+    /// of range, how many rows failed).
+    #[error("{0}")]
+    Msg(String),
+    /// A file, folder or process could not be used: what was being done.
+    #[error("{context}")]
+    Io {
+        context: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A sidecar or a record that is not the JSON expected.
+    #[error("{context}")]
+    Json {
+        context: String,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A number in a file name (a BIDS `run-` label).
+    #[error("{context}")]
+    Number {
+        context: String,
+        #[source]
+        source: std::num::ParseIntError,
+    },
+    #[error(transparent)]
+    Out(#[from] gazelight_output::OutError),
+    #[error(transparent)]
+    Config(#[from] gazelight_app::config::ConfigError),
+    #[error(transparent)]
+    Profile(#[from] gazelight_tracker::profile::ProfileError),
+    #[error(transparent)]
+    Import(#[from] gazelight_tracker::import::ImportError),
+    #[error(transparent)]
+    Trials(#[from] gazelight_render::trials::TrialsError),
+}
+
+/// The crate's results: [`BatchError`] unless said otherwise.
+pub type Result<T, E = BatchError> = std::result::Result<T, E>;
+
+/// An error with what was being done when it happened (the context as
+/// its message, the error as its source).
+pub(crate) trait Context<T> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T>;
+    fn context(self, what: &str) -> Result<T>
+    where
+        Self: Sized,
+    {
+        self.with_context(|| what.to_owned())
+    }
+}
+
+impl<T> Context<T> for std::result::Result<T, std::io::Error> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T> {
+        self.map_err(|source| BatchError::Io {
+            context: what(),
+            source,
+        })
+    }
+}
+
+impl<T> Context<T> for std::result::Result<T, serde_json::Error> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T> {
+        self.map_err(|source| BatchError::Json {
+            context: what(),
+            source,
+        })
+    }
+}
+
+impl<T> Context<T> for std::result::Result<T, std::num::ParseIntError> {
+    fn with_context(self, what: impl FnOnce() -> String) -> Result<T> {
+        self.map_err(|source| BatchError::Number {
+            context: what(),
+            source,
+        })
+    }
+}
+
+/// `e` and its sources, `outer: inner: …`, as the CLI prints an error.
+pub fn chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut msg = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        msg.push_str(": ");
+        msg.push_str(&s.to_string());
+        source = s.source();
+    }
+    msg
+}
+
+/// What the batch reads of a row's replay arguments.
+#[derive(Clone, Debug)]
+pub struct ReplayInputs {
+    /// The recording replayed.
+    pub recording: PathBuf,
+    /// `--config`.
+    pub config: Option<PathBuf>,
+    /// `--calibration`.
+    pub calibration: Option<PathBuf>,
+    /// `--from-secs`.
+    pub from_secs: f64,
+}
+
+/// `gazelight replay`'s command line as the batch needs it: the binary's
+/// own parser (clap's), so that a row is checked by the parser that will
+/// read it when the row runs as `gazelight replay …`.
+pub trait ReplayCommand: Sync {
+    /// `replay`'s long options.
+    fn flags(&self) -> Vec<manifest::Flag>;
+    /// Parses `argv` (`replay` first): the inputs, or the first line of
+    /// the parser's error.
+    fn parse(&self, argv: &[String]) -> Result<ReplayInputs, String>;
+    /// Parses `argv` (`replay` first) and makes `replay`'s own checks of
+    /// its flags (those made before it opens anything): the message of
+    /// the first that fails (the parser's without its `error: `).
+    fn check(&self, argv: &[String]) -> Result<(), String>;
+}
 
 /// Most replays at once.
 const MAX_JOBS: usize = 256;
@@ -60,71 +203,37 @@ const POLL: Duration = Duration::from_millis(50);
 /// Longest error message kept from a failed replay's log, characters.
 const MAX_MESSAGE_CHARS: usize = 300;
 
-/// Arguments of `gazelight batch`.
-#[derive(Args, Debug)]
-pub struct BatchArgs {
-    /// The manifest: a CSV or TOML list of recordings with per-row replay
-    /// options, or a BIDS dataset's root folder (one row per eye-tracking
-    /// recording) (docs/batch.md).
-    #[arg(value_name = "MANIFEST")]
+/// The options of `gazelight batch` (its flags: the binary's `BatchArgs`).
+#[derive(Clone, Debug)]
+pub struct BatchOptions {
+    /// The manifest (a CSV or TOML file) or a BIDS dataset's root folder.
     pub manifest: PathBuf,
-    /// With a BIDS dataset root: a TOML file whose `[defaults]` table (as
-    /// in a TOML manifest) gives every recording's replay options.
-    #[arg(long, value_name = "FILE", conflicts_with = "slurm")]
+    /// `--defaults`: with a BIDS dataset root, a TOML file whose
+    /// `[defaults]` give every recording's replay options.
     pub defaults: Option<PathBuf>,
-    /// After each row's replay, export its recording and timeline into the
-    /// BIDS dataset DIR (as `gazelight export --bids DIR REC --timeline
-    /// OUT/ID/timeline.csv`), with the row's `subject`, `session`, `task`,
-    /// `run` (a BIDS root's rows: their own entities).
-    #[arg(long, value_name = "DIR", conflicts_with_all = ["slurm", "task"])]
+    /// `--bids`: each row's recording and timeline exported there.
     pub bids: Option<PathBuf>,
-    /// Output folder: one folder per row (`OUT/ID`), `OUT/summary.csv`,
-    /// and the batch's records and logs in `OUT/_batch/`. Default: beside
-    /// the manifest, its name with `-out` (`study.csv` → `study-out/`).
-    #[arg(long, value_name = "DIR")]
+    /// `--out` (default: beside the manifest, `STEM-out`).
     pub out: Option<PathBuf>,
-    /// Replays run at once (each its own process).
-    #[arg(long, value_name = "N", default_value_t = 1)]
+    /// `--jobs`: replays at once.
     pub jobs: usize,
-    /// Run only slice K of `--tasks N` (rows K, K + N, K + 2N, … counted
-    /// from 0): one task of a Slurm job array. No summary is written; run
-    /// `--collect` when every task has ended.
-    #[arg(long, value_name = "K", requires = "tasks", conflicts_with_all = ["slurm", "collect"])]
+    /// `--task K`: only slice K of `--tasks N`.
     pub task: Option<usize>,
-    /// The number of slices (`--task`), or of the array's tasks (`--slurm`;
-    /// default one per row, at most 1000).
-    #[arg(long, value_name = "N")]
+    /// `--tasks N`: the slices, or the array's tasks.
     pub tasks: Option<usize>,
-    /// Write a Slurm job-array script (`OUT/_batch/batch.sbatch`) whose
-    /// tasks run the slices; nothing is replayed here.
-    #[arg(long, conflicts_with = "collect")]
+    /// `--slurm`: write the job-array script; nothing is replayed.
     pub slurm: bool,
-    /// With `--slurm`: submit the script with `sbatch`.
-    #[arg(long, requires = "slurm")]
+    /// `--submit`: submit the script with `sbatch`.
     pub submit: bool,
-    /// With `--slurm`: an extra `#SBATCH` option for the script (e.g.
-    /// `--sbatch=--partition=short`); repeatable.
-    #[arg(
-        long = "sbatch",
-        value_name = "OPTION",
-        requires = "slurm",
-        allow_hyphen_values = true
-    )]
+    /// `--sbatch`: extra `#SBATCH` options.
     pub sbatch: Vec<String>,
-    /// Merge the rows' records into `OUT/summary.csv` (after a Slurm
-    /// array); nothing is replayed. Exits with status 1 when a row failed
-    /// or has not run.
-    #[arg(long)]
+    /// `--collect`: merge the records into `summary.csv`.
     pub collect: bool,
-    /// Per-trial tables: which events open a trial (as `gazelight trials
-    /// --events`). Each finished recording's table goes to OUT/ID/trials.csv
-    /// and all of them to OUT/trials.csv (a `recording` and a
-    /// `participant` column first), at the end of the batch or with
-    /// `--collect`.
-    #[arg(long, value_name = "PATTERN")]
+    /// `--trials PATTERN`: the per-trial tables, trials opened by the
+    /// events matching it.
     pub trials: Option<String>,
-    #[command(flatten)]
-    pub trial_window: crate::trials::TrialWindowArgs,
+    /// The trial tables' window, baseline, validity and eye.
+    pub trial_window: trials::TrialWindow,
 }
 
 /// The default output folder: `DIR/STEM-out` for `DIR/STEM.EXT`.
@@ -136,9 +245,9 @@ fn default_out(manifest: &Path) -> PathBuf {
 }
 
 /// The rows: from a BIDS dataset root (a directory) or a manifest.
-pub fn load_rows(args: &BatchArgs) -> anyhow::Result<Vec<Row>> {
+pub fn load_rows(args: &BatchOptions, replay: &dyn ReplayCommand) -> Result<Vec<Row>> {
     if args.manifest.is_dir() {
-        bids_root::load(&args.manifest, args.defaults.as_deref())
+        bids_root::load(&args.manifest, args.defaults.as_deref(), replay)
     } else {
         if let Some(d) = &args.defaults {
             bail!(
@@ -147,13 +256,13 @@ pub fn load_rows(args: &BatchArgs) -> anyhow::Result<Vec<Row>> {
                 d.display()
             );
         }
-        manifest::load(&args.manifest)
+        manifest::load(&args.manifest, replay)
     }
 }
 
-/// Runs `gazelight batch`.
-pub fn run(args: BatchArgs) -> anyhow::Result<()> {
-    let rows = load_rows(&args)?;
+/// Runs `gazelight batch`, its rows' replays checked and read by `replay`.
+pub fn run(args: BatchOptions, replay: &dyn ReplayCommand) -> Result<()> {
+    let rows = load_rows(&args, replay)?;
     let trials = args
         .trials
         .as_deref()
@@ -207,7 +316,7 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
         (None, Some(n)) => bail!("--tasks {n} without --task (or --slurm): which slice?"),
         _ => rows.iter().collect(),
     };
-    let outcome = run_rows(&slice, &out, &state, args.jobs, bids)?;
+    let outcome = run_rows(&slice, &out, &state, args.jobs, bids, replay)?;
     if args.task.is_none() {
         let path = write_summary(&rows, &out, &state, bids)?;
         println!("wrote {}", path.display());
@@ -239,7 +348,7 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
 /// `summary.csv` or an entry named like a row's output folder: the batch
 /// would overwrite the user's own files. An earlier batch's folder (with
 /// `_batch/`) is resumed; a folder with other files only is fine.
-fn check_out_dir(out: &Path, rows: &[Row]) -> anyhow::Result<()> {
+fn check_out_dir(out: &Path, rows: &[Row]) -> Result<()> {
     if !out.is_dir() || out.join(state::STATE_DIR).is_dir() {
         return Ok(());
     }
@@ -375,9 +484,10 @@ fn run_rows(
     state: &State,
     jobs: usize,
     bids: Option<&Path>,
-) -> anyhow::Result<Outcome> {
+    replay: &dyn ReplayCommand,
+) -> Result<Outcome> {
     let exe = std::env::current_exe().context("cannot find gazelight's own executable")?;
-    let stop = crate::shutdown::stop_flag();
+    let stop = gazelight_app::shutdown::stop_flag();
     // One export at a time: they share the dataset's participants.tsv.
     let export_lock = Mutex::new(());
     let export = bids.map(|dir| (dir, &export_lock));
@@ -425,7 +535,7 @@ fn run_rows(
                     if let Ok(mut p) = progress.lock() {
                         p.running.push(row_started);
                     }
-                    let ended = run_row(&exe, row, out, state, stop.as_deref(), export);
+                    let ended = run_row(&exe, row, out, state, stop.as_deref(), export, replay);
                     let (Ok(mut p), Ok(mut o)) = (progress.lock(), outcome.lock()) else {
                         break;
                     };
@@ -468,7 +578,7 @@ fn run_rows(
     });
     let mut outcome = outcome
         .into_inner()
-        .map_err(|_| anyhow::anyhow!("a batch worker panicked"))?;
+        .map_err(|_| err!("a batch worker panicked"))?;
     outcome.interrupted = stop.as_ref().and_then(|s| s.signal());
     if let Ok(p) = progress.lock() {
         let secs = p.started.elapsed().as_secs_f64();
@@ -501,8 +611,9 @@ fn run_row(
     row: &Row,
     out: &Path,
     state: &State,
-    stop: Option<&crate::shutdown::StopFlag>,
+    stop: Option<&gazelight_app::shutdown::StopFlag>,
     export: Option<(&Path, &Mutex<()>)>,
+    replay_cli: &dyn ReplayCommand,
 ) -> RowEnd {
     let hash = row.options_hash(export.map(|(d, _)| d));
     let fail = |msg: String| -> RowEnd {
@@ -517,11 +628,11 @@ fn run_row(
         };
         match state.write(&record) {
             Ok(()) => RowEnd::Failed(msg),
-            Err(e) => RowEnd::Failed(format!("{msg}; and its record: {e:#}")),
+            Err(e) => RowEnd::Failed(format!("{msg}; and its record: {}", chain(&e))),
         }
     };
     if let Err(e) = state.forget(&row.id) {
-        return fail(format!("{e:#}"));
+        return fail(chain(&e));
     }
     let dir = out.join(&row.id);
     let started = Instant::now();
@@ -534,7 +645,7 @@ fn run_row(
     let log = state.log_path(&row.id);
     let status = match spawn_and_wait(exe, &replay, &log, false, stop) {
         Ok(s) => s,
-        Err(e) => return fail(format!("{e:#}")),
+        Err(e) => return fail(chain(&e)),
     };
     let wall_secs = started.elapsed().as_secs_f64();
     if !status.success() {
@@ -545,14 +656,14 @@ fn run_row(
     }
     // The replay's own warnings, before an export appends to its log.
     let warnings = summary::count_warnings(&std::fs::read_to_string(&log).unwrap_or_default());
-    let values = match row_values(row, &dir, warnings) {
+    let values = match row_values(row, &dir, warnings, replay_cli) {
         Ok(v) => v,
-        Err(e) => return fail(format!("summary: {e:#}")),
+        Err(e) => return fail(format!("summary: {}", chain(&e))),
     };
     if let Some((bids, lock)) = export {
-        let argv = match export_argv(row, &dir, bids) {
+        let argv = match export_argv(row, &dir, bids, replay_cli) {
             Ok(a) => a,
-            Err(e) => return fail(format!("BIDS export: {e:#}")),
+            Err(e) => return fail(format!("BIDS export: {}", chain(&e))),
         };
         let status = {
             let Ok(_one) = lock.lock() else {
@@ -568,7 +679,7 @@ fn run_row(
                 }
                 return fail(format!("BIDS export: {}", error_of(&log, s)));
             }
-            Err(e) => return fail(format!("BIDS export: {e:#}")),
+            Err(e) => return fail(format!("BIDS export: {}", chain(&e))),
         }
     }
     let frames = values
@@ -586,13 +697,18 @@ fn run_row(
     };
     match state.write(&record) {
         Ok(()) => RowEnd::Done(record),
-        Err(e) => RowEnd::Failed(format!("{e:#}")),
+        Err(e) => RowEnd::Failed(chain(&e)),
     }
 }
 
 /// The row's summary values from its outputs and recording.
-fn row_values(row: &Row, dir: &Path, warnings: usize) -> anyhow::Result<Vec<String>> {
-    let args = row.replay_args(dir)?;
+fn row_values(
+    row: &Row,
+    dir: &Path,
+    warnings: usize,
+    replay: &dyn ReplayCommand,
+) -> Result<Vec<String>> {
+    let args = row.replay_args(dir, replay)?;
     let timeline = summary::read_timeline(&dir.join("timeline.csv"))?;
     let recording = summary::read_recording(&args, timeline.duration_secs)?;
     Ok(summary::values(&timeline, &recording, warnings))
@@ -600,13 +716,18 @@ fn row_values(row: &Row, dir: &Path, warnings: usize) -> anyhow::Result<Vec<Stri
 
 /// `gazelight export --bids DIR …` of `row` with its replay's timeline in
 /// `dir` (and its calibration profile, if any).
-fn export_argv(row: &Row, dir: &Path, bids: &Path) -> anyhow::Result<Vec<String>> {
-    let args = row.replay_args(dir)?;
+fn export_argv(
+    row: &Row,
+    dir: &Path,
+    bids: &Path,
+    replay: &dyn ReplayCommand,
+) -> Result<Vec<String>> {
+    let args = row.replay_args(dir, replay)?;
     let names = row.bids_names();
     let recording = row
         .argv
         .first()
-        .ok_or_else(|| anyhow::anyhow!("row {}: no recording", row.id))?;
+        .ok_or_else(|| err!("row {}: no recording", row.id))?;
     let mut argv = vec![
         "export".to_owned(),
         format!("--bids={}", bids.display()),
@@ -639,8 +760,8 @@ fn spawn_and_wait(
     argv: &[String],
     log: &Path,
     append: bool,
-    stop: Option<&crate::shutdown::StopFlag>,
-) -> anyhow::Result<ExitStatus> {
+    stop: Option<&gazelight_app::shutdown::StopFlag>,
+) -> Result<ExitStatus> {
     let log_file = std::fs::OpenOptions::new()
         .create(true)
         .write(true)
@@ -710,12 +831,7 @@ fn error_of(log: &Path, status: ExitStatus) -> String {
 /// Writes `OUT/summary.csv` (atomically) from the rows' records: one line
 /// per manifest row in manifest order; a row without a record for its
 /// current options is `pending`.
-fn write_summary(
-    rows: &[Row],
-    out: &Path,
-    state: &State,
-    bids: Option<&Path>,
-) -> anyhow::Result<PathBuf> {
+fn write_summary(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> Result<PathBuf> {
     let mut text = String::from("id,recording,status,message");
     for c in summary::COLUMNS {
         text.push(',');
@@ -746,7 +862,7 @@ fn write_summary(
         text.push('\n');
     }
     let path = out.join("summary.csv");
-    crate::out_dir::write_atomic(&path, text.as_bytes())?;
+    gazelight_output::write_atomic(&path, text.as_bytes())?;
     Ok(path)
 }
 
@@ -758,8 +874,8 @@ fn write_trials(
     out: &Path,
     state: &State,
     bids: Option<&Path>,
-    spec: &crate::trials::TrialSpec,
-) -> anyhow::Result<()> {
+    spec: &trials::TrialSpec,
+) -> Result<()> {
     let mut tables = Vec::new();
     let mut failed = Vec::new();
     let (mut n, mut valid) = (0, 0);
@@ -779,18 +895,18 @@ fn write_trials(
                 n += trials.len();
                 valid += trials.iter().filter(|t| t.valid).count();
                 let text = gazelight_render::trials::to_csv(&trials, unit);
-                crate::out_dir::write_atomic(&dir.join("trials.csv"), text.as_bytes())?;
+                gazelight_output::write_atomic(&dir.join("trials.csv"), text.as_bytes())?;
                 let participant = row.entities.subject.clone().unwrap_or_default();
                 tables.push((row.id.clone(), participant, text));
             }
             Err(e) => {
-                eprintln!("batch: trials of {}: {e:#}", row.id);
+                eprintln!("batch: trials of {}: {}", row.id, chain(&e));
                 failed.push(row.id.as_str());
             }
         }
     }
     let path = out.join("trials.csv");
-    crate::out_dir::write_atomic(&path, crate::trials::combine(&tables).as_bytes())?;
+    gazelight_output::write_atomic(&path, trials::combine(&tables).as_bytes())?;
     println!(
         "wrote {}: {n} trials ({valid} valid) of {} recordings",
         path.display(),
@@ -826,7 +942,7 @@ fn some_ids(ids: &[&str]) -> String {
 
 /// `--collect`: the summary from the records; an error when a row failed
 /// or has not run.
-fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyhow::Result<()> {
+fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> Result<()> {
     let path = write_summary(rows, out, state, bids)?;
     let mut ok = 0;
     let mut failed = Vec::new();
@@ -859,6 +975,81 @@ fn collect(rows: &[Row], out: &Path, state: &State, bids: Option<&Path>) -> anyh
         );
     }
     Ok(())
+}
+
+/// A stand-in for the binary's `replay` parser: a few of its options,
+/// its error texts where the tests look at them.
+#[cfg(test)]
+pub(crate) mod test_replay {
+    use std::path::PathBuf;
+
+    use crate::manifest::Flag;
+    use crate::{ReplayCommand, ReplayInputs};
+
+    pub(crate) struct Fake;
+
+    impl ReplayCommand for Fake {
+        fn flags(&self) -> Vec<Flag> {
+            [
+                ("fps", true, false),
+                ("size", true, false),
+                ("from-secs", true, false),
+                ("no-frames", false, false),
+                ("stereo", false, false),
+                ("scene", true, true),
+                ("config", true, true),
+                ("calibration", true, true),
+                ("trace", true, true),
+                ("out", true, true),
+                ("force", false, false),
+            ]
+            .map(|(long, takes_value, path)| Flag {
+                long: long.to_owned(),
+                takes_value,
+                path,
+            })
+            .to_vec()
+        }
+
+        fn parse(&self, argv: &[String]) -> Result<ReplayInputs, String> {
+            let mut inputs = ReplayInputs {
+                recording: PathBuf::new(),
+                config: None,
+                calibration: None,
+                from_secs: 0.0,
+            };
+            for a in argv.iter().skip(1) {
+                let Some(flag) = a.strip_prefix("--") else {
+                    inputs.recording = a.into();
+                    continue;
+                };
+                let (name, value) = flag.split_once('=').unwrap_or((flag, ""));
+                let bad = || format!("error: invalid value '{value}' for '--{name} <X>'");
+                match name {
+                    "fps" => drop(value.parse::<f64>().map_err(|_| bad())?),
+                    "size" if !value.contains('x') => return Err(bad()),
+                    "from-secs" => inputs.from_secs = value.parse().map_err(|_| bad())?,
+                    "config" => inputs.config = Some(value.into()),
+                    "calibration" => inputs.calibration = Some(value.into()),
+                    _ => {}
+                }
+            }
+            Ok(inputs)
+        }
+
+        fn check(&self, argv: &[String]) -> Result<(), String> {
+            let inputs = self
+                .parse(argv)
+                .map_err(|e| e.trim_start_matches("error: ").to_owned())?;
+            if inputs.from_secs < 0.0 {
+                return Err(format!(
+                    "--from-secs {}: expected 0 or more seconds",
+                    inputs.from_secs
+                ));
+            }
+            Ok(())
+        }
+    }
 }
 
 #[cfg(test)]

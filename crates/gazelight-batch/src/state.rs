@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
+use crate::{Context, Result};
 use serde::{Deserialize, Serialize};
 
 /// The batch's own folder inside `OUT`.
@@ -134,7 +134,7 @@ pub struct State {
 
 impl State {
     /// `out/_batch`, created.
-    pub fn open(out: &Path) -> anyhow::Result<Self> {
+    pub fn open(out: &Path) -> Result<Self> {
         let dir = out.join(STATE_DIR);
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -161,7 +161,7 @@ impl State {
     }
 
     /// Removes the row's record (before the row runs again).
-    pub fn forget(&self, id: &str) -> anyhow::Result<()> {
+    pub fn forget(&self, id: &str) -> Result<()> {
         let p = self.record_path(id);
         match std::fs::remove_file(&p) {
             Ok(()) => Ok(()),
@@ -172,11 +172,11 @@ impl State {
 
     /// Writes the row's record atomically: a temporary file, flushed to
     /// disk, renamed into place.
-    pub fn write(&self, record: &Record) -> anyhow::Result<()> {
+    pub fn write(&self, record: &Record) -> Result<()> {
         let path = self.record_path(&record.id);
         let text = serde_json::to_string_pretty(record).context("batch record as JSON")? + "\n";
         // `.ID.json.tmp`, removed when the write or the rename fails.
-        Ok(crate::out_dir::write_atomic(&path, text.as_bytes())?)
+        Ok(gazelight_output::write_atomic(&path, text.as_bytes())?)
     }
 }
 

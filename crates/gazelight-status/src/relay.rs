@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::Sample;
-use gazelight_tracker::pupil::relay::{FrameFigures, RelayFeed, RelayHandle};
+use gazelight_tracker::pupil::relay::{FrameFigures, RelayError, RelayFeed, RelayHandle};
 use tokio::sync::{broadcast, watch};
 
 use crate::hub::Hub;
@@ -42,6 +42,6 @@ impl RelayFeed for Hub {
 
 /// Starts the relay on `remote_addr` over `hub` (see
 /// [`gazelight_tracker::pupil::relay::spawn`]); it stops at the hub's shutdown.
-pub async fn spawn(hub: Arc<Hub>, remote_addr: SocketAddr) -> anyhow::Result<RelayHandle> {
-    Ok(gazelight_tracker::pupil::relay::spawn(hub, remote_addr).await?)
+pub async fn spawn(hub: Arc<Hub>, remote_addr: SocketAddr) -> Result<RelayHandle, RelayError> {
+    gazelight_tracker::pupil::relay::spawn(hub, remote_addr).await
 }

@@ -8,16 +8,15 @@
 
 use std::path::Path;
 
-use anyhow::bail;
+use crate::{ReplayInputs, Result};
 use gazelight_tracker::filter::FilterChain;
 use gazelight_tracker::import;
 use gazelight_tracker::profile::PupilCalibration;
 use gazelight_tracker::summary::Summarizer;
 
-use crate::config::RenderConfig;
+use gazelight_app::config::{ConfigUser, RenderConfig};
+
 use crate::inspect_timeline::{Stats, TimelineReader, number};
-use crate::replay::ReplayArgs;
-use crate::service_config::ConfigUser;
 
 /// The summary's columns after `id, recording, status, message`.
 pub const COLUMNS: [&str; 27] = [
@@ -66,7 +65,7 @@ pub struct TimelineFigures {
 }
 
 /// Reads a replay's timeline (streamed; bad lines named).
-pub fn read_timeline(path: &Path) -> anyhow::Result<TimelineFigures> {
+pub fn read_timeline(path: &Path) -> Result<TimelineFigures> {
     let mut reader = TimelineReader::open(path)?;
     // Per view: pupil, held, adaptation, light, residual columns.
     let mut views = Vec::new();
@@ -134,8 +133,8 @@ pub struct RecordingFigures {
 /// Summarises the recording of `args` over `[t0, t0 + duration_secs]`
 /// (t0 = its first sample + `--from-secs`), through the filter chain the
 /// replay ran (the configuration's `[filter]`, the calibration profile).
-pub fn read_recording(args: &ReplayArgs, duration_secs: f64) -> anyhow::Result<RecordingFigures> {
-    let config = match &args.render.config {
+pub fn read_recording(args: &ReplayInputs, duration_secs: f64) -> Result<RecordingFigures> {
+    let config = match &args.config {
         Some(p) => RenderConfig::load(p, ConfigUser::Replay)?,
         None => RenderConfig::default(),
     };
@@ -159,7 +158,7 @@ pub fn read_recording(args: &ReplayArgs, duration_secs: f64) -> anyhow::Result<R
     let t0 = t_first + args.from_secs;
     let t1 = t0 + duration_secs;
     let mut chain = FilterChain::new(config.filter, PupilCalibration::identity())
-        .map_err(|e| anyhow::anyhow!("filter configuration: {e}"))?;
+        .map_err(|e| err!("filter configuration: {e}"))?;
     if let Some(c) = &calibration {
         chain.set_calibration(c.clone());
     }

@@ -34,7 +34,6 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use anyhow::Context as _;
 use axum::Router;
 use axum::extract::State;
 use axum::extract::ws::{Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
@@ -48,6 +47,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
 use crate::hub::{FrameStatus, Hub};
+use gazelight_app::session::SessionSettings;
 use gazelight_tracker::live::SourceStatus;
 
 /// Version of the `/api/status` and `/api/history` JSON layouts; bumped on
@@ -59,6 +59,28 @@ pub const PSF_DECADES: f64 = 6.0;
 
 const PAGE_HTML: &str = include_str!("page.html");
 const PAGE_JS: &str = include_str!("page.js");
+
+/// Why the status server did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// The address could not be bound (a port in use, an address not here).
+    #[error("status server: binding {addr}")]
+    Bind {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The bound socket's address could not be read.
+    #[error("status server: address of the socket bound to {addr}")]
+    LocalAddr {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The PNG encoder thread could not be started.
+    #[error("status server: cannot start the PNG encoder: {0}")]
+    Encoder(std::io::Error),
+}
 
 /// Server settings.
 #[derive(Clone, Copy, Debug)]
@@ -182,7 +204,7 @@ struct AppState {
 /// Starts the status server on `addr` (port 0 picks a free port) with the
 /// default options; it runs until [`Hub::shutdown_signal`] turns true. A
 /// port in use is an error naming the address.
-pub async fn spawn(hub: Arc<Hub>, addr: SocketAddr) -> anyhow::Result<ServeHandle> {
+pub async fn spawn(hub: Arc<Hub>, addr: SocketAddr) -> Result<ServeHandle, ServeError> {
     spawn_with(hub, addr, ServeOptions::default()).await
 }
 
@@ -191,13 +213,13 @@ pub async fn spawn_with(
     hub: Arc<Hub>,
     addr: SocketAddr,
     options: ServeOptions,
-) -> anyhow::Result<ServeHandle> {
+) -> Result<ServeHandle, ServeError> {
     let listener = tokio::net::TcpListener::bind(addr)
         .await
-        .with_context(|| format!("status server: binding {addr}"))?;
+        .map_err(|source| ServeError::Bind { addr, source })?;
     let addr = listener
         .local_addr()
-        .with_context(|| format!("status server: address of the socket bound to {addr}"))?;
+        .map_err(|source| ServeError::LocalAddr { addr, source })?;
     // The page shows the display frame: the frame loop publishes (and on
     // the GPU reads back) one at its low rate from now on.
     hub.want_display();
@@ -352,7 +374,7 @@ pub struct Status {
     pub psf: PsfStatus,
     pub display: DisplayStatus,
     /// Every setting in effect and where it came from (`session.json`).
-    pub settings: Option<crate::session::SessionSettings>,
+    pub settings: Option<SessionSettings>,
 }
 
 impl Status {
@@ -905,7 +927,7 @@ mod tests {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn websocket_client_that_never_reads_is_dropped_memory_bounded() {
         // RSS is the process's: measured with no other test running.
-        if !crate::isolated::in_own_process(
+        if !gazelight_test_support::isolated::in_own_process(
             "serve::tests::websocket_client_that_never_reads_is_dropped_memory_bounded",
         ) {
             return;

@@ -27,6 +27,7 @@ use std::time::Duration;
 use axum::body::Bytes;
 use tokio::sync::watch;
 
+use super::ServeError;
 use crate::hub::Hub;
 
 /// Longest a request waits for an encoding before it gets the previous one.
@@ -97,7 +98,7 @@ pub struct ImageCache {
 
 impl ImageCache {
     /// Starts the encoder thread for `hub`'s images.
-    pub fn start(hub: Arc<Hub>) -> anyhow::Result<Self> {
+    pub fn start(hub: Arc<Hub>) -> Result<Self, ServeError> {
         let shared = Arc::new(Shared {
             wanted: Mutex::new(Wanted::default()),
             wake: Condvar::new(),
@@ -108,7 +109,7 @@ impl ImageCache {
             std::thread::Builder::new()
                 .name("gazelight-status-png".into())
                 .spawn(move || encoder(&hub, &shared, &tx))
-                .map_err(|e| anyhow::anyhow!("status server: cannot start the PNG encoder: {e}"))?
+                .map_err(ServeError::Encoder)?
         };
         Ok(Self {
             hub,

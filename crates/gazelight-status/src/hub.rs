@@ -13,6 +13,7 @@
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
+use gazelight_app::session::SessionSettings;
 use gazelight_tracker::LiveEyeState;
 use gazelight_tracker::Sample;
 use gazelight_tracker::live::{LiveEye, SAMPLE_BROADCAST_CAPACITY, SharedStatus, SourceStatus};
@@ -202,6 +203,11 @@ impl History {
     pub fn len(&self) -> usize {
         self.len
     }
+
+    /// Whether the ring holds no point yet.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
 }
 
 /// The newest display frame (RGBA8), copied at a limited rate.
@@ -247,7 +253,7 @@ pub struct Hub {
     display_wanted: std::sync::atomic::AtomicBool,
     /// Every setting of the session and its source (set once at start;
     /// served in the status JSON).
-    settings: std::sync::OnceLock<crate::session::SessionSettings>,
+    settings: std::sync::OnceLock<SessionSettings>,
 }
 
 /// A frame's figures with the host time it was published at.
@@ -276,7 +282,6 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 impl Hub {
     /// A hub around an eye-state channel (tests, observers without a
     /// live task).
-    #[cfg_attr(not(test), allow(dead_code))]
     pub fn new(uri: &str, eye: watch::Receiver<LiveEyeState>) -> Arc<Self> {
         let (samples, _) = broadcast::channel(SAMPLE_BROADCAST_CAPACITY);
         let (shutdown, _) = watch::channel(false);
@@ -320,12 +325,12 @@ impl Hub {
     }
 
     /// Publishes the session's settings (the first call wins).
-    pub fn set_settings(&self, settings: crate::session::SessionSettings) {
+    pub fn set_settings(&self, settings: SessionSettings) {
         let _ = self.settings.set(settings);
     }
 
     /// The session's settings, once published.
-    pub fn settings(&self) -> Option<&crate::session::SessionSettings> {
+    pub fn settings(&self) -> Option<&SessionSettings> {
         self.settings.get()
     }
 

@@ -21,8 +21,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::time::Duration;
 
-use anyhow::Context;
-use gazelight_tracker::lsl::{ChannelDesc, ChannelFormat, LslClock, LslConfig, Outlet, StreamDesc};
+use gazelight_tracker::lsl::{
+    ChannelDesc, ChannelFormat, LslClock, LslConfig, LslError, Outlet, StreamDesc,
+};
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_tracker::{EYE_LEFT, EYE_RIGHT, EyeState};
 use tokio::task::JoinHandle;
@@ -80,6 +81,29 @@ pub const FRAME_CHANNELS: [(&str, &str, &str); 14] = [
     ("pupil_residual_right_mm", "mm", "Diameter"),
     ("pupil_residual_left_mm", "mm", "Diameter"),
 ];
+
+/// Why the outlets did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum OutletError {
+    /// liblsl could not be loaded, or the clock offset not measured.
+    #[error("--lsl")]
+    Lsl(#[source] LslError),
+    /// The `gazelight-eye` outlet could not be created.
+    #[error("--lsl: eye outlet")]
+    EyeOutlet(#[source] LslError),
+    /// The `gazelight-frame` outlet could not be created.
+    #[error("--lsl: frame outlet")]
+    FrameOutlet(#[source] LslError),
+    /// The `gazelight-markers` outlet could not be created.
+    #[error("--lsl: marker outlet")]
+    MarkerOutlet(#[source] LslError),
+    /// The hub's frame tap was opened before (it opens once).
+    #[error("--lsl: the frame tap is already open")]
+    FrameTapOpen,
+    /// The thread that owns the frame and marker outlets did not start.
+    #[error("cannot start the LSL thread")]
+    Thread(#[source] std::io::Error),
+}
 
 /// What the outlets did, for the log at the end.
 #[derive(Debug, Default)]
@@ -202,9 +226,9 @@ impl LslOutlets {
         age_clock: AgeClock,
         fps: f64,
         eye_rate_hz: f64,
-    ) -> anyhow::Result<Self> {
-        let info = gazelight_tracker::lsl::load(config).context("--lsl")?;
-        let clock = LslClock::measure(config).context("--lsl")?;
+    ) -> Result<Self, OutletError> {
+        let info = gazelight_tracker::lsl::load(config).map_err(OutletError::Lsl)?;
+        let clock = LslClock::measure(config).map_err(OutletError::Lsl)?;
         let prefix = config.name_prefix.as_deref().unwrap_or("gazelight");
         let source = hub.source().uri;
         let mut eye = Outlet::new(
@@ -212,11 +236,11 @@ impl LslOutlets {
             &eye_desc(prefix, &source, eye_rate_hz),
             LSL_BUFFER_SECS,
         )
-        .context("--lsl: eye outlet")?;
+        .map_err(OutletError::EyeOutlet)?;
         let mut frame = Outlet::new(config, &frame_desc(prefix, &source, fps), LSL_BUFFER_SECS)
-            .context("--lsl: frame outlet")?;
+            .map_err(OutletError::FrameOutlet)?;
         let mut markers = Outlet::new(config, &marker_desc(prefix, &source), LSL_BUFFER_SECS)
-            .context("--lsl: marker outlet")?;
+            .map_err(OutletError::MarkerOutlet)?;
         tracing::info!(
             library = %info.path,
             version = info.version,
@@ -227,7 +251,7 @@ impl LslOutlets {
         let counters = Arc::new(OutletCounters::default());
         let frames_rx = hub
             .open_frame_tap(FRAME_QUEUE)
-            .context("--lsl: the frame tap is already open")?;
+            .ok_or(OutletError::FrameTapOpen)?;
         let (marker_tx, marker_rx) = std::sync::mpsc::sync_channel::<Marker>(MARKER_QUEUE);
         // Session start goes out before anything else.
         let _ = markers.push_marker("session_start", clock.to_lsl(host_now_secs()));
@@ -252,7 +276,7 @@ impl LslOutlets {
                         &stop,
                     )
                 })
-                .context("cannot start the LSL thread")?
+                .map_err(OutletError::Thread)?
         };
 
         let eye_task = {

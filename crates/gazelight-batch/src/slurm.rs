@@ -7,11 +7,10 @@
 
 use std::path::Path;
 
-use anyhow::{Context, bail};
-
-use super::BatchArgs;
-use super::manifest::Row;
-use super::state::State;
+use crate::BatchOptions;
+use crate::manifest::Row;
+use crate::state::State;
+use crate::{Context, Result};
 
 /// Slurm's default `MaxArraySize` is 1001 (indices 0–1000).
 const MAX_ARRAY_TASKS: usize = 1000;
@@ -49,7 +48,7 @@ fn sbatch_arg(s: &str) -> String {
 /// the script would end an `#SBATCH` or comment line and start a shell
 /// line of its own, and a path that is not UTF-8 would be written as
 /// another path. Both are refused, naming the path.
-fn script_text<'a>(what: &str, p: &'a Path) -> anyhow::Result<&'a str> {
+fn script_text<'a>(what: &str, p: &'a Path) -> Result<&'a str> {
     let Some(s) = p.to_str() else {
         bail!(
             "{what} {}: the path is not UTF-8; a Slurm script cannot name it (rename it)",
@@ -74,7 +73,7 @@ pub fn script(
     out: &Path,
     tasks: usize,
     extra: &[String],
-) -> anyhow::Result<String> {
+) -> Result<String> {
     let exe = script_text("gazelight's executable", exe)?;
     let manifest = script_text("the manifest", manifest)?;
     let out = script_text("--out", out)?;
@@ -85,7 +84,7 @@ pub fn script(
     s.push_str(&format!(
         "#SBATCH --output={}/{}/slurm-%A_%a.out\n",
         sbatch_arg(out.trim_end_matches('/')),
-        super::state::STATE_DIR,
+        crate::state::STATE_DIR,
     ));
     for e in extra {
         s.push_str(&format!("#SBATCH {e}\n"));
@@ -109,7 +108,7 @@ pub fn script(
 
 /// Refuses, before anything is created, a manifest, `--out` or executable
 /// path that a script cannot name ([`script_text`]).
-pub fn check_paths(manifest: &Path, out: &Path) -> anyhow::Result<()> {
+pub fn check_paths(manifest: &Path, out: &Path) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find gazelight's own executable")?;
     script_text("gazelight's executable", &exe)?;
     script_text("the manifest", manifest)?;
@@ -119,11 +118,11 @@ pub fn check_paths(manifest: &Path, out: &Path) -> anyhow::Result<()> {
 
 /// Writes `OUT/_batch/batch.sbatch` and, with `--submit`, runs `sbatch`.
 pub fn write_and_submit(
-    args: &BatchArgs,
+    args: &BatchOptions,
     rows: &[Row],
     out: &Path,
     state: &State,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let tasks = args.tasks.unwrap_or(rows.len().min(MAX_ARRAY_TASKS));
     if tasks == 0 || tasks > MAX_ARRAY_TASKS {
         bail!("--tasks {tasks}: expected 1 to {MAX_ARRAY_TASKS} array tasks");

@@ -19,7 +19,7 @@
 //!
 //! - `events.csv`: the events the live source carries (Pupil Capture's
 //!   annotations) and the `--events` marker streams, one row each with
-//!   replay's `events.csv` columns ([`crate::replay::EVENTS_COLUMNS`]):
+//!   replay's `events.csv` columns ([`crate::EVENTS_COLUMNS`]):
 //!   `t_secs` on the run's clock (timeline.csv's), `recording_t_secs` the
 //!   host clock the live samples are on, `t_clock` the source's own stamp,
 //!   and `frame`, the newest frame whose `t_secs` is at or before the
@@ -41,22 +41,58 @@
 use std::collections::VecDeque;
 use std::fmt::Write as _;
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{
     Receiver, RecvTimeoutError, SyncSender, TryRecvError, TrySendError, sync_channel,
 };
 use std::thread::JoinHandle;
 
-use anyhow::Context;
+use gazelight_render::frame::View;
 use gazelight_vision::pipeline::DisplayFrame;
 use gazelight_vision::psf::{MonoPsf, PsfParams, REFERENCE_WAVELENGTH_NM, monochromatic_psf};
 
-use crate::output;
-use crate::stereo::View;
+use crate::sheet::{self, PngCompression};
 use gazelight_tracker::EYE_LEFT;
 use gazelight_tracker::live::SourceHealth;
 use gazelight_tracker::live_events::{EventQueue, LiveEvent};
+
+/// Why the live writer did not start, or did not finish.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// `--out` or its `frames/` could not be created.
+    #[error("cannot create {}", path.display())]
+    CreateDir {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A CSV file could not be created: its [`RowFile`] failure message.
+    #[error("{0}")]
+    CreateFile(String),
+    /// A thread could not be started (`what`: "writer", "frame encoder").
+    #[error("cannot start the {what} thread")]
+    Spawn {
+        what: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A thread panicked (`what`: "output writer", "frame encoder").
+    #[error("the {what} thread panicked")]
+    Panicked { what: &'static str },
+}
+
+/// `{:#}` of an error as anyhow prints it: its message, then each cause
+/// after ": ".
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let _ = write!(s, ": {c}");
+        cause = c.source();
+    }
+    s
+}
 
 /// Frame buffers in flight between the loop and the PNG encoder.
 const FRAME_POOL: usize = 4;
@@ -354,7 +390,7 @@ pub struct OutputWriter {
     /// as there are buffers, so a send finds room whenever a buffer was free.
     frame_tx: Option<SyncSender<(u64, DisplayFrame)>>,
     pool: Receiver<DisplayFrame>,
-    thread: Option<JoinHandle<anyhow::Result<WriterReport>>>,
+    thread: Option<JoinHandle<WriterReport>>,
     encoder: Option<JoinHandle<FramesReport>>,
     write_frames: bool,
     /// Rows or events dropped because the queue was full.
@@ -374,12 +410,17 @@ impl OutputWriter {
         write_frames: bool,
         stereo: bool,
         events: Option<Arc<EventQueue>>,
-    ) -> anyhow::Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    ) -> Result<Self, LiveError> {
+        let create_dir = |path: &Path| {
+            std::fs::create_dir_all(path).map_err(|source| LiveError::CreateDir {
+                path: path.to_owned(),
+                source,
+            })
+        };
+        create_dir(dir)?;
         let frames_dir = dir.join("frames");
         if write_frames {
-            std::fs::create_dir_all(&frames_dir)
-                .with_context(|| format!("cannot create {}", frames_dir.display()))?;
+            create_dir(&frames_dir)?;
         }
         // The headers are on disk before the session starts; a file that
         // cannot be created is an error now, before anything runs.
@@ -391,10 +432,8 @@ impl OutputWriter {
         let mut psf_csv = RowFile::create(&psf_path, PSF_HEADER);
         psf_csv.flush();
         let mut events = events.map(|queue| {
-            let mut file = RowFile::create(
-                &dir.join("events.csv"),
-                &crate::replay::EVENTS_COLUMNS.join(","),
-            );
+            let mut file =
+                RowFile::create(&dir.join("events.csv"), &crate::EVENTS_COLUMNS.join(","));
             file.flush();
             LiveEvents::new(queue, file)
         });
@@ -407,7 +446,7 @@ impl OutputWriter {
         .flatten()
         {
             if let Some(e) = f.failure() {
-                anyhow::bail!("{e}");
+                return Err(LiveError::CreateFile(e));
             }
         }
         let xr_path = dir.join("xr.csv");
@@ -429,14 +468,15 @@ impl OutputWriter {
                         let mut report = FramesReport::default();
                         for (i, frame) in frame_rx {
                             let p = frames_dir.join(format!("frame_{i:06}.png"));
-                            let r = output::write_png(&p, &frame, output::PngCompression::Fast);
+                            let r = sheet::write_png(&p, &frame, PngCompression::Fast);
                             let _ = pool_tx.try_send(frame);
                             if let Err(e) = r {
                                 // No torn image stays behind; the frames
                                 // stop here, the rest of the run goes on.
                                 let _ = std::fs::remove_file(&p);
                                 let msg = format!(
-                                    "{e:#}; frames/ stops after {} images (the partial {} removed)",
+                                    "{}; frames/ stops after {} images (the partial {} removed)",
+                                    chain(&e),
                                     report.written,
                                     p.display()
                                 );
@@ -448,14 +488,17 @@ impl OutputWriter {
                         }
                         report
                     })
-                    .context("cannot start the frame encoder thread")?,
+                    .map_err(|source| LiveError::Spawn {
+                        what: "frame encoder",
+                        source,
+                    })?,
             )
         } else {
             None
         };
         let thread = std::thread::Builder::new()
             .name("gazelight-writer".into())
-            .spawn(move || -> anyhow::Result<WriterReport> {
+            .spawn(move || -> WriterReport {
                 let mut report = WriterReport::default();
                 // Opened with the first OpenXR row.
                 let mut xr_csv: Option<RowFile> = None;
@@ -570,9 +613,12 @@ impl OutputWriter {
                     .flatten()
                     .filter_map(|f| f.failure()),
                 );
-                Ok(report)
+                report
             })
-            .context("cannot start the writer thread")?;
+            .map_err(|source| LiveError::Spawn {
+                what: "writer",
+                source,
+            })?;
         Ok(Self {
             tx: Some(tx),
             frame_tx: Some(frame_tx),
@@ -646,18 +692,20 @@ impl OutputWriter {
     }
 
     /// Flushes everything and joins the thread.
-    pub fn finish(mut self) -> anyhow::Result<WriterReport> {
+    pub fn finish(mut self) -> Result<WriterReport, LiveError> {
         self.tx = None;
         self.frame_tx = None;
         // Both threads are joined before either's error is returned: the
         // images already queued are written whatever the rows' fate.
         let rows = self.thread.take().map(|t| {
-            t.join()
-                .map_err(|_| anyhow::anyhow!("the output writer thread panicked"))?
+            t.join().map_err(|_| LiveError::Panicked {
+                what: "output writer",
+            })
         });
         let images = self.encoder.take().map(|e| {
-            e.join()
-                .map_err(|_| anyhow::anyhow!("the frame encoder thread panicked"))
+            e.join().map_err(|_| LiveError::Panicked {
+                what: "frame encoder",
+            })
         });
         let mut report = rows.transpose()?.unwrap_or_default();
         if let Some(frames) = images.transpose()? {

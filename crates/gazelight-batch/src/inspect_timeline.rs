@@ -6,14 +6,14 @@
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
+use crate::{Context, Result};
 use serde::Serialize;
 
 /// Longest line read, bytes (a stereo row is a few hundred).
 const MAX_LINE_BYTES: u64 = 64 << 10;
 
 /// Running mean, variance, minimum and maximum (Welford); shared with the
-/// batch summary (`batch/summary.rs`).
+/// batch summary ([`crate::summary`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Stats {
     n: u64,
@@ -76,7 +76,7 @@ pub struct TimelineReader {
 
 impl TimelineReader {
     /// Opens `path` and reads its header.
-    pub fn open(path: &Path) -> anyhow::Result<Self> {
+    pub fn open(path: &Path) -> Result<Self> {
         let file =
             std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
         let mut r = Self {
@@ -93,7 +93,7 @@ impl TimelineReader {
         Ok(r)
     }
 
-    fn read_line(&mut self) -> anyhow::Result<bool> {
+    fn read_line(&mut self) -> Result<bool> {
         self.line.clear();
         self.line_no += 1;
         let no = self.line_no;
@@ -123,7 +123,7 @@ impl TimelineReader {
     }
 
     /// The next row's cells; `None` at the end of the file.
-    pub fn next_row(&mut self) -> anyhow::Result<Option<Vec<&str>>> {
+    pub fn next_row(&mut self) -> Result<Option<Vec<&str>>> {
         if !self.read_line()? {
             return Ok(None);
         }
@@ -190,7 +190,7 @@ pub fn is_timeline(path: &Path) -> bool {
 }
 
 /// Reads the timeline at `path`.
-pub fn summarize(path: &Path) -> anyhow::Result<TimelineSummary> {
+pub fn summarize(path: &Path) -> Result<TimelineSummary> {
     let mut reader = TimelineReader::open(path)?;
     // Per view: (name, pupil column, light column, residual column).
     let mut views = Vec::new();

@@ -19,10 +19,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
-use clap::{CommandFactory, Parser};
-
-use crate::replay::ReplayArgs;
+use crate::{BatchError, Context, ReplayCommand, ReplayInputs, Result};
 
 /// Largest manifest read, bytes (a row is ~100 bytes: ~100 000 rows).
 const MAX_MANIFEST_BYTES: u64 = 16 << 20;
@@ -32,14 +29,6 @@ const MAX_ID_CHARS: usize = 100;
 const RESERVED_IDS: [&str; 1] = ["summary.csv"];
 /// Columns the batch sets itself.
 const FORBIDDEN: [&str; 4] = ["out", "force", "trace", "help"];
-
-/// `gazelight replay`'s arguments, parsed as the subcommand would be.
-#[derive(Parser, Debug)]
-#[command(name = "replay")]
-pub(crate) struct ReplayCli {
-    #[command(flatten)]
-    pub replay: ReplayArgs,
-}
 
 /// Columns that are a row's BIDS entities (for `--bids`), not replay
 /// options.
@@ -72,13 +61,13 @@ pub struct Row {
 
 impl Row {
     /// The parsed replay arguments with `--out out`.
-    pub(crate) fn replay_args(&self, out: &Path) -> anyhow::Result<ReplayArgs> {
+    pub fn replay_args(&self, out: &Path, replay: &dyn ReplayCommand) -> Result<ReplayInputs> {
         let mut argv = vec!["replay".to_owned()];
         argv.extend(self.argv.iter().cloned());
         argv.push(format!("--out={}", out.display()));
-        ReplayCli::try_parse_from(argv)
-            .map(|c| c.replay)
-            .map_err(|e| anyhow::anyhow!("row {}: {}", self.id, first_line(&e.to_string())))
+        replay
+            .parse(&argv)
+            .map_err(|e| err!("row {}: {}", self.id, first_line(&e)))
     }
 
     /// Where `--bids` writes the row: its entities; subject by default the
@@ -114,50 +103,38 @@ impl Row {
         }
         // The inputs' identities (size and modification time): a recording,
         // scene, config or profile rewritten in place runs again.
-        argv.extend(super::state::input_identities(&self.argv));
-        super::state::options_hash(&argv)
+        argv.extend(crate::state::input_identities(&self.argv));
+        crate::state::options_hash(&argv)
     }
 }
 
 /// One cell: where it is and what it holds.
-pub(super) struct Cell {
+pub(crate) struct Cell {
     pub line: usize,
     pub field: String,
     pub value: Value,
 }
 
-pub(super) enum Value {
+pub(crate) enum Value {
     Text(String),
     Bool(bool),
 }
 
-/// What a replay option takes, from clap's own description of `replay`.
-pub(super) struct Flag {
-    long: String,
-    takes_value: bool,
-    path: bool,
-}
-
-pub(super) fn replay_flags() -> Vec<Flag> {
-    ReplayCli::command()
-        .get_arguments()
-        .filter_map(|a| {
-            let long = a.get_long()?.to_owned();
-            let takes_value = a.get_action().takes_values();
-            let path = a
-                .get_value_names()
-                .is_some_and(|n| n.iter().any(|v| v == "FILE" || v == "DIR"));
-            Some(Flag {
-                long,
-                takes_value,
-                path,
-            })
-        })
-        .collect()
+/// What a replay option takes, from clap's own description of `replay`
+/// ([`ReplayCommand::flags`]).
+#[derive(Clone, Debug)]
+pub struct Flag {
+    /// Its long name, without `--`.
+    pub long: String,
+    /// Whether it takes a value (else a switch).
+    pub takes_value: bool,
+    /// Whether its value is a path (`FILE` or `DIR`: taken from the
+    /// manifest's directory when relative).
+    pub path: bool,
 }
 
 /// Reads and checks the manifest at `path`.
-pub fn load(path: &Path) -> anyhow::Result<Vec<Row>> {
+pub fn load(path: &Path, replay: &dyn ReplayCommand) -> Result<Vec<Row>> {
     if path.is_dir() {
         bail!(
             "{}: a directory; give a CSV or TOML manifest, or a BIDS dataset root \
@@ -184,13 +161,13 @@ pub fn load(path: &Path) -> anyhow::Result<Vec<Row>> {
         .extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    let flags = replay_flags();
+    let flags = replay.flags();
     let raw = if toml {
         toml_rows(&text)
     } else {
         csv_rows(&text, &|name| check_field(name, &flags))
     }
-    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    .map_err(|e| err!("{}: {e}", path.display()))?;
     let base = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -202,8 +179,8 @@ pub fn load(path: &Path) -> anyhow::Result<Vec<Row>> {
     // checked in linear time, not 5·10⁹ comparisons).
     let mut seen: HashMap<String, usize> = HashMap::with_capacity(raw.len());
     for (k, (line, cells)) in raw.into_iter().enumerate() {
-        let row = build_row(k, line, cells, &base, &flags)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let row = build_row(k, line, cells, &base, &flags, replay)
+            .map_err(|e| err!("{}: {e}", path.display()))?;
         if let Some(other) = seen.insert(row.id.clone(), row.line) {
             bail!(
                 "{}: line {}: field id: {:?} is already the id of line {other}",
@@ -241,13 +218,14 @@ fn check_field(name: &str, flags: &[Flag]) -> Result<(), String> {
 }
 
 /// One row's cells → its replay arguments, checked.
-pub(super) fn build_row(
+pub(crate) fn build_row(
     index: usize,
     line: usize,
     cells: Vec<Cell>,
     base: &Path,
     flags: &[Flag],
-) -> anyhow::Result<Row> {
+    replay: &dyn ReplayCommand,
+) -> Result<Row> {
     let mut id = None;
     let mut recording = None;
     let mut entities = Entities::default();
@@ -255,7 +233,7 @@ pub(super) fn build_row(
     // Flag name → field as written (to name it in errors).
     let mut fields: BTreeMap<String, (usize, String)> = BTreeMap::new();
     for cell in cells {
-        let at = |msg: String| anyhow::anyhow!("line {}: field {}: {msg}", cell.line, cell.field);
+        let at = |msg: String| err!("line {}: field {}: {msg}", cell.line, cell.field);
         let key = cell.field.trim().replace('_', "-");
         match key.as_str() {
             "id" => {
@@ -301,7 +279,7 @@ pub(super) fn build_row(
             }
             _ => {}
         }
-        check_field(&cell.field, flags).map_err(|e| anyhow::anyhow!("line {}: {e}", cell.line))?;
+        check_field(&cell.field, flags).map_err(|e| err!("line {}: {e}", cell.line))?;
         let Some(flag) = flags.iter().find(|f| f.long == key) else {
             continue; // checked just above
         };
@@ -346,31 +324,20 @@ pub(super) fn build_row(
         entities,
     };
     // clap's parse and replay's own flag checks, with the field named.
-    let named = |msg: String| -> anyhow::Error {
+    let named = |msg: String| -> BatchError {
         let flag = msg
             .split(|c: char| c.is_whitespace() || c == '\'' || c == '=' || c == ':')
             .find_map(|w| w.strip_prefix("--"))
             .map(str::to_owned);
         match flag.and_then(|f| fields.get(&f)) {
-            Some((l, field)) => anyhow::anyhow!("line {l}: field {field}: {msg}"),
-            None => anyhow::anyhow!("line {line}: {msg}"),
+            Some((l, field)) => err!("line {l}: field {field}: {msg}"),
+            None => err!("line {line}: {msg}"),
         }
     };
     let mut argv = vec!["replay".to_owned()];
     argv.extend(row.argv.iter().cloned());
     argv.push("--out=-".to_owned());
-    let args = match ReplayCli::try_parse_from(argv) {
-        Ok(c) => c.replay,
-        Err(e) => {
-            return Err(named(
-                first_line(&e.to_string())
-                    .trim_start_matches("error: ")
-                    .to_owned(),
-            ));
-        }
-    };
-    crate::replay::check_flags(&args).map_err(|e| named(format!("{e:#}")))?;
-    crate::bounds::fps("--fps", args.render.fps).map_err(|e| named(format!("{e:#}")))?;
+    replay.check(&argv).map_err(named)?;
     Ok(row)
 }
 
@@ -397,7 +364,7 @@ fn resolve(base: &Path, path: &str) -> String {
 
 /// An id is a folder name: letters, digits, `.`, `_`, `-`, starting with
 /// a letter or digit.
-pub(super) fn check_id(id: &str) -> Result<String, String> {
+pub(crate) fn check_id(id: &str) -> Result<String, String> {
     let ok = !id.is_empty()
         && id.chars().count() <= MAX_ID_CHARS
         && id.chars().next().is_some_and(|c| c.is_ascii_alphanumeric())
@@ -586,24 +553,27 @@ fn toml_cell(text: &str, k: &str, v: &toml::Spanned<toml::Value>) -> Result<Cell
 /// The `[defaults]` table of a TOML file (`--defaults`, for a BIDS dataset
 /// root) as cells, and the file's directory (relative paths are taken from
 /// it). Its `[[row]]` tables, if any (a TOML manifest's), are not used.
-pub(super) fn load_defaults(path: &Path) -> anyhow::Result<(Vec<Cell>, PathBuf)> {
+pub(crate) fn load_defaults(
+    path: &Path,
+    replay: &dyn ReplayCommand,
+) -> Result<(Vec<Cell>, PathBuf)> {
     let text = gazelight_input::read_to_string(path, MAX_MANIFEST_BYTES)
         .with_context(|| format!("cannot read {}", path.display()))?;
     let m: TomlManifest = toml::from_str(&text).map_err(|e| {
         let at = e
             .span()
             .map(|s| format!("line {}: ", toml_line(&text, s.start)));
-        anyhow::anyhow!(
+        err!(
             "{}: {}{}",
             path.display(),
             at.unwrap_or_default(),
             first_line(e.message())
         )
     })?;
-    let flags = replay_flags();
+    let flags = replay.flags();
     let mut cells = Vec::with_capacity(m.defaults.len());
     for (k, v) in &m.defaults {
-        let c = toml_cell(&text, k, v).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let c = toml_cell(&text, k, v).map_err(|e| err!("{}: {e}", path.display()))?;
         if k == "id" || k == "recording" || ENTITIES.contains(&k.as_str()) {
             bail!(
                 "{}: line {}: field {k}: each recording's own (from its file name), not [defaults]",
@@ -611,8 +581,7 @@ pub(super) fn load_defaults(path: &Path) -> anyhow::Result<(Vec<Cell>, PathBuf)>
                 c.line
             );
         }
-        check_field(k, &flags)
-            .map_err(|e| anyhow::anyhow!("{}: line {}: {e}", path.display(), c.line))?;
+        check_field(k, &flags).map_err(|e| err!("{}: line {}: {e}", path.display(), c.line))?;
         cells.push(c);
     }
     let base = path
@@ -660,6 +629,7 @@ fn toml_rows(text: &str) -> Result<Vec<(usize, Vec<Cell>)>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_replay::Fake;
 
     fn write(name: &str, text: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("gazelight-manifest-{}", std::process::id()));
@@ -670,7 +640,7 @@ mod tests {
     }
 
     fn err(name: &str, text: &str) -> String {
-        format!("{:#}", load(&write(name, text)).unwrap_err())
+        format!("{:#}", load(&write(name, text), &Fake).unwrap_err())
     }
 
     #[test]
@@ -680,7 +650,7 @@ mod tests {
             "# a study\nid,recording,fps,no_frames,size,from-secs\n\
              a,rec/one.asc,20,true,64x48,\n\"b\",/abs/two,,no,\"96x80\",1.5\n",
         );
-        let rows = load(&p).unwrap();
+        let rows = load(&p, &Fake).unwrap();
         let base = std::fs::canonicalize(p.parent().unwrap()).unwrap();
         assert_eq!(rows.len(), 2);
         assert_eq!(rows[0].line, 3);
@@ -707,7 +677,7 @@ mod tests {
             "[defaults]\nfps = 20\nno_frames = true\n\n[[row]]\nrecording = \"x.csv\"\n\n\
              [[row]]\nid = \"late\"\nrecording = \"/y.asc\"\nfps = 10.5\nno_frames = false\n",
         );
-        let rows = load(&p).unwrap();
+        let rows = load(&p, &Fake).unwrap();
         assert_eq!(rows[0].id, "001-x");
         assert_eq!(rows[0].line, 5);
         assert_eq!(&rows[0].argv[1..], ["--fps=20", "--no-frames"]);
@@ -761,7 +731,7 @@ mod tests {
         let e = err("val.toml", "[[row]]\nrecording = \"a\"\n\nsize = \"big\"\n");
         assert!(e.contains("val.toml: line 4: field size:"), "{e}");
         let dir = write("x", "").parent().unwrap().to_path_buf();
-        let e = format!("{:#}", load(&dir).unwrap_err());
+        let e = format!("{:#}", load(&dir, &Fake).unwrap_err());
         assert!(
             e.contains("a directory; give a CSV or TOML manifest"),
             "{e}"
