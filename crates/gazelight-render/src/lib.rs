@@ -43,6 +43,7 @@ pub mod png;
 pub mod pupil_light;
 pub mod timeline;
 pub mod trials;
+pub mod veil_map;
 
 /// What can go wrong in a render step. The messages are the CLI's: it
 /// prints them as they are (`error: {message}`), and the Python package

@@ -16,7 +16,6 @@ use gazelight_tracker::profile::{
     AGE_YEARS_RANGE, DEFAULT_AGE_YEARS, DEFAULT_PIGMENTATION, PIGMENTATION_RANGE,
 };
 use gazelight_tracker::pupil_model::unified_mm;
-use gazelight_vision::image::RgbImage;
 use gazelight_vision::scene::projection::direction_from_angles;
 use gazelight_vision::scene::{LuminanceScale, ProjectionKind, Scene, SceneProjection};
 use gazelight_vision::scene_glare::{GlareOptions, SceneGlare, SourceThreshold};
@@ -149,58 +148,7 @@ pub fn load_scene(
     Ok(scene)
 }
 
-/// Most scene pixels the glare sums keep per pixel (luminance, direction
-/// and solid angle: ~50 bytes each, ~100 per gaze while sources are
-/// grouped): 2²³ (a 4096×2048 panorama) is ~0.4 GB + ~0.8 GB per gaze. A
-/// larger scene (up to the loader's 16384×8192) is binned k×k first
-/// ([`bin_for_glare`]), so `glare` works on any scene `render` loads.
-pub const MAX_GLARE_PIXELS: usize = 1 << 23;
-
-/// The image the glare sums see: `image` itself when it has at most
-/// [`MAX_GLARE_PIXELS`], else its k×k block means (the smallest k that
-/// fits; partial blocks at the right and bottom edges average the pixels
-/// they hold) with the same field. Returns the image, its projection and k.
-pub fn bin_for_glare(
-    image: &RgbImage,
-    projection: SceneProjection,
-) -> (std::borrow::Cow<'_, RgbImage>, SceneProjection, usize) {
-    let (w, h) = (image.width, image.height);
-    let mut k = 1;
-    while w.div_ceil(k) * h.div_ceil(k) > MAX_GLARE_PIXELS {
-        k += 1;
-    }
-    if k == 1 {
-        return (std::borrow::Cow::Borrowed(image), projection, 1);
-    }
-    let (bw, bh) = (w.div_ceil(k), h.div_ceil(k));
-    let mut sum = vec![[0.0f64; 4]; bw * bh];
-    for (y, row) in image.pixels.chunks_exact(w.max(1)).enumerate() {
-        let brow = &mut sum[(y / k) * bw..(y / k + 1) * bw];
-        for (x, p) in row.iter().enumerate() {
-            let b = &mut brow[x / k];
-            b[0] += f64::from(p[0]);
-            b[1] += f64::from(p[1]);
-            b[2] += f64::from(p[2]);
-            b[3] += 1.0;
-        }
-    }
-    let pixels = sum
-        .into_iter()
-        .map(|b| {
-            let n = b[3].max(1.0);
-            [(b[0] / n) as f32, (b[1] / n) as f32, (b[2] / n) as f32]
-        })
-        .collect();
-    let binned = RgbImage {
-        width: bw,
-        height: bh,
-        pixels,
-    };
-    let mut p = projection;
-    p.width_px = bw;
-    p.height_px = bh;
-    (std::borrow::Cow::Owned(binned), p, k)
-}
+pub use gazelight_vision::scene_glare::{MAX_GLARE_PIXELS, bin_for_glare};
 
 /// Runs `gazelight glare`.
 pub fn run(args: GlareArgs) -> anyhow::Result<()> {
@@ -432,39 +380,4 @@ pub fn run(args: GlareArgs) -> anyhow::Result<()> {
 
 fn glam_dir(d: [f64; 3]) -> gazelight_vision::scene::projection::DVec3 {
     gazelight_vision::scene::projection::DVec3::from_array(d)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_scene_over_the_glare_cap_is_binned_to_fit_keeping_its_light() {
-        // Just over 2²³ pixels: binned 2×2 (partial blocks at the edges).
-        let (w, h) = (4097, 2049);
-        let mut image = RgbImage::new(w, h);
-        image.pixels[0] = [4.0, 8.0, 12.0];
-        let total: f64 = image.pixels.iter().map(|p| f64::from(p[1])).sum();
-        let (binned, p, k) = bin_for_glare(&image, SceneProjection::equirectangular(w, h));
-        assert_eq!(k, 2);
-        assert_eq!((binned.width, binned.height), (2049, 1025));
-        assert_eq!((p.width_px, p.height_px), (2049, 1025));
-        assert!(binned.width * binned.height <= MAX_GLARE_PIXELS);
-        // The top-left block holds the bright pixel and three black ones.
-        assert_eq!(binned.pixels[0], [1.0, 2.0, 3.0]);
-        // The last column's blocks hold one column of two pixels each.
-        let binned_total: f64 = binned.pixels.iter().map(|p| f64::from(p[1])).sum();
-        assert!((binned_total * 4.0 - total).abs() < 1e-9, "{binned_total}");
-        // At or under the cap: the image itself.
-        let small = RgbImage::new(4096, 2048);
-        let (same, _, k) = bin_for_glare(&small, SceneProjection::equirectangular(4096, 2048));
-        assert_eq!(k, 1);
-        assert!(matches!(same, std::borrow::Cow::Borrowed(_)));
-        // The loader's largest scene fits after binning.
-        let mut k = 1;
-        while 16384usize.div_ceil(k) * 8192usize.div_ceil(k) > MAX_GLARE_PIXELS {
-            k += 1;
-        }
-        assert_eq!(k, 4);
-    }
 }

@@ -44,14 +44,13 @@ mod run;
 mod service_config;
 mod stereo;
 mod trials;
-mod veil_map;
 mod view_args;
 mod window;
 
 /// The embedded scene and demo trace (shared with the Python package).
 use gazelight_app::{session, shutdown};
 use gazelight_output::out_dir;
-use gazelight_render::demo;
+use gazelight_render::{demo, veil_map};
 // What a live `run` publishes: the hub, the status server, the LSL
 // outlets, the relay.
 use gazelight_status::{hub, lsl_outlets, relay, serve};

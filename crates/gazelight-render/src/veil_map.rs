@@ -16,18 +16,17 @@
 
 use std::path::Path;
 
-use anyhow::Context;
 use gazelight_vision::RgbImage;
 use gazelight_vision::scene::{PanoramaView, Scene, ViewParams};
 use gazelight_vision::scene_glare::{GlareOptions, SceneGlare};
 
 /// The most scene-pixel × sample terms a veil map may cost (about 5 s on
 /// two cores).
-pub(crate) const MAX_TERMS: f64 = 4e8;
+pub const MAX_TERMS: f64 = 4e8;
 
 /// What was written.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct VeilMap {
+pub struct VeilMap {
     /// Map size, samples.
     pub width: usize,
     pub height: usize,
@@ -37,7 +36,7 @@ pub(crate) struct VeilMap {
 
 /// The map's size for a `width × height` view at a step of at least
 /// `block_px`, for a scene of `scene_pixels` pixels in its field.
-pub(crate) fn grid(width: usize, height: usize, block_px: usize, scene_pixels: usize) -> VeilMap {
+pub fn grid(width: usize, height: usize, block_px: usize, scene_pixels: usize) -> VeilMap {
     let mut s = block_px.max(1);
     loop {
         let (mw, mh) = (width.div_ceil(s).max(1), height.div_ceil(s).max(1));
@@ -53,7 +52,7 @@ pub(crate) fn grid(width: usize, height: usize, block_px: usize, scene_pixels: u
 }
 
 /// The view point (continuous view pixels) of map pixel `(i, j)`.
-pub(crate) fn view_point(map: &VeilMap, view: &ViewParams, i: usize, j: usize) -> [f32; 2] {
+pub fn view_point(map: &VeilMap, view: &ViewParams, i: usize, j: usize) -> [f32; 2] {
     [
         ((i as f64 + 0.5) * view.width as f64 / map.width as f64) as f32,
         ((j as f64 + 0.5) * view.height as f64 / map.height as f64) as f32,
@@ -62,21 +61,22 @@ pub(crate) fn view_point(map: &VeilMap, view: &ViewParams, i: usize, j: usize) -
 
 /// Computes the veil map of `scene` seen through `view` for an observer of
 /// `age_years` and `pigmentation` and writes it to `path` (OpenEXR).
-pub(crate) fn write(
+pub fn write(
     path: &Path,
     scene: &Scene,
     view: &ViewParams,
     age_years: f64,
     pigmentation: f64,
     block_px: usize,
-) -> anyhow::Result<VeilMap> {
+) -> Result<VeilMap, crate::RenderError> {
     // A scene above `glare::MAX_GLARE_PIXELS` is binned, as `glare` does.
     let (image, projection, _) =
-        crate::glare::bin_for_glare(&scene.image, scene.effective_projection());
+        gazelight_vision::scene_glare::bin_for_glare(&scene.image, scene.effective_projection());
     let glare = SceneGlare::new(&image, projection);
     drop(image);
     let map = grid(view.width, view.height, block_px, glare.pixels_in_field());
-    let projection = PanoramaView::new(*view).context("veil map view")?;
+    let projection = PanoramaView::new(*view)
+        .map_err(|e| crate::RenderError::Pipeline(format!("veil map view: {e}")))?;
     let gazes: Vec<_> = (0..map.width * map.height)
         .map(|k| {
             let [x, y] = view_point(&map, view, k % map.width, k / map.width);
