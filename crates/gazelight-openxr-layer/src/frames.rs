@@ -52,11 +52,11 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::ffi::{CStr, c_void};
-use std::io::Write;
 use std::path::PathBuf;
 use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use ash::vk::{self as vkt, Handle as _};
+use gazelight_render::rows::RowFile;
 use gazelight_tracker::EyeState;
 use gazelight_tracker::pupil::clock::host_now_secs;
 use gazelight_vision::pipeline::{FrameInput, PipelineConfig};
@@ -149,7 +149,8 @@ struct EyeSlot {
 struct SessionFrames {
     gpu: LayerGpu,
     eyes: [EyeSlot; 2],
-    csv: Option<std::fs::File>,
+    /// `frames.csv` (the one per-frame writer; every row written at once).
+    csv: Option<RowFile>,
     /// Set after a failure: this session's frames pass through.
     off: bool,
     /// The session's VIEW space (made at its first frame; `Err` after a
@@ -619,24 +620,20 @@ unsafe extern "system" fn create_session(
     })
 }
 
-fn open_csv(dir: &std::path::Path) -> Option<std::fs::File> {
-    let path = dir.join("frames.csv");
-    match std::fs::File::create(&path) {
-        Ok(mut file) => {
-            let _ = writeln!(
-                file,
-                "display_time_ns,view,eye,gaze_u,gaze_v,gaze_tracked,pupil_mm,target_cd_m2,adaptation_cd_m2,kernel_pupil_mm,kernel_rebuilt,layer_gpu_ms,eye_state_age_ms"
-            );
-            Some(file)
-        }
-        Err(e) => {
-            log(
-                "warn",
-                &format!("frame effects: cannot write {}: {e}", path.display()),
-            );
-            None
-        }
-    }
+/// `frames.csv`'s columns.
+const FRAMES_HEADER: &str = "display_time_ns,view,eye,gaze_u,gaze_v,gaze_tracked,pupil_mm,target_cd_m2,adaptation_cd_m2,kernel_pupil_mm,kernel_rebuilt,layer_gpu_ms,eye_state_age_ms";
+
+/// A write error of `frames.csv`, in the layer's log (the app goes on).
+fn warn_csv(msg: &str) {
+    log("warn", &format!("frame effects: {msg}"));
+}
+
+/// `DIR/frames.csv`, its header written; `None` (logged) when it cannot be
+/// created.
+fn open_csv(dir: &std::path::Path) -> Option<RowFile> {
+    let mut file = RowFile::create(&dir.join("frames.csv"), FRAMES_HEADER, warn_csv);
+    file.flush();
+    file.failure().is_none().then_some(file)
 }
 
 /// Forwards every held release of `session` (or of all sessions for
@@ -1444,9 +1441,8 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
         if let Some(csv) = s.csv.as_mut() {
             let gpu_ms = p.read_gpu_ms();
             let st = p.pipeline().read_state().ok();
-            let _ = writeln!(
-                csv,
-                "{display_ns},{},{},{:.5},{:.5},{},{:.4},{},{},{:.4},{},{},{}",
+            let row = format!(
+                "{display_ns},{},{},{:.5},{:.5},{},{:.4},{},{},{:.4},{},{},{}\n",
                 d.view,
                 if d.eye == gazelight_tracker::EYE_LEFT {
                     "left"
@@ -1464,6 +1460,10 @@ fn process_views(session: xr::Session, display_ns: i64, jobs: &[ViewJob]) {
                 gpu_ms.map_or(String::new(), |v| format!("{v:.3}")),
                 age_ms.map_or(String::new(), |v| format!("{v:.2}")),
             );
+            // Each row reaches the file at once: an app killed at any
+            // moment keeps every processed view's row.
+            csv.push(&row);
+            csv.flush();
         }
         if let Some(dir) = &config.dump
             && (slot.processed - 1) % config.dump_every == 0

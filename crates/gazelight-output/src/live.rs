@@ -40,7 +40,6 @@
 
 use std::collections::VecDeque;
 use std::fmt::Write as _;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc::{
@@ -49,6 +48,7 @@ use std::sync::mpsc::{
 use std::thread::JoinHandle;
 
 use gazelight_render::frame::View;
+use gazelight_render::rows::RowFile;
 use gazelight_vision::pipeline::DisplayFrame;
 use gazelight_vision::psf::{MonoPsf, PsfParams, REFERENCE_WAVELENGTH_NM, monochromatic_psf};
 
@@ -261,128 +261,6 @@ fn report_write_error(msg: &str) {
     eprintln!("error: --out: {msg}; the run goes on");
 }
 
-/// Size of a [`RowFile`]'s buffer before it writes (it also writes at
-/// every flush).
-const ROW_BUFFER_BYTES: usize = 64 << 10;
-
-/// A CSV file that only ever holds whole rows. Rows are collected in a
-/// buffer and written at each flush; on a write error (a full disk) the
-/// file is cut back to its last complete row (`set_len`), the error is
-/// printed at once, and the file takes no more rows — the run and the other
-/// files go on.
-struct RowFile {
-    path: std::path::PathBuf,
-    file: Option<std::fs::File>,
-    buf: Vec<u8>,
-    /// Bytes and rows on disk, all of them whole rows (the header is not
-    /// a row).
-    bytes_on_disk: u64,
-    rows_on_disk: u64,
-    /// Rows waiting in `buf` (the header is not one).
-    rows_pending: u64,
-    failure: Option<String>,
-}
-
-impl RowFile {
-    /// Creates the file with its header line queued (written at the first
-    /// flush). A failure is kept (see [`Self::failure`]), not returned.
-    fn create(path: &Path, header: &str) -> Self {
-        let mut f = Self {
-            path: path.to_owned(),
-            file: None,
-            buf: Vec::with_capacity(ROW_BUFFER_BYTES),
-            bytes_on_disk: 0,
-            rows_on_disk: 0,
-            rows_pending: 0,
-            failure: None,
-        };
-        match std::fs::File::create(path) {
-            Ok(file) => {
-                f.file = Some(file);
-                f.buf.extend_from_slice(header.as_bytes());
-                f.buf.push(b'\n');
-            }
-            Err(e) => f.fail(&e),
-        }
-        f
-    }
-
-    /// Queues one formatted row (with its newline); writes when the
-    /// buffer is full.
-    fn push(&mut self, row: &str) {
-        if self.file.is_none() {
-            return;
-        }
-        self.buf.extend_from_slice(row.as_bytes());
-        self.rows_pending += 1;
-        if self.buf.len() >= ROW_BUFFER_BYTES {
-            self.flush();
-        }
-    }
-
-    /// Writes the buffered rows. On an error the file is cut back to its
-    /// last complete row and closed.
-    fn flush(&mut self) {
-        let Some(file) = &mut self.file else { return };
-        if self.buf.is_empty() {
-            return;
-        }
-        let mut written = 0usize;
-        while written < self.buf.len() {
-            match file.write(&self.buf[written..]) {
-                Ok(0) => {
-                    let e = std::io::Error::new(std::io::ErrorKind::WriteZero, "wrote 0 bytes");
-                    return self.cut_back(written, &e);
-                }
-                Ok(n) => written += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return self.cut_back(written, &e),
-            }
-        }
-        self.bytes_on_disk += written as u64;
-        self.rows_on_disk += self.rows_pending;
-        self.rows_pending = 0;
-        self.buf.clear();
-    }
-
-    /// After `written` bytes of the buffer reached the file and then
-    /// `error`: keeps the whole rows among them, truncates the rest.
-    fn cut_back(&mut self, written: usize, error: &std::io::Error) {
-        let done = &self.buf[..written];
-        let keep = done.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
-        let mut rows = done[..keep].iter().filter(|&&b| b == b'\n').count() as u64;
-        if self.bytes_on_disk == 0 && keep > 0 {
-            rows -= 1; // the header
-        }
-        self.bytes_on_disk += keep as u64;
-        self.rows_on_disk += rows;
-        if let Some(file) = &self.file
-            && let Err(e) = file.set_len(self.bytes_on_disk)
-        {
-            tracing::warn!(file = %self.path.display(), error = %e, "cannot cut the file back to its last complete row");
-        }
-        self.fail(error);
-    }
-
-    fn fail(&mut self, error: &std::io::Error) {
-        let msg = format!(
-            "cannot write {}: {error}; it stops at its last complete row ({} rows)",
-            self.path.display(),
-            self.rows_on_disk
-        );
-        report_write_error(&msg);
-        self.failure = Some(msg);
-        self.file = None;
-        self.buf = Vec::new();
-        self.rows_pending = 0;
-    }
-
-    /// The error that stopped the file, if any.
-    fn failure(&self) -> Option<String> {
-        self.failure.clone()
-    }
-}
-
 /// The writer thread's handle (owned by the frame loop).
 pub struct OutputWriter {
     tx: Option<SyncSender<Msg>>,
@@ -425,15 +303,21 @@ impl OutputWriter {
         // The headers are on disk before the session starts; a file that
         // cannot be created is an error now, before anything runs.
         let timeline_path = dir.join("timeline.csv");
-        let mut timeline =
-            RowFile::create(&timeline_path, if stereo { STEREO_HEADER } else { HEADER });
+        let mut timeline = RowFile::create(
+            &timeline_path,
+            if stereo { STEREO_HEADER } else { HEADER },
+            report_write_error,
+        );
         timeline.flush();
         let psf_path = dir.join("psf.csv");
-        let mut psf_csv = RowFile::create(&psf_path, PSF_HEADER);
+        let mut psf_csv = RowFile::create(&psf_path, PSF_HEADER, report_write_error);
         psf_csv.flush();
         let mut events = events.map(|queue| {
-            let mut file =
-                RowFile::create(&dir.join("events.csv"), &crate::EVENTS_COLUMNS.join(","));
+            let mut file = RowFile::create(
+                &dir.join("events.csv"),
+                &crate::EVENTS_COLUMNS.join(","),
+                report_write_error,
+            );
             file.flush();
             LiveEvents::new(queue, file)
         });
@@ -446,7 +330,7 @@ impl OutputWriter {
         .flatten()
         {
             if let Some(e) = f.failure() {
-                return Err(LiveError::CreateFile(e));
+                return Err(LiveError::CreateFile(e.to_owned()));
             }
         }
         let xr_path = dir.join("xr.csv");
@@ -573,7 +457,11 @@ impl OutputWriter {
                         Msg::Xr(r) => {
                             let x = match &mut xr_csv {
                                 Some(x) => x,
-                                slot => slot.insert(RowFile::create(&xr_path, XR_HEADER)),
+                                slot => slot.insert(RowFile::create(
+                                    &xr_path,
+                                    XR_HEADER,
+                                    report_write_error,
+                                )),
                             };
                             line.clear();
                             format_xr(&mut line, &r);
@@ -597,10 +485,10 @@ impl OutputWriter {
                 {
                     f.flush();
                 }
-                report.rows = timeline.rows_on_disk;
-                report.psf_rows = psf_csv.rows_on_disk;
+                report.rows = timeline.rows_on_disk();
+                report.psf_rows = psf_csv.rows_on_disk();
                 if let Some(ev) = &events {
-                    report.events = Some(ev.file.rows_on_disk);
+                    report.events = Some(ev.file.rows_on_disk());
                 }
                 report.errors.extend(
                     [
@@ -611,7 +499,7 @@ impl OutputWriter {
                     ]
                     .into_iter()
                     .flatten()
-                    .filter_map(|f| f.failure()),
+                    .filter_map(|f| f.failure().map(str::to_owned)),
                 );
                 report
             })

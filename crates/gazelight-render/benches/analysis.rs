@@ -77,8 +77,12 @@ fn pupil_light(input: &Input) -> PupilLight {
     .unwrap()
 }
 
-fn writer() -> TimelineWriter<std::io::Sink> {
-    TimelineWriter::new(std::io::sink(), &["_left", "_right"], true).unwrap()
+fn writer() -> TimelineWriter {
+    let path = std::env::temp_dir().join(format!(
+        "gazelight-bench-timeline-{}.csv",
+        std::process::id()
+    ));
+    TimelineWriter::create(&path, &["_left", "_right"], true, false).unwrap()
 }
 
 /// The floor: the samples read and filtered at each frame's time.

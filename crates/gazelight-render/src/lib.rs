@@ -41,6 +41,7 @@ pub mod frame;
 pub mod gaze_glare;
 pub mod png;
 pub mod pupil_light;
+pub mod rows;
 pub mod timeline;
 pub mod trials;
 pub mod veil_map;

@@ -101,45 +101,28 @@ impl TimelineRow {
 /// `timeline.csv` written as the frames are made: a row per frame (every
 /// view's [`TIMELINE_COLUMNS`], then, with the pupil light response, every
 /// view's [`PUPIL_LIGHT_COLUMNS`], then, with the glare numbers, every
-/// view's [`GLARE_COLUMNS`]), flushed at least once a second, so a
-/// replay ended by SIGKILL or a crash keeps every row older than a second.
+/// view's [`GLARE_COLUMNS`]), through the one per-frame writer
+/// ([`RowFile`]: whole rows, at least once a second), so a replay ended by
+/// SIGKILL or a crash keeps every row older than a second.
 /// The row is formatted into one reused buffer: no allocation per frame.
-pub struct TimelineWriter<W: std::io::Write> {
-    out: W,
+pub struct TimelineWriter {
+    out: RowFile,
     views: usize,
     pupil_light: bool,
     glare_numbers: bool,
     line: String,
-    last_flush: std::time::Instant,
 }
 
-/// How often the rows reach the file at the latest.
-pub const FLUSH_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+pub use crate::rows::FLUSH_EVERY;
+use crate::rows::RowFile;
 
-impl TimelineWriter<std::io::BufWriter<std::fs::File>> {
-    /// Creates `path` and writes the header: `t_secs`, then each column
-    /// with each view's suffix (`""` mono, `_right`/`_left` stereo).
+impl TimelineWriter {
+    /// Creates `path` with its header: `t_secs`, then each column with
+    /// each view's suffix (`""` mono, `_right`/`_left` stereo); with
+    /// `pupil_light` and `glare_numbers` their columns after. The error
+    /// (the file cannot be created) names the file.
     pub fn create(
         path: &std::path::Path,
-        suffixes: &[&str],
-        pupil_light: bool,
-    ) -> std::io::Result<Self> {
-        let file = std::fs::File::create(path)?;
-        Self::new(std::io::BufWriter::new(file), suffixes, pupil_light)
-    }
-}
-
-impl<W: std::io::Write> TimelineWriter<W> {
-    /// A writer onto `out`, its header written.
-    pub fn new(out: W, suffixes: &[&str], pupil_light: bool) -> std::io::Result<Self> {
-        Self::with_glare_numbers(out, suffixes, pupil_light, false)
-    }
-
-    /// [`Self::new`], and with `glare_numbers` each view's
-    /// [`GLARE_COLUMNS`] last (rows then come through
-    /// [`Self::push_with_glare`]).
-    pub fn with_glare_numbers(
-        mut out: W,
         suffixes: &[&str],
         pupil_light: bool,
         glare_numbers: bool,
@@ -164,17 +147,27 @@ impl<W: std::io::Write> TimelineWriter<W> {
                 }
             }
         }
-        header.push('\n');
-        out.write_all(header.as_bytes())?;
-        out.flush()?;
-        Ok(Self {
+        let mut out = RowFile::create(path, &header, crate::rows::keep_error);
+        // The header reaches the file at once (a reader sees the columns).
+        out.flush();
+        let w = Self {
             out,
             views: suffixes.len(),
             pupil_light,
             glare_numbers,
             line: String::with_capacity(512 * suffixes.len().max(1)),
-            last_flush: std::time::Instant::now(),
-        })
+        };
+        w.checked()?;
+        Ok(w)
+    }
+
+    /// The file's failure as an error (its message names the file and
+    /// the rows it kept).
+    fn checked(&self) -> std::io::Result<()> {
+        match self.out.failure() {
+            Some(f) => Err(std::io::Error::other(f.to_owned())),
+            None => Ok(()),
+        }
     }
 
     /// Writes one frame's rows (one per view, in the header's order); a
@@ -263,18 +256,14 @@ impl<W: std::io::Write> TimelineWriter<W> {
             }
         }
         line.push('\n');
-        self.out.write_all(line.as_bytes())?;
-        if self.last_flush.elapsed() >= FLUSH_EVERY {
-            self.out.flush()?;
-            self.last_flush = std::time::Instant::now();
-        }
-        Ok(())
+        self.out.push(line);
+        self.checked()
     }
 
-    /// Flushes what is left and gives the output back.
-    pub fn finish(mut self) -> std::io::Result<W> {
-        self.out.flush()?;
-        Ok(self.out)
+    /// Writes what is left.
+    pub fn finish(mut self) -> std::io::Result<()> {
+        self.out.flush();
+        self.checked()
     }
 }
 
@@ -334,9 +323,10 @@ mod tests {
     /// where a number is undefined; without them the header is as before.
     #[test]
     fn glare_columns_are_last_and_per_view() {
-        let mut w =
-            TimelineWriter::with_glare_numbers(Vec::new(), &["_left", "_right"], false, true)
-                .unwrap();
+        let dir = std::env::temp_dir().join(format!("gazelight-timeline-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("timeline.csv");
+        let mut w = TimelineWriter::create(&path, &["_left", "_right"], false, true).unwrap();
         let g = GlareNumbers {
             veil_cie146_cd_m2: 1.25,
             dgp: 0.2,
@@ -344,7 +334,8 @@ mod tests {
         };
         w.push_with_glare(&[row(), row()], &[g, GlareNumbers::NONE])
             .unwrap();
-        let text = String::from_utf8(w.finish().unwrap()).unwrap();
+        w.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
         let lines: Vec<&str> = text.lines().collect();
         let header: Vec<&str> = lines[0].split(',').collect();
         let cells: Vec<&str> = lines[1].split(',').collect();
@@ -365,8 +356,10 @@ mod tests {
             cells[cells.len() - 6..],
             ["1.250000e0", "0.20000", "", "", "", ""]
         );
-        let plain = TimelineWriter::new(Vec::new(), &[""], false).unwrap();
-        let text = String::from_utf8(plain.finish().unwrap()).unwrap();
+        let plain = TimelineWriter::create(&path, &[""], false, false).unwrap();
+        plain.finish().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
         assert!(!text.contains("glare_veil"), "{text}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

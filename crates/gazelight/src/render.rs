@@ -475,16 +475,13 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
     // kept for the plot and the summary, ≤ MAX_FRAMES of them).
     let timeline_path = args.out.join("timeline.csv");
     let suffixes: Vec<&str> = views.iter().map(|v| v.suffix()).collect();
-    let mut timeline_out = gazelight_render::timeline::TimelineWriter::with_glare_numbers(
-        std::io::BufWriter::new(
-            std::fs::File::create(&timeline_path)
-                .with_context(|| format!("cannot write {}", timeline_path.display()))?,
-        ),
+    // The one per-frame writer; its errors name the file.
+    let mut timeline_out = gazelight_render::timeline::TimelineWriter::create(
+        &timeline_path,
         &suffixes,
         pupil_light.is_some(),
         args.glare_numbers,
-    )
-    .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+    )?;
     // --glare-numbers: the view is the same every frame, so its pixels are
     // prepared once; each frame asks for each view's gaze.
     let view_glare = if args.glare_numbers {
@@ -533,9 +530,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         if let Some(vg) = &view_glare {
             glare_numbers.extend(frame.inputs.iter().map(|(input, _)| vg.at(input.gaze_uv)));
         }
-        timeline_out
-            .push_with_glare(&frame.rows, &glare_numbers)
-            .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+        timeline_out.push_with_glare(&frame.rows, &glare_numbers)?;
         for (k, row) in frame.rows.iter().enumerate() {
             timeline[k].push(*row);
         }
@@ -611,9 +606,7 @@ pub(crate) fn render_sequence<I: Iterator<Item = Sample>>(
         .zip(&timeline)
         .map(|(v, rows)| (v.suffix(), rows.as_slice()))
         .collect();
-    timeline_out
-        .finish()
-        .with_context(|| format!("cannot write {}", timeline_path.display()))?;
+    timeline_out.finish()?;
     sheet.write(&args.out.join("contact_sheet.png"))?;
     output::write_plot(
         &args.out.join("plot.png"),
