@@ -119,3 +119,55 @@ fn the_check_finds_a_return_a_missing_item_and_a_long_list() {
     let renamed = check(&good, |_: &str| Some("item0 item1 item2".to_owned()));
     assert!(renamed.unwrap_err().contains("entry 4 names `item3`"));
 }
+
+/// Every repository path ARCHITECTURE.md names in backticks
+/// (`crates/…`, `tests/…`, `.ci/…`, `docs/…`) exists: a moved or renamed
+/// file fails here, naming the line (issue 44: the map stays true).
+#[test]
+fn every_path_the_architecture_names_exists() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    let doc = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let missing = named_paths(&doc)
+        .into_iter()
+        .filter(|(_, p)| !root.join(p).exists())
+        .map(|(line, p)| format!("line {line}: {p}"))
+        .collect::<Vec<_>>();
+    assert!(
+        missing.is_empty(),
+        "ARCHITECTURE.md names paths that do not exist:\n{}",
+        missing.join("\n")
+    );
+}
+
+/// `(line number, path)` of each backticked repository path in `doc`
+/// (a glob or a placeholder such as `<name>` is not a path).
+fn named_paths(doc: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    for (i, line) in doc.lines().enumerate() {
+        for (k, part) in line.split('`').enumerate() {
+            let is_code = k % 2 == 1;
+            let rooted = ["crates/", "tests/", ".ci/", "docs/"]
+                .iter()
+                .any(|r| part.starts_with(r));
+            let plain = !part.contains(['*', '<', '>', ' ', '{', '…']);
+            if is_code && rooted && plain {
+                // `path:line` or `path (…)` name the path before them.
+                let path = part.split(':').next().unwrap_or(part);
+                out.push((i + 1, path.trim_end_matches('/').to_owned()));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn named_paths_takes_backticked_repository_paths_only() {
+    let doc = "a `crates/x/src/y.rs` and `crates/x/src/*.rs`, `frames.rs`,\n`docs/a.md:12` b";
+    assert_eq!(
+        named_paths(doc),
+        vec![
+            (1, "crates/x/src/y.rs".to_owned()),
+            (2, "docs/a.md".to_owned())
+        ]
+    );
+}

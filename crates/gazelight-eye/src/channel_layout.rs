@@ -84,7 +84,7 @@ impl ChannelLayout {
             idx("pupil_right_mm"),
             idx("pupil_left_mm"),
         ) {
-            // gazelight's own outlet (crates/gazelight/src/lsl_outlets.rs).
+            // gazelight's own outlet (crates/gazelight-status/src/lsl_outlets.rs).
             return Some(Self {
                 kind: "gazelight-eye",
                 gaze_x: Some(x),

@@ -19,7 +19,7 @@ import gazelight
 from conftest import run_cli
 
 # The timeline columns that do not depend on the machine (the `*_ms`
-# timings do), with the CSV's decimals (crates/gazelight/src/output.rs).
+# timings do), with the CSV's decimals (crates/gazelight-output/src/sheet.rs).
 DECIMALS = {"gaze_u": 5, "gaze_v": 5, "pupil_mm": 4, "pupil_held": 0, "psf_pupil_mm": 4, "psf_rebuilt": 0,
             "acuity_sigma_px": 3}
 RELATIVE = ("target_cd_m2", "adaptation_cd_m2")  # written as {:.6e}

@@ -19,7 +19,7 @@ import gazelight
 from conftest import run_cli
 
 # `timeline.csv` writes the pupil light columns with 4 decimals
-# (crates/gazelight/src/output.rs) and leaves a cell empty where the value
+# (crates/gazelight-output/src/sheet.rs) and leaves a cell empty where the value
 # is not defined (NaN).
 TOL_MM = 0.51e-4 + 1e-9
 
