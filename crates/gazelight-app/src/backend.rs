@@ -180,18 +180,7 @@ pub enum BackendError {
     NoRetinal,
 }
 
-/// An error and its causes as one line, `outer: inner: …` (the CLI's
-/// `{:#}`).
-fn chain(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut msg = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        msg.push_str(": ");
-        msg.push_str(&s.to_string());
-        source = s.source();
-    }
-    msg
-}
+use gazelight_output::error_chain as chain;
 
 /// The GPU side of a [`Renderer`].
 pub struct GpuRenderer {

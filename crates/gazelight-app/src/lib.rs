@@ -32,14 +32,5 @@ pub mod shutdown;
 pub(crate) mod tests {
     /// An error and its sources, `outer: inner: …`, as the CLI prints it
     /// (anyhow's alternate format).
-    pub(crate) fn chain(e: &(dyn std::error::Error + 'static)) -> String {
-        let mut msg = e.to_string();
-        let mut source = e.source();
-        while let Some(s) = source {
-            msg.push_str(": ");
-            msg.push_str(&s.to_string());
-            source = s.source();
-        }
-        msg
-    }
+    pub(crate) use gazelight_output::error_chain as chain;
 }

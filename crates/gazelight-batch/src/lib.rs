@@ -157,16 +157,7 @@ impl<T> Context<T> for std::result::Result<T, std::num::ParseIntError> {
 }
 
 /// `e` and its sources, `outer: inner: …`, as the CLI prints an error.
-pub fn chain(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut msg = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        msg.push_str(": ");
-        msg.push_str(&s.to_string());
-        source = s.source();
-    }
-    msg
-}
+pub use gazelight_output::error_chain as chain;
 
 /// What the batch reads of a row's replay arguments.
 #[derive(Clone, Debug)]

@@ -27,3 +27,17 @@ pub const EVENTS_COLUMNS: [&str; 8] = [
     "trial",
     "frame",
 ];
+
+/// An error and its causes on one line, `outer: inner: …` — how every
+/// front end words an error for the user (the CLI's `error: {err:#}`,
+/// Python's exception text, the batch's row messages).
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut msg = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        msg.push_str(": ");
+        msg.push_str(&c.to_string());
+        cause = c.source();
+    }
+    msg
+}

@@ -82,17 +82,7 @@ pub enum LiveError {
     Panicked { what: &'static str },
 }
 
-/// `{:#}` of an error as anyhow prints it: its message, then each cause
-/// after ": ".
-fn chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut cause = e.source();
-    while let Some(c) = cause {
-        let _ = write!(s, ": {c}");
-        cause = c.source();
-    }
-    s
-}
+use crate::error_chain as chain;
 
 /// Frame buffers in flight between the loop and the PNG encoder.
 const FRAME_POOL: usize = 4;

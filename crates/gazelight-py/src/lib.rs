@@ -43,14 +43,7 @@ pub(crate) fn err(e: impl std::fmt::Display) -> PyErr {
 /// An error and its sources, `outer: inner: …`, as the CLI prints it
 /// (anyhow's alternate format, `error: {err:#}`).
 pub(crate) fn chain_msg(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut msg = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        msg.push_str(": ");
-        msg.push_str(&s.to_string());
-        source = s.source();
-    }
-    msg
+    gazelight_output::error_chain(e)
 }
 
 /// A calibration profile (`gazelight profile schema`), loaded once.

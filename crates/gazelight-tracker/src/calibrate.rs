@@ -33,15 +33,8 @@ use crate::{PupilError, Sample, SampleSource, SourceError};
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrateError {
     /// No Pupil Capture answered within the silence time.
-    #[error(
-        "no tracker at {uri}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?"
-    )]
-    NoTracker {
-        /// The source URI as given.
-        uri: String,
-        #[source]
-        source: PupilError,
-    },
+    #[error(transparent)]
+    NoTracker(#[from] crate::NoTracker),
     /// The stop future resolved (the CLI: a signal): the stimulus is
     /// turned off and no profile is made.
     #[error("{reason}: calibration aborted; no profile written")]
@@ -165,7 +158,7 @@ pub async fn calibrate(
         .client()
         .wait_connected(opts.silence)
         .await
-        .map_err(|source| CalibrateError::NoTracker {
+        .map_err(|source| crate::NoTracker {
             uri: opts.uri.clone(),
             source,
         })?;

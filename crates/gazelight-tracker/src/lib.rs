@@ -67,3 +67,16 @@ pub mod transport {
         SerialFormat, discover, framing, gazepoint, hid, serial, target, usb,
     };
 }
+
+/// No Pupil Capture answered a live routine (`record`, `calibrate`) in
+/// time: the one wording of it.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "no tracker at {uri}: is Pupil Capture (or Pupil Service) running with Pupil Remote enabled?"
+)]
+pub struct NoTracker {
+    /// The source URI as given.
+    pub uri: String,
+    #[source]
+    pub source: PupilError,
+}
