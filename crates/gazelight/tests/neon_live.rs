@@ -16,7 +16,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{Proc, gazelight, shared, tmp};
+use common::{Proc, complete_rows, gazelight, shared, tmp, wait_bounded};
 use gazelight_tracker::Sample;
 
 /// The peer, killed on drop, its HTTP port and its time origin.
@@ -173,26 +173,71 @@ fn run_drives_the_psf_from_neon_pupils() {
     let uri = format!("neon://127.0.0.1:{}", peer.http_port);
     let dir = tmp("neon-run");
     let out_dir = dir.join("out");
-    let run = gazelight(&[
-        "run",
-        "--headless",
-        "--backend",
-        "cpu",
-        "--size",
-        "160x120",
-        "--fps",
-        "30",
-        "--secs",
-        "5",
-        "--source",
-        &uri,
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let child = Command::new(env!("CARGO_BIN_EXE_gazelight"))
+        .args([
+            "run",
+            "--headless",
+            "--backend",
+            "cpu",
+            "--size",
+            "160x120",
+            "--fps",
+            "30",
+            // A cap for a hung run only: the run is ended (SIGINT) once
+            // the events the checks need are on disk (issue 50: a fixed
+            // 5 s run saw no kernel rebuilt under load, the PSF worker
+            // running at idle priority).
+            "--secs",
+            "120",
+            "--source",
+            &uri,
+            "--out",
+            out_dir.to_str().unwrap(),
+        ])
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    // The events: a kernel for a Neon pupil (not the initial 4 mm) in
+    // psf.csv, then 60 live frames after it (both files are flushed at
+    // least every second).
+    let started = std::time::Instant::now();
+    loop {
+        let rebuilt_at = complete_rows(&out_dir.join("psf.csv"))
+            .iter()
+            .find(|r| {
+                r["pupil_mm"]
+                    .parse::<f64>()
+                    .is_ok_and(|p| (p - 4.0).abs() > 0.1)
+            })
+            .and_then(|r| r["t_secs"].parse::<f64>().ok());
+        let live_after = rebuilt_at.map_or(0, |t0| {
+            complete_rows(&out_dir.join("timeline.csv"))
+                .iter()
+                .filter(|r| {
+                    r["source_health"] == "live"
+                        && r["t_secs"].parse::<f64>().is_ok_and(|t| t >= t0)
+                })
+                .count()
+        });
+        if live_after >= 60 {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(110),
+            "no rebuilt kernel and 60 live frames after it (kernel at {rebuilt_at:?} s, {live_after} frames)"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // SAFETY: a plain signal to the child this test spawned.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let run = wait_bounded(child, Duration::from_secs(60));
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "run failed: {stderr}");
-    // The recording's binocular pupil over the stretch the run saw.
-    let want = recorded_pupils(1000);
+    // The recording's binocular pupil (the peer loops it; the run saw as
+    // much of it as the machine let it).
+    let want = recorded_pupils(usize::MAX);
     let binocular: Vec<f32> = want[0]
         .iter()
         .zip(&want[1])

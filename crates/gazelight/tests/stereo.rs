@@ -8,7 +8,9 @@ mod common;
 use std::path::Path;
 use std::time::Duration;
 
-use common::{Csv, gazelight, python_ready, shared_str, spawn_peer_any_port, tmp, wait_bounded};
+use common::{
+    Csv, complete_rows, gazelight, python_ready, shared_str, spawn_peer_any_port, tmp, wait_bounded,
+};
 use gazelight_vision::RgbImage;
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -22,32 +24,6 @@ fn png_size(path: &Path) -> (u32, u32) {
     assert_eq!(&bytes[1..4], b"PNG", "{}", path.display());
     let be = |o: usize| u32::from_be_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
     (be(16), be(20))
-}
-
-/// The complete lines of a CSV being written (a last line without its
-/// newline is not yet a row), as maps from column to text.
-fn complete_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Vec::new();
-    };
-    let complete = match text.rfind('\n') {
-        Some(k) => &text[..k],
-        None => return Vec::new(),
-    };
-    let mut lines = complete.lines();
-    let Some(header) = lines.next() else {
-        return Vec::new();
-    };
-    let names: Vec<&str> = header.split(',').collect();
-    lines
-        .map(|l| {
-            names
-                .iter()
-                .zip(l.split(','))
-                .map(|(n, v)| ((*n).to_owned(), v.to_owned()))
-                .collect()
-        })
-        .collect()
 }
 
 fn success(out: &std::process::Output) -> String {

@@ -374,3 +374,29 @@ impl Csv {
         self.rows.iter().map(|r| r[c].clone()).collect()
     }
 }
+
+/// The complete lines of a CSV being written (a last line without its
+/// newline is not yet a row), as maps from column to text.
+pub fn complete_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Vec::new();
+    };
+    let complete = match text.rfind('\n') {
+        Some(k) => &text[..k],
+        None => return Vec::new(),
+    };
+    let mut lines = complete.lines();
+    let Some(header) = lines.next() else {
+        return Vec::new();
+    };
+    let names: Vec<&str> = header.split(',').collect();
+    lines
+        .map(|l| {
+            names
+                .iter()
+                .zip(l.split(','))
+                .map(|(n, v)| ((*n).to_owned(), v.to_owned()))
+                .collect()
+        })
+        .collect()
+}
